@@ -1,0 +1,29 @@
+//! Coordinator configuration.
+
+use std::path::PathBuf;
+use std::time::Duration;
+
+#[derive(Debug, Clone)]
+pub struct CoordinatorConfig {
+    /// The SQLite job store (created if missing; reopened after a restart).
+    pub store_path: PathBuf,
+    /// Artifact root announced to workers.
+    pub artifact_root: PathBuf,
+    /// How long a lease lives without a heartbeat.
+    pub lease_ttl: Duration,
+    pub heartbeat_interval: Duration,
+    /// Attempts per shard before it is recorded as failed (batches may override).
+    pub max_attempts: u32,
+}
+
+impl CoordinatorConfig {
+    pub fn new(store_path: PathBuf, artifact_root: PathBuf) -> Self {
+        Self {
+            store_path,
+            artifact_root,
+            lease_ttl: Duration::from_secs(15),
+            heartbeat_interval: Duration::from_secs(3),
+            max_attempts: 3,
+        }
+    }
+}

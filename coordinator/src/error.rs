@@ -1,0 +1,26 @@
+//! Coordinator errors, and the one place they become gRPC status codes.
+
+#[derive(Debug, thiserror::Error)]
+pub enum CoordError {
+    #[error("job store: {0}")]
+    Store(#[from] rusqlite::Error),
+    #[error("stored data is not valid JSON: {0}")]
+    Json(#[from] serde_json::Error),
+    #[error("not found: {0}")]
+    NotFound(String),
+    #[error("invalid request: {0}")]
+    InvalidRequest(String),
+    #[error("the job store has stopped")]
+    StoreStopped,
+}
+
+impl From<CoordError> for tonic::Status {
+    fn from(e: CoordError) -> Self {
+        match e {
+            CoordError::NotFound(m) => tonic::Status::not_found(m),
+            CoordError::InvalidRequest(m) => tonic::Status::invalid_argument(m),
+            CoordError::StoreStopped => tonic::Status::unavailable("the coordinator is shutting down"),
+            other => tonic::Status::internal(other.to_string()),
+        }
+    }
+}

@@ -1,0 +1,110 @@
+//! `assay-coordinator`: one per cluster. Accepts batches, plans them into shards, keeps every
+//! state change in its SQLite job store, leases shards to workers by role and capacity, re-queues
+//! what expires, retries what fails a bounded number of times, and builds reports.
+//!
+//! Never links physics, rendering or torch (checked by `tests/forbidden_dependencies.rs`).
+
+pub mod actor;
+pub mod config;
+pub mod error;
+pub mod service;
+pub mod store;
+
+use std::future::Future;
+use std::sync::Arc;
+use std::sync::atomic::AtomicU32;
+use std::time::Duration;
+
+use assay_proto::v1 as pb;
+use tokio::net::TcpListener;
+use tokio::sync::{Notify, broadcast, watch};
+use tokio_stream::wrappers::TcpListenerStream;
+use tracing::{info, warn};
+
+pub use config::CoordinatorConfig;
+pub use error::CoordError;
+
+use crate::actor::StoreHandle;
+use crate::service::{CoordinatorService, Shared, WorkerSessionService, now_ms};
+
+/// Serves both services on `listener` until `shutdown` resolves, then tells every worker goodbye
+/// (their leases stay in the store, so a restarted coordinator picks them up) and returns.
+pub async fn serve(
+    config: CoordinatorConfig,
+    listener: TcpListener,
+    shutdown: impl Future<Output = ()> + Send + 'static,
+) -> Result<(), CoordError> {
+    std::fs::create_dir_all(&config.artifact_root)
+        .map_err(|e| CoordError::InvalidRequest(format!("artifact root {}: {e}", config.artifact_root.display())))?;
+    let store = StoreHandle::spawn(&config.store_path)?;
+    let ttl = config.lease_ttl.as_millis() as i64;
+    let (survived, running) = store
+        .call(move |s| Ok((s.refresh_leases(now_ms(), ttl)?, s.running_batches()?)))
+        .await?;
+    info!(store = %config.store_path.display(), running = running.len(), leases = survived, "job store open");
+
+    let (stop_tx, stop_rx) = watch::channel(false);
+    let (events, _) = broadcast::channel(1024);
+    let shared = Arc::new(Shared {
+        store: store.clone(),
+        config,
+        work: Notify::new(),
+        events,
+        workers_connected: AtomicU32::new(0),
+        shutdown: stop_rx.clone(),
+    });
+
+    // Lease sweeper: expired leases go back to the queue (or fail, out of attempts).
+    let sweeper = {
+        let shared = shared.clone();
+        let mut stop = stop_rx.clone();
+        tokio::spawn(async move {
+            let mut tick = tokio::time::interval(Duration::from_millis(250));
+            loop {
+                tokio::select! {
+                    _ = tick.tick() => {}
+                    _ = stop.changed() => return,
+                }
+                match shared.store.call(|s| s.expire(now_ms(), None)).await {
+                    Ok(changed) => {
+                        if changed.requeued > 0 {
+                            info!(requeued = changed.requeued, "expired leases re-queued");
+                        }
+                        shared.publish(&changed);
+                    }
+                    Err(e) => warn!(error = %e, "lease sweep failed"),
+                }
+            }
+        })
+    };
+
+    let addr = listener.local_addr().ok();
+    info!(addr = ?addr, "coordinator listening");
+    let server = tonic::transport::Server::builder()
+        .http2_keepalive_interval(Some(Duration::from_secs(5)))
+        .http2_keepalive_timeout(Some(Duration::from_secs(10)))
+        .add_service(
+            pb::coordinator_server::CoordinatorServer::new(CoordinatorService { shared: shared.clone() })
+                .max_decoding_message_size(assay_proto::MAX_MESSAGE_BYTES)
+                .max_encoding_message_size(assay_proto::MAX_MESSAGE_BYTES),
+        )
+        .add_service(
+            pb::worker_session_server::WorkerSessionServer::new(WorkerSessionService { shared: shared.clone() })
+                .max_decoding_message_size(assay_proto::MAX_MESSAGE_BYTES)
+                .max_encoding_message_size(assay_proto::MAX_MESSAGE_BYTES),
+        );
+    let mut stop_for_server = stop_rx.clone();
+    let result = server
+        .serve_with_incoming_shutdown(TcpListenerStream::new(listener), async move {
+            let _ = stop_for_server.changed().await;
+        });
+    let trigger = tokio::spawn(async move {
+        shutdown.await;
+        info!("coordinator shutting down");
+        let _ = stop_tx.send(true);
+    });
+    let out = result.await;
+    trigger.abort();
+    let _ = sweeper.await;
+    out.map_err(|e| CoordError::InvalidRequest(format!("server: {e}")))
+}

@@ -1,0 +1,510 @@
+//! The two gRPC services: `Coordinator` for clients and `WorkerSession` for workers.
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::pin::Pin;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU32, Ordering};
+use std::time::Duration;
+
+use assay_core::report::{EpisodeOutcome, TaskInfo};
+use assay_core::spec::{Format, parse_task};
+use assay_core::{SpecError, SpecErrors};
+use assay_proto::v1 as pb;
+use tokio::sync::{Notify, broadcast, mpsc, watch};
+use tokio_stream::Stream;
+use tokio_stream::wrappers::ReceiverStream;
+use tonic::{Request, Response, Status, Streaming};
+use tracing::{debug, info, warn};
+
+use crate::actor::StoreHandle;
+use crate::config::CoordinatorConfig;
+use crate::error::CoordError;
+use crate::store::{BatchCounts, Changed, NewBatch, PlannedTask, batch_state};
+
+pub fn now_ms() -> i64 {
+    std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_millis() as i64).unwrap_or(0)
+}
+
+/// State shared by every request handler.
+pub struct Shared {
+    pub store: StoreHandle,
+    pub config: CoordinatorConfig,
+    /// Woken when shards enter the queue.
+    pub work: Notify,
+    /// Ids of batches whose counts changed.
+    pub events: broadcast::Sender<String>,
+    pub workers_connected: AtomicU32,
+    pub shutdown: watch::Receiver<bool>,
+}
+
+impl Shared {
+    pub fn publish(&self, changed: &Changed) {
+        for b in &changed.batches {
+            let _ = self.events.send(b.clone());
+        }
+        if changed.requeued > 0 {
+            self.work.notify_waiters();
+        }
+    }
+
+    fn ttl_ms(&self) -> i64 {
+        self.config.lease_ttl.as_millis() as i64
+    }
+}
+
+pub const KNOWN_POLICIES: &[&str] = &["oracle"];
+
+/// Checks a policy reference: `oracle` or `oracle:noise=<metres>`.
+pub fn check_policy(name: &str) -> Result<(), String> {
+    let (kind, args) = name.split_once(':').unwrap_or((name, ""));
+    if !KNOWN_POLICIES.contains(&kind) {
+        return Err(format!("unknown policy '{kind}' (known: {})", KNOWN_POLICIES.join(", ")));
+    }
+    for arg in args.split(',').filter(|a| !a.is_empty()) {
+        match arg.split_once('=') {
+            Some(("noise", v)) if v.parse::<f64>().is_ok_and(|x| x.is_finite() && x >= 0.0) => {}
+            _ => return Err(format!("policy '{name}': bad argument '{arg}' (expected noise=<metres>)")),
+        }
+    }
+    Ok(())
+}
+
+fn spec_error_to_pb(e: &SpecError) -> pb::SpecError {
+    pb::SpecError {
+        task_id: e.task.clone().unwrap_or_default(),
+        origin: e.origin.clone(),
+        path: e.path.clone(),
+        reason: e.reason.clone(),
+    }
+}
+
+/// Parses and validates every document; returns the accepted tasks and every problem found.
+pub fn plan_tasks(docs: &[pb::TaskDocument]) -> (Vec<PlannedTask>, Vec<SpecError>) {
+    let mut planned: Vec<PlannedTask> = Vec::new();
+    let mut errors = Vec::new();
+    let mut seen: BTreeMap<String, String> = BTreeMap::new();
+    for doc in docs {
+        let format = match doc.format.as_str() {
+            "yaml" | "yml" => Format::Yaml,
+            "json" => Format::Json,
+            "" => match Format::from_path(&doc.origin) {
+                Some(f) => f,
+                None => {
+                    errors.push(SpecError {
+                        task: None,
+                        origin: doc.origin.clone(),
+                        path: String::new(),
+                        reason: "unknown format: name the file .yaml, .yml or .json".into(),
+                    });
+                    continue;
+                }
+            },
+            other => {
+                errors.push(SpecError {
+                    task: None,
+                    origin: doc.origin.clone(),
+                    path: String::new(),
+                    reason: format!("unknown format '{other}' (yaml or json)"),
+                });
+                continue;
+            }
+        };
+        match parse_task(&doc.content, format, &doc.origin) {
+            Ok(spec) => {
+                if let Some(first) = seen.get(&spec.id) {
+                    errors.push(SpecError {
+                        task: Some(spec.id.clone()),
+                        origin: doc.origin.clone(),
+                        path: "id".into(),
+                        reason: format!("duplicate task id '{}': already used by {first}", spec.id),
+                    });
+                    continue;
+                }
+                seen.insert(spec.id.clone(), doc.origin.clone());
+                planned.push(PlannedTask {
+                    info: TaskInfo {
+                        id: spec.id.clone(),
+                        name: spec.name.clone(),
+                        group: spec.group.clone(),
+                        pipeline: spec.source.pipeline.clone(),
+                        origin: doc.origin.clone(),
+                        spec_hash: spec.spec_hash(),
+                    },
+                    spec_json: spec.canonical_json(),
+                });
+            }
+            Err(SpecErrors(es)) => errors.extend(es),
+        }
+    }
+    (planned, errors)
+}
+
+fn counts_to_pb(c: &BatchCounts, workers: u32) -> pb::BatchStatus {
+    let state = match c.state.as_str() {
+        batch_state::RUNNING => pb::BatchState::Running,
+        batch_state::COMPLETED => pb::BatchState::Completed,
+        batch_state::CANCELLED => pb::BatchState::Cancelled,
+        _ => pb::BatchState::Unspecified,
+    };
+    pb::BatchStatus {
+        batch_id: c.id.clone(),
+        name: c.name.clone(),
+        state: state as i32,
+        shards_total: c.total,
+        shards_queued: c.queued,
+        shards_running: c.leased,
+        shards_done: c.done,
+        shards_failed: c.failed,
+        shards_cancelled: c.cancelled,
+        successes: c.successes,
+        invalid_tasks: c.invalid_tasks,
+        submitted_at_unix_ms: c.submitted_ms,
+        finished_at_unix_ms: c.finished_ms.unwrap_or(0),
+        workers_connected: workers,
+    }
+}
+
+pub struct CoordinatorService {
+    pub shared: Arc<Shared>,
+}
+
+type StatusStream = Pin<Box<dyn Stream<Item = Result<pb::BatchStatus, Status>> + Send>>;
+type SessionStream = Pin<Box<dyn Stream<Item = Result<pb::CoordinatorMessage, Status>> + Send>>;
+
+impl CoordinatorService {
+    async fn status(&self, id: String) -> Result<pb::BatchStatus, Status> {
+        let c = self.shared.store.call(move |s| s.counts(&id)).await?;
+        Ok(counts_to_pb(&c, self.shared.workers_connected.load(Ordering::Relaxed)))
+    }
+}
+
+#[tonic::async_trait]
+impl pb::coordinator_server::Coordinator for CoordinatorService {
+    async fn submit_batch(&self, req: Request<pb::SubmitBatchRequest>) -> Result<Response<pb::SubmitBatchResponse>, Status> {
+        let req = req.into_inner();
+        if req.tasks.is_empty() {
+            return Err(Status::invalid_argument("the batch has no task documents"));
+        }
+        if req.seeds.is_empty() {
+            return Err(Status::invalid_argument("the batch has no seeds"));
+        }
+        let mut seeds = req.seeds.clone();
+        seeds.sort_unstable();
+        seeds.dedup();
+        let mut policies: Vec<String> = req.policies.iter().map(|p| p.name.clone()).collect();
+        if policies.is_empty() {
+            policies.push("oracle".into());
+        }
+        for p in &policies {
+            check_policy(p).map_err(Status::invalid_argument)?;
+        }
+        let (tasks, invalid) = plan_tasks(&req.tasks);
+        let batch = NewBatch {
+            name: if req.name.is_empty() { "batch".into() } else { req.name.clone() },
+            tasks,
+            policies,
+            seeds,
+            max_attempts: if req.max_attempts == 0 { self.shared.config.max_attempts } else { req.max_attempts },
+            invalid: invalid.clone(),
+            role: pb::Role::Sim.name().into(),
+        };
+        let accepted = batch.tasks.len() as u32;
+        let now = now_ms();
+        let (batch_id, shards) = self
+            .shared
+            .store
+            .call(move |s| {
+                let (id, n) = s.submit(&batch, now)?;
+                if n == 0 {
+                    s.finish_if_empty(&id, now)?;
+                }
+                Ok((id, n))
+            })
+            .await?;
+        info!(batch = %batch_id, accepted, rejected = invalid.len(), shards, "batch submitted");
+        for e in &invalid {
+            warn!(batch = %batch_id, "{e}");
+        }
+        self.shared.work.notify_waiters();
+        let _ = self.shared.events.send(batch_id.clone());
+        Ok(Response::new(pb::SubmitBatchResponse {
+            batch_id,
+            accepted_tasks: accepted,
+            shards,
+            rejected: invalid.iter().map(spec_error_to_pb).collect(),
+        }))
+    }
+
+    async fn get_batch(&self, req: Request<pb::GetBatchRequest>) -> Result<Response<pb::BatchStatus>, Status> {
+        Ok(Response::new(self.status(req.into_inner().batch_id).await?))
+    }
+
+    async fn list_batches(&self, _req: Request<pb::ListBatchesRequest>) -> Result<Response<pb::ListBatchesResponse>, Status> {
+        let ids = self.shared.store.call(|s| s.batch_ids()).await?;
+        let mut batches = Vec::new();
+        for id in ids {
+            batches.push(self.status(id).await?);
+        }
+        Ok(Response::new(pb::ListBatchesResponse { batches }))
+    }
+
+    type WatchBatchStream = StatusStream;
+
+    async fn watch_batch(&self, req: Request<pb::GetBatchRequest>) -> Result<Response<Self::WatchBatchStream>, Status> {
+        let id = req.into_inner().batch_id;
+        let first = self.status(id.clone()).await?;
+        let shared = self.shared.clone();
+        let (tx, rx) = mpsc::channel(16);
+        tokio::spawn(async move {
+            let mut events = shared.events.subscribe();
+            let mut last = first;
+            if tx.send(Ok(last.clone())).await.is_err() {
+                return;
+            }
+            let svc = CoordinatorService { shared: shared.clone() };
+            loop {
+                if pb::BatchState::try_from(last.state).is_ok_and(pb::BatchState::is_final) {
+                    return;
+                }
+                // Wake on a change of this batch, or every second (worker counts, lost events).
+                let _ = tokio::time::timeout(Duration::from_secs(1), async {
+                    loop {
+                        match events.recv().await {
+                            Ok(b) if b == id => return,
+                            Ok(_) => {}
+                            Err(broadcast::error::RecvError::Lagged(_)) => return,
+                            Err(broadcast::error::RecvError::Closed) => return,
+                        }
+                    }
+                })
+                .await;
+                let next = match svc.status(id.clone()).await {
+                    Ok(s) => s,
+                    Err(e) => {
+                        let _ = tx.send(Err(e)).await;
+                        return;
+                    }
+                };
+                if next != last {
+                    if tx.send(Ok(next.clone())).await.is_err() {
+                        return;
+                    }
+                    last = next;
+                }
+            }
+        });
+        Ok(Response::new(Box::pin(ReceiverStream::new(rx))))
+    }
+
+    async fn cancel_batch(&self, req: Request<pb::GetBatchRequest>) -> Result<Response<pb::BatchStatus>, Status> {
+        let id = req.into_inner().batch_id;
+        let now = now_ms();
+        let id2 = id.clone();
+        let changed = self.shared.store.call(move |s| s.cancel(&id2, now)).await?;
+        self.shared.publish(&changed);
+        info!(batch = %id, "batch cancelled");
+        Ok(Response::new(self.status(id).await?))
+    }
+
+    async fn get_report(&self, req: Request<pb::GetReportRequest>) -> Result<Response<pb::GetReportResponse>, Status> {
+        let id = req.into_inner().batch_id;
+        let report = self.shared.store.call(move |s| s.report(&id)).await?;
+        let final_ = report.run.state != batch_state::RUNNING;
+        Ok(Response::new(pb::GetReportResponse {
+            report_json: serde_json::to_string_pretty(&report).map_err(CoordError::from)?,
+            report_markdown: report.to_markdown(),
+            r#final: final_,
+        }))
+    }
+}
+
+pub struct WorkerSessionService {
+    pub shared: Arc<Shared>,
+}
+
+#[tonic::async_trait]
+impl pb::worker_session_server::WorkerSession for WorkerSessionService {
+    type SessionStream = SessionStream;
+
+    async fn session(&self, req: Request<Streaming<pb::WorkerMessage>>) -> Result<Response<Self::SessionStream>, Status> {
+        let mut inbound = req.into_inner();
+        let register = match inbound.message().await? {
+            Some(pb::WorkerMessage { msg: Some(pb::worker_message::Msg::Register(r)) }) => r,
+            _ => return Err(Status::invalid_argument("a session starts with Register")),
+        };
+        if register.worker_id.is_empty() || register.capacity == 0 {
+            return Err(Status::invalid_argument("Register needs a worker_id and a capacity of at least 1"));
+        }
+        let roles: Vec<String> = register
+            .roles
+            .iter()
+            .filter_map(|r| pb::Role::try_from(*r).ok())
+            .filter(|r| *r != pb::Role::Unspecified)
+            .map(|r| r.name().to_owned())
+            .collect();
+        let (tx, rx) = mpsc::channel(64);
+        let shared = self.shared.clone();
+        tokio::spawn(async move {
+            let worker = register.worker_id.clone();
+            shared.workers_connected.fetch_add(1, Ordering::Relaxed);
+            let result = run_session(&shared, register, roles, inbound, &tx).await;
+            if let Err((e, _)) = &result {
+                warn!(%worker, error = %e, "session failed");
+            }
+            shared.workers_connected.fetch_sub(1, Ordering::Relaxed);
+            match result {
+                Ok(SessionEnd::Shutdown) => debug!(%worker, "session closed for shutdown"),
+                Ok(SessionEnd::Disconnected(held)) | Err((_, held)) => {
+                    info!(%worker, leases = held.len(), "worker disconnected");
+                    let ids: Vec<u64> = held.into_iter().collect();
+                    if !ids.is_empty() {
+                        let w = worker.clone();
+                        match shared.store.call(move |s| s.expire(now_ms(), Some((&w, &ids)))).await {
+                            Ok(changed) => shared.publish(&changed),
+                            Err(e) => warn!(%worker, error = %e, "could not re-queue the leases of a lost worker"),
+                        }
+                    }
+                }
+            }
+        });
+        Ok(Response::new(Box::pin(ReceiverStream::new(rx))))
+    }
+}
+
+enum SessionEnd {
+    Shutdown,
+    /// The stream ended; these leases were still held.
+    Disconnected(BTreeSet<u64>),
+}
+
+type Outbound = mpsc::Sender<Result<pb::CoordinatorMessage, Status>>;
+
+fn msg(m: pb::coordinator_message::Msg) -> Result<pb::CoordinatorMessage, Status> {
+    Ok(pb::CoordinatorMessage { msg: Some(m) })
+}
+
+async fn run_session(
+    shared: &Arc<Shared>,
+    register: pb::Register,
+    roles: Vec<String>,
+    mut inbound: Streaming<pb::WorkerMessage>,
+    tx: &Outbound,
+) -> Result<SessionEnd, (Status, BTreeSet<u64>)> {
+    use pb::coordinator_message::Msg as Out;
+    use pb::worker_message::Msg as In;
+
+    let worker = register.worker_id.clone();
+    let capacity = register.capacity as usize;
+    let mut held: BTreeSet<u64> = BTreeSet::new();
+    let fail = |e: CoordError, held: &BTreeSet<u64>| (Status::from(e), held.clone());
+
+    let (w, ids) = (worker.clone(), register.held_leases.clone());
+    let kept = shared.store.call(move |s| s.held_by(&w, &ids)).await.map_err(|e| fail(e, &held))?;
+    held.extend(kept.iter().copied());
+    info!(%worker, node = %register.node_id, roles = ?roles, capacity, kept = kept.len(), "worker registered");
+    let registered = pb::Registered {
+        session_id: format!("{worker}@{}", now_ms()),
+        heartbeat_interval_ms: shared.config.heartbeat_interval.as_millis() as u32,
+        lease_ttl_ms: shared.config.lease_ttl.as_millis() as u32,
+        artifact_root: shared.config.artifact_root.display().to_string(),
+        kept_leases: kept,
+    };
+    if tx.send(msg(Out::Registered(registered))).await.is_err() {
+        return Ok(SessionEnd::Disconnected(held));
+    }
+    let mut shutdown = shared.shutdown.clone();
+    loop {
+        if held.len() < capacity && !*shutdown.borrow() {
+            let (w, r, n, ttl) = (worker.clone(), roles.clone(), (capacity - held.len()) as u32, shared.ttl_ms());
+            let leases = shared.store.call(move |s| s.lease(&w, &r, n, now_ms(), ttl)).await.map_err(|e| fail(e, &held))?;
+            let mut batches = BTreeSet::new();
+            for l in leases {
+                held.insert(l.lease_id);
+                batches.insert(l.batch_id.clone());
+                let a = pb::Assignment {
+                    lease_id: l.lease_id,
+                    shard_id: l.shard_id,
+                    batch_id: l.batch_id,
+                    role: pb::Role::parse(&l.role).unwrap_or(pb::Role::Unspecified) as i32,
+                    task_spec_json: l.task_spec_json,
+                    seed: l.seed,
+                    policy: Some(pb::PolicyRef { name: l.policy }),
+                    attempt: l.attempt,
+                };
+                if tx.send(msg(Out::Assignment(a))).await.is_err() {
+                    return Ok(SessionEnd::Disconnected(held));
+                }
+            }
+            shared.publish(&Changed { batches: batches.into_iter().collect(), requeued: 0 });
+        }
+        let work = shared.work.notified();
+        tokio::select! {
+            m = inbound.message() => {
+                let m = match m {
+                    Ok(Some(m)) => m,
+                    Ok(None) => return Ok(SessionEnd::Disconnected(held)),
+                    Err(e) => return Err((e, held)),
+                };
+                match m.msg {
+                    Some(In::Heartbeat(hb)) => {
+                        let (w, ttl, ids) = (worker.clone(), shared.ttl_ms(), hb.lease_ids.clone());
+                        let kept = shared.store.call(move |s| s.heartbeat(&w, &ids, now_ms(), ttl)).await.map_err(|e| fail(e, &held))?;
+                        // Leases the store no longer grants to this worker no longer take its capacity.
+                        for id in hb.lease_ids.iter().filter(|id| !kept.contains(id)) {
+                            held.remove(id);
+                        }
+                    }
+                    Some(In::Result(r)) => {
+                        held.remove(&r.lease_id);
+                        let outcome: EpisodeOutcome = match serde_json::from_str(&r.outcome_json) {
+                            Ok(o) => o,
+                            Err(e) => {
+                                let err = format!("worker sent an unreadable outcome: {e}");
+                                let changed = shared.store.call(move |s| s.fail(r.lease_id, r.shard_id, &err, true, now_ms())).await.map_err(|e| fail(e, &held))?;
+                                shared.publish(&changed);
+                                continue;
+                            }
+                        };
+                        let w = worker.clone();
+                        let (accepted, changed) = shared
+                            .store
+                            .call(move |s| s.complete(&w, r.lease_id, r.shard_id, &outcome, r.wall_time_s, now_ms()))
+                            .await
+                            .map_err(|e| fail(e, &held))?;
+                        if !accepted {
+                            debug!(%worker, lease = r.lease_id, "late result not counted");
+                        }
+                        shared.publish(&changed);
+                        if tx.send(msg(Out::Ack(pb::ResultAck { lease_id: r.lease_id, accepted }))).await.is_err() {
+                            return Ok(SessionEnd::Disconnected(held));
+                        }
+                    }
+                    Some(In::Failure(f)) => {
+                        held.remove(&f.lease_id);
+                        warn!(%worker, shard = f.shard_id, retryable = f.retryable, error = %f.error, "shard failed");
+                        let changed = shared.store.call(move |s| s.fail(f.lease_id, f.shard_id, &f.error, f.retryable, now_ms())).await.map_err(|e| fail(e, &held))?;
+                        shared.publish(&changed);
+                    }
+                    Some(In::ReturnLeases(r)) => {
+                        for id in &r.lease_ids {
+                            held.remove(id);
+                        }
+                        info!(%worker, leases = r.lease_ids.len(), reason = %r.reason, "leases handed back");
+                        let w = worker.clone();
+                        let changed = shared.store.call(move |s| s.return_leases(&w, &r.lease_ids)).await.map_err(|e| fail(e, &held))?;
+                        shared.publish(&changed);
+                    }
+                    Some(In::Register(_)) | None => {
+                        return Err((Status::invalid_argument("unexpected message in session"), held));
+                    }
+                }
+            }
+            _ = work => {}
+            _ = tokio::time::sleep(Duration::from_millis(500)) => {}
+            _ = shutdown.changed() => {
+                let _ = tx.send(msg(Out::Goodbye(pb::Goodbye { reason: "coordinator shutting down".into() }))).await;
+                return Ok(SessionEnd::Shutdown);
+            }
+        }
+    }
+}

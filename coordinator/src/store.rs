@@ -1,0 +1,785 @@
+//! The job store: batches, tasks and shards in one SQLite file.
+//!
+//! Every state change of a shard is one SQL statement guarded by its current state and lease id,
+//! so a late or duplicate message can never count a shard twice. Time is passed in (`now_ms`), so
+//! lease logic is tested without sleeping.
+
+use std::path::Path;
+
+use assay_core::SpecError;
+use assay_core::report::{self, EpisodeOutcome, Report, RunInfo, ShardRecord, TaskInfo};
+use rusqlite::{Connection, OptionalExtension, params};
+
+use crate::error::CoordError;
+
+/// States a shard moves through: queued → leased → done | failed | cancelled; an expired or
+/// returned lease goes back to queued.
+pub mod shard_state {
+    pub const QUEUED: &str = "queued";
+    pub const LEASED: &str = "leased";
+    pub const DONE: &str = "done";
+    pub const FAILED: &str = "failed";
+    pub const CANCELLED: &str = "cancelled";
+}
+use shard_state::*;
+
+pub mod batch_state {
+    pub const RUNNING: &str = "running";
+    pub const COMPLETED: &str = "completed";
+    pub const CANCELLED: &str = "cancelled";
+}
+
+const SCHEMA: &str = r#"
+PRAGMA journal_mode = WAL;
+PRAGMA synchronous = NORMAL;
+CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value INTEGER NOT NULL);
+CREATE TABLE IF NOT EXISTS batches (
+    id TEXT PRIMARY KEY,
+    seq INTEGER NOT NULL,
+    name TEXT NOT NULL,
+    state TEXT NOT NULL,
+    policies_json TEXT NOT NULL,
+    seeds_json TEXT NOT NULL,
+    max_attempts INTEGER NOT NULL,
+    invalid_json TEXT NOT NULL,
+    submitted_ms INTEGER NOT NULL,
+    finished_ms INTEGER
+);
+CREATE TABLE IF NOT EXISTS tasks (
+    batch_id TEXT NOT NULL,
+    task_id TEXT NOT NULL,
+    name TEXT NOT NULL,
+    grp TEXT NOT NULL,
+    pipeline TEXT NOT NULL,
+    origin TEXT NOT NULL,
+    spec_hash TEXT NOT NULL,
+    spec_json TEXT NOT NULL,
+    PRIMARY KEY (batch_id, task_id)
+);
+CREATE TABLE IF NOT EXISTS shards (
+    id INTEGER PRIMARY KEY AUTOINCREMENT,
+    batch_id TEXT NOT NULL,
+    task_id TEXT NOT NULL,
+    seed INTEGER NOT NULL,
+    policy TEXT NOT NULL,
+    role TEXT NOT NULL,
+    state TEXT NOT NULL,
+    attempts INTEGER NOT NULL DEFAULT 0,
+    lease_id INTEGER,
+    lease_worker TEXT,
+    lease_expires_ms INTEGER,
+    outcome_json TEXT,
+    error TEXT,
+    wall_time_s REAL,
+    worker TEXT
+);
+CREATE INDEX IF NOT EXISTS shards_by_state ON shards (state, role, id);
+CREATE INDEX IF NOT EXISTS shards_by_batch ON shards (batch_id, state);
+CREATE UNIQUE INDEX IF NOT EXISTS shards_by_lease ON shards (lease_id);
+"#;
+
+/// A task accepted by the planner.
+#[derive(Debug, Clone)]
+pub struct PlannedTask {
+    pub info: TaskInfo,
+    pub spec_json: String,
+}
+
+/// A batch ready to be stored.
+#[derive(Debug, Clone)]
+pub struct NewBatch {
+    pub name: String,
+    pub tasks: Vec<PlannedTask>,
+    pub policies: Vec<String>,
+    pub seeds: Vec<u64>,
+    pub max_attempts: u32,
+    pub invalid: Vec<SpecError>,
+    pub role: String,
+}
+
+/// A shard handed to a worker.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Lease {
+    pub lease_id: u64,
+    pub shard_id: u64,
+    pub batch_id: String,
+    pub task_spec_json: String,
+    pub seed: u64,
+    pub policy: String,
+    pub role: String,
+    pub attempt: u32,
+}
+
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct BatchCounts {
+    pub id: String,
+    pub name: String,
+    pub state: String,
+    pub total: u32,
+    pub queued: u32,
+    pub leased: u32,
+    pub done: u32,
+    pub failed: u32,
+    pub cancelled: u32,
+    pub successes: u32,
+    pub invalid_tasks: u32,
+    pub submitted_ms: i64,
+    pub finished_ms: Option<i64>,
+}
+
+/// What a state change did, so the caller knows whom to wake.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Changed {
+    /// Batches whose counts changed.
+    pub batches: Vec<String>,
+    /// Shards that went back to the queue.
+    pub requeued: u32,
+}
+
+pub struct Store {
+    conn: Connection,
+}
+
+impl Store {
+    pub fn open(path: &Path) -> Result<Self, CoordError> {
+        let conn = Connection::open(path)?;
+        conn.busy_timeout(std::time::Duration::from_secs(5))?;
+        conn.execute_batch(SCHEMA)?;
+        Ok(Self { conn })
+    }
+
+    pub fn open_in_memory() -> Result<Self, CoordError> {
+        let conn = Connection::open_in_memory()?;
+        conn.execute_batch(SCHEMA)?;
+        Ok(Self { conn })
+    }
+
+    fn next_counter(tx: &rusqlite::Transaction<'_>, key: &str, n: u64) -> Result<u64, CoordError> {
+        let cur: Option<i64> = tx.query_row("SELECT value FROM meta WHERE key = ?1", [key], |r| r.get(0)).optional()?;
+        let first = cur.unwrap_or(1) as u64;
+        tx.execute(
+            "INSERT INTO meta (key, value) VALUES (?1, ?2) ON CONFLICT(key) DO UPDATE SET value = excluded.value",
+            params![key, (first + n) as i64],
+        )?;
+        Ok(first)
+    }
+
+    /// Stores a batch and plans its shards: seed-major (every task's first seed runs before any
+    /// task's second), then policy, then task in submission order.
+    pub fn submit(&mut self, batch: &NewBatch, now_ms: i64) -> Result<(String, u32), CoordError> {
+        let tx = self.conn.transaction()?;
+        let seq = Self::next_counter(&tx, "batch_seq", 1)?;
+        let id = format!("b{seq:05}-{:x}", now_ms & 0xff_ffff);
+        tx.execute(
+            "INSERT INTO batches (id, seq, name, state, policies_json, seeds_json, max_attempts, invalid_json, submitted_ms)
+             VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9)",
+            params![
+                id,
+                seq as i64,
+                batch.name,
+                batch_state::RUNNING,
+                serde_json::to_string(&batch.policies)?,
+                serde_json::to_string(&batch.seeds)?,
+                batch.max_attempts,
+                serde_json::to_string(&batch.invalid)?,
+                now_ms
+            ],
+        )?;
+        for t in &batch.tasks {
+            tx.execute(
+                "INSERT INTO tasks (batch_id, task_id, name, grp, pipeline, origin, spec_hash, spec_json)
+                 VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8)",
+                params![id, t.info.id, t.info.name, t.info.group, t.info.pipeline, t.info.origin, t.info.spec_hash, t.spec_json],
+            )?;
+        }
+        let mut n = 0u32;
+        {
+            let mut ins = tx.prepare(
+                "INSERT INTO shards (batch_id, task_id, seed, policy, role, state) VALUES (?1, ?2, ?3, ?4, ?5, ?6)",
+            )?;
+            for seed in &batch.seeds {
+                for policy in &batch.policies {
+                    for t in &batch.tasks {
+                        ins.execute(params![id, t.info.id, *seed as i64, policy, batch.role, QUEUED])?;
+                        n += 1;
+                    }
+                }
+            }
+        }
+        tx.commit()?;
+        Ok((id, n))
+    }
+
+    /// Leases up to `n` queued shards of running batches for one of `roles`.
+    pub fn lease(
+        &mut self,
+        worker: &str,
+        roles: &[String],
+        n: u32,
+        now_ms: i64,
+        ttl_ms: i64,
+    ) -> Result<Vec<Lease>, CoordError> {
+        if n == 0 || roles.is_empty() {
+            return Ok(Vec::new());
+        }
+        let tx = self.conn.transaction()?;
+        let placeholders = roles.iter().map(|_| "?").collect::<Vec<_>>().join(",");
+        let sql = format!(
+            "SELECT s.id, s.batch_id, s.task_id, s.seed, s.policy, s.role, s.attempts, t.spec_json
+             FROM shards s JOIN tasks t ON t.batch_id = s.batch_id AND t.task_id = s.task_id
+             WHERE s.state = 'queued' AND s.role IN ({placeholders})
+             ORDER BY s.id LIMIT {n}"
+        );
+        let rows: Vec<(i64, String, String, i64, String, String, u32, String)> = {
+            let mut stmt = tx.prepare(&sql)?;
+            let it = stmt.query_map(rusqlite::params_from_iter(roles.iter()), |r| {
+                Ok((r.get(0)?, r.get(1)?, r.get(2)?, r.get(3)?, r.get(4)?, r.get(5)?, r.get(6)?, r.get(7)?))
+            })?;
+            it.collect::<Result<_, _>>()?
+        };
+        let first = Self::next_counter(&tx, "lease_seq", rows.len() as u64)?;
+        let mut out = Vec::with_capacity(rows.len());
+        for (k, (shard_id, batch_id, _task, seed, policy, role, attempts, spec)) in rows.into_iter().enumerate() {
+            let lease_id = first + k as u64;
+            tx.execute(
+                "UPDATE shards SET state = 'leased', attempts = attempts + 1, lease_id = ?1, lease_worker = ?2,
+                 lease_expires_ms = ?3 WHERE id = ?4 AND state = 'queued'",
+                params![lease_id as i64, worker, now_ms + ttl_ms, shard_id],
+            )?;
+            out.push(Lease {
+                lease_id,
+                shard_id: shard_id as u64,
+                batch_id,
+                task_spec_json: spec,
+                seed: seed as u64,
+                policy,
+                role,
+                attempt: attempts + 1,
+            });
+        }
+        tx.commit()?;
+        Ok(out)
+    }
+
+    /// Extends the leases `worker` still holds; returns the ids that are still valid.
+    pub fn heartbeat(&mut self, worker: &str, lease_ids: &[u64], now_ms: i64, ttl_ms: i64) -> Result<Vec<u64>, CoordError> {
+        let tx = self.conn.transaction()?;
+        let mut kept = Vec::new();
+        for id in lease_ids {
+            let n = tx.execute(
+                "UPDATE shards SET lease_expires_ms = ?1 WHERE lease_id = ?2 AND lease_worker = ?3 AND state = 'leased'",
+                params![now_ms + ttl_ms, *id as i64, worker],
+            )?;
+            if n == 1 {
+                kept.push(*id);
+            }
+        }
+        tx.commit()?;
+        Ok(kept)
+    }
+
+    /// Records a finished episode. Accepted only if `lease_id` is the shard's current lease:
+    /// a result from an expired, returned or completed lease is not counted.
+    pub fn complete(
+        &mut self,
+        worker: &str,
+        lease_id: u64,
+        shard_id: u64,
+        outcome: &EpisodeOutcome,
+        wall_time_s: f64,
+        now_ms: i64,
+    ) -> Result<(bool, Changed), CoordError> {
+        let tx = self.conn.transaction()?;
+        let n = tx.execute(
+            "UPDATE shards SET state = 'done', outcome_json = ?1, wall_time_s = ?2, worker = ?3, error = NULL,
+             lease_expires_ms = NULL WHERE id = ?4 AND lease_id = ?5 AND state = 'leased'",
+            params![serde_json::to_string(outcome)?, wall_time_s, worker, shard_id as i64, lease_id as i64],
+        )?;
+        let mut changed = Changed::default();
+        if n == 1 {
+            let batch: String = tx.query_row("SELECT batch_id FROM shards WHERE id = ?1", [shard_id as i64], |r| r.get(0))?;
+            Self::finish_if_done(&tx, &batch, now_ms)?;
+            changed.batches.push(batch);
+        }
+        tx.commit()?;
+        Ok((n == 1, changed))
+    }
+
+    /// Records a failed attempt: re-queued while attempts remain and the error is retryable,
+    /// failed with its error otherwise.
+    pub fn fail(&mut self, lease_id: u64, shard_id: u64, error: &str, retryable: bool, now_ms: i64) -> Result<Changed, CoordError> {
+        let tx = self.conn.transaction()?;
+        let row: Option<(String, u32, u32)> = tx
+            .query_row(
+                "SELECT s.batch_id, s.attempts, b.max_attempts FROM shards s JOIN batches b ON b.id = s.batch_id
+                 WHERE s.id = ?1 AND s.lease_id = ?2 AND s.state = 'leased'",
+                params![shard_id as i64, lease_id as i64],
+                |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?)),
+            )
+            .optional()?;
+        let mut changed = Changed::default();
+        if let Some((batch, attempts, max)) = row {
+            if retryable && attempts < max {
+                tx.execute(
+                    "UPDATE shards SET state = 'queued', error = ?1, lease_worker = NULL, lease_expires_ms = NULL WHERE id = ?2",
+                    params![error, shard_id as i64],
+                )?;
+                changed.requeued = 1;
+            } else {
+                let msg = if retryable { format!("{error} (after {attempts} attempts)") } else { error.to_owned() };
+                tx.execute(
+                    "UPDATE shards SET state = 'failed', error = ?1, lease_expires_ms = NULL WHERE id = ?2",
+                    params![msg, shard_id as i64],
+                )?;
+                Self::finish_if_done(&tx, &batch, now_ms)?;
+            }
+            changed.batches.push(batch);
+        }
+        tx.commit()?;
+        Ok(changed)
+    }
+
+    /// A worker hands leases back (graceful shutdown): they are re-queued and the attempt is not
+    /// counted against the shard.
+    pub fn return_leases(&mut self, worker: &str, lease_ids: &[u64]) -> Result<Changed, CoordError> {
+        let tx = self.conn.transaction()?;
+        let mut changed = Changed::default();
+        for id in lease_ids {
+            let batch: Option<String> = tx
+                .query_row(
+                    "UPDATE shards SET state = 'queued', attempts = attempts - 1, lease_worker = NULL, lease_expires_ms = NULL
+                     WHERE lease_id = ?1 AND lease_worker = ?2 AND state = 'leased' RETURNING batch_id",
+                    params![*id as i64, worker],
+                    |r| r.get(0),
+                )
+                .optional()?;
+            if let Some(b) = batch {
+                changed.requeued += 1;
+                changed.batches.push(b);
+            }
+        }
+        tx.commit()?;
+        Ok(changed)
+    }
+
+    /// Ends every lease whose deadline passed (or, with `worker`, the given leases of that worker:
+    /// its session broke). Each counts as an attempt; a shard out of attempts fails.
+    pub fn expire(&mut self, now_ms: i64, worker: Option<(&str, &[u64])>) -> Result<Changed, CoordError> {
+        let tx = self.conn.transaction()?;
+        let sql_owned;
+        let rows: Vec<(i64, String, u32, u32, Option<String>)> = {
+            let (sql, args): (&str, Vec<rusqlite::types::Value>) = match worker {
+                None => (
+                    "SELECT s.id, s.batch_id, s.attempts, b.max_attempts, s.lease_worker FROM shards s JOIN batches b ON b.id = s.batch_id
+                     WHERE s.state = 'leased' AND s.lease_expires_ms < ?1",
+                    vec![now_ms.into()],
+                ),
+                Some((w, ids)) => {
+                    let list = ids.iter().map(u64::to_string).collect::<Vec<_>>().join(",");
+                    sql_owned = format!(
+                        "SELECT s.id, s.batch_id, s.attempts, b.max_attempts, s.lease_worker FROM shards s JOIN batches b ON b.id = s.batch_id
+                         WHERE s.state = 'leased' AND s.lease_worker = ?1 AND s.lease_id IN ({list})"
+                    );
+                    (sql_owned.as_str(), vec![w.to_owned().into()])
+                }
+            };
+            let mut stmt = tx.prepare(sql)?;
+            let it = stmt.query_map(rusqlite::params_from_iter(args), |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?, r.get(3)?, r.get(4)?)))?;
+            it.collect::<Result<_, _>>()?
+        };
+        let mut changed = Changed::default();
+        for (id, batch, attempts, max, lease_worker) in rows {
+            let why = match worker {
+                None => format!("lease expired: worker {} stopped heartbeating", lease_worker.unwrap_or_default()),
+                Some((w, _)) => format!("worker {w} disconnected while running the shard"),
+            };
+            if attempts < max {
+                tx.execute(
+                    "UPDATE shards SET state = 'queued', error = ?1, lease_worker = NULL, lease_expires_ms = NULL WHERE id = ?2",
+                    params![why, id],
+                )?;
+                changed.requeued += 1;
+            } else {
+                tx.execute(
+                    "UPDATE shards SET state = 'failed', error = ?1, lease_expires_ms = NULL WHERE id = ?2",
+                    params![format!("{why} (after {attempts} attempts)"), id],
+                )?;
+                Self::finish_if_done(&tx, &batch, now_ms)?;
+            }
+            if !changed.batches.contains(&batch) {
+                changed.batches.push(batch);
+            }
+        }
+        tx.commit()?;
+        Ok(changed)
+    }
+
+    /// After a restart: give every surviving lease a fresh deadline, so workers have time to
+    /// reconnect and claim them before they expire. Returns how many leases survived.
+    pub fn refresh_leases(&mut self, now_ms: i64, ttl_ms: i64) -> Result<usize, CoordError> {
+        Ok(self.conn.execute("UPDATE shards SET lease_expires_ms = ?1 WHERE state = 'leased'", [now_ms + ttl_ms])?)
+    }
+
+    /// Which of `lease_ids` `worker` still holds (a reconnecting worker keeps running those).
+    pub fn held_by(&self, worker: &str, lease_ids: &[u64]) -> Result<Vec<u64>, CoordError> {
+        let mut stmt = self.conn.prepare("SELECT 1 FROM shards WHERE lease_id = ?1 AND lease_worker = ?2 AND state = 'leased'")?;
+        let mut kept = Vec::new();
+        for id in lease_ids {
+            if stmt.exists(params![*id as i64, worker])? {
+                kept.push(*id);
+            }
+        }
+        Ok(kept)
+    }
+
+    pub fn cancel(&mut self, batch_id: &str, now_ms: i64) -> Result<Changed, CoordError> {
+        let tx = self.conn.transaction()?;
+        Self::require_batch(&tx, batch_id)?;
+        tx.execute(
+            "UPDATE shards SET state = 'cancelled', error = 'cancelled', lease_expires_ms = NULL
+             WHERE batch_id = ?1 AND state IN ('queued', 'leased')",
+            [batch_id],
+        )?;
+        tx.execute(
+            "UPDATE batches SET state = ?1, finished_ms = COALESCE(finished_ms, ?2) WHERE id = ?3 AND state = ?4",
+            params![batch_state::CANCELLED, now_ms, batch_id, batch_state::RUNNING],
+        )?;
+        tx.commit()?;
+        Ok(Changed { batches: vec![batch_id.to_owned()], requeued: 0 })
+    }
+
+    /// A batch with no shards (every task invalid) is complete as soon as it is stored.
+    pub fn finish_if_empty(&mut self, batch_id: &str, now_ms: i64) -> Result<(), CoordError> {
+        Self::finish_if_done(&self.conn, batch_id, now_ms)
+    }
+
+    fn require_batch(conn: &Connection, batch_id: &str) -> Result<(), CoordError> {
+        let exists = conn.prepare("SELECT 1 FROM batches WHERE id = ?1")?.exists([batch_id])?;
+        if exists { Ok(()) } else { Err(CoordError::NotFound(format!("batch '{batch_id}'"))) }
+    }
+
+    fn finish_if_done(conn: &Connection, batch_id: &str, now_ms: i64) -> Result<(), CoordError> {
+        let open: i64 = conn.query_row(
+            "SELECT COUNT(*) FROM shards WHERE batch_id = ?1 AND state IN ('queued', 'leased')",
+            [batch_id],
+            |r| r.get(0),
+        )?;
+        if open == 0 {
+            conn.execute(
+                "UPDATE batches SET state = ?1, finished_ms = ?2 WHERE id = ?3 AND state = ?4",
+                params![batch_state::COMPLETED, now_ms, batch_id, batch_state::RUNNING],
+            )?;
+        }
+        Ok(())
+    }
+
+    pub fn counts(&self, batch_id: &str) -> Result<BatchCounts, CoordError> {
+        let mut c: BatchCounts = self
+            .conn
+            .query_row(
+                "SELECT id, name, state, submitted_ms, finished_ms, invalid_json FROM batches WHERE id = ?1",
+                [batch_id],
+                |r| {
+                    let invalid: String = r.get(5)?;
+                    let invalid: Vec<SpecError> = serde_json::from_str(&invalid).unwrap_or_default();
+                    let distinct: std::collections::BTreeSet<_> =
+                        invalid.iter().map(|e| (e.origin.clone(), e.task.clone())).collect();
+                    Ok(BatchCounts {
+                        id: r.get(0)?,
+                        name: r.get(1)?,
+                        state: r.get(2)?,
+                        submitted_ms: r.get(3)?,
+                        finished_ms: r.get(4)?,
+                        invalid_tasks: distinct.len() as u32,
+                        ..Default::default()
+                    })
+                },
+            )
+            .optional()?
+            .ok_or_else(|| CoordError::NotFound(format!("batch '{batch_id}'")))?;
+        let mut stmt = self.conn.prepare("SELECT state, COUNT(*) FROM shards WHERE batch_id = ?1 GROUP BY state")?;
+        let rows = stmt.query_map([batch_id], |r| Ok((r.get::<_, String>(0)?, r.get::<_, u32>(1)?)))?;
+        for row in rows {
+            let (state, n) = row?;
+            c.total += n;
+            match state.as_str() {
+                QUEUED => c.queued = n,
+                LEASED => c.leased = n,
+                DONE => c.done = n,
+                FAILED => c.failed = n,
+                CANCELLED => c.cancelled = n,
+                _ => {}
+            }
+        }
+        c.successes = self.conn.query_row(
+            "SELECT COUNT(*) FROM shards WHERE batch_id = ?1 AND state = 'done' AND json_extract(outcome_json, '$.success') = 1",
+            [batch_id],
+            |r| r.get(0),
+        )?;
+        Ok(c)
+    }
+
+    pub fn batch_ids(&self) -> Result<Vec<String>, CoordError> {
+        let mut stmt = self.conn.prepare("SELECT id FROM batches ORDER BY seq")?;
+        let ids = stmt.query_map([], |r| r.get(0))?.collect::<Result<_, _>>()?;
+        Ok(ids)
+    }
+
+    /// Batches still running (after a restart, these carry on).
+    pub fn running_batches(&self) -> Result<Vec<String>, CoordError> {
+        let mut stmt = self.conn.prepare("SELECT id FROM batches WHERE state = 'running' ORDER BY seq")?;
+        let ids = stmt.query_map([], |r| r.get(0))?.collect::<Result<_, _>>()?;
+        Ok(ids)
+    }
+
+    /// Builds the batch's report from the store (partial while the batch runs).
+    pub fn report(&self, batch_id: &str) -> Result<Report, CoordError> {
+        let (name, state, policies, seeds, invalid, submitted, finished): (String, String, String, String, String, i64, Option<i64>) =
+            self.conn
+                .query_row(
+                    "SELECT name, state, policies_json, seeds_json, invalid_json, submitted_ms, finished_ms FROM batches WHERE id = ?1",
+                    [batch_id],
+                    |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?, r.get(3)?, r.get(4)?, r.get(5)?, r.get(6)?)),
+                )
+                .optional()?
+                .ok_or_else(|| CoordError::NotFound(format!("batch '{batch_id}'")))?;
+        let policies: Vec<String> = serde_json::from_str(&policies)?;
+        let seeds: Vec<u64> = serde_json::from_str(&seeds)?;
+        let invalid: Vec<SpecError> = serde_json::from_str(&invalid)?;
+        let tasks: Vec<TaskInfo> = {
+            let mut stmt = self
+                .conn
+                .prepare("SELECT task_id, name, grp, pipeline, origin, spec_hash FROM tasks WHERE batch_id = ?1")?;
+            let it = stmt.query_map([batch_id], |r| {
+                Ok(TaskInfo {
+                    id: r.get(0)?,
+                    name: r.get(1)?,
+                    group: r.get(2)?,
+                    pipeline: r.get(3)?,
+                    origin: r.get(4)?,
+                    spec_hash: r.get(5)?,
+                })
+            })?;
+            it.collect::<Result<_, _>>()?
+        };
+        let mut workers = std::collections::BTreeSet::new();
+        let mut extra_attempts = 0u64;
+        let mut shards = Vec::new();
+        {
+            let mut stmt = self.conn.prepare(
+                "SELECT task_id, seed, policy, attempts, state, outcome_json, error, worker FROM shards WHERE batch_id = ?1",
+            )?;
+            let mut rows = stmt.query([batch_id])?;
+            while let Some(r) = rows.next()? {
+                let attempts: u32 = r.get(3)?;
+                let state: String = r.get(4)?;
+                let outcome: Option<String> = r.get(5)?;
+                let outcome = match (state.as_str(), outcome) {
+                    (DONE, Some(json)) => Some(serde_json::from_str::<EpisodeOutcome>(&json)?),
+                    _ => None,
+                };
+                if let Some(w) = r.get::<_, Option<String>>(7)? {
+                    workers.insert(w);
+                }
+                extra_attempts += u64::from(attempts.saturating_sub(1));
+                let open = state == QUEUED || state == LEASED;
+                shards.push(ShardRecord {
+                    task_id: r.get(0)?,
+                    seed: r.get::<_, i64>(1)? as u64,
+                    policy: r.get(2)?,
+                    attempts,
+                    outcome,
+                    error: if open { Some(format!("still {state}")) } else { r.get(6)? },
+                    cancelled: state == CANCELLED,
+                });
+            }
+        }
+        let results = report::build_results(&name, &policies, &seeds, &tasks, &shards, &invalid);
+        let wall = finished.map(|f| (f - submitted) as f64 / 1000.0);
+        let rate = |x: f64| wall.filter(|w| *w > 0.0).map(|w| x / w);
+        let run = RunInfo {
+            batch_id: batch_id.to_owned(),
+            state,
+            submitted_at_unix_ms: submitted,
+            finished_at_unix_ms: finished,
+            wall_time_s: wall,
+            episodes_per_s: rate(results.totals.episodes_completed as f64),
+            sim_steps_per_s: rate(results.totals.sim_steps as f64),
+            extra_attempts,
+            workers: workers.into_iter().collect(),
+        };
+        Ok(Report { report_version: report::REPORT_VERSION, results, run })
+    }
+
+    /// The number of shards of a batch in each state, for tests and `assay status`.
+    pub fn shard_states(&self, batch_id: &str) -> Result<Vec<(u64, String, u32)>, CoordError> {
+        let mut stmt = self.conn.prepare("SELECT id, state, attempts FROM shards WHERE batch_id = ?1 ORDER BY id")?;
+        let rows = stmt.query_map([batch_id], |r| Ok((r.get::<_, i64>(0)? as u64, r.get(1)?, r.get(2)?)))?;
+        Ok(rows.collect::<Result<_, _>>()?)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::collections::BTreeMap;
+
+    use assay_core::report::LabelSource;
+
+    use super::*;
+
+    const TTL: i64 = 1_000;
+
+    fn batch(tasks: &[&str], seeds: &[u64], max_attempts: u32) -> NewBatch {
+        NewBatch {
+            name: "t".into(),
+            tasks: tasks
+                .iter()
+                .map(|id| PlannedTask {
+                    info: TaskInfo {
+                        id: (*id).into(),
+                        name: (*id).into(),
+                        group: "g".into(),
+                        pipeline: "assay".into(),
+                        origin: format!("{id}.yaml"),
+                        spec_hash: "h".into(),
+                    },
+                    spec_json: "{}".into(),
+                })
+                .collect(),
+            policies: vec!["oracle".into()],
+            seeds: seeds.to_vec(),
+            max_attempts,
+            invalid: vec![],
+            role: "sim".into(),
+        }
+    }
+
+    fn outcome(l: &Lease) -> EpisodeOutcome {
+        EpisodeOutcome {
+            task_id: "x".into(),
+            seed: l.seed,
+            policy: l.policy.clone(),
+            success: true,
+            label_source: LabelSource::Sim,
+            predicates: vec![],
+            steps: 1,
+            sim_time_s: 0.0,
+            artifact: String::new(),
+            spec_hash: String::new(),
+            versions: BTreeMap::new(),
+        }
+    }
+
+    fn sim() -> Vec<String> {
+        vec!["sim".into()]
+    }
+
+    #[test]
+    fn plans_seed_major_and_completes_once() {
+        let mut s = Store::open_in_memory().unwrap();
+        let (id, n) = s.submit(&batch(&["a", "b"], &[0, 1], 3), 0).unwrap();
+        assert_eq!(n, 4);
+        let leases = s.lease("w1", &sim(), 10, 0, TTL).unwrap();
+        assert_eq!(leases.len(), 4);
+        assert_eq!((leases[0].seed, leases[1].seed, leases[2].seed), (0, 0, 1));
+        for l in &leases {
+            let (ok, _) = s.complete("w1", l.lease_id, l.shard_id, &outcome(l), 0.1, 5).unwrap();
+            assert!(ok);
+            // A duplicate of the same result is not counted again.
+            let (again, _) = s.complete("w1", l.lease_id, l.shard_id, &outcome(l), 0.1, 5).unwrap();
+            assert!(!again);
+        }
+        let c = s.counts(&id).unwrap();
+        assert_eq!((c.done, c.successes, c.state.as_str()), (4, 4, "completed"));
+        assert_eq!(c.finished_ms, Some(5));
+    }
+
+    #[test]
+    fn expired_lease_requeues_and_late_result_is_rejected() {
+        let mut s = Store::open_in_memory().unwrap();
+        let (id, _) = s.submit(&batch(&["a"], &[0], 3), 0).unwrap();
+        let first = s.lease("w1", &sim(), 1, 0, TTL).unwrap().remove(0);
+        // Heartbeats keep it alive past the original deadline.
+        assert_eq!(s.heartbeat("w1", &[first.lease_id], 900, TTL).unwrap(), vec![first.lease_id]);
+        assert_eq!(s.expire(1_500, None).unwrap().requeued, 0);
+        // Silence: it expires and goes back to the queue.
+        assert_eq!(s.expire(2_000, None).unwrap().requeued, 1);
+        let second = s.lease("w2", &sim(), 1, 2_000, TTL).unwrap().remove(0);
+        assert_eq!(second.shard_id, first.shard_id);
+        assert_eq!(second.attempt, 2);
+        // The first worker's late result does not count; the second's does.
+        assert!(!s.complete("w1", first.lease_id, first.shard_id, &outcome(&first), 0.1, 2_100).unwrap().0);
+        assert!(s.complete("w2", second.lease_id, second.shard_id, &outcome(&second), 0.1, 2_200).unwrap().0);
+        let c = s.counts(&id).unwrap();
+        assert_eq!((c.done, c.total), (1, 1));
+        // A heartbeat for a lease the worker no longer holds is refused.
+        assert!(s.heartbeat("w1", &[first.lease_id], 2_300, TTL).unwrap().is_empty());
+    }
+
+    #[test]
+    fn failures_retry_a_bounded_number_of_times_then_record_the_error() {
+        let mut s = Store::open_in_memory().unwrap();
+        let (id, _) = s.submit(&batch(&["a"], &[0], 2), 0).unwrap();
+        let l = s.lease("w", &sim(), 1, 0, TTL).unwrap().remove(0);
+        assert_eq!(s.fail(l.lease_id, l.shard_id, "boom", true, 1).unwrap().requeued, 1);
+        let l = s.lease("w", &sim(), 1, 2, TTL).unwrap().remove(0);
+        assert_eq!(l.attempt, 2);
+        assert_eq!(s.fail(l.lease_id, l.shard_id, "boom", true, 3).unwrap().requeued, 0);
+        let c = s.counts(&id).unwrap();
+        assert_eq!((c.failed, c.state.as_str()), (1, "completed"));
+        let r = s.report(&id).unwrap();
+        assert_eq!(r.results.tasks[0].failures[0].error, "boom (after 2 attempts)");
+        // Non-retryable errors fail at once.
+        let (id2, _) = s.submit(&batch(&["b"], &[0], 5), 0).unwrap();
+        let l = s.lease("w", &sim(), 1, 0, TTL).unwrap().remove(0);
+        s.fail(l.lease_id, l.shard_id, "bad spec", false, 1).unwrap();
+        assert_eq!(s.counts(&id2).unwrap().failed, 1);
+    }
+
+    #[test]
+    fn returned_leases_do_not_count_as_attempts_and_disconnects_do() {
+        let mut s = Store::open_in_memory().unwrap();
+        let (_, _) = s.submit(&batch(&["a", "b"], &[0], 1), 0).unwrap();
+        let ls = s.lease("w", &sim(), 2, 0, TTL).unwrap();
+        s.return_leases("w", &[ls[0].lease_id]).unwrap();
+        let again = s.lease("w2", &sim(), 1, 0, TTL).unwrap().remove(0);
+        assert_eq!(again.attempt, 1);
+        // w disconnects holding ls[1]: with max_attempts 1 the shard fails with the reason.
+        let ch = s.expire(10, Some(("w", &[ls[1].lease_id]))).unwrap();
+        assert_eq!(ch.requeued, 0);
+        let r = s.report(&ls[1].batch_id).unwrap();
+        let failure = &r.results.tasks.iter().find(|t| !t.failures.is_empty()).unwrap().failures[0];
+        assert!(failure.error.contains("worker w disconnected"), "{}", failure.error);
+    }
+
+    #[test]
+    fn survives_reopen_with_leases_intact() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("jobs.db");
+        let (id, lease) = {
+            let mut s = Store::open(&path).unwrap();
+            let (id, _) = s.submit(&batch(&["a", "b"], &[0], 3), 0).unwrap();
+            (id, s.lease("w", &sim(), 1, 0, TTL).unwrap().remove(0))
+        };
+        let mut s = Store::open(&path).unwrap();
+        assert_eq!(s.running_batches().unwrap(), vec![id.clone()]);
+        assert_eq!(s.refresh_leases(50_000, TTL).unwrap(), 1);
+        assert_eq!(s.held_by("w", &[lease.lease_id, 999]).unwrap(), vec![lease.lease_id]);
+        assert!(s.complete("w", lease.lease_id, lease.shard_id, &outcome(&lease), 0.1, 50_001).unwrap().0);
+        // Lease ids keep increasing across reopen.
+        let next = s.lease("w", &sim(), 1, 50_002, TTL).unwrap().remove(0);
+        assert!(next.lease_id > lease.lease_id);
+    }
+
+    #[test]
+    fn cancel_stops_queued_and_leased_shards() {
+        let mut s = Store::open_in_memory().unwrap();
+        let (id, _) = s.submit(&batch(&["a", "b", "c"], &[0], 3), 0).unwrap();
+        let l = s.lease("w", &sim(), 1, 0, TTL).unwrap().remove(0);
+        s.cancel(&id, 1).unwrap();
+        let c = s.counts(&id).unwrap();
+        assert_eq!((c.cancelled, c.state.as_str()), (3, "cancelled"));
+        assert!(!s.complete("w", l.lease_id, l.shard_id, &outcome(&l), 0.1, 2).unwrap().0);
+        assert!(s.lease("w", &sim(), 5, 3, TTL).unwrap().is_empty());
+    }
+}

@@ -1,0 +1,15 @@
+//! `assay-core`: Assay's pure domain — task spec v1 and its validation, deterministic random
+//! streams, episode summaries, batch reports and the statistics they use.
+//!
+//! Owns: the data model every other crate agrees on. Never does IO beyond parsing strings, never
+//! links physics, rendering, torch or networking.
+
+pub mod error;
+pub mod hash;
+pub mod report;
+pub mod rng;
+pub mod spec;
+pub mod stats;
+
+pub use error::{SpecError, SpecErrors};
+pub use spec::{TaskSpec, parse_task};

@@ -1,0 +1,439 @@
+//! Episode outcomes and batch reports.
+//!
+//! A report has two parts: `results`, which depends only on the batch, its seeds and the versions
+//! of the code (the determinism contract: the same batch gives byte-identical `results`), and `run`,
+//! which holds what depends on the machine and the moment (ids, timings, throughput, workers).
+
+use std::collections::BTreeMap;
+use std::fmt::Write as _;
+
+use serde::{Deserialize, Serialize};
+
+use crate::error::SpecError;
+use crate::stats::Proportion;
+
+pub const REPORT_VERSION: u32 = 1;
+
+/// Where a success label came from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum LabelSource {
+    Sim,
+    Llm,
+    Vlm,
+    Human,
+}
+
+/// The value of one goal predicate at the end of an episode.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PredicateValue {
+    pub label: String,
+    pub holds: bool,
+    /// What was measured (`distance 0.012 m`), for people reading a failure.
+    pub detail: String,
+}
+
+/// What a sim worker reports for one finished episode (everything here is deterministic).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct EpisodeOutcome {
+    pub task_id: String,
+    pub seed: u64,
+    pub policy: String,
+    pub success: bool,
+    pub label_source: LabelSource,
+    pub predicates: Vec<PredicateValue>,
+    /// Physics steps simulated, settle included.
+    pub steps: u64,
+    pub sim_time_s: f64,
+    /// Content address of the episode file in the artifact store.
+    pub artifact: String,
+    pub spec_hash: String,
+    /// Versions of the code that produced the episode (`assay-sim`, `rapier3d`, ...).
+    pub versions: BTreeMap<String, String>,
+}
+
+/// The state of one shard when the report is built.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ShardRecord {
+    pub task_id: String,
+    pub seed: u64,
+    pub policy: String,
+    pub attempts: u32,
+    pub outcome: Option<EpisodeOutcome>,
+    /// Last error, for shards that failed (or were cancelled).
+    pub error: Option<String>,
+    pub cancelled: bool,
+}
+
+/// A task as the planner accepted it.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct TaskInfo {
+    pub id: String,
+    pub name: String,
+    pub group: String,
+    pub pipeline: String,
+    pub origin: String,
+    pub spec_hash: String,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Report {
+    pub report_version: u32,
+    pub results: Results,
+    pub run: RunInfo,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Results {
+    pub batch_name: String,
+    pub policies: Vec<String>,
+    pub seeds: Vec<u64>,
+    pub totals: Totals,
+    pub groups: Vec<GroupResult>,
+    pub tasks: Vec<TaskResult>,
+    /// Tasks that never ran because their spec is invalid, with every problem found.
+    pub invalid_tasks: Vec<SpecError>,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Totals {
+    pub tasks: u64,
+    pub invalid_tasks: u64,
+    pub episodes_planned: u64,
+    pub episodes_completed: u64,
+    pub episodes_failed: u64,
+    pub episodes_cancelled: u64,
+    pub success: Proportion,
+    pub sim_steps: u64,
+    pub sim_time_s: f64,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct GroupResult {
+    pub group: String,
+    pub tasks: u64,
+    pub success: Proportion,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct TaskResult {
+    pub id: String,
+    pub name: String,
+    pub group: String,
+    pub pipeline: String,
+    pub origin: String,
+    pub spec_hash: String,
+    /// Ground-truth success (goal predicates in the simulator) over completed episodes.
+    pub success: Proportion,
+    /// Per predicate: how often it held.
+    pub predicates: Vec<PredicateRate>,
+    pub episodes: Vec<EpisodeRow>,
+    pub failures: Vec<FailureRow>,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PredicateRate {
+    pub label: String,
+    pub holds: u64,
+    pub of: u64,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct EpisodeRow {
+    pub seed: u64,
+    pub policy: String,
+    pub success: bool,
+    pub label_source: LabelSource,
+    pub steps: u64,
+    pub artifact: String,
+    /// Predicates that did not hold, with what was measured.
+    pub unmet: Vec<PredicateValue>,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct FailureRow {
+    pub seed: u64,
+    pub policy: String,
+    pub attempts: u32,
+    pub error: String,
+    pub cancelled: bool,
+}
+
+/// What depends on the run, not on the batch.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct RunInfo {
+    pub batch_id: String,
+    pub state: String,
+    pub submitted_at_unix_ms: i64,
+    pub finished_at_unix_ms: Option<i64>,
+    pub wall_time_s: Option<f64>,
+    pub episodes_per_s: Option<f64>,
+    pub sim_steps_per_s: Option<f64>,
+    /// Attempts beyond the first, summed over shards (lease expiries, retries, hand-backs).
+    pub extra_attempts: u64,
+    pub workers: Vec<String>,
+}
+
+/// Builds the deterministic part of a report. Tasks, shards and errors may come in any order.
+pub fn build_results(
+    batch_name: &str,
+    policies: &[String],
+    seeds: &[u64],
+    tasks: &[TaskInfo],
+    shards: &[ShardRecord],
+    invalid: &[SpecError],
+) -> Results {
+    let mut by_task: BTreeMap<&str, Vec<&ShardRecord>> = BTreeMap::new();
+    for s in shards {
+        by_task.entry(s.task_id.as_str()).or_default().push(s);
+    }
+    let mut task_results = Vec::new();
+    let (mut completed, mut failed, mut cancelled, mut ok, mut steps, mut sim_time) = (0, 0, 0, 0, 0, 0.0);
+    let mut sorted_tasks: Vec<&TaskInfo> = tasks.iter().collect();
+    sorted_tasks.sort_by(|a, b| (&a.group, &a.id).cmp(&(&b.group, &b.id)));
+    for t in sorted_tasks {
+        let mut rows = by_task.remove(t.id.as_str()).unwrap_or_default();
+        rows.sort_by(|a, b| (&a.policy, a.seed).cmp(&(&b.policy, b.seed)));
+        let mut episodes = Vec::new();
+        let mut failures = Vec::new();
+        let mut preds: Vec<PredicateRate> = Vec::new();
+        for r in rows {
+            match &r.outcome {
+                Some(o) => {
+                    for p in &o.predicates {
+                        match preds.iter_mut().find(|q| q.label == p.label) {
+                            Some(q) => {
+                                q.of += 1;
+                                q.holds += u64::from(p.holds);
+                            }
+                            None => preds.push(PredicateRate { label: p.label.clone(), holds: u64::from(p.holds), of: 1 }),
+                        }
+                    }
+                    steps += o.steps;
+                    sim_time += o.sim_time_s;
+                    episodes.push(EpisodeRow {
+                        seed: o.seed,
+                        policy: o.policy.clone(),
+                        success: o.success,
+                        label_source: o.label_source,
+                        steps: o.steps,
+                        artifact: o.artifact.clone(),
+                        unmet: o.predicates.iter().filter(|p| !p.holds).cloned().collect(),
+                    });
+                }
+                None => failures.push(FailureRow {
+                    seed: r.seed,
+                    policy: r.policy.clone(),
+                    attempts: r.attempts,
+                    error: r.error.clone().unwrap_or_else(|| "not finished".into()),
+                    cancelled: r.cancelled,
+                }),
+            }
+        }
+        let k = episodes.iter().filter(|e| e.success).count() as u64;
+        completed += episodes.len() as u64;
+        ok += k;
+        failed += failures.iter().filter(|f| !f.cancelled).count() as u64;
+        cancelled += failures.iter().filter(|f| f.cancelled).count() as u64;
+        task_results.push(TaskResult {
+            id: t.id.clone(),
+            name: t.name.clone(),
+            group: t.group.clone(),
+            pipeline: t.pipeline.clone(),
+            origin: t.origin.clone(),
+            spec_hash: t.spec_hash.clone(),
+            success: Proportion::new(k, episodes.len() as u64),
+            predicates: preds,
+            episodes,
+            failures,
+        });
+    }
+    let mut groups: BTreeMap<&str, (u64, u64, u64)> = BTreeMap::new();
+    for t in &task_results {
+        let g = groups.entry(t.group.as_str()).or_default();
+        g.0 += 1;
+        g.1 += t.success.successes;
+        g.2 += t.success.trials;
+    }
+    let mut invalid_tasks = invalid.to_vec();
+    invalid_tasks.sort_by(|a, b| (&a.origin, &a.task, &a.path).cmp(&(&b.origin, &b.task, &b.path)));
+    let invalid_count = invalid_tasks
+        .iter()
+        .map(|e| (e.origin.as_str(), e.task.as_deref()))
+        .collect::<std::collections::BTreeSet<_>>()
+        .len() as u64;
+    let mut policies = policies.to_vec();
+    policies.sort();
+    Results {
+        batch_name: batch_name.to_owned(),
+        policies,
+        seeds: seeds.to_vec(),
+        totals: Totals {
+            tasks: task_results.len() as u64,
+            invalid_tasks: invalid_count,
+            episodes_planned: shards.len() as u64,
+            episodes_completed: completed,
+            episodes_failed: failed,
+            episodes_cancelled: cancelled,
+            success: Proportion::new(ok, completed),
+            sim_steps: steps,
+            sim_time_s: sim_time,
+        },
+        groups: groups
+            .into_iter()
+            .map(|(g, (n, k, t))| GroupResult { group: g.to_owned(), tasks: n, success: Proportion::new(k, t) })
+            .collect(),
+        tasks: task_results,
+        invalid_tasks,
+    }
+}
+
+fn pct(p: &Proportion) -> String {
+    match (p.rate, p.ci95) {
+        (Some(r), Some([lo, hi])) => format!("{:.1} % [{:.1}, {:.1}]", r * 100.0, lo * 100.0, hi * 100.0),
+        _ => "—".into(),
+    }
+}
+
+fn cell(s: &str) -> String {
+    s.replace('|', "\\|").replace('\n', " ")
+}
+
+impl Report {
+    /// The report as Markdown, for people.
+    pub fn to_markdown(&self) -> String {
+        let r = &self.results;
+        let t = &r.totals;
+        let mut md = String::new();
+        let _ = writeln!(md, "# Assay report — {}\n", r.batch_name);
+        let _ = writeln!(
+            md,
+            "Batch `{}` · state **{}** · policies {} · seeds {}\n",
+            self.run.batch_id,
+            self.run.state,
+            r.policies.join(", "),
+            r.seeds.iter().map(u64::to_string).collect::<Vec<_>>().join(", ")
+        );
+        let _ = writeln!(md, "## Summary\n");
+        let _ = writeln!(md, "| measure | value |\n|---|---|");
+        let _ = writeln!(md, "| tasks (valid) | {} |", t.tasks);
+        let _ = writeln!(md, "| tasks rejected as invalid | {} |", t.invalid_tasks);
+        let _ = writeln!(md, "| episodes planned | {} |", t.episodes_planned);
+        let _ = writeln!(md, "| episodes completed | {} |", t.episodes_completed);
+        let _ = writeln!(md, "| episodes failed (errors) | {} |", t.episodes_failed);
+        if t.episodes_cancelled > 0 {
+            let _ = writeln!(md, "| episodes cancelled | {} |", t.episodes_cancelled);
+        }
+        let _ = writeln!(md, "| ground-truth success (Wilson 95 %) | {} |", pct(&t.success));
+        let _ = writeln!(md, "| simulated steps | {} ({:.0} s of sim time) |", t.sim_steps, t.sim_time_s);
+        if let Some(w) = self.run.wall_time_s {
+            let _ = writeln!(md, "| wall time | {w:.1} s |");
+        }
+        if let Some(e) = self.run.episodes_per_s {
+            let _ = writeln!(md, "| throughput | {e:.2} episodes/s, {:.0} steps/s |", self.run.sim_steps_per_s.unwrap_or(0.0));
+        }
+        let _ = writeln!(md, "| workers | {} |", self.run.workers.len());
+        let _ = writeln!(md, "\n## Success per group\n");
+        let _ = writeln!(md, "| group | tasks | episodes | success (Wilson 95 %) |\n|---|---:|---:|---|");
+        for g in &r.groups {
+            let _ = writeln!(md, "| {} | {} | {} | {} |", cell(&g.group), g.tasks, g.success.trials, pct(&g.success));
+        }
+        let _ = writeln!(md, "\n## Success per task\n");
+        let _ = writeln!(md, "| group | task | source | episodes | success (Wilson 95 %) | most often unmet |\n|---|---|---|---:|---|---|");
+        for task in &r.tasks {
+            let unmet = task
+                .predicates
+                .iter()
+                .filter(|p| p.holds < p.of)
+                .max_by_key(|p| p.of - p.holds)
+                .map(|p| format!("{} ({}/{})", p.label, p.of - p.holds, p.of))
+                .unwrap_or_default();
+            let _ = writeln!(
+                md,
+                "| {} | `{}` {} | {} | {} | {} | {} |",
+                cell(&task.group),
+                task.id,
+                cell(&task.name),
+                cell(&task.pipeline),
+                task.success.trials,
+                pct(&task.success),
+                cell(&unmet)
+            );
+        }
+        let failures: Vec<_> = r.tasks.iter().flat_map(|t| t.failures.iter().map(move |f| (t, f))).collect();
+        if !failures.is_empty() {
+            let _ = writeln!(md, "\n## Episodes that did not complete\n");
+            let _ = writeln!(md, "| task | seed | policy | attempts | error |\n|---|---:|---|---:|---|");
+            for (t, f) in failures {
+                let _ = writeln!(md, "| `{}` | {} | {} | {} | {} |", t.id, f.seed, f.policy, f.attempts, cell(&f.error));
+            }
+        }
+        if !r.invalid_tasks.is_empty() {
+            let _ = writeln!(md, "\n## Invalid task specs (not run)\n");
+            let _ = writeln!(md, "| task | file | field | reason |\n|---|---|---|---|");
+            for e in &r.invalid_tasks {
+                let _ = writeln!(
+                    md,
+                    "| {} | {} | `{}` | {} |",
+                    e.task.as_deref().map(cell).unwrap_or_else(|| "(no id)".into()),
+                    cell(&e.origin),
+                    cell(&e.path),
+                    cell(&e.reason)
+                );
+            }
+        }
+        md
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn outcome(task: &str, seed: u64, success: bool) -> EpisodeOutcome {
+        EpisodeOutcome {
+            task_id: task.into(),
+            seed,
+            policy: "oracle".into(),
+            success,
+            label_source: LabelSource::Sim,
+            predicates: vec![PredicateValue { label: "p".into(), holds: success, detail: String::new() }],
+            steps: 10,
+            sim_time_s: 0.1,
+            artifact: format!("a{seed}"),
+            spec_hash: "h".into(),
+            versions: BTreeMap::new(),
+        }
+    }
+
+    fn info(id: &str, group: &str) -> TaskInfo {
+        TaskInfo { id: id.into(), name: id.into(), group: group.into(), pipeline: "assay".into(), origin: String::new(), spec_hash: "h".into() }
+    }
+
+    #[test]
+    fn results_aggregate_per_task_and_group_independent_of_order() {
+        let tasks = vec![info("b", "g1"), info("a", "g1"), info("c", "g2")];
+        let mut shards = vec![
+            ShardRecord { task_id: "a".into(), seed: 1, policy: "oracle".into(), attempts: 1, outcome: Some(outcome("a", 1, true)), error: None, cancelled: false },
+            ShardRecord { task_id: "a".into(), seed: 0, policy: "oracle".into(), attempts: 1, outcome: Some(outcome("a", 0, false)), error: None, cancelled: false },
+            ShardRecord { task_id: "b".into(), seed: 0, policy: "oracle".into(), attempts: 3, outcome: None, error: Some("boom".into()), cancelled: false },
+            ShardRecord { task_id: "c".into(), seed: 0, policy: "oracle".into(), attempts: 1, outcome: Some(outcome("c", 0, true)), error: None, cancelled: false },
+        ];
+        let r1 = build_results("x", &["oracle".into()], &[0, 1], &tasks, &shards, &[]);
+        shards.reverse();
+        let r2 = build_results("x", &["oracle".into()], &[0, 1], &tasks, &shards, &[]);
+        assert_eq!(r1, r2);
+        assert_eq!(r1.totals.episodes_planned, 4);
+        assert_eq!(r1.totals.episodes_completed, 3);
+        assert_eq!(r1.totals.episodes_failed, 1);
+        assert_eq!(r1.totals.success.successes, 2);
+        assert_eq!(r1.groups[0].group, "g1");
+        assert_eq!(r1.groups[0].success.trials, 2);
+        assert_eq!(r1.groups[0].success.successes, 1);
+        let a = &r1.tasks[0];
+        assert_eq!(a.id, "a");
+        assert_eq!(a.episodes[0].seed, 0);
+        assert_eq!(a.predicates[0].holds, 1);
+        assert_eq!(r1.tasks[1].failures[0].error, "boom");
+    }
+}

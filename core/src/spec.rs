@@ -1,0 +1,788 @@
+//! Task spec v1: what a generated tabletop task is, as Assay reads it.
+//!
+//! The world is z-up, metres, kilograms, seconds; the table top is the plane z = 0. Angles in the
+//! spec are degrees. A spec is parsed strictly (unknown fields are errors) and then validated; every
+//! problem names the task, the field path and the reason.
+
+use std::collections::BTreeSet;
+
+use schemars::JsonSchema;
+use serde::{Deserialize, Serialize};
+
+use crate::error::{SpecError, SpecErrors};
+
+/// The spec format version this build reads and writes.
+pub const SPEC_VERSION: u32 = 1;
+
+/// One generated task.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct TaskSpec {
+    /// Format version; must be 1.
+    pub spec_version: u32,
+    /// Unique id within a batch: lowercase letters, digits, `-` and `_`.
+    pub id: String,
+    /// The generator's task name (GenSim style: `build-two-block-tower`).
+    pub name: String,
+    /// The natural-language description an LLM wrote for the task.
+    pub description: String,
+    /// Where the task came from.
+    #[serde(default)]
+    pub source: Source,
+    /// Task group for per-group metrics (stacking, placement, assembling, piles, clutter, ...).
+    pub group: String,
+    pub scene: Scene,
+    pub end_effector: EndEffector,
+    /// Goal predicates; the episode succeeds when all hold at the end.
+    pub goals: Vec<Goal>,
+    /// Ranges sampled per seed (and, later, held out for generalization).
+    #[serde(default)]
+    pub variations: Variations,
+    /// Scripted solution executed by the primitive controller (the oracle policy).
+    #[serde(default)]
+    pub oracle: Vec<Primitive>,
+    /// Cameras used by the render role (recorded with the spec, unused by physics).
+    #[serde(default)]
+    pub cameras: Vec<Camera>,
+    /// Physics settings; defaults suit tabletop manipulation.
+    #[serde(default)]
+    pub physics: PhysicsSettings,
+}
+
+/// Provenance of a task.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct Source {
+    /// `gensim`, `robogen`, `bbsea`, `assay`, or a lab's own pipeline name.
+    #[serde(default)]
+    pub pipeline: String,
+    /// The generator's model or run (free text).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub generator: Option<String>,
+    /// The file or record the task was imported from.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub origin: Option<String>,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct Scene {
+    /// `table` (a 1.2 × 1.6 m top at z = 0 with edges objects can fall off) or `ground` (infinite).
+    #[serde(default)]
+    pub surface: Surface,
+    pub objects: Vec<Object>,
+    /// Flat target regions drawn on the surface (no collision).
+    #[serde(default)]
+    pub zones: Vec<Zone>,
+}
+
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum Surface {
+    #[default]
+    Table,
+    Ground,
+}
+
+/// Half-size of the table top (x, y) in metres.
+pub const TABLE_HALF_EXTENTS: [f64; 2] = [0.6, 0.8];
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct Object {
+    /// Unique within the task; goals and the oracle refer to it.
+    pub id: String,
+    pub shape: Shape,
+    /// A colour name (`red`) or `[r, g, b]` in 0..1.
+    #[serde(default)]
+    pub color: Color,
+    /// Mass in kg (dynamic objects only); default 0.1.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mass: Option<f64>,
+    /// Fixed objects (containers bolted to the table, pegs) do not move.
+    #[serde(default, rename = "fixed")]
+    pub is_fixed: bool,
+    /// Exactly one of `pose` and `pose_range`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pose: Option<Pose>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pose_range: Option<PoseRange>,
+}
+
+/// Collision shape. Boxes and containers are axis-aligned in the object frame; cylinders stand on
+/// their axis (z).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(rename_all = "snake_case", deny_unknown_fields)]
+pub enum Shape {
+    Box { half_extents: [f64; 3] },
+    Sphere { radius: f64 },
+    Cylinder { radius: f64, half_height: f64 },
+    /// An open-top box (bowl, bin, tray): inner half-extents and wall thickness.
+    Container { inner_half_extents: [f64; 3], wall: f64 },
+    /// A Wavefront OBJ file (relative to the spec file), collided as its convex hull.
+    Mesh {
+        path: String,
+        #[serde(default = "one")]
+        scale: f64,
+    },
+}
+
+fn one() -> f64 {
+    1.0
+}
+
+impl Shape {
+    /// Half-extents of the shape's axis-aligned box in the object frame (meshes: unknown until loaded).
+    pub fn half_extents(&self) -> Option<[f64; 3]> {
+        match *self {
+            Shape::Box { half_extents } => Some(half_extents),
+            Shape::Sphere { radius } => Some([radius; 3]),
+            Shape::Cylinder { radius, half_height } => Some([radius, radius, half_height]),
+            Shape::Container { inner_half_extents: h, wall } => {
+                Some([h[0] + wall, h[1] + wall, h[2] + wall / 2.0])
+            }
+            Shape::Mesh { .. } => None,
+        }
+    }
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(untagged)]
+pub enum Color {
+    Named(String),
+    Rgb([f64; 3]),
+}
+
+impl Default for Color {
+    fn default() -> Self {
+        Color::Named("gray".into())
+    }
+}
+
+/// Named colours, the palette GenSim/Ravens tasks use.
+pub const COLORS: &[(&str, [f64; 3])] = &[
+    ("red", [0.84, 0.15, 0.16]),
+    ("green", [0.17, 0.63, 0.17]),
+    ("blue", [0.12, 0.47, 0.71]),
+    ("yellow", [0.93, 0.79, 0.13]),
+    ("orange", [1.0, 0.5, 0.05]),
+    ("purple", [0.58, 0.4, 0.74]),
+    ("pink", [0.89, 0.47, 0.76]),
+    ("cyan", [0.09, 0.75, 0.81]),
+    ("brown", [0.55, 0.34, 0.29]),
+    ("white", [0.95, 0.95, 0.95]),
+    ("black", [0.1, 0.1, 0.1]),
+    ("gray", [0.5, 0.5, 0.5]),
+];
+
+impl Color {
+    pub fn rgb(&self) -> Option<[f64; 3]> {
+        match self {
+            Color::Rgb(c) => Some(*c),
+            Color::Named(n) => COLORS.iter().find(|(k, _)| k == n).map(|(_, c)| *c),
+        }
+    }
+}
+
+/// Position (m) and rotation about z (degrees).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct Pose {
+    pub position: [f64; 3],
+    #[serde(default)]
+    pub yaw_deg: f64,
+}
+
+/// A pose drawn uniformly per seed.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct PoseRange {
+    pub min: [f64; 3],
+    pub max: [f64; 3],
+    #[serde(default)]
+    pub yaw_deg: [f64; 2],
+}
+
+/// A flat axis-aligned target region on the surface.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct Zone {
+    pub id: String,
+    pub center: [f64; 2],
+    pub half_extents: [f64; 2],
+    #[serde(default)]
+    pub color: Color,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(tag = "type", rename_all = "snake_case", deny_unknown_fields)]
+pub enum EndEffector {
+    /// A suction cup: grasps the top face of any object it touches.
+    Suction,
+    /// A parallel-jaw gripper: grasps objects narrower than `max_opening` (m).
+    ParallelGripper { max_opening: f64 },
+}
+
+/// A goal predicate, evaluated on the final state.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(rename_all = "snake_case", deny_unknown_fields)]
+pub enum Goal {
+    /// The object's centre lies over the zone, resting at table height.
+    InZone { object: String, zone: String },
+    /// The object's centre lies inside a container object's interior.
+    InContainer { object: String, container: String },
+    /// The object rests on top of `support` (centred within its top face).
+    OnTopOf { object: String, support: String },
+    /// Objects form a tower in this order, bottom first.
+    Stacked { order: Vec<String> },
+    /// The object's centre is within `distance` of a point or of another object's centre.
+    WithinDistance {
+        object: String,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        target: Option<String>,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        point: Option<[f64; 3]>,
+        distance: f64,
+    },
+    /// The object's position (and optionally yaw) is within tolerance of a target pose.
+    PoseWithin {
+        object: String,
+        position: [f64; 3],
+        tolerance: f64,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        yaw_deg: Option<f64>,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        yaw_tolerance_deg: Option<f64>,
+    },
+}
+
+impl Goal {
+    /// A short stable label (`on_top_of(red_block, blue_block)`), used in reports and episode files.
+    pub fn label(&self) -> String {
+        match self {
+            Goal::InZone { object, zone } => format!("in_zone({object}, {zone})"),
+            Goal::InContainer { object, container } => format!("in_container({object}, {container})"),
+            Goal::OnTopOf { object, support } => format!("on_top_of({object}, {support})"),
+            Goal::Stacked { order } => format!("stacked({})", order.join(", ")),
+            Goal::WithinDistance { object, target, point, distance } => match (target, point) {
+                (Some(t), _) => format!("within_distance({object}, {t}, {distance})"),
+                (None, Some(p)) => format!("within_distance({object}, {p:?}, {distance})"),
+                (None, None) => format!("within_distance({object}, ?, {distance})"),
+            },
+            Goal::PoseWithin { object, .. } => format!("pose_within({object})"),
+        }
+    }
+}
+
+/// Per-seed variation of the initial state. Zero everywhere by default.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct Variations {
+    /// Uniform jitter (± m, in x and y) added to every non-fixed object's initial position.
+    #[serde(default)]
+    pub position_jitter: f64,
+    /// Uniform jitter (± degrees) added to every non-fixed object's initial yaw.
+    #[serde(default)]
+    pub yaw_jitter_deg: f64,
+    /// Colours objects may be drawn from (rendering and generalization; physics ignores them).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub colors: Vec<Color>,
+    /// Range of the end effector's start position.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub ee_start: Option<PoseRange>,
+}
+
+/// A primitive of the oracle plan.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(rename_all = "snake_case", deny_unknown_fields)]
+pub enum Primitive {
+    /// Move above the object, descend, grasp, lift.
+    Pick { object: String },
+    /// Carry the grasped object over the target, lower it, release, retreat.
+    Place { target: PlaceTarget },
+    /// Sweep the object along the table to `to` (x, y).
+    Push { object: String, to: [f64; 2] },
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(rename_all = "snake_case", deny_unknown_fields)]
+pub enum PlaceTarget {
+    /// On top of another object (read at the start of the place).
+    On(String),
+    /// At the centre of a zone.
+    Zone(String),
+    /// Inside a container object.
+    Into(String),
+    /// At a table position (x, y); the object rests on the table.
+    At([f64; 2]),
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct Camera {
+    pub name: String,
+    pub eye: [f64; 3],
+    pub target: [f64; 3],
+    #[serde(default = "default_fovy")]
+    pub fovy_deg: f64,
+    #[serde(default = "default_width")]
+    pub width: u32,
+    #[serde(default = "default_height")]
+    pub height: u32,
+}
+
+fn default_fovy() -> f64 {
+    56.0
+}
+fn default_width() -> u32 {
+    640
+}
+fn default_height() -> u32 {
+    480
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct PhysicsSettings {
+    /// Time step in seconds.
+    #[serde(default = "default_dt")]
+    pub dt: f64,
+    /// Whether resting bodies may sleep (changes outcomes; recorded per task).
+    #[serde(default)]
+    pub sleeping: bool,
+    /// Steps to settle the scene before the policy acts and after it finishes.
+    #[serde(default = "default_settle")]
+    pub settle_steps: u32,
+    /// Upper bound on policy steps per episode.
+    #[serde(default = "default_max_steps")]
+    pub max_steps: u32,
+}
+
+fn default_dt() -> f64 {
+    1.0 / 240.0
+}
+fn default_settle() -> u32 {
+    120
+}
+fn default_max_steps() -> u32 {
+    20_000
+}
+
+impl Default for PhysicsSettings {
+    fn default() -> Self {
+        Self {
+            dt: default_dt(),
+            sleeping: false,
+            settle_steps: default_settle(),
+            max_steps: default_max_steps(),
+        }
+    }
+}
+
+/// Accepted input formats.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Format {
+    Yaml,
+    Json,
+}
+
+impl Format {
+    /// From a file name's extension (`.yaml`, `.yml`, `.json`).
+    pub fn from_path(path: &str) -> Option<Format> {
+        let lower = path.to_ascii_lowercase();
+        if lower.ends_with(".yaml") || lower.ends_with(".yml") {
+            Some(Format::Yaml)
+        } else if lower.ends_with(".json") {
+            Some(Format::Json)
+        } else {
+            None
+        }
+    }
+}
+
+/// Parses and validates one task document. Errors carry the task id when one could be read, the
+/// field path and the reason.
+pub fn parse_task(text: &str, format: Format, origin: &str) -> Result<TaskSpec, SpecErrors> {
+    // Read the id loosely first so that even a document that fails to parse is named by its task.
+    let loose: Option<serde_json::Value> = match format {
+        Format::Yaml => serde_yaml::from_str(text).ok(),
+        Format::Json => serde_json::from_str(text).ok(),
+    };
+    let task_id = loose
+        .as_ref()
+        .and_then(|v| v.get("id"))
+        .and_then(|v| v.as_str())
+        .map(str::to_owned)
+        .or_else(|| id_from_lines(text));
+    let fail = |path: String, reason: String| {
+        SpecErrors(vec![SpecError {
+            task: task_id.clone(),
+            origin: origin.to_owned(),
+            path,
+            reason,
+        }])
+    };
+    let spec: TaskSpec = match format {
+        Format::Yaml => {
+            // serde_yaml 0.9 reads enums only as `!tags`; task files use the `{variant: value}`
+            // maps that JSON and the JSON Schema use, so enums go through singleton maps.
+            let mut track = serde_path_to_error::Track::new();
+            let de = serde_path_to_error::Deserializer::new(serde_yaml::Deserializer::from_str(text), &mut track);
+            serde_yaml::with::singleton_map_recursive::deserialize(de).map_err(|e| {
+                let path = track.path().to_string();
+                fail(path.clone(), strip_path(&e.to_string(), &path))
+            })?
+        }
+        Format::Json => {
+            let mut de = serde_json::Deserializer::from_str(text);
+            serde_path_to_error::deserialize(&mut de).map_err(|e| {
+                let path = e.path().to_string();
+                fail(path.clone(), strip_path(&e.inner().to_string(), &path))
+            })?
+        }
+    };
+    let errors = validate(&spec, origin);
+    if errors.is_empty() { Ok(spec) } else { Err(SpecErrors(errors)) }
+}
+
+/// serde_yaml prefixes its messages with the path; the error carries the path on its own.
+fn strip_path(message: &str, path: &str) -> String {
+    match message.split_once(": ") {
+        Some((head, rest)) if !head.is_empty() && path.starts_with(head) => rest.to_owned(),
+        _ => message.to_owned(),
+    }
+}
+
+/// The `id:` of a document too broken to parse, read line by line.
+fn id_from_lines(text: &str) -> Option<String> {
+    text.lines().find_map(|l| {
+        let v = l.strip_prefix("id:").or_else(|| l.trim_start().strip_prefix("\"id\":"))?;
+        let v = v.trim().trim_end_matches(',').trim_matches(|c| c == '"' || c == '\'');
+        (!v.is_empty()).then(|| v.to_owned())
+    })
+}
+
+/// Semantic checks that parsing cannot make: finite numbers, positive sizes, references that
+/// resolve, unique ids, a plan the controller can execute.
+pub fn validate(spec: &TaskSpec, origin: &str) -> Vec<SpecError> {
+    let mut v = Validator { task: Some(spec.id.clone()), origin, errors: Vec::new() };
+    if spec.spec_version != SPEC_VERSION {
+        v.err("spec_version", format!("unsupported version {}; this build reads {SPEC_VERSION}", spec.spec_version));
+    }
+    let id_ok = !spec.id.is_empty()
+        && spec.id.chars().all(|c| c.is_ascii_lowercase() || c.is_ascii_digit() || c == '-' || c == '_');
+    if !id_ok {
+        v.err("id", "must be non-empty: lowercase letters, digits, '-' and '_'".into());
+    }
+    if spec.name.trim().is_empty() {
+        v.err("name", "must not be empty".into());
+    }
+    if spec.description.trim().is_empty() {
+        v.err("description", "must not be empty".into());
+    }
+    if spec.group.trim().is_empty() {
+        v.err("group", "must not be empty".into());
+    }
+
+    let mut object_ids = BTreeSet::new();
+    if spec.scene.objects.is_empty() {
+        v.err("scene.objects", "a task needs at least one object".into());
+    }
+    for (i, o) in spec.scene.objects.iter().enumerate() {
+        let p = format!("scene.objects[{i}]");
+        if o.id.is_empty() {
+            v.err(&format!("{p}.id"), "must not be empty".into());
+        } else if !object_ids.insert(o.id.as_str()) {
+            v.err(&format!("{p}.id"), format!("duplicate object id '{}'", o.id));
+        }
+        v.shape(&format!("{p}.shape"), &o.shape);
+        if let Some(m) = o.mass {
+            v.positive(&format!("{p}.mass"), m);
+        }
+        if o.color.rgb().is_none() {
+            v.err(&format!("{p}.color"), format!("unknown colour {:?}", o.color));
+        }
+        if let Color::Rgb(c) = o.color {
+            if c.iter().any(|x| !(0.0..=1.0).contains(x)) {
+                v.err(&format!("{p}.color"), "rgb components must lie in 0..1".into());
+            }
+        }
+        match (&o.pose, &o.pose_range) {
+            (Some(pose), None) => {
+                v.finite3(&format!("{p}.pose.position"), &pose.position);
+                v.finite(&format!("{p}.pose.yaw_deg"), pose.yaw_deg);
+            }
+            (None, Some(r)) => v.range(&format!("{p}.pose_range"), r),
+            (Some(_), Some(_)) => v.err(&p, "give either pose or pose_range, not both".into()),
+            (None, None) => v.err(&p, "missing pose (or pose_range)".into()),
+        }
+    }
+    let mut zone_ids = BTreeSet::new();
+    for (i, z) in spec.scene.zones.iter().enumerate() {
+        let p = format!("scene.zones[{i}]");
+        if !zone_ids.insert(z.id.as_str()) || object_ids.contains(z.id.as_str()) {
+            v.err(&format!("{p}.id"), format!("duplicate id '{}'", z.id));
+        }
+        v.finite2(&format!("{p}.center"), &z.center);
+        for (k, h) in z.half_extents.iter().enumerate() {
+            v.positive(&format!("{p}.half_extents[{k}]"), *h);
+        }
+    }
+
+    match spec.end_effector {
+        EndEffector::Suction => {}
+        EndEffector::ParallelGripper { max_opening } => v.positive("end_effector.max_opening", max_opening),
+    }
+
+    let is_container = |id: &str| {
+        spec.scene
+            .objects
+            .iter()
+            .any(|o| o.id == id && matches!(o.shape, Shape::Container { .. }))
+    };
+    let obj = |v: &mut Validator<'_>, path: &str, id: &str| {
+        if !object_ids.contains(id) {
+            v.err(path, format!("refers to unknown object '{id}'"));
+        }
+    };
+    if spec.goals.is_empty() {
+        v.err("goals", "a task needs at least one goal predicate".into());
+    }
+    for (i, g) in spec.goals.iter().enumerate() {
+        let p = format!("goals[{i}]");
+        match g {
+            Goal::InZone { object, zone } => {
+                obj(&mut v, &format!("{p}.in_zone.object"), object);
+                if !zone_ids.contains(zone.as_str()) {
+                    v.err(&format!("{p}.in_zone.zone"), format!("refers to unknown zone '{zone}'"));
+                }
+            }
+            Goal::InContainer { object, container } => {
+                obj(&mut v, &format!("{p}.in_container.object"), object);
+                obj(&mut v, &format!("{p}.in_container.container"), container);
+                if object_ids.contains(container.as_str()) && !is_container(container) {
+                    v.err(&format!("{p}.in_container.container"), format!("'{container}' is not a container"));
+                }
+            }
+            Goal::OnTopOf { object, support } => {
+                obj(&mut v, &format!("{p}.on_top_of.object"), object);
+                obj(&mut v, &format!("{p}.on_top_of.support"), support);
+                if object == support {
+                    v.err(&format!("{p}.on_top_of"), "an object cannot rest on itself".into());
+                }
+            }
+            Goal::Stacked { order } => {
+                if order.len() < 2 {
+                    v.err(&format!("{p}.stacked.order"), "needs at least two objects".into());
+                }
+                let mut seen = BTreeSet::new();
+                for (k, o) in order.iter().enumerate() {
+                    obj(&mut v, &format!("{p}.stacked.order[{k}]"), o);
+                    if !seen.insert(o) {
+                        v.err(&format!("{p}.stacked.order[{k}]"), format!("'{o}' appears twice"));
+                    }
+                }
+            }
+            Goal::WithinDistance { object, target, point, distance } => {
+                obj(&mut v, &format!("{p}.within_distance.object"), object);
+                match (target, point) {
+                    (Some(t), None) => obj(&mut v, &format!("{p}.within_distance.target"), t),
+                    (None, Some(pt)) => v.finite3(&format!("{p}.within_distance.point"), pt),
+                    _ => v.err(&format!("{p}.within_distance"), "give exactly one of target and point".into()),
+                }
+                v.positive(&format!("{p}.within_distance.distance"), *distance);
+            }
+            Goal::PoseWithin { object, position, tolerance, yaw_deg, yaw_tolerance_deg } => {
+                obj(&mut v, &format!("{p}.pose_within.object"), object);
+                v.finite3(&format!("{p}.pose_within.position"), position);
+                v.positive(&format!("{p}.pose_within.tolerance"), *tolerance);
+                if yaw_deg.is_some() != yaw_tolerance_deg.is_some() {
+                    v.err(&format!("{p}.pose_within"), "yaw_deg and yaw_tolerance_deg go together".into());
+                }
+            }
+        }
+    }
+
+    v.nonneg("variations.position_jitter", spec.variations.position_jitter);
+    v.nonneg("variations.yaw_jitter_deg", spec.variations.yaw_jitter_deg);
+    if let Some(r) = &spec.variations.ee_start {
+        v.range("variations.ee_start", r);
+    }
+
+    // The plan must be executable: pick before place, one object held at a time.
+    let mut held: Option<&str> = None;
+    for (i, step) in spec.oracle.iter().enumerate() {
+        let p = format!("oracle[{i}]");
+        match step {
+            Primitive::Pick { object } => {
+                obj(&mut v, &format!("{p}.pick.object"), object);
+                if held.is_some() {
+                    v.err(&format!("{p}.pick"), "already holding an object; place it first".into());
+                }
+                if spec.scene.objects.iter().any(|o| &o.id == object && o.is_fixed) {
+                    v.err(&format!("{p}.pick.object"), format!("'{object}' is fixed and cannot be picked"));
+                }
+                held = Some(object);
+            }
+            Primitive::Place { target } => {
+                let Some(h) = held.take() else {
+                    v.err(&format!("{p}.place"), "nothing is held: pick an object first".into());
+                    continue;
+                };
+                match target {
+                    PlaceTarget::On(o) => {
+                        obj(&mut v, &format!("{p}.place.target.on"), o);
+                        if o == h {
+                            v.err(&format!("{p}.place.target.on"), "cannot place an object on itself".into());
+                        }
+                    }
+                    PlaceTarget::Into(o) => {
+                        obj(&mut v, &format!("{p}.place.target.into"), o);
+                        if object_ids.contains(o.as_str()) && !is_container(o) {
+                            v.err(&format!("{p}.place.target.into"), format!("'{o}' is not a container"));
+                        }
+                    }
+                    PlaceTarget::Zone(z) => {
+                        if !zone_ids.contains(z.as_str()) {
+                            v.err(&format!("{p}.place.target.zone"), format!("refers to unknown zone '{z}'"));
+                        }
+                    }
+                    PlaceTarget::At(xy) => v.finite2(&format!("{p}.place.target.at"), xy),
+                }
+            }
+            Primitive::Push { object, to } => {
+                obj(&mut v, &format!("{p}.push.object"), object);
+                v.finite2(&format!("{p}.push.to"), to);
+                if held.is_some() {
+                    v.err(&format!("{p}.push"), "cannot push while holding an object".into());
+                }
+            }
+        }
+    }
+    if held.is_some() {
+        v.err("oracle", "the plan ends holding an object: add a place".into());
+    }
+
+    for (i, c) in spec.cameras.iter().enumerate() {
+        let p = format!("cameras[{i}]");
+        v.finite3(&format!("{p}.eye"), &c.eye);
+        v.finite3(&format!("{p}.target"), &c.target);
+        if !(c.fovy_deg > 1.0 && c.fovy_deg < 179.0) {
+            v.err(&format!("{p}.fovy_deg"), "must lie between 1 and 179 degrees".into());
+        }
+        if c.width == 0 || c.height == 0 {
+            v.err(&format!("{p}"), "width and height must be positive".into());
+        }
+    }
+    let ph = &spec.physics;
+    if !(ph.dt.is_finite() && ph.dt > 0.0 && ph.dt <= 0.05) {
+        v.err("physics.dt", format!("must lie in (0, 0.05] s, got {}", ph.dt));
+    }
+    v.errors
+}
+
+struct Validator<'a> {
+    task: Option<String>,
+    origin: &'a str,
+    errors: Vec<SpecError>,
+}
+
+impl Validator<'_> {
+    fn err(&mut self, path: &str, reason: String) {
+        self.errors.push(SpecError {
+            task: self.task.clone(),
+            origin: self.origin.to_owned(),
+            path: path.to_owned(),
+            reason,
+        });
+    }
+    fn finite(&mut self, path: &str, x: f64) {
+        if !x.is_finite() {
+            self.err(path, format!("must be a finite number, got {x}"));
+        }
+    }
+    fn finite2(&mut self, path: &str, x: &[f64; 2]) {
+        for (k, c) in x.iter().enumerate() {
+            self.finite(&format!("{path}[{k}]"), *c);
+        }
+    }
+    fn finite3(&mut self, path: &str, x: &[f64; 3]) {
+        for (k, c) in x.iter().enumerate() {
+            self.finite(&format!("{path}[{k}]"), *c);
+        }
+    }
+    fn positive(&mut self, path: &str, x: f64) {
+        if !(x.is_finite() && x > 0.0) {
+            self.err(path, format!("must be a positive number, got {x}"));
+        }
+    }
+    fn nonneg(&mut self, path: &str, x: f64) {
+        if !(x.is_finite() && x >= 0.0) {
+            self.err(path, format!("must be zero or positive, got {x}"));
+        }
+    }
+    fn range(&mut self, path: &str, r: &PoseRange) {
+        self.finite3(&format!("{path}.min"), &r.min);
+        self.finite3(&format!("{path}.max"), &r.max);
+        self.finite2(&format!("{path}.yaw_deg"), &r.yaw_deg);
+        for k in 0..3 {
+            if r.min[k] > r.max[k] {
+                self.err(&format!("{path}.min[{k}]"), format!("min {} exceeds max {}", r.min[k], r.max[k]));
+            }
+        }
+        if r.yaw_deg[0] > r.yaw_deg[1] {
+            self.err(&format!("{path}.yaw_deg"), "min exceeds max".into());
+        }
+    }
+    fn shape(&mut self, path: &str, s: &Shape) {
+        match s {
+            Shape::Box { half_extents } => {
+                for (k, h) in half_extents.iter().enumerate() {
+                    self.positive(&format!("{path}.box.half_extents[{k}]"), *h);
+                }
+            }
+            Shape::Sphere { radius } => self.positive(&format!("{path}.sphere.radius"), *radius),
+            Shape::Cylinder { radius, half_height } => {
+                self.positive(&format!("{path}.cylinder.radius"), *radius);
+                self.positive(&format!("{path}.cylinder.half_height"), *half_height);
+            }
+            Shape::Container { inner_half_extents, wall } => {
+                for (k, h) in inner_half_extents.iter().enumerate() {
+                    self.positive(&format!("{path}.container.inner_half_extents[{k}]"), *h);
+                }
+                self.positive(&format!("{path}.container.wall"), *wall);
+            }
+            Shape::Mesh { path: file, scale } => {
+                if file.is_empty() {
+                    self.err(&format!("{path}.mesh.path"), "must not be empty".into());
+                }
+                self.positive(&format!("{path}.mesh.scale"), *scale);
+            }
+        }
+    }
+}
+
+/// The JSON Schema of task spec v1 (committed as `schema/task-spec-v1.schema.json`).
+pub fn json_schema() -> serde_json::Value {
+    serde_json::to_value(schemars::schema_for!(TaskSpec)).expect("schema serialises")
+}
+
+impl TaskSpec {
+    /// Canonical JSON (struct field order, no whitespace): the form sent to workers and hashed.
+    pub fn canonical_json(&self) -> String {
+        serde_json::to_string(self).expect("task spec serialises")
+    }
+
+    /// SHA-256 of the canonical JSON, hex.
+    pub fn spec_hash(&self) -> String {
+        crate::hash::sha256_hex(self.canonical_json().as_bytes())
+    }
+
+    pub fn object(&self, id: &str) -> Option<&Object> {
+        self.scene.objects.iter().find(|o| o.id == id)
+    }
+
+    pub fn zone(&self, id: &str) -> Option<&Zone> {
+        self.scene.zones.iter().find(|z| z.id == id)
+    }
+}

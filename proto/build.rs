@@ -1,0 +1,18 @@
+fn main() -> Result<(), Box<dyn std::error::Error>> {
+    // protoc comes vendored: no system package needed.
+    let protoc = protoc_bin_vendored::protoc_bin_path()?;
+    // SAFETY-free: build scripts run single-threaded before any other code.
+    unsafe_set_protoc(&protoc);
+    tonic_prost_build::configure().compile_protos(
+        &["assay/v1/common.proto", "assay/v1/coordinator.proto", "assay/v1/worker.proto"],
+        &["."],
+    )?;
+    println!("cargo:rerun-if-changed=assay");
+    Ok(())
+}
+
+#[allow(unsafe_code)]
+fn unsafe_set_protoc(path: &std::path::Path) {
+    // SAFETY: build.rs is single-threaded here; nothing else reads the environment concurrently.
+    unsafe { std::env::set_var("PROTOC", path) };
+}

@@ -1,0 +1,43 @@
+//! `assay-proto`: the gRPC contract between the coordinator, its clients and its workers.
+//!
+//! Owns: `assay/v1/*.proto`, the generated types, and the one place where domain errors become
+//! gRPC status codes. Never holds logic beyond conversions.
+
+#[allow(clippy::all, clippy::pedantic, rust_2018_idioms)]
+pub mod v1 {
+    tonic::include_proto!("assay.v1");
+}
+
+pub use v1::*;
+
+/// Message size limit for every Assay channel (frames and reports exceed tonic's 4 MiB default).
+pub const MAX_MESSAGE_BYTES: usize = 64 * 1024 * 1024;
+
+impl Role {
+    /// The lowercase role name used on the command line and in logs.
+    pub fn name(self) -> &'static str {
+        match self {
+            Role::Unspecified => "unspecified",
+            Role::Sim => "sim",
+            Role::Render => "render",
+            Role::Judge => "judge",
+            Role::Trainer => "trainer",
+        }
+    }
+
+    pub fn parse(s: &str) -> Option<Role> {
+        match s {
+            "sim" => Some(Role::Sim),
+            "render" => Some(Role::Render),
+            "judge" => Some(Role::Judge),
+            "trainer" => Some(Role::Trainer),
+            _ => None,
+        }
+    }
+}
+
+impl BatchState {
+    pub fn is_final(self) -> bool {
+        matches!(self, BatchState::Completed | BatchState::Cancelled)
+    }
+}

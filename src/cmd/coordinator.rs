@@ -1,0 +1,50 @@
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::time::Duration;
+
+use anyhow::Context;
+use assay_coordinator::CoordinatorConfig;
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// Address to listen on (port 0 picks a free port; see --addr-file).
+    #[arg(long, env = "ASSAY_LISTEN", default_value = "127.0.0.1:7878")]
+    pub listen: String,
+    /// The SQLite job store; reopened on restart, unfinished shards carry on.
+    #[arg(long, env = "ASSAY_STORE", default_value = "assay-jobs.db")]
+    pub store: PathBuf,
+    /// Artifact root (episodes and other files, content-addressed).
+    #[arg(long, env = "ASSAY_ARTIFACTS", default_value = "assay-artifacts")]
+    pub artifacts: PathBuf,
+    /// Write the bound address (host:port and a newline) here once listening.
+    #[arg(long)]
+    pub addr_file: Option<PathBuf>,
+    /// Lease lifetime without a heartbeat, in milliseconds.
+    #[arg(long, env = "ASSAY_LEASE_TTL_MS", default_value_t = 15_000)]
+    pub lease_ttl_ms: u64,
+    /// Heartbeat interval asked of workers, in milliseconds.
+    #[arg(long, env = "ASSAY_HEARTBEAT_MS", default_value_t = 3_000)]
+    pub heartbeat_ms: u64,
+    /// Attempts per shard before it is recorded as failed.
+    #[arg(long, env = "ASSAY_MAX_ATTEMPTS", default_value_t = 3)]
+    pub max_attempts: u32,
+}
+
+pub fn run(a: Args) -> anyhow::Result<ExitCode> {
+    let artifacts = std::path::absolute(&a.artifacts).context("artifact root")?;
+    let mut config = CoordinatorConfig::new(a.store.clone(), artifacts);
+    config.lease_ttl = Duration::from_millis(a.lease_ttl_ms);
+    config.heartbeat_interval = Duration::from_millis(a.heartbeat_ms);
+    config.max_attempts = a.max_attempts.max(1);
+    super::block_on(async move {
+        let listener = tokio::net::TcpListener::bind(&a.listen).await.with_context(|| format!("binding {}", a.listen))?;
+        let addr = listener.local_addr()?;
+        if let Some(f) = &a.addr_file {
+            let tmp = f.with_extension("tmp");
+            std::fs::write(&tmp, format!("{addr}\n"))?;
+            std::fs::rename(&tmp, f)?;
+        }
+        assay_coordinator::serve(config, listener, super::terminated()).await?;
+        Ok(ExitCode::SUCCESS)
+    })
+}

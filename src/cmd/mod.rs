@@ -1,0 +1,69 @@
+//! One module per subcommand.
+
+pub mod bench;
+pub mod coordinator;
+pub mod eval;
+pub mod report;
+pub mod status;
+pub mod submit;
+pub mod validate;
+pub mod worker;
+
+use std::future::Future;
+
+use anyhow::Context;
+use assay_proto::v1 as pb;
+use tonic::transport::Channel;
+
+/// The default coordinator address, also read from ASSAY_COORDINATOR.
+pub const DEFAULT_COORDINATOR: &str = "http://127.0.0.1:7878";
+
+/// A multi-threaded runtime for commands that talk to the network.
+pub fn block_on<F: Future>(f: F) -> F::Output {
+    tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .thread_name("assay-rt")
+        .build()
+        .expect("tokio runtime")
+        .block_on(f)
+}
+
+pub async fn client(addr: &str) -> anyhow::Result<pb::coordinator_client::CoordinatorClient<Channel>> {
+    let channel = tonic::transport::Endpoint::from_shared(addr.to_owned())
+        .with_context(|| format!("bad coordinator address '{addr}'"))?
+        .connect_timeout(std::time::Duration::from_secs(5))
+        .connect()
+        .await
+        .with_context(|| format!("no coordinator at {addr}"))?;
+    Ok(pb::coordinator_client::CoordinatorClient::new(channel)
+        .max_decoding_message_size(assay_proto::MAX_MESSAGE_BYTES)
+        .max_encoding_message_size(assay_proto::MAX_MESSAGE_BYTES))
+}
+
+/// Resolves on SIGTERM or Ctrl-C.
+pub async fn terminated() {
+    let mut term = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()).expect("SIGTERM handler");
+    tokio::select! {
+        _ = term.recv() => {}
+        _ = tokio::signal::ctrl_c() => {}
+    }
+}
+
+pub fn state_name(state: i32) -> &'static str {
+    match pb::BatchState::try_from(state).unwrap_or(pb::BatchState::Unspecified) {
+        pb::BatchState::Running => "running",
+        pb::BatchState::Completed => "completed",
+        pb::BatchState::Cancelled => "cancelled",
+        pb::BatchState::Unspecified => "unknown",
+    }
+}
+
+/// Prints the task errors a coordinator reported for a submission.
+pub fn print_rejected(rejected: &[pb::SpecError]) {
+    for e in rejected {
+        let task = if e.task_id.is_empty() { "<no id>" } else { &e.task_id };
+        let path = if e.path.is_empty() { "<document>" } else { &e.path };
+        eprintln!("invalid task {task} ({}): {path}: {}", e.origin, e.reason);
+    }
+}

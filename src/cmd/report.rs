@@ -1,0 +1,33 @@
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+
+use anyhow::Context;
+use assay_proto::v1 as pb;
+
+#[derive(clap::Args)]
+pub struct Args {
+    pub batch: String,
+    #[arg(long, env = "ASSAY_COORDINATOR", default_value = super::DEFAULT_COORDINATOR)]
+    pub coordinator: String,
+    /// Folder for report.json and report.md.
+    #[arg(long, default_value = ".")]
+    pub out: PathBuf,
+}
+
+/// Writes `report.json` and `report.md` into `out`.
+pub fn write(out: &Path, r: &pb::GetReportResponse) -> anyhow::Result<()> {
+    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    std::fs::write(out.join("report.json"), format!("{}\n", r.report_json))?;
+    std::fs::write(out.join("report.md"), &r.report_markdown)?;
+    Ok(())
+}
+
+pub fn run(a: Args) -> anyhow::Result<ExitCode> {
+    super::block_on(async move {
+        let mut c = super::client(&a.coordinator).await?;
+        let r = c.get_report(pb::GetReportRequest { batch_id: a.batch }).await?.into_inner();
+        write(&a.out, &r)?;
+        eprintln!("wrote {} and {}{}", a.out.join("report.json").display(), a.out.join("report.md").display(), if r.r#final { "" } else { " (partial: the batch is still running)" });
+        Ok(ExitCode::SUCCESS)
+    })
+}

@@ -1,0 +1,70 @@
+//! `assay`: the command-line entry point. Thin: each subcommand lives in `cmd/`, the logic in the
+//! workspace's libraries.
+
+mod cmd;
+mod docs;
+mod logging;
+mod proc;
+
+use clap::{Parser, Subcommand};
+
+#[derive(Parser)]
+#[command(name = "assay", version, about = "Evaluate generated robot tasks and policies on a cluster of real processes")]
+struct Cli {
+    /// Log format on stderr: pretty or json. Filter with ASSAY_LOG (e.g. ASSAY_LOG=debug).
+    #[arg(long, global = true, env = "ASSAY_LOG_FORMAT", default_value = "pretty")]
+    log_format: String,
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Run a batch end to end on a local cluster (coordinator + N sim workers) and write a report.
+    Eval(cmd::eval::Args),
+    /// Run the coordinator (one per cluster).
+    Coordinator(cmd::coordinator::Args),
+    /// Run a worker process with one or more roles.
+    Worker(cmd::worker::Args),
+    /// Submit a batch of task specs to a running coordinator.
+    Submit(cmd::submit::Args),
+    /// Show the status of one batch, or list all batches.
+    Status(cmd::status::Args),
+    /// Fetch a batch's report (report.json, report.md).
+    Report(cmd::report::Args),
+    /// Cancel a batch.
+    Cancel(cmd::status::CancelArgs),
+    /// Check task specs without running them.
+    Validate(cmd::validate::Args),
+    /// Print the JSON Schema of task spec v1.
+    Schema,
+    /// Benchmarks on the peer reference scene (compare with shared/bench/peers/peers.py).
+    Bench(cmd::bench::Args),
+}
+
+fn main() -> std::process::ExitCode {
+    let cli = Cli::parse();
+    logging::init(&cli.log_format);
+    let result = match cli.command {
+        Command::Eval(a) => cmd::eval::run(a),
+        Command::Coordinator(a) => cmd::coordinator::run(a),
+        Command::Worker(a) => cmd::worker::run(a),
+        Command::Submit(a) => cmd::submit::run(a),
+        Command::Status(a) => cmd::status::run(a),
+        Command::Report(a) => cmd::report::run(a),
+        Command::Cancel(a) => cmd::status::cancel(a),
+        Command::Validate(a) => cmd::validate::run(a),
+        Command::Schema => {
+            println!("{}", serde_json::to_string_pretty(&assay_core::spec::json_schema()).expect("schema"));
+            Ok(std::process::ExitCode::SUCCESS)
+        }
+        Command::Bench(a) => cmd::bench::run(a),
+    };
+    match result {
+        Ok(code) => code,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            std::process::ExitCode::FAILURE
+        }
+    }
+}

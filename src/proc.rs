@@ -1,0 +1,73 @@
+//! Child processes of a local cluster: started with their logs in files, stopped with
+//! grace → SIGTERM → SIGKILL, always reaped.
+
+use std::path::Path;
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use anyhow::Context;
+use nix::sys::signal::{Signal, kill};
+use nix::unistd::Pid;
+
+pub struct ChildProc {
+    pub name: String,
+    pub child: Child,
+}
+
+impl ChildProc {
+    pub fn spawn(name: &str, args: &[String], log: &Path) -> anyhow::Result<Self> {
+        let exe = std::env::current_exe().context("locating the assay binary")?;
+        let log_file = std::fs::File::create(log).with_context(|| format!("creating {}", log.display()))?;
+        let child = Command::new(exe)
+            .args(args)
+            .stdin(Stdio::null())
+            .stdout(log_file.try_clone()?)
+            .stderr(log_file)
+            .spawn()
+            .with_context(|| format!("starting {name}"))?;
+        Ok(Self { name: name.to_owned(), child })
+    }
+
+    /// SIGTERM, wait up to `grace`, then SIGKILL; reaps the process.
+    pub fn stop(&mut self, grace: Duration) {
+        if matches!(self.child.try_wait(), Ok(Some(_))) {
+            return;
+        }
+        let pid = Pid::from_raw(self.child.id() as i32);
+        let _ = kill(pid, Signal::SIGTERM);
+        let deadline = Instant::now() + grace;
+        while Instant::now() < deadline {
+            if matches!(self.child.try_wait(), Ok(Some(_))) {
+                return;
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+impl Drop for ChildProc {
+    fn drop(&mut self) {
+        self.stop(Duration::from_secs(3));
+    }
+}
+
+/// Waits for a file a child writes (its bound address), up to `timeout`.
+pub fn wait_for_file(path: &Path, timeout: Duration, child: &mut ChildProc) -> anyhow::Result<String> {
+    let deadline = Instant::now() + timeout;
+    loop {
+        if let Ok(s) = std::fs::read_to_string(path) {
+            if s.ends_with('\n') {
+                return Ok(s.trim().to_owned());
+            }
+        }
+        if let Ok(Some(status)) = child.child.try_wait() {
+            anyhow::bail!("{} exited early ({status}); see its log", child.name);
+        }
+        if Instant::now() > deadline {
+            anyhow::bail!("{} did not start within {timeout:?}", child.name);
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}

@@ -1,0 +1,280 @@
+//! The primitive controller: turns pick / place / push into commanded tool positions, step by
+//! step, reading the live state at the start of each primitive (as a scripted oracle would).
+
+use assay_core::rng::Rng;
+use assay_core::spec::{EndEffector, PlaceTarget, Primitive, TaskSpec};
+use rapier3d::prelude::*;
+
+use crate::scene::{GRIPPER_HALF_EXTENTS, SimScene};
+
+/// Transit speed of the tool (m/s), descents and the push sweep.
+const TRANSIT_SPEED: f32 = 0.8;
+const DESCEND_SPEED: f32 = 0.25;
+const PUSH_SPEED: f32 = 0.12;
+const MIN_SEGMENT_STEPS: u32 = 20;
+const DWELL_STEPS: u32 = 8;
+/// Gap left under a placed object before release (m).
+const PLACE_CLEARANCE: f32 = 0.004;
+/// How far the tool's face may be from an object's top and still grasp it (m).
+const GRASP_REACH: f32 = 0.012;
+
+/// One straight move of the tool, with ease-in/ease-out.
+#[derive(Debug, Clone, Copy)]
+struct Segment {
+    from: Vec3,
+    to: Vec3,
+    steps: u32,
+}
+
+impl Segment {
+    fn at(&self, k: u32) -> Vec3 {
+        let t = ((k + 1) as f32 / self.steps as f32).min(1.0);
+        let s = t * t * (3.0 - 2.0 * t);
+        self.from.lerp(self.to, s)
+    }
+}
+
+/// What the controller asks of the world at a step.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Event {
+    None,
+    /// Try to grasp this object (index into `SimScene::objects`).
+    Grasp(usize),
+    Release,
+}
+
+/// Something the oracle noticed (recorded with the episode).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Note {
+    pub step: u64,
+    pub text: String,
+}
+
+pub struct Controller {
+    plan: Vec<Primitive>,
+    next: usize,
+    /// Moves of the current primitive, with an event after each.
+    queue: std::collections::VecDeque<(Segment, Event)>,
+    k: u32,
+    /// Commanded tool position.
+    pub command: Vec3,
+    pub held: Option<Held>,
+    /// Uniform noise (± m) added to every target in x and y.
+    noise: f32,
+    rng: Rng,
+    pub notes: Vec<Note>,
+    max_opening: Option<f32>,
+}
+
+#[derive(Debug, Clone, Copy)]
+pub struct Held {
+    pub object: usize,
+    /// Object centre minus tool centre at the grasp (world frame).
+    pub offset: Vec3,
+    pub joint: ImpulseJointHandle,
+}
+
+impl Controller {
+    pub fn new(spec: &TaskSpec, start: Vec3, noise: f64, seed: u64) -> Self {
+        Self {
+            plan: spec.oracle.clone(),
+            next: 0,
+            queue: Default::default(),
+            k: 0,
+            command: start,
+            held: None,
+            noise: noise as f32,
+            rng: Rng::new(seed, &format!("{}/policy-noise", spec.id)),
+            notes: Vec::new(),
+            max_opening: match spec.end_effector {
+                EndEffector::Suction => None,
+                EndEffector::ParallelGripper { max_opening } => Some(max_opening as f32),
+            },
+        }
+    }
+
+    pub fn done(&self) -> bool {
+        self.queue.is_empty() && self.next >= self.plan.len()
+    }
+
+    /// Advances one step: returns the commanded tool position and the event to apply after it.
+    pub fn step(&mut self, scene: &SimScene, step: u64) -> (Vec3, Event) {
+        while self.queue.is_empty() && self.next < self.plan.len() {
+            let p = self.plan[self.next].clone();
+            self.next += 1;
+            self.expand(&p, scene, step);
+        }
+        let Some((seg, ev)) = self.queue.front().copied() else {
+            return (self.command, Event::None);
+        };
+        self.command = seg.at(self.k);
+        self.k += 1;
+        if self.k >= seg.steps {
+            self.queue.pop_front();
+            self.k = 0;
+            return (self.command, ev);
+        }
+        (self.command, Event::None)
+    }
+
+    fn jitter(&mut self) -> Vec3 {
+        if self.noise == 0.0 {
+            return Vec3::ZERO;
+        }
+        let n = f64::from(self.noise);
+        Vec3::new(self.rng.uniform(-n, n) as f32, self.rng.uniform(-n, n) as f32, 0.0)
+    }
+
+    fn push_move(&mut self, to: Vec3, speed: f32, ev: Event, dt: f32) {
+        let from = self.queue.back().map(|(s, _)| s.to).unwrap_or(self.command);
+        let dist = from.distance(to);
+        let steps = ((dist / speed / dt).ceil() as u32).max(MIN_SEGMENT_STEPS);
+        self.queue.push_back((Segment { from, to, steps }, ev));
+    }
+
+    fn dwell(&mut self, ev: Event) {
+        let at = self.queue.back().map(|(s, _)| s.to).unwrap_or(self.command);
+        self.queue.push_back((Segment { from: at, to: at, steps: DWELL_STEPS }, ev));
+    }
+
+    /// A height from which the tool, and what it holds, clears everything on the table.
+    fn safe_height(&self, scene: &SimScene) -> f32 {
+        let mut top = 0.0f32;
+        for (i, o) in scene.objects.iter().enumerate() {
+            if self.held.is_some_and(|h| h.object == i) {
+                continue;
+            }
+            let p = scene.pose(o).translation;
+            top = top.max(p.z + o.half.z);
+        }
+        let held_height = self.held.map(|h| 2.0 * scene.objects[h.object].half.z).unwrap_or(0.0);
+        (top + held_height + GRIPPER_HALF_EXTENTS[2] + 0.04).max(0.25)
+    }
+
+    fn expand(&mut self, p: &Primitive, scene: &SimScene, step: u64) {
+        let dt = scene.world.integration_parameters.dt;
+        let gh = GRIPPER_HALF_EXTENTS[2];
+        match p {
+            Primitive::Pick { object } => {
+                let Some(i) = scene.index_of(object) else { return };
+                let o = &scene.objects[i];
+                if let Some(max) = self.max_opening {
+                    if 2.0 * o.half.x.min(o.half.y) > max {
+                        self.notes.push(Note { step, text: format!("'{object}' is wider than the gripper opens ({max} m)") });
+                    }
+                }
+                let pos = scene.pose(o).translation + self.jitter();
+                let z_safe = self.safe_height(scene);
+                let top = pos.z + o.half.z;
+                self.push_move(Vec3::new(self.command.x, self.command.y, z_safe), DESCEND_SPEED * 2.0, Event::None, dt);
+                self.push_move(Vec3::new(pos.x, pos.y, z_safe), TRANSIT_SPEED, Event::None, dt);
+                self.push_move(Vec3::new(pos.x, pos.y, top + gh), DESCEND_SPEED, Event::None, dt);
+                self.dwell(Event::Grasp(i));
+                let lift = z_safe.max(top + gh + 0.02 + 2.0 * o.half.z);
+                self.push_move(Vec3::new(pos.x, pos.y, lift), DESCEND_SPEED, Event::None, dt);
+            }
+            Primitive::Place { target } => {
+                let Some(h) = self.held else {
+                    self.notes.push(Note { step, text: "place with nothing held (the grasp failed)".into() });
+                    return;
+                };
+                let held_half = scene.objects[h.object].half;
+                let centre = match target {
+                    PlaceTarget::On(id) => scene.object(id).map(|s| {
+                        let p = scene.pose(s).translation;
+                        Vec3::new(p.x, p.y, p.z + s.half.z + held_half.z)
+                    }),
+                    PlaceTarget::Into(id) => scene.object(id).map(|c| {
+                        let p = scene.pose(c).translation;
+                        let (inner, w) = c.container.unwrap_or((c.half, 0.0));
+                        Vec3::new(p.x, p.y, p.z - (inner.z + w / 2.0) + w + held_half.z)
+                    }),
+                    PlaceTarget::Zone(id) => scene_zone(scene, id).map(|(c, _)| Vec3::new(c.x, c.y, held_half.z)),
+                    PlaceTarget::At(xy) => Some(Vec3::new(xy[0] as f32, xy[1] as f32, held_half.z)),
+                };
+                let Some(centre) = centre else { return };
+                let centre = centre + self.jitter();
+                let z_safe = self.safe_height(scene);
+                let tool = centre - h.offset;
+                self.push_move(Vec3::new(self.command.x, self.command.y, z_safe), DESCEND_SPEED * 2.0, Event::None, dt);
+                self.push_move(Vec3::new(tool.x, tool.y, z_safe), TRANSIT_SPEED, Event::None, dt);
+                self.push_move(Vec3::new(tool.x, tool.y, tool.z + PLACE_CLEARANCE), DESCEND_SPEED, Event::None, dt);
+                self.dwell(Event::Release);
+                self.dwell(Event::None);
+                self.push_move(Vec3::new(tool.x, tool.y, z_safe), DESCEND_SPEED, Event::None, dt);
+            }
+            Primitive::Push { object, to } => {
+                let Some(o) = scene.object(object) else { return };
+                let pose = scene.pose(o);
+                let p = pose.translation;
+                let goal = Vec3::new(to[0] as f32, to[1] as f32, 0.0) + self.jitter();
+                let d = Vec3::new(goal.x - p.x, goal.y - p.y, 0.0);
+                if d.length() < 1e-4 {
+                    return;
+                }
+                let dir = d.normalize();
+                // Extent of the object along the push direction, in its own (yawed) frame.
+                let ax = pose.rotation * Vec3::X;
+                let ay = pose.rotation * Vec3::Y;
+                let e = o.half.x * dir.dot(ax).abs() + o.half.y * dir.dot(ay).abs();
+                let g = GRIPPER_HALF_EXTENTS[0] * (dir.x.abs() + dir.y.abs());
+                let z_low = gh + 0.004;
+                let z_safe = self.safe_height(scene);
+                let start = Vec3::new(p.x, p.y, 0.0) - dir * (e + g + 0.03);
+                let end = Vec3::new(goal.x, goal.y, 0.0) - dir * (e + g);
+                self.push_move(Vec3::new(self.command.x, self.command.y, z_safe), DESCEND_SPEED * 2.0, Event::None, dt);
+                self.push_move(Vec3::new(start.x, start.y, z_safe), TRANSIT_SPEED, Event::None, dt);
+                self.push_move(Vec3::new(start.x, start.y, z_low), DESCEND_SPEED, Event::None, dt);
+                self.push_move(Vec3::new(end.x, end.y, z_low), PUSH_SPEED, Event::None, dt);
+                let back = end - dir * 0.02;
+                self.push_move(Vec3::new(back.x, back.y, z_low), PUSH_SPEED, Event::None, dt);
+                self.push_move(Vec3::new(back.x, back.y, z_safe), DESCEND_SPEED, Event::None, dt);
+            }
+        }
+    }
+
+    /// Applies a grasp or release to the world.
+    pub fn apply(&mut self, ev: Event, scene: &mut SimScene, step: u64) {
+        match ev {
+            Event::None => {}
+            Event::Grasp(i) => {
+                let o = scene.objects[i].clone();
+                let tool = scene.gripper_position();
+                let pose = scene.pose(&o);
+                let top = pose.translation.z + o.half.z;
+                let face = tool.z - GRIPPER_HALF_EXTENTS[2];
+                let horizontal = Vec3::new(pose.translation.x - tool.x, pose.translation.y - tool.y, 0.0).length();
+                let fits = self.max_opening.is_none_or(|m| 2.0 * o.half.x.min(o.half.y) <= m);
+                if o.fixed || (face - top).abs() > GRASP_REACH || horizontal > o.half.x.max(o.half.y) || !fits {
+                    self.notes.push(Note {
+                        step,
+                        text: format!(
+                            "grasp of '{}' failed: tool face {:.3} m from its top, {:.3} m off centre{}",
+                            o.id,
+                            (face - top).abs(),
+                            horizontal,
+                            if fits { "" } else { ", too wide for the gripper" }
+                        ),
+                    });
+                    return;
+                }
+                let tool_pose = *scene.world.bodies[scene.gripper].position();
+                let rel = tool_pose.inverse() * pose;
+                let joint = FixedJointBuilder::new().local_frame1(rel).local_frame2(Pose::IDENTITY).contacts_enabled(false);
+                let handle = scene.world.insert_impulse_joint(scene.gripper, o.body, joint);
+                self.held = Some(Held { object: i, offset: pose.translation - tool, joint: handle });
+            }
+            Event::Release => {
+                if let Some(h) = self.held.take() {
+                    scene.world.remove_impulse_joint(h.joint);
+                    let body = scene.objects[h.object].body;
+                    scene.world.wake_up(body, true);
+                }
+            }
+        }
+    }
+}
+
+fn scene_zone(scene: &SimScene, id: &str) -> Option<(Vec3, Vec3)> {
+    scene.zones.iter().find(|z| z.0 == id).map(|z| (z.1, z.2))
+}

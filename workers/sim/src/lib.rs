@@ -1,0 +1,207 @@
+//! `assay-sim`: the sim role. Builds a rapier3d scene from a task spec and a seed, runs a policy
+//! in the loop (the oracle plan through a primitive controller), evaluates the goal predicates
+//! on the final state, and records the episode as an Arrow IPC file in the artifact store.
+//!
+//! Owns physics. Never does networking: the worker binary feeds it assignments. Runs on the
+//! caller's thread (a shard thread), never on an async executor.
+
+pub mod controller;
+pub mod predicates;
+pub mod record;
+pub mod reference;
+pub mod scene;
+
+use std::collections::{BTreeMap, HashMap};
+use std::path::Path;
+
+use assay_core::report::{EpisodeOutcome, LabelSource};
+use assay_core::spec::TaskSpec;
+
+use crate::controller::Controller;
+use crate::record::Recorder;
+
+/// The rapier3d release this crate is built against (pinned in Cargo.lock).
+pub const RAPIER_VERSION: &str = "0.36.1";
+
+/// Record one row every this many physics steps (60 Hz at the default dt of 1/240 s).
+pub const RECORD_STRIDE: u64 = 4;
+
+#[derive(Debug, Clone, thiserror::Error)]
+pub enum SimError {
+    /// The spec cannot be simulated as written (names the field).
+    #[error("{path}: {reason}")]
+    Spec { path: String, reason: String },
+    #[error("unknown policy '{0}' (the sim role runs: oracle, oracle:noise=<m>)")]
+    Policy(String),
+    #[error("artifact store: {0}")]
+    Io(String),
+    #[error("{0}")]
+    Internal(String),
+}
+
+impl SimError {
+    pub fn spec(path: impl Into<String>, reason: impl Into<String>) -> Self {
+        SimError::Spec { path: path.into(), reason: reason.into() }
+    }
+    pub fn internal(msg: impl Into<String>) -> Self {
+        SimError::Internal(msg.into())
+    }
+    /// Whether running the shard again could give a different answer.
+    pub fn retryable(&self) -> bool {
+        matches!(self, SimError::Io(_) | SimError::Internal(_))
+    }
+}
+
+/// The versions recorded with every episode.
+pub fn versions() -> BTreeMap<String, String> {
+    BTreeMap::from([
+        ("assay-sim".to_owned(), env!("CARGO_PKG_VERSION").to_owned()),
+        ("rapier3d".to_owned(), RAPIER_VERSION.to_owned()),
+        ("episode-format".to_owned(), record::EPISODE_FORMAT_VERSION.to_owned()),
+    ])
+}
+
+/// A policy the sim role can run in the loop.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Policy {
+    /// The task's oracle plan, with uniform noise (± m) on every target.
+    Oracle { noise: f64 },
+}
+
+impl Policy {
+    pub fn parse(name: &str) -> Result<Policy, SimError> {
+        let (kind, args) = name.split_once(':').unwrap_or((name, ""));
+        if kind != "oracle" {
+            return Err(SimError::Policy(name.to_owned()));
+        }
+        let mut noise = 0.0;
+        for arg in args.split(',').filter(|a| !a.is_empty()) {
+            match arg.split_once('=') {
+                Some(("noise", v)) => noise = v.parse().map_err(|_| SimError::Policy(name.to_owned()))?,
+                _ => return Err(SimError::Policy(name.to_owned())),
+            }
+        }
+        Ok(Policy::Oracle { noise })
+    }
+}
+
+/// What one episode produced, before it is stored.
+pub struct Episode {
+    pub outcome: EpisodeOutcome,
+    pub file: Vec<u8>,
+    pub notes: Vec<String>,
+}
+
+/// Simulates one episode of `spec` with `seed` and `policy`. Deterministic: the same inputs give
+/// the same outcome and the same file, byte for byte.
+pub fn simulate(spec: &TaskSpec, seed: u64, policy: &str) -> Result<Episode, SimError> {
+    let Policy::Oracle { noise } = Policy::parse(policy)?;
+    let mut scene = scene::build_scene(spec, seed)?;
+    let start = scene.gripper_position();
+    let mut ctl = Controller::new(spec, start, noise, seed);
+    let dt = f64::from(scene.world.integration_parameters.dt);
+    let mut rec = Recorder::new(scene.objects.len());
+    let settle = u64::from(spec.physics.settle_steps);
+    let max_steps = u64::from(spec.physics.max_steps);
+    let mut step: u64 = 0;
+
+    let advance = |scene: &mut SimScene, ctl: &mut Controller, rec: &mut Recorder, step: &mut u64, act: bool| {
+        let ev = if act {
+            let (cmd, ev) = ctl.step(scene, *step);
+            scene.world.bodies[scene.gripper].set_next_kinematic_translation(cmd);
+            ev
+        } else {
+            scene.world.bodies[scene.gripper].set_next_kinematic_translation(ctl.command);
+            controller::Event::None
+        };
+        scene.world.step();
+        ctl.apply(ev, scene, *step);
+        *step += 1;
+        if *step % RECORD_STRIDE == 0 {
+            rec.record(scene, *step as u32, *step as f64 * dt, ctl.command, ctl.held.map(|h| h.object));
+        }
+    };
+    rec.record(&scene, 0, 0.0, ctl.command, None);
+    for _ in 0..settle {
+        advance(&mut scene, &mut ctl, &mut rec, &mut step, false);
+    }
+    let mut truncated = false;
+    while !ctl.done() {
+        if step >= settle + max_steps {
+            truncated = true;
+            break;
+        }
+        advance(&mut scene, &mut ctl, &mut rec, &mut step, true);
+    }
+    if let Some(h) = ctl.held.take() {
+        // A truncated plan may still hold something: let it go before the final settle.
+        scene.world.remove_impulse_joint(h.joint);
+    }
+    for _ in 0..settle {
+        advance(&mut scene, &mut ctl, &mut rec, &mut step, false);
+    }
+    if step % RECORD_STRIDE != 0 {
+        rec.record(&scene, step as u32, step as f64 * dt, ctl.command, None);
+    }
+
+    let predicates = predicates::evaluate(&spec.goals, &scene);
+    let success = !truncated && predicates.iter().all(|p| p.holds);
+    let mut notes: Vec<String> = ctl.notes.iter().map(|n| format!("step {}: {}", n.step, n.text)).collect();
+    if truncated {
+        notes.push(format!("plan cut off at physics.max_steps = {max_steps}"));
+    }
+    let spec_hash = spec.spec_hash();
+    let versions = versions();
+    let object_ids: Vec<String> = scene.objects.iter().map(|o| o.id.clone()).collect();
+    let metadata = HashMap::from([
+        ("assay.episode_format".to_owned(), record::EPISODE_FORMAT_VERSION.to_owned()),
+        ("assay.task_id".to_owned(), spec.id.clone()),
+        ("assay.seed".to_owned(), seed.to_string()),
+        ("assay.policy".to_owned(), policy.to_owned()),
+        ("assay.success".to_owned(), success.to_string()),
+        ("assay.label_source".to_owned(), "sim".to_owned()),
+        ("assay.predicates".to_owned(), serde_json::to_string(&predicates).unwrap_or_default()),
+        ("assay.notes".to_owned(), serde_json::to_string(&notes).unwrap_or_default()),
+        ("assay.spec_hash".to_owned(), spec_hash.clone()),
+        ("assay.versions".to_owned(), serde_json::to_string(&versions).unwrap_or_default()),
+        ("assay.objects".to_owned(), serde_json::to_string(&object_ids).unwrap_or_default()),
+        ("assay.dt".to_owned(), dt.to_string()),
+        ("assay.record_stride".to_owned(), RECORD_STRIDE.to_string()),
+    ]);
+    let file = rec.encode(&object_ids, metadata)?;
+    let artifact = format!("episodes/{}.arrow", assay_core::hash::sha256_hex(&file));
+    Ok(Episode {
+        outcome: EpisodeOutcome {
+            task_id: spec.id.clone(),
+            seed,
+            policy: policy.to_owned(),
+            success,
+            label_source: LabelSource::Sim,
+            predicates,
+            steps: step,
+            sim_time_s: step as f64 * dt,
+            artifact,
+            spec_hash,
+            versions,
+        },
+        file,
+        notes,
+    })
+}
+
+use scene::SimScene;
+
+/// Simulates an episode and stores its file under `artifact_root` (content-addressed; writing
+/// the same episode twice is harmless).
+pub fn run_episode(spec: &TaskSpec, seed: u64, policy: &str, artifact_root: &Path) -> Result<EpisodeOutcome, SimError> {
+    let ep = simulate(spec, seed, policy)?;
+    let path = artifact_root.join(&ep.outcome.artifact);
+    if !path.exists() {
+        let dir = path.parent().expect("artifact path has a folder");
+        std::fs::create_dir_all(dir).map_err(|e| SimError::Io(format!("{}: {e}", dir.display())))?;
+        let tmp = dir.join(format!(".tmp-{}-{:?}", std::process::id(), std::thread::current().id()));
+        std::fs::write(&tmp, &ep.file).map_err(|e| SimError::Io(format!("{}: {e}", tmp.display())))?;
+        std::fs::rename(&tmp, &path).map_err(|e| SimError::Io(format!("{}: {e}", path.display())))?;
+    }
+    Ok(ep.outcome)
+}

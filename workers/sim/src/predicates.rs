@@ -1,0 +1,95 @@
+//! Goal predicates, evaluated on the simulator's state: the ground truth of success.
+
+use assay_core::report::PredicateValue;
+use assay_core::spec::Goal;
+use rapier3d::prelude::*;
+
+use crate::scene::{SimObject, SimScene};
+
+/// How far (m) a resting object's height may differ from the nominal stack height.
+const REST_TOLERANCE: f32 = 0.02;
+
+pub fn evaluate(goals: &[Goal], scene: &SimScene) -> Vec<PredicateValue> {
+    goals
+        .iter()
+        .map(|g| {
+            let (holds, detail) = holds(g, scene);
+            PredicateValue { label: g.label(), holds, detail }
+        })
+        .collect()
+}
+
+fn obj<'a>(scene: &'a SimScene, id: &str) -> &'a SimObject {
+    scene.object(id).expect("validated: goal objects exist")
+}
+
+fn on_top_of(scene: &SimScene, object: &str, support: &str) -> (bool, String) {
+    let (o, s) = (obj(scene, object), obj(scene, support));
+    let sp = scene.pose(s);
+    let local = sp.inverse() * scene.pose(o).translation;
+    let over = local.x.abs() <= s.half.x && local.y.abs() <= s.half.y;
+    let rest = o.half.z + s.half.z;
+    let dz = scene.pose(o).translation.z - sp.translation.z;
+    let resting = (dz - rest).abs() <= REST_TOLERANCE;
+    (
+        over && resting,
+        format!("offset ({:.3}, {:.3}) m over a top of ±({:.3}, {:.3}); height above support {dz:.3} m (expected {rest:.3})", local.x, local.y, s.half.x, s.half.y),
+    )
+}
+
+fn holds(goal: &Goal, scene: &SimScene) -> (bool, String) {
+    match goal {
+        Goal::InZone { object, zone } => {
+            let p = scene.pose(obj(scene, object)).translation;
+            let (_, c, h) = scene.zones.iter().find(|z| &z.0 == zone).expect("validated: zone exists");
+            let inside = (p.x - c.x).abs() <= h.x && (p.y - c.y).abs() <= h.y && p.z > -0.02;
+            (inside, format!("centre ({:.3}, {:.3}, {:.3}); zone ({:.3}, {:.3}) ± ({:.3}, {:.3})", p.x, p.y, p.z, c.x, c.y, h.x, h.y))
+        }
+        Goal::InContainer { object, container } => {
+            let (o, c) = (obj(scene, object), obj(scene, container));
+            let local = scene.pose(c).inverse() * scene.pose(o).translation;
+            let (inner, w) = c.container.unwrap_or((c.half, 0.0));
+            let big_h = inner.z + w / 2.0;
+            let inside = local.x.abs() <= inner.x && local.y.abs() <= inner.y && local.z >= -big_h && local.z <= big_h + 0.5 * o.half.z;
+            (inside, format!("centre at ({:.3}, {:.3}, {:.3}) in the container's frame; interior ±({:.3}, {:.3}), floor {:.3}", local.x, local.y, local.z, inner.x, inner.y, -big_h + w))
+        }
+        Goal::OnTopOf { object, support } => on_top_of(scene, object, support),
+        Goal::Stacked { order } => {
+            let mut details = Vec::new();
+            let mut all = true;
+            for pair in order.windows(2) {
+                let (ok, d) = on_top_of(scene, &pair[1], &pair[0]);
+                all &= ok;
+                if !ok {
+                    details.push(format!("{} on {}: {d}", pair[1], pair[0]));
+                }
+            }
+            (all, if all { "every level rests on the one below".into() } else { details.join("; ") })
+        }
+        Goal::WithinDistance { object, target, point, distance } => {
+            let p = scene.pose(obj(scene, object)).translation;
+            let q = match (target, point) {
+                (Some(t), _) => scene.pose(obj(scene, t)).translation,
+                (None, Some(pt)) => Vec3::new(pt[0] as f32, pt[1] as f32, pt[2] as f32),
+                (None, None) => unreachable!("validated: a target or a point"),
+            };
+            let d = p.distance(q);
+            (d <= *distance as f32, format!("distance {d:.3} m (limit {distance})"))
+        }
+        Goal::PoseWithin { object, position, tolerance, yaw_deg, yaw_tolerance_deg } => {
+            let pose = scene.pose(obj(scene, object));
+            let target = Vec3::new(position[0] as f32, position[1] as f32, position[2] as f32);
+            let d = pose.translation.distance(target);
+            let mut ok = d <= *tolerance as f32;
+            let mut detail = format!("position error {d:.3} m (tolerance {tolerance})");
+            if let (Some(want), Some(tol)) = (yaw_deg, yaw_tolerance_deg) {
+                let fwd = pose.rotation * Vec3::X;
+                let yaw = fwd.y.atan2(fwd.x).to_degrees() as f64;
+                let err = ((yaw - want + 540.0).rem_euclid(360.0) - 180.0).abs();
+                ok &= err <= *tol;
+                detail.push_str(&format!("; yaw error {err:.1}° (tolerance {tol}°)"));
+            }
+            (ok, detail)
+        }
+    }
+}

@@ -1,0 +1,116 @@
+//! Episode recording: Arrow IPC files, one per episode, readable from Python
+//! (`pyarrow.ipc.open_file(path).read_all()`). The schema is documented in `docs/episode-format.md`.
+
+use std::collections::HashMap;
+use std::sync::Arc;
+
+use arrow_array::{ArrayRef, BooleanArray, Float32Array, Float64Array, Int16Array, RecordBatch, UInt32Array};
+use arrow_schema::{DataType, Field, Schema};
+use rapier3d::prelude::*;
+
+use crate::SimError;
+use crate::scene::SimScene;
+
+pub const EPISODE_FORMAT_VERSION: &str = "1";
+
+/// Per-step rows, column by column.
+#[derive(Default)]
+pub struct Recorder {
+    step: Vec<u32>,
+    time: Vec<f64>,
+    ee: [Vec<f32>; 3],
+    cmd: [Vec<f32>; 3],
+    grasped: Vec<i16>,
+    contact_pairs: Vec<u32>,
+    contact_points: Vec<u32>,
+    ee_contact: Vec<bool>,
+    /// Per object: x, y, z, qx, qy, qz, qw.
+    objects: Vec<[Vec<f32>; 7]>,
+}
+
+impl Recorder {
+    pub fn new(objects: usize) -> Self {
+        Self { objects: (0..objects).map(|_| Default::default()).collect(), ..Default::default() }
+    }
+
+    pub fn rows(&self) -> usize {
+        self.step.len()
+    }
+
+    pub fn record(&mut self, scene: &SimScene, step: u32, time: f64, command: Vec3, grasped: Option<usize>) {
+        self.step.push(step);
+        self.time.push(time);
+        let ee = scene.gripper_position();
+        for k in 0..3 {
+            self.ee[k].push(ee[k]);
+            self.cmd[k].push(command[k]);
+        }
+        self.grasped.push(grasped.map(|g| g as i16).unwrap_or(-1));
+        let (pairs, points, ee_touch) = contact_summary(scene);
+        self.contact_pairs.push(pairs);
+        self.contact_points.push(points);
+        self.ee_contact.push(ee_touch);
+        for (o, cols) in scene.objects.iter().zip(self.objects.iter_mut()) {
+            let p = scene.pose(o);
+            let t = p.translation;
+            let q = p.rotation;
+            for (k, v) in [t.x, t.y, t.z, q.x, q.y, q.z, q.w].into_iter().enumerate() {
+                cols[k].push(v);
+            }
+        }
+    }
+
+    /// Encodes the episode as an Arrow IPC file with `metadata` on the schema.
+    pub fn encode(&self, object_ids: &[String], metadata: HashMap<String, String>) -> Result<Vec<u8>, SimError> {
+        let mut fields = vec![
+            Field::new("step", DataType::UInt32, false),
+            Field::new("time_s", DataType::Float64, false),
+        ];
+        let mut cols: Vec<ArrayRef> = vec![Arc::new(UInt32Array::from(self.step.clone())), Arc::new(Float64Array::from(self.time.clone()))];
+        for (name, data) in [("ee", &self.ee), ("ee_cmd", &self.cmd)] {
+            for (k, axis) in ["x", "y", "z"].iter().enumerate() {
+                fields.push(Field::new(format!("{name}_{axis}"), DataType::Float32, false));
+                cols.push(Arc::new(Float32Array::from(data[k].clone())));
+            }
+        }
+        fields.push(Field::new("grasped", DataType::Int16, false));
+        cols.push(Arc::new(Int16Array::from(self.grasped.clone())));
+        fields.push(Field::new("contact_pairs", DataType::UInt32, false));
+        cols.push(Arc::new(UInt32Array::from(self.contact_pairs.clone())));
+        fields.push(Field::new("contact_points", DataType::UInt32, false));
+        cols.push(Arc::new(UInt32Array::from(self.contact_points.clone())));
+        fields.push(Field::new("ee_in_contact", DataType::Boolean, false));
+        cols.push(Arc::new(BooleanArray::from(self.ee_contact.clone())));
+        for (id, data) in object_ids.iter().zip(&self.objects) {
+            for (k, c) in ["x", "y", "z", "qx", "qy", "qz", "qw"].iter().enumerate() {
+                fields.push(Field::new(format!("{id}.{c}"), DataType::Float32, false));
+                cols.push(Arc::new(Float32Array::from(data[k].clone())));
+            }
+        }
+        let schema = Arc::new(Schema::new(fields).with_metadata(metadata));
+        let batch = RecordBatch::try_new(schema.clone(), cols).map_err(|e| SimError::internal(format!("episode table: {e}")))?;
+        let mut buf = Vec::new();
+        {
+            let mut w = arrow_ipc::writer::FileWriter::try_new(&mut buf, &schema).map_err(|e| SimError::internal(format!("episode file: {e}")))?;
+            w.write(&batch).map_err(|e| SimError::internal(format!("episode file: {e}")))?;
+            w.finish().map_err(|e| SimError::internal(format!("episode file: {e}")))?;
+        }
+        Ok(buf)
+    }
+}
+
+/// Touching collider pairs, solver contact points, and whether the tool touches anything.
+pub fn contact_summary(scene: &SimScene) -> (u32, u32, bool) {
+    let (mut pairs, mut points, mut ee) = (0u32, 0u32, false);
+    for pair in scene.world.narrow_phase.contact_pairs() {
+        if !pair.has_any_active_contact() {
+            continue;
+        }
+        pairs += 1;
+        points += pair.manifolds().iter().map(|m| m.data.solver_contacts.len() as u32).sum::<u32>();
+        if pair.collider1 == scene.gripper_collider || pair.collider2 == scene.gripper_collider {
+            ee = true;
+        }
+    }
+    (pairs, points, ee)
+}
