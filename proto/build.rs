@@ -4,7 +4,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     // SAFETY-free: build scripts run single-threaded before any other code.
     unsafe_set_protoc(&protoc);
     tonic_prost_build::configure().compile_protos(
-        &["assay/v1/common.proto", "assay/v1/coordinator.proto", "assay/v1/worker.proto"],
+        &[
+            "assay/v1/common.proto",
+            "assay/v1/coordinator.proto",
+            "assay/v1/worker.proto",
+        ],
         &["."],
     )?;
     println!("cargo:rerun-if-changed=assay");

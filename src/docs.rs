@@ -12,15 +12,31 @@ pub fn collect(paths: &[PathBuf]) -> anyhow::Result<Vec<pb::TaskDocument>> {
         walk(p, &mut files).with_context(|| format!("reading {}", p.display()))?;
     }
     if files.is_empty() {
-        bail!("no task files (.yaml, .yml, .json) under {}", paths.iter().map(|p| p.display().to_string()).collect::<Vec<_>>().join(", "));
+        bail!(
+            "no task files (.yaml, .yml, .json) under {}",
+            paths
+                .iter()
+                .map(|p| p.display().to_string())
+                .collect::<Vec<_>>()
+                .join(", ")
+        );
     }
     files.sort();
     files
         .into_iter()
         .map(|f| {
-            let content = std::fs::read_to_string(&f).with_context(|| format!("reading {}", f.display()))?;
-            let format = if f.extension().is_some_and(|e| e == "json") { "json" } else { "yaml" };
-            Ok(pb::TaskDocument { origin: f.display().to_string(), format: format.into(), content })
+            let content =
+                std::fs::read_to_string(&f).with_context(|| format!("reading {}", f.display()))?;
+            let format = if f.extension().is_some_and(|e| e == "json") {
+                "json"
+            } else {
+                "yaml"
+            };
+            Ok(pb::TaskDocument {
+                origin: f.display().to_string(),
+                format: format.into(),
+                content,
+            })
         })
         .collect()
 }
@@ -35,7 +51,10 @@ fn walk(p: &Path, out: &mut Vec<PathBuf>) -> std::io::Result<()> {
             out.push(p.to_path_buf());
         }
     } else {
-        return Err(std::io::Error::new(std::io::ErrorKind::NotFound, "no such file or folder"));
+        return Err(std::io::Error::new(
+            std::io::ErrorKind::NotFound,
+            "no such file or folder",
+        ));
     }
     Ok(())
 }

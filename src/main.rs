@@ -9,10 +9,19 @@ mod proc;
 use clap::{Parser, Subcommand};
 
 #[derive(Parser)]
-#[command(name = "assay", version, about = "Evaluate generated robot tasks and policies on a cluster of real processes")]
+#[command(
+    name = "assay",
+    version,
+    about = "Evaluate generated robot tasks and policies on a cluster of real processes"
+)]
 struct Cli {
     /// Log format on stderr: pretty or json. Filter with ASSAY_LOG (e.g. ASSAY_LOG=debug).
-    #[arg(long, global = true, env = "ASSAY_LOG_FORMAT", default_value = "pretty")]
+    #[arg(
+        long,
+        global = true,
+        env = "ASSAY_LOG_FORMAT",
+        default_value = "pretty"
+    )]
     log_format: String,
     #[command(subcommand)]
     command: Command,
@@ -55,7 +64,10 @@ fn main() -> std::process::ExitCode {
         Command::Cancel(a) => cmd::status::cancel(a),
         Command::Validate(a) => cmd::validate::run(a),
         Command::Schema => {
-            println!("{}", serde_json::to_string_pretty(&assay_core::spec::json_schema()).expect("schema"));
+            println!(
+                "{}",
+                serde_json::to_string_pretty(&assay_core::spec::json_schema()).expect("schema")
+            );
             Ok(std::process::ExitCode::SUCCESS)
         }
         Command::Bench(a) => cmd::bench::run(a),

@@ -17,7 +17,8 @@ pub struct ChildProc {
 impl ChildProc {
     pub fn spawn(name: &str, args: &[String], log: &Path) -> anyhow::Result<Self> {
         let exe = std::env::current_exe().context("locating the assay binary")?;
-        let log_file = std::fs::File::create(log).with_context(|| format!("creating {}", log.display()))?;
+        let log_file =
+            std::fs::File::create(log).with_context(|| format!("creating {}", log.display()))?;
         let child = Command::new(exe)
             .args(args)
             .stdin(Stdio::null())
@@ -25,7 +26,10 @@ impl ChildProc {
             .stderr(log_file)
             .spawn()
             .with_context(|| format!("starting {name}"))?;
-        Ok(Self { name: name.to_owned(), child })
+        Ok(Self {
+            name: name.to_owned(),
+            child,
+        })
     }
 
     /// SIGTERM, wait up to `grace`, then SIGKILL; reaps the process.
@@ -54,13 +58,17 @@ impl Drop for ChildProc {
 }
 
 /// Waits for a file a child writes (its bound address), up to `timeout`.
-pub fn wait_for_file(path: &Path, timeout: Duration, child: &mut ChildProc) -> anyhow::Result<String> {
+pub fn wait_for_file(
+    path: &Path,
+    timeout: Duration,
+    child: &mut ChildProc,
+) -> anyhow::Result<String> {
     let deadline = Instant::now() + timeout;
     loop {
-        if let Ok(s) = std::fs::read_to_string(path) {
-            if s.ends_with('\n') {
-                return Ok(s.trim().to_owned());
-            }
+        if let Ok(s) = std::fs::read_to_string(path)
+            && s.ends_with('\n')
+        {
+            return Ok(s.trim().to_owned());
         }
         if let Ok(Some(status)) = child.child.try_wait() {
             anyhow::bail!("{} exited early ({status}); see its log", child.name);

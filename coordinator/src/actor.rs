@@ -47,7 +47,10 @@ impl StoreHandle {
         let job: Job = Box::new(move |s| {
             let _ = reply.send(f(s));
         });
-        self.tx.send(job).await.map_err(|_| CoordError::StoreStopped)?;
+        self.tx
+            .send(job)
+            .await
+            .map_err(|_| CoordError::StoreStopped)?;
         rx.await.map_err(|_| CoordError::StoreStopped)?
     }
 }

@@ -19,7 +19,9 @@ impl From<CoordError> for tonic::Status {
         match e {
             CoordError::NotFound(m) => tonic::Status::not_found(m),
             CoordError::InvalidRequest(m) => tonic::Status::invalid_argument(m),
-            CoordError::StoreStopped => tonic::Status::unavailable("the coordinator is shutting down"),
+            CoordError::StoreStopped => {
+                tonic::Status::unavailable("the coordinator is shutting down")
+            }
             other => tonic::Status::internal(other.to_string()),
         }
     }

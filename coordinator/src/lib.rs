@@ -34,8 +34,12 @@ pub async fn serve(
     listener: TcpListener,
     shutdown: impl Future<Output = ()> + Send + 'static,
 ) -> Result<(), CoordError> {
-    std::fs::create_dir_all(&config.artifact_root)
-        .map_err(|e| CoordError::InvalidRequest(format!("artifact root {}: {e}", config.artifact_root.display())))?;
+    std::fs::create_dir_all(&config.artifact_root).map_err(|e| {
+        CoordError::InvalidRequest(format!(
+            "artifact root {}: {e}",
+            config.artifact_root.display()
+        ))
+    })?;
     let store = StoreHandle::spawn(&config.store_path)?;
     let ttl = config.lease_ttl.as_millis() as i64;
     let (survived, running) = store
@@ -84,18 +88,22 @@ pub async fn serve(
         .http2_keepalive_interval(Some(Duration::from_secs(5)))
         .http2_keepalive_timeout(Some(Duration::from_secs(10)))
         .add_service(
-            pb::coordinator_server::CoordinatorServer::new(CoordinatorService { shared: shared.clone() })
-                .max_decoding_message_size(assay_proto::MAX_MESSAGE_BYTES)
-                .max_encoding_message_size(assay_proto::MAX_MESSAGE_BYTES),
+            pb::coordinator_server::CoordinatorServer::new(CoordinatorService {
+                shared: shared.clone(),
+            })
+            .max_decoding_message_size(assay_proto::MAX_MESSAGE_BYTES)
+            .max_encoding_message_size(assay_proto::MAX_MESSAGE_BYTES),
         )
         .add_service(
-            pb::worker_session_server::WorkerSessionServer::new(WorkerSessionService { shared: shared.clone() })
-                .max_decoding_message_size(assay_proto::MAX_MESSAGE_BYTES)
-                .max_encoding_message_size(assay_proto::MAX_MESSAGE_BYTES),
+            pb::worker_session_server::WorkerSessionServer::new(WorkerSessionService {
+                shared: shared.clone(),
+            })
+            .max_decoding_message_size(assay_proto::MAX_MESSAGE_BYTES)
+            .max_encoding_message_size(assay_proto::MAX_MESSAGE_BYTES),
         );
     let mut stop_for_server = stop_rx.clone();
-    let result = server
-        .serve_with_incoming_shutdown(TcpListenerStream::new(listener), async move {
+    let result =
+        server.serve_with_incoming_shutdown(TcpListenerStream::new(listener), async move {
             let _ = stop_for_server.changed().await;
         });
     let trigger = tokio::spawn(async move {

@@ -22,7 +22,10 @@ use crate::error::CoordError;
 use crate::store::{BatchCounts, Changed, NewBatch, PlannedTask, batch_state};
 
 pub fn now_ms() -> i64 {
-    std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_millis() as i64).unwrap_or(0)
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.as_millis() as i64)
+        .unwrap_or(0)
 }
 
 /// State shared by every request handler.
@@ -58,12 +61,19 @@ pub const KNOWN_POLICIES: &[&str] = &["oracle"];
 pub fn check_policy(name: &str) -> Result<(), String> {
     let (kind, args) = name.split_once(':').unwrap_or((name, ""));
     if !KNOWN_POLICIES.contains(&kind) {
-        return Err(format!("unknown policy '{kind}' (known: {})", KNOWN_POLICIES.join(", ")));
+        return Err(format!(
+            "unknown policy '{kind}' (known: {})",
+            KNOWN_POLICIES.join(", ")
+        ));
     }
     for arg in args.split(',').filter(|a| !a.is_empty()) {
         match arg.split_once('=') {
             Some(("noise", v)) if v.parse::<f64>().is_ok_and(|x| x.is_finite() && x >= 0.0) => {}
-            _ => return Err(format!("policy '{name}': bad argument '{arg}' (expected noise=<metres>)")),
+            _ => {
+                return Err(format!(
+                    "policy '{name}': bad argument '{arg}' (expected noise=<metres>)"
+                ));
+            }
         }
     }
     Ok(())
@@ -174,13 +184,19 @@ type SessionStream = Pin<Box<dyn Stream<Item = Result<pb::CoordinatorMessage, St
 impl CoordinatorService {
     async fn status(&self, id: String) -> Result<pb::BatchStatus, Status> {
         let c = self.shared.store.call(move |s| s.counts(&id)).await?;
-        Ok(counts_to_pb(&c, self.shared.workers_connected.load(Ordering::Relaxed)))
+        Ok(counts_to_pb(
+            &c,
+            self.shared.workers_connected.load(Ordering::Relaxed),
+        ))
     }
 }
 
 #[tonic::async_trait]
 impl pb::coordinator_server::Coordinator for CoordinatorService {
-    async fn submit_batch(&self, req: Request<pb::SubmitBatchRequest>) -> Result<Response<pb::SubmitBatchResponse>, Status> {
+    async fn submit_batch(
+        &self,
+        req: Request<pb::SubmitBatchRequest>,
+    ) -> Result<Response<pb::SubmitBatchResponse>, Status> {
         let req = req.into_inner();
         if req.tasks.is_empty() {
             return Err(Status::invalid_argument("the batch has no task documents"));
@@ -200,11 +216,19 @@ impl pb::coordinator_server::Coordinator for CoordinatorService {
         }
         let (tasks, invalid) = plan_tasks(&req.tasks);
         let batch = NewBatch {
-            name: if req.name.is_empty() { "batch".into() } else { req.name.clone() },
+            name: if req.name.is_empty() {
+                "batch".into()
+            } else {
+                req.name.clone()
+            },
             tasks,
             policies,
             seeds,
-            max_attempts: if req.max_attempts == 0 { self.shared.config.max_attempts } else { req.max_attempts },
+            max_attempts: if req.max_attempts == 0 {
+                self.shared.config.max_attempts
+            } else {
+                req.max_attempts
+            },
             invalid: invalid.clone(),
             role: pb::Role::Sim.name().into(),
         };
@@ -235,11 +259,17 @@ impl pb::coordinator_server::Coordinator for CoordinatorService {
         }))
     }
 
-    async fn get_batch(&self, req: Request<pb::GetBatchRequest>) -> Result<Response<pb::BatchStatus>, Status> {
+    async fn get_batch(
+        &self,
+        req: Request<pb::GetBatchRequest>,
+    ) -> Result<Response<pb::BatchStatus>, Status> {
         Ok(Response::new(self.status(req.into_inner().batch_id).await?))
     }
 
-    async fn list_batches(&self, _req: Request<pb::ListBatchesRequest>) -> Result<Response<pb::ListBatchesResponse>, Status> {
+    async fn list_batches(
+        &self,
+        _req: Request<pb::ListBatchesRequest>,
+    ) -> Result<Response<pb::ListBatchesResponse>, Status> {
         let ids = self.shared.store.call(|s| s.batch_ids()).await?;
         let mut batches = Vec::new();
         for id in ids {
@@ -250,7 +280,10 @@ impl pb::coordinator_server::Coordinator for CoordinatorService {
 
     type WatchBatchStream = StatusStream;
 
-    async fn watch_batch(&self, req: Request<pb::GetBatchRequest>) -> Result<Response<Self::WatchBatchStream>, Status> {
+    async fn watch_batch(
+        &self,
+        req: Request<pb::GetBatchRequest>,
+    ) -> Result<Response<Self::WatchBatchStream>, Status> {
         let id = req.into_inner().batch_id;
         let first = self.status(id.clone()).await?;
         let shared = self.shared.clone();
@@ -261,7 +294,9 @@ impl pb::coordinator_server::Coordinator for CoordinatorService {
             if tx.send(Ok(last.clone())).await.is_err() {
                 return;
             }
-            let svc = CoordinatorService { shared: shared.clone() };
+            let svc = CoordinatorService {
+                shared: shared.clone(),
+            };
             loop {
                 if pb::BatchState::try_from(last.state).is_ok_and(pb::BatchState::is_final) {
                     return;
@@ -296,7 +331,10 @@ impl pb::coordinator_server::Coordinator for CoordinatorService {
         Ok(Response::new(Box::pin(ReceiverStream::new(rx))))
     }
 
-    async fn cancel_batch(&self, req: Request<pb::GetBatchRequest>) -> Result<Response<pb::BatchStatus>, Status> {
+    async fn cancel_batch(
+        &self,
+        req: Request<pb::GetBatchRequest>,
+    ) -> Result<Response<pb::BatchStatus>, Status> {
         let id = req.into_inner().batch_id;
         let now = now_ms();
         let id2 = id.clone();
@@ -306,7 +344,10 @@ impl pb::coordinator_server::Coordinator for CoordinatorService {
         Ok(Response::new(self.status(id).await?))
     }
 
-    async fn get_report(&self, req: Request<pb::GetReportRequest>) -> Result<Response<pb::GetReportResponse>, Status> {
+    async fn get_report(
+        &self,
+        req: Request<pb::GetReportRequest>,
+    ) -> Result<Response<pb::GetReportResponse>, Status> {
         let id = req.into_inner().batch_id;
         let report = self.shared.store.call(move |s| s.report(&id)).await?;
         let final_ = report.run.state != batch_state::RUNNING;
@@ -326,14 +367,21 @@ pub struct WorkerSessionService {
 impl pb::worker_session_server::WorkerSession for WorkerSessionService {
     type SessionStream = SessionStream;
 
-    async fn session(&self, req: Request<Streaming<pb::WorkerMessage>>) -> Result<Response<Self::SessionStream>, Status> {
+    async fn session(
+        &self,
+        req: Request<Streaming<pb::WorkerMessage>>,
+    ) -> Result<Response<Self::SessionStream>, Status> {
         let mut inbound = req.into_inner();
         let register = match inbound.message().await? {
-            Some(pb::WorkerMessage { msg: Some(pb::worker_message::Msg::Register(r)) }) => r,
+            Some(pb::WorkerMessage {
+                msg: Some(pb::worker_message::Msg::Register(r)),
+            }) => r,
             _ => return Err(Status::invalid_argument("a session starts with Register")),
         };
         if register.worker_id.is_empty() || register.capacity == 0 {
-            return Err(Status::invalid_argument("Register needs a worker_id and a capacity of at least 1"));
+            return Err(Status::invalid_argument(
+                "Register needs a worker_id and a capacity of at least 1",
+            ));
         }
         let roles: Vec<String> = register
             .roles
@@ -354,14 +402,32 @@ impl pb::worker_session_server::WorkerSession for WorkerSessionService {
             shared.workers_connected.fetch_sub(1, Ordering::Relaxed);
             match result {
                 Ok(SessionEnd::Shutdown) => debug!(%worker, "session closed for shutdown"),
+                Ok(SessionEnd::Drained(held)) => {
+                    // Assignments the worker had not seen when it left go back like the rest.
+                    let ids: Vec<u64> = held.into_iter().collect();
+                    info!(%worker, leases = ids.len(), reason = "session closed while draining", "leases handed back");
+                    let w = worker.clone();
+                    match shared.store.call(move |s| s.return_leases(&w, &ids)).await {
+                        Ok(changed) => shared.publish(&changed),
+                        Err(e) => {
+                            warn!(%worker, error = %e, "could not re-queue the leases of a departed worker")
+                        }
+                    }
+                }
                 Ok(SessionEnd::Disconnected(held)) | Err((_, held)) => {
                     info!(%worker, leases = held.len(), "worker disconnected");
                     let ids: Vec<u64> = held.into_iter().collect();
                     if !ids.is_empty() {
                         let w = worker.clone();
-                        match shared.store.call(move |s| s.expire(now_ms(), Some((&w, &ids)))).await {
+                        match shared
+                            .store
+                            .call(move |s| s.expire(now_ms(), Some((&w, &ids))))
+                            .await
+                        {
                             Ok(changed) => shared.publish(&changed),
-                            Err(e) => warn!(%worker, error = %e, "could not re-queue the leases of a lost worker"),
+                            Err(e) => {
+                                warn!(%worker, error = %e, "could not re-queue the leases of a lost worker")
+                            }
                         }
                     }
                 }
@@ -373,6 +439,9 @@ impl pb::worker_session_server::WorkerSession for WorkerSessionService {
 
 enum SessionEnd {
     Shutdown,
+    /// The worker handed its leases back and closed the session: leases still held (assigned
+    /// but not yet seen by the worker) are returned too, without counting an attempt.
+    Drained(BTreeSet<u64>),
     /// The stream ended; these leases were still held.
     Disconnected(BTreeSet<u64>),
 }
@@ -399,7 +468,11 @@ async fn run_session(
     let fail = |e: CoordError, held: &BTreeSet<u64>| (Status::from(e), held.clone());
 
     let (w, ids) = (worker.clone(), register.held_leases.clone());
-    let kept = shared.store.call(move |s| s.held_by(&w, &ids)).await.map_err(|e| fail(e, &held))?;
+    let kept = shared
+        .store
+        .call(move |s| s.held_by(&w, &ids))
+        .await
+        .map_err(|e| fail(e, &held))?;
     held.extend(kept.iter().copied());
     info!(%worker, node = %register.node_id, roles = ?roles, capacity, kept = kept.len(), "worker registered");
     let registered = pb::Registered {
@@ -413,10 +486,21 @@ async fn run_session(
         return Ok(SessionEnd::Disconnected(held));
     }
     let mut shutdown = shared.shutdown.clone();
+    // A worker that hands leases back is leaving: it gets no new work.
+    let mut draining = false;
     loop {
-        if held.len() < capacity && !*shutdown.borrow() {
-            let (w, r, n, ttl) = (worker.clone(), roles.clone(), (capacity - held.len()) as u32, shared.ttl_ms());
-            let leases = shared.store.call(move |s| s.lease(&w, &r, n, now_ms(), ttl)).await.map_err(|e| fail(e, &held))?;
+        if held.len() < capacity && !draining && !*shutdown.borrow() {
+            let (w, r, n, ttl) = (
+                worker.clone(),
+                roles.clone(),
+                (capacity - held.len()) as u32,
+                shared.ttl_ms(),
+            );
+            let leases = shared
+                .store
+                .call(move |s| s.lease(&w, &r, n, now_ms(), ttl))
+                .await
+                .map_err(|e| fail(e, &held))?;
             let mut batches = BTreeSet::new();
             for l in leases {
                 held.insert(l.lease_id);
@@ -435,13 +519,17 @@ async fn run_session(
                     return Ok(SessionEnd::Disconnected(held));
                 }
             }
-            shared.publish(&Changed { batches: batches.into_iter().collect(), requeued: 0 });
+            shared.publish(&Changed {
+                batches: batches.into_iter().collect(),
+                requeued: 0,
+            });
         }
         let work = shared.work.notified();
         tokio::select! {
             m = inbound.message() => {
                 let m = match m {
                     Ok(Some(m)) => m,
+                    Ok(None) if draining => return Ok(SessionEnd::Drained(held)),
                     Ok(None) => return Ok(SessionEnd::Disconnected(held)),
                     Err(e) => return Err((e, held)),
                 };
@@ -486,6 +574,7 @@ async fn run_session(
                         shared.publish(&changed);
                     }
                     Some(In::ReturnLeases(r)) => {
+                        draining = true;
                         for id in &r.lease_ids {
                             held.remove(id);
                         }

@@ -140,6 +140,9 @@ pub struct Store {
     conn: Connection,
 }
 
+/// id, batch, seed, policy, role, attempts, spec JSON.
+type QueuedShard = (i64, String, i64, String, String, u32, String);
+
 impl Store {
     pub fn open(path: &Path) -> Result<Self, CoordError> {
         let conn = Connection::open(path)?;
@@ -155,7 +158,9 @@ impl Store {
     }
 
     fn next_counter(tx: &rusqlite::Transaction<'_>, key: &str, n: u64) -> Result<u64, CoordError> {
-        let cur: Option<i64> = tx.query_row("SELECT value FROM meta WHERE key = ?1", [key], |r| r.get(0)).optional()?;
+        let cur: Option<i64> = tx
+            .query_row("SELECT value FROM meta WHERE key = ?1", [key], |r| r.get(0))
+            .optional()?;
         let first = cur.unwrap_or(1) as u64;
         tx.execute(
             "INSERT INTO meta (key, value) VALUES (?1, ?2) ON CONFLICT(key) DO UPDATE SET value = excluded.value",
@@ -200,7 +205,14 @@ impl Store {
             for seed in &batch.seeds {
                 for policy in &batch.policies {
                     for t in &batch.tasks {
-                        ins.execute(params![id, t.info.id, *seed as i64, policy, batch.role, QUEUED])?;
+                        ins.execute(params![
+                            id,
+                            t.info.id,
+                            *seed as i64,
+                            policy,
+                            batch.role,
+                            QUEUED
+                        ])?;
                         n += 1;
                     }
                 }
@@ -225,21 +237,31 @@ impl Store {
         let tx = self.conn.transaction()?;
         let placeholders = roles.iter().map(|_| "?").collect::<Vec<_>>().join(",");
         let sql = format!(
-            "SELECT s.id, s.batch_id, s.task_id, s.seed, s.policy, s.role, s.attempts, t.spec_json
+            "SELECT s.id, s.batch_id, s.seed, s.policy, s.role, s.attempts, t.spec_json
              FROM shards s JOIN tasks t ON t.batch_id = s.batch_id AND t.task_id = s.task_id
              WHERE s.state = 'queued' AND s.role IN ({placeholders})
              ORDER BY s.id LIMIT {n}"
         );
-        let rows: Vec<(i64, String, String, i64, String, String, u32, String)> = {
+        let rows: Vec<QueuedShard> = {
             let mut stmt = tx.prepare(&sql)?;
             let it = stmt.query_map(rusqlite::params_from_iter(roles.iter()), |r| {
-                Ok((r.get(0)?, r.get(1)?, r.get(2)?, r.get(3)?, r.get(4)?, r.get(5)?, r.get(6)?, r.get(7)?))
+                Ok((
+                    r.get(0)?,
+                    r.get(1)?,
+                    r.get(2)?,
+                    r.get(3)?,
+                    r.get(4)?,
+                    r.get(5)?,
+                    r.get(6)?,
+                ))
             })?;
             it.collect::<Result<_, _>>()?
         };
         let first = Self::next_counter(&tx, "lease_seq", rows.len() as u64)?;
         let mut out = Vec::with_capacity(rows.len());
-        for (k, (shard_id, batch_id, _task, seed, policy, role, attempts, spec)) in rows.into_iter().enumerate() {
+        for (k, (shard_id, batch_id, seed, policy, role, attempts, spec)) in
+            rows.into_iter().enumerate()
+        {
             let lease_id = first + k as u64;
             tx.execute(
                 "UPDATE shards SET state = 'leased', attempts = attempts + 1, lease_id = ?1, lease_worker = ?2,
@@ -262,7 +284,13 @@ impl Store {
     }
 
     /// Extends the leases `worker` still holds; returns the ids that are still valid.
-    pub fn heartbeat(&mut self, worker: &str, lease_ids: &[u64], now_ms: i64, ttl_ms: i64) -> Result<Vec<u64>, CoordError> {
+    pub fn heartbeat(
+        &mut self,
+        worker: &str,
+        lease_ids: &[u64],
+        now_ms: i64,
+        ttl_ms: i64,
+    ) -> Result<Vec<u64>, CoordError> {
         let tx = self.conn.transaction()?;
         let mut kept = Vec::new();
         for id in lease_ids {
@@ -297,7 +325,11 @@ impl Store {
         )?;
         let mut changed = Changed::default();
         if n == 1 {
-            let batch: String = tx.query_row("SELECT batch_id FROM shards WHERE id = ?1", [shard_id as i64], |r| r.get(0))?;
+            let batch: String = tx.query_row(
+                "SELECT batch_id FROM shards WHERE id = ?1",
+                [shard_id as i64],
+                |r| r.get(0),
+            )?;
             Self::finish_if_done(&tx, &batch, now_ms)?;
             changed.batches.push(batch);
         }
@@ -307,7 +339,14 @@ impl Store {
 
     /// Records a failed attempt: re-queued while attempts remain and the error is retryable,
     /// failed with its error otherwise.
-    pub fn fail(&mut self, lease_id: u64, shard_id: u64, error: &str, retryable: bool, now_ms: i64) -> Result<Changed, CoordError> {
+    pub fn fail(
+        &mut self,
+        lease_id: u64,
+        shard_id: u64,
+        error: &str,
+        retryable: bool,
+        now_ms: i64,
+    ) -> Result<Changed, CoordError> {
         let tx = self.conn.transaction()?;
         let row: Option<(String, u32, u32)> = tx
             .query_row(
@@ -326,7 +365,11 @@ impl Store {
                 )?;
                 changed.requeued = 1;
             } else {
-                let msg = if retryable { format!("{error} (after {attempts} attempts)") } else { error.to_owned() };
+                let msg = if retryable {
+                    format!("{error} (after {attempts} attempts)")
+                } else {
+                    error.to_owned()
+                };
                 tx.execute(
                     "UPDATE shards SET state = 'failed', error = ?1, lease_expires_ms = NULL WHERE id = ?2",
                     params![msg, shard_id as i64],
@@ -341,7 +384,11 @@ impl Store {
 
     /// A worker hands leases back (graceful shutdown): they are re-queued and the attempt is not
     /// counted against the shard.
-    pub fn return_leases(&mut self, worker: &str, lease_ids: &[u64]) -> Result<Changed, CoordError> {
+    pub fn return_leases(
+        &mut self,
+        worker: &str,
+        lease_ids: &[u64],
+    ) -> Result<Changed, CoordError> {
         let tx = self.conn.transaction()?;
         let mut changed = Changed::default();
         for id in lease_ids {
@@ -364,7 +411,11 @@ impl Store {
 
     /// Ends every lease whose deadline passed (or, with `worker`, the given leases of that worker:
     /// its session broke). Each counts as an attempt; a shard out of attempts fails.
-    pub fn expire(&mut self, now_ms: i64, worker: Option<(&str, &[u64])>) -> Result<Changed, CoordError> {
+    pub fn expire(
+        &mut self,
+        now_ms: i64,
+        worker: Option<(&str, &[u64])>,
+    ) -> Result<Changed, CoordError> {
         let tx = self.conn.transaction()?;
         let sql_owned;
         let rows: Vec<(i64, String, u32, u32, Option<String>)> = {
@@ -384,13 +435,18 @@ impl Store {
                 }
             };
             let mut stmt = tx.prepare(sql)?;
-            let it = stmt.query_map(rusqlite::params_from_iter(args), |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?, r.get(3)?, r.get(4)?)))?;
+            let it = stmt.query_map(rusqlite::params_from_iter(args), |r| {
+                Ok((r.get(0)?, r.get(1)?, r.get(2)?, r.get(3)?, r.get(4)?))
+            })?;
             it.collect::<Result<_, _>>()?
         };
         let mut changed = Changed::default();
         for (id, batch, attempts, max, lease_worker) in rows {
             let why = match worker {
-                None => format!("lease expired: worker {} stopped heartbeating", lease_worker.unwrap_or_default()),
+                None => format!(
+                    "lease expired: worker {} stopped heartbeating",
+                    lease_worker.unwrap_or_default()
+                ),
                 Some((w, _)) => format!("worker {w} disconnected while running the shard"),
             };
             if attempts < max {
@@ -417,12 +473,17 @@ impl Store {
     /// After a restart: give every surviving lease a fresh deadline, so workers have time to
     /// reconnect and claim them before they expire. Returns how many leases survived.
     pub fn refresh_leases(&mut self, now_ms: i64, ttl_ms: i64) -> Result<usize, CoordError> {
-        Ok(self.conn.execute("UPDATE shards SET lease_expires_ms = ?1 WHERE state = 'leased'", [now_ms + ttl_ms])?)
+        Ok(self.conn.execute(
+            "UPDATE shards SET lease_expires_ms = ?1 WHERE state = 'leased'",
+            [now_ms + ttl_ms],
+        )?)
     }
 
     /// Which of `lease_ids` `worker` still holds (a reconnecting worker keeps running those).
     pub fn held_by(&self, worker: &str, lease_ids: &[u64]) -> Result<Vec<u64>, CoordError> {
-        let mut stmt = self.conn.prepare("SELECT 1 FROM shards WHERE lease_id = ?1 AND lease_worker = ?2 AND state = 'leased'")?;
+        let mut stmt = self.conn.prepare(
+            "SELECT 1 FROM shards WHERE lease_id = ?1 AND lease_worker = ?2 AND state = 'leased'",
+        )?;
         let mut kept = Vec::new();
         for id in lease_ids {
             if stmt.exists(params![*id as i64, worker])? {
@@ -445,7 +506,10 @@ impl Store {
             params![batch_state::CANCELLED, now_ms, batch_id, batch_state::RUNNING],
         )?;
         tx.commit()?;
-        Ok(Changed { batches: vec![batch_id.to_owned()], requeued: 0 })
+        Ok(Changed {
+            batches: vec![batch_id.to_owned()],
+            requeued: 0,
+        })
     }
 
     /// A batch with no shards (every task invalid) is complete as soon as it is stored.
@@ -454,8 +518,14 @@ impl Store {
     }
 
     fn require_batch(conn: &Connection, batch_id: &str) -> Result<(), CoordError> {
-        let exists = conn.prepare("SELECT 1 FROM batches WHERE id = ?1")?.exists([batch_id])?;
-        if exists { Ok(()) } else { Err(CoordError::NotFound(format!("batch '{batch_id}'"))) }
+        let exists = conn
+            .prepare("SELECT 1 FROM batches WHERE id = ?1")?
+            .exists([batch_id])?;
+        if exists {
+            Ok(())
+        } else {
+            Err(CoordError::NotFound(format!("batch '{batch_id}'")))
+        }
     }
 
     fn finish_if_done(conn: &Connection, batch_id: &str, now_ms: i64) -> Result<(), CoordError> {
@@ -467,7 +537,12 @@ impl Store {
         if open == 0 {
             conn.execute(
                 "UPDATE batches SET state = ?1, finished_ms = ?2 WHERE id = ?3 AND state = ?4",
-                params![batch_state::COMPLETED, now_ms, batch_id, batch_state::RUNNING],
+                params![
+                    batch_state::COMPLETED,
+                    now_ms,
+                    batch_id,
+                    batch_state::RUNNING
+                ],
             )?;
         }
         Ok(())
@@ -497,8 +572,12 @@ impl Store {
             )
             .optional()?
             .ok_or_else(|| CoordError::NotFound(format!("batch '{batch_id}'")))?;
-        let mut stmt = self.conn.prepare("SELECT state, COUNT(*) FROM shards WHERE batch_id = ?1 GROUP BY state")?;
-        let rows = stmt.query_map([batch_id], |r| Ok((r.get::<_, String>(0)?, r.get::<_, u32>(1)?)))?;
+        let mut stmt = self
+            .conn
+            .prepare("SELECT state, COUNT(*) FROM shards WHERE batch_id = ?1 GROUP BY state")?;
+        let rows = stmt.query_map([batch_id], |r| {
+            Ok((r.get::<_, String>(0)?, r.get::<_, u32>(1)?))
+        })?;
         for row in rows {
             let (state, n) = row?;
             c.total += n;
@@ -521,14 +600,20 @@ impl Store {
 
     pub fn batch_ids(&self) -> Result<Vec<String>, CoordError> {
         let mut stmt = self.conn.prepare("SELECT id FROM batches ORDER BY seq")?;
-        let ids = stmt.query_map([], |r| r.get(0))?.collect::<Result<_, _>>()?;
+        let ids = stmt
+            .query_map([], |r| r.get(0))?
+            .collect::<Result<_, _>>()?;
         Ok(ids)
     }
 
     /// Batches still running (after a restart, these carry on).
     pub fn running_batches(&self) -> Result<Vec<String>, CoordError> {
-        let mut stmt = self.conn.prepare("SELECT id FROM batches WHERE state = 'running' ORDER BY seq")?;
-        let ids = stmt.query_map([], |r| r.get(0))?.collect::<Result<_, _>>()?;
+        let mut stmt = self
+            .conn
+            .prepare("SELECT id FROM batches WHERE state = 'running' ORDER BY seq")?;
+        let ids = stmt
+            .query_map([], |r| r.get(0))?
+            .collect::<Result<_, _>>()?;
         Ok(ids)
     }
 
@@ -589,7 +674,11 @@ impl Store {
                     policy: r.get(2)?,
                     attempts,
                     outcome,
-                    error: if open { Some(format!("still {state}")) } else { r.get(6)? },
+                    error: if open {
+                        Some(format!("still {state}"))
+                    } else {
+                        r.get(6)?
+                    },
                     cancelled: state == CANCELLED,
                 });
             }
@@ -608,13 +697,21 @@ impl Store {
             extra_attempts,
             workers: workers.into_iter().collect(),
         };
-        Ok(Report { report_version: report::REPORT_VERSION, results, run })
+        Ok(Report {
+            report_version: report::REPORT_VERSION,
+            results,
+            run,
+        })
     }
 
     /// The number of shards of a batch in each state, for tests and `assay status`.
     pub fn shard_states(&self, batch_id: &str) -> Result<Vec<(u64, String, u32)>, CoordError> {
-        let mut stmt = self.conn.prepare("SELECT id, state, attempts FROM shards WHERE batch_id = ?1 ORDER BY id")?;
-        let rows = stmt.query_map([batch_id], |r| Ok((r.get::<_, i64>(0)? as u64, r.get(1)?, r.get(2)?)))?;
+        let mut stmt = self
+            .conn
+            .prepare("SELECT id, state, attempts FROM shards WHERE batch_id = ?1 ORDER BY id")?;
+        let rows = stmt.query_map([batch_id], |r| {
+            Ok((r.get::<_, i64>(0)? as u64, r.get(1)?, r.get(2)?))
+        })?;
         Ok(rows.collect::<Result<_, _>>()?)
     }
 }
@@ -683,10 +780,14 @@ mod tests {
         assert_eq!(leases.len(), 4);
         assert_eq!((leases[0].seed, leases[1].seed, leases[2].seed), (0, 0, 1));
         for l in &leases {
-            let (ok, _) = s.complete("w1", l.lease_id, l.shard_id, &outcome(l), 0.1, 5).unwrap();
+            let (ok, _) = s
+                .complete("w1", l.lease_id, l.shard_id, &outcome(l), 0.1, 5)
+                .unwrap();
             assert!(ok);
             // A duplicate of the same result is not counted again.
-            let (again, _) = s.complete("w1", l.lease_id, l.shard_id, &outcome(l), 0.1, 5).unwrap();
+            let (again, _) = s
+                .complete("w1", l.lease_id, l.shard_id, &outcome(l), 0.1, 5)
+                .unwrap();
             assert!(!again);
         }
         let c = s.counts(&id).unwrap();
@@ -700,7 +801,10 @@ mod tests {
         let (id, _) = s.submit(&batch(&["a"], &[0], 3), 0).unwrap();
         let first = s.lease("w1", &sim(), 1, 0, TTL).unwrap().remove(0);
         // Heartbeats keep it alive past the original deadline.
-        assert_eq!(s.heartbeat("w1", &[first.lease_id], 900, TTL).unwrap(), vec![first.lease_id]);
+        assert_eq!(
+            s.heartbeat("w1", &[first.lease_id], 900, TTL).unwrap(),
+            vec![first.lease_id]
+        );
         assert_eq!(s.expire(1_500, None).unwrap().requeued, 0);
         // Silence: it expires and goes back to the queue.
         assert_eq!(s.expire(2_000, None).unwrap().requeued, 1);
@@ -708,12 +812,38 @@ mod tests {
         assert_eq!(second.shard_id, first.shard_id);
         assert_eq!(second.attempt, 2);
         // The first worker's late result does not count; the second's does.
-        assert!(!s.complete("w1", first.lease_id, first.shard_id, &outcome(&first), 0.1, 2_100).unwrap().0);
-        assert!(s.complete("w2", second.lease_id, second.shard_id, &outcome(&second), 0.1, 2_200).unwrap().0);
+        assert!(
+            !s.complete(
+                "w1",
+                first.lease_id,
+                first.shard_id,
+                &outcome(&first),
+                0.1,
+                2_100
+            )
+            .unwrap()
+            .0
+        );
+        assert!(
+            s.complete(
+                "w2",
+                second.lease_id,
+                second.shard_id,
+                &outcome(&second),
+                0.1,
+                2_200
+            )
+            .unwrap()
+            .0
+        );
         let c = s.counts(&id).unwrap();
         assert_eq!((c.done, c.total), (1, 1));
         // A heartbeat for a lease the worker no longer holds is refused.
-        assert!(s.heartbeat("w1", &[first.lease_id], 2_300, TTL).unwrap().is_empty());
+        assert!(
+            s.heartbeat("w1", &[first.lease_id], 2_300, TTL)
+                .unwrap()
+                .is_empty()
+        );
     }
 
     #[test]
@@ -721,18 +851,32 @@ mod tests {
         let mut s = Store::open_in_memory().unwrap();
         let (id, _) = s.submit(&batch(&["a"], &[0], 2), 0).unwrap();
         let l = s.lease("w", &sim(), 1, 0, TTL).unwrap().remove(0);
-        assert_eq!(s.fail(l.lease_id, l.shard_id, "boom", true, 1).unwrap().requeued, 1);
+        assert_eq!(
+            s.fail(l.lease_id, l.shard_id, "boom", true, 1)
+                .unwrap()
+                .requeued,
+            1
+        );
         let l = s.lease("w", &sim(), 1, 2, TTL).unwrap().remove(0);
         assert_eq!(l.attempt, 2);
-        assert_eq!(s.fail(l.lease_id, l.shard_id, "boom", true, 3).unwrap().requeued, 0);
+        assert_eq!(
+            s.fail(l.lease_id, l.shard_id, "boom", true, 3)
+                .unwrap()
+                .requeued,
+            0
+        );
         let c = s.counts(&id).unwrap();
         assert_eq!((c.failed, c.state.as_str()), (1, "completed"));
         let r = s.report(&id).unwrap();
-        assert_eq!(r.results.tasks[0].failures[0].error, "boom (after 2 attempts)");
+        assert_eq!(
+            r.results.tasks[0].failures[0].error,
+            "boom (after 2 attempts)"
+        );
         // Non-retryable errors fail at once.
         let (id2, _) = s.submit(&batch(&["b"], &[0], 5), 0).unwrap();
         let l = s.lease("w", &sim(), 1, 0, TTL).unwrap().remove(0);
-        s.fail(l.lease_id, l.shard_id, "bad spec", false, 1).unwrap();
+        s.fail(l.lease_id, l.shard_id, "bad spec", false, 1)
+            .unwrap();
         assert_eq!(s.counts(&id2).unwrap().failed, 1);
     }
 
@@ -748,8 +892,19 @@ mod tests {
         let ch = s.expire(10, Some(("w", &[ls[1].lease_id]))).unwrap();
         assert_eq!(ch.requeued, 0);
         let r = s.report(&ls[1].batch_id).unwrap();
-        let failure = &r.results.tasks.iter().find(|t| !t.failures.is_empty()).unwrap().failures[0];
-        assert!(failure.error.contains("worker w disconnected"), "{}", failure.error);
+        let failure = &r
+            .results
+            .tasks
+            .iter()
+            .find(|t| t.id == "b")
+            .unwrap()
+            .failures[0];
+        assert_eq!(failure.attempts, 1);
+        assert!(
+            failure.error.contains("worker w disconnected"),
+            "{}",
+            failure.error
+        );
     }
 
     #[test]
@@ -764,8 +919,22 @@ mod tests {
         let mut s = Store::open(&path).unwrap();
         assert_eq!(s.running_batches().unwrap(), vec![id.clone()]);
         assert_eq!(s.refresh_leases(50_000, TTL).unwrap(), 1);
-        assert_eq!(s.held_by("w", &[lease.lease_id, 999]).unwrap(), vec![lease.lease_id]);
-        assert!(s.complete("w", lease.lease_id, lease.shard_id, &outcome(&lease), 0.1, 50_001).unwrap().0);
+        assert_eq!(
+            s.held_by("w", &[lease.lease_id, 999]).unwrap(),
+            vec![lease.lease_id]
+        );
+        assert!(
+            s.complete(
+                "w",
+                lease.lease_id,
+                lease.shard_id,
+                &outcome(&lease),
+                0.1,
+                50_001
+            )
+            .unwrap()
+            .0
+        );
         // Lease ids keep increasing across reopen.
         let next = s.lease("w", &sim(), 1, 50_002, TTL).unwrap().remove(0);
         assert!(next.lease_id > lease.lease_id);
@@ -779,7 +948,11 @@ mod tests {
         s.cancel(&id, 1).unwrap();
         let c = s.counts(&id).unwrap();
         assert_eq!((c.cancelled, c.state.as_str()), (3, "cancelled"));
-        assert!(!s.complete("w", l.lease_id, l.shard_id, &outcome(&l), 0.1, 2).unwrap().0);
+        assert!(
+            !s.complete("w", l.lease_id, l.shard_id, &outcome(&l), 0.1, 2)
+                .unwrap()
+                .0
+        );
         assert!(s.lease("w", &sim(), 5, 3, TTL).unwrap().is_empty());
     }
 }

@@ -16,7 +16,11 @@ pub struct SpecError {
 }
 
 fn origin_suffix(origin: &str) -> String {
-    if origin.is_empty() { String::new() } else { format!(" (in {origin})") }
+    if origin.is_empty() {
+        String::new()
+    } else {
+        format!(" (in {origin})")
+    }
 }
 
 /// All problems found in one task spec.

@@ -188,7 +188,8 @@ pub fn build_results(
         by_task.entry(s.task_id.as_str()).or_default().push(s);
     }
     let mut task_results = Vec::new();
-    let (mut completed, mut failed, mut cancelled, mut ok, mut steps, mut sim_time) = (0, 0, 0, 0, 0, 0.0);
+    let (mut completed, mut failed, mut cancelled, mut ok, mut steps, mut sim_time) =
+        (0, 0, 0, 0, 0, 0.0);
     let mut sorted_tasks: Vec<&TaskInfo> = tasks.iter().collect();
     sorted_tasks.sort_by(|a, b| (&a.group, &a.id).cmp(&(&b.group, &b.id)));
     for t in sorted_tasks {
@@ -206,7 +207,11 @@ pub fn build_results(
                                 q.of += 1;
                                 q.holds += u64::from(p.holds);
                             }
-                            None => preds.push(PredicateRate { label: p.label.clone(), holds: u64::from(p.holds), of: 1 }),
+                            None => preds.push(PredicateRate {
+                                label: p.label.clone(),
+                                holds: u64::from(p.holds),
+                                of: 1,
+                            }),
                         }
                     }
                     steps += o.steps;
@@ -281,7 +286,11 @@ pub fn build_results(
         },
         groups: groups
             .into_iter()
-            .map(|(g, (n, k, t))| GroupResult { group: g.to_owned(), tasks: n, success: Proportion::new(k, t) })
+            .map(|(g, (n, k, t))| GroupResult {
+                group: g.to_owned(),
+                tasks: n,
+                success: Proportion::new(k, t),
+            })
             .collect(),
         tasks: task_results,
         invalid_tasks,
@@ -290,7 +299,9 @@ pub fn build_results(
 
 fn pct(p: &Proportion) -> String {
     match (p.rate, p.ci95) {
-        (Some(r), Some([lo, hi])) => format!("{:.1} % [{:.1}, {:.1}]", r * 100.0, lo * 100.0, hi * 100.0),
+        (Some(r), Some([lo, hi])) => {
+            format!("{:.1} % [{:.1}, {:.1}]", r * 100.0, lo * 100.0, hi * 100.0)
+        }
         _ => "—".into(),
     }
 }
@@ -312,7 +323,11 @@ impl Report {
             self.run.batch_id,
             self.run.state,
             r.policies.join(", "),
-            r.seeds.iter().map(u64::to_string).collect::<Vec<_>>().join(", ")
+            r.seeds
+                .iter()
+                .map(u64::to_string)
+                .collect::<Vec<_>>()
+                .join(", ")
         );
         let _ = writeln!(md, "## Summary\n");
         let _ = writeln!(md, "| measure | value |\n|---|---|");
@@ -324,22 +339,47 @@ impl Report {
         if t.episodes_cancelled > 0 {
             let _ = writeln!(md, "| episodes cancelled | {} |", t.episodes_cancelled);
         }
-        let _ = writeln!(md, "| ground-truth success (Wilson 95 %) | {} |", pct(&t.success));
-        let _ = writeln!(md, "| simulated steps | {} ({:.0} s of sim time) |", t.sim_steps, t.sim_time_s);
+        let _ = writeln!(
+            md,
+            "| ground-truth success (Wilson 95 %) | {} |",
+            pct(&t.success)
+        );
+        let _ = writeln!(
+            md,
+            "| simulated steps | {} ({:.0} s of sim time) |",
+            t.sim_steps, t.sim_time_s
+        );
         if let Some(w) = self.run.wall_time_s {
             let _ = writeln!(md, "| wall time | {w:.1} s |");
         }
         if let Some(e) = self.run.episodes_per_s {
-            let _ = writeln!(md, "| throughput | {e:.2} episodes/s, {:.0} steps/s |", self.run.sim_steps_per_s.unwrap_or(0.0));
+            let _ = writeln!(
+                md,
+                "| throughput | {e:.2} episodes/s, {:.0} steps/s |",
+                self.run.sim_steps_per_s.unwrap_or(0.0)
+            );
         }
         let _ = writeln!(md, "| workers | {} |", self.run.workers.len());
         let _ = writeln!(md, "\n## Success per group\n");
-        let _ = writeln!(md, "| group | tasks | episodes | success (Wilson 95 %) |\n|---|---:|---:|---|");
+        let _ = writeln!(
+            md,
+            "| group | tasks | episodes | success (Wilson 95 %) |\n|---|---:|---:|---|"
+        );
         for g in &r.groups {
-            let _ = writeln!(md, "| {} | {} | {} | {} |", cell(&g.group), g.tasks, g.success.trials, pct(&g.success));
+            let _ = writeln!(
+                md,
+                "| {} | {} | {} | {} |",
+                cell(&g.group),
+                g.tasks,
+                g.success.trials,
+                pct(&g.success)
+            );
         }
         let _ = writeln!(md, "\n## Success per task\n");
-        let _ = writeln!(md, "| group | task | source | episodes | success (Wilson 95 %) | most often unmet |\n|---|---|---|---:|---|---|");
+        let _ = writeln!(
+            md,
+            "| group | task | source | episodes | success (Wilson 95 %) | most often unmet |\n|---|---|---|---:|---|---|"
+        );
         for task in &r.tasks {
             let unmet = task
                 .predicates
@@ -360,12 +400,27 @@ impl Report {
                 cell(&unmet)
             );
         }
-        let failures: Vec<_> = r.tasks.iter().flat_map(|t| t.failures.iter().map(move |f| (t, f))).collect();
+        let failures: Vec<_> = r
+            .tasks
+            .iter()
+            .flat_map(|t| t.failures.iter().map(move |f| (t, f)))
+            .collect();
         if !failures.is_empty() {
             let _ = writeln!(md, "\n## Episodes that did not complete\n");
-            let _ = writeln!(md, "| task | seed | policy | attempts | error |\n|---|---:|---|---:|---|");
+            let _ = writeln!(
+                md,
+                "| task | seed | policy | attempts | error |\n|---|---:|---|---:|---|"
+            );
             for (t, f) in failures {
-                let _ = writeln!(md, "| `{}` | {} | {} | {} | {} |", t.id, f.seed, f.policy, f.attempts, cell(&f.error));
+                let _ = writeln!(
+                    md,
+                    "| `{}` | {} | {} | {} | {} |",
+                    t.id,
+                    f.seed,
+                    f.policy,
+                    f.attempts,
+                    cell(&f.error)
+                );
             }
         }
         if !r.invalid_tasks.is_empty() {
@@ -375,7 +430,10 @@ impl Report {
                 let _ = writeln!(
                     md,
                     "| {} | {} | `{}` | {} |",
-                    e.task.as_deref().map(cell).unwrap_or_else(|| "(no id)".into()),
+                    e.task
+                        .as_deref()
+                        .map(cell)
+                        .unwrap_or_else(|| "(no id)".into()),
                     cell(&e.origin),
                     cell(&e.path),
                     cell(&e.reason)
@@ -397,7 +455,11 @@ mod tests {
             policy: "oracle".into(),
             success,
             label_source: LabelSource::Sim,
-            predicates: vec![PredicateValue { label: "p".into(), holds: success, detail: String::new() }],
+            predicates: vec![PredicateValue {
+                label: "p".into(),
+                holds: success,
+                detail: String::new(),
+            }],
             steps: 10,
             sim_time_s: 0.1,
             artifact: format!("a{seed}"),
@@ -407,17 +469,56 @@ mod tests {
     }
 
     fn info(id: &str, group: &str) -> TaskInfo {
-        TaskInfo { id: id.into(), name: id.into(), group: group.into(), pipeline: "assay".into(), origin: String::new(), spec_hash: "h".into() }
+        TaskInfo {
+            id: id.into(),
+            name: id.into(),
+            group: group.into(),
+            pipeline: "assay".into(),
+            origin: String::new(),
+            spec_hash: "h".into(),
+        }
     }
 
     #[test]
     fn results_aggregate_per_task_and_group_independent_of_order() {
         let tasks = vec![info("b", "g1"), info("a", "g1"), info("c", "g2")];
         let mut shards = vec![
-            ShardRecord { task_id: "a".into(), seed: 1, policy: "oracle".into(), attempts: 1, outcome: Some(outcome("a", 1, true)), error: None, cancelled: false },
-            ShardRecord { task_id: "a".into(), seed: 0, policy: "oracle".into(), attempts: 1, outcome: Some(outcome("a", 0, false)), error: None, cancelled: false },
-            ShardRecord { task_id: "b".into(), seed: 0, policy: "oracle".into(), attempts: 3, outcome: None, error: Some("boom".into()), cancelled: false },
-            ShardRecord { task_id: "c".into(), seed: 0, policy: "oracle".into(), attempts: 1, outcome: Some(outcome("c", 0, true)), error: None, cancelled: false },
+            ShardRecord {
+                task_id: "a".into(),
+                seed: 1,
+                policy: "oracle".into(),
+                attempts: 1,
+                outcome: Some(outcome("a", 1, true)),
+                error: None,
+                cancelled: false,
+            },
+            ShardRecord {
+                task_id: "a".into(),
+                seed: 0,
+                policy: "oracle".into(),
+                attempts: 1,
+                outcome: Some(outcome("a", 0, false)),
+                error: None,
+                cancelled: false,
+            },
+            ShardRecord {
+                task_id: "b".into(),
+                seed: 0,
+                policy: "oracle".into(),
+                attempts: 3,
+                outcome: None,
+                error: Some("boom".into()),
+                cancelled: false,
+            },
+            ShardRecord {
+                task_id: "c".into(),
+                seed: 0,
+                policy: "oracle".into(),
+                attempts: 1,
+                outcome: Some(outcome("c", 0, true)),
+                error: None,
+                cancelled: false,
+            },
         ];
         let r1 = build_results("x", &["oracle".into()], &[0, 1], &tasks, &shards, &[]);
         shards.reverse();

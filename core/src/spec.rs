@@ -114,11 +114,21 @@ pub struct Object {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
 #[serde(rename_all = "snake_case", deny_unknown_fields)]
 pub enum Shape {
-    Box { half_extents: [f64; 3] },
-    Sphere { radius: f64 },
-    Cylinder { radius: f64, half_height: f64 },
+    Box {
+        half_extents: [f64; 3],
+    },
+    Sphere {
+        radius: f64,
+    },
+    Cylinder {
+        radius: f64,
+        half_height: f64,
+    },
     /// An open-top box (bowl, bin, tray): inner half-extents and wall thickness.
-    Container { inner_half_extents: [f64; 3], wall: f64 },
+    Container {
+        inner_half_extents: [f64; 3],
+        wall: f64,
+    },
     /// A Wavefront OBJ file (relative to the spec file), collided as its convex hull.
     Mesh {
         path: String,
@@ -137,10 +147,14 @@ impl Shape {
         match *self {
             Shape::Box { half_extents } => Some(half_extents),
             Shape::Sphere { radius } => Some([radius; 3]),
-            Shape::Cylinder { radius, half_height } => Some([radius, radius, half_height]),
-            Shape::Container { inner_half_extents: h, wall } => {
-                Some([h[0] + wall, h[1] + wall, h[2] + wall / 2.0])
-            }
+            Shape::Cylinder {
+                radius,
+                half_height,
+            } => Some([radius, radius, half_height]),
+            Shape::Container {
+                inner_half_extents: h,
+                wall,
+            } => Some([h[0] + wall, h[1] + wall, h[2] + wall / 2.0]),
             Shape::Mesh { .. } => None,
         }
     }
@@ -261,10 +275,17 @@ impl Goal {
     pub fn label(&self) -> String {
         match self {
             Goal::InZone { object, zone } => format!("in_zone({object}, {zone})"),
-            Goal::InContainer { object, container } => format!("in_container({object}, {container})"),
+            Goal::InContainer { object, container } => {
+                format!("in_container({object}, {container})")
+            }
             Goal::OnTopOf { object, support } => format!("on_top_of({object}, {support})"),
             Goal::Stacked { order } => format!("stacked({})", order.join(", ")),
-            Goal::WithinDistance { object, target, point, distance } => match (target, point) {
+            Goal::WithinDistance {
+                object,
+                target,
+                point,
+                distance,
+            } => match (target, point) {
                 (Some(t), _) => format!("within_distance({object}, {t}, {distance})"),
                 (None, Some(p)) => format!("within_distance({object}, {p:?}, {distance})"),
                 (None, None) => format!("within_distance({object}, ?, {distance})"),
@@ -427,7 +448,10 @@ pub fn parse_task(text: &str, format: Format, origin: &str) -> Result<TaskSpec, 
             // serde_yaml 0.9 reads enums only as `!tags`; task files use the `{variant: value}`
             // maps that JSON and the JSON Schema use, so enums go through singleton maps.
             let mut track = serde_path_to_error::Track::new();
-            let de = serde_path_to_error::Deserializer::new(serde_yaml::Deserializer::from_str(text), &mut track);
+            let de = serde_path_to_error::Deserializer::new(
+                serde_yaml::Deserializer::from_str(text),
+                &mut track,
+            );
             serde_yaml::with::singleton_map_recursive::deserialize(de).map_err(|e| {
                 let path = track.path().to_string();
                 fail(path.clone(), strip_path(&e.to_string(), &path))
@@ -442,7 +466,11 @@ pub fn parse_task(text: &str, format: Format, origin: &str) -> Result<TaskSpec, 
         }
     };
     let errors = validate(&spec, origin);
-    if errors.is_empty() { Ok(spec) } else { Err(SpecErrors(errors)) }
+    if errors.is_empty() {
+        Ok(spec)
+    } else {
+        Err(SpecErrors(errors))
+    }
 }
 
 /// serde_yaml prefixes its messages with the path; the error carries the path on its own.
@@ -456,8 +484,13 @@ fn strip_path(message: &str, path: &str) -> String {
 /// The `id:` of a document too broken to parse, read line by line.
 fn id_from_lines(text: &str) -> Option<String> {
     text.lines().find_map(|l| {
-        let v = l.strip_prefix("id:").or_else(|| l.trim_start().strip_prefix("\"id\":"))?;
-        let v = v.trim().trim_end_matches(',').trim_matches(|c| c == '"' || c == '\'');
+        let v = l
+            .strip_prefix("id:")
+            .or_else(|| l.trim_start().strip_prefix("\"id\":"))?;
+        let v = v
+            .trim()
+            .trim_end_matches(',')
+            .trim_matches(|c| c == '"' || c == '\'');
         (!v.is_empty()).then(|| v.to_owned())
     })
 }
@@ -465,14 +498,30 @@ fn id_from_lines(text: &str) -> Option<String> {
 /// Semantic checks that parsing cannot make: finite numbers, positive sizes, references that
 /// resolve, unique ids, a plan the controller can execute.
 pub fn validate(spec: &TaskSpec, origin: &str) -> Vec<SpecError> {
-    let mut v = Validator { task: Some(spec.id.clone()), origin, errors: Vec::new() };
+    let mut v = Validator {
+        task: Some(spec.id.clone()),
+        origin,
+        errors: Vec::new(),
+    };
     if spec.spec_version != SPEC_VERSION {
-        v.err("spec_version", format!("unsupported version {}; this build reads {SPEC_VERSION}", spec.spec_version));
+        v.err(
+            "spec_version",
+            format!(
+                "unsupported version {}; this build reads {SPEC_VERSION}",
+                spec.spec_version
+            ),
+        );
     }
     let id_ok = !spec.id.is_empty()
-        && spec.id.chars().all(|c| c.is_ascii_lowercase() || c.is_ascii_digit() || c == '-' || c == '_');
+        && spec
+            .id
+            .chars()
+            .all(|c| c.is_ascii_lowercase() || c.is_ascii_digit() || c == '-' || c == '_');
     if !id_ok {
-        v.err("id", "must be non-empty: lowercase letters, digits, '-' and '_'".into());
+        v.err(
+            "id",
+            "must be non-empty: lowercase letters, digits, '-' and '_'".into(),
+        );
     }
     if spec.name.trim().is_empty() {
         v.err("name", "must not be empty".into());
@@ -493,19 +542,28 @@ pub fn validate(spec: &TaskSpec, origin: &str) -> Vec<SpecError> {
         if o.id.is_empty() {
             v.err(&format!("{p}.id"), "must not be empty".into());
         } else if !object_ids.insert(o.id.as_str()) {
-            v.err(&format!("{p}.id"), format!("duplicate object id '{}'", o.id));
+            v.err(
+                &format!("{p}.id"),
+                format!("duplicate object id '{}'", o.id),
+            );
         }
         v.shape(&format!("{p}.shape"), &o.shape);
         if let Some(m) = o.mass {
             v.positive(&format!("{p}.mass"), m);
         }
         if o.color.rgb().is_none() {
-            v.err(&format!("{p}.color"), format!("unknown colour {:?}", o.color));
+            v.err(
+                &format!("{p}.color"),
+                format!("unknown colour {:?}", o.color),
+            );
         }
-        if let Color::Rgb(c) = o.color {
-            if c.iter().any(|x| !(0.0..=1.0).contains(x)) {
-                v.err(&format!("{p}.color"), "rgb components must lie in 0..1".into());
-            }
+        if let Color::Rgb(c) = o.color
+            && c.iter().any(|x| !(0.0..=1.0).contains(x))
+        {
+            v.err(
+                &format!("{p}.color"),
+                "rgb components must lie in 0..1".into(),
+            );
         }
         match (&o.pose, &o.pose_range) {
             (Some(pose), None) => {
@@ -531,7 +589,9 @@ pub fn validate(spec: &TaskSpec, origin: &str) -> Vec<SpecError> {
 
     match spec.end_effector {
         EndEffector::Suction => {}
-        EndEffector::ParallelGripper { max_opening } => v.positive("end_effector.max_opening", max_opening),
+        EndEffector::ParallelGripper { max_opening } => {
+            v.positive("end_effector.max_opening", max_opening)
+        }
     }
 
     let is_container = |id: &str| {
@@ -554,56 +614,91 @@ pub fn validate(spec: &TaskSpec, origin: &str) -> Vec<SpecError> {
             Goal::InZone { object, zone } => {
                 obj(&mut v, &format!("{p}.in_zone.object"), object);
                 if !zone_ids.contains(zone.as_str()) {
-                    v.err(&format!("{p}.in_zone.zone"), format!("refers to unknown zone '{zone}'"));
+                    v.err(
+                        &format!("{p}.in_zone.zone"),
+                        format!("refers to unknown zone '{zone}'"),
+                    );
                 }
             }
             Goal::InContainer { object, container } => {
                 obj(&mut v, &format!("{p}.in_container.object"), object);
                 obj(&mut v, &format!("{p}.in_container.container"), container);
                 if object_ids.contains(container.as_str()) && !is_container(container) {
-                    v.err(&format!("{p}.in_container.container"), format!("'{container}' is not a container"));
+                    v.err(
+                        &format!("{p}.in_container.container"),
+                        format!("'{container}' is not a container"),
+                    );
                 }
             }
             Goal::OnTopOf { object, support } => {
                 obj(&mut v, &format!("{p}.on_top_of.object"), object);
                 obj(&mut v, &format!("{p}.on_top_of.support"), support);
                 if object == support {
-                    v.err(&format!("{p}.on_top_of"), "an object cannot rest on itself".into());
+                    v.err(
+                        &format!("{p}.on_top_of"),
+                        "an object cannot rest on itself".into(),
+                    );
                 }
             }
             Goal::Stacked { order } => {
                 if order.len() < 2 {
-                    v.err(&format!("{p}.stacked.order"), "needs at least two objects".into());
+                    v.err(
+                        &format!("{p}.stacked.order"),
+                        "needs at least two objects".into(),
+                    );
                 }
                 let mut seen = BTreeSet::new();
                 for (k, o) in order.iter().enumerate() {
                     obj(&mut v, &format!("{p}.stacked.order[{k}]"), o);
                     if !seen.insert(o) {
-                        v.err(&format!("{p}.stacked.order[{k}]"), format!("'{o}' appears twice"));
+                        v.err(
+                            &format!("{p}.stacked.order[{k}]"),
+                            format!("'{o}' appears twice"),
+                        );
                     }
                 }
             }
-            Goal::WithinDistance { object, target, point, distance } => {
+            Goal::WithinDistance {
+                object,
+                target,
+                point,
+                distance,
+            } => {
                 obj(&mut v, &format!("{p}.within_distance.object"), object);
                 match (target, point) {
                     (Some(t), None) => obj(&mut v, &format!("{p}.within_distance.target"), t),
                     (None, Some(pt)) => v.finite3(&format!("{p}.within_distance.point"), pt),
-                    _ => v.err(&format!("{p}.within_distance"), "give exactly one of target and point".into()),
+                    _ => v.err(
+                        &format!("{p}.within_distance"),
+                        "give exactly one of target and point".into(),
+                    ),
                 }
                 v.positive(&format!("{p}.within_distance.distance"), *distance);
             }
-            Goal::PoseWithin { object, position, tolerance, yaw_deg, yaw_tolerance_deg } => {
+            Goal::PoseWithin {
+                object,
+                position,
+                tolerance,
+                yaw_deg,
+                yaw_tolerance_deg,
+            } => {
                 obj(&mut v, &format!("{p}.pose_within.object"), object);
                 v.finite3(&format!("{p}.pose_within.position"), position);
                 v.positive(&format!("{p}.pose_within.tolerance"), *tolerance);
                 if yaw_deg.is_some() != yaw_tolerance_deg.is_some() {
-                    v.err(&format!("{p}.pose_within"), "yaw_deg and yaw_tolerance_deg go together".into());
+                    v.err(
+                        &format!("{p}.pose_within"),
+                        "yaw_deg and yaw_tolerance_deg go together".into(),
+                    );
                 }
             }
         }
     }
 
-    v.nonneg("variations.position_jitter", spec.variations.position_jitter);
+    v.nonneg(
+        "variations.position_jitter",
+        spec.variations.position_jitter,
+    );
     v.nonneg("variations.yaw_jitter_deg", spec.variations.yaw_jitter_deg);
     if let Some(r) = &spec.variations.ee_start {
         v.range("variations.ee_start", r);
@@ -617,34 +712,57 @@ pub fn validate(spec: &TaskSpec, origin: &str) -> Vec<SpecError> {
             Primitive::Pick { object } => {
                 obj(&mut v, &format!("{p}.pick.object"), object);
                 if held.is_some() {
-                    v.err(&format!("{p}.pick"), "already holding an object; place it first".into());
+                    v.err(
+                        &format!("{p}.pick"),
+                        "already holding an object; place it first".into(),
+                    );
                 }
-                if spec.scene.objects.iter().any(|o| &o.id == object && o.is_fixed) {
-                    v.err(&format!("{p}.pick.object"), format!("'{object}' is fixed and cannot be picked"));
+                if spec
+                    .scene
+                    .objects
+                    .iter()
+                    .any(|o| &o.id == object && o.is_fixed)
+                {
+                    v.err(
+                        &format!("{p}.pick.object"),
+                        format!("'{object}' is fixed and cannot be picked"),
+                    );
                 }
                 held = Some(object);
             }
             Primitive::Place { target } => {
                 let Some(h) = held.take() else {
-                    v.err(&format!("{p}.place"), "nothing is held: pick an object first".into());
+                    v.err(
+                        &format!("{p}.place"),
+                        "nothing is held: pick an object first".into(),
+                    );
                     continue;
                 };
                 match target {
                     PlaceTarget::On(o) => {
                         obj(&mut v, &format!("{p}.place.target.on"), o);
                         if o == h {
-                            v.err(&format!("{p}.place.target.on"), "cannot place an object on itself".into());
+                            v.err(
+                                &format!("{p}.place.target.on"),
+                                "cannot place an object on itself".into(),
+                            );
                         }
                     }
                     PlaceTarget::Into(o) => {
                         obj(&mut v, &format!("{p}.place.target.into"), o);
                         if object_ids.contains(o.as_str()) && !is_container(o) {
-                            v.err(&format!("{p}.place.target.into"), format!("'{o}' is not a container"));
+                            v.err(
+                                &format!("{p}.place.target.into"),
+                                format!("'{o}' is not a container"),
+                            );
                         }
                     }
                     PlaceTarget::Zone(z) => {
                         if !zone_ids.contains(z.as_str()) {
-                            v.err(&format!("{p}.place.target.zone"), format!("refers to unknown zone '{z}'"));
+                            v.err(
+                                &format!("{p}.place.target.zone"),
+                                format!("refers to unknown zone '{z}'"),
+                            );
                         }
                     }
                     PlaceTarget::At(xy) => v.finite2(&format!("{p}.place.target.at"), xy),
@@ -654,13 +772,19 @@ pub fn validate(spec: &TaskSpec, origin: &str) -> Vec<SpecError> {
                 obj(&mut v, &format!("{p}.push.object"), object);
                 v.finite2(&format!("{p}.push.to"), to);
                 if held.is_some() {
-                    v.err(&format!("{p}.push"), "cannot push while holding an object".into());
+                    v.err(
+                        &format!("{p}.push"),
+                        "cannot push while holding an object".into(),
+                    );
                 }
             }
         }
     }
     if held.is_some() {
-        v.err("oracle", "the plan ends holding an object: add a place".into());
+        v.err(
+            "oracle",
+            "the plan ends holding an object: add a place".into(),
+        );
     }
 
     for (i, c) in spec.cameras.iter().enumerate() {
@@ -668,15 +792,21 @@ pub fn validate(spec: &TaskSpec, origin: &str) -> Vec<SpecError> {
         v.finite3(&format!("{p}.eye"), &c.eye);
         v.finite3(&format!("{p}.target"), &c.target);
         if !(c.fovy_deg > 1.0 && c.fovy_deg < 179.0) {
-            v.err(&format!("{p}.fovy_deg"), "must lie between 1 and 179 degrees".into());
+            v.err(
+                &format!("{p}.fovy_deg"),
+                "must lie between 1 and 179 degrees".into(),
+            );
         }
         if c.width == 0 || c.height == 0 {
-            v.err(&format!("{p}"), "width and height must be positive".into());
+            v.err(&p, "width and height must be positive".into());
         }
     }
     let ph = &spec.physics;
     if !(ph.dt.is_finite() && ph.dt > 0.0 && ph.dt <= 0.05) {
-        v.err("physics.dt", format!("must lie in (0, 0.05] s, got {}", ph.dt));
+        v.err(
+            "physics.dt",
+            format!("must lie in (0, 0.05] s, got {}", ph.dt),
+        );
     }
     v.errors
 }
@@ -727,7 +857,10 @@ impl Validator<'_> {
         self.finite2(&format!("{path}.yaw_deg"), &r.yaw_deg);
         for k in 0..3 {
             if r.min[k] > r.max[k] {
-                self.err(&format!("{path}.min[{k}]"), format!("min {} exceeds max {}", r.min[k], r.max[k]));
+                self.err(
+                    &format!("{path}.min[{k}]"),
+                    format!("min {} exceeds max {}", r.min[k], r.max[k]),
+                );
             }
         }
         if r.yaw_deg[0] > r.yaw_deg[1] {
@@ -742,11 +875,17 @@ impl Validator<'_> {
                 }
             }
             Shape::Sphere { radius } => self.positive(&format!("{path}.sphere.radius"), *radius),
-            Shape::Cylinder { radius, half_height } => {
+            Shape::Cylinder {
+                radius,
+                half_height,
+            } => {
                 self.positive(&format!("{path}.cylinder.radius"), *radius);
                 self.positive(&format!("{path}.cylinder.half_height"), *half_height);
             }
-            Shape::Container { inner_half_extents, wall } => {
+            Shape::Container {
+                inner_half_extents,
+                wall,
+            } => {
                 for (k, h) in inner_half_extents.iter().enumerate() {
                     self.positive(&format!("{path}.container.inner_half_extents[{k}]"), *h);
                 }

@@ -18,11 +18,24 @@ const Z95: f64 = 1.959_963_984_540_054;
 
 impl Proportion {
     pub fn new(successes: u64, trials: u64) -> Self {
-        assert!(successes <= trials, "successes {successes} exceed trials {trials}");
+        assert!(
+            successes <= trials,
+            "successes {successes} exceed trials {trials}"
+        );
         if trials == 0 {
-            return Self { successes, trials, rate: None, ci95: None };
+            return Self {
+                successes,
+                trials,
+                rate: None,
+                ci95: None,
+            };
         }
-        Self { successes, trials, rate: Some(successes as f64 / trials as f64), ci95: Some(wilson(successes, trials, Z95)) }
+        Self {
+            successes,
+            trials,
+            rate: Some(successes as f64 / trials as f64),
+            ci95: Some(wilson(successes, trials, Z95)),
+        }
     }
 }
 

@@ -33,15 +33,24 @@ fn median(v: &[f64]) -> f64 {
     let mut s = v.to_vec();
     s.sort_by(f64::total_cmp);
     let n = s.len();
-    if n % 2 == 1 { s[n / 2] } else { (s[n / 2 - 1] + s[n / 2]) / 2.0 }
+    if n % 2 == 1 {
+        s[n / 2]
+    } else {
+        (s[n / 2 - 1] + s[n / 2]) / 2.0
+    }
 }
 
 fn round(x: f64) -> f64 {
-    if x >= 100.0 { (x * 10.0).round() / 10.0 } else { (x * 1000.0).round() / 1000.0 }
+    if x >= 100.0 {
+        (x * 10.0).round() / 10.0
+    } else {
+        (x * 1000.0).round() / 1000.0
+    }
 }
 
 pub fn run(a: Args) -> anyhow::Result<ExitCode> {
-    let text = std::fs::read_to_string(&a.scene).with_context(|| format!("reading {}", a.scene.display()))?;
+    let text = std::fs::read_to_string(&a.scene)
+        .with_context(|| format!("reading {}", a.scene.display()))?;
     let sha = assay_core::hash::sha256_hex(text.as_bytes());
     let c = Contract::parse(&text)?;
     let (mut wall, mut cpu) = (Vec::new(), Vec::new());
@@ -79,7 +88,11 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         }
         other => anyhow::bail!("unknown measure '{other}' (physics, rollout)"),
     }
-    let (measure, unit) = if a.measure == "physics" { ("physics_steps_per_s", "steps/s") } else { ("rollout_episodes_per_s", "episodes/s") };
+    let (measure, unit) = if a.measure == "physics" {
+        ("physics_steps_per_s", "steps/s")
+    } else {
+        ("rollout_episodes_per_s", "episodes/s")
+    };
     let mut line = json!({
         "engine": "assay-rapier3d",
         "measure": measure,

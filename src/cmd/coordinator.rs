@@ -37,7 +37,9 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     config.heartbeat_interval = Duration::from_millis(a.heartbeat_ms);
     config.max_attempts = a.max_attempts.max(1);
     super::block_on(async move {
-        let listener = tokio::net::TcpListener::bind(&a.listen).await.with_context(|| format!("binding {}", a.listen))?;
+        let listener = tokio::net::TcpListener::bind(&a.listen)
+            .await
+            .with_context(|| format!("binding {}", a.listen))?;
         let addr = listener.local_addr()?;
         if let Some(f) = &a.addr_file {
             let tmp = f.with_extension("tmp");

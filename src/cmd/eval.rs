@@ -58,7 +58,10 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         ],
         &run_dir.join("coordinator.log"),
     )?;
-    let addr = format!("http://{}", wait_for_file(&addr_file, Duration::from_secs(30), &mut coordinator)?);
+    let addr = format!(
+        "http://{}",
+        wait_for_file(&addr_file, Duration::from_secs(30), &mut coordinator)?
+    );
     let mut workers = Vec::new();
     for i in 0..a.workers.max(1) {
         workers.push(ChildProc::spawn(
@@ -79,33 +82,64 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
             &run_dir.join(format!("worker-{i}.log")),
         )?);
     }
-    eprintln!("local cluster: coordinator at {addr}, {} sim workers; logs in {}", workers.len(), run_dir.display());
+    eprintln!(
+        "local cluster: coordinator at {addr}, {} sim workers; logs in {}",
+        workers.len(),
+        run_dir.display()
+    );
 
-    let req = a.batch.request(docs, &super::submit::default_name(&a.paths));
+    let req = a
+        .batch
+        .request(docs, &super::submit::default_name(&a.paths));
     let quiet = a.quiet;
     let outcome = super::block_on(async {
         let mut c = super::client(&addr).await?;
         let r = c.submit_batch(req).await?.into_inner();
         super::print_rejected(&r.rejected);
-        eprintln!("batch {}: {} tasks accepted, {} rejected, {} episodes", r.batch_id, r.accepted_tasks, r.rejected.len(), r.shards);
-        let bar = if quiet { ProgressBar::hidden() } else { ProgressBar::new(u64::from(r.shards)) };
-        bar.set_style(
-            ProgressStyle::with_template("{spinner} [{elapsed_precise}] {bar:40} {pos}/{len} episodes  {msg}")
-                .expect("progress template"),
+        eprintln!(
+            "batch {}: {} tasks accepted, {} rejected, {} episodes",
+            r.batch_id,
+            r.accepted_tasks,
+            r.rejected.len(),
+            r.shards
         );
-        let mut stream = c.watch_batch(pb::GetBatchRequest { batch_id: r.batch_id.clone() }).await?.into_inner();
+        let bar = if quiet {
+            ProgressBar::hidden()
+        } else {
+            ProgressBar::new(u64::from(r.shards))
+        };
+        bar.set_style(
+            ProgressStyle::with_template(
+                "{spinner} [{elapsed_precise}] {bar:40} {pos}/{len} episodes  {msg}",
+            )
+            .expect("progress template"),
+        );
+        let mut stream = c
+            .watch_batch(pb::GetBatchRequest {
+                batch_id: r.batch_id.clone(),
+            })
+            .await?
+            .into_inner();
         let mut last = None;
         while let Some(st) = stream.message().await? {
             let finished = st.shards_done + st.shards_failed + st.shards_cancelled;
             bar.set_position(u64::from(finished));
-            bar.set_message(format!("{} ok, {} failed, {} running, {} workers", st.successes, st.shards_failed, st.shards_running, st.workers_connected));
+            bar.set_message(format!(
+                "{} ok, {} failed, {} running, {} workers",
+                st.successes, st.shards_failed, st.shards_running, st.workers_connected
+            ));
             if quiet {
                 eprintln!("{}", super::status::line(&st));
             }
             last = Some(st);
         }
         bar.finish();
-        let report = c.get_report(pb::GetReportRequest { batch_id: r.batch_id.clone() }).await?.into_inner();
+        let report = c
+            .get_report(pb::GetReportRequest {
+                batch_id: r.batch_id.clone(),
+            })
+            .await?
+            .into_inner();
         anyhow::Ok((last, report, r.rejected.len()))
     });
     for w in &mut workers {
@@ -126,5 +160,9 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     );
     let completed = last.state == pb::BatchState::Completed as i32;
     let clean = rejected == 0 && last.shards_failed == 0;
-    Ok(if completed && (clean || !a.strict) { ExitCode::SUCCESS } else { ExitCode::FAILURE })
+    Ok(if completed && (clean || !a.strict) {
+        ExitCode::SUCCESS
+    } else {
+        ExitCode::FAILURE
+    })
 }

@@ -29,7 +29,9 @@ pub fn block_on<F: Future>(f: F) -> F::Output {
         .block_on(f)
 }
 
-pub async fn client(addr: &str) -> anyhow::Result<pb::coordinator_client::CoordinatorClient<Channel>> {
+pub async fn client(
+    addr: &str,
+) -> anyhow::Result<pb::coordinator_client::CoordinatorClient<Channel>> {
     let channel = tonic::transport::Endpoint::from_shared(addr.to_owned())
         .with_context(|| format!("bad coordinator address '{addr}'"))?
         .connect_timeout(std::time::Duration::from_secs(5))
@@ -43,7 +45,8 @@ pub async fn client(addr: &str) -> anyhow::Result<pb::coordinator_client::Coordi
 
 /// Resolves on SIGTERM or Ctrl-C.
 pub async fn terminated() {
-    let mut term = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()).expect("SIGTERM handler");
+    let mut term = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())
+        .expect("SIGTERM handler");
     tokio::select! {
         _ = term.recv() => {}
         _ = tokio::signal::ctrl_c() => {}
@@ -62,8 +65,16 @@ pub fn state_name(state: i32) -> &'static str {
 /// Prints the task errors a coordinator reported for a submission.
 pub fn print_rejected(rejected: &[pb::SpecError]) {
     for e in rejected {
-        let task = if e.task_id.is_empty() { "<no id>" } else { &e.task_id };
-        let path = if e.path.is_empty() { "<document>" } else { &e.path };
+        let task = if e.task_id.is_empty() {
+            "<no id>"
+        } else {
+            &e.task_id
+        };
+        let path = if e.path.is_empty() {
+            "<document>"
+        } else {
+            &e.path
+        };
         eprintln!("invalid task {task} ({}): {path}: {}", e.origin, e.reason);
     }
 }

@@ -25,9 +25,21 @@ pub fn write(out: &Path, r: &pb::GetReportResponse) -> anyhow::Result<()> {
 pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     super::block_on(async move {
         let mut c = super::client(&a.coordinator).await?;
-        let r = c.get_report(pb::GetReportRequest { batch_id: a.batch }).await?.into_inner();
+        let r = c
+            .get_report(pb::GetReportRequest { batch_id: a.batch })
+            .await?
+            .into_inner();
         write(&a.out, &r)?;
-        eprintln!("wrote {} and {}{}", a.out.join("report.json").display(), a.out.join("report.md").display(), if r.r#final { "" } else { " (partial: the batch is still running)" });
+        eprintln!(
+            "wrote {} and {}{}",
+            a.out.join("report.json").display(),
+            a.out.join("report.md").display(),
+            if r.r#final {
+                ""
+            } else {
+                " (partial: the batch is still running)"
+            }
+        );
         Ok(ExitCode::SUCCESS)
     })
 }

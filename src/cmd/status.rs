@@ -43,17 +43,32 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         let mut c = super::client(&a.coordinator).await?;
         match a.batch {
             None => {
-                for b in c.list_batches(pb::ListBatchesRequest {}).await?.into_inner().batches {
+                for b in c
+                    .list_batches(pb::ListBatchesRequest {})
+                    .await?
+                    .into_inner()
+                    .batches
+                {
                     println!("{}", line(&b));
                 }
             }
             Some(id) if a.watch => {
-                let mut stream = c.watch_batch(pb::GetBatchRequest { batch_id: id }).await?.into_inner();
+                let mut stream = c
+                    .watch_batch(pb::GetBatchRequest { batch_id: id })
+                    .await?
+                    .into_inner();
                 while let Some(s) = stream.message().await? {
                     println!("{}", line(&s));
                 }
             }
-            Some(id) => println!("{}", line(&c.get_batch(pb::GetBatchRequest { batch_id: id }).await?.into_inner())),
+            Some(id) => println!(
+                "{}",
+                line(
+                    &c.get_batch(pb::GetBatchRequest { batch_id: id })
+                        .await?
+                        .into_inner()
+                )
+            ),
         }
         Ok(ExitCode::SUCCESS)
     })
@@ -62,7 +77,14 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
 pub fn cancel(a: CancelArgs) -> anyhow::Result<ExitCode> {
     super::block_on(async move {
         let mut c = super::client(&a.coordinator).await?;
-        println!("{}", line(&c.cancel_batch(pb::GetBatchRequest { batch_id: a.batch }).await?.into_inner()));
+        println!(
+            "{}",
+            line(
+                &c.cancel_batch(pb::GetBatchRequest { batch_id: a.batch })
+                    .await?
+                    .into_inner()
+            )
+        );
         Ok(ExitCode::SUCCESS)
     })
 }

@@ -34,12 +34,24 @@ pub struct BatchArgs {
 }
 
 impl BatchArgs {
-    pub fn request(&self, tasks: Vec<pb::TaskDocument>, default_name: &str) -> pb::SubmitBatchRequest {
-        let seeds = if self.seed_list.is_empty() { (0..self.seeds).collect() } else { self.seed_list.clone() };
+    pub fn request(
+        &self,
+        tasks: Vec<pb::TaskDocument>,
+        default_name: &str,
+    ) -> pb::SubmitBatchRequest {
+        let seeds = if self.seed_list.is_empty() {
+            (0..self.seeds).collect()
+        } else {
+            self.seed_list.clone()
+        };
         pb::SubmitBatchRequest {
             name: self.name.clone().unwrap_or_else(|| default_name.to_owned()),
             tasks,
-            policies: self.policies.iter().map(|p| pb::PolicyRef { name: p.clone() }).collect(),
+            policies: self
+                .policies
+                .iter()
+                .map(|p| pb::PolicyRef { name: p.clone() })
+                .collect(),
             seeds,
             max_attempts: self.max_attempts,
         }
@@ -47,7 +59,11 @@ impl BatchArgs {
 }
 
 pub fn default_name(paths: &[PathBuf]) -> String {
-    paths.iter().map(|p| p.display().to_string()).collect::<Vec<_>>().join(" + ")
+    paths
+        .iter()
+        .map(|p| p.display().to_string())
+        .collect::<Vec<_>>()
+        .join(" + ")
 }
 
 pub fn run(a: Args) -> anyhow::Result<ExitCode> {
@@ -57,7 +73,13 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         let mut c = super::client(&a.coordinator).await?;
         let r = c.submit_batch(req).await?.into_inner();
         super::print_rejected(&r.rejected);
-        eprintln!("submitted {}: {} tasks accepted, {} rejected, {} shards", r.batch_id, r.accepted_tasks, r.rejected.len(), r.shards);
+        eprintln!(
+            "submitted {}: {} tasks accepted, {} rejected, {} shards",
+            r.batch_id,
+            r.accepted_tasks,
+            r.rejected.len(),
+            r.shards
+        );
         println!("{}", r.batch_id);
         Ok(ExitCode::SUCCESS)
     })

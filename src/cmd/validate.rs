@@ -17,5 +17,9 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     }
     let bad: std::collections::BTreeSet<_> = errors.iter().map(|e| (&e.origin, &e.task)).collect();
     eprintln!("{} valid, {} invalid", planned.len(), bad.len());
-    Ok(if errors.is_empty() { ExitCode::SUCCESS } else { ExitCode::FAILURE })
+    Ok(if errors.is_empty() {
+        ExitCode::SUCCESS
+    } else {
+        ExitCode::FAILURE
+    })
 }

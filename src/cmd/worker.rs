@@ -31,13 +31,25 @@ struct SimRole;
 
 impl ShardHandler for SimRole {
     fn run(&self, a: &pb::Assignment, artifact_root: &Path) -> Result<String, ShardError> {
-        let spec: TaskSpec = serde_json::from_str(&a.task_spec_json)
-            .map_err(|e| ShardError::permanent(format!("task spec from the coordinator does not parse: {e}")))?;
-        let policy = a.policy.as_ref().map(|p| p.name.as_str()).unwrap_or("oracle");
-        let outcome = assay_sim::run_episode(&spec, a.seed, policy, artifact_root).map_err(|e| {
-            let msg = format!("task {}: {e}", spec.id);
-            if e.retryable() { ShardError::retryable(msg) } else { ShardError::permanent(msg) }
+        let spec: TaskSpec = serde_json::from_str(&a.task_spec_json).map_err(|e| {
+            ShardError::permanent(format!(
+                "task spec from the coordinator does not parse: {e}"
+            ))
         })?;
+        let policy = a
+            .policy
+            .as_ref()
+            .map(|p| p.name.as_str())
+            .unwrap_or("oracle");
+        let outcome =
+            assay_sim::run_episode(&spec, a.seed, policy, artifact_root).map_err(|e| {
+                let msg = format!("task {}: {e}", spec.id);
+                if e.retryable() {
+                    ShardError::retryable(msg)
+                } else {
+                    ShardError::permanent(msg)
+                }
+            })?;
         serde_json::to_string(&outcome).map_err(|e| ShardError::retryable(e.to_string()))
     }
 }
@@ -47,12 +59,17 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     for r in &a.roles {
         match pb::Role::parse(r) {
             Some(pb::Role::Sim) => roles.push(pb::Role::Sim),
-            Some(other) => bail!("role '{}' is not available in this build (sim only)", other.name()),
+            Some(other) => bail!(
+                "role '{}' is not available in this build (sim only)",
+                other.name()
+            ),
             None => bail!("unknown role '{r}' (sim, render, judge, trainer)"),
         }
     }
     let node_id = a.node_id.unwrap_or_else(|| {
-        std::fs::read_to_string("/etc/hostname").map(|s| s.trim().to_owned()).unwrap_or_else(|_| "local".into())
+        std::fs::read_to_string("/etc/hostname")
+            .map(|s| s.trim().to_owned())
+            .unwrap_or_else(|_| "local".into())
     });
     let mut versions = assay_sim::versions();
     versions.insert("assay".into(), env!("CARGO_PKG_VERSION").into());

@@ -34,10 +34,16 @@ pub struct ShardError {
 
 impl ShardError {
     pub fn permanent(message: impl Into<String>) -> Self {
-        Self { message: message.into(), retryable: false }
+        Self {
+            message: message.into(),
+            retryable: false,
+        }
     }
     pub fn retryable(message: impl Into<String>) -> Self {
-        Self { message: message.into(), retryable: true }
+        Self {
+            message: message.into(),
+            retryable: true,
+        }
     }
 }
 
@@ -100,10 +106,10 @@ pub async fn run_worker(
         let channel = match channel {
             Ok(c) => c,
             Err(e) => {
-                if let Some(limit) = config.give_up_after {
-                    if alone_since.elapsed() > limit {
-                        return Err(WorkerError::GaveUp(config.coordinator.clone(), limit));
-                    }
+                if let Some(limit) = config.give_up_after
+                    && alone_since.elapsed() > limit
+                {
+                    return Err(WorkerError::GaveUp(config.coordinator.clone(), limit));
                 }
                 debug!(error = %e, wait = ?backoff, "coordinator unreachable");
                 tokio::select! {
@@ -138,7 +144,9 @@ pub async fn run_worker(
             }
         };
         let registered = match inbound.message().await {
-            Ok(Some(pb::CoordinatorMessage { msg: Some(pb::coordinator_message::Msg::Registered(r)) })) => r,
+            Ok(Some(pb::CoordinatorMessage {
+                msg: Some(pb::coordinator_message::Msg::Registered(r)),
+            })) => r,
             other => {
                 warn!(?other, "coordinator did not confirm registration");
                 tokio::time::sleep(backoff).await;
@@ -148,7 +156,11 @@ pub async fn run_worker(
         };
         backoff = Duration::from_millis(100);
         let artifact_root = PathBuf::from(&registered.artifact_root);
-        let lost: Vec<u64> = running.keys().filter(|id| !registered.kept_leases.contains(id)).copied().collect();
+        let lost: Vec<u64> = running
+            .keys()
+            .filter(|id| !registered.kept_leases.contains(id))
+            .copied()
+            .collect();
         if !lost.is_empty() {
             info!(leases = ?lost, "coordinator no longer grants these leases; their results will not count");
         }
@@ -157,7 +169,9 @@ pub async fn run_worker(
         for r in unacked.values() {
             let _ = out_tx.send(send(Out::Result(r.clone()))).await;
         }
-        let mut heartbeat = tokio::time::interval(Duration::from_millis(u64::from(registered.heartbeat_interval_ms.max(100))));
+        let mut heartbeat = tokio::time::interval(Duration::from_millis(u64::from(
+            registered.heartbeat_interval_ms.max(100),
+        )));
         loop {
             tokio::select! {
                 m = inbound.message() => {
@@ -226,20 +240,31 @@ pub async fn run_worker(
     }
 }
 
-fn spawn_shard(handler: Arc<dyn ShardHandler>, a: pb::Assignment, root: PathBuf, done: mpsc::Sender<Done>) {
+fn spawn_shard(
+    handler: Arc<dyn ShardHandler>,
+    a: pb::Assignment,
+    root: PathBuf,
+    done: mpsc::Sender<Done>,
+) {
     let name = format!("assay-shard-{}", a.lease_id);
     let spawned = std::thread::Builder::new().name(name).spawn(move || {
         let start = Instant::now();
-        let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| handler.run(&a, &root)))
-            .unwrap_or_else(|p| {
-                let what = p
-                    .downcast_ref::<String>()
-                    .cloned()
-                    .or_else(|| p.downcast_ref::<&str>().map(|s| (*s).to_owned()))
-                    .unwrap_or_else(|| "unknown panic".into());
-                Err(ShardError::retryable(format!("worker panicked: {what}")))
-            });
-        let _ = done.blocking_send(Done { lease_id: a.lease_id, shard_id: a.shard_id, result, wall_time_s: start.elapsed().as_secs_f64() });
+        let result =
+            std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| handler.run(&a, &root)))
+                .unwrap_or_else(|p| {
+                    let what = p
+                        .downcast_ref::<String>()
+                        .cloned()
+                        .or_else(|| p.downcast_ref::<&str>().map(|s| (*s).to_owned()))
+                        .unwrap_or_else(|| "unknown panic".into());
+                    Err(ShardError::retryable(format!("worker panicked: {what}")))
+                });
+        let _ = done.blocking_send(Done {
+            lease_id: a.lease_id,
+            shard_id: a.shard_id,
+            result,
+            wall_time_s: start.elapsed().as_secs_f64(),
+        });
     });
     if let Err(e) = spawned {
         warn!(error = %e, "could not start a shard thread");

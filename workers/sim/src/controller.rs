@@ -122,7 +122,11 @@ impl Controller {
             return Vec3::ZERO;
         }
         let n = f64::from(self.noise);
-        Vec3::new(self.rng.uniform(-n, n) as f32, self.rng.uniform(-n, n) as f32, 0.0)
+        Vec3::new(
+            self.rng.uniform(-n, n) as f32,
+            self.rng.uniform(-n, n) as f32,
+            0.0,
+        )
     }
 
     fn push_move(&mut self, to: Vec3, speed: f32, ev: Event, dt: f32) {
@@ -134,7 +138,14 @@ impl Controller {
 
     fn dwell(&mut self, ev: Event) {
         let at = self.queue.back().map(|(s, _)| s.to).unwrap_or(self.command);
-        self.queue.push_back((Segment { from: at, to: at, steps: DWELL_STEPS }, ev));
+        self.queue.push_back((
+            Segment {
+                from: at,
+                to: at,
+                steps: DWELL_STEPS,
+            },
+            ev,
+        ));
     }
 
     /// A height from which the tool, and what it holds, clears everything on the table.
@@ -147,7 +158,10 @@ impl Controller {
             let p = scene.pose(o).translation;
             top = top.max(p.z + o.half.z);
         }
-        let held_height = self.held.map(|h| 2.0 * scene.objects[h.object].half.z).unwrap_or(0.0);
+        let held_height = self
+            .held
+            .map(|h| 2.0 * scene.objects[h.object].half.z)
+            .unwrap_or(0.0);
         (top + held_height + GRIPPER_HALF_EXTENTS[2] + 0.04).max(0.25)
     }
 
@@ -156,26 +170,54 @@ impl Controller {
         let gh = GRIPPER_HALF_EXTENTS[2];
         match p {
             Primitive::Pick { object } => {
-                let Some(i) = scene.index_of(object) else { return };
+                let Some(i) = scene.index_of(object) else {
+                    return;
+                };
                 let o = &scene.objects[i];
-                if let Some(max) = self.max_opening {
-                    if 2.0 * o.half.x.min(o.half.y) > max {
-                        self.notes.push(Note { step, text: format!("'{object}' is wider than the gripper opens ({max} m)") });
-                    }
+                if let Some(max) = self.max_opening
+                    && 2.0 * o.half.x.min(o.half.y) > max
+                {
+                    self.notes.push(Note {
+                        step,
+                        text: format!("'{object}' is wider than the gripper opens ({max} m)"),
+                    });
                 }
                 let pos = scene.pose(o).translation + self.jitter();
                 let z_safe = self.safe_height(scene);
                 let top = pos.z + o.half.z;
-                self.push_move(Vec3::new(self.command.x, self.command.y, z_safe), DESCEND_SPEED * 2.0, Event::None, dt);
-                self.push_move(Vec3::new(pos.x, pos.y, z_safe), TRANSIT_SPEED, Event::None, dt);
-                self.push_move(Vec3::new(pos.x, pos.y, top + gh), DESCEND_SPEED, Event::None, dt);
+                self.push_move(
+                    Vec3::new(self.command.x, self.command.y, z_safe),
+                    DESCEND_SPEED * 2.0,
+                    Event::None,
+                    dt,
+                );
+                self.push_move(
+                    Vec3::new(pos.x, pos.y, z_safe),
+                    TRANSIT_SPEED,
+                    Event::None,
+                    dt,
+                );
+                self.push_move(
+                    Vec3::new(pos.x, pos.y, top + gh),
+                    DESCEND_SPEED,
+                    Event::None,
+                    dt,
+                );
                 self.dwell(Event::Grasp(i));
                 let lift = z_safe.max(top + gh + 0.02 + 2.0 * o.half.z);
-                self.push_move(Vec3::new(pos.x, pos.y, lift), DESCEND_SPEED, Event::None, dt);
+                self.push_move(
+                    Vec3::new(pos.x, pos.y, lift),
+                    DESCEND_SPEED,
+                    Event::None,
+                    dt,
+                );
             }
             Primitive::Place { target } => {
                 let Some(h) = self.held else {
-                    self.notes.push(Note { step, text: "place with nothing held (the grasp failed)".into() });
+                    self.notes.push(Note {
+                        step,
+                        text: "place with nothing held (the grasp failed)".into(),
+                    });
                     return;
                 };
                 let held_half = scene.objects[h.object].half;
@@ -189,22 +231,46 @@ impl Controller {
                         let (inner, w) = c.container.unwrap_or((c.half, 0.0));
                         Vec3::new(p.x, p.y, p.z - (inner.z + w / 2.0) + w + held_half.z)
                     }),
-                    PlaceTarget::Zone(id) => scene_zone(scene, id).map(|(c, _)| Vec3::new(c.x, c.y, held_half.z)),
+                    PlaceTarget::Zone(id) => {
+                        scene_zone(scene, id).map(|(c, _)| Vec3::new(c.x, c.y, held_half.z))
+                    }
                     PlaceTarget::At(xy) => Some(Vec3::new(xy[0] as f32, xy[1] as f32, held_half.z)),
                 };
                 let Some(centre) = centre else { return };
                 let centre = centre + self.jitter();
                 let z_safe = self.safe_height(scene);
                 let tool = centre - h.offset;
-                self.push_move(Vec3::new(self.command.x, self.command.y, z_safe), DESCEND_SPEED * 2.0, Event::None, dt);
-                self.push_move(Vec3::new(tool.x, tool.y, z_safe), TRANSIT_SPEED, Event::None, dt);
-                self.push_move(Vec3::new(tool.x, tool.y, tool.z + PLACE_CLEARANCE), DESCEND_SPEED, Event::None, dt);
+                self.push_move(
+                    Vec3::new(self.command.x, self.command.y, z_safe),
+                    DESCEND_SPEED * 2.0,
+                    Event::None,
+                    dt,
+                );
+                self.push_move(
+                    Vec3::new(tool.x, tool.y, z_safe),
+                    TRANSIT_SPEED,
+                    Event::None,
+                    dt,
+                );
+                self.push_move(
+                    Vec3::new(tool.x, tool.y, tool.z + PLACE_CLEARANCE),
+                    DESCEND_SPEED,
+                    Event::None,
+                    dt,
+                );
                 self.dwell(Event::Release);
                 self.dwell(Event::None);
-                self.push_move(Vec3::new(tool.x, tool.y, z_safe), DESCEND_SPEED, Event::None, dt);
+                self.push_move(
+                    Vec3::new(tool.x, tool.y, z_safe),
+                    DESCEND_SPEED,
+                    Event::None,
+                    dt,
+                );
             }
             Primitive::Push { object, to } => {
-                let Some(o) = scene.object(object) else { return };
+                let Some(o) = scene.object(object) else {
+                    return;
+                };
                 let pose = scene.pose(o);
                 let p = pose.translation;
                 let goal = Vec3::new(to[0] as f32, to[1] as f32, 0.0) + self.jitter();
@@ -222,13 +288,38 @@ impl Controller {
                 let z_safe = self.safe_height(scene);
                 let start = Vec3::new(p.x, p.y, 0.0) - dir * (e + g + 0.03);
                 let end = Vec3::new(goal.x, goal.y, 0.0) - dir * (e + g);
-                self.push_move(Vec3::new(self.command.x, self.command.y, z_safe), DESCEND_SPEED * 2.0, Event::None, dt);
-                self.push_move(Vec3::new(start.x, start.y, z_safe), TRANSIT_SPEED, Event::None, dt);
-                self.push_move(Vec3::new(start.x, start.y, z_low), DESCEND_SPEED, Event::None, dt);
+                self.push_move(
+                    Vec3::new(self.command.x, self.command.y, z_safe),
+                    DESCEND_SPEED * 2.0,
+                    Event::None,
+                    dt,
+                );
+                self.push_move(
+                    Vec3::new(start.x, start.y, z_safe),
+                    TRANSIT_SPEED,
+                    Event::None,
+                    dt,
+                );
+                self.push_move(
+                    Vec3::new(start.x, start.y, z_low),
+                    DESCEND_SPEED,
+                    Event::None,
+                    dt,
+                );
                 self.push_move(Vec3::new(end.x, end.y, z_low), PUSH_SPEED, Event::None, dt);
                 let back = end - dir * 0.02;
-                self.push_move(Vec3::new(back.x, back.y, z_low), PUSH_SPEED, Event::None, dt);
-                self.push_move(Vec3::new(back.x, back.y, z_safe), DESCEND_SPEED, Event::None, dt);
+                self.push_move(
+                    Vec3::new(back.x, back.y, z_low),
+                    PUSH_SPEED,
+                    Event::None,
+                    dt,
+                );
+                self.push_move(
+                    Vec3::new(back.x, back.y, z_safe),
+                    DESCEND_SPEED,
+                    Event::None,
+                    dt,
+                );
             }
         }
     }
@@ -243,9 +334,20 @@ impl Controller {
                 let pose = scene.pose(&o);
                 let top = pose.translation.z + o.half.z;
                 let face = tool.z - GRIPPER_HALF_EXTENTS[2];
-                let horizontal = Vec3::new(pose.translation.x - tool.x, pose.translation.y - tool.y, 0.0).length();
-                let fits = self.max_opening.is_none_or(|m| 2.0 * o.half.x.min(o.half.y) <= m);
-                if o.fixed || (face - top).abs() > GRASP_REACH || horizontal > o.half.x.max(o.half.y) || !fits {
+                let horizontal = Vec3::new(
+                    pose.translation.x - tool.x,
+                    pose.translation.y - tool.y,
+                    0.0,
+                )
+                .length();
+                let fits = self
+                    .max_opening
+                    .is_none_or(|m| 2.0 * o.half.x.min(o.half.y) <= m);
+                if o.fixed
+                    || (face - top).abs() > GRASP_REACH
+                    || horizontal > o.half.x.max(o.half.y)
+                    || !fits
+                {
                     self.notes.push(Note {
                         step,
                         text: format!(
@@ -260,9 +362,18 @@ impl Controller {
                 }
                 let tool_pose = *scene.world.bodies[scene.gripper].position();
                 let rel = tool_pose.inverse() * pose;
-                let joint = FixedJointBuilder::new().local_frame1(rel).local_frame2(Pose::IDENTITY).contacts_enabled(false);
-                let handle = scene.world.insert_impulse_joint(scene.gripper, o.body, joint);
-                self.held = Some(Held { object: i, offset: pose.translation - tool, joint: handle });
+                let joint = FixedJointBuilder::new()
+                    .local_frame1(rel)
+                    .local_frame2(Pose::IDENTITY)
+                    .contacts_enabled(false);
+                let handle = scene
+                    .world
+                    .insert_impulse_joint(scene.gripper, o.body, joint);
+                self.held = Some(Held {
+                    object: i,
+                    offset: pose.translation - tool,
+                    joint: handle,
+                });
             }
             Event::Release => {
                 if let Some(h) = self.held.take() {

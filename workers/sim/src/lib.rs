@@ -41,7 +41,10 @@ pub enum SimError {
 
 impl SimError {
     pub fn spec(path: impl Into<String>, reason: impl Into<String>) -> Self {
-        SimError::Spec { path: path.into(), reason: reason.into() }
+        SimError::Spec {
+            path: path.into(),
+            reason: reason.into(),
+        }
     }
     pub fn internal(msg: impl Into<String>) -> Self {
         SimError::Internal(msg.into())
@@ -57,7 +60,10 @@ pub fn versions() -> BTreeMap<String, String> {
     BTreeMap::from([
         ("assay-sim".to_owned(), env!("CARGO_PKG_VERSION").to_owned()),
         ("rapier3d".to_owned(), RAPIER_VERSION.to_owned()),
-        ("episode-format".to_owned(), record::EPISODE_FORMAT_VERSION.to_owned()),
+        (
+            "episode-format".to_owned(),
+            record::EPISODE_FORMAT_VERSION.to_owned(),
+        ),
     ])
 }
 
@@ -77,7 +83,9 @@ impl Policy {
         let mut noise = 0.0;
         for arg in args.split(',').filter(|a| !a.is_empty()) {
             match arg.split_once('=') {
-                Some(("noise", v)) => noise = v.parse().map_err(|_| SimError::Policy(name.to_owned()))?,
+                Some(("noise", v)) => {
+                    noise = v.parse().map_err(|_| SimError::Policy(name.to_owned()))?
+                }
                 _ => return Err(SimError::Policy(name.to_owned())),
             }
         }
@@ -105,7 +113,11 @@ pub fn simulate(spec: &TaskSpec, seed: u64, policy: &str) -> Result<Episode, Sim
     let max_steps = u64::from(spec.physics.max_steps);
     let mut step: u64 = 0;
 
-    let advance = |scene: &mut SimScene, ctl: &mut Controller, rec: &mut Recorder, step: &mut u64, act: bool| {
+    let advance = |scene: &mut SimScene,
+                   ctl: &mut Controller,
+                   rec: &mut Recorder,
+                   step: &mut u64,
+                   act: bool| {
         let ev = if act {
             let (cmd, ev) = ctl.step(scene, *step);
             scene.world.bodies[scene.gripper].set_next_kinematic_translation(cmd);
@@ -117,8 +129,14 @@ pub fn simulate(spec: &TaskSpec, seed: u64, policy: &str) -> Result<Episode, Sim
         scene.world.step();
         ctl.apply(ev, scene, *step);
         *step += 1;
-        if *step % RECORD_STRIDE == 0 {
-            rec.record(scene, *step as u32, *step as f64 * dt, ctl.command, ctl.held.map(|h| h.object));
+        if step.is_multiple_of(RECORD_STRIDE) {
+            rec.record(
+                scene,
+                *step as u32,
+                *step as f64 * dt,
+                ctl.command,
+                ctl.held.map(|h| h.object),
+            );
         }
     };
     rec.record(&scene, 0, 0.0, ctl.command, None);
@@ -140,13 +158,17 @@ pub fn simulate(spec: &TaskSpec, seed: u64, policy: &str) -> Result<Episode, Sim
     for _ in 0..settle {
         advance(&mut scene, &mut ctl, &mut rec, &mut step, false);
     }
-    if step % RECORD_STRIDE != 0 {
+    if !step.is_multiple_of(RECORD_STRIDE) {
         rec.record(&scene, step as u32, step as f64 * dt, ctl.command, None);
     }
 
     let predicates = predicates::evaluate(&spec.goals, &scene);
     let success = !truncated && predicates.iter().all(|p| p.holds);
-    let mut notes: Vec<String> = ctl.notes.iter().map(|n| format!("step {}: {}", n.step, n.text)).collect();
+    let mut notes: Vec<String> = ctl
+        .notes
+        .iter()
+        .map(|n| format!("step {}: {}", n.step, n.text))
+        .collect();
     if truncated {
         notes.push(format!("plan cut off at physics.max_steps = {max_steps}"));
     }
@@ -154,17 +176,32 @@ pub fn simulate(spec: &TaskSpec, seed: u64, policy: &str) -> Result<Episode, Sim
     let versions = versions();
     let object_ids: Vec<String> = scene.objects.iter().map(|o| o.id.clone()).collect();
     let metadata = HashMap::from([
-        ("assay.episode_format".to_owned(), record::EPISODE_FORMAT_VERSION.to_owned()),
+        (
+            "assay.episode_format".to_owned(),
+            record::EPISODE_FORMAT_VERSION.to_owned(),
+        ),
         ("assay.task_id".to_owned(), spec.id.clone()),
         ("assay.seed".to_owned(), seed.to_string()),
         ("assay.policy".to_owned(), policy.to_owned()),
         ("assay.success".to_owned(), success.to_string()),
         ("assay.label_source".to_owned(), "sim".to_owned()),
-        ("assay.predicates".to_owned(), serde_json::to_string(&predicates).unwrap_or_default()),
-        ("assay.notes".to_owned(), serde_json::to_string(&notes).unwrap_or_default()),
+        (
+            "assay.predicates".to_owned(),
+            serde_json::to_string(&predicates).unwrap_or_default(),
+        ),
+        (
+            "assay.notes".to_owned(),
+            serde_json::to_string(&notes).unwrap_or_default(),
+        ),
         ("assay.spec_hash".to_owned(), spec_hash.clone()),
-        ("assay.versions".to_owned(), serde_json::to_string(&versions).unwrap_or_default()),
-        ("assay.objects".to_owned(), serde_json::to_string(&object_ids).unwrap_or_default()),
+        (
+            "assay.versions".to_owned(),
+            serde_json::to_string(&versions).unwrap_or_default(),
+        ),
+        (
+            "assay.objects".to_owned(),
+            serde_json::to_string(&object_ids).unwrap_or_default(),
+        ),
         ("assay.dt".to_owned(), dt.to_string()),
         ("assay.record_stride".to_owned(), RECORD_STRIDE.to_string()),
     ]);
@@ -193,15 +230,27 @@ use scene::SimScene;
 
 /// Simulates an episode and stores its file under `artifact_root` (content-addressed; writing
 /// the same episode twice is harmless).
-pub fn run_episode(spec: &TaskSpec, seed: u64, policy: &str, artifact_root: &Path) -> Result<EpisodeOutcome, SimError> {
+pub fn run_episode(
+    spec: &TaskSpec,
+    seed: u64,
+    policy: &str,
+    artifact_root: &Path,
+) -> Result<EpisodeOutcome, SimError> {
     let ep = simulate(spec, seed, policy)?;
     let path = artifact_root.join(&ep.outcome.artifact);
     if !path.exists() {
         let dir = path.parent().expect("artifact path has a folder");
-        std::fs::create_dir_all(dir).map_err(|e| SimError::Io(format!("{}: {e}", dir.display())))?;
-        let tmp = dir.join(format!(".tmp-{}-{:?}", std::process::id(), std::thread::current().id()));
-        std::fs::write(&tmp, &ep.file).map_err(|e| SimError::Io(format!("{}: {e}", tmp.display())))?;
-        std::fs::rename(&tmp, &path).map_err(|e| SimError::Io(format!("{}: {e}", path.display())))?;
+        std::fs::create_dir_all(dir)
+            .map_err(|e| SimError::Io(format!("{}: {e}", dir.display())))?;
+        let tmp = dir.join(format!(
+            ".tmp-{}-{:?}",
+            std::process::id(),
+            std::thread::current().id()
+        ));
+        std::fs::write(&tmp, &ep.file)
+            .map_err(|e| SimError::Io(format!("{}: {e}", tmp.display())))?;
+        std::fs::rename(&tmp, &path)
+            .map_err(|e| SimError::Io(format!("{}: {e}", path.display())))?;
     }
     Ok(ep.outcome)
 }

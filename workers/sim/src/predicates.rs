@@ -14,7 +14,11 @@ pub fn evaluate(goals: &[Goal], scene: &SimScene) -> Vec<PredicateValue> {
         .iter()
         .map(|g| {
             let (holds, detail) = holds(g, scene);
-            PredicateValue { label: g.label(), holds, detail }
+            PredicateValue {
+                label: g.label(),
+                holds,
+                detail,
+            }
         })
         .collect()
 }
@@ -33,7 +37,10 @@ fn on_top_of(scene: &SimScene, object: &str, support: &str) -> (bool, String) {
     let resting = (dz - rest).abs() <= REST_TOLERANCE;
     (
         over && resting,
-        format!("offset ({:.3}, {:.3}) m over a top of ±({:.3}, {:.3}); height above support {dz:.3} m (expected {rest:.3})", local.x, local.y, s.half.x, s.half.y),
+        format!(
+            "offset ({:.3}, {:.3}) m over a top of ±({:.3}, {:.3}); height above support {dz:.3} m (expected {rest:.3})",
+            local.x, local.y, s.half.x, s.half.y
+        ),
     )
 }
 
@@ -41,17 +48,41 @@ fn holds(goal: &Goal, scene: &SimScene) -> (bool, String) {
     match goal {
         Goal::InZone { object, zone } => {
             let p = scene.pose(obj(scene, object)).translation;
-            let (_, c, h) = scene.zones.iter().find(|z| &z.0 == zone).expect("validated: zone exists");
+            let (_, c, h) = scene
+                .zones
+                .iter()
+                .find(|z| &z.0 == zone)
+                .expect("validated: zone exists");
             let inside = (p.x - c.x).abs() <= h.x && (p.y - c.y).abs() <= h.y && p.z > -0.02;
-            (inside, format!("centre ({:.3}, {:.3}, {:.3}); zone ({:.3}, {:.3}) ± ({:.3}, {:.3})", p.x, p.y, p.z, c.x, c.y, h.x, h.y))
+            (
+                inside,
+                format!(
+                    "centre ({:.3}, {:.3}, {:.3}); zone ({:.3}, {:.3}) ± ({:.3}, {:.3})",
+                    p.x, p.y, p.z, c.x, c.y, h.x, h.y
+                ),
+            )
         }
         Goal::InContainer { object, container } => {
             let (o, c) = (obj(scene, object), obj(scene, container));
             let local = scene.pose(c).inverse() * scene.pose(o).translation;
             let (inner, w) = c.container.unwrap_or((c.half, 0.0));
             let big_h = inner.z + w / 2.0;
-            let inside = local.x.abs() <= inner.x && local.y.abs() <= inner.y && local.z >= -big_h && local.z <= big_h + 0.5 * o.half.z;
-            (inside, format!("centre at ({:.3}, {:.3}, {:.3}) in the container's frame; interior ±({:.3}, {:.3}), floor {:.3}", local.x, local.y, local.z, inner.x, inner.y, -big_h + w))
+            let inside = local.x.abs() <= inner.x
+                && local.y.abs() <= inner.y
+                && local.z >= -big_h
+                && local.z <= big_h + 0.5 * o.half.z;
+            (
+                inside,
+                format!(
+                    "centre at ({:.3}, {:.3}, {:.3}) in the container's frame; interior ±({:.3}, {:.3}), floor {:.3}",
+                    local.x,
+                    local.y,
+                    local.z,
+                    inner.x,
+                    inner.y,
+                    -big_h + w
+                ),
+            )
         }
         Goal::OnTopOf { object, support } => on_top_of(scene, object, support),
         Goal::Stacked { order } => {
@@ -64,9 +95,21 @@ fn holds(goal: &Goal, scene: &SimScene) -> (bool, String) {
                     details.push(format!("{} on {}: {d}", pair[1], pair[0]));
                 }
             }
-            (all, if all { "every level rests on the one below".into() } else { details.join("; ") })
+            (
+                all,
+                if all {
+                    "every level rests on the one below".into()
+                } else {
+                    details.join("; ")
+                },
+            )
         }
-        Goal::WithinDistance { object, target, point, distance } => {
+        Goal::WithinDistance {
+            object,
+            target,
+            point,
+            distance,
+        } => {
             let p = scene.pose(obj(scene, object)).translation;
             let q = match (target, point) {
                 (Some(t), _) => scene.pose(obj(scene, t)).translation,
@@ -74,9 +117,18 @@ fn holds(goal: &Goal, scene: &SimScene) -> (bool, String) {
                 (None, None) => unreachable!("validated: a target or a point"),
             };
             let d = p.distance(q);
-            (d <= *distance as f32, format!("distance {d:.3} m (limit {distance})"))
+            (
+                d <= *distance as f32,
+                format!("distance {d:.3} m (limit {distance})"),
+            )
         }
-        Goal::PoseWithin { object, position, tolerance, yaw_deg, yaw_tolerance_deg } => {
+        Goal::PoseWithin {
+            object,
+            position,
+            tolerance,
+            yaw_deg,
+            yaw_tolerance_deg,
+        } => {
             let pose = scene.pose(obj(scene, object));
             let target = Vec3::new(position[0] as f32, position[1] as f32, position[2] as f32);
             let d = pose.translation.distance(target);

@@ -4,7 +4,9 @@
 use std::collections::HashMap;
 use std::sync::Arc;
 
-use arrow_array::{ArrayRef, BooleanArray, Float32Array, Float64Array, Int16Array, RecordBatch, UInt32Array};
+use arrow_array::{
+    ArrayRef, BooleanArray, Float32Array, Float64Array, Int16Array, RecordBatch, UInt32Array,
+};
 use arrow_schema::{DataType, Field, Schema};
 use rapier3d::prelude::*;
 
@@ -30,14 +32,24 @@ pub struct Recorder {
 
 impl Recorder {
     pub fn new(objects: usize) -> Self {
-        Self { objects: (0..objects).map(|_| Default::default()).collect(), ..Default::default() }
+        Self {
+            objects: (0..objects).map(|_| Default::default()).collect(),
+            ..Default::default()
+        }
     }
 
     pub fn rows(&self) -> usize {
         self.step.len()
     }
 
-    pub fn record(&mut self, scene: &SimScene, step: u32, time: f64, command: Vec3, grasped: Option<usize>) {
+    pub fn record(
+        &mut self,
+        scene: &SimScene,
+        step: u32,
+        time: f64,
+        command: Vec3,
+        grasped: Option<usize>,
+    ) {
         self.step.push(step);
         self.time.push(time);
         let ee = scene.gripper_position();
@@ -61,15 +73,26 @@ impl Recorder {
     }
 
     /// Encodes the episode as an Arrow IPC file with `metadata` on the schema.
-    pub fn encode(&self, object_ids: &[String], metadata: HashMap<String, String>) -> Result<Vec<u8>, SimError> {
+    pub fn encode(
+        &self,
+        object_ids: &[String],
+        metadata: HashMap<String, String>,
+    ) -> Result<Vec<u8>, SimError> {
         let mut fields = vec![
             Field::new("step", DataType::UInt32, false),
             Field::new("time_s", DataType::Float64, false),
         ];
-        let mut cols: Vec<ArrayRef> = vec![Arc::new(UInt32Array::from(self.step.clone())), Arc::new(Float64Array::from(self.time.clone()))];
+        let mut cols: Vec<ArrayRef> = vec![
+            Arc::new(UInt32Array::from(self.step.clone())),
+            Arc::new(Float64Array::from(self.time.clone())),
+        ];
         for (name, data) in [("ee", &self.ee), ("ee_cmd", &self.cmd)] {
             for (k, axis) in ["x", "y", "z"].iter().enumerate() {
-                fields.push(Field::new(format!("{name}_{axis}"), DataType::Float32, false));
+                fields.push(Field::new(
+                    format!("{name}_{axis}"),
+                    DataType::Float32,
+                    false,
+                ));
                 cols.push(Arc::new(Float32Array::from(data[k].clone())));
             }
         }
@@ -88,12 +111,16 @@ impl Recorder {
             }
         }
         let schema = Arc::new(Schema::new(fields).with_metadata(metadata));
-        let batch = RecordBatch::try_new(schema.clone(), cols).map_err(|e| SimError::internal(format!("episode table: {e}")))?;
+        let batch = RecordBatch::try_new(schema.clone(), cols)
+            .map_err(|e| SimError::internal(format!("episode table: {e}")))?;
         let mut buf = Vec::new();
         {
-            let mut w = arrow_ipc::writer::FileWriter::try_new(&mut buf, &schema).map_err(|e| SimError::internal(format!("episode file: {e}")))?;
-            w.write(&batch).map_err(|e| SimError::internal(format!("episode file: {e}")))?;
-            w.finish().map_err(|e| SimError::internal(format!("episode file: {e}")))?;
+            let mut w = arrow_ipc::writer::FileWriter::try_new(&mut buf, &schema)
+                .map_err(|e| SimError::internal(format!("episode file: {e}")))?;
+            w.write(&batch)
+                .map_err(|e| SimError::internal(format!("episode file: {e}")))?;
+            w.finish()
+                .map_err(|e| SimError::internal(format!("episode file: {e}")))?;
         }
         Ok(buf)
     }
@@ -107,7 +134,11 @@ pub fn contact_summary(scene: &SimScene) -> (u32, u32, bool) {
             continue;
         }
         pairs += 1;
-        points += pair.manifolds().iter().map(|m| m.data.solver_contacts.len() as u32).sum::<u32>();
+        points += pair
+            .manifolds()
+            .iter()
+            .map(|m| m.data.solver_contacts.len() as u32)
+            .sum::<u32>();
         if pair.collider1 == scene.gripper_collider || pair.collider2 == scene.gripper_collider {
             ee = true;
         }

@@ -10,8 +10,7 @@ use crate::record::contact_summary;
 use crate::scene::{OBJECT_FRICTION, SimObject, SimScene, new_world};
 
 /// The tool's path as the contract states it; the file is checked to say exactly this.
-pub const PATH_PYTHON: &str =
-    "x=0.5+0.2*sin(2*pi*t/3.3); y=0.17*sin(2*pi*t/5.0); z=0.06+0.025*(1+cos(2*pi*t/2.0)), t=step*dt";
+pub const PATH_PYTHON: &str = "x=0.5+0.2*sin(2*pi*t/3.3); y=0.17*sin(2*pi*t/5.0); z=0.06+0.025*(1+cos(2*pi*t/2.0)), t=step*dt";
 
 #[derive(Debug, Clone, Deserialize)]
 pub struct Contract {
@@ -60,9 +59,13 @@ pub struct Rollout {
 
 impl Contract {
     pub fn parse(text: &str) -> Result<Self, SimError> {
-        let c: Contract = serde_json::from_str(text).map_err(|e| SimError::spec("reference-scene.json", e.to_string()))?;
+        let c: Contract = serde_json::from_str(text)
+            .map_err(|e| SimError::spec("reference-scene.json", e.to_string()))?;
         if c.gripper.path_python != PATH_PYTHON {
-            return Err(SimError::spec("gripper.path_python", format!("this build implements '{PATH_PYTHON}'")));
+            return Err(SimError::spec(
+                "gripper.path_python",
+                format!("this build implements '{PATH_PYTHON}'"),
+            ));
         }
         Ok(c)
     }
@@ -79,8 +82,16 @@ impl Contract {
     /// A fresh world in the contract's initial state.
     pub fn build(&self) -> SimScene {
         let mut world = new_world(self.dt as f32);
-        world.gravity = Vec3::new(self.gravity[0] as f32, self.gravity[1] as f32, self.gravity[2] as f32);
-        world.insert(RigidBodyBuilder::fixed(), ColliderBuilder::halfspace(nalgebra::Unit::new_unchecked(Vector::Z)).friction(OBJECT_FRICTION));
+        world.gravity = Vec3::new(
+            self.gravity[0] as f32,
+            self.gravity[1] as f32,
+            self.gravity[2] as f32,
+        );
+        world.insert(
+            RigidBodyBuilder::fixed(),
+            ColliderBuilder::halfspace(nalgebra::Unit::new_unchecked(Vector::Z))
+                .friction(OBJECT_FRICTION),
+        );
         let h = self.boxes.half_extent_m as f32;
         let objects = self
             .boxes
@@ -89,19 +100,42 @@ impl Contract {
             .enumerate()
             .map(|(i, p)| {
                 let (body, _) = world.insert(
-                    RigidBodyBuilder::dynamic().translation(Vec3::new(p[0] as f32, p[1] as f32, p[2] as f32)),
-                    ColliderBuilder::cuboid(h, h, h).mass(self.boxes.mass_kg as f32).friction(OBJECT_FRICTION),
+                    RigidBodyBuilder::dynamic().translation(Vec3::new(
+                        p[0] as f32,
+                        p[1] as f32,
+                        p[2] as f32,
+                    )),
+                    ColliderBuilder::cuboid(h, h, h)
+                        .mass(self.boxes.mass_kg as f32)
+                        .friction(OBJECT_FRICTION),
                 );
-                SimObject { id: format!("box{i}"), body, half: Vec3::splat(h), fixed: false, container: None }
+                SimObject {
+                    id: format!("box{i}"),
+                    body,
+                    half: Vec3::splat(h),
+                    fixed: false,
+                    container: None,
+                }
             })
             .collect();
         let g = self.gripper.half_extents_m;
         let park = self.gripper.park;
         let (gripper, gripper_collider) = world.insert(
-            RigidBodyBuilder::kinematic_position_based().translation(Vec3::new(park[0] as f32, park[1] as f32, park[2] as f32)),
-            ColliderBuilder::cuboid(g[0] as f32, g[1] as f32, g[2] as f32).friction(OBJECT_FRICTION),
+            RigidBodyBuilder::kinematic_position_based().translation(Vec3::new(
+                park[0] as f32,
+                park[1] as f32,
+                park[2] as f32,
+            )),
+            ColliderBuilder::cuboid(g[0] as f32, g[1] as f32, g[2] as f32)
+                .friction(OBJECT_FRICTION),
         );
-        SimScene { world, objects, gripper, gripper_collider, zones: Vec::new() }
+        SimScene {
+            world,
+            objects,
+            gripper,
+            gripper_collider,
+            zones: Vec::new(),
+        }
     }
 
     fn park(&self) -> Vec3 {
@@ -134,7 +168,7 @@ pub fn physics_setup(c: &Contract) -> SimScene {
 }
 
 /// The timed part of a physics trial: `steps` steps with the tool on its path.
-pub fn physics_run(c: &Contract, scene: &mut SimScene, steps: u32, mut measure: Option<&mut Workload>) {
+pub fn physics_run(c: &Contract, scene: &mut SimScene, steps: u32, measure: Option<&mut Workload>) {
     let (mut points, mut touching) = (0u64, 0u64);
     for step in 0..steps {
         drive(scene, Contract::path(f64::from(step) * c.dt));
@@ -144,7 +178,7 @@ pub fn physics_run(c: &Contract, scene: &mut SimScene, steps: u32, mut measure: 
             touching += u64::from(ee);
         }
     }
-    if let Some(w) = measure.as_deref_mut() {
+    if let Some(w) = measure {
         w.contact_points_per_step = points as f64 / f64::from(steps);
         w.gripper_contact_fraction = touching as f64 / f64::from(steps);
     }
@@ -187,12 +221,16 @@ pub fn rollout_episode(c: &Contract) -> usize {
                     .contacts_enabled(false);
                 joint = Some(scene.world.insert_impulse_joint(scene.gripper, body, j));
             }
-            if k == r.release_step {
-                if let Some(j) = joint.take() {
-                    scene.world.remove_impulse_joint(j);
-                }
+            if k == r.release_step
+                && let Some(j) = joint.take()
+            {
+                scene.world.remove_impulse_joint(j);
             }
-            let (from, to, a_name, b_name) = r.segments.iter().find(|s| k >= s.0 && k < s.1).expect("segments cover the action");
+            let (from, to, a_name, b_name) = r
+                .segments
+                .iter()
+                .find(|s| k >= s.0 && k < s.1)
+                .expect("segments cover the action");
             let s = (k - from + 1) as f32 / (to - from) as f32;
             let at = point(a_name).lerp(point(b_name), s);
             drive(&mut scene, at);
@@ -205,7 +243,8 @@ pub fn rollout_episode(c: &Contract) -> usize {
         .zip(&r.targets)
         .filter(|(b, t)| {
             let p = scene.world.bodies[scene.objects[**b].body].translation();
-            p.distance(Vec3::new(t[0] as f32, t[1] as f32, t[2] as f32)) <= r.success_tolerance_m as f32
+            p.distance(Vec3::new(t[0] as f32, t[1] as f32, t[2] as f32))
+                <= r.success_tolerance_m as f32
         })
         .count()
 }

@@ -66,7 +66,10 @@ pub fn new_world(dt: f32) -> PhysicsWorld {
     world
 }
 
-fn collider_for(shape: &Shape, spec_dir_hint: &str, path: &str) -> Result<(ColliderBuilder, Vec3, Option<(Vec3, f32)>), SimError> {
+/// A collider, the half extents of its box, and (containers) inner half extents and wall.
+type BuiltShape = (ColliderBuilder, Vec3, Option<(Vec3, f32)>);
+
+fn collider_for(shape: &Shape, spec_dir_hint: &str, path: &str) -> Result<BuiltShape, SimError> {
     Ok(match shape {
         Shape::Box { half_extents } => {
             let h = v3(*half_extents);
@@ -76,19 +79,32 @@ fn collider_for(shape: &Shape, spec_dir_hint: &str, path: &str) -> Result<(Colli
             let r = *radius as f32;
             (ColliderBuilder::ball(r), Vec3::splat(r), None)
         }
-        Shape::Cylinder { radius, half_height } => {
+        Shape::Cylinder {
+            radius,
+            half_height,
+        } => {
             let (r, hh) = (*radius as f32, *half_height as f32);
             // rapier's cylinders stand on y; ours stand on z.
-            let c = ColliderBuilder::cylinder(hh, r).rotation(Vec3::new(std::f32::consts::FRAC_PI_2, 0.0, 0.0));
+            let c = ColliderBuilder::cylinder(hh, r).rotation(Vec3::new(
+                std::f32::consts::FRAC_PI_2,
+                0.0,
+                0.0,
+            ));
             (c, Vec3::new(r, r, hh), None)
         }
-        Shape::Container { inner_half_extents, wall } => {
+        Shape::Container {
+            inner_half_extents,
+            wall,
+        } => {
             let inner = v3(*inner_half_extents);
             let w = *wall as f32;
             let big_h = inner.z + w / 2.0;
             let mut parts: Vec<(Pose, SharedShape)> = Vec::new();
             // Bottom plate, then walls on ±x (full depth) and ±y (between the x walls).
-            parts.push((Pose::from_translation(Vec3::new(0.0, 0.0, -big_h + w / 2.0)), SharedShape::cuboid(inner.x + w, inner.y + w, w / 2.0)));
+            parts.push((
+                Pose::from_translation(Vec3::new(0.0, 0.0, -big_h + w / 2.0)),
+                SharedShape::cuboid(inner.x + w, inner.y + w, w / 2.0),
+            ));
             let wall_z = -big_h + w + inner.z;
             for s in [-1.0f32, 1.0] {
                 parts.push((
@@ -100,7 +116,11 @@ fn collider_for(shape: &Shape, spec_dir_hint: &str, path: &str) -> Result<(Colli
                     SharedShape::cuboid(inner.x, w / 2.0, inner.z),
                 ));
             }
-            (ColliderBuilder::compound(parts), Vec3::new(inner.x + w, inner.y + w, big_h), Some((inner, w)))
+            (
+                ColliderBuilder::compound(parts),
+                Vec3::new(inner.x + w, inner.y + w, big_h),
+                Some((inner, w)),
+            )
         }
         Shape::Mesh { path: file, scale } => {
             let full = if std::path::Path::new(file).is_absolute() || spec_dir_hint.is_empty() {
@@ -108,20 +128,35 @@ fn collider_for(shape: &Shape, spec_dir_hint: &str, path: &str) -> Result<(Colli
             } else {
                 std::path::Path::new(spec_dir_hint).join(file)
             };
-            let text = std::fs::read_to_string(&full)
-                .map_err(|e| SimError::spec(format!("{path}.mesh.path"), format!("cannot read {}: {e}", full.display())))?;
+            let text = std::fs::read_to_string(&full).map_err(|e| {
+                SimError::spec(
+                    format!("{path}.mesh.path"),
+                    format!("cannot read {}: {e}", full.display()),
+                )
+            })?;
             let s = *scale as f32;
             let points: Vec<Vec3> = text
                 .lines()
                 .filter_map(|l| l.strip_prefix("v "))
                 .filter_map(|l| {
-                    let c: Vec<f32> = l.split_whitespace().take(3).filter_map(|x| x.parse().ok()).collect();
+                    let c: Vec<f32> = l
+                        .split_whitespace()
+                        .take(3)
+                        .filter_map(|x| x.parse().ok())
+                        .collect();
                     (c.len() == 3).then(|| Vec3::new(c[0], c[1], c[2]) * s)
                 })
                 .collect();
-            let collider = ColliderBuilder::convex_hull(&points)
-                .ok_or_else(|| SimError::spec(format!("{path}.mesh.path"), format!("{} has no usable vertices", full.display())))?;
-            let (lo, hi) = points.iter().fold((Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)), |(lo, hi), p| (lo.min(*p), hi.max(*p)));
+            let collider = ColliderBuilder::convex_hull(&points).ok_or_else(|| {
+                SimError::spec(
+                    format!("{path}.mesh.path"),
+                    format!("{} has no usable vertices", full.display()),
+                )
+            })?;
+            let (lo, hi) = points.iter().fold(
+                (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)),
+                |(lo, hi), p| (lo.min(*p), hi.max(*p)),
+            );
             (collider, (hi - lo) / 2.0, None)
         }
     })
@@ -132,18 +167,32 @@ fn collider_for(shape: &Shape, spec_dir_hint: &str, path: &str) -> Result<(Colli
 pub fn build_scene(spec: &TaskSpec, seed: u64) -> Result<SimScene, SimError> {
     let mut rng = Rng::new(seed, &spec.id);
     let mut world = new_world(spec.physics.dt as f32);
-    let dir = spec.source.origin.as_deref().and_then(|o| std::path::Path::new(o).parent()).map(|p| p.display().to_string()).unwrap_or_default();
+    let dir = spec
+        .source
+        .origin
+        .as_deref()
+        .and_then(|o| std::path::Path::new(o).parent())
+        .map(|p| p.display().to_string())
+        .unwrap_or_default();
 
     match spec.scene.surface {
         Surface::Table => {
             let [hx, hy] = TABLE_HALF_EXTENTS;
             world.insert(
-                RigidBodyBuilder::fixed().translation(Vec3::new(TABLE_CENTER[0], TABLE_CENTER[1], -0.05)),
+                RigidBodyBuilder::fixed().translation(Vec3::new(
+                    TABLE_CENTER[0],
+                    TABLE_CENTER[1],
+                    -0.05,
+                )),
                 ColliderBuilder::cuboid(hx as f32, hy as f32, 0.05).friction(OBJECT_FRICTION),
             );
         }
         Surface::Ground => {
-            world.insert(RigidBodyBuilder::fixed(), ColliderBuilder::halfspace(nalgebra::Unit::new_unchecked(Vector::Z)).friction(OBJECT_FRICTION));
+            world.insert(
+                RigidBodyBuilder::fixed(),
+                ColliderBuilder::halfspace(nalgebra::Unit::new_unchecked(Vector::Z))
+                    .friction(OBJECT_FRICTION),
+            );
         }
     }
 
@@ -156,19 +205,39 @@ pub fn build_scene(spec: &TaskSpec, seed: u64) -> Result<SimScene, SimError> {
             (position, yaw_deg)
         } else {
             (
-                [position[0] + rng.uniform(-jitter, jitter), position[1] + rng.uniform(-jitter, jitter), position[2]],
+                [
+                    position[0] + rng.uniform(-jitter, jitter),
+                    position[1] + rng.uniform(-jitter, jitter),
+                    position[2],
+                ],
                 yaw_deg + rng.uniform(-yaw_jitter, yaw_jitter),
             )
         };
         let path = format!("scene.objects[{i}].shape");
         let (collider, half, container) = collider_for(&o.shape, &dir, &path)?;
-        let body = if o.is_fixed { RigidBodyBuilder::fixed() } else { RigidBodyBuilder::dynamic() };
+        let body = if o.is_fixed {
+            RigidBodyBuilder::fixed()
+        } else {
+            RigidBodyBuilder::dynamic()
+        };
         let body = body
-            .pose(Pose::new(v3(position), Vec3::new(0.0, 0.0, (yaw_deg as f32).to_radians())))
+            .pose(Pose::new(
+                v3(position),
+                Vec3::new(0.0, 0.0, (yaw_deg as f32).to_radians()),
+            ))
             .can_sleep(spec.physics.sleeping);
-        let collider = collider.mass(o.mass.unwrap_or(DEFAULT_MASS) as f32).friction(OBJECT_FRICTION).restitution(0.0);
+        let collider = collider
+            .mass(o.mass.unwrap_or(DEFAULT_MASS) as f32)
+            .friction(OBJECT_FRICTION)
+            .restitution(0.0);
         let (handle, _) = world.insert(body, collider);
-        objects.push(SimObject { id: o.id.clone(), body: handle, half, fixed: o.is_fixed, container });
+        objects.push(SimObject {
+            id: o.id.clone(),
+            body: handle,
+            half,
+            fixed: o.is_fixed,
+            container,
+        });
     }
 
     let start = match &spec.variations.ee_start {
@@ -196,14 +265,24 @@ pub fn build_scene(spec: &TaskSpec, seed: u64) -> Result<SimScene, SimError> {
             )
         })
         .collect();
-    Ok(SimScene { world, objects, gripper, gripper_collider, zones })
+    Ok(SimScene {
+        world,
+        objects,
+        gripper,
+        gripper_collider,
+        zones,
+    })
 }
 
 fn initial_pose(o: &Object, rng: &mut Rng) -> ([f64; 3], f64) {
     match (&o.pose, &o.pose_range) {
         (Some(p), _) => (p.position, p.yaw_deg),
         (None, Some(r)) => (
-            [rng.uniform(r.min[0], r.max[0]), rng.uniform(r.min[1], r.max[1]), rng.uniform(r.min[2], r.max[2])],
+            [
+                rng.uniform(r.min[0], r.max[0]),
+                rng.uniform(r.min[1], r.max[1]),
+                rng.uniform(r.min[2], r.max[2]),
+            ],
             rng.uniform(r.yaw_deg[0], r.yaw_deg[1]),
         ),
         (None, None) => ([0.0; 3], 0.0),

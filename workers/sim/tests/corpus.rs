@@ -27,7 +27,8 @@ fn corpus() -> Vec<(PathBuf, TaskSpec)> {
         .into_iter()
         .map(|p| {
             let text = std::fs::read_to_string(&p).unwrap();
-            let spec = parse_task(&text, Format::Yaml, &p.display().to_string()).unwrap_or_else(|e| panic!("{e}"));
+            let spec = parse_task(&text, Format::Yaml, &p.display().to_string())
+                .unwrap_or_else(|e| panic!("{e}"));
             (p, spec)
         })
         .collect()
@@ -37,20 +38,33 @@ fn corpus() -> Vec<(PathBuf, TaskSpec)> {
 fn every_oracle_plan_succeeds_on_at_least_90_percent_of_20_seeds() {
     let tasks = corpus();
     assert!(tasks.len() >= 40, "the corpus has {} tasks", tasks.len());
-    let groups: std::collections::BTreeSet<_> = tasks.iter().map(|(_, t)| t.group.clone()).collect();
+    let groups: std::collections::BTreeSet<_> =
+        tasks.iter().map(|(_, t)| t.group.clone()).collect();
     assert!(groups.len() >= 5, "groups: {groups:?}");
-    let jobs: Vec<(usize, u64)> = (0..tasks.len()).flat_map(|t| (0..SEEDS).map(move |s| (t, s))).collect();
+    let jobs: Vec<(usize, u64)> = (0..tasks.len())
+        .flat_map(|t| (0..SEEDS).map(move |s| (t, s)))
+        .collect();
     let next = std::sync::atomic::AtomicUsize::new(0);
     let results = std::sync::Mutex::new(vec![Vec::new(); tasks.len()]);
-    let threads = std::thread::available_parallelism().map(|n| n.get()).unwrap_or(2);
+    let threads = std::thread::available_parallelism()
+        .map(|n| n.get())
+        .unwrap_or(2);
     std::thread::scope(|s| {
         for _ in 0..threads {
             s.spawn(|| {
                 loop {
                     let i = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-                    let Some(&(t, seed)) = jobs.get(i) else { return };
+                    let Some(&(t, seed)) = jobs.get(i) else {
+                        return;
+                    };
                     let ep = assay_sim::simulate(&tasks[t].1, seed, "oracle").unwrap();
-                    let unmet: Vec<String> = ep.outcome.predicates.iter().filter(|p| !p.holds).map(|p| format!("{}: {}", p.label, p.detail)).collect();
+                    let unmet: Vec<String> = ep
+                        .outcome
+                        .predicates
+                        .iter()
+                        .filter(|p| !p.holds)
+                        .map(|p| format!("{}: {}", p.label, p.detail))
+                        .collect();
                     results.lock().unwrap()[t].push((seed, ep.outcome.success, unmet, ep.notes));
                 }
             });
@@ -64,10 +78,17 @@ fn every_oracle_plan_succeeds_on_at_least_90_percent_of_20_seeds() {
         println!("| {} | {} | {ok} |", spec.group, spec.id);
         if (ok as f64) < REQUIRED * SEEDS as f64 {
             let first = rs.iter().find(|r| !r.1).unwrap();
-            failing.push(format!("{} ({ok}/{SEEDS}); seed {}: {:?} {:?}", spec.id, first.0, first.2, first.3));
+            failing.push(format!(
+                "{} ({ok}/{SEEDS}); seed {}: {:?} {:?}",
+                spec.id, first.0, first.2, first.3
+            ));
         }
     }
-    assert!(failing.is_empty(), "tasks below {REQUIRED}:\n{}", failing.join("\n"));
+    assert!(
+        failing.is_empty(),
+        "tasks below {REQUIRED}:\n{}",
+        failing.join("\n")
+    );
 }
 
 #[test]
@@ -79,7 +100,10 @@ fn same_seed_same_episode_bytes() {
     assert_eq!(a.outcome, b.outcome);
     assert_eq!(a.file, b.file);
     let c = assay_sim::simulate(spec, 4, "oracle").unwrap();
-    assert_ne!(a.file, c.file, "another seed should give another initial state");
+    assert_ne!(
+        a.file, c.file,
+        "another seed should give another initial state"
+    );
 }
 
 /// Negative control: without the plan, no task's goals hold in its initial state (a task that is
@@ -105,7 +129,12 @@ fn a_noisy_oracle_fails_some_tasks() {
     let failures = tasks
         .iter()
         .filter(|(_, spec)| spec.group == "stacking")
-        .filter(|(_, spec)| !assay_sim::simulate(spec, 0, "oracle:noise=0.06").unwrap().outcome.success)
+        .filter(|(_, spec)| {
+            !assay_sim::simulate(spec, 0, "oracle:noise=0.06")
+                .unwrap()
+                .outcome
+                .success
+        })
         .count();
     assert!(failures > 0, "every stacking task survived 6 cm of noise");
 }

@@ -1,0 +1,184 @@
+//! `assay eval`, the embedded default, as a user runs it: reports, invalid input, determinism.
+
+mod common;
+
+use std::process::Command;
+
+use assay_core::report::Report;
+use common::*;
+
+fn eval(
+    paths: &[&str],
+    seeds: &str,
+    out: &std::path::Path,
+    extra: &[&str],
+) -> std::process::Output {
+    let mut args = vec!["eval"];
+    args.extend_from_slice(paths);
+    args.extend_from_slice(&[
+        "--seeds",
+        seeds,
+        "--workers",
+        "2",
+        "--quiet",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    args.extend_from_slice(extra);
+    Command::new(bin())
+        .args(&args)
+        .current_dir(repo())
+        .output()
+        .unwrap()
+}
+
+fn read_report(out: &std::path::Path) -> Report {
+    serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap()
+}
+
+#[test]
+fn eval_runs_a_batch_on_a_local_cluster_and_writes_both_reports() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = eval(&["tests/fixtures/small"], "3", dir.path(), &[]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let r = read_report(dir.path());
+    assert_eq!(r.results.totals.episodes_completed, 12);
+    assert_eq!(r.results.tasks.len(), 4);
+    assert_eq!(r.run.state, "completed");
+    assert_eq!(
+        r.run.workers.len(),
+        2,
+        "both worker processes ran episodes: {:?}",
+        r.run.workers
+    );
+    for t in &r.results.tasks {
+        let [lo, hi] = t.success.ci95.unwrap();
+        assert!(lo <= t.success.rate.unwrap() && t.success.rate.unwrap() <= hi);
+    }
+    let md = std::fs::read_to_string(dir.path().join("report.md")).unwrap();
+    assert!(
+        md.contains("## Success per group") && md.contains("small-stack-two-blocks"),
+        "{md}"
+    );
+
+    // Every episode file is in the artifact store under its hash, readable as Arrow IPC.
+    for t in &r.results.tasks {
+        for e in &t.episodes {
+            let path = dir.path().join("artifacts").join(&e.artifact);
+            let bytes = std::fs::read(&path).unwrap();
+            assert_eq!(
+                format!("episodes/{}.arrow", assay_core::hash::sha256_hex(&bytes)),
+                e.artifact
+            );
+            let reader =
+                arrow_ipc::reader::FileReader::try_new(std::io::Cursor::new(bytes), None).unwrap();
+            let meta = reader.schema().metadata().clone();
+            assert_eq!(meta["assay.task_id"], t.id);
+            assert_eq!(meta["assay.seed"], e.seed.to_string());
+            assert_eq!(meta["assay.success"], e.success.to_string());
+            let rows: usize = reader.map(|b| b.unwrap().num_rows()).sum();
+            assert!(rows > 10);
+        }
+    }
+}
+
+#[test]
+fn invalid_specs_are_reported_by_task_field_and_reason_and_the_rest_runs() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = eval(
+        &["tests/fixtures/small", "tests/fixtures/invalid"],
+        "2",
+        dir.path(),
+        &[],
+    );
+    assert!(
+        out.status.success(),
+        "the batch completes: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    let r = read_report(dir.path());
+    assert_eq!(
+        r.results.totals.episodes_completed, 8,
+        "the 4 valid tasks ran"
+    );
+    let errs = &r.results.invalid_tasks;
+    let find = |task: &str| {
+        errs.iter()
+            .find(|e| e.task.as_deref() == Some(task))
+            .unwrap_or_else(|| panic!("no error for {task}: {errs:#?}"))
+    };
+    let e = find("invalid-negative-size");
+    assert_eq!(e.path, "scene.objects[0].shape.box.half_extents[1]");
+    assert!(e.reason.contains("positive") && e.origin.ends_with("negative-size.yaml"));
+    let e = find("invalid-nan-pose");
+    assert!(
+        e.path.starts_with("scene.objects[0].pose.position[") && e.reason.contains("finite"),
+        "{e:?}"
+    );
+    let e = find("invalid-unknown-field");
+    assert!(
+        e.path.ends_with("colour") && e.reason.contains("unknown field"),
+        "{e:?}"
+    );
+    let e = find("invalid-bad-goal-ref");
+    assert!(
+        e.path.starts_with("goals[0]") && e.reason.contains("ghost_block"),
+        "{e:?}"
+    );
+    let dup = errs
+        .iter()
+        .find(|e| e.reason.contains("duplicate task id"))
+        .expect("duplicate id reported");
+    assert_eq!(dup.path, "id");
+    let broken = errs
+        .iter()
+        .find(|e| e.origin.ends_with("not-yaml.yaml"))
+        .expect("broken YAML reported");
+    assert!(!broken.reason.is_empty());
+    assert_eq!(r.results.totals.invalid_tasks, 6);
+    // The user sees each one on the terminal too, and --strict turns them into a failure.
+    assert!(
+        stderr.contains("invalid task invalid-negative-size"),
+        "{stderr}"
+    );
+    let strict = eval(
+        &["tests/fixtures/small", "tests/fixtures/invalid"],
+        "1",
+        dir.path(),
+        &["--strict"],
+    );
+    assert!(!strict.status.success());
+}
+
+#[test]
+fn the_same_batch_twice_gives_identical_results() {
+    let (a, b) = (tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap());
+    for d in [&a, &b] {
+        let out = eval(
+            &[
+                "tests/fixtures/small",
+                "examples/tasks/piles/push-block-pile-into-zone.yaml",
+            ],
+            "3",
+            d.path(),
+            &[],
+        );
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+    }
+    let (ra, rb) = (read_report(a.path()), read_report(b.path()));
+    assert_eq!(
+        serde_json::to_string_pretty(&ra.results).unwrap(),
+        serde_json::to_string_pretty(&rb.results).unwrap()
+    );
+    // Timings and ids are the only difference.
+    assert_ne!(ra.run.submitted_at_unix_ms, 0);
+}
