@@ -925,3 +925,90 @@ impl TaskSpec {
         self.scene.zones.iter().find(|z| z.id == id)
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const MINIMAL: &str = r#"
+spec_version: 1
+id: put-block-in-zone
+name: put-block-in-zone
+description: Put the red block in the green zone.
+group: placement
+scene:
+  objects:
+    - {id: red_block, shape: {box: {half_extents: [0.02, 0.02, 0.02]}}, color: red, pose: {position: [0.5, 0.1, 0.02]}}
+  zones:
+    - {id: goal, center: [0.5, -0.1], half_extents: [0.05, 0.05], color: green}
+end_effector: {type: suction}
+goals:
+  - in_zone: {object: red_block, zone: goal}
+oracle:
+  - pick: {object: red_block}
+  - place: {target: {zone: goal}}
+"#;
+
+    fn errors(text: &str) -> Vec<SpecError> {
+        parse_task(text, Format::Yaml, "t.yaml").unwrap_err().0
+    }
+
+    #[test]
+    fn a_minimal_task_parses_and_round_trips_through_json() {
+        let spec = parse_task(MINIMAL, Format::Yaml, "t.yaml").unwrap();
+        let again = parse_task(&spec.canonical_json(), Format::Json, "t.json").unwrap();
+        assert_eq!(spec, again);
+        assert_eq!(spec.spec_hash(), again.spec_hash());
+    }
+
+    #[test]
+    fn problems_name_the_task_the_field_and_the_reason() {
+        let e = &errors(&MINIMAL.replace("[0.02, 0.02, 0.02]", "[0.02, -0.02, 0.02]"))[0];
+        assert_eq!(
+            (e.task.as_deref(), e.path.as_str()),
+            (
+                Some("put-block-in-zone"),
+                "scene.objects[0].shape.box.half_extents[1]"
+            )
+        );
+        assert!(e.reason.contains("positive"), "{e}");
+
+        let e = &errors(&MINIMAL.replace("color: red,", "colour: red,"))[0];
+        assert!(
+            e.path.ends_with("colour") && e.reason.contains("unknown field"),
+            "{e:?}"
+        );
+
+        let e = &errors(&MINIMAL.replace("[0.5, 0.1, 0.02]", "[.nan, 0.1, 0.02]"))[0];
+        assert_eq!(e.path, "scene.objects[0].pose.position[0]");
+
+        let es = errors(&MINIMAL.replace("zone: goal}\noracle", "zone: nowhere}\noracle"));
+        assert!(
+            es.iter()
+                .any(|e| e.path == "goals[0].in_zone.zone" && e.reason.contains("nowhere")),
+            "{es:?}"
+        );
+
+        let es = errors(&MINIMAL.replace("  - place: {target: {zone: goal}}\n", ""));
+        assert!(
+            es.iter()
+                .any(|e| e.path == "oracle" && e.reason.contains("holding")),
+            "{es:?}"
+        );
+
+        // A document too broken to parse is still named by its id.
+        let e = &errors("id: broken-task\nscene: [unclosed\n")[0];
+        assert_eq!(e.task.as_deref(), Some("broken-task"));
+    }
+
+    #[test]
+    fn the_committed_json_schema_is_current() {
+        let committed = include_str!("../../schema/task-spec-v1.schema.json");
+        let committed: serde_json::Value = serde_json::from_str(committed).unwrap();
+        assert_eq!(
+            committed,
+            json_schema(),
+            "regenerate with: assay schema > schema/task-spec-v1.schema.json"
+        );
+    }
+}

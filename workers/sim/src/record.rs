@@ -126,19 +126,25 @@ impl Recorder {
     }
 }
 
-/// Touching collider pairs, solver contact points, and whether the tool touches anything.
+/// Contact points closer than this count as touching. rapier also keeps speculative contacts a
+/// few millimetres apart; MuJoCo and PyBullet count points at zero distance (margin 0), so the
+/// summary does too, to keep workloads comparable.
+pub const TOUCH_DISTANCE: f32 = 1e-3;
+
+/// Touching collider pairs, touching contact points, and whether the tool touches anything.
 pub fn contact_summary(scene: &SimScene) -> (u32, u32, bool) {
     let (mut pairs, mut points, mut ee) = (0u32, 0u32, false);
     for pair in scene.world.narrow_phase.contact_pairs() {
-        if !pair.has_any_active_contact() {
+        let touching: u32 = pair
+            .manifolds()
+            .iter()
+            .map(|m| m.points.iter().filter(|p| p.dist <= TOUCH_DISTANCE).count() as u32)
+            .sum();
+        if touching == 0 {
             continue;
         }
         pairs += 1;
-        points += pair
-            .manifolds()
-            .iter()
-            .map(|m| m.data.solver_contacts.len() as u32)
-            .sum::<u32>();
+        points += touching;
         if pair.collider1 == scene.gripper_collider || pair.collider2 == scene.gripper_collider {
             ee = true;
         }
