@@ -1,8 +1,7 @@
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     // protoc comes vendored: no system package needed.
     let protoc = protoc_bin_vendored::protoc_bin_path()?;
-    // SAFETY-free: build scripts run single-threaded before any other code.
-    unsafe_set_protoc(&protoc);
+    set_protoc(&protoc);
     tonic_prost_build::configure().compile_protos(
         &[
             "assay/v1/common.proto",
@@ -16,7 +15,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
 }
 
 #[allow(unsafe_code)]
-fn unsafe_set_protoc(path: &std::path::Path) {
+fn set_protoc(path: &std::path::Path) {
     // SAFETY: build.rs is single-threaded here; nothing else reads the environment concurrently.
     unsafe { std::env::set_var("PROTOC", path) };
 }

@@ -84,6 +84,38 @@ fn eval_runs_a_batch_on_a_local_cluster_and_writes_both_reports() {
             assert!(rows > 10);
         }
     }
+
+    // And from Python, as a lab's own scripts read them.
+    let python = std::env::var("ASSAY_TEST_PYTHON").expect(
+        "ASSAY_TEST_PYTHON names a Python with pyarrow (scripts/test sets it up: tests/python/requirements.txt)",
+    );
+    let (task, e) = r
+        .results
+        .tasks
+        .iter()
+        .find_map(|t| t.episodes.first().map(|e| (t, e)))
+        .unwrap();
+    let out = Command::new(python)
+        .arg(repo().join("tests/python/read_episode.py"))
+        .arg(dir.path().join("artifacts").join(&e.artifact))
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let py: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(py["task_id"], task.id.as_str());
+    assert_eq!(py["seed"], e.seed);
+    assert_eq!(py["success"], e.success);
+    assert_eq!(py["columns"][0], "step");
+    assert!(py["rows"].as_u64().unwrap() > 10);
+    // Every object's final centre is above the table and finite.
+    for (id, p) in py["final_positions"].as_object().unwrap() {
+        let z = p[2].as_f64().unwrap_or_else(|| panic!("{id}: {p}"));
+        assert!(z > 0.0 && z < 1.0, "{id} ends at z = {z}");
+    }
 }
 
 #[test]

@@ -6,6 +6,7 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicU32, Ordering};
 use std::time::Duration;
 
+use assay_core::policy::PolicySpec;
 use assay_core::report::{EpisodeOutcome, TaskInfo};
 use assay_core::spec::{Format, parse_task};
 use assay_core::{SpecError, SpecErrors};
@@ -53,30 +54,6 @@ impl Shared {
     fn ttl_ms(&self) -> i64 {
         self.config.lease_ttl.as_millis() as i64
     }
-}
-
-pub const KNOWN_POLICIES: &[&str] = &["oracle"];
-
-/// Checks a policy reference: `oracle` or `oracle:noise=<metres>`.
-pub fn check_policy(name: &str) -> Result<(), String> {
-    let (kind, args) = name.split_once(':').unwrap_or((name, ""));
-    if !KNOWN_POLICIES.contains(&kind) {
-        return Err(format!(
-            "unknown policy '{kind}' (known: {})",
-            KNOWN_POLICIES.join(", ")
-        ));
-    }
-    for arg in args.split(',').filter(|a| !a.is_empty()) {
-        match arg.split_once('=') {
-            Some(("noise", v)) if v.parse::<f64>().is_ok_and(|x| x.is_finite() && x >= 0.0) => {}
-            _ => {
-                return Err(format!(
-                    "policy '{name}': bad argument '{arg}' (expected noise=<metres>)"
-                ));
-            }
-        }
-    }
-    Ok(())
 }
 
 fn spec_error_to_pb(e: &SpecError) -> pb::SpecError {
@@ -212,7 +189,7 @@ impl pb::coordinator_server::Coordinator for CoordinatorService {
             policies.push("oracle".into());
         }
         for p in &policies {
-            check_policy(p).map_err(Status::invalid_argument)?;
+            PolicySpec::parse(p).map_err(Status::invalid_argument)?;
         }
         let (tasks, invalid) = plan_tasks(&req.tasks);
         let batch = NewBatch {
@@ -468,11 +445,12 @@ async fn run_session(
     let fail = |e: CoordError, held: &BTreeSet<u64>| (Status::from(e), held.clone());
 
     let (w, ids) = (worker.clone(), register.held_leases.clone());
-    let kept = shared
+    let (kept, returned) = shared
         .store
-        .call(move |s| s.held_by(&w, &ids))
+        .call(move |s| s.reconcile(&w, &ids))
         .await
         .map_err(|e| fail(e, &held))?;
+    shared.publish(&returned);
     held.extend(kept.iter().copied());
     info!(%worker, node = %register.node_id, roles = ?roles, capacity, kept = kept.len(), "worker registered");
     let registered = pb::Registered {

@@ -479,18 +479,27 @@ impl Store {
         )?)
     }
 
-    /// Which of `lease_ids` `worker` still holds (a reconnecting worker keeps running those).
-    pub fn held_by(&self, worker: &str, lease_ids: &[u64]) -> Result<Vec<u64>, CoordError> {
-        let mut stmt = self.conn.prepare(
-            "SELECT 1 FROM shards WHERE lease_id = ?1 AND lease_worker = ?2 AND state = 'leased'",
-        )?;
-        let mut kept = Vec::new();
-        for id in lease_ids {
-            if stmt.exists(params![*id as i64, worker])? {
-                kept.push(*id);
-            }
-        }
-        Ok(kept)
+    /// A worker (re)registers saying which leases it still runs. Those it still holds are kept;
+    /// any other lease recorded for it (assigned while the coordinator went down, never
+    /// received) goes back to the queue without counting an attempt.
+    pub fn reconcile(
+        &mut self,
+        worker: &str,
+        running: &[u64],
+    ) -> Result<(Vec<u64>, Changed), CoordError> {
+        let recorded: Vec<u64> = {
+            let mut stmt = self.conn.prepare(
+                "SELECT lease_id FROM shards WHERE lease_worker = ?1 AND state = 'leased'",
+            )?;
+            let ids = stmt
+                .query_map([worker], |r| r.get::<_, i64>(0))?
+                .collect::<Result<Vec<_>, _>>()?;
+            ids.into_iter().map(|i| i as u64).collect()
+        };
+        let (kept, unknown): (Vec<u64>, Vec<u64>) =
+            recorded.into_iter().partition(|id| running.contains(id));
+        let changed = self.return_leases(worker, &unknown)?;
+        Ok((kept, changed))
     }
 
     pub fn cancel(&mut self, batch_id: &str, now_ms: i64) -> Result<Changed, CoordError> {
@@ -919,10 +928,14 @@ mod tests {
         let mut s = Store::open(&path).unwrap();
         assert_eq!(s.running_batches().unwrap(), vec![id.clone()]);
         assert_eq!(s.refresh_leases(50_000, TTL).unwrap(), 1);
-        assert_eq!(
-            s.held_by("w", &[lease.lease_id, 999]).unwrap(),
-            vec![lease.lease_id]
-        );
+        // The worker reconnects running `lease` and knowing nothing of a second lease that was
+        // assigned just before the crash: that one goes back without costing an attempt.
+        let lost = s.lease("w", &sim(), 1, 50_000, TTL).unwrap().remove(0);
+        let (kept, returned) = s.reconcile("w", &[lease.lease_id, 999]).unwrap();
+        assert_eq!(kept, vec![lease.lease_id]);
+        assert_eq!(returned.requeued, 1);
+        let again = s.lease("w2", &sim(), 1, 50_000, TTL).unwrap().remove(0);
+        assert_eq!((again.shard_id, again.attempt), (lost.shard_id, 1));
         assert!(
             s.complete(
                 "w",
@@ -936,8 +949,7 @@ mod tests {
             .0
         );
         // Lease ids keep increasing across reopen.
-        let next = s.lease("w", &sim(), 1, 50_002, TTL).unwrap().remove(0);
-        assert!(next.lease_id > lease.lease_id);
+        assert!(lost.lease_id > lease.lease_id && again.lease_id > lost.lease_id);
     }
 
     #[test]

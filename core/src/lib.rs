@@ -6,6 +6,7 @@
 
 pub mod error;
 pub mod hash;
+pub mod policy;
 pub mod report;
 pub mod rng;
 pub mod spec;

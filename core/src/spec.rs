@@ -84,7 +84,8 @@ pub enum Surface {
     Ground,
 }
 
-/// Half-size of the table top (x, y) in metres.
+/// Centre (x, y) and half-size (x, y) of the table top, in metres; its top is z = 0.
+pub const TABLE_CENTER: [f64; 2] = [0.5, 0.0];
 pub const TABLE_HALF_EXTENTS: [f64; 2] = [0.6, 0.8];
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]

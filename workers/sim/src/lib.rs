@@ -14,6 +14,7 @@ pub mod scene;
 use std::collections::{BTreeMap, HashMap};
 use std::path::Path;
 
+use assay_core::policy::PolicySpec;
 use assay_core::report::{EpisodeOutcome, LabelSource};
 use assay_core::spec::TaskSpec;
 
@@ -31,7 +32,7 @@ pub enum SimError {
     /// The spec cannot be simulated as written (names the field).
     #[error("{path}: {reason}")]
     Spec { path: String, reason: String },
-    #[error("unknown policy '{0}' (the sim role runs: oracle, oracle:noise=<m>)")]
+    #[error("{0}")]
     Policy(String),
     #[error("artifact store: {0}")]
     Io(String),
@@ -67,32 +68,6 @@ pub fn versions() -> BTreeMap<String, String> {
     ])
 }
 
-/// A policy the sim role can run in the loop.
-#[derive(Debug, Clone, PartialEq)]
-pub enum Policy {
-    /// The task's oracle plan, with uniform noise (± m) on every target.
-    Oracle { noise: f64 },
-}
-
-impl Policy {
-    pub fn parse(name: &str) -> Result<Policy, SimError> {
-        let (kind, args) = name.split_once(':').unwrap_or((name, ""));
-        if kind != "oracle" {
-            return Err(SimError::Policy(name.to_owned()));
-        }
-        let mut noise = 0.0;
-        for arg in args.split(',').filter(|a| !a.is_empty()) {
-            match arg.split_once('=') {
-                Some(("noise", v)) => {
-                    noise = v.parse().map_err(|_| SimError::Policy(name.to_owned()))?
-                }
-                _ => return Err(SimError::Policy(name.to_owned())),
-            }
-        }
-        Ok(Policy::Oracle { noise })
-    }
-}
-
 /// What one episode produced, before it is stored.
 pub struct Episode {
     pub outcome: EpisodeOutcome,
@@ -103,7 +78,7 @@ pub struct Episode {
 /// Simulates one episode of `spec` with `seed` and `policy`. Deterministic: the same inputs give
 /// the same outcome and the same file, byte for byte.
 pub fn simulate(spec: &TaskSpec, seed: u64, policy: &str) -> Result<Episode, SimError> {
-    let Policy::Oracle { noise } = Policy::parse(policy)?;
+    let PolicySpec::Oracle { noise } = PolicySpec::parse(policy).map_err(SimError::Policy)?;
     let mut scene = scene::build_scene(spec, seed)?;
     let start = scene.gripper_position();
     let mut ctl = Controller::new(spec, start, noise, seed);

@@ -1,7 +1,7 @@
 //! Building a rapier3d world from a task spec and a seed.
 
 use assay_core::rng::Rng;
-use assay_core::spec::{Object, Shape, Surface, TABLE_HALF_EXTENTS, TaskSpec};
+use assay_core::spec::{Object, Shape, Surface, TABLE_CENTER, TABLE_HALF_EXTENTS, TaskSpec};
 use rapier3d::prelude::*;
 
 use crate::SimError;
@@ -10,8 +10,6 @@ use crate::SimError;
 pub const GRIPPER_HALF_EXTENTS: [f32; 3] = [0.02, 0.02, 0.05];
 /// Where the tool waits when nothing else is said.
 pub const GRIPPER_PARK: [f32; 3] = [0.5, 0.0, 0.5];
-/// Centre of the table top (x, y); its half extents are `TABLE_HALF_EXTENTS`.
-pub const TABLE_CENTER: [f32; 2] = [0.5, 0.0];
 pub const OBJECT_FRICTION: f32 = 0.8;
 pub const DEFAULT_MASS: f64 = 0.1;
 
@@ -180,8 +178,8 @@ pub fn build_scene(spec: &TaskSpec, seed: u64) -> Result<SimScene, SimError> {
             let [hx, hy] = TABLE_HALF_EXTENTS;
             world.insert(
                 RigidBodyBuilder::fixed().translation(Vec3::new(
-                    TABLE_CENTER[0],
-                    TABLE_CENTER[1],
+                    TABLE_CENTER[0] as f32,
+                    TABLE_CENTER[1] as f32,
                     -0.05,
                 )),
                 ColliderBuilder::cuboid(hx as f32, hy as f32, 0.05).friction(OBJECT_FRICTION),
