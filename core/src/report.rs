@@ -89,6 +89,8 @@ pub struct Results {
     pub policies: Vec<String>,
     pub seeds: Vec<u64>,
     pub totals: Totals,
+    /// Ground-truth success of each policy over every task.
+    pub by_policy: Vec<PolicySuccess>,
     pub groups: Vec<GroupResult>,
     pub tasks: Vec<TaskResult>,
     /// Tasks that never ran because their spec is invalid, with every problem found.
@@ -112,7 +114,37 @@ pub struct Totals {
 pub struct GroupResult {
     pub group: String,
     pub tasks: u64,
+    /// All policies together.
     pub success: Proportion,
+    pub by_policy: Vec<PolicySuccess>,
+}
+
+/// One policy's ground-truth success.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PolicySuccess {
+    pub policy: String,
+    pub success: Proportion,
+}
+
+/// Success of each of `policies` over `(policy, success)` rows (policies without rows get none).
+fn per_policy<'a>(
+    policies: &[String],
+    rows: impl Iterator<Item = (&'a str, bool)>,
+) -> Vec<PolicySuccess> {
+    let mut counts: BTreeMap<&str, (u64, u64)> =
+        policies.iter().map(|p| (p.as_str(), (0, 0))).collect();
+    for (p, ok) in rows {
+        let c = counts.entry(p).or_default();
+        c.0 += u64::from(ok);
+        c.1 += 1;
+    }
+    counts
+        .into_iter()
+        .map(|(p, (k, n))| PolicySuccess {
+            policy: p.to_owned(),
+            success: Proportion::new(k, n),
+        })
+        .collect()
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -123,8 +155,10 @@ pub struct TaskResult {
     pub pipeline: String,
     pub origin: String,
     pub spec_hash: String,
-    /// Ground-truth success (goal predicates in the simulator) over completed episodes.
+    /// Ground-truth success (goal predicates in the simulator) over completed episodes, all
+    /// policies together; `by_policy` splits it.
     pub success: Proportion,
+    pub by_policy: Vec<PolicySuccess>,
     /// Per predicate: how often it held.
     pub predicates: Vec<PredicateRate>,
     pub episodes: Vec<EpisodeRow>,
@@ -174,6 +208,17 @@ pub struct RunInfo {
     pub workers: Vec<String>,
 }
 
+/// `(policy, success)` of every completed episode, of one group or of all.
+fn episode_rows<'a>(
+    tasks: &'a [TaskResult],
+    group: Option<&'a str>,
+) -> impl Iterator<Item = (&'a str, bool)> + 'a {
+    tasks
+        .iter()
+        .filter(move |t| group.is_none_or(|g| t.group == g))
+        .flat_map(|t| t.episodes.iter().map(|e| (e.policy.as_str(), e.success)))
+}
+
 /// Builds the deterministic part of a report. Tasks, shards and errors may come in any order.
 pub fn build_results(
     batch_name: &str,
@@ -183,6 +228,8 @@ pub fn build_results(
     shards: &[ShardRecord],
     invalid: &[SpecError],
 ) -> Results {
+    let mut policies = policies.to_vec();
+    policies.sort();
     let mut by_task: BTreeMap<&str, Vec<&ShardRecord>> = BTreeMap::new();
     for s in shards {
         by_task.entry(s.task_id.as_str()).or_default().push(s);
@@ -240,6 +287,10 @@ pub fn build_results(
         ok += k;
         failed += failures.iter().filter(|f| !f.cancelled).count() as u64;
         cancelled += failures.iter().filter(|f| f.cancelled).count() as u64;
+        let by_policy = per_policy(
+            &policies,
+            episodes.iter().map(|e| (e.policy.as_str(), e.success)),
+        );
         task_results.push(TaskResult {
             id: t.id.clone(),
             name: t.name.clone(),
@@ -248,6 +299,7 @@ pub fn build_results(
             origin: t.origin.clone(),
             spec_hash: t.spec_hash.clone(),
             success: Proportion::new(k, episodes.len() as u64),
+            by_policy,
             predicates: preds,
             episodes,
             failures,
@@ -260,6 +312,16 @@ pub fn build_results(
         g.1 += t.success.successes;
         g.2 += t.success.trials;
     }
+    let overall_by_policy = per_policy(&policies, episode_rows(&task_results, None));
+    let groups: Vec<GroupResult> = groups
+        .into_iter()
+        .map(|(g, (n, k, t))| GroupResult {
+            group: g.to_owned(),
+            tasks: n,
+            success: Proportion::new(k, t),
+            by_policy: per_policy(&policies, episode_rows(&task_results, Some(g))),
+        })
+        .collect();
     let mut invalid_tasks = invalid.to_vec();
     invalid_tasks.sort_by(|a, b| (&a.origin, &a.task, &a.path).cmp(&(&b.origin, &b.task, &b.path)));
     let invalid_count = invalid_tasks
@@ -267,8 +329,6 @@ pub fn build_results(
         .map(|e| (e.origin.as_str(), e.task.as_deref()))
         .collect::<std::collections::BTreeSet<_>>()
         .len() as u64;
-    let mut policies = policies.to_vec();
-    policies.sort();
     Results {
         batch_name: batch_name.to_owned(),
         policies,
@@ -284,14 +344,8 @@ pub fn build_results(
             sim_steps: steps,
             sim_time_s: sim_time,
         },
-        groups: groups
-            .into_iter()
-            .map(|(g, (n, k, t))| GroupResult {
-                group: g.to_owned(),
-                tasks: n,
-                success: Proportion::new(k, t),
-            })
-            .collect(),
+        by_policy: overall_by_policy,
+        groups,
         tasks: task_results,
         invalid_tasks,
     }
@@ -360,26 +414,70 @@ impl Report {
             );
         }
         let _ = writeln!(md, "| workers | {} |", self.run.workers.len());
+        // With several policies, success is shown per policy: pooling them would mislead.
+        let multi = r.policies.len() > 1;
+        let policy_cols = |by: &[PolicySuccess]| {
+            by.iter()
+                .map(|p| format!(" {} |", pct(&p.success)))
+                .collect::<String>()
+        };
+        let policy_head: String = r
+            .policies
+            .iter()
+            .map(|p| format!(" {} |", cell(p)))
+            .collect();
+        let policy_rule: String = r.policies.iter().map(|_| "---|").collect();
+        if multi {
+            let _ = writeln!(md, "\n## Success per policy (Wilson 95 %)\n");
+            let _ = writeln!(md, "| policy | episodes | success |\n|---|---:|---|");
+            for p in &r.by_policy {
+                let _ = writeln!(
+                    md,
+                    "| {} | {} | {} |",
+                    cell(&p.policy),
+                    p.success.trials,
+                    pct(&p.success)
+                );
+            }
+        }
         let _ = writeln!(md, "\n## Success per group\n");
-        let _ = writeln!(
-            md,
-            "| group | tasks | episodes | success (Wilson 95 %) |\n|---|---:|---:|---|"
-        );
-        for g in &r.groups {
+        if multi {
             let _ = writeln!(
                 md,
-                "| {} | {} | {} | {} |",
+                "| group | tasks | episodes |{policy_head}\n|---|---:|---:|{policy_rule}"
+            );
+        } else {
+            let _ = writeln!(
+                md,
+                "| group | tasks | episodes | success (Wilson 95 %) |\n|---|---:|---:|---|"
+            );
+        }
+        for g in &r.groups {
+            let cols = if multi {
+                policy_cols(&g.by_policy)
+            } else {
+                format!(" {} |", pct(&g.success))
+            };
+            let _ = writeln!(
+                md,
+                "| {} | {} | {} |{cols}",
                 cell(&g.group),
                 g.tasks,
-                g.success.trials,
-                pct(&g.success)
+                g.success.trials
             );
         }
         let _ = writeln!(md, "\n## Success per task\n");
-        let _ = writeln!(
-            md,
-            "| group | task | source | episodes | success (Wilson 95 %) | most often unmet |\n|---|---|---|---:|---|---|"
-        );
+        if multi {
+            let _ = writeln!(
+                md,
+                "| group | task | source | episodes |{policy_head} most often unmet |\n|---|---|---|---:|{policy_rule}---|"
+            );
+        } else {
+            let _ = writeln!(
+                md,
+                "| group | task | source | episodes | success (Wilson 95 %) | most often unmet |\n|---|---|---|---:|---|---|"
+            );
+        }
         for task in &r.tasks {
             let unmet = task
                 .predicates
@@ -388,15 +486,19 @@ impl Report {
                 .max_by_key(|p| p.of - p.holds)
                 .map(|p| format!("{} ({}/{})", p.label, p.of - p.holds, p.of))
                 .unwrap_or_default();
+            let cols = if multi {
+                policy_cols(&task.by_policy)
+            } else {
+                format!(" {} |", pct(&task.success))
+            };
             let _ = writeln!(
                 md,
-                "| {} | `{}` {} | {} | {} | {} | {} |",
+                "| {} | `{}` {} | {} | {} |{cols} {} |",
                 cell(&task.group),
                 task.id,
                 cell(&task.name),
                 cell(&task.pipeline),
                 task.success.trials,
-                pct(&task.success),
                 cell(&unmet)
             );
         }
@@ -536,5 +638,48 @@ mod tests {
         assert_eq!(a.episodes[0].seed, 0);
         assert_eq!(a.predicates[0].holds, 1);
         assert_eq!(r1.tasks[1].failures[0].error, "boom");
+    }
+
+    #[test]
+    fn several_policies_are_reported_apart() {
+        let tasks = vec![info("a", "g")];
+        let shard = |seed: u64, policy: &str, success: bool| {
+            let mut o = outcome("a", seed, success);
+            o.policy = policy.into();
+            ShardRecord {
+                task_id: "a".into(),
+                seed,
+                policy: policy.into(),
+                attempts: 1,
+                outcome: Some(o),
+                error: None,
+                cancelled: false,
+            }
+        };
+        let shards = vec![
+            shard(0, "good", true),
+            shard(1, "good", true),
+            shard(0, "bad", false),
+            shard(1, "bad", true),
+        ];
+        let policies = ["good".to_owned(), "bad".to_owned()];
+        let r = build_results("x", &policies, &[0, 1], &tasks, &shards, &[]);
+        let rate =
+            |by: &[PolicySuccess], p: &str| by.iter().find(|x| x.policy == p).unwrap().success.rate;
+        assert_eq!(rate(&r.by_policy, "good"), Some(1.0));
+        assert_eq!(rate(&r.by_policy, "bad"), Some(0.5));
+        assert_eq!(rate(&r.groups[0].by_policy, "bad"), Some(0.5));
+        assert_eq!(rate(&r.tasks[0].by_policy, "good"), Some(1.0));
+        let report = Report {
+            report_version: REPORT_VERSION,
+            results: r,
+            run: RunInfo::default(),
+        };
+        let md = report.to_markdown();
+        assert!(md.contains("## Success per policy"), "{md}");
+        assert!(
+            md.contains("| bad | good |") || md.contains("| bad | good | most often unmet |"),
+            "{md}"
+        );
     }
 }
