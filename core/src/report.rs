@@ -678,7 +678,11 @@ mod tests {
         let md = report.to_markdown();
         assert!(md.contains("## Success per policy"), "{md}");
         assert!(
-            md.contains("| bad | good |") || md.contains("| bad | good | most often unmet |"),
+            md.contains("| episodes | bad | good | most often unmet |"),
+            "{md}"
+        );
+        assert!(
+            md.contains("| g | 1 | 4 | 50.0 % [9.5, 90.5] | 100.0 % [34.2, 100.0] |"),
             "{md}"
         );
     }
