@@ -9,6 +9,7 @@ pub mod hash;
 pub mod policy;
 pub mod report;
 pub mod rng;
+pub mod scene;
 pub mod spec;
 pub mod stats;
 

@@ -1,0 +1,166 @@
+//! What a camera needs to draw one moment of an episode, as plain data: it is built by the sim
+//! role and rendered by the render role, possibly in another process.
+
+use serde::{Deserialize, Serialize};
+
+use crate::spec::{Camera, Shape, Surface};
+
+/// Half extents (m) of the kinematic tool, a 4 × 4 × 10 cm box.
+pub const TOOL_HALF_EXTENTS: [f64; 3] = [0.02, 0.02, 0.05];
+
+/// Segment ids in segmentation images: 0 is nothing, then the surface and the tool; object `i`
+/// of the spec (in spec order) is `FIRST_OBJECT_SEGMENT + i`.
+pub const SEGMENT_BACKGROUND: u32 = 0;
+pub const SEGMENT_SURFACE: u32 = 1;
+pub const SEGMENT_TOOL: u32 = 2;
+pub const FIRST_OBJECT_SEGMENT: u32 = 3;
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SnapshotObject {
+    pub id: String,
+    pub shape: Shape,
+    pub color: [f32; 3],
+    pub position: [f32; 3],
+    /// Unit quaternion (x, y, z, w).
+    pub rotation: [f32; 4],
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SceneSnapshot {
+    pub surface: Surface,
+    pub objects: Vec<SnapshotObject>,
+    /// Tool centre, if the tool is drawn.
+    pub tool: Option<[f32; 3]>,
+}
+
+impl SceneSnapshot {
+    /// Segment id → what it shows, for the legend stored next to segmentation images.
+    pub fn segment_legend(&self) -> Vec<(u32, String)> {
+        let mut legend = vec![
+            (SEGMENT_BACKGROUND, "background".to_owned()),
+            (SEGMENT_SURFACE, "surface".to_owned()),
+            (SEGMENT_TOOL, "tool".to_owned()),
+        ];
+        legend.extend(
+            self.objects
+                .iter()
+                .enumerate()
+                .map(|(i, o)| (FIRST_OBJECT_SEGMENT + i as u32, o.id.clone())),
+        );
+        legend
+    }
+}
+
+fn camera(name: &str, eye: [f64; 3], target: [f64; 3]) -> Camera {
+    Camera {
+        name: name.into(),
+        eye,
+        target,
+        fovy_deg: 50.0,
+        width: 640,
+        height: 480,
+    }
+}
+
+/// The four fixed views of the initial scene used for scene alignment: top-down (as GenSim tasks
+/// are seen), front, and two obliques.
+pub fn scene_views() -> Vec<Camera> {
+    vec![
+        camera("top", [0.5, 0.0, 1.25], [0.5, 0.0, 0.0]),
+        camera("front", [1.25, 0.0, 0.45], [0.5, 0.0, 0.05]),
+        camera("oblique_left", [1.0, 0.65, 0.7], [0.5, 0.0, 0.05]),
+        camera("oblique_right", [1.0, -0.65, 0.7], [0.5, 0.0, 0.05]),
+    ]
+}
+
+/// The end-effector camera: 5 cm below the tool centre, looking straight down.
+pub const EE_CAMERA: &str = "ee";
+
+/// Cameras for a task: its own, or the defaults (top, front, oblique, end effector).
+pub fn task_cameras(own: &[Camera]) -> Vec<Camera> {
+    if !own.is_empty() {
+        return own.to_vec();
+    }
+    let mut c = scene_views();
+    c.truncate(3);
+    c.push(Camera {
+        fovy_deg: 70.0,
+        ..camera(EE_CAMERA, [0.0; 3], [0.0; 3])
+    });
+    c
+}
+
+/// A triangle mesh read from Wavefront OBJ text: `v` lines and `f` lines (polygons are fanned;
+/// `v/vt/vn` indices and negative indices are accepted).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct TriangleMesh {
+    pub vertices: Vec<[f32; 3]>,
+    pub triangles: Vec<[u32; 3]>,
+}
+
+pub fn parse_obj(text: &str) -> Result<TriangleMesh, String> {
+    let mut mesh = TriangleMesh::default();
+    for (n, line) in text.lines().enumerate() {
+        let mut it = line.split_whitespace();
+        match it.next() {
+            Some("v") => {
+                let c: Vec<f32> = it
+                    .take(3)
+                    .map(str::parse)
+                    .collect::<Result<_, _>>()
+                    .map_err(|e| format!("line {}: {e}", n + 1))?;
+                if c.len() != 3 {
+                    return Err(format!("line {}: a vertex needs 3 coordinates", n + 1));
+                }
+                mesh.vertices.push([c[0], c[1], c[2]]);
+            }
+            Some("f") => {
+                let count = mesh.vertices.len() as i64;
+                let idx: Vec<u32> = it
+                    .map(|t| {
+                        let i: i64 = t
+                            .split('/')
+                            .next()
+                            .unwrap_or("")
+                            .parse()
+                            .map_err(|e| format!("line {}: {e}", n + 1))?;
+                        let i = if i < 0 { count + i } else { i - 1 };
+                        if i < 0 || i >= count {
+                            return Err(format!("line {}: vertex index out of range", n + 1));
+                        }
+                        Ok(i as u32)
+                    })
+                    .collect::<Result<_, String>>()?;
+                for k in 1..idx.len().saturating_sub(1) {
+                    mesh.triangles.push([idx[0], idx[k], idx[k + 1]]);
+                }
+            }
+            _ => {}
+        }
+    }
+    if mesh.vertices.is_empty() {
+        return Err("no vertices".into());
+    }
+    Ok(mesh)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn obj_faces_are_fanned_and_indices_resolved() {
+        let m = parse_obj(
+            "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1/1/1 2/2/2 3/3/3 4/4/4\nf -1 -2 -3\n",
+        )
+        .unwrap();
+        assert_eq!(m.vertices.len(), 4);
+        assert_eq!(m.triangles, vec![[0, 1, 2], [0, 2, 3], [3, 2, 1]]);
+        assert!(parse_obj("f 1 2 3\n").is_err());
+        assert!(
+            parse_obj("v 0 0 0\nf 1 2 3\n")
+                .unwrap_err()
+                .contains("out of range")
+        );
+    }
+}
