@@ -85,6 +85,51 @@ fn eval_runs_a_batch_on_a_local_cluster_and_writes_both_reports() {
         }
     }
 
+    // Every episode has its pictures: 4 views of the initial scene, 8 keyframes, a contact sheet,
+    // all PNGs in the artifact store, the sheet shown in report.md, the adapter recorded.
+    for t in &r.results.tasks {
+        for e in &t.episodes {
+            let img = e
+                .imagery
+                .as_ref()
+                .unwrap_or_else(|| panic!("{} seed {} has no imagery", t.id, e.seed));
+            assert_eq!(
+                img.views
+                    .iter()
+                    .map(|v| v.name.as_str())
+                    .collect::<Vec<_>>(),
+                ["top", "front", "oblique_left", "oblique_right"]
+            );
+            assert_eq!(img.keyframes.len(), 8);
+            assert!(
+                img.keyframes.windows(2).all(|k| k[0].step < k[1].step),
+                "keyframes in order"
+            );
+            assert!(!img.adapter.is_empty());
+            for key in img
+                .views
+                .iter()
+                .map(|v| &v.artifact)
+                .chain(img.keyframes.iter().map(|k| &k.artifact))
+            {
+                let png = std::fs::read(dir.path().join("artifacts").join(key)).unwrap();
+                assert_eq!(&png[1..4], b"PNG", "{key}");
+            }
+            assert!(
+                dir.path()
+                    .join("artifacts")
+                    .join(&img.contact_sheet)
+                    .exists()
+            );
+        }
+        let first = t.episodes[0].imagery.as_ref().unwrap();
+        assert!(
+            md.contains(&format!("](artifacts/{})", first.contact_sheet)),
+            "report.md shows {}'s contact sheet",
+            t.id
+        );
+    }
+
     // And from Python, as a lab's own scripts read them.
     let python = std::env::var("ASSAY_TEST_PYTHON").expect(
         "ASSAY_TEST_PYTHON names a Python with pyarrow (scripts/test sets it up: tests/python/requirements.txt)",

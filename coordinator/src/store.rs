@@ -773,6 +773,7 @@ mod tests {
             artifact: String::new(),
             spec_hash: String::new(),
             versions: BTreeMap::new(),
+            imagery: None,
         }
     }
 

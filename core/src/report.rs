@@ -14,6 +14,9 @@ use crate::stats::Proportion;
 
 pub const REPORT_VERSION: u32 = 1;
 
+/// Where report.md expects the artifact store, relative to itself (`assay eval` puts it there).
+pub const ARTIFACTS_LINK: &str = "artifacts";
+
 /// Where a success label came from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
@@ -50,6 +53,35 @@ pub struct EpisodeOutcome {
     pub spec_hash: String,
     /// Versions of the code that produced the episode (`assay-sim`, `rapier3d`, ...).
     pub versions: BTreeMap<String, String>,
+    /// Rendered pictures of the episode, when a render role ran with the sim role.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub imagery: Option<EpisodeImagery>,
+}
+
+/// Pictures of one episode, as artifact keys.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct EpisodeImagery {
+    /// The graphics adapter that drew them (a GPU, or a software rasteriser).
+    pub adapter: String,
+    /// Views of the initial scene (top, front, two obliques), for scene alignment.
+    pub views: Vec<NamedArtifact>,
+    /// Frames evenly spaced over the rollout, for task completion.
+    pub keyframes: Vec<Keyframe>,
+    /// One PNG with the views on the first row and the keyframes below.
+    pub contact_sheet: String,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct NamedArtifact {
+    pub name: String,
+    pub artifact: String,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Keyframe {
+    pub step: u64,
+    pub camera: String,
+    pub artifact: String,
 }
 
 /// The state of one shard when the report is built.
@@ -182,6 +214,8 @@ pub struct EpisodeRow {
     pub artifact: String,
     /// Predicates that did not hold, with what was measured.
     pub unmet: Vec<PredicateValue>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub imagery: Option<EpisodeImagery>,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -271,6 +305,7 @@ pub fn build_results(
                         steps: o.steps,
                         artifact: o.artifact.clone(),
                         unmet: o.predicates.iter().filter(|p| !p.holds).cloned().collect(),
+                        imagery: o.imagery.clone(),
                     });
                 }
                 None => failures.push(FailureRow {
@@ -542,6 +577,39 @@ impl Report {
                 );
             }
         }
+        let pictured: Vec<(&TaskResult, &EpisodeRow, &EpisodeImagery)> = r
+            .tasks
+            .iter()
+            .filter_map(|t| {
+                t.episodes
+                    .iter()
+                    .find_map(|e| e.imagery.as_ref().map(|i| (t, e, i)))
+            })
+            .collect();
+        if !pictured.is_empty() {
+            let _ = writeln!(md, "\n## Episode imagery\n");
+            let _ = writeln!(
+                md,
+                "For each task, the first episode's contact sheet: the initial scene from the top, the front and two \
+                 obliques, then {} keyframes over the rollout. Every episode's views, keyframes and sheet are in \
+                 `report.json` (paths relative to the artifact store, `{ARTIFACTS_LINK}` beside this report). \
+                 Drawn by: {}.\n",
+                pictured[0].2.keyframes.len(),
+                cell(&pictured[0].2.adapter)
+            );
+            for (t, e, img) in pictured {
+                let _ = writeln!(
+                    md,
+                    "### `{}` — seed {}, {}, {}\n\n![{}]({ARTIFACTS_LINK}/{})\n",
+                    t.id,
+                    e.seed,
+                    cell(&e.policy),
+                    if e.success { "succeeded" } else { "failed" },
+                    t.id,
+                    img.contact_sheet
+                );
+            }
+        }
         md
     }
 }
@@ -567,6 +635,7 @@ mod tests {
             artifact: format!("a{seed}"),
             spec_hash: "h".into(),
             versions: BTreeMap::new(),
+            imagery: None,
         }
     }
 

@@ -66,10 +66,10 @@ fn camera(name: &str, eye: [f64; 3], target: [f64; 3]) -> Camera {
 /// are seen), front, and two obliques.
 pub fn scene_views() -> Vec<Camera> {
     vec![
-        camera("top", [0.5, 0.0, 1.25], [0.5, 0.0, 0.0]),
-        camera("front", [1.25, 0.0, 0.45], [0.5, 0.0, 0.05]),
-        camera("oblique_left", [1.0, 0.65, 0.7], [0.5, 0.0, 0.05]),
-        camera("oblique_right", [1.0, -0.65, 0.7], [0.5, 0.0, 0.05]),
+        camera("top", [0.5, 0.0, 0.95], [0.5, 0.0, 0.0]),
+        camera("front", [1.1, 0.0, 0.45], [0.5, 0.0, 0.05]),
+        camera("oblique_left", [0.95, 0.5, 0.55], [0.5, 0.0, 0.05]),
+        camera("oblique_right", [0.95, -0.5, 0.55], [0.5, 0.0, 0.05]),
     ]
 }
 

@@ -22,6 +22,12 @@ pub struct Args {
     /// Shards each worker runs at once.
     #[arg(long, default_value_t = 1)]
     pub capacity: u32,
+    /// Worker roles: sim,render (pictures of every episode) or sim (physics only, faster).
+    #[arg(long, default_value = "sim,render")]
+    pub roles: String,
+    /// Size of rendered views and keyframes, WIDTHxHEIGHT.
+    #[arg(long, default_value = "640x480")]
+    pub image_size: String,
     /// Output folder: report.json, report.md, artifacts/, and run/ (job store and process logs).
     #[arg(long, default_value = "assay-out")]
     pub out: PathBuf,
@@ -71,7 +77,9 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
                 "--coordinator".into(),
                 addr.clone(),
                 "--roles".into(),
-                "sim".into(),
+                a.roles.clone(),
+                "--image-size".into(),
+                a.image_size.clone(),
                 "--capacity".into(),
                 a.capacity.to_string(),
                 "--node-id".into(),

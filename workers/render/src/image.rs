@@ -76,6 +76,7 @@ impl Rgb {
             let mut enc = png::Encoder::new(&mut out, self.width, self.height);
             enc.set_color(png::ColorType::Rgb);
             enc.set_depth(png::BitDepth::Eight);
+            enc.set_compression(png::Compression::Fast);
             let mut w = enc.write_header().expect("png header to memory");
             w.write_image_data(&self.data).expect("png data to memory");
         }

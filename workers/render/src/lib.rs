@@ -5,6 +5,7 @@
 //! Owns: the GPU device, pipelines and readback. Never simulates and never does networking.
 
 pub mod image;
+pub mod imagery;
 pub mod math;
 pub mod mesh;
 

@@ -6,6 +6,8 @@
 //! leases back on shutdown. Shards run on their own named threads, never on the async executor.
 //! Never links physics, rendering or torch itself: roles plug in through [`ShardHandler`].
 
+pub mod artifacts;
+
 use std::collections::{BTreeMap, HashMap};
 use std::future::Future;
 use std::path::{Path, PathBuf};

@@ -12,10 +12,10 @@ pub mod reference;
 pub mod scene;
 
 use std::collections::{BTreeMap, HashMap};
-use std::path::Path;
 
 use assay_core::policy::PolicySpec;
 use assay_core::report::{EpisodeOutcome, LabelSource};
+use assay_core::scene::SceneSnapshot;
 use assay_core::spec::TaskSpec;
 
 use crate::controller::Controller;
@@ -73,7 +73,14 @@ pub struct Episode {
     pub outcome: EpisodeOutcome,
     pub file: Vec<u8>,
     pub notes: Vec<String>,
+    /// The scene after the initial settle, before the policy acts (for scene views).
+    pub initial: SceneSnapshot,
+    /// `KEYFRAMES` states evenly spaced from the first policy step to the end, with their steps.
+    pub keyframes: Vec<(u64, SceneSnapshot)>,
 }
+
+/// Keyframes per episode (task completion is judged on these).
+pub const KEYFRAMES: usize = 8;
 
 /// Simulates one episode of `spec` with `seed` and `policy`. Deterministic: the same inputs give
 /// the same outcome and the same file, byte for byte.
@@ -118,6 +125,7 @@ pub fn simulate(spec: &TaskSpec, seed: u64, policy: &str) -> Result<Episode, Sim
     for _ in 0..settle {
         advance(&mut scene, &mut ctl, &mut rec, &mut step, false);
     }
+    let first_policy_row = rec.rows() - 1;
     let mut truncated = false;
     while !ctl.done() {
         if step >= settle + max_steps {
@@ -181,7 +189,6 @@ pub fn simulate(spec: &TaskSpec, seed: u64, policy: &str) -> Result<Episode, Sim
         ("assay.record_stride".to_owned(), RECORD_STRIDE.to_string()),
     ]);
     let file = rec.encode(&object_ids, metadata)?;
-    let artifact = format!("episodes/{}.arrow", assay_core::hash::sha256_hex(&file));
     Ok(Episode {
         outcome: EpisodeOutcome {
             task_id: spec.id.clone(),
@@ -192,40 +199,30 @@ pub fn simulate(spec: &TaskSpec, seed: u64, policy: &str) -> Result<Episode, Sim
             predicates,
             steps: step,
             sim_time_s: step as f64 * dt,
-            artifact,
+            // Filled in by whoever stores `file` (the worker, in its artifact store).
+            artifact: String::new(),
             spec_hash,
             versions,
+            imagery: None,
         },
         file,
         notes,
+        initial: rec.snapshot(first_policy_row, spec),
+        keyframes: evenly_spaced(first_policy_row, rec.rows() - 1, KEYFRAMES)
+            .into_iter()
+            .map(|row| (u64::from(rec.step_at(row)), rec.snapshot(row, spec)))
+            .collect(),
     })
 }
 
-use scene::SimScene;
-
-/// Simulates an episode and stores its file under `artifact_root` (content-addressed; writing
-/// the same episode twice is harmless).
-pub fn run_episode(
-    spec: &TaskSpec,
-    seed: u64,
-    policy: &str,
-    artifact_root: &Path,
-) -> Result<EpisodeOutcome, SimError> {
-    let ep = simulate(spec, seed, policy)?;
-    let path = artifact_root.join(&ep.outcome.artifact);
-    if !path.exists() {
-        let dir = path.parent().expect("artifact path has a folder");
-        std::fs::create_dir_all(dir)
-            .map_err(|e| SimError::Io(format!("{}: {e}", dir.display())))?;
-        let tmp = dir.join(format!(
-            ".tmp-{}-{:?}",
-            std::process::id(),
-            std::thread::current().id()
-        ));
-        std::fs::write(&tmp, &ep.file)
-            .map_err(|e| SimError::Io(format!("{}: {e}", tmp.display())))?;
-        std::fs::rename(&tmp, &path)
-            .map_err(|e| SimError::Io(format!("{}: {e}", path.display())))?;
+/// `n` indices from `first` to `last` inclusive, evenly spaced (rounded).
+fn evenly_spaced(first: usize, last: usize, n: usize) -> Vec<usize> {
+    if n <= 1 || last <= first {
+        return vec![last; n.min(1)];
     }
-    Ok(ep.outcome)
+    (0..n)
+        .map(|k| first + ((last - first) as f64 * k as f64 / (n - 1) as f64).round() as usize)
+        .collect()
 }
+
+use scene::SimScene;

@@ -8,6 +8,8 @@ use arrow_array::{
     ArrayRef, BooleanArray, Float32Array, Float64Array, Int16Array, RecordBatch, UInt32Array,
 };
 use arrow_schema::{DataType, Field, Schema};
+use assay_core::scene::{SceneSnapshot, SnapshotObject};
+use assay_core::spec::TaskSpec;
 use rapier3d::prelude::*;
 
 use crate::SimError;
@@ -40,6 +42,32 @@ impl Recorder {
 
     pub fn rows(&self) -> usize {
         self.step.len()
+    }
+
+    pub fn step_at(&self, row: usize) -> u32 {
+        self.step[row]
+    }
+
+    /// The recorded state of `row` as a scene a camera can draw.
+    pub fn snapshot(&self, row: usize, spec: &TaskSpec) -> SceneSnapshot {
+        let objects = spec
+            .scene
+            .objects
+            .iter()
+            .zip(&self.objects)
+            .map(|(o, c)| SnapshotObject {
+                id: o.id.clone(),
+                shape: o.shape.clone(),
+                color: o.color.rgb().unwrap_or([0.5; 3]).map(|x| x as f32),
+                position: [c[0][row], c[1][row], c[2][row]],
+                rotation: [c[3][row], c[4][row], c[5][row], c[6][row]],
+            })
+            .collect();
+        SceneSnapshot {
+            surface: spec.scene.surface,
+            objects,
+            tool: Some([self.ee[0][row], self.ee[1][row], self.ee[2][row]]),
+        }
     }
 
     pub fn record(
