@@ -1,18 +1,19 @@
-//! `assay bench`: the peer reference scene in rapier3d, timed like `shared/bench/peers/peers.py`
-//! (per-trial wall-clock and CPU-time rates, medians, one JSON line on stdout).
+//! `assay bench`: the peer reference scene, timed like `shared/bench/peers/peers.py` (per-trial
+//! wall-clock and CPU-time rates, medians, one JSON line on stdout).
 
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Instant;
 
 use anyhow::Context;
+use assay_render::{Outputs, Renderer};
 use assay_sim::reference::{self, Contract, Workload};
 use nix::time::{ClockId, clock_gettime};
 use serde_json::json;
 
 #[derive(clap::Args)]
 pub struct Args {
-    /// physics | rollout
+    /// physics | render | rollout
     pub measure: String,
     /// The scene contract.
     #[arg(long, default_value = "bench/reference-scene.json")]
@@ -22,6 +23,24 @@ pub struct Args {
     /// Timed physics steps per trial (default: the contract's).
     #[arg(long)]
     pub steps: Option<u32>,
+    /// Frames per `render` trial.
+    #[arg(long, default_value_t = 20)]
+    pub frames: u32,
+    /// `rollout`: render the contract's 8 frames per episode.
+    #[arg(long)]
+    pub render: bool,
+    /// Image width (default: the contract camera's, 640).
+    #[arg(long)]
+    pub width: Option<u32>,
+    /// Image height (default: the contract camera's, 480).
+    #[arg(long)]
+    pub height: Option<u32>,
+    /// Also read back a depth image per frame.
+    #[arg(long)]
+    pub depth: bool,
+    /// Also read back a segmentation image per frame.
+    #[arg(long)]
+    pub seg: bool,
 }
 
 fn cpu_s() -> f64 {
@@ -48,50 +67,122 @@ fn round(x: f64) -> f64 {
     }
 }
 
+/// Times `trials` runs of `work`, which returns how many units (steps, frames, episodes) it did.
+fn time_trials(
+    trials: u32,
+    mut work: impl FnMut() -> anyhow::Result<f64>,
+) -> anyhow::Result<(Vec<f64>, Vec<f64>)> {
+    let (mut wall, mut cpu) = (Vec::new(), Vec::new());
+    for _ in 0..trials {
+        let (t0, c0) = (Instant::now(), cpu_s());
+        let units = work()?;
+        let (dt, dc) = (t0.elapsed().as_secs_f64(), cpu_s() - c0);
+        wall.push(units / dt);
+        cpu.push(units / dc);
+    }
+    Ok((wall, cpu))
+}
+
 pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     let text = std::fs::read_to_string(&a.scene)
         .with_context(|| format!("reading {}", a.scene.display()))?;
     let sha = assay_core::hash::sha256_hex(text.as_bytes());
     let c = Contract::parse(&text)?;
-    let (mut wall, mut cpu) = (Vec::new(), Vec::new());
-    let mut extra = json!({});
-    match a.measure.as_str() {
+    let camera = reference::camera(
+        &c,
+        a.width.unwrap_or(c.camera.width),
+        a.height.unwrap_or(c.camera.height),
+    );
+    let outputs = Outputs {
+        depth: a.depth,
+        segments: a.seg,
+    };
+    let outputs_name = match (a.depth, a.seg) {
+        (false, false) => "rgb",
+        (true, false) => "rgb+depth",
+        (false, true) => "rgb+seg",
+        (true, true) => "rgb+depth+seg",
+    };
+    let (measure, unit, (wall, cpu), extra) = match a.measure.as_str() {
         "physics" => {
             let steps = a.steps.unwrap_or(c.measurement.timed_steps);
             let mut w = Workload::default();
             let mut scene = reference::physics_setup(&c);
             reference::physics_run(&c, &mut scene, steps, Some(&mut w)); // warm-up, measures the workload
-            for _ in 0..a.trials {
+            let rates = time_trials(a.trials, || {
                 let mut scene = reference::physics_setup(&c);
-                let (t0, c0) = (Instant::now(), cpu_s());
                 reference::physics_run(&c, &mut scene, steps, None);
-                let (dt, dc) = (t0.elapsed().as_secs_f64(), cpu_s() - c0);
-                wall.push(f64::from(steps) / dt);
-                cpu.push(f64::from(steps) / dc);
-            }
-            extra = json!({
+                Ok(f64::from(steps))
+            })?;
+            let extra = json!({
                 "workload": {"contact_points_per_step": round(w.contact_points_per_step), "gripper_contact_fraction": round(w.gripper_contact_fraction), "source": "warm-up trial, same steps"},
                 "steps_per_trial": steps,
             });
+            ("physics_steps_per_s", "steps/s", rates, extra)
+        }
+        "render" => {
+            let mut r = Renderer::new()?;
+            let scene = reference::snapshot(&reference::render_state(&c));
+            r.render_with(&scene, &camera, outputs)?; // warm-up
+            let rates = time_trials(a.trials, || {
+                for _ in 0..a.frames {
+                    r.render_with(&scene, &camera, outputs)?;
+                }
+                Ok(f64::from(a.frames))
+            })?;
+            let extra = json!({
+                "frames_per_trial": a.frames,
+                "width": camera.width,
+                "height": camera.height,
+                "outputs": outputs_name,
+                "adapter": r.adapter(),
+                "timed": "per frame: scene upload, one render pass, readback of the requested images into CPU memory",
+            });
+            ("render_frames_per_s", "frames/s", rates, extra)
         }
         "rollout" => {
-            let mut placed = Vec::new();
-            reference::rollout_episode(&c); // warm-up
-            for _ in 0..a.trials {
-                let (t0, c0) = (Instant::now(), cpu_s());
-                placed.push(reference::rollout_episode(&c));
-                let (dt, dc) = (t0.elapsed().as_secs_f64(), cpu_s() - c0);
-                wall.push(1.0 / dt);
-                cpu.push(1.0 / dc);
-            }
-            extra = json!({"boxes_placed": placed, "rendering": "none (physics only; the render role comes with issue 3)"});
+            let mut renderer = if a.render {
+                Some(Renderer::new()?)
+            } else {
+                None
+            };
+            let episode = |renderer: &mut Option<Renderer>| -> anyhow::Result<(usize, u32)> {
+                let (mut err, mut frames) = (None, 0);
+                let placed = reference::rollout_episode_with(&c, &mut |scene| {
+                    if let Some(r) = renderer.as_mut() {
+                        match r.render_with(&reference::snapshot(scene), &camera, outputs) {
+                            Ok(_) => frames += 1,
+                            Err(e) => err = Some(e),
+                        }
+                    }
+                });
+                match err {
+                    Some(e) => Err(e.into()),
+                    None => Ok((placed, frames)),
+                }
+            };
+            episode(&mut renderer)?; // warm-up
+            let (mut placed, mut frames) = (Vec::new(), 0);
+            let rates = time_trials(a.trials, || {
+                let (p, f) = episode(&mut renderer)?;
+                placed.push(p);
+                frames = f;
+                Ok(1.0)
+            })?;
+            let rendering = match &renderer {
+                Some(r) => {
+                    json!({"adapter": r.adapter(), "outputs": outputs_name, "width": camera.width, "height": camera.height, "frames_per_episode": frames})
+                }
+                None => json!("none (physics only)"),
+            };
+            (
+                "rollout_episodes_per_s",
+                "episodes/s",
+                rates,
+                json!({"boxes_placed": placed, "rendering": rendering}),
+            )
         }
-        other => anyhow::bail!("unknown measure '{other}' (physics, rollout)"),
-    }
-    let (measure, unit) = if a.measure == "physics" {
-        ("physics_steps_per_s", "steps/s")
-    } else {
-        ("rollout_episodes_per_s", "episodes/s")
+        other => anyhow::bail!("unknown measure '{other}' (physics, render, rollout)"),
     };
     let mut line = json!({
         "engine": "assay-rapier3d",
@@ -107,7 +198,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
             "solver": "rapier3d defaults (TGS-soft, 4 solver iterations)",
             "build": if cfg!(debug_assertions) { "debug (dependencies optimised)" } else { "release" },
             "scene": {"sha256": sha, "dt": c.dt, "boxes": c.boxes.positions.len()},
-            "threads": 1,
+            "env": {"LP_NUM_THREADS": std::env::var("LP_NUM_THREADS").ok(), "WGPU_BACKEND": std::env::var("WGPU_BACKEND").ok()},
         }
     });
     if let (Some(obj), Some(more)) = (line.as_object_mut(), extra.as_object()) {

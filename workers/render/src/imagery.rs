@@ -5,7 +5,7 @@ use assay_core::scene::{SceneSnapshot, scene_views};
 use assay_core::spec::Camera;
 
 use crate::image::{Rgb, contact_sheet};
-use crate::{RenderError, Renderer};
+use crate::{Outputs, RenderError, Renderer};
 
 pub struct Imagery {
     pub views: Vec<(String, Rgb)>,
@@ -37,7 +37,7 @@ pub fn render_episode(
         };
         views.push((
             cam.name.clone(),
-            Rgb::from_frame(&r.render(&scene, &sized(&cam))?),
+            Rgb::from_frame(&r.render_with(&scene, &sized(&cam), Outputs::RGB)?),
         ));
     }
     let mut frames = Vec::new();
@@ -45,7 +45,7 @@ pub fn render_episode(
         frames.push((
             *step,
             keyframe_camera.name.clone(),
-            Rgb::from_frame(&r.render(scene, &sized(keyframe_camera))?),
+            Rgb::from_frame(&r.render_with(scene, &sized(keyframe_camera), Outputs::RGB)?),
         ));
     }
     let thumbs: Vec<Rgb> = views

@@ -63,6 +63,24 @@ impl std::fmt::Display for AdapterSummary {
     }
 }
 
+/// Which images to read back besides RGB.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Outputs {
+    pub depth: bool,
+    pub segments: bool,
+}
+
+impl Outputs {
+    pub const ALL: Outputs = Outputs {
+        depth: true,
+        segments: true,
+    };
+    pub const RGB: Outputs = Outputs {
+        depth: false,
+        segments: false,
+    };
+}
+
 /// One rendered camera image. Rows run top to bottom.
 #[derive(Debug, Clone)]
 pub struct Frame {
@@ -124,6 +142,12 @@ struct FOut { @location(0) color: vec4<f32>, @location(1) seg: u32 };
   o.color = vec4<f32>(i.color.rgb * k, 1.0);
   o.seg = i.seg;
   return o;
+}
+@fragment fn fs_rgb(i: VOut) -> @location(0) vec4<f32> {
+  let n = normalize(i.normal);
+  let diffuse = abs(dot(n, normalize(g.light_dir.xyz)));
+  let k = g.ambient.x + (1.0 - g.ambient.x) * diffuse;
+  return vec4<f32>(i.color.rgb * k, 1.0);
 }"#;
 
 struct GpuMesh {
@@ -138,6 +162,7 @@ struct Targets {
     color: wgpu::Texture,
     depth: wgpu::Texture,
     segments: wgpu::Texture,
+    views: [wgpu::TextureView; 3],
     readback: [wgpu::Buffer; 3],
 }
 
@@ -153,7 +178,12 @@ enum MeshKey {
 pub struct Renderer {
     device: wgpu::Device,
     queue: wgpu::Queue,
+    /// Writes colour and segments.
     pipeline: wgpu::RenderPipeline,
+    /// Writes colour only (cheaper when segments are not wanted).
+    pipeline_rgb: wgpu::RenderPipeline,
+    /// Instance data of the current frame, reused across frames (grown when needed).
+    instance_buffer: Option<wgpu::Buffer>,
     globals: wgpu::Buffer,
     bind_group: wgpu::BindGroup,
     meshes: HashMap<MeshKey, GpuMesh>,
@@ -263,62 +293,67 @@ impl Renderer {
             wgpu::vertex_attr_array![0 => Float32x3, 1 => Float32x3];
         const INSTANCE_ATTRS: [wgpu::VertexAttribute; 6] = wgpu::vertex_attr_array![
             2 => Float32x4, 3 => Float32x4, 4 => Float32x4, 5 => Float32x4, 6 => Float32x4, 7 => Uint32];
-        let pipeline = device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
-            label: Some("scene"),
-            layout: Some(&layout),
-            vertex: wgpu::VertexState {
-                module: &shader,
-                entry_point: Some("vs_main"),
-                compilation_options: wgpu::PipelineCompilationOptions::default(),
-                buffers: &[
-                    Some(wgpu::VertexBufferLayout {
-                        array_stride: size_of::<Vertex>() as u64,
-                        step_mode: wgpu::VertexStepMode::Vertex,
-                        attributes: &VERTEX_ATTRS,
-                    }),
-                    Some(wgpu::VertexBufferLayout {
-                        array_stride: size_of::<Instance>() as u64,
-                        step_mode: wgpu::VertexStepMode::Instance,
-                        attributes: &INSTANCE_ATTRS,
-                    }),
-                ],
-            },
-            primitive: wgpu::PrimitiveState {
-                cull_mode: None,
-                ..Default::default()
-            },
-            depth_stencil: Some(wgpu::DepthStencilState {
-                format: wgpu::TextureFormat::Depth32Float,
-                depth_write_enabled: Some(true),
-                depth_compare: Some(wgpu::CompareFunction::Less),
-                stencil: wgpu::StencilState::default(),
-                bias: wgpu::DepthBiasState::default(),
-            }),
-            multisample: wgpu::MultisampleState::default(),
-            fragment: Some(wgpu::FragmentState {
-                module: &shader,
-                entry_point: Some("fs_main"),
-                compilation_options: wgpu::PipelineCompilationOptions::default(),
-                targets: &[
-                    Some(wgpu::ColorTargetState {
-                        format: wgpu::TextureFormat::Rgba8Unorm,
-                        blend: None,
-                        write_mask: wgpu::ColorWrites::ALL,
-                    }),
-                    Some(wgpu::ColorTargetState {
-                        format: wgpu::TextureFormat::R32Uint,
-                        blend: None,
-                        write_mask: wgpu::ColorWrites::ALL,
-                    }),
-                ],
-            }),
-            multiview_mask: None,
-            cache: None,
+        let make_pipeline = |entry: &str, targets: &[Option<wgpu::ColorTargetState>]| {
+            device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+                label: Some("scene"),
+                layout: Some(&layout),
+                vertex: wgpu::VertexState {
+                    module: &shader,
+                    entry_point: Some("vs_main"),
+                    compilation_options: wgpu::PipelineCompilationOptions::default(),
+                    buffers: &[
+                        Some(wgpu::VertexBufferLayout {
+                            array_stride: size_of::<Vertex>() as u64,
+                            step_mode: wgpu::VertexStepMode::Vertex,
+                            attributes: &VERTEX_ATTRS,
+                        }),
+                        Some(wgpu::VertexBufferLayout {
+                            array_stride: size_of::<Instance>() as u64,
+                            step_mode: wgpu::VertexStepMode::Instance,
+                            attributes: &INSTANCE_ATTRS,
+                        }),
+                    ],
+                },
+                primitive: wgpu::PrimitiveState {
+                    cull_mode: None,
+                    ..Default::default()
+                },
+                depth_stencil: Some(wgpu::DepthStencilState {
+                    format: wgpu::TextureFormat::Depth32Float,
+                    depth_write_enabled: Some(true),
+                    depth_compare: Some(wgpu::CompareFunction::Less),
+                    stencil: wgpu::StencilState::default(),
+                    bias: wgpu::DepthBiasState::default(),
+                }),
+                multisample: wgpu::MultisampleState::default(),
+                fragment: Some(wgpu::FragmentState {
+                    module: &shader,
+                    entry_point: Some(entry),
+                    compilation_options: wgpu::PipelineCompilationOptions::default(),
+                    targets,
+                }),
+                multiview_mask: None,
+                cache: None,
+            })
+        };
+        let color_target = Some(wgpu::ColorTargetState {
+            format: wgpu::TextureFormat::Rgba8Unorm,
+            blend: None,
+            write_mask: wgpu::ColorWrites::ALL,
         });
+        let segment_target = Some(wgpu::ColorTargetState {
+            format: wgpu::TextureFormat::R32Uint,
+            blend: None,
+            write_mask: wgpu::ColorWrites::ALL,
+        });
+        let pipeline = make_pipeline("fs_main", &[color_target.clone(), segment_target]);
+        let pipeline_rgb = make_pipeline("fs_rgb", &[color_target]);
         let mut r = Renderer {
             device,
             queue,
             pipeline,
+            pipeline_rgb,
+            instance_buffer: None,
             globals,
             bind_group,
             meshes: HashMap::new(),
@@ -391,12 +426,20 @@ impl Renderer {
                     mapped_at_creation: false,
                 })
             };
+            let (color, depth, segments) = (
+                tex("color", wgpu::TextureFormat::Rgba8Unorm),
+                tex("depth", wgpu::TextureFormat::Depth32Float),
+                tex("segments", wgpu::TextureFormat::R32Uint),
+            );
+            let view = |t: &wgpu::Texture| t.create_view(&wgpu::TextureViewDescriptor::default());
+            let views = [view(&color), view(&depth), view(&segments)];
             self.targets = Some(Targets {
                 width,
                 height,
-                color: tex("color", wgpu::TextureFormat::Rgba8Unorm),
-                depth: tex("depth", wgpu::TextureFormat::Depth32Float),
-                segments: tex("segments", wgpu::TextureFormat::R32Uint),
+                color,
+                depth,
+                segments,
+                views,
                 readback: [
                     buf("color readback"),
                     buf("depth readback"),
@@ -523,8 +566,19 @@ impl Renderer {
         Ok(by_mesh)
     }
 
-    /// Renders `scene` from `camera`.
+    /// Renders `scene` from `camera`: RGB, depth and segments.
     pub fn render(&mut self, scene: &SceneSnapshot, camera: &Camera) -> Result<Frame, RenderError> {
+        self.render_with(scene, camera, Outputs::ALL)
+    }
+
+    /// Renders `scene` from `camera`, reading back only the `outputs` asked for (the others are
+    /// left empty in the frame). All of them come from the same single render pass.
+    pub fn render_with(
+        &mut self,
+        scene: &SceneSnapshot,
+        camera: &Camera,
+        outputs: Outputs,
+    ) -> Result<Frame, RenderError> {
         let (w, h) = (camera.width.max(1), camera.height.max(1));
         let (eye, target) = if camera.name == EE_CAMERA {
             let t = scene.tool.ok_or_else(|| RenderError::Scene {
@@ -555,24 +609,40 @@ impl Renderer {
         self.queue
             .write_buffer(&self.globals, 0, bytemuck::bytes_of(&globals));
         let instances = self.instances(scene)?;
-        let instance_buffers: Vec<(MeshKey, wgpu::Buffer, u32)> = instances
-            .into_iter()
-            .map(|(k, v)| {
-                let b = self
-                    .device
-                    .create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                        label: Some("instances"),
-                        contents: bytemuck::cast_slice(&v),
-                        usage: wgpu::BufferUsages::VERTEX,
-                    });
-                (k, b, v.len() as u32)
-            })
-            .collect();
         self.targets(w, h);
+        // All instances in one buffer, reused across frames: (mesh, byte range, count).
+        let mut data: Vec<Instance> = Vec::new();
+        let mut groups: Vec<(MeshKey, u64, u64, u32)> = Vec::new();
+        for (key, v) in instances {
+            let start = (data.len() * size_of::<Instance>()) as u64;
+            data.extend_from_slice(&v);
+            groups.push((
+                key,
+                start,
+                (data.len() * size_of::<Instance>()) as u64,
+                v.len() as u32,
+            ));
+        }
+        let bytes: &[u8] = bytemuck::cast_slice(&data);
+        if self
+            .instance_buffer
+            .as_ref()
+            .is_none_or(|b| b.size() < bytes.len() as u64)
+        {
+            self.instance_buffer = Some(self.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("instances"),
+                size: (bytes.len() as u64).next_power_of_two().max(4096),
+                usage: wgpu::BufferUsages::VERTEX | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            }));
+        }
+        let instance_buffer = self
+            .instance_buffer
+            .as_ref()
+            .expect("instance buffer exists");
+        self.queue.write_buffer(instance_buffer, 0, bytes);
         let t = self.targets.as_ref().expect("targets exist");
-        let view = |tex: &wgpu::Texture| tex.create_view(&wgpu::TextureViewDescriptor::default());
-        let (color_view, depth_view, seg_view) =
-            (view(&t.color), view(&t.depth), view(&t.segments));
+        let [color_view, depth_view, seg_view] = &t.views;
         let mut enc = self
             .device
             .create_command_encoder(&wgpu::CommandEncoderDescriptor {
@@ -588,23 +658,28 @@ impl Renderer {
                 label: Some("scene"),
                 color_attachments: &[
                     Some(wgpu::RenderPassColorAttachment {
-                        view: &color_view,
+                        view: color_view,
                         depth_slice: None,
                         resolve_target: None,
                         ops: clear(wgpu::Color { r, g, b, a: 1.0 }),
                     }),
-                    Some(wgpu::RenderPassColorAttachment {
-                        view: &seg_view,
+                    outputs.segments.then_some(wgpu::RenderPassColorAttachment {
+                        view: seg_view,
                         depth_slice: None,
                         resolve_target: None,
                         ops: clear(wgpu::Color::TRANSPARENT),
                     }),
-                ],
+                ][..if outputs.segments { 2 } else { 1 }],
                 depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
-                    view: &depth_view,
+                    view: depth_view,
                     depth_ops: Some(wgpu::Operations {
                         load: wgpu::LoadOp::Clear(1.0),
-                        store: wgpu::StoreOp::Store,
+                        // Depth is only kept when it is read back.
+                        store: if outputs.depth {
+                            wgpu::StoreOp::Store
+                        } else {
+                            wgpu::StoreOp::Discard
+                        },
                     }),
                     stencil_ops: None,
                 }),
@@ -612,12 +687,16 @@ impl Renderer {
                 occlusion_query_set: None,
                 multiview_mask: None,
             });
-            pass.set_pipeline(&self.pipeline);
+            pass.set_pipeline(if outputs.segments {
+                &self.pipeline
+            } else {
+                &self.pipeline_rgb
+            });
             pass.set_bind_group(0, &self.bind_group, &[]);
-            for (key, buf, n) in &instance_buffers {
+            for (key, start, end, n) in &groups {
                 let m = &self.meshes[key];
                 pass.set_vertex_buffer(0, m.vertices.slice(..));
-                pass.set_vertex_buffer(1, buf.slice(..));
+                pass.set_vertex_buffer(1, instance_buffer.slice(*start..*end));
                 pass.set_index_buffer(m.indices.slice(..), wgpu::IndexFormat::Uint32);
                 pass.draw_indexed(0..m.count, 0, 0..*n);
             }
@@ -628,11 +707,18 @@ impl Renderer {
             height: h,
             depth_or_array_layers: 1,
         };
-        for (tex, aspect, buf) in [
+        let wanted = [true, outputs.depth, outputs.segments];
+        let copies = [
             (&t.color, wgpu::TextureAspect::All, &t.readback[0]),
             (&t.depth, wgpu::TextureAspect::DepthOnly, &t.readback[1]),
             (&t.segments, wgpu::TextureAspect::All, &t.readback[2]),
-        ] {
+        ];
+        for (tex, aspect, buf) in copies
+            .into_iter()
+            .zip(wanted)
+            .filter(|(_, w)| *w)
+            .map(|(c, _)| c)
+        {
             enc.copy_texture_to_buffer(
                 wgpu::TexelCopyTextureInfo {
                     texture: tex,
@@ -653,7 +739,13 @@ impl Renderer {
         }
         let index = self.queue.submit([enc.finish()]);
         let (tx, rx) = std::sync::mpsc::channel();
-        for buf in &t.readback {
+        for buf in t
+            .readback
+            .iter()
+            .zip(wanted)
+            .filter(|(_, w)| *w)
+            .map(|(b, _)| b)
+        {
             let tx = tx.clone();
             buf.map_async(wgpu::MapMode::Read, .., move |r| {
                 let _ = tx.send(r);
@@ -665,7 +757,7 @@ impl Renderer {
                 timeout: None,
             })
             .map_err(|e| RenderError::Device(e.to_string()))?;
-        for _ in 0..3 {
+        for _ in 0..wanted.iter().filter(|w| **w).count() {
             rx.recv()
                 .map_err(|e| RenderError::Device(e.to_string()))?
                 .map_err(|e| RenderError::Device(e.to_string()))?;
@@ -685,21 +777,29 @@ impl Renderer {
             Ok(out)
         };
         let rgba = read(&t.readback[0])?;
-        let depth = read(&t.readback[1])?
-            .chunks_exact(4)
-            .map(|b| {
-                let d = f32::from_le_bytes([b[0], b[1], b[2], b[3]]);
-                if d >= 1.0 {
-                    f32::INFINITY
-                } else {
-                    ZNEAR * ZFAR / (ZFAR - d * (ZFAR - ZNEAR))
-                }
-            })
-            .collect();
-        let segments = read(&t.readback[2])?
-            .chunks_exact(4)
-            .map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]]))
-            .collect();
+        let depth = if !outputs.depth {
+            Vec::new()
+        } else {
+            read(&t.readback[1])?
+                .chunks_exact(4)
+                .map(|b| {
+                    let d = f32::from_le_bytes([b[0], b[1], b[2], b[3]]);
+                    if d >= 1.0 {
+                        f32::INFINITY
+                    } else {
+                        ZNEAR * ZFAR / (ZFAR - d * (ZFAR - ZNEAR))
+                    }
+                })
+                .collect()
+        };
+        let segments = if !outputs.segments {
+            Vec::new()
+        } else {
+            read(&t.readback[2])?
+                .chunks_exact(4)
+                .map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+                .collect()
+        };
         Ok(Frame {
             width: w,
             height: h,

@@ -2,6 +2,8 @@
 //! rapier3d: ten 5 cm boxes on a plane and a kinematic 4 × 4 × 10 cm tool, dt 1/240. Used by
 //! `assay bench` to compare with MuJoCo and PyBullet running the same contract.
 
+use assay_core::scene::{SceneSnapshot, SnapshotObject};
+use assay_core::spec::{Camera, Shape, Surface};
 use rapier3d::prelude::*;
 use serde::Deserialize;
 
@@ -20,6 +22,16 @@ pub struct Contract {
     pub gripper: Gripper,
     pub measurement: Measurement,
     pub rollout: Rollout,
+    pub camera: ContractCamera,
+}
+
+#[derive(Debug, Clone, Deserialize)]
+pub struct ContractCamera {
+    pub eye: [f64; 3],
+    pub target: [f64; 3],
+    pub fovy_deg: f64,
+    pub width: u32,
+    pub height: u32,
 }
 
 #[derive(Debug, Clone, Deserialize)]
@@ -54,6 +66,7 @@ pub struct Rollout {
     pub release_step: u32,
     pub place_clearance_m: f64,
     pub success_tolerance_m: f64,
+    pub render_after_actions: Vec<u32>,
     pub segments: Vec<(u32, u32, String, String)>,
 }
 
@@ -184,9 +197,73 @@ pub fn physics_run(c: &Contract, scene: &mut SimScene, steps: u32, measure: Opti
     }
 }
 
+/// The contract's camera as a task-spec camera (`width` × `height`).
+pub fn camera(c: &Contract, width: u32, height: u32) -> Camera {
+    Camera {
+        name: "reference".into(),
+        eye: c.camera.eye,
+        target: c.camera.target,
+        fovy_deg: c.camera.fovy_deg,
+        width,
+        height,
+    }
+}
+
+/// The state every timed `render` frame draws: settled with the tool parked, then settled with
+/// the tool held at the start of its path.
+pub fn render_state(c: &Contract) -> SimScene {
+    let mut scene = physics_setup(c);
+    let start = Contract::path(0.0);
+    for _ in 0..c.measurement.settle_steps {
+        drive(&mut scene, start);
+    }
+    scene
+}
+
+const PALETTE: [[f32; 3]; 5] = [
+    [0.84, 0.15, 0.16],
+    [0.17, 0.63, 0.17],
+    [0.12, 0.47, 0.71],
+    [0.93, 0.79, 0.13],
+    [0.58, 0.4, 0.74],
+];
+
+/// The scene as a camera sees it (boxes coloured in turn, the plane as ground, the tool).
+pub fn snapshot(scene: &SimScene) -> SceneSnapshot {
+    let objects = scene
+        .objects
+        .iter()
+        .enumerate()
+        .map(|(i, o)| {
+            let p = scene.pose(o);
+            let h = f64::from(o.half.x);
+            SnapshotObject {
+                id: o.id.clone(),
+                shape: Shape::Box {
+                    half_extents: [h; 3],
+                },
+                color: PALETTE[i % PALETTE.len()],
+                position: p.translation.into(),
+                rotation: [p.rotation.x, p.rotation.y, p.rotation.z, p.rotation.w],
+            }
+        })
+        .collect();
+    SceneSnapshot {
+        surface: Surface::Ground,
+        objects,
+        tool: Some(scene.gripper_position().into()),
+    }
+}
+
 /// One scripted pick-and-place episode of the contract (physics only). Returns the boxes that
 /// ended within the success tolerance of their targets.
 pub fn rollout_episode(c: &Contract) -> usize {
+    rollout_episode_with(c, &mut |_| {})
+}
+
+/// The scripted episode, calling `frame` where the contract renders: after the reset settle and
+/// after each action in `render_after_actions`.
+pub fn rollout_episode_with(c: &Contract, frame: &mut dyn FnMut(&SimScene)) -> usize {
     let r = &c.rollout;
     let mut scene = c.build();
     let gh = c.gripper.half_extents_m[2] as f32;
@@ -195,6 +272,7 @@ pub fn rollout_episode(c: &Contract) -> usize {
     for _ in 0..r.reset_settle_steps {
         drive(&mut scene, last);
     }
+    frame(&scene);
     for a in 0..r.actions as usize {
         let b = r.pick_order[a];
         let body = scene.objects[b].body;
@@ -236,6 +314,9 @@ pub fn rollout_episode(c: &Contract) -> usize {
             drive(&mut scene, at);
             last = at;
         }
+        if r.render_after_actions.contains(&(a as u32)) {
+            frame(&scene);
+        }
     }
     r.pick_order
         .iter()
@@ -256,9 +337,11 @@ mod tests {
     const CONTRACT: &str = include_str!("../../../bench/reference-scene.json");
 
     #[test]
-    fn scripted_rollout_places_every_box() {
+    fn scripted_rollout_places_every_box_and_offers_eight_frames() {
         let c = Contract::parse(CONTRACT).unwrap();
-        assert_eq!(rollout_episode(&c), 10);
+        let mut frames = 0;
+        assert_eq!(rollout_episode_with(&c, &mut |_| frames += 1), 10);
+        assert_eq!(frames, 8);
     }
 
     #[test]
