@@ -49,6 +49,9 @@ enum Command {
     Schema,
     /// Benchmarks on the peer reference scene (compare with shared/bench/peers/peers.py).
     Bench(cmd::bench::Args),
+    /// Publish or subscribe to a frame stream on this node's frame bus (tests, diagnostics).
+    #[command(hide = true)]
+    Frames(cmd::frames::Args),
 }
 
 fn main() -> std::process::ExitCode {
@@ -71,6 +74,7 @@ fn main() -> std::process::ExitCode {
             Ok(std::process::ExitCode::SUCCESS)
         }
         Command::Bench(a) => cmd::bench::run(a),
+        Command::Frames(a) => cmd::frames::run(a),
     };
     match result {
         Ok(code) => code,

@@ -3,6 +3,7 @@
 pub mod bench;
 pub mod coordinator;
 pub mod eval;
+pub mod frames;
 pub mod report;
 pub mod status;
 pub mod submit;

@@ -1,0 +1,170 @@
+//! The frame bus between real processes: frames arrive intact in two subscriber processes, and a
+//! subscriber killed with -9 neither blocks the publisher nor keeps a new subscriber out.
+
+mod common;
+
+use std::path::Path;
+use std::time::{Duration, Instant};
+
+use common::*;
+
+fn stream(name: &str) -> String {
+    // Streams are node-wide: keep concurrent test runs apart.
+    format!("assay-test/{name}/{}", std::process::id())
+}
+
+fn subscriber(dir: &Path, name: &str, stream: &str, count: u64) -> Proc {
+    let ready = dir.join(format!("{name}.ready"));
+    let p = Proc::spawn(
+        name,
+        &[
+            "frames",
+            "subscribe",
+            "--stream",
+            stream,
+            "--count",
+            &count.to_string(),
+            "--timeout-s",
+            "60",
+            "--ready-file",
+            ready.to_str().unwrap(),
+        ],
+        dir,
+    );
+    let deadline = Instant::now() + Duration::from_secs(30);
+    while !ready.exists() {
+        assert!(
+            Instant::now() < deadline,
+            "{name} did not connect:\n{}",
+            p.log_text()
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    p
+}
+
+/// Waits for the process and returns the JSON line it printed.
+fn report(p: &mut Proc, within: Duration) -> serde_json::Value {
+    let deadline = Instant::now() + within;
+    loop {
+        if let Ok(Some(status)) = p.child.try_wait() {
+            let text = p.log_text();
+            let line = text
+                .lines()
+                .rev()
+                .find(|l| l.starts_with('{') && !l.contains("\"level\""))
+                .unwrap_or_else(|| panic!("{} printed no report:\n{text}", p.name));
+            let v: serde_json::Value = serde_json::from_str(line).unwrap();
+            assert!(status.success(), "{} failed ({status}): {v}", p.name);
+            return v;
+        }
+        assert!(
+            Instant::now() < deadline,
+            "{} still running after {within:?}:\n{}",
+            p.name,
+            p.log_text()
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+#[test]
+fn frames_arrive_intact_in_two_subscriber_processes() {
+    let dir = tempfile::tempdir().unwrap();
+    let s = stream("two");
+    let mut a = subscriber(dir.path(), "sub-a", &s, 60);
+    let mut b = subscriber(dir.path(), "sub-b", &s, 60);
+    let mut publisher = Proc::spawn(
+        "pub",
+        &[
+            "frames",
+            "publish",
+            "--stream",
+            &s,
+            "--count",
+            "60",
+            "--width",
+            "320",
+            "--height",
+            "240",
+            "--interval-us",
+            "3000",
+        ],
+        dir.path(),
+    );
+    let sent = report(&mut publisher, Duration::from_secs(60));
+    assert_eq!(sent["sent"], 60);
+    assert_eq!(
+        sent["reached_max"], 2,
+        "both subscribers were connected: {sent}"
+    );
+    for sub in [&mut a, &mut b] {
+        let r = report(sub, Duration::from_secs(60));
+        // Every frame that arrived is intact and in order (a subscriber that falls behind drops
+        // its oldest frames rather than slowing the camera, so under load a few may be missing).
+        assert_eq!(r["corrupt"], 0, "{r}");
+        assert_eq!(r["out_of_order"], 0, "{r}");
+        assert!(r["received"].as_u64().unwrap() >= 30, "{r}");
+        assert_eq!(r["last"], 59, "the last frame arrived: {r}");
+    }
+}
+
+#[test]
+fn a_killed_subscriber_neither_blocks_the_publisher_nor_locks_out_a_new_one() {
+    let dir = tempfile::tempdir().unwrap();
+    let s = stream("kill");
+    let mut victim = subscriber(dir.path(), "victim", &s, 1_000_000);
+    let mut survivor = subscriber(dir.path(), "survivor", &s, 400);
+    let mut publisher = Proc::spawn(
+        "pub",
+        &[
+            "frames",
+            "publish",
+            "--stream",
+            &s,
+            "--count",
+            "400",
+            "--width",
+            "320",
+            "--height",
+            "240",
+            "--interval-us",
+            "2000",
+        ],
+        dir.path(),
+    );
+    std::thread::sleep(Duration::from_millis(200));
+    // The victim stops reading for good with its queue in shared memory still attached.
+    victim.kill9();
+    let sent = report(&mut publisher, Duration::from_secs(120));
+    assert_eq!(sent["sent"], 400, "the publisher sent every frame: {sent}");
+    let r = report(&mut survivor, Duration::from_secs(60));
+    assert_eq!(r["corrupt"], 0, "{r}");
+    assert_eq!(
+        r["last"], 399,
+        "the survivor kept receiving to the end: {r}"
+    );
+    // A new subscriber can join the stream the dead one was on (its resources were cleaned up).
+    let mut late = subscriber(dir.path(), "late", &s, 5);
+    let mut again = Proc::spawn(
+        "pub-2",
+        &[
+            "frames",
+            "publish",
+            "--stream",
+            &s,
+            "--count",
+            "20",
+            "--width",
+            "320",
+            "--height",
+            "240",
+            "--interval-us",
+            "2000",
+        ],
+        dir.path(),
+    );
+    assert_eq!(report(&mut again, Duration::from_secs(60))["sent"], 20);
+    let r = report(&mut late, Duration::from_secs(60));
+    assert!(r["received"].as_u64().unwrap() >= 5, "{r}");
+}

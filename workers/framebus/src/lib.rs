@@ -1,0 +1,193 @@
+//! `assay-framebus`: camera frames between the processes of one node, through iceoryx2
+//! publish–subscribe in shared memory. A publisher loans a sample and writes the frame into it in
+//! place (the renderer's readback goes straight there); subscribers read it in place. Nothing is
+//! copied between processes.
+//!
+//! A dead or slow subscriber never blocks a publisher: the services use iceoryx2's safe overflow
+//! (a full subscriber queue drops its oldest frame), and dead nodes' shared-memory resources are
+//! removed when a bus is opened. Across nodes frames travel encoded in gRPC or as artifacts.
+//!
+//! Owns: the frame header layout and the iceoryx2 settings. Never renders or simulates.
+
+use iceoryx2::port::publisher::Publisher;
+use iceoryx2::port::subscriber::Subscriber;
+use iceoryx2::prelude::*;
+
+/// Describes the frame that follows it in the same shared-memory sample.
+#[derive(Debug, Default, Clone, Copy, PartialEq, Eq, ZeroCopySend)]
+#[repr(C)]
+#[type_name("assay::FrameHeader")]
+pub struct FrameHeader {
+    /// The shard (episode) the frame belongs to.
+    pub episode: u64,
+    /// Physics step of the state drawn.
+    pub step: u64,
+    /// `CLOCK_MONOTONIC` at publication (ns): comparable between processes of a node.
+    pub timestamp_ns: u64,
+    /// Index of the camera in the task's camera list.
+    pub camera: u32,
+    /// One of [`format`].
+    pub format: u32,
+    pub width: u32,
+    pub height: u32,
+    /// Bytes per row.
+    pub stride: u32,
+    pub reserved: u32,
+}
+
+/// Pixel formats of frames.
+pub mod format {
+    pub const RGBA8: u32 = 1;
+    /// f32 metres along the camera axis.
+    pub const DEPTH_F32: u32 = 2;
+    /// u32 segment ids.
+    pub const SEGMENT_U32: u32 = 3;
+}
+
+#[derive(Debug, thiserror::Error)]
+#[error("frame bus: {0}")]
+pub struct BusError(String);
+
+fn err(what: &str, e: impl std::fmt::Debug) -> BusError {
+    BusError(format!("{what}: {e:?}"))
+}
+
+/// Frames queued per subscriber before the oldest is dropped.
+pub const QUEUE: usize = 2;
+/// Subscribers per camera stream (recorder, judge, policy, …).
+pub const MAX_SUBSCRIBERS: usize = 4;
+
+/// `CLOCK_MONOTONIC` in nanoseconds.
+pub fn monotonic_ns() -> u64 {
+    let t = nix::time::clock_gettime(nix::time::ClockId::CLOCK_MONOTONIC).expect("monotonic clock");
+    t.tv_sec() as u64 * 1_000_000_000 + t.tv_nsec() as u64
+}
+
+/// One process's handle on the node's frame bus.
+pub struct FrameBus {
+    node: Node<ipc::Service>,
+}
+
+fn config() -> Config {
+    let mut c = Config::default();
+    c.global.prefix = FileName::new(b"assay_").expect("a valid file name prefix");
+    c
+}
+
+impl FrameBus {
+    /// Joins the bus, first removing what dead processes (kill -9) left in shared memory.
+    pub fn open(name: &str) -> Result<Self, BusError> {
+        set_log_level(LogLevel::Warn);
+        let c = config();
+        Node::<ipc::Service>::list(&c, |state| {
+            if let NodeState::<ipc::Service>::Dead(view) = state {
+                let _ = view.try_remove_stale_resources();
+            }
+            CallbackProgression::Continue
+        })
+        .map_err(|e| err("listing nodes", e))?;
+        let node = NodeBuilder::new()
+            .name(&NodeName::new(name).map_err(|e| err("node name", e))?)
+            .config(&c)
+            .signal_handling_mode(SignalHandlingMode::Disabled)
+            .create::<ipc::Service>()
+            .map_err(|e| err("creating the node", e))?;
+        Ok(Self { node })
+    }
+
+    fn service(
+        &self,
+        stream: &str,
+    ) -> Result<
+        iceoryx2::service::port_factory::publish_subscribe::PortFactory<
+            ipc::Service,
+            [u8],
+            FrameHeader,
+        >,
+        BusError,
+    > {
+        let name = ServiceName::new(stream).map_err(|e| err("stream name", e))?;
+        self.node
+            .service_builder(&name)
+            .publish_subscribe::<[u8]>()
+            .user_header::<FrameHeader>()
+            .max_publishers(2)
+            .max_subscribers(MAX_SUBSCRIBERS)
+            .subscriber_max_buffer_size(QUEUE)
+            .subscriber_max_borrowed_samples(2)
+            .history_size(0)
+            // A full queue drops its oldest frame: a dead or slow reader never blocks a camera.
+            .enable_safe_overflow(true)
+            .open_or_create()
+            .map_err(|e| err(&format!("opening stream '{stream}'"), e))
+    }
+
+    /// A publisher for frames of up to `max_frame_bytes` (larger ones grow the segment).
+    pub fn publisher(
+        &self,
+        stream: &str,
+        max_frame_bytes: usize,
+    ) -> Result<FramePublisher, BusError> {
+        let publisher = self
+            .service(stream)?
+            .publisher_builder()
+            .initial_max_slice_len(max_frame_bytes.max(1))
+            .allocation_strategy(AllocationStrategy::PowerOfTwo)
+            .max_loaned_samples(2)
+            .create()
+            .map_err(|e| err("creating a publisher", e))?;
+        Ok(FramePublisher { publisher })
+    }
+
+    pub fn subscriber(&self, stream: &str) -> Result<FrameSubscriber, BusError> {
+        let subscriber = self
+            .service(stream)?
+            .subscriber_builder()
+            .create()
+            .map_err(|e| err("creating a subscriber", e))?;
+        Ok(FrameSubscriber { subscriber })
+    }
+}
+
+/// Publishes frames of one stream. Not `Send`: create it on the thread that renders.
+pub struct FramePublisher {
+    publisher: Publisher<ipc::Service, [u8], FrameHeader>,
+}
+
+impl FramePublisher {
+    /// Loans `len` bytes of shared memory, lets `fill` write the frame there in place, stamps the
+    /// header and sends it. Returns how many subscribers it reached.
+    pub fn publish(
+        &self,
+        mut header: FrameHeader,
+        len: usize,
+        fill: impl FnOnce(&mut [u8]),
+    ) -> Result<usize, BusError> {
+        let mut sample = self
+            .publisher
+            .loan_slice(len)
+            .map_err(|e| err("loaning a sample", e))?;
+        fill(sample.payload_mut());
+        header.timestamp_ns = monotonic_ns();
+        *sample.user_header_mut() = header;
+        sample.send().map_err(|e| err("sending", e))
+    }
+}
+
+/// Receives frames of one stream. Not `Send`: create it on the thread that reads.
+pub struct FrameSubscriber {
+    subscriber: Subscriber<ipc::Service, [u8], FrameHeader>,
+}
+
+impl FrameSubscriber {
+    /// The next queued frame, read in place by `read`, or `None` if none is waiting.
+    pub fn receive<R>(
+        &self,
+        read: impl FnOnce(&FrameHeader, &[u8]) -> R,
+    ) -> Result<Option<R>, BusError> {
+        match self.subscriber.receive().map_err(|e| err("receiving", e))? {
+            Some(sample) => Ok(Some(read(sample.user_header(), sample.payload()))),
+            None => Ok(None),
+        }
+    }
+}
