@@ -43,6 +43,9 @@ pub enum Cmd {
         /// Written once the subscriber is connected.
         #[arg(long)]
         ready_file: Option<PathBuf>,
+        /// Poll without sleeping (lowest latency; uses a whole core).
+        #[arg(long)]
+        spin: bool,
     },
 }
 
@@ -109,6 +112,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
             count,
             timeout_s,
             ready_file,
+            spin,
         } => {
             let bus = FrameBus::open("assay-frames-subscribe")?;
             let subscriber = bus.subscriber(&stream)?;
@@ -137,6 +141,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
                         last = Some(seq);
                         latencies.push(latency as f64 / 1000.0);
                     }
+                    None if spin => std::hint::spin_loop(),
                     None => std::thread::sleep(Duration::from_micros(50)),
                 }
             }

@@ -579,6 +579,36 @@ impl Renderer {
         camera: &Camera,
         outputs: Outputs,
     ) -> Result<Frame, RenderError> {
+        self.render_impl(scene, camera, outputs, None)
+    }
+
+    /// Renders RGBA straight into `dst` (for example a frame-bus sample in shared memory), with
+    /// no intermediate buffer: the GPU readback is copied row by row into place. `dst` must hold
+    /// exactly width × height × 4 bytes.
+    pub fn render_rgba_into(
+        &mut self,
+        scene: &SceneSnapshot,
+        camera: &Camera,
+        dst: &mut [u8],
+    ) -> Result<(), RenderError> {
+        let expected = camera.width.max(1) as usize * camera.height.max(1) as usize * 4;
+        if dst.len() != expected {
+            return Err(RenderError::Device(format!(
+                "destination holds {} bytes, the frame needs {expected}",
+                dst.len()
+            )));
+        }
+        self.render_impl(scene, camera, Outputs::RGB, Some(dst))
+            .map(|_| ())
+    }
+
+    fn render_impl(
+        &mut self,
+        scene: &SceneSnapshot,
+        camera: &Camera,
+        outputs: Outputs,
+        rgba_into: Option<&mut [u8]>,
+    ) -> Result<Frame, RenderError> {
         let (w, h) = (camera.width.max(1), camera.height.max(1));
         let (eye, target) = if camera.name == EE_CAMERA {
             let t = scene.tool.ok_or_else(|| RenderError::Scene {
@@ -776,7 +806,22 @@ impl Renderer {
             buf.unmap();
             Ok(out)
         };
-        let rgba = read(&t.readback[0])?;
+        let rgba = match rgba_into {
+            Some(dst) => {
+                let tight = (w * 4) as usize;
+                {
+                    let view = t.readback[0]
+                        .get_mapped_range(..)
+                        .map_err(|e| RenderError::Device(e.to_string()))?;
+                    for (y, out) in dst.chunks_exact_mut(tight).enumerate() {
+                        out.copy_from_slice(&view[y * row as usize..][..tight]);
+                    }
+                }
+                t.readback[0].unmap();
+                Vec::new()
+            }
+            None => read(&t.readback[0])?,
+        };
         let depth = if !outputs.depth {
             Vec::new()
         } else {

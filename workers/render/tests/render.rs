@@ -200,3 +200,14 @@ fn any_size_and_the_end_effector_camera_render() {
         .unwrap();
     assert_eq!(big.segments.len(), 1280 * 720);
 }
+
+#[test]
+fn rendering_into_a_caller_buffer_gives_the_same_pixels() {
+    let mut r = Renderer::new().expect("a graphics adapter");
+    let cam = camera("front", [1.0, 0.0, 0.6], [0.5, 0.0, 0.05], 160, 120);
+    let frame = r.render(&scene(), &cam).unwrap();
+    let mut dst = vec![0u8; 160 * 120 * 4];
+    r.render_rgba_into(&scene(), &cam, &mut dst).unwrap();
+    assert_eq!(dst, frame.rgba);
+    assert!(r.render_rgba_into(&scene(), &cam, &mut dst[..100]).is_err());
+}
