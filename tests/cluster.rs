@@ -81,8 +81,9 @@ fn a_worker_stopped_with_sigterm_hands_its_leases_back() {
         .await;
         assert!(
             leaving.term(Duration::from_secs(10)),
-            "the worker did not exit cleanly on SIGTERM:\n{}",
-            leaving.log_text()
+            "the worker did not exit cleanly on SIGTERM:\n{}\ncoordinator:\n{}",
+            leaving.log_text(),
+            coord.log_text()
         );
         // The coordinator re-queued what it held without counting an attempt.
         let s = wait_for(&addr, &sub.batch_id, Duration::from_secs(30), |s| {

@@ -67,6 +67,9 @@ fn round(x: f64) -> f64 {
     }
 }
 
+/// Per-trial rates: wall clock and CPU time.
+type Rates = (Vec<f64>, Vec<f64>);
+
 /// Times `trials` runs of `work`, which returns how many units (steps, frames, episodes) it did.
 fn time_trials(
     trials: u32,
@@ -221,7 +224,7 @@ fn pct(sorted: &[f64], p: f64) -> f64 {
 fn handoff(
     camera: &assay_core::spec::Camera,
     frames: u32,
-) -> anyhow::Result<(serde_json::Value, (Vec<f64>, Vec<f64>))> {
+) -> anyhow::Result<(serde_json::Value, Rates)> {
     let (w, h) = (camera.width, camera.height);
     let len = (w * h * 4) as usize;
     // memcpy of one frame, into a buffer that stays in cache and into a fresh one.
