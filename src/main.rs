@@ -43,6 +43,8 @@ enum Command {
     Report(cmd::report::Args),
     /// Cancel a batch.
     Cancel(cmd::status::CancelArgs),
+    /// Live view of a cluster: workers' rates and batches' progress, from telemetry.
+    Top(cmd::top::Args),
     /// Check task specs without running them.
     Validate(cmd::validate::Args),
     /// Print the JSON Schema of task spec v1.
@@ -65,6 +67,7 @@ fn main() -> std::process::ExitCode {
         Command::Status(a) => cmd::status::run(a),
         Command::Report(a) => cmd::report::run(a),
         Command::Cancel(a) => cmd::status::cancel(a),
+        Command::Top(a) => cmd::top::run(a),
         Command::Validate(a) => cmd::validate::run(a),
         Command::Schema => {
             println!(

@@ -14,6 +14,10 @@ pub struct CoordinatorConfig {
     pub heartbeat_interval: Duration,
     /// Attempts per shard before it is recorded as failed (batches may override).
     pub max_attempts: u32,
+    /// The zenoh endpoint the telemetry router listens on (and announces to workers); None: off.
+    pub telemetry: Option<String>,
+    /// Cluster name in telemetry key expressions.
+    pub cluster: String,
 }
 
 impl CoordinatorConfig {
@@ -24,6 +28,8 @@ impl CoordinatorConfig {
             lease_ttl: Duration::from_secs(15),
             heartbeat_interval: Duration::from_secs(3),
             max_attempts: 3,
+            telemetry: None,
+            cluster: "local".into(),
         }
     }
 }

@@ -82,6 +82,23 @@ pub async fn serve(
         })
     };
 
+    // Telemetry: a zenoh router for the cluster, and batch progress on every change.
+    let telemetry = match shared.config.telemetry.clone() {
+        Some(endpoint) => match assay_telemetry::open_router(&endpoint).await {
+            Ok(session) => {
+                info!(%endpoint, "telemetry router listening");
+                Some((
+                    session.clone(),
+                    tokio::spawn(publish_progress(shared.clone(), session, stop_rx.clone())),
+                ))
+            }
+            Err(e) => {
+                warn!(%endpoint, error = %e, "telemetry is off: the router could not start");
+                None
+            }
+        },
+        None => None,
+    };
     let addr = listener.local_addr().ok();
     info!(addr = ?addr, "coordinator listening");
     let server = tonic::transport::Server::builder()
@@ -114,5 +131,66 @@ pub async fn serve(
     let out = result.await;
     trigger.abort();
     let _ = sweeper.await;
+    if let Some((session, task)) = telemetry {
+        let _ = task.await;
+        assay_telemetry::close(session).await;
+    }
     out.map_err(|e| CoordError::InvalidRequest(format!("server: {e}")))
+}
+
+/// Publishes a batch's progress on `assay/<cluster>/batches/<batch>/progress` whenever it changes.
+async fn publish_progress(
+    shared: Arc<Shared>,
+    session: zenoh::Session,
+    mut stop: watch::Receiver<bool>,
+) {
+    let mut events = shared.events.subscribe();
+    let mut publishers: std::collections::HashMap<String, assay_telemetry::JsonPublisher> =
+        Default::default();
+    loop {
+        let batch = tokio::select! {
+            e = events.recv() => match e {
+                Ok(b) => b,
+                Err(tokio::sync::broadcast::error::RecvError::Lagged(_)) => continue,
+                Err(_) => return,
+            },
+            _ = stop.changed() => return,
+        };
+        let id = batch.clone();
+        let Ok(c) = shared.store.call(move |s| s.counts(&id)).await else {
+            continue;
+        };
+        if !publishers.contains_key(&batch) {
+            match assay_telemetry::JsonPublisher::new(
+                &session,
+                assay_telemetry::batch_key(&shared.config.cluster, &batch),
+            )
+            .await
+            {
+                Ok(p) => {
+                    publishers.insert(batch.clone(), p);
+                }
+                Err(e) => {
+                    warn!(error = %e, "telemetry publisher");
+                    continue;
+                }
+            }
+        }
+        let progress = assay_telemetry::BatchProgress {
+            batch: c.id.clone(),
+            name: c.name.clone(),
+            state: c.state.clone(),
+            total: c.total,
+            done: c.done,
+            failed: c.failed,
+            running: c.leased,
+            successes: c.successes,
+            workers_connected: shared
+                .workers_connected
+                .load(std::sync::atomic::Ordering::Relaxed),
+        };
+        if let Err(e) = publishers[&batch].put(&progress).await {
+            warn!(error = %e, "telemetry put");
+        }
+    }
 }

@@ -459,6 +459,8 @@ async fn run_session(
         lease_ttl_ms: shared.config.lease_ttl.as_millis() as u32,
         artifact_root: shared.config.artifact_root.display().to_string(),
         kept_leases: kept,
+        telemetry_endpoint: shared.config.telemetry.clone().unwrap_or_default(),
+        cluster: shared.config.cluster.clone(),
     };
     if tx.send(msg(Out::Registered(registered))).await.is_err() {
         return Ok(SessionEnd::Disconnected(held));

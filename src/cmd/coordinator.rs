@@ -28,6 +28,13 @@ pub struct Args {
     /// Attempts per shard before it is recorded as failed.
     #[arg(long, env = "ASSAY_MAX_ATTEMPTS", default_value_t = 3)]
     pub max_attempts: u32,
+    /// Where the telemetry router (zenoh) listens: a zenoh endpoint (`tcp/10.0.0.5:7447` for a
+    /// multi-node cluster), `loopback` for a free port on 127.0.0.1, or `off`.
+    #[arg(long, env = "ASSAY_TELEMETRY", default_value = "loopback")]
+    pub telemetry: String,
+    /// Cluster name in telemetry key expressions (assay/<cluster>/...).
+    #[arg(long, env = "ASSAY_CLUSTER", default_value = "local")]
+    pub cluster: String,
 }
 
 pub fn run(a: Args) -> anyhow::Result<ExitCode> {
@@ -36,6 +43,15 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     config.lease_ttl = Duration::from_millis(a.lease_ttl_ms);
     config.heartbeat_interval = Duration::from_millis(a.heartbeat_ms);
     config.max_attempts = a.max_attempts.max(1);
+    config.cluster = a.cluster.clone();
+    config.telemetry = match a.telemetry.as_str() {
+        "off" => None,
+        "loopback" => {
+            Some(assay_telemetry::free_loopback_endpoint().context("choosing a telemetry port")?)
+        }
+        endpoint => Some(endpoint.to_owned()),
+    };
+    let telemetry_line = config.telemetry.clone().unwrap_or_else(|| "off".into());
     super::block_on(async move {
         let listener = tokio::net::TcpListener::bind(&a.listen)
             .await
@@ -43,7 +59,8 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         let addr = listener.local_addr()?;
         if let Some(f) = &a.addr_file {
             let tmp = f.with_extension("tmp");
-            std::fs::write(&tmp, format!("{addr}\n"))?;
+            // Line 1: the gRPC address; line 2: the telemetry endpoint (or "off").
+            std::fs::write(&tmp, format!("{addr}\n{telemetry_line}\n"))?;
             std::fs::rename(&tmp, f)?;
         }
         assay_coordinator::serve(config, listener, super::terminated()).await?;

@@ -64,10 +64,14 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         ],
         &run_dir.join("coordinator.log"),
     )?;
-    let addr = format!(
-        "http://{}",
-        wait_for_file(&addr_file, Duration::from_secs(30), &mut coordinator)?
-    );
+    let announced = wait_for_file(&addr_file, Duration::from_secs(30), &mut coordinator)?;
+    let mut lines = announced.lines();
+    let addr = format!("http://{}", lines.next().unwrap_or_default().trim());
+    let telemetry = lines
+        .next()
+        .map(str::trim)
+        .filter(|l| !l.is_empty() && *l != "off")
+        .map(str::to_owned);
     let mut workers = Vec::new();
     for i in 0..a.workers.max(1) {
         workers.push(ChildProc::spawn(
@@ -122,6 +126,33 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
             )
             .expect("progress template"),
         );
+        // Cluster-wide rates from the workers' telemetry, shown beside the progress.
+        let rates = std::sync::Arc::new(std::sync::Mutex::new(std::collections::HashMap::<
+            String,
+            (f64, f64),
+        >::new()));
+        let viewer = match &telemetry {
+            Some(endpoint) => assay_telemetry::open_client(endpoint).await.ok(),
+            None => None,
+        };
+        let mut listener = None;
+        if let Some(session) = &viewer
+            && let Ok(sub) = assay_telemetry::ClusterSubscriber::new(session, "local").await
+        {
+            let rates = rates.clone();
+            listener = Some(tokio::spawn(async move {
+                while let Some((key, v)) = sub.next().await {
+                    if key.ends_with("/stats")
+                        && let Ok(s) = serde_json::from_value::<assay_telemetry::WorkerStats>(v)
+                    {
+                        rates
+                            .lock()
+                            .expect("rates")
+                            .insert(s.worker, (s.physics_steps_per_s, s.frames_per_s));
+                    }
+                }
+            }));
+        }
         let mut stream = c
             .watch_batch(pb::GetBatchRequest {
                 batch_id: r.batch_id.clone(),
@@ -132,9 +163,19 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         while let Some(st) = stream.message().await? {
             let finished = st.shards_done + st.shards_failed + st.shards_cancelled;
             bar.set_position(u64::from(finished));
+            let (steps, frames) = rates
+                .lock()
+                .expect("rates")
+                .values()
+                .fold((0.0, 0.0), |a, r| (a.0 + r.0, a.1 + r.1));
             bar.set_message(format!(
-                "{} ok, {} failed, {} running, {} workers",
-                st.successes, st.shards_failed, st.shards_running, st.workers_connected
+                "{} ok, {} failed, {} running, {} workers, {:.0} steps/s, {:.0} frames/s",
+                st.successes,
+                st.shards_failed,
+                st.shards_running,
+                st.workers_connected,
+                steps,
+                frames
             ));
             if quiet {
                 eprintln!("{}", super::status::line(&st));
@@ -142,6 +183,12 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
             last = Some(st);
         }
         bar.finish();
+        if let Some(l) = listener {
+            l.abort();
+        }
+        if let Some(v) = viewer {
+            assay_telemetry::close(v).await;
+        }
         let report = c
             .get_report(pb::GetReportRequest {
                 batch_id: r.batch_id.clone(),

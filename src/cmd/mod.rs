@@ -7,6 +7,7 @@ pub mod frames;
 pub mod report;
 pub mod status;
 pub mod submit;
+pub mod top;
 pub mod validate;
 pub mod worker;
 

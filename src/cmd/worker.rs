@@ -1,5 +1,6 @@
 use std::path::Path;
 use std::process::ExitCode;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
@@ -51,6 +52,17 @@ pub fn parse_size(s: &str) -> Result<(u32, u32), String> {
 /// The sim role, with the render role in the same process when asked for.
 struct SimRole {
     render: Option<RenderRole>,
+    counters: Arc<Counters>,
+}
+
+/// What the worker has done, for telemetry.
+#[derive(Default)]
+struct Counters {
+    episodes: AtomicU64,
+    failed: AtomicU64,
+    running: AtomicU64,
+    steps: AtomicU64,
+    frames: AtomicU64,
 }
 
 /// The render role: one GPU (or software) device per process, shared by the shard threads.
@@ -122,6 +134,19 @@ impl RenderRole {
 
 impl ShardHandler for SimRole {
     fn run(&self, a: &pb::Assignment, artifact_root: &Path) -> Result<String, ShardError> {
+        self.counters.running.fetch_add(1, Ordering::Relaxed);
+        let result = self.episode(a, artifact_root);
+        self.counters.running.fetch_sub(1, Ordering::Relaxed);
+        match &result {
+            Ok(_) => self.counters.episodes.fetch_add(1, Ordering::Relaxed),
+            Err(_) => self.counters.failed.fetch_add(1, Ordering::Relaxed),
+        };
+        result
+    }
+}
+
+impl SimRole {
+    fn episode(&self, a: &pb::Assignment, artifact_root: &Path) -> Result<String, ShardError> {
         let spec: TaskSpec = serde_json::from_str(&a.task_spec_json).map_err(|e| {
             ShardError::permanent(format!(
                 "task spec from the coordinator does not parse: {e}"
@@ -143,8 +168,16 @@ impl ShardHandler for SimRole {
         let mut outcome = ep.outcome.clone();
         outcome.artifact = artifacts::put(artifact_root, "episodes", "arrow", &ep.file)
             .map_err(io_error("episodes"))?;
+        self.counters
+            .steps
+            .fetch_add(outcome.steps, Ordering::Relaxed);
         if let Some(render) = &self.render {
-            outcome.imagery = Some(render.imagery(&spec, &ep, artifact_root)?);
+            let imagery = render.imagery(&spec, &ep, artifact_root)?;
+            self.counters.frames.fetch_add(
+                (imagery.views.len() + imagery.keyframes.len()) as u64,
+                Ordering::Relaxed,
+            );
+            outcome.imagery = Some(imagery);
         }
         serde_json::to_string(&outcome).map_err(|e| ShardError::retryable(e.to_string()))
     }
@@ -184,6 +217,9 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
             .map(|s| s.trim().to_owned())
             .unwrap_or_else(|_| "local".into())
     });
+    let (announce, announced) = tokio::sync::watch::channel(None::<(String, String)>);
+    let counters = Arc::new(Counters::default());
+    let role_names: Vec<String> = a.roles.clone();
     let mut versions = assay_sim::versions();
     versions.insert("assay".into(), env!("CARGO_PKG_VERSION").into());
     let config = WorkerConfig {
@@ -195,9 +231,94 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         versions,
         max_backoff: Duration::from_secs(2),
         give_up_after: None,
+        on_registered: Some(Arc::new(move |r: &pb::Registered| {
+            let _ = announce.send(Some((r.telemetry_endpoint.clone(), r.cluster.clone())));
+        })),
     };
     super::block_on(async move {
-        run_worker(config, Arc::new(SimRole { render }), super::terminated()).await?;
+        let stats = tokio::spawn(publish_stats(
+            announced,
+            counters.clone(),
+            config.worker_id.clone(),
+            config.node_id.clone(),
+            role_names,
+        ));
+        let handler = Arc::new(SimRole { render, counters });
+        let result = run_worker(config, handler, super::terminated()).await;
+        stats.abort();
+        let _ = stats.await;
+        result?;
         Ok(ExitCode::SUCCESS)
     })
+}
+
+/// Publishes this worker's statistics every second on `assay/<cluster>/workers/<worker>/stats`,
+/// once the coordinator has announced where its telemetry router is.
+async fn publish_stats(
+    mut announced: tokio::sync::watch::Receiver<Option<(String, String)>>,
+    counters: Arc<Counters>,
+    worker: String,
+    node: String,
+    roles: Vec<String>,
+) {
+    let (endpoint, cluster) = loop {
+        if let Some((e, c)) = announced.borrow_and_update().clone()
+            && !e.is_empty()
+        {
+            break (e, c);
+        }
+        if announced.changed().await.is_err() {
+            return;
+        }
+    };
+    let session = match assay_telemetry::open_client(&endpoint).await {
+        Ok(s) => s,
+        Err(e) => {
+            tracing::warn!(%endpoint, error = %e, "telemetry is off for this worker");
+            return;
+        }
+    };
+    let publisher = match assay_telemetry::JsonPublisher::new(
+        &session,
+        assay_telemetry::worker_key(&cluster, &worker),
+    )
+    .await
+    {
+        Ok(p) => p,
+        Err(e) => {
+            tracing::warn!(error = %e, "telemetry publisher");
+            return;
+        }
+    };
+    tracing::info!(%endpoint, "publishing telemetry");
+    let start = std::time::Instant::now();
+    let mut tick = tokio::time::interval(Duration::from_secs(1));
+    let (mut last, mut last_steps, mut last_frames) = (std::time::Instant::now(), 0u64, 0u64);
+    loop {
+        tick.tick().await;
+        let (steps, frames) = (
+            counters.steps.load(Ordering::Relaxed),
+            counters.frames.load(Ordering::Relaxed),
+        );
+        let dt = last.elapsed().as_secs_f64().max(1e-3);
+        let stats = assay_telemetry::WorkerStats {
+            worker: worker.clone(),
+            node: node.clone(),
+            roles: roles.clone(),
+            episodes_done: counters.episodes.load(Ordering::Relaxed),
+            episodes_failed: counters.failed.load(Ordering::Relaxed),
+            shards_running: counters.running.load(Ordering::Relaxed),
+            physics_steps_per_s: (steps - last_steps) as f64 / dt,
+            frames_per_s: (frames - last_frames) as f64 / dt,
+            uptime_s: start.elapsed().as_secs_f64(),
+            unix_ms: std::time::SystemTime::now()
+                .duration_since(std::time::UNIX_EPOCH)
+                .map(|d| d.as_millis() as i64)
+                .unwrap_or(0),
+        };
+        (last, last_steps, last_frames) = (std::time::Instant::now(), steps, frames);
+        if let Err(e) = publisher.put(&stats).await {
+            tracing::warn!(error = %e, "telemetry put");
+        }
+    }
 }

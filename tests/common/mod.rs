@@ -105,7 +105,10 @@ pub fn coordinator(dir: &Path, listen: &str, extra: &[&str]) -> (Proc, String) {
         if let Ok(s) = std::fs::read_to_string(&addr_file)
             && s.ends_with('\n')
         {
-            return (p, format!("http://{}", s.trim()));
+            return (
+                p,
+                format!("http://{}", s.lines().next().unwrap_or_default().trim()),
+            );
         }
         if let Ok(Some(st)) = p.child.try_wait() {
             panic!("coordinator exited: {st}\n{}", p.log_text());

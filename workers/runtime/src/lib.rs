@@ -49,7 +49,10 @@ impl ShardError {
     }
 }
 
-#[derive(Debug, Clone)]
+/// Called with what the coordinator announced at registration.
+pub type RegisteredHook = Arc<dyn Fn(&pb::Registered) + Send + Sync>;
+
+#[derive(Clone)]
 pub struct WorkerConfig {
     /// `http://host:port` of the coordinator.
     pub coordinator: String,
@@ -62,6 +65,8 @@ pub struct WorkerConfig {
     pub max_backoff: Duration,
     /// Give up after this long without a coordinator (None: keep trying).
     pub give_up_after: Option<Duration>,
+    /// Called after every (re)registration with what the coordinator announced.
+    pub on_registered: Option<RegisteredHook>,
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -165,6 +170,9 @@ pub async fn run_worker(
             .collect();
         if !lost.is_empty() {
             info!(leases = ?lost, "coordinator no longer grants these leases; their results will not count");
+        }
+        if let Some(hook) = &config.on_registered {
+            hook(&registered);
         }
         info!(worker = %config.worker_id, session = %registered.session_id, kept = registered.kept_leases.len(), "registered");
         // Results finished while we were away.

@@ -1,0 +1,105 @@
+//! `assay top`: a live view of a cluster from its telemetry (workers' rates, batches' progress).
+
+use std::collections::BTreeMap;
+use std::process::ExitCode;
+use std::time::{Duration, Instant};
+
+use assay_telemetry::{BatchProgress, ClusterSubscriber, WorkerStats};
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// The cluster's telemetry router (the coordinator's `--telemetry`; `assay eval` prints it).
+    #[arg(
+        long,
+        env = "ASSAY_TELEMETRY_CONNECT",
+        default_value = "tcp/127.0.0.1:7447"
+    )]
+    pub telemetry: String,
+    #[arg(long, env = "ASSAY_CLUSTER", default_value = "local")]
+    pub cluster: String,
+    /// Print every sample as a JSON line instead of a table.
+    #[arg(long)]
+    pub json: bool,
+    /// Stop after this many seconds (default: run until Ctrl-C).
+    #[arg(long)]
+    pub duration: Option<f64>,
+}
+
+fn table(
+    workers: &BTreeMap<String, WorkerStats>,
+    batches: &BTreeMap<String, BatchProgress>,
+) -> String {
+    let mut out = String::from("\x1b[2J\x1b[H");
+    out.push_str(&format!(
+        "{:<32} {:>9} {:>7} {:>8} {:>12} {:>9}\n",
+        "worker", "episodes", "failed", "running", "steps/s", "frames/s"
+    ));
+    for w in workers.values() {
+        out.push_str(&format!(
+            "{:<32} {:>9} {:>7} {:>8} {:>12.0} {:>9.1}\n",
+            w.worker,
+            w.episodes_done,
+            w.episodes_failed,
+            w.shards_running,
+            w.physics_steps_per_s,
+            w.frames_per_s
+        ));
+    }
+    out.push('\n');
+    for b in batches.values() {
+        out.push_str(&format!(
+            "batch {} {:<10} {}/{} done, {} ok, {} failed, {} running  {}\n",
+            b.batch,
+            b.state,
+            b.done + b.failed,
+            b.total,
+            b.successes,
+            b.failed,
+            b.running,
+            b.name
+        ));
+    }
+    out
+}
+
+pub fn run(a: Args) -> anyhow::Result<ExitCode> {
+    super::block_on(async move {
+        let session = assay_telemetry::open_client(&a.telemetry).await?;
+        let sub = ClusterSubscriber::new(&session, &a.cluster).await?;
+        let deadline = a
+            .duration
+            .map(|d| Instant::now() + Duration::from_secs_f64(d));
+        let stop = super::terminated();
+        tokio::pin!(stop);
+        let (mut workers, mut batches) = (BTreeMap::new(), BTreeMap::new());
+        let mut redraw = tokio::time::interval(Duration::from_secs(1));
+        loop {
+            let left = deadline
+                .map(|d| d.saturating_duration_since(Instant::now()))
+                .unwrap_or(Duration::from_secs(3600));
+            if left.is_zero() {
+                break;
+            }
+            tokio::select! {
+                s = sub.next() => {
+                    let Some((key, v)) = s else { break };
+                    if a.json {
+                        println!("{}", serde_json::json!({"key": key, "value": v}));
+                    }
+                    if key.ends_with("/stats") {
+                        if let Ok(w) = serde_json::from_value::<WorkerStats>(v) {
+                            workers.insert(w.worker.clone(), w);
+                        }
+                    } else if let Ok(b) = serde_json::from_value::<BatchProgress>(v) {
+                        batches.insert(b.batch.clone(), b);
+                    }
+                }
+                _ = redraw.tick(), if !a.json => print!("{}", table(&workers, &batches)),
+                _ = tokio::time::sleep(left) => break,
+                _ = &mut stop => break,
+            }
+        }
+        assay_telemetry::close(session).await;
+        Ok(ExitCode::SUCCESS)
+    })
+}

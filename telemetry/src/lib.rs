@@ -1,0 +1,225 @@
+//! `assay-telemetry`: live progress and rates of a cluster on eclipse-zenoh.
+//!
+//! The coordinator runs a zenoh router; workers and viewers (`assay top`, `assay eval`) connect to
+//! it as clients. Nothing is discovered by multicast and gossip is off: by default everything
+//! listens and connects on loopback only, and a multi-node cluster names its router's address.
+//! Statistics are published with blocking congestion control, so a burst is slowed, not dropped.
+//!
+//! Key expressions (JSON payloads):
+//! - `assay/<cluster>/workers/<worker>/stats` — [`WorkerStats`], every second from every worker.
+//! - `assay/<cluster>/batches/<batch>/progress` — [`BatchProgress`], from the coordinator on change.
+//!
+//! Owns: the key layout, the zenoh configuration and the payload types. Never decides anything:
+//! telemetry is for people and dashboards; the job store stays the source of truth.
+
+use serde::{Deserialize, Serialize};
+use zenoh::Wait;
+use zenoh::qos::CongestionControl;
+
+/// Statistics a worker publishes about itself.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct WorkerStats {
+    pub worker: String,
+    pub node: String,
+    pub roles: Vec<String>,
+    pub episodes_done: u64,
+    pub episodes_failed: u64,
+    pub shards_running: u64,
+    pub physics_steps_per_s: f64,
+    pub frames_per_s: f64,
+    pub uptime_s: f64,
+    pub unix_ms: i64,
+}
+
+/// A batch's progress as the coordinator sees it.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct BatchProgress {
+    pub batch: String,
+    pub name: String,
+    pub state: String,
+    pub total: u32,
+    pub done: u32,
+    pub failed: u32,
+    pub running: u32,
+    pub successes: u32,
+    pub workers_connected: u32,
+}
+
+#[derive(Debug, thiserror::Error)]
+#[error("telemetry: {0}")]
+pub struct TelemetryError(String);
+
+fn err(e: impl std::fmt::Display) -> TelemetryError {
+    TelemetryError(e.to_string())
+}
+
+/// A key-expression chunk from an id: characters zenoh reserves become `_`.
+pub fn chunk(id: &str) -> String {
+    let s: String = id
+        .chars()
+        .map(|c| {
+            if matches!(c, '/' | '*' | '$' | '#' | '?') || c.is_whitespace() {
+                '_'
+            } else {
+                c
+            }
+        })
+        .collect();
+    if s.is_empty() { "_".into() } else { s }
+}
+
+pub fn worker_key(cluster: &str, worker: &str) -> String {
+    format!("assay/{}/workers/{}/stats", chunk(cluster), chunk(worker))
+}
+
+pub fn batch_key(cluster: &str, batch: &str) -> String {
+    format!("assay/{}/batches/{}/progress", chunk(cluster), chunk(batch))
+}
+
+/// Everything of one cluster.
+pub fn cluster_keys(cluster: &str) -> String {
+    format!("assay/{}/**", chunk(cluster))
+}
+
+fn base_config(mode: &str) -> Result<zenoh::Config, TelemetryError> {
+    let mut c = zenoh::Config::default();
+    c.insert_json5("mode", &format!("\"{mode}\""))
+        .map_err(err)?;
+    c.insert_json5("scouting/multicast/enabled", "false")
+        .map_err(err)?;
+    c.insert_json5("scouting/gossip/enabled", "false")
+        .map_err(err)?;
+    Ok(c)
+}
+
+/// The router the coordinator runs, listening on `endpoint` (e.g. `tcp/127.0.0.1:7447`).
+pub async fn open_router(endpoint: &str) -> Result<zenoh::Session, TelemetryError> {
+    let mut c = base_config("router")?;
+    c.insert_json5("listen/endpoints", &format!("[\"{endpoint}\"]"))
+        .map_err(err)?;
+    c.insert_json5("connect/endpoints", "[]").map_err(err)?;
+    zenoh::open(c).await.map_err(err)
+}
+
+/// A client session on the router at `endpoint` (workers, `assay top`, `assay eval`).
+pub async fn open_client(endpoint: &str) -> Result<zenoh::Session, TelemetryError> {
+    let mut c = base_config("client")?;
+    c.insert_json5("connect/endpoints", &format!("[\"{endpoint}\"]"))
+        .map_err(err)?;
+    c.insert_json5("listen/endpoints", "[]").map_err(err)?;
+    zenoh::open(c).await.map_err(err)
+}
+
+/// Publishes JSON values on one key, blocking (not dropping) under congestion.
+pub struct JsonPublisher {
+    publisher: zenoh::pubsub::Publisher<'static>,
+}
+
+impl JsonPublisher {
+    pub async fn new(session: &zenoh::Session, key: String) -> Result<Self, TelemetryError> {
+        let publisher = session
+            .declare_publisher(key)
+            .congestion_control(CongestionControl::Block)
+            .await
+            .map_err(err)?;
+        Ok(Self { publisher })
+    }
+
+    pub async fn put<T: Serialize>(&self, value: &T) -> Result<(), TelemetryError> {
+        let json = serde_json::to_vec(value).map_err(err)?;
+        self.publisher.put(json).await.map_err(err)
+    }
+}
+
+/// Everything published in a cluster, as (key, JSON) pairs.
+pub struct ClusterSubscriber {
+    subscriber:
+        zenoh::pubsub::Subscriber<zenoh::handlers::FifoChannelHandler<zenoh::sample::Sample>>,
+}
+
+impl ClusterSubscriber {
+    pub async fn new(session: &zenoh::Session, cluster: &str) -> Result<Self, TelemetryError> {
+        let subscriber = session
+            .declare_subscriber(cluster_keys(cluster))
+            .await
+            .map_err(err)?;
+        Ok(Self { subscriber })
+    }
+
+    /// The next sample; `None` once the session closes.
+    pub async fn next(&self) -> Option<(String, serde_json::Value)> {
+        loop {
+            let sample = self.subscriber.recv_async().await.ok()?;
+            let key = sample.key_expr().as_str().to_owned();
+            if let Ok(v) = serde_json::from_slice(&sample.payload().to_bytes()) {
+                return Some((key, v));
+            }
+        }
+    }
+}
+
+/// Closes a session, waiting for its tasks (call before the runtime ends).
+pub async fn close(session: zenoh::Session) {
+    let _ = session.close().await;
+}
+
+/// Closes a session from synchronous code.
+pub fn close_blocking(session: zenoh::Session) {
+    let _ = session.close().wait();
+}
+
+/// A free TCP port on loopback for a router to listen on.
+pub fn free_loopback_endpoint() -> std::io::Result<String> {
+    let l = std::net::TcpListener::bind("127.0.0.1:0")?;
+    Ok(format!("tcp/127.0.0.1:{}", l.local_addr()?.port()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn ids_become_valid_key_chunks() {
+        assert_eq!(
+            worker_key("local", "node-a/1234"),
+            "assay/local/workers/node-a_1234/stats"
+        );
+        assert_eq!(chunk("a*b c"), "a_b_c");
+        assert_eq!(chunk(""), "_");
+    }
+
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn a_client_receives_what_another_client_publishes_through_the_router() {
+        let endpoint = free_loopback_endpoint().unwrap();
+        let router = open_router(&endpoint).await.unwrap();
+        let viewer = open_client(&endpoint).await.unwrap();
+        let sub = ClusterSubscriber::new(&viewer, "t").await.unwrap();
+        let worker = open_client(&endpoint).await.unwrap();
+        let publisher = JsonPublisher::new(&worker, worker_key("t", "w/1"))
+            .await
+            .unwrap();
+        let stats = WorkerStats {
+            worker: "w/1".into(),
+            episodes_done: 3,
+            ..Default::default()
+        };
+        // Subscriptions propagate asynchronously: publish until one arrives (bounded).
+        let got = tokio::time::timeout(std::time::Duration::from_secs(20), async {
+            loop {
+                publisher.put(&stats).await.unwrap();
+                if let Ok(Some(x)) =
+                    tokio::time::timeout(std::time::Duration::from_millis(200), sub.next()).await
+                {
+                    return x;
+                }
+            }
+        })
+        .await
+        .expect("a sample within 20 s");
+        assert_eq!(got.0, "assay/t/workers/w_1/stats");
+        assert_eq!(serde_json::from_value::<WorkerStats>(got.1).unwrap(), stats);
+        for s in [worker, viewer, router] {
+            close(s).await;
+        }
+    }
+}
