@@ -136,6 +136,22 @@ impl Controller {
         self.queue.push_back((Segment { from, to, steps }, ev));
     }
 
+    /// Rises to `z_safe` where the tool is, then travels level to above `xy`.
+    fn travel_over(&mut self, xy: Vec3, z_safe: f32, dt: f32) {
+        self.push_move(
+            Vec3::new(self.command.x, self.command.y, z_safe),
+            DESCEND_SPEED * 2.0,
+            Event::None,
+            dt,
+        );
+        self.push_move(
+            Vec3::new(xy.x, xy.y, z_safe),
+            TRANSIT_SPEED,
+            Event::None,
+            dt,
+        );
+    }
+
     fn dwell(&mut self, ev: Event) {
         let at = self.queue.back().map(|(s, _)| s.to).unwrap_or(self.command);
         self.queue.push_back((
@@ -185,18 +201,7 @@ impl Controller {
                 let pos = scene.pose(o).translation + self.jitter();
                 let z_safe = self.safe_height(scene);
                 let top = pos.z + o.half.z;
-                self.push_move(
-                    Vec3::new(self.command.x, self.command.y, z_safe),
-                    DESCEND_SPEED * 2.0,
-                    Event::None,
-                    dt,
-                );
-                self.push_move(
-                    Vec3::new(pos.x, pos.y, z_safe),
-                    TRANSIT_SPEED,
-                    Event::None,
-                    dt,
-                );
+                self.travel_over(pos, z_safe, dt);
                 self.push_move(
                     Vec3::new(pos.x, pos.y, top + gh),
                     DESCEND_SPEED,
@@ -240,18 +245,7 @@ impl Controller {
                 let centre = centre + self.jitter();
                 let z_safe = self.safe_height(scene);
                 let tool = centre - h.offset;
-                self.push_move(
-                    Vec3::new(self.command.x, self.command.y, z_safe),
-                    DESCEND_SPEED * 2.0,
-                    Event::None,
-                    dt,
-                );
-                self.push_move(
-                    Vec3::new(tool.x, tool.y, z_safe),
-                    TRANSIT_SPEED,
-                    Event::None,
-                    dt,
-                );
+                self.travel_over(tool, z_safe, dt);
                 self.push_move(
                     Vec3::new(tool.x, tool.y, tool.z + PLACE_CLEARANCE),
                     DESCEND_SPEED,
@@ -288,18 +282,7 @@ impl Controller {
                 let z_safe = self.safe_height(scene);
                 let start = Vec3::new(p.x, p.y, 0.0) - dir * (e + g + 0.03);
                 let end = Vec3::new(goal.x, goal.y, 0.0) - dir * (e + g);
-                self.push_move(
-                    Vec3::new(self.command.x, self.command.y, z_safe),
-                    DESCEND_SPEED * 2.0,
-                    Event::None,
-                    dt,
-                );
-                self.push_move(
-                    Vec3::new(start.x, start.y, z_safe),
-                    TRANSIT_SPEED,
-                    Event::None,
-                    dt,
-                );
+                self.travel_over(start, z_safe, dt);
                 self.push_move(
                     Vec3::new(start.x, start.y, z_low),
                     DESCEND_SPEED,
