@@ -43,6 +43,26 @@ fn subscriber(dir: &Path, name: &str, stream: &str, count: u64) -> Proc {
     p
 }
 
+/// A publisher process sending `count` 320 × 240 test frames, `interval_us` apart.
+fn publisher(dir: &Path, name: &str, stream: &str, count: u64, interval_us: u64) -> Proc {
+    let (count, interval) = (count.to_string(), interval_us.to_string());
+    let args = [
+        "frames",
+        "publish",
+        "--stream",
+        stream,
+        "--count",
+        &count,
+        "--width",
+        "320",
+        "--height",
+        "240",
+        "--interval-us",
+        &interval,
+    ];
+    Proc::spawn(name, &args, dir)
+}
+
 /// Waits for the process and returns the JSON line it printed.
 fn report(p: &mut Proc, within: Duration) -> serde_json::Value {
     let deadline = Instant::now() + within;
@@ -74,25 +94,8 @@ fn frames_arrive_intact_in_two_subscriber_processes() {
     let s = stream("two");
     let mut a = subscriber(dir.path(), "sub-a", &s, 60);
     let mut b = subscriber(dir.path(), "sub-b", &s, 60);
-    let mut publisher = Proc::spawn(
-        "pub",
-        &[
-            "frames",
-            "publish",
-            "--stream",
-            &s,
-            "--count",
-            "60",
-            "--width",
-            "320",
-            "--height",
-            "240",
-            "--interval-us",
-            "3000",
-        ],
-        dir.path(),
-    );
-    let sent = report(&mut publisher, Duration::from_secs(60));
+    let mut sender = publisher(dir.path(), "pub", &s, 60, 3000);
+    let sent = report(&mut sender, Duration::from_secs(60));
     assert_eq!(sent["sent"], 60);
     assert_eq!(
         sent["reached_max"], 2,
@@ -115,28 +118,11 @@ fn a_killed_subscriber_neither_blocks_the_publisher_nor_locks_out_a_new_one() {
     let s = stream("kill");
     let mut victim = subscriber(dir.path(), "victim", &s, 1_000_000);
     let mut survivor = subscriber(dir.path(), "survivor", &s, 400);
-    let mut publisher = Proc::spawn(
-        "pub",
-        &[
-            "frames",
-            "publish",
-            "--stream",
-            &s,
-            "--count",
-            "400",
-            "--width",
-            "320",
-            "--height",
-            "240",
-            "--interval-us",
-            "2000",
-        ],
-        dir.path(),
-    );
+    let mut sender = publisher(dir.path(), "pub", &s, 400, 2000);
     std::thread::sleep(Duration::from_millis(200));
     // The victim stops reading for good with its queue in shared memory still attached.
     victim.kill9();
-    let sent = report(&mut publisher, Duration::from_secs(120));
+    let sent = report(&mut sender, Duration::from_secs(120));
     assert_eq!(sent["sent"], 400, "the publisher sent every frame: {sent}");
     let r = report(&mut survivor, Duration::from_secs(60));
     assert_eq!(r["corrupt"], 0, "{r}");
@@ -146,24 +132,7 @@ fn a_killed_subscriber_neither_blocks_the_publisher_nor_locks_out_a_new_one() {
     );
     // A new subscriber can join the stream the dead one was on (its resources were cleaned up).
     let mut late = subscriber(dir.path(), "late", &s, 5);
-    let mut again = Proc::spawn(
-        "pub-2",
-        &[
-            "frames",
-            "publish",
-            "--stream",
-            &s,
-            "--count",
-            "20",
-            "--width",
-            "320",
-            "--height",
-            "240",
-            "--interval-us",
-            "2000",
-        ],
-        dir.path(),
-    );
+    let mut again = publisher(dir.path(), "pub-2", &s, 20, 2000);
     assert_eq!(report(&mut again, Duration::from_secs(60))["sent"], 20);
     let r = report(&mut late, Duration::from_secs(60));
     assert!(r["received"].as_u64().unwrap() >= 5, "{r}");

@@ -1,5 +1,6 @@
-//! `assay-core`: Assay's pure domain — task spec v1 and its validation, deterministic random
-//! streams, episode summaries, batch reports and the statistics they use.
+//! `assay-core`: Assay's pure domain — task spec v1 and its validation, policy names,
+//! deterministic random streams, scene snapshots that cameras draw, episode outcomes, batch
+//! reports and the statistics they use.
 //!
 //! Owns: the data model every other crate agrees on. Never does IO beyond parsing strings, never
 //! links physics, rendering, torch or networking.

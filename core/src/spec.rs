@@ -142,25 +142,6 @@ fn one() -> f64 {
     1.0
 }
 
-impl Shape {
-    /// Half-extents of the shape's axis-aligned box in the object frame (meshes: unknown until loaded).
-    pub fn half_extents(&self) -> Option<[f64; 3]> {
-        match *self {
-            Shape::Box { half_extents } => Some(half_extents),
-            Shape::Sphere { radius } => Some([radius; 3]),
-            Shape::Cylinder {
-                radius,
-                half_height,
-            } => Some([radius, radius, half_height]),
-            Shape::Container {
-                inner_half_extents: h,
-                wall,
-            } => Some([h[0] + wall, h[1] + wall, h[2] + wall / 2.0]),
-            Shape::Mesh { .. } => None,
-        }
-    }
-}
-
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
 #[serde(untagged)]
 pub enum Color {
