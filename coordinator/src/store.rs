@@ -712,17 +712,6 @@ impl Store {
             run,
         })
     }
-
-    /// The number of shards of a batch in each state, for tests and `assay status`.
-    pub fn shard_states(&self, batch_id: &str) -> Result<Vec<(u64, String, u32)>, CoordError> {
-        let mut stmt = self
-            .conn
-            .prepare("SELECT id, state, attempts FROM shards WHERE batch_id = ?1 ORDER BY id")?;
-        let rows = stmt.query_map([batch_id], |r| {
-            Ok((r.get::<_, i64>(0)? as u64, r.get(1)?, r.get(2)?))
-        })?;
-        Ok(rows.collect::<Result<_, _>>()?)
-    }
 }
 
 #[cfg(test)]

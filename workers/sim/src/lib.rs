@@ -34,8 +34,6 @@ pub enum SimError {
     Spec { path: String, reason: String },
     #[error("{0}")]
     Policy(String),
-    #[error("artifact store: {0}")]
-    Io(String),
     #[error("{0}")]
     Internal(String),
 }
@@ -52,7 +50,7 @@ impl SimError {
     }
     /// Whether running the shard again could give a different answer.
     pub fn retryable(&self) -> bool {
-        matches!(self, SimError::Io(_) | SimError::Internal(_))
+        matches!(self, SimError::Internal(_))
     }
 }
 
