@@ -120,34 +120,33 @@ struct VIn {
   @location(6) color: vec4<f32>, @location(7) seg: u32,
 };
 struct VOut {
-  @builtin(position) clip: vec4<f32>, @location(0) normal: vec3<f32>,
-  @location(1) color: vec4<f32>, @location(2) @interpolate(flat) seg: u32,
+  @builtin(position) clip: vec4<f32>,
+  @location(0) color: vec4<f32>, @location(1) @interpolate(flat) seg: u32,
 };
+// Diffuse shading per vertex (Gouraud): the fragment stage only writes what it is given, which is
+// what makes a software rasteriser fast. Boxes have one normal per face, so they shade exactly as
+// per-fragment lighting would; spheres and cylinders are tessellated finely enough not to show it.
 @vertex fn vs_main(v: VIn) -> VOut {
   let m = mat4x4<f32>(v.m0, v.m1, v.m2, v.m3);
   let c0 = v.m0.xyz; let c1 = v.m1.xyz; let c2 = v.m2.xyz;
+  let n = normalize(c0 * (v.normal.x / dot(c0, c0)) + c1 * (v.normal.y / dot(c1, c1)) + c2 * (v.normal.z / dot(c2, c2)));
+  let diffuse = abs(dot(n, normalize(g.light_dir.xyz)));
+  let k = g.ambient.x + (1.0 - g.ambient.x) * diffuse;
   var o: VOut;
   o.clip = g.view_proj * (m * vec4<f32>(v.pos, 1.0));
-  o.normal = c0 * (v.normal.x / dot(c0, c0)) + c1 * (v.normal.y / dot(c1, c1)) + c2 * (v.normal.z / dot(c2, c2));
-  o.color = v.color;
+  o.color = vec4<f32>(v.color.rgb * k, 1.0);
   o.seg = v.seg;
   return o;
 }
 struct FOut { @location(0) color: vec4<f32>, @location(1) seg: u32 };
 @fragment fn fs_main(i: VOut) -> FOut {
-  let n = normalize(i.normal);
-  let diffuse = abs(dot(n, normalize(g.light_dir.xyz)));
-  let k = g.ambient.x + (1.0 - g.ambient.x) * diffuse;
   var o: FOut;
-  o.color = vec4<f32>(i.color.rgb * k, 1.0);
+  o.color = i.color;
   o.seg = i.seg;
   return o;
 }
 @fragment fn fs_rgb(i: VOut) -> @location(0) vec4<f32> {
-  let n = normalize(i.normal);
-  let diffuse = abs(dot(n, normalize(g.light_dir.xyz)));
-  let k = g.ambient.x + (1.0 - g.ambient.x) * diffuse;
-  return vec4<f32>(i.color.rgb * k, 1.0);
+  return i.color;
 }"#;
 
 struct GpuMesh {
