@@ -2,14 +2,18 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     // protoc comes vendored: no system package needed.
     let protoc = protoc_bin_vendored::protoc_bin_path()?;
     set_protoc(&protoc);
-    tonic_prost_build::configure().compile_protos(
-        &[
-            "assay/v1/common.proto",
-            "assay/v1/coordinator.proto",
-            "assay/v1/worker.proto",
-        ],
-        &["."],
-    )?;
+    tonic_prost_build::configure()
+        // Frames are shared between subscribers without copying their pixels.
+        .bytes(".assay.v1.Frame.data")
+        .compile_protos(
+            &[
+                "assay/v1/common.proto",
+                "assay/v1/coordinator.proto",
+                "assay/v1/frames.proto",
+                "assay/v1/worker.proto",
+            ],
+            &["."],
+        )?;
     println!("cargo:rerun-if-changed=assay");
     Ok(())
 }

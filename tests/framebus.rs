@@ -1,5 +1,6 @@
-//! The frame bus between real processes: frames arrive intact in two subscriber processes, and a
-//! subscriber killed with -9 neither blocks the publisher nor keeps a new subscriber out.
+//! The frame bus between real processes: frames arrive intact in two subscriber processes, a
+//! subscriber killed with -9 neither blocks the publisher nor keeps a new subscriber out, and a
+//! relay carries a node's frames to a gRPC subscriber (the path to other nodes).
 
 mod common;
 
@@ -14,23 +15,29 @@ fn stream(name: &str) -> String {
 }
 
 fn subscriber(dir: &Path, name: &str, stream: &str, count: u64) -> Proc {
+    subscriber_via(dir, name, stream, count, None)
+}
+
+/// A subscriber process on the node's shared memory, or on a frame relay's gRPC URL.
+fn subscriber_via(dir: &Path, name: &str, stream: &str, count: u64, grpc: Option<&str>) -> Proc {
     let ready = dir.join(format!("{name}.ready"));
-    let p = Proc::spawn(
-        name,
-        &[
-            "frames",
-            "subscribe",
-            "--stream",
-            stream,
-            "--count",
-            &count.to_string(),
-            "--timeout-s",
-            "60",
-            "--ready-file",
-            ready.to_str().unwrap(),
-        ],
-        dir,
-    );
+    let count = count.to_string();
+    let mut args = vec![
+        "frames",
+        "subscribe",
+        "--stream",
+        stream,
+        "--count",
+        &count,
+        "--timeout-s",
+        "60",
+        "--ready-file",
+        ready.to_str().unwrap(),
+    ];
+    if let Some(url) = grpc {
+        args.extend(["--grpc", url]);
+    }
+    let p = Proc::spawn(name, &args, dir);
     let deadline = Instant::now() + Duration::from_secs(30);
     while !ready.exists() {
         assert!(
@@ -136,4 +143,51 @@ fn a_killed_subscriber_neither_blocks_the_publisher_nor_locks_out_a_new_one() {
     assert_eq!(report(&mut again, Duration::from_secs(60))["sent"], 20);
     let r = report(&mut late, Duration::from_secs(60));
     assert!(r["received"].as_u64().unwrap() >= 5, "{r}");
+}
+
+#[test]
+fn a_relay_carries_frames_to_a_grpc_subscriber_intact() {
+    let dir = tempfile::tempdir().unwrap();
+    let s = stream("relay");
+    let addr_file = dir.path().join("relay.addr");
+    let mut relay = Proc::spawn(
+        "relay",
+        &[
+            "frames",
+            "relay",
+            "--stream",
+            &s,
+            "--listen",
+            "127.0.0.1:0",
+            "--addr-file",
+            addr_file.to_str().unwrap(),
+        ],
+        dir.path(),
+    );
+    let deadline = Instant::now() + Duration::from_secs(30);
+    while !addr_file.exists() {
+        assert!(
+            Instant::now() < deadline,
+            "the relay did not start:\n{}",
+            relay.log_text()
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let url = format!("http://{}", std::fs::read_to_string(&addr_file).unwrap());
+    let mut remote = subscriber_via(dir.path(), "grpc-sub", &s, 40, Some(&url));
+    let mut local = subscriber(dir.path(), "bus-sub", &s, 40);
+    let mut sender = publisher(dir.path(), "pub", &s, 40, 5000);
+    let sent = report(&mut sender, Duration::from_secs(60));
+    assert_eq!(sent["reached_max"], 2, "relay and local subscriber: {sent}");
+    for sub in [&mut remote, &mut local] {
+        let r = report(sub, Duration::from_secs(60));
+        assert_eq!(r["corrupt"], 0, "{r}");
+        assert_eq!(r["out_of_order"], 0, "{r}");
+        assert!(r["received"].as_u64().unwrap() >= 20, "{r}");
+        assert_eq!(r["last"], 39, "the last frame arrived: {r}");
+    }
+    assert!(
+        relay.term(Duration::from_secs(10)),
+        "the relay stops on SIGTERM"
+    );
 }

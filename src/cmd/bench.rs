@@ -3,9 +3,10 @@
 
 use std::path::PathBuf;
 use std::process::ExitCode;
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 use anyhow::Context;
+use assay_framebus::monotonic_ns;
 use assay_render::{Outputs, Renderer};
 use assay_sim::reference::{self, Contract, Workload};
 use nix::time::{ClockId, clock_gettime};
@@ -248,73 +249,194 @@ fn handoff(
     }
     cold.sort_by(f64::total_cmp);
 
-    // iceoryx2: a subscriber process spins on the stream; latency = its clock at receipt minus
-    // the publisher's stamp (CLOCK_MONOTONIC, shared by the node).
-    let stream = format!("assay-bench/handoff/{}", std::process::id());
-    let dir = std::env::temp_dir().join(format!("assay-handoff-{}", std::process::id()));
-    std::fs::create_dir_all(&dir)?;
-    let ready = dir.join("ready");
-    let exe = std::env::current_exe()?;
-    let child = std::process::Command::new(&exe)
-        .args([
-            "frames",
-            "subscribe",
-            "--stream",
-            &stream,
-            "--count",
-            &frames.to_string(),
-            "--timeout-s",
-            "120",
-            "--spin",
-            "--ready-file",
-        ])
-        .arg(&ready)
-        .stdout(std::process::Stdio::piped())
-        .spawn()?;
-    let deadline = Instant::now() + std::time::Duration::from_secs(30);
-    while !ready.exists() {
-        anyhow::ensure!(
-            Instant::now() < deadline,
-            "the subscriber process did not connect"
-        );
-        std::thread::sleep(std::time::Duration::from_millis(10));
+    let iceoryx2 = Transport::Iceoryx2.measure(w, h, frames)?;
+    let grpc = Transport::Grpc.measure(w, h, frames)?;
+    let rate = |t: &serde_json::Value, side: &str| t["burst"][side]["frames_per_s"].as_f64();
+    let ratio = |a: Option<f64>, b: Option<f64>| a.zip(b).map(|(a, b)| round(a / b));
+    let p50 = |t: &serde_json::Value| t["latency"]["subscriber"]["latency_us_p50"].as_f64();
+    let summary = json!({
+        "delivered_frames_per_s": {"iceoryx2": rate(&iceoryx2, "subscriber"), "grpc": rate(&grpc, "subscriber"),
+            "iceoryx2_over_grpc": ratio(rate(&iceoryx2, "subscriber"), rate(&grpc, "subscriber"))},
+        "latency_us_p50": {"iceoryx2": p50(&iceoryx2), "grpc": p50(&grpc), "memcpy_in_cache": pct(&warm, 0.5),
+            "grpc_over_iceoryx2": ratio(p50(&grpc), p50(&iceoryx2))},
+    });
+    // The line's rates: frames the iceoryx2 publisher put out per second in its burst.
+    let published = (
+        vec![
+            iceoryx2["burst"]["publisher"]["frames_per_s"]
+                .as_f64()
+                .unwrap_or(0.0),
+        ],
+        vec![
+            iceoryx2["burst"]["publisher"]["frames_per_cpu_s"]
+                .as_f64()
+                .unwrap_or(0.0),
+        ],
+    );
+    Ok((
+        json!({
+            "frame_bytes": len,
+            "summary": summary,
+            "iceoryx2": iceoryx2,
+            "grpc": grpc,
+            "memcpy_us": {"in_cache_p50": pct(&warm, 0.5), "in_cache_p99": pct(&warm, 0.99), "fresh_buffer_p50": pct(&cold, 0.5), "fresh_buffer_p99": pct(&cold, 0.99)},
+            "method": "per transport, two subscriber processes on this node: one for latency (frames paced 1 ms apart so nothing queues; latency = the subscriber's CLOCK_MONOTONIC at receipt minus the stamp put in the frame just before publishing) and one for throughput (one unpaced burst; delivered frames/s measured by the subscriber, frames it lost counted). Every frame is checked byte for byte. iceoryx2: the frame is written into the loaned shared-memory sample and read in place. gRPC: the frame is written into a fresh buffer, which becomes the message (assay.v1.Frames/Subscribe, HTTP/2 on loopback), encoded, sent, decoded.",
+        }),
+        published,
+    ))
+}
+
+#[derive(Clone, Copy)]
+enum Transport {
+    Iceoryx2,
+    Grpc,
+}
+
+/// Where the sending side of a hand-off measurement publishes.
+enum Sender {
+    Bus {
+        publisher: assay_framebus::FramePublisher,
+        _bus: assay_framebus::FrameBus,
+    },
+    Grpc {
+        tx: tokio::sync::broadcast::Sender<assay_proto::v1::Frame>,
+        /// Runs the gRPC server until dropped.
+        _rt: tokio::runtime::Runtime,
+    },
+}
+
+impl Transport {
+    fn name(self) -> &'static str {
+        match self {
+            Transport::Iceoryx2 => "iceoryx2",
+            Transport::Grpc => "grpc",
+        }
     }
-    let bus = assay_framebus::FrameBus::open("assay-bench-handoff")?;
-    let publisher = bus.publisher(&stream, len)?;
-    let (mut wall, mut cpu) = (Vec::new(), Vec::new());
-    let mut sent = 0u64;
-    // Paced (0.5 ms apart) so the subscriber keeps up and latency has no queueing in it.
-    for _ in 0..5 {
+
+    /// Latency (paced frames) and throughput (one burst) through this transport, each with its
+    /// own subscriber process.
+    fn measure(self, w: u32, h: u32, frames: u32) -> anyhow::Result<serde_json::Value> {
+        let latency = self.run(w, h, u64::from(frames), Some(Duration::from_millis(1)))?;
+        let burst = self.run(w, h, u64::from(frames) * 5, None)?;
+        Ok(json!({"latency": latency, "burst": burst}))
+    }
+
+    fn run(
+        self,
+        w: u32,
+        h: u32,
+        count: u64,
+        pace: Option<Duration>,
+    ) -> anyhow::Result<serde_json::Value> {
+        let len = (w * h * 4) as usize;
+        let tag = format!("{}-{}", std::process::id(), monotonic_ns());
+        let stream = format!("assay-bench/handoff/{tag}");
+        let dir = std::env::temp_dir().join(format!("assay-handoff-{tag}"));
+        std::fs::create_dir_all(&dir)?;
+        let ready = dir.join("ready");
+        let (sender, url) = match self {
+            Transport::Iceoryx2 => {
+                let bus = assay_framebus::FrameBus::open("assay-bench-handoff")?;
+                (
+                    Sender::Bus {
+                        publisher: bus.publisher(&stream, len)?,
+                        _bus: bus,
+                    },
+                    None,
+                )
+            }
+            Transport::Grpc => {
+                let rt = tokio::runtime::Builder::new_multi_thread()
+                    .worker_threads(1)
+                    .enable_all()
+                    .build()?;
+                let hub = crate::cmd::frames_grpc::FrameHub::default();
+                let tx = hub.sender(&stream);
+                let listener = rt.block_on(tokio::net::TcpListener::bind("127.0.0.1:0"))?;
+                let url = format!("http://{}", listener.local_addr()?);
+                rt.spawn(
+                    crate::cmd::frames_grpc::server_builder()
+                        .add_service(hub.server())
+                        .serve_with_incoming(tokio_stream::wrappers::TcpListenerStream::new(
+                            listener,
+                        )),
+                );
+                (Sender::Grpc { tx, _rt: rt }, Some(url))
+            }
+        };
+        let mut cmd = std::process::Command::new(std::env::current_exe()?);
+        cmd.args(["frames", "subscribe", "--stream", &stream])
+            .args(["--count", &count.to_string(), "--timeout-s", "120"])
+            .arg("--ready-file")
+            .arg(&ready)
+            .stdout(std::process::Stdio::piped());
+        match &url {
+            Some(url) => cmd.args(["--grpc", url]),
+            None => cmd.arg("--spin"),
+        };
+        let child = cmd.spawn()?;
+        let deadline = Instant::now() + Duration::from_secs(30);
+        while !ready.exists() {
+            anyhow::ensure!(
+                Instant::now() < deadline,
+                "the {} subscriber process did not connect",
+                self.name()
+            );
+            std::thread::sleep(Duration::from_millis(10));
+        }
         let (t0, c0) = (Instant::now(), cpu_s());
-        for _ in 0..frames / 5 {
+        for seq in 0..count {
             let header = assay_framebus::FrameHeader {
-                step: sent,
+                step: seq,
                 width: w,
                 height: h,
                 stride: w * 4,
                 format: assay_framebus::format::RGBA8,
                 ..Default::default()
             };
-            publisher.publish(header, len, |buf| {
-                crate::cmd::frames::fill_pattern(sent, buf)
-            })?;
-            sent += 1;
-            std::thread::sleep(std::time::Duration::from_micros(500));
+            match &sender {
+                Sender::Bus { publisher, .. } => {
+                    publisher.publish(header, len, |buf| {
+                        crate::cmd::frames::fill_pattern(seq, buf)
+                    })?;
+                }
+                Sender::Grpc { tx, .. } => {
+                    let mut data = vec![0u8; len];
+                    crate::cmd::frames::fill_pattern(seq, &mut data);
+                    let _ = tx.send(assay_proto::v1::Frame {
+                        episode: header.episode,
+                        step: seq,
+                        timestamp_ns: monotonic_ns(),
+                        camera: header.camera,
+                        format: header.format,
+                        width: w,
+                        height: h,
+                        stride: w * 4,
+                        data: data.into(),
+                        dropped: 0,
+                    });
+                }
+            }
+            if let Some(p) = pace {
+                std::thread::sleep(p);
+            }
         }
-        let n = f64::from(frames / 5);
-        wall.push(n / t0.elapsed().as_secs_f64());
-        cpu.push(n / (cpu_s() - c0));
+        let (wall, cpu) = (t0.elapsed().as_secs_f64(), cpu_s() - c0);
+        let out = child.wait_with_output()?;
+        drop(sender);
+        let _ = std::fs::remove_dir_all(&dir);
+        let sub: serde_json::Value = serde_json::from_slice(&out.stdout)
+            .with_context(|| format!("{} subscriber report", self.name()))?;
+        anyhow::ensure!(
+            sub["corrupt"] == 0 && sub["out_of_order"] == 0,
+            "{} delivered damaged frames: {sub}",
+            self.name()
+        );
+        Ok(json!({
+            "sent": count,
+            "paced_us": pace.map(|p| p.as_micros() as u64),
+            "publisher": {"frames_per_s": round(count as f64 / wall), "frames_per_cpu_s": round(count as f64 / cpu)},
+            "subscriber": sub,
+        }))
     }
-    let out = child.wait_with_output()?;
-    let _ = std::fs::remove_dir_all(&dir);
-    let sub: serde_json::Value =
-        serde_json::from_slice(&out.stdout).context("subscriber report")?;
-    Ok((
-        json!({
-            "frame_bytes": len,
-            "iceoryx2": {"sent": sent, "subscriber": sub, "note": "latency from publish (frame already written in the shared-memory sample) to the subscriber process holding it; publisher paced 0.5 ms apart"},
-            "memcpy_us": {"in_cache_p50": pct(&warm, 0.5), "in_cache_p99": pct(&warm, 0.99), "fresh_buffer_p50": pct(&cold, 0.5), "fresh_buffer_p99": pct(&cold, 0.99)},
-        }),
-        (wall, cpu),
-    ))
 }

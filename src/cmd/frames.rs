@@ -1,10 +1,12 @@
-//! `assay frames`: publish or subscribe to a frame stream on this node's frame bus. Used by the
-//! multi-process tests and the hand-off benchmark; handy for checking a node's shared memory.
+//! `assay frames`: publish or subscribe to a frame stream on this node's frame bus, or relay a
+//! node's streams to other nodes over gRPC (`assay.v1.Frames`). Used by the multi-process tests
+//! and the hand-off benchmark; handy for checking a node's shared memory.
 
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
 
+use anyhow::Context;
 use assay_framebus::{FrameBus, FrameHeader, format, monotonic_ns};
 use serde_json::json;
 
@@ -46,6 +48,23 @@ pub enum Cmd {
         /// Poll without sleeping (lowest latency; uses a whole core).
         #[arg(long)]
         spin: bool,
+        /// Receive from a frame relay over gRPC (e.g. http://10.0.0.5:7460) instead of this
+        /// node's shared memory. Latency is only meaningful when the relay is on this node.
+        #[arg(long)]
+        grpc: Option<String>,
+    },
+    /// Serve this node's frame streams to other nodes over gRPC (`assay.v1.Frames`). Frames are
+    /// copied out of shared memory only while some client is subscribed.
+    Relay {
+        /// Streams to serve (repeat the flag).
+        #[arg(long, required = true)]
+        stream: Vec<String>,
+        /// Address to listen on (port 0: any free port).
+        #[arg(long, default_value = "127.0.0.1:7460")]
+        listen: std::net::SocketAddr,
+        /// Written with the address actually bound, once serving.
+        #[arg(long)]
+        addr_file: Option<PathBuf>,
     },
 }
 
@@ -113,44 +132,73 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
             timeout_s,
             ready_file,
             spin,
+            grpc,
         } => {
-            let bus = FrameBus::open("assay-frames-subscribe")?;
-            let subscriber = bus.subscriber(&stream)?;
-            if let Some(f) = ready_file {
-                std::fs::write(f, "ready\n")?;
-            }
             let deadline = Instant::now() + Duration::from_secs_f64(timeout_s);
-            let (mut received, mut corrupt, mut out_of_order) = (0u64, 0u64, 0u64);
-            let (mut first, mut last) = (None::<u64>, None::<u64>);
-            let mut latencies = Vec::new();
-            while received < count && Instant::now() < deadline {
-                let got = subscriber.receive(|h, payload| {
-                    let now = monotonic_ns();
-                    let ok = check_pattern(payload) == Some(h.step)
-                        && payload.len() as u32 == h.stride * h.height;
-                    (h.step, ok, now.saturating_sub(h.timestamp_ns))
-                })?;
-                match got {
-                    Some((seq, ok, latency)) => {
-                        received += 1;
-                        corrupt += u64::from(!ok);
-                        if last.is_some_and(|l| seq <= l) {
-                            out_of_order += 1;
-                        }
-                        first.get_or_insert(seq);
-                        last = Some(seq);
-                        latencies.push(latency as f64 / 1000.0);
+            let mut stats = Stats::default();
+            match grpc {
+                Some(url) => crate::cmd::block_on(async {
+                    let mut frames = super::frames_grpc::subscribe(&url, &stream).await?;
+                    if let Some(f) = ready_file {
+                        std::fs::write(f, "ready\n")?;
                     }
-                    None if spin => std::hint::spin_loop(),
-                    None => std::thread::sleep(Duration::from_micros(50)),
+                    while !stats.done(count) {
+                        let left = deadline.saturating_duration_since(Instant::now());
+                        let Ok(next) = tokio::time::timeout(left, frames.message()).await else {
+                            break;
+                        };
+                        let Some(f) = next? else { break };
+                        let now = monotonic_ns();
+                        stats.dropped += f.dropped;
+                        let ok = check_pattern(&f.data) == Some(f.step)
+                            && f.data.len() as u64 == u64::from(f.stride) * u64::from(f.height);
+                        stats.record(f.step, ok, now.saturating_sub(f.timestamp_ns));
+                    }
+                    anyhow::Ok(())
+                })?,
+                None => {
+                    let bus = FrameBus::open("assay-frames-subscribe")?;
+                    let subscriber = bus.subscriber(&stream)?;
+                    if let Some(f) = ready_file {
+                        std::fs::write(f, "ready\n")?;
+                    }
+                    while !stats.done(count) && Instant::now() < deadline {
+                        let got = subscriber.receive(|h, payload| {
+                            let now = monotonic_ns();
+                            let ok = check_pattern(payload) == Some(h.step)
+                                && payload.len() as u32 == h.stride * h.height;
+                            (h.step, ok, now.saturating_sub(h.timestamp_ns))
+                        })?;
+                        match got {
+                            Some((seq, ok, latency)) => stats.record(seq, ok, latency),
+                            None if spin => std::hint::spin_loop(),
+                            None => std::thread::sleep(Duration::from_micros(50)),
+                        }
+                    }
                 }
             }
+            let Stats {
+                received,
+                corrupt,
+                out_of_order,
+                dropped,
+                lost,
+                first,
+                last,
+                mut latencies,
+                first_ns,
+                last_ns,
+            } = stats;
+            let span_s = last_ns.saturating_sub(first_ns) as f64 / 1e9;
+            let frames_per_s =
+                (received > 1 && span_s > 0.0).then(|| (received - 1) as f64 / span_s);
             latencies.sort_by(f64::total_cmp);
             println!(
                 "{}",
                 json!({
                     "received": received, "corrupt": corrupt, "out_of_order": out_of_order,
-                    "first": first, "last": last,
+                    "lost": lost, "dropped_reported": dropped, "first": first, "last": last,
+                    "frames_per_s": frames_per_s,
                     "latency_us_p50": percentile(&latencies, 0.5), "latency_us_p99": percentile(&latencies, 0.99),
                 })
             );
@@ -160,5 +208,139 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
                 ExitCode::FAILURE
             })
         }
+        Cmd::Relay {
+            stream,
+            listen,
+            addr_file,
+        } => relay(stream, listen, addr_file),
     }
+}
+
+#[derive(Default)]
+struct Stats {
+    received: u64,
+    corrupt: u64,
+    out_of_order: u64,
+    /// Frames the sender said this subscription lost (gRPC only; the bus drops silently).
+    dropped: u64,
+    /// Frames missing between the sequence numbers received.
+    lost: u64,
+    first: Option<u64>,
+    last: Option<u64>,
+    latencies: Vec<f64>,
+    /// `CLOCK_MONOTONIC` at the first and the latest receipt.
+    first_ns: u64,
+    last_ns: u64,
+}
+
+impl Stats {
+    fn record(&mut self, seq: u64, ok: bool, latency_ns: u64) {
+        let now = monotonic_ns();
+        if self.received == 0 {
+            self.first_ns = now;
+        }
+        self.last_ns = now;
+        self.received += 1;
+        self.corrupt += u64::from(!ok);
+        match self.last {
+            Some(l) if seq <= l => self.out_of_order += 1,
+            Some(l) => self.lost += seq - l - 1,
+            None => {}
+        }
+        self.first.get_or_insert(seq);
+        self.last = Some(seq);
+        self.latencies.push(latency_ns as f64 / 1000.0);
+    }
+
+    /// Done when `count` frames arrived, or the last one (sequence `count - 1`) did: frames
+    /// dropped on the way (a subscriber that falls behind loses the oldest) are counted as lost.
+    fn done(&self, count: u64) -> bool {
+        self.received >= count || self.last.is_some_and(|l| l + 1 >= count)
+    }
+}
+
+/// Serves `streams` of this node's frame bus over gRPC until SIGTERM or Ctrl-C. One thread per
+/// stream reads the bus; a frame is copied into a message only when some client is subscribed.
+fn relay(
+    streams: Vec<String>,
+    listen: std::net::SocketAddr,
+    addr_file: Option<PathBuf>,
+) -> anyhow::Result<ExitCode> {
+    let hub = super::frames_grpc::FrameHub::default();
+    let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let mut threads = Vec::new();
+    for (i, name) in streams.into_iter().enumerate() {
+        let (tx, stop) = (hub.sender(&name), stop.clone());
+        // iceoryx2 ports stay on the thread that made them.
+        let (opened_tx, opened) = std::sync::mpsc::channel();
+        threads.push(
+            std::thread::Builder::new()
+                .name(format!("relay-{i}"))
+                .spawn(move || -> anyhow::Result<()> {
+                    let opened_on_bus = FrameBus::open(&format!("assay-frames-relay-{i}"))
+                        .and_then(|bus| Ok((bus.subscriber(&name)?, bus)));
+                    let (subscriber, _bus) = match opened_on_bus {
+                        Ok(x) => {
+                            let _ = opened_tx.send(Ok(()));
+                            x
+                        }
+                        Err(e) => {
+                            let _ = opened_tx.send(Err(e.to_string()));
+                            return Ok(());
+                        }
+                    };
+                    while !stop.load(std::sync::atomic::Ordering::Relaxed) {
+                        let got = subscriber.receive(|h, payload| {
+                            (tx.receiver_count() > 0).then(|| assay_proto::v1::Frame {
+                                episode: h.episode,
+                                step: h.step,
+                                timestamp_ns: h.timestamp_ns,
+                                camera: h.camera,
+                                format: h.format,
+                                width: h.width,
+                                height: h.height,
+                                stride: h.stride,
+                                data: payload.to_vec().into(),
+                                dropped: 0,
+                            })
+                        })?;
+                        match got {
+                            Some(Some(frame)) => {
+                                let _ = tx.send(frame);
+                            }
+                            Some(None) => {}
+                            None => std::thread::sleep(Duration::from_micros(100)),
+                        }
+                    }
+                    Ok(())
+                })?,
+        );
+        opened
+            .recv()
+            .context("relay thread")?
+            .map_err(anyhow::Error::msg)?;
+    }
+    crate::cmd::block_on(async {
+        let listener = tokio::net::TcpListener::bind(listen)
+            .await
+            .with_context(|| format!("cannot listen on {listen}"))?;
+        let bound = listener.local_addr()?;
+        tracing::info!(%bound, "frame relay serving");
+        if let Some(f) = addr_file {
+            std::fs::write(f, bound.to_string())?;
+        }
+        super::frames_grpc::server_builder()
+            .add_service(hub.server())
+            .serve_with_incoming_shutdown(
+                tokio_stream::wrappers::TcpListenerStream::new(listener),
+                crate::cmd::terminated(),
+            )
+            .await?;
+        anyhow::Ok(())
+    })?;
+    stop.store(true, std::sync::atomic::Ordering::Relaxed);
+    for t in threads {
+        t.join().expect("relay thread")?;
+    }
+    Ok(ExitCode::SUCCESS)
 }

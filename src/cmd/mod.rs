@@ -4,6 +4,7 @@ pub mod bench;
 pub mod coordinator;
 pub mod eval;
 pub mod frames;
+pub mod frames_grpc;
 pub mod report;
 pub mod status;
 pub mod submit;
