@@ -32,6 +32,27 @@ fn eval(
         .unwrap()
 }
 
+/// An episode video: MP4 where ffmpeg is installed, else a GIF of 48 frames at half the image
+/// size (640 × 480 by default) in which something moves.
+fn check_video(out: &std::path::Path, key: &str) {
+    let bytes = std::fs::read(out.join("artifacts").join(key)).unwrap();
+    if key.ends_with(".mp4") {
+        assert_eq!(&bytes[4..8], b"ftyp", "{key} is an MP4 file");
+        return;
+    }
+    assert!(key.ends_with(".gif"), "{key}");
+    let mut opts = gif::DecodeOptions::new();
+    opts.set_color_output(gif::ColorOutput::RGBA);
+    let mut dec = opts.read_info(bytes.as_slice()).unwrap();
+    assert_eq!((dec.width(), dec.height()), (320, 240), "{key}");
+    let mut frames = Vec::new();
+    while let Some(f) = dec.read_next_frame().unwrap() {
+        frames.push(f.buffer.to_vec());
+    }
+    assert_eq!(frames.len(), 48, "{key}");
+    assert_ne!(frames.first(), frames.last(), "{key}: nothing moved");
+}
+
 fn read_report(out: &std::path::Path) -> Report {
     serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap()
 }
@@ -39,7 +60,7 @@ fn read_report(out: &std::path::Path) -> Report {
 #[test]
 fn eval_runs_a_batch_on_a_local_cluster_and_writes_both_reports() {
     let dir = tempfile::tempdir().unwrap();
-    let out = eval(&["tests/fixtures/small"], "3", dir.path(), &[]);
+    let out = eval(&["tests/fixtures/small"], "3", dir.path(), &["--video"]);
     assert!(
         out.status.success(),
         "{}",
@@ -121,11 +142,20 @@ fn eval_runs_a_batch_on_a_local_cluster_and_writes_both_reports() {
                     .join(&img.contact_sheet)
                     .exists()
             );
+            check_video(
+                dir.path(),
+                img.video.as_deref().expect("--video gives a video"),
+            );
         }
         let first = t.episodes[0].imagery.as_ref().unwrap();
         assert!(
             md.contains(&format!("](artifacts/{})", first.contact_sheet)),
             "report.md shows {}'s contact sheet",
+            t.id
+        );
+        assert!(
+            md.contains(&format!("](artifacts/{})", first.video.as_ref().unwrap())),
+            "report.md links {}'s video",
             t.id
         );
     }

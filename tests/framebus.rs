@@ -1,6 +1,7 @@
 //! The frame bus between real processes: frames arrive intact in two subscriber processes, a
 //! subscriber killed with -9 neither blocks the publisher nor keeps a new subscriber out, and a
-//! relay carries a node's frames to a gRPC subscriber (the path to other nodes).
+//! relay carries a node's frames to a gRPC subscriber (the path to other nodes), and a worker's
+//! render role publishes exactly the pictures it stores.
 
 mod common;
 
@@ -15,11 +16,11 @@ fn stream(name: &str) -> String {
 }
 
 fn subscriber(dir: &Path, name: &str, stream: &str, count: u64) -> Proc {
-    subscriber_via(dir, name, stream, count, None)
+    subscriber_with(dir, name, stream, count, &[])
 }
 
-/// A subscriber process on the node's shared memory, or on a frame relay's gRPC URL.
-fn subscriber_via(dir: &Path, name: &str, stream: &str, count: u64, grpc: Option<&str>) -> Proc {
+/// A subscriber process (`assay frames subscribe`) with `extra` flags, once it is connected.
+fn subscriber_with(dir: &Path, name: &str, stream: &str, count: u64, extra: &[&str]) -> Proc {
     let ready = dir.join(format!("{name}.ready"));
     let count = count.to_string();
     let mut args = vec![
@@ -34,9 +35,7 @@ fn subscriber_via(dir: &Path, name: &str, stream: &str, count: u64, grpc: Option
         "--ready-file",
         ready.to_str().unwrap(),
     ];
-    if let Some(url) = grpc {
-        args.extend(["--grpc", url]);
-    }
+    args.extend_from_slice(extra);
     let p = Proc::spawn(name, &args, dir);
     let deadline = Instant::now() + Duration::from_secs(30);
     while !ready.exists() {
@@ -174,7 +173,7 @@ fn a_relay_carries_frames_to_a_grpc_subscriber_intact() {
         std::thread::sleep(Duration::from_millis(20));
     }
     let url = format!("http://{}", std::fs::read_to_string(&addr_file).unwrap());
-    let mut remote = subscriber_via(dir.path(), "grpc-sub", &s, 40, Some(&url));
+    let mut remote = subscriber_with(dir.path(), "grpc-sub", &s, 40, &["--grpc", &url]);
     let mut local = subscriber(dir.path(), "bus-sub", &s, 40);
     let mut sender = publisher(dir.path(), "pub", &s, 40, 5000);
     let sent = report(&mut sender, Duration::from_secs(60));
@@ -189,5 +188,78 @@ fn a_relay_carries_frames_to_a_grpc_subscriber_intact() {
     assert!(
         relay.term(Duration::from_secs(10)),
         "the relay stops on SIGTERM"
+    );
+}
+
+#[test]
+fn a_render_worker_publishes_on_the_bus_the_pictures_it_stores() {
+    let dir = tempfile::tempdir().unwrap();
+    let (_coord, addr) = coordinator(dir.path(), "127.0.0.1:0", &[]);
+    let worker_id = format!("test-{}/render", std::process::id());
+    let saved = dir.path().join("from-bus");
+    // 4 scene views and 8 keyframes per episode.
+    let mut sub = subscriber_with(
+        dir.path(),
+        "imagery-sub",
+        &format!("{worker_id}/imagery"),
+        12,
+        &["--save", saved.to_str().unwrap()],
+    );
+    let _worker = Proc::spawn(
+        "render worker",
+        &[
+            "worker",
+            "--coordinator",
+            &addr,
+            "--roles",
+            "sim,render",
+            "--image-size",
+            "160x120",
+            "--worker-id",
+            &worker_id,
+        ],
+        dir.path(),
+    );
+    let r = runtime().block_on(async {
+        let b = submit(
+            &addr,
+            &["tests/fixtures/small/small-stack-two-blocks.yaml"],
+            1,
+        )
+        .await;
+        wait_for(&addr, &b.batch_id, Duration::from_secs(120), finished).await;
+        common::report(&addr, &b.batch_id).await
+    });
+    let img = r.results.tasks[0].episodes[0].imagery.clone().unwrap();
+    let stored: std::collections::BTreeSet<String> = img
+        .views
+        .iter()
+        .map(|v| &v.artifact)
+        .chain(img.keyframes.iter().map(|k| &k.artifact))
+        .map(|k| {
+            k.trim_start_matches("imagery/")
+                .trim_end_matches(".png")
+                .to_owned()
+        })
+        .collect();
+    let got = report(&mut sub, Duration::from_secs(60));
+    assert_eq!(
+        got["corrupt"], 0,
+        "every frame was a whole RGBA image: {got}"
+    );
+    // Read in place from shared memory and encoded here, each frame is byte for byte a picture
+    // the worker put in its artifact store (a subscriber that falls behind may lose some).
+    let mut from_bus = std::collections::BTreeSet::new();
+    for f in std::fs::read_dir(&saved).unwrap() {
+        let bytes = std::fs::read(f.unwrap().path()).unwrap();
+        from_bus.insert(assay_core::hash::sha256_hex(&bytes));
+    }
+    assert!(
+        got["received"].as_u64().unwrap() >= 8,
+        "most frames arrived: {got}"
+    );
+    assert!(
+        from_bus.is_subset(&stored) && !from_bus.is_empty(),
+        "frames on the bus {from_bus:?} are the stored pictures {stored:?}"
     );
 }

@@ -69,6 +69,10 @@ pub struct EpisodeImagery {
     pub keyframes: Vec<Keyframe>,
     /// One PNG with the views on the first row and the keyframes below.
     pub contact_sheet: String,
+    /// A video of the rollout (MP4, or an animated GIF where ffmpeg is not installed), when the
+    /// worker was asked for videos.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub video: Option<String>,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -608,6 +612,9 @@ impl Report {
                     t.id,
                     img.contact_sheet
                 );
+                if let Some(v) = &img.video {
+                    let _ = writeln!(md, "[Video of the rollout]({ARTIFACTS_LINK}/{v})\n");
+                }
             }
         }
         md

@@ -28,6 +28,9 @@ pub struct Args {
     /// Size of rendered views and keyframes, WIDTHxHEIGHT.
     #[arg(long, default_value = "640x480")]
     pub image_size: String,
+    /// Also a video of every episode (MP4 with ffmpeg installed, else an animated GIF).
+    #[arg(long)]
+    pub video: bool,
     /// Output folder: report.json, report.md, artifacts/, and run/ (job store and process logs).
     #[arg(long, default_value = "assay-out")]
     pub out: PathBuf,
@@ -74,23 +77,27 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         .map(str::to_owned);
     let mut workers = Vec::new();
     for i in 0..a.workers.max(1) {
+        let mut args: Vec<String> = vec![
+            "worker".into(),
+            "--coordinator".into(),
+            addr.clone(),
+            "--roles".into(),
+            a.roles.clone(),
+            "--image-size".into(),
+            a.image_size.clone(),
+            "--capacity".into(),
+            a.capacity.to_string(),
+            "--node-id".into(),
+            "local".into(),
+            "--worker-id".into(),
+            format!("local/worker-{i}"),
+        ];
+        if a.video {
+            args.push("--video".into());
+        }
         workers.push(ChildProc::spawn(
             &format!("worker {i}"),
-            &[
-                "worker".into(),
-                "--coordinator".into(),
-                addr.clone(),
-                "--roles".into(),
-                a.roles.clone(),
-                "--image-size".into(),
-                a.image_size.clone(),
-                "--capacity".into(),
-                a.capacity.to_string(),
-                "--node-id".into(),
-                "local".into(),
-                "--worker-id".into(),
-                format!("local/worker-{i}"),
-            ],
+            &args,
             &run_dir.join(format!("worker-{i}.log")),
         )?);
     }

@@ -52,6 +52,10 @@ pub enum Cmd {
         /// node's shared memory. Latency is only meaningful when the relay is on this node.
         #[arg(long)]
         grpc: Option<String>,
+        /// Save every RGBA frame as DIR/<episode>-<camera>-<step>.png instead of checking it
+        /// against the test pattern (to look at what a worker's render role publishes).
+        #[arg(long)]
+        save: Option<PathBuf>,
     },
     /// Serve this node's frame streams to other nodes over gRPC (`assay.v1.Frames`). Frames are
     /// copied out of shared memory only while some client is subscribed.
@@ -133,7 +137,11 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
             ready_file,
             spin,
             grpc,
+            save,
         } => {
+            if let Some(dir) = &save {
+                std::fs::create_dir_all(dir)?;
+            }
             let deadline = Instant::now() + Duration::from_secs_f64(timeout_s);
             let mut stats = Stats::default();
             match grpc {
@@ -163,11 +171,22 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
                         std::fs::write(f, "ready\n")?;
                     }
                     while !stats.done(count) && Instant::now() < deadline {
+                        let seq = stats.received;
                         let got = subscriber.receive(|h, payload| {
                             let now = monotonic_ns();
-                            let ok = check_pattern(payload) == Some(h.step)
-                                && payload.len() as u32 == h.stride * h.height;
-                            (h.step, ok, now.saturating_sub(h.timestamp_ns))
+                            let sized = payload.len() as u32 == h.stride * h.height;
+                            match &save {
+                                Some(dir) => (
+                                    seq,
+                                    sized && save_frame(dir, h, payload),
+                                    now.saturating_sub(h.timestamp_ns),
+                                ),
+                                None => (
+                                    h.step,
+                                    sized && check_pattern(payload) == Some(h.step),
+                                    now.saturating_sub(h.timestamp_ns),
+                                ),
+                            }
                         })?;
                         match got {
                             Some((seq, ok, latency)) => stats.record(seq, ok, latency),
@@ -214,6 +233,16 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
             addr_file,
         } => relay(stream, listen, addr_file),
     }
+}
+
+/// Writes an RGBA frame as a PNG named after its header; false if it is not RGBA or not written.
+fn save_frame(dir: &std::path::Path, h: &FrameHeader, payload: &[u8]) -> bool {
+    if h.format != format::RGBA8 || h.stride != h.width * 4 {
+        return false;
+    }
+    let png = assay_render::image::Rgb::from_rgba(h.width, h.height, payload).png();
+    let name = format!("{}-{}-{}.png", h.episode, h.camera, h.step);
+    std::fs::write(dir.join(name), png).is_ok()
 }
 
 #[derive(Default)]

@@ -32,7 +32,7 @@ fn table(
     let mut out = String::from("\x1b[2J\x1b[H");
     out.push_str(&format!(
         "{:<32} {:>9} {:>7} {:>8} {:>12} {:>9}\n",
-        "worker", "episodes", "failed", "running", "steps/s", "frames/s"
+        "worker", "episodes", "failed", "leases", "steps/s", "frames/s"
     ));
     for w in workers.values() {
         out.push_str(&format!(
@@ -40,7 +40,7 @@ fn table(
             w.worker,
             w.episodes_done,
             w.episodes_failed,
-            w.shards_running,
+            format!("{}/{}", w.leases_held, w.lease_capacity),
             w.physics_steps_per_s,
             w.frames_per_s
         ));

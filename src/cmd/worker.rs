@@ -1,15 +1,16 @@
 use std::path::Path;
 use std::process::ExitCode;
+use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use anyhow::{Context, bail};
 use assay_core::report::{EpisodeImagery, Keyframe, NamedArtifact};
-use assay_core::scene::task_cameras;
-use assay_core::spec::TaskSpec;
+use assay_core::scene::{SceneSnapshot, task_cameras};
+use assay_core::spec::{Camera, TaskSpec};
 use assay_proto::v1 as pb;
 use assay_render::Renderer;
+use assay_render::imagery::Shot;
 use assay_worker_runtime::artifacts;
 use assay_worker_runtime::{ShardError, ShardHandler, WorkerConfig, default_worker_id, run_worker};
 
@@ -24,6 +25,10 @@ pub struct Args {
     /// Size of rendered views and keyframes, WIDTHxHEIGHT.
     #[arg(long, default_value = "640x480", value_parser = parse_size)]
     pub image_size: (u32, u32),
+    /// Also render a video of every episode (half the image size, 12 frames/s): MP4 when
+    /// ffmpeg is installed, else an animated GIF.
+    #[arg(long)]
+    pub video: bool,
     /// Shards run at once.
     #[arg(long, env = "ASSAY_CAPACITY", default_value_t = 1)]
     pub capacity: u32,
@@ -65,10 +70,30 @@ struct Counters {
     frames: AtomicU64,
 }
 
-/// The render role: one GPU (or software) device per process, shared by the shard threads.
+/// The render role: one thread owns the device (a GPU, or lavapipe) and this worker's frame-bus
+/// stream `<worker-id>/imagery`; shard threads send it episodes and wait for their pictures. Every
+/// view and keyframe is read back straight into a shared-memory sample, encoded from there, and
+/// published: a judge, a viewer or `assay frames relay` on the node reads it in place.
 struct RenderRole {
-    renderer: Mutex<Renderer>,
-    size: (u32, u32),
+    jobs: std::sync::mpsc::Sender<RenderJob>,
+    adapter: String,
+    video: bool,
+}
+
+struct RenderJob {
+    shard: u64,
+    initial: SceneSnapshot,
+    initial_step: u64,
+    keyframes: Vec<(u64, SceneSnapshot)>,
+    /// Empty when no video is wanted.
+    video: Vec<(u64, SceneSnapshot)>,
+    camera: Camera,
+    reply: std::sync::mpsc::Sender<Result<Rendered, assay_render::RenderError>>,
+}
+
+struct Rendered {
+    imagery: assay_render::imagery::Imagery,
+    video: Option<assay_render::video::Video>,
 }
 
 fn io_error(what: &str) -> impl Fn(std::io::Error) -> ShardError + '_ {
@@ -76,35 +101,55 @@ fn io_error(what: &str) -> impl Fn(std::io::Error) -> ShardError + '_ {
 }
 
 impl RenderRole {
+    fn start(
+        renderer: Renderer,
+        stream: String,
+        size: (u32, u32),
+        video: bool,
+    ) -> anyhow::Result<Self> {
+        let adapter = renderer.adapter().to_string();
+        let (jobs, rx) = std::sync::mpsc::channel::<RenderJob>();
+        std::thread::Builder::new()
+            .name("render".into())
+            .spawn(move || render_loop(renderer, &stream, size, rx))?;
+        Ok(RenderRole {
+            jobs,
+            adapter,
+            video,
+        })
+    }
+
     fn imagery(
         &self,
         spec: &TaskSpec,
+        shard: u64,
         ep: &assay_sim::Episode,
         root: &Path,
     ) -> Result<EpisodeImagery, ShardError> {
-        let camera = task_cameras(&spec.cameras).remove(0);
-        let mut r = self
-            .renderer
-            .lock()
-            .map_err(|_| ShardError::retryable("the renderer panicked earlier"))?;
-        let (w, h) = self.size;
-        let img = assay_render::imagery::render_episode(
-            &mut r,
-            &ep.initial,
-            &ep.keyframes,
-            &camera,
-            w,
-            h,
-        )
-        .map_err(|e| {
+        let (reply, answer) = std::sync::mpsc::channel();
+        let job = RenderJob {
+            shard,
+            initial: ep.initial.clone(),
+            initial_step: ep.initial_step,
+            keyframes: ep.keyframes.clone(),
+            video: if self.video {
+                ep.video.clone()
+            } else {
+                Vec::new()
+            },
+            camera: task_cameras(&spec.cameras).remove(0),
+            reply,
+        };
+        let gone = || ShardError::retryable("the render thread stopped");
+        self.jobs.send(job).map_err(|_| gone())?;
+        let rendered = answer.recv().map_err(|_| gone())?.map_err(|e| {
             let msg = format!("task {}: rendering: {e}", spec.id);
             match e {
                 assay_render::RenderError::Scene { .. } => ShardError::permanent(msg),
                 _ => ShardError::retryable(msg),
             }
         })?;
-        let adapter = r.adapter().to_string();
-        drop(r);
+        let img = rendered.imagery;
         let put = |bytes: Vec<u8>| {
             artifacts::put(root, "imagery", "png", &bytes).map_err(io_error("imagery"))
         };
@@ -123,12 +168,102 @@ impl RenderRole {
                 artifact: put(i.png())?,
             });
         }
+        let video = match rendered.video {
+            Some(v) => Some(
+                artifacts::put(root, "video", v.extension, &v.bytes).map_err(io_error("video"))?,
+            ),
+            None => None,
+        };
         Ok(EpisodeImagery {
-            adapter,
+            adapter: self.adapter.clone(),
             views,
             keyframes,
             contact_sheet: put(img.sheet.png())?,
+            video,
         })
+    }
+}
+
+/// The frame-bus stream a worker's render role publishes its views and keyframes on.
+pub fn imagery_stream(worker_id: &str) -> String {
+    format!("{worker_id}/imagery")
+}
+
+/// The render thread: draws each job's pictures into frame-bus samples (or plain memory when
+/// the bus cannot be opened), then its video, and answers.
+fn render_loop(
+    mut r: Renderer,
+    stream: &str,
+    (w, h): (u32, u32),
+    jobs: std::sync::mpsc::Receiver<RenderJob>,
+) {
+    use assay_framebus::{FrameBus, FrameHeader, format};
+    use assay_render::image::Rgb;
+    let len = (w * h * 4) as usize;
+    // iceoryx2 ports belong to the thread that made them: open the bus here.
+    let bus = FrameBus::open(&format!("assay-render-{}", std::process::id()))
+        .and_then(|bus| Ok((bus.publisher(stream, len)?, bus)));
+    let publisher = match bus {
+        Ok((p, bus)) => {
+            tracing::info!(stream, "publishing imagery on the frame bus");
+            Some((p, bus))
+        }
+        Err(e) => {
+            tracing::warn!(error = %e, "no frame bus: rendering into process memory");
+            None
+        }
+    };
+    for job in jobs {
+        let mut draw = |shot: Shot, scene: &SceneSnapshot, cam: &Camera| {
+            let Some((p, _)) = &publisher else {
+                return Ok(Rgb::from_frame(&r.render_with(
+                    scene,
+                    cam,
+                    assay_render::Outputs::RGB,
+                )?));
+            };
+            let header = FrameHeader {
+                episode: job.shard,
+                step: shot.step(job.initial_step),
+                camera: shot.camera(),
+                format: format::RGBA8,
+                width: w,
+                height: h,
+                stride: w * 4,
+                ..Default::default()
+            };
+            match p.try_publish(header, len, |sample| {
+                r.render_rgba_into(scene, cam, sample)?;
+                Ok(Rgb::from_rgba(w, h, sample))
+            }) {
+                Ok(drawn) => drawn.map(|(rgb, _reached)| rgb),
+                Err(e) => Err(assay_render::RenderError::Device(e.to_string())),
+            }
+        };
+        let result = assay_render::imagery::render_episode_with(
+            &job.initial,
+            &job.keyframes,
+            &job.camera,
+            w,
+            h,
+            &mut draw,
+        )
+        .and_then(|imagery| {
+            let video = if job.video.is_empty() {
+                None
+            } else {
+                let (vw, vh) = (w.div_ceil(2), h.div_ceil(2));
+                Some(assay_render::imagery::render_video(
+                    &mut r,
+                    &job.video,
+                    &job.camera,
+                    vw,
+                    vh,
+                )?)
+            };
+            Ok(Rendered { imagery, video })
+        });
+        let _ = job.reply.send(result);
     }
 }
 
@@ -172,9 +307,14 @@ impl SimRole {
             .steps
             .fetch_add(outcome.steps, Ordering::Relaxed);
         if let Some(render) = &self.render {
-            let imagery = render.imagery(&spec, &ep, artifact_root)?;
+            let imagery = render.imagery(&spec, a.shard_id, &ep, artifact_root)?;
+            let video_frames = if imagery.video.is_some() {
+                ep.video.len()
+            } else {
+                0
+            };
             self.counters.frames.fetch_add(
-                (imagery.views.len() + imagery.keyframes.len()) as u64,
+                (imagery.views.len() + imagery.keyframes.len() + video_frames) as u64,
                 Ordering::Relaxed,
             );
             outcome.imagery = Some(imagery);
@@ -200,23 +340,26 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
             "this build runs render together with sim (--roles sim,render); a render-only worker comes with the frame bus"
         );
     }
-    let render = if roles.contains(&pb::Role::Render) {
-        let renderer = Renderer::new().context("starting the render role")?;
-        tracing::info!(adapter = %renderer.adapter(), "render role ready");
-        Some(RenderRole {
-            renderer: Mutex::new(renderer),
-            size: a.image_size,
-        })
-    } else {
-        None
-    };
-    // Shards are leased for the sim role; rendering rides along in the same process.
-    roles.retain(|r| *r == pb::Role::Sim);
     let node_id = a.node_id.unwrap_or_else(|| {
         std::fs::read_to_string("/etc/hostname")
             .map(|s| s.trim().to_owned())
             .unwrap_or_else(|_| "local".into())
     });
+    let worker_id = a.worker_id.unwrap_or_else(|| default_worker_id(&node_id));
+    let render = if roles.contains(&pb::Role::Render) {
+        let renderer = Renderer::new().context("starting the render role")?;
+        tracing::info!(adapter = %renderer.adapter(), "render role ready");
+        Some(RenderRole::start(
+            renderer,
+            imagery_stream(&worker_id),
+            a.image_size,
+            a.video,
+        )?)
+    } else {
+        None
+    };
+    // Shards are leased for the sim role; rendering rides along in the same process.
+    roles.retain(|r| *r == pb::Role::Sim);
     let (announce, announced) = tokio::sync::watch::channel(None::<(String, String)>);
     let counters = Arc::new(Counters::default());
     let role_names: Vec<String> = a.roles.clone();
@@ -224,7 +367,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     versions.insert("assay".into(), env!("CARGO_PKG_VERSION").into());
     let config = WorkerConfig {
         coordinator: a.coordinator,
-        worker_id: a.worker_id.unwrap_or_else(|| default_worker_id(&node_id)),
+        worker_id,
         node_id,
         roles,
         capacity: a.capacity.max(1),
@@ -242,6 +385,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
             config.worker_id.clone(),
             config.node_id.clone(),
             role_names,
+            u64::from(config.capacity),
         ));
         let handler = Arc::new(SimRole { render, counters });
         let result = run_worker(config, handler, super::terminated()).await;
@@ -260,6 +404,7 @@ async fn publish_stats(
     worker: String,
     node: String,
     roles: Vec<String>,
+    capacity: u64,
 ) {
     let (endpoint, cluster) = loop {
         if let Some((e, c)) = announced.borrow_and_update().clone()
@@ -307,7 +452,8 @@ async fn publish_stats(
             roles: roles.clone(),
             episodes_done: counters.episodes.load(Ordering::Relaxed),
             episodes_failed: counters.failed.load(Ordering::Relaxed),
-            shards_running: counters.running.load(Ordering::Relaxed),
+            leases_held: counters.running.load(Ordering::Relaxed),
+            lease_capacity: capacity,
             physics_steps_per_s: (steps - last_steps) as f64 / dt,
             frames_per_s: (frames - last_frames) as f64 / dt,
             uptime_s: start.elapsed().as_secs_f64(),

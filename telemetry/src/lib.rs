@@ -24,7 +24,10 @@ pub struct WorkerStats {
     pub roles: Vec<String>,
     pub episodes_done: u64,
     pub episodes_failed: u64,
-    pub shards_running: u64,
+    /// Leases this worker holds now (shards running).
+    pub leases_held: u64,
+    /// Leases it may hold at once (its capacity).
+    pub lease_capacity: u64,
     pub physics_steps_per_s: f64,
     pub frames_per_s: f64,
     pub uptime_s: f64,

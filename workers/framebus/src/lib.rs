@@ -172,6 +172,28 @@ impl FramePublisher {
         *sample.user_header_mut() = header;
         sample.send().map_err(|e| err("sending", e))
     }
+
+    /// Like [`publish`](Self::publish), but `fill` may fail: then nothing is sent (the sample
+    /// goes back to the pool) and its error is returned inside `Ok`.
+    pub fn try_publish<T, E>(
+        &self,
+        mut header: FrameHeader,
+        len: usize,
+        fill: impl FnOnce(&mut [u8]) -> Result<T, E>,
+    ) -> Result<Result<(T, usize), E>, BusError> {
+        let mut sample = self
+            .publisher
+            .loan_slice(len)
+            .map_err(|e| err("loaning a sample", e))?;
+        let value = match fill(sample.payload_mut()) {
+            Ok(v) => v,
+            Err(e) => return Ok(Err(e)),
+        };
+        header.timestamp_ns = monotonic_ns();
+        *sample.user_header_mut() = header;
+        let reached = sample.send().map_err(|e| err("sending", e))?;
+        Ok(Ok((value, reached)))
+    }
 }
 
 /// Receives frames of one stream. Not `Send`: create it on the thread that reads.

@@ -12,15 +12,18 @@ pub struct Rgb {
 
 impl Rgb {
     pub fn from_frame(f: &Frame) -> Rgb {
-        let data = f
-            .rgba
-            .chunks_exact(4)
-            .flat_map(|p| [p[0], p[1], p[2]])
-            .collect();
+        Rgb::from_rgba(f.width, f.height, &f.rgba)
+    }
+
+    /// From tightly packed RGBA rows (alpha dropped).
+    pub fn from_rgba(width: u32, height: u32, rgba: &[u8]) -> Rgb {
         Rgb {
-            width: f.width,
-            height: f.height,
-            data,
+            width,
+            height,
+            data: rgba
+                .chunks_exact(4)
+                .flat_map(|p| [p[0], p[1], p[2]])
+                .collect(),
         }
     }
 

@@ -1,16 +1,48 @@
 //! The pictures every episode gets: views of the initial scene (for scene alignment), keyframes
-//! over the rollout (for task completion), and a contact sheet of both.
+//! over the rollout (for task completion), a contact sheet of both, and optionally a video.
 
 use assay_core::scene::{SceneSnapshot, scene_views};
 use assay_core::spec::Camera;
 
 use crate::image::{Rgb, contact_sheet};
+use crate::video::Video;
 use crate::{Outputs, RenderError, Renderer};
 
 pub struct Imagery {
     pub views: Vec<(String, Rgb)>,
     pub keyframes: Vec<(u64, String, Rgb)>,
     pub sheet: Rgb,
+}
+
+/// Camera numbers of the scene views in frame headers (keyframes carry the index of their camera
+/// in the task's camera list, which is small).
+pub const VIEW_CAMERA_BASE: u32 = 1000;
+
+/// Which picture of an episode is being drawn.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Shot {
+    /// Scene view `i` of the initial scene (top, front, oblique left, oblique right).
+    View(usize),
+    /// A keyframe at this physics step, from the task's first camera.
+    Keyframe(u64),
+}
+
+impl Shot {
+    /// The camera number a frame header carries.
+    pub fn camera(self) -> u32 {
+        match self {
+            Shot::View(i) => VIEW_CAMERA_BASE + i as u32,
+            Shot::Keyframe(_) => 0,
+        }
+    }
+
+    /// The physics step drawn (scene views show the state before the first policy step).
+    pub fn step(self, initial_step: u64) -> u64 {
+        match self {
+            Shot::View(_) => initial_step,
+            Shot::Keyframe(s) => s,
+        }
+    }
 }
 
 /// Renders the four scene views of `initial` and every keyframe from `keyframe_camera`, at
@@ -23,29 +55,46 @@ pub fn render_episode(
     width: u32,
     height: u32,
 ) -> Result<Imagery, RenderError> {
+    render_episode_with(
+        initial,
+        keyframes,
+        keyframe_camera,
+        width,
+        height,
+        &mut |_, scene, cam| Ok(Rgb::from_frame(&r.render_with(scene, cam, Outputs::RGB)?)),
+    )
+}
+
+/// [`render_episode`] with the drawing left to `draw` (for example straight into a frame-bus
+/// sample in shared memory, which subscribers on the node then read in place).
+pub fn render_episode_with(
+    initial: &SceneSnapshot,
+    keyframes: &[(u64, SceneSnapshot)],
+    keyframe_camera: &Camera,
+    width: u32,
+    height: u32,
+    draw: &mut dyn FnMut(Shot, &SceneSnapshot, &Camera) -> Result<Rgb, RenderError>,
+) -> Result<Imagery, RenderError> {
     let sized = |c: &Camera| Camera {
         width,
         height,
         ..c.clone()
     };
     let mut views = Vec::new();
-    for cam in scene_views() {
-        // The views show the scene as the task set it up: without the tool in the way.
-        let scene = SceneSnapshot {
-            tool: None,
-            ..initial.clone()
-        };
-        views.push((
-            cam.name.clone(),
-            Rgb::from_frame(&r.render_with(&scene, &sized(&cam), Outputs::RGB)?),
-        ));
+    // The views show the scene as the task set it up: without the tool in the way.
+    let scene = SceneSnapshot {
+        tool: None,
+        ..initial.clone()
+    };
+    for (i, cam) in scene_views().iter().enumerate() {
+        views.push((cam.name.clone(), draw(Shot::View(i), &scene, &sized(cam))?));
     }
     let mut frames = Vec::new();
     for (step, scene) in keyframes {
         frames.push((
             *step,
             keyframe_camera.name.clone(),
-            Rgb::from_frame(&r.render_with(scene, &sized(keyframe_camera), Outputs::RGB)?),
+            draw(Shot::Keyframe(*step), scene, &sized(keyframe_camera))?,
         ));
     }
     let thumbs: Vec<Rgb> = views
@@ -58,4 +107,31 @@ pub fn render_episode(
         keyframes: frames,
         sheet: contact_sheet(&thumbs, 4),
     })
+}
+
+/// Frames per second of episode videos.
+pub const VIDEO_FPS: u32 = 12;
+
+/// A video of `states` from `camera` at `width` × `height` ([`VIDEO_FPS`]).
+pub fn render_video(
+    r: &mut Renderer,
+    states: &[(u64, SceneSnapshot)],
+    camera: &Camera,
+    width: u32,
+    height: u32,
+) -> Result<Video, RenderError> {
+    let cam = Camera {
+        width,
+        height,
+        ..camera.clone()
+    };
+    let mut frames = Vec::with_capacity(states.len());
+    for (_, scene) in states {
+        frames.push(Rgb::from_frame(&r.render_with(
+            scene,
+            &cam,
+            Outputs::RGB,
+        )?));
+    }
+    crate::video::encode(&frames, VIDEO_FPS).map_err(RenderError::Video)
 }

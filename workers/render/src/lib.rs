@@ -8,6 +8,7 @@ pub mod image;
 pub mod imagery;
 pub mod math;
 pub mod mesh;
+pub mod video;
 
 use std::borrow::Cow;
 use std::collections::HashMap;
@@ -42,6 +43,8 @@ pub enum RenderError {
     Device(String),
     #[error("{path}: {reason}")]
     Scene { path: String, reason: String },
+    #[error("video: {0}")]
+    Video(String),
 }
 
 /// The adapter in use, recorded with every rendered episode.

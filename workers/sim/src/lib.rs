@@ -73,12 +73,18 @@ pub struct Episode {
     pub notes: Vec<String>,
     /// The scene after the initial settle, before the policy acts (for scene views).
     pub initial: SceneSnapshot,
+    /// The physics step of `initial`.
+    pub initial_step: u64,
     /// `KEYFRAMES` states evenly spaced from the first policy step to the end, with their steps.
     pub keyframes: Vec<(u64, SceneSnapshot)>,
+    /// `VIDEO_FRAMES` states evenly spaced over the same span, for an episode video.
+    pub video: Vec<(u64, SceneSnapshot)>,
 }
 
 /// Keyframes per episode (task completion is judged on these).
 pub const KEYFRAMES: usize = 8;
+/// Frames of an episode video (4 s at 12 frames/s, whatever the episode's length).
+pub const VIDEO_FRAMES: usize = 48;
 
 /// Simulates one episode of `spec` with `seed` and `policy`. Deterministic: the same inputs give
 /// the same outcome and the same file, byte for byte.
@@ -206,7 +212,12 @@ pub fn simulate(spec: &TaskSpec, seed: u64, policy: &str) -> Result<Episode, Sim
         file,
         notes,
         initial: rec.snapshot(first_policy_row, spec),
+        initial_step: u64::from(rec.step_at(first_policy_row)),
         keyframes: evenly_spaced(first_policy_row, rec.rows() - 1, KEYFRAMES)
+            .into_iter()
+            .map(|row| (u64::from(rec.step_at(row)), rec.snapshot(row, spec)))
+            .collect(),
+        video: evenly_spaced(first_policy_row, rec.rows() - 1, VIDEO_FRAMES)
             .into_iter()
             .map(|row| (u64::from(rec.step_at(row)), rec.snapshot(row, spec)))
             .collect(),
