@@ -337,7 +337,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     }
     if !roles.contains(&pb::Role::Sim) {
         bail!(
-            "this build runs render together with sim (--roles sim,render); a render-only worker comes with the frame bus"
+            "this build runs render together with sim (--roles sim,render): a render-only worker, fed scene states over the frame bus, comes with the policy role"
         );
     }
     let node_id = a.node_id.unwrap_or_else(|| {
