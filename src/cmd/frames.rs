@@ -53,7 +53,8 @@ pub enum Cmd {
         #[arg(long)]
         grpc: Option<String>,
         /// Save every RGBA frame as DIR/<episode>-<camera>-<step>.png instead of checking it
-        /// against the test pattern (to look at what a worker's render role publishes).
+        /// against the test pattern (to look at what a worker's render role publishes; shared
+        /// memory only).
         #[arg(long)]
         save: Option<PathBuf>,
     },
