@@ -37,15 +37,7 @@ fn subscriber_with(dir: &Path, name: &str, stream: &str, count: u64, extra: &[&s
     ];
     args.extend_from_slice(extra);
     let p = Proc::spawn(name, &args, dir);
-    let deadline = Instant::now() + Duration::from_secs(30);
-    while !ready.exists() {
-        assert!(
-            Instant::now() < deadline,
-            "{name} did not connect:\n{}",
-            p.log_text()
-        );
-        std::thread::sleep(Duration::from_millis(20));
-    }
+    wait_for_file(&p, &ready, &format!("{name} did not connect"));
     p
 }
 
@@ -163,15 +155,7 @@ fn a_relay_carries_frames_to_a_grpc_subscriber_intact() {
         ],
         dir.path(),
     );
-    let deadline = Instant::now() + Duration::from_secs(30);
-    while !addr_file.exists() {
-        assert!(
-            Instant::now() < deadline,
-            "the relay did not start:\n{}",
-            relay.log_text()
-        );
-        std::thread::sleep(Duration::from_millis(20));
-    }
+    wait_for_file(&relay, &addr_file, "the relay did not start");
     let url = format!("http://{}", std::fs::read_to_string(&addr_file).unwrap());
     let mut remote = subscriber_with(dir.path(), "grpc-sub", &s, 40, &["--grpc", &url]);
     let mut local = subscriber(dir.path(), "bus-sub", &s, 40);

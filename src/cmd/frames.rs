@@ -161,7 +161,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
                         stats.dropped += f.dropped;
                         let ok = check_pattern(&f.data) == Some(f.step)
                             && f.data.len() as u64 == u64::from(f.stride) * u64::from(f.height);
-                        stats.record(f.step, ok, now.saturating_sub(f.timestamp_ns));
+                        stats.record(f.step, ok, f.timestamp_ns, now);
                     }
                     anyhow::Ok(())
                 })?,
@@ -176,21 +176,14 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
                         let got = subscriber.receive(|h, payload| {
                             let now = monotonic_ns();
                             let sized = payload.len() as u32 == h.stride * h.height;
-                            match &save {
-                                Some(dir) => (
-                                    seq,
-                                    sized && save_frame(dir, h, payload),
-                                    now.saturating_sub(h.timestamp_ns),
-                                ),
-                                None => (
-                                    h.step,
-                                    sized && check_pattern(payload) == Some(h.step),
-                                    now.saturating_sub(h.timestamp_ns),
-                                ),
-                            }
+                            let (seq, ok) = match &save {
+                                Some(dir) => (seq, sized && save_frame(dir, h, payload)),
+                                None => (h.step, sized && check_pattern(payload) == Some(h.step)),
+                            };
+                            (seq, ok, h.timestamp_ns, now)
                         })?;
                         match got {
-                            Some((seq, ok, latency)) => stats.record(seq, ok, latency),
+                            Some((seq, ok, sent, now)) => stats.record(seq, ok, sent, now),
                             None if spin => std::hint::spin_loop(),
                             None => std::thread::sleep(Duration::from_micros(50)),
                         }
@@ -264,8 +257,8 @@ struct Stats {
 }
 
 impl Stats {
-    fn record(&mut self, seq: u64, ok: bool, latency_ns: u64) {
-        let now = monotonic_ns();
+    /// Frame `seq`, stamped `sent_ns` by its publisher, arrived at `now` (both CLOCK_MONOTONIC).
+    fn record(&mut self, seq: u64, ok: bool, sent_ns: u64, now: u64) {
         if self.received == 0 {
             self.first_ns = now;
         }
@@ -279,7 +272,8 @@ impl Stats {
         }
         self.first.get_or_insert(seq);
         self.last = Some(seq);
-        self.latencies.push(latency_ns as f64 / 1000.0);
+        self.latencies
+            .push(now.saturating_sub(sent_ns) as f64 / 1000.0);
     }
 
     /// Done when `count` frames arrived, or the last one (sequence `count - 1`) did: frames
@@ -357,7 +351,10 @@ fn relay(
         let bound = listener.local_addr()?;
         tracing::info!(%bound, "frame relay serving");
         if let Some(f) = addr_file {
-            std::fs::write(f, bound.to_string())?;
+            // Whole or absent: a reader polling for the file never sees it half written.
+            let tmp = f.with_extension("tmp");
+            std::fs::write(&tmp, bound.to_string())?;
+            std::fs::rename(&tmp, &f)?;
         }
         super::frames_grpc::server_builder()
             .add_service(hub.server())

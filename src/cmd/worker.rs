@@ -77,6 +77,7 @@ struct Counters {
 struct RenderRole {
     jobs: std::sync::mpsc::Sender<RenderJob>,
     adapter: String,
+    /// Episodes come with video states (the sim role is asked for them).
     video: bool,
 }
 
@@ -85,7 +86,7 @@ struct RenderJob {
     initial: SceneSnapshot,
     initial_step: u64,
     keyframes: Vec<(u64, SceneSnapshot)>,
-    /// Empty when no video is wanted.
+    /// Video states; empty when no video is wanted.
     video: Vec<(u64, SceneSnapshot)>,
     camera: Camera,
     reply: std::sync::mpsc::Sender<Result<Rendered, assay_render::RenderError>>,
@@ -123,20 +124,16 @@ impl RenderRole {
         &self,
         spec: &TaskSpec,
         shard: u64,
-        ep: &assay_sim::Episode,
+        ep: assay_sim::Episode,
         root: &Path,
     ) -> Result<EpisodeImagery, ShardError> {
         let (reply, answer) = std::sync::mpsc::channel();
         let job = RenderJob {
             shard,
-            initial: ep.initial.clone(),
+            initial: ep.initial,
             initial_step: ep.initial_step,
-            keyframes: ep.keyframes.clone(),
-            video: if self.video {
-                ep.video.clone()
-            } else {
-                Vec::new()
-            },
+            keyframes: ep.keyframes,
+            video: ep.video,
             camera: task_cameras(&spec.cameras).remove(0),
             reply,
         };
@@ -292,7 +289,11 @@ impl SimRole {
             .as_ref()
             .map(|p| p.name.as_str())
             .unwrap_or("oracle");
-        let ep = assay_sim::simulate(&spec, a.seed, policy).map_err(|e| {
+        let video_frames = match &self.render {
+            Some(r) if r.video => assay_sim::VIDEO_FRAMES,
+            _ => 0,
+        };
+        let ep = assay_sim::simulate_with(&spec, a.seed, policy, video_frames).map_err(|e| {
             let msg = format!("task {}: {e}", spec.id);
             if e.retryable() {
                 ShardError::retryable(msg)
@@ -307,12 +308,8 @@ impl SimRole {
             .steps
             .fetch_add(outcome.steps, Ordering::Relaxed);
         if let Some(render) = &self.render {
-            let imagery = render.imagery(&spec, a.shard_id, &ep, artifact_root)?;
-            let video_frames = if imagery.video.is_some() {
-                ep.video.len()
-            } else {
-                0
-            };
+            let video_frames = ep.video.len();
+            let imagery = render.imagery(&spec, a.shard_id, ep, artifact_root)?;
             self.counters.frames.fetch_add(
                 (imagery.views.len() + imagery.keyframes.len() + video_frames) as u64,
                 Ordering::Relaxed,

@@ -82,6 +82,15 @@ impl Drop for Proc {
 }
 
 /// Starts a coordinator; `listen` may use port 0. Returns it and its `http://` address.
+/// Waits (30 s at most) until `p` has written `path`, e.g. a ready or address file.
+pub fn wait_for_file(p: &Proc, path: &Path, what: &str) {
+    let deadline = Instant::now() + Duration::from_secs(30);
+    while !path.exists() {
+        assert!(Instant::now() < deadline, "{what}:\n{}", p.log_text());
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
 pub fn coordinator(dir: &Path, listen: &str, extra: &[&str]) -> (Proc, String) {
     let addr_file = dir.join("coordinator.addr");
     let _ = std::fs::remove_file(&addr_file);

@@ -77,7 +77,7 @@ pub struct Episode {
     pub initial_step: u64,
     /// `KEYFRAMES` states evenly spaced from the first policy step to the end, with their steps.
     pub keyframes: Vec<(u64, SceneSnapshot)>,
-    /// `VIDEO_FRAMES` states evenly spaced over the same span, for an episode video.
+    /// States evenly spaced over the same span for an episode video (empty unless asked for).
     pub video: Vec<(u64, SceneSnapshot)>,
 }
 
@@ -89,6 +89,17 @@ pub const VIDEO_FRAMES: usize = 48;
 /// Simulates one episode of `spec` with `seed` and `policy`. Deterministic: the same inputs give
 /// the same outcome and the same file, byte for byte.
 pub fn simulate(spec: &TaskSpec, seed: u64, policy: &str) -> Result<Episode, SimError> {
+    simulate_with(spec, seed, policy, 0)
+}
+
+/// [`simulate`], also keeping `video_frames` states evenly spaced over the rollout (for an
+/// episode video; [`VIDEO_FRAMES`] is the default count).
+pub fn simulate_with(
+    spec: &TaskSpec,
+    seed: u64,
+    policy: &str,
+    video_frames: usize,
+) -> Result<Episode, SimError> {
     let PolicySpec::Oracle { noise } = PolicySpec::parse(policy).map_err(SimError::Policy)?;
     let mut scene = scene::build_scene(spec, seed)?;
     let start = scene.gripper_position();
@@ -217,7 +228,7 @@ pub fn simulate(spec: &TaskSpec, seed: u64, policy: &str) -> Result<Episode, Sim
             .into_iter()
             .map(|row| (u64::from(rec.step_at(row)), rec.snapshot(row, spec)))
             .collect(),
-        video: evenly_spaced(first_policy_row, rec.rows() - 1, VIDEO_FRAMES)
+        video: evenly_spaced(first_policy_row, rec.rows() - 1, video_frames)
             .into_iter()
             .map(|row| (u64::from(rec.step_at(row)), rec.snapshot(row, spec)))
             .collect(),
