@@ -2,8 +2,9 @@
 //! deterministic random streams, scene snapshots that cameras draw, episode outcomes, batch
 //! reports and the statistics they use.
 //!
-//! Owns: the data model every other crate agrees on. Never does IO beyond parsing strings, never
-//! links physics, rendering, torch or networking.
+//! Owns: the data model every other crate agrees on. Never does IO beyond parsing strings and
+//! reading the asset files a spec names (URDF and its meshes), never links physics, rendering,
+//! torch or networking.
 
 pub mod error;
 pub mod hash;
@@ -13,6 +14,7 @@ pub mod rng;
 pub mod scene;
 pub mod spec;
 pub mod stats;
+pub mod urdf;
 
 pub use error::{SpecError, SpecErrors};
 pub use spec::{TaskSpec, parse_task};

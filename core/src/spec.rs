@@ -4,7 +4,7 @@
 //! spec are degrees. A spec is parsed strictly (unknown fields are errors) and then validated; every
 //! problem names the task, the field path and the reason.
 
-use std::collections::BTreeSet;
+use std::collections::{BTreeMap, BTreeSet};
 
 use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
@@ -135,6 +135,17 @@ pub enum Shape {
         path: String,
         #[serde(default = "one")]
         scale: f64,
+    },
+    /// A URDF file (relative to the spec file; its meshes, OBJ or STL, inside the URDF's own
+    /// folder), drawn from its visual elements and collided as the compound of its collision
+    /// elements (a link's visuals where it has none, meshes as convex hulls). Posed rigidly at
+    /// `joints` (joint name → position, rad or m; a joint not named sits at 0, or at its lower
+    /// limit when 0 is outside its limits): spec v1 does not move joints. The object's frame is
+    /// the centre of its visual bounding box, like every other shape's.
+    Urdf {
+        path: String,
+        #[serde(default)]
+        joints: BTreeMap<String, f64>,
     },
 }
 
@@ -879,6 +890,14 @@ impl Validator<'_> {
                 }
                 self.positive(&format!("{path}.mesh.scale"), *scale);
             }
+            Shape::Urdf { path: file, joints } => {
+                if file.is_empty() {
+                    self.err(&format!("{path}.urdf.path"), "must not be empty".into());
+                }
+                for (name, q) in joints {
+                    self.finite(&format!("{path}.urdf.joints.{name}"), *q);
+                }
+            }
         }
     }
 }
@@ -897,6 +916,37 @@ impl TaskSpec {
     /// SHA-256 of the canonical JSON, hex.
     pub fn spec_hash(&self) -> String {
         crate::hash::sha256_hex(self.canonical_json().as_bytes())
+    }
+
+    /// Where an asset path of the spec points: relative paths are relative to the spec file's
+    /// folder (when the spec came from a file).
+    pub fn asset_path(&self, path: &str) -> std::path::PathBuf {
+        let p = std::path::Path::new(path);
+        match self
+            .source
+            .origin
+            .as_deref()
+            .and_then(|o| std::path::Path::new(o).parent())
+        {
+            Some(dir) if !p.is_absolute() => dir.join(p),
+            _ => p.to_path_buf(),
+        }
+    }
+
+    /// `shape` with its file path made to point where [`TaskSpec::asset_path`] says, so that a
+    /// renderer in another working folder finds it.
+    pub fn resolved_shape(&self, shape: &Shape) -> Shape {
+        match shape {
+            Shape::Mesh { path, scale } => Shape::Mesh {
+                path: self.asset_path(path).display().to_string(),
+                scale: *scale,
+            },
+            Shape::Urdf { path, joints } => Shape::Urdf {
+                path: self.asset_path(path).display().to_string(),
+                joints: joints.clone(),
+            },
+            other => other.clone(),
+        }
     }
 
     pub fn object(&self, id: &str) -> Option<&Object> {

@@ -23,7 +23,7 @@ use bytemuck::{Pod, Zeroable};
 use serde::{Deserialize, Serialize};
 use wgpu::util::DeviceExt;
 
-use crate::math::{Mat4, mul, perspective, rotate, trs};
+use crate::math::{Mat4, mul, perspective, quat_mul, rotate, trs};
 use crate::mesh::{MeshData, Vertex};
 
 pub const ZNEAR: f32 = 0.01;
@@ -168,6 +168,17 @@ struct Targets {
     readback: [wgpu::Buffer; 3],
 }
 
+/// One visual part of a URDF object: its mesh, placement and scale in the object's frame, and
+/// its own colour when the URDF gives one.
+#[derive(Debug, Clone)]
+struct UrdfPart {
+    mesh: MeshKey,
+    position: [f32; 3],
+    rotation: [f32; 4],
+    scale: [f32; 3],
+    color: Option<[f32; 3]>,
+}
+
 /// Which unit mesh an instance uses.
 #[derive(Debug, Clone, PartialEq, Eq, Hash)]
 enum MeshKey {
@@ -189,6 +200,8 @@ pub struct Renderer {
     globals: wgpu::Buffer,
     bind_group: wgpu::BindGroup,
     meshes: HashMap<MeshKey, GpuMesh>,
+    /// URDF objects by file and joint positions: their visual parts in the object's frame.
+    urdfs: HashMap<String, Vec<UrdfPart>>,
     targets: Option<Targets>,
     adapter: AdapterSummary,
 }
@@ -359,6 +372,7 @@ impl Renderer {
             globals,
             bind_group,
             meshes: HashMap::new(),
+            urdfs: HashMap::new(),
             targets: None,
             adapter: summary,
         };
@@ -452,11 +466,68 @@ impl Renderer {
         self.targets.as_ref().expect("targets were just made")
     }
 
+    /// Reads a URDF object once: its visual parts, with their meshes uploaded.
+    fn load_urdf(
+        &mut self,
+        i: usize,
+        path: &str,
+        joints: &std::collections::BTreeMap<String, f64>,
+    ) -> Result<String, RenderError> {
+        use assay_core::urdf::Geometry;
+        let key = format!("{path}|{joints:?}");
+        if self.urdfs.contains_key(&key) {
+            return Ok(key);
+        }
+        let a =
+            assay_core::urdf::assemble(std::path::Path::new(path), joints).map_err(|reason| {
+                RenderError::Scene {
+                    path: format!("scene.objects[{i}].shape.urdf"),
+                    reason,
+                }
+            })?;
+        let mut parts = Vec::new();
+        for (k, (part, mesh)) in a.visuals.iter().enumerate() {
+            let (key, scale) = match &part.geometry {
+                Geometry::Box { size } => (MeshKey::Box, size.map(|x| x as f32 / 2.0)),
+                Geometry::Sphere { radius } => (MeshKey::Sphere, [*radius as f32; 3]),
+                Geometry::Cylinder { radius, length } => {
+                    let r = *radius as f32;
+                    (MeshKey::Cylinder, [r, r, *length as f32 / 2.0])
+                }
+                Geometry::Mesh { scale, .. } => {
+                    let mesh_key = MeshKey::File(format!("{key}#{k}"));
+                    if let Some(m) = mesh {
+                        self.upload(
+                            mesh_key.clone(),
+                            &mesh::from_triangles(&m.vertices, &m.triangles, 1.0),
+                        );
+                    }
+                    (mesh_key, scale.map(|x| x as f32))
+                }
+            };
+            parts.push(UrdfPart {
+                mesh: key,
+                position: part.pose.translation.map(|x| x as f32),
+                rotation: part.pose.rotation.map(|x| x as f32),
+                scale,
+                color: part.color.map(|c| [c[0], c[1], c[2]]),
+            });
+        }
+        self.urdfs.insert(key.clone(), parts);
+        Ok(key)
+    }
+
     /// Instances per mesh for one snapshot.
     fn instances(
         &mut self,
         scene: &SceneSnapshot,
     ) -> Result<Vec<(MeshKey, Vec<Instance>)>, RenderError> {
+        let mut urdf_keys = HashMap::new();
+        for (i, o) in scene.objects.iter().enumerate() {
+            if let Shape::Urdf { path, joints } = &o.shape {
+                urdf_keys.insert(i, self.load_urdf(i, path, joints)?);
+            }
+        }
         let mut by_mesh: Vec<(MeshKey, Vec<Instance>)> = Vec::new();
         let mut push = |key: MeshKey, model: Mat4, color: [f32; 3], segment: u32| {
             let inst = Instance {
@@ -549,6 +620,21 @@ impl Renderer {
                     files.push((i, path.clone(), *scale as f32, key.clone()));
                     push(key, trs(p, q, [1.0; 3]), o.color, seg);
                 }
+                Shape::Urdf { .. } => {
+                    for part in &self.urdfs[&urdf_keys[&i]] {
+                        let d = rotate(q, part.position);
+                        push(
+                            part.mesh.clone(),
+                            trs(
+                                [p[0] + d[0], p[1] + d[1], p[2] + d[2]],
+                                quat_mul(q, part.rotation),
+                                part.scale,
+                            ),
+                            part.color.unwrap_or(o.color),
+                            seg,
+                        );
+                    }
+                }
             }
         }
         for (i, path, scale, key) in files {
@@ -593,6 +679,20 @@ impl Renderer {
         camera: &Camera,
         dst: &mut [u8],
     ) -> Result<(), RenderError> {
+        self.render_into(scene, camera, Outputs::RGB, dst)
+            .map(|_| ())
+    }
+
+    /// [`Renderer::render_with`], with RGBA written straight into `dst` as
+    /// [`Renderer::render_rgba_into`] does; the frame returned holds the other `outputs` (its
+    /// `rgba` is empty).
+    pub fn render_into(
+        &mut self,
+        scene: &SceneSnapshot,
+        camera: &Camera,
+        outputs: Outputs,
+        dst: &mut [u8],
+    ) -> Result<Frame, RenderError> {
         let expected = camera.width.max(1) as usize * camera.height.max(1) as usize * 4;
         if dst.len() != expected {
             return Err(RenderError::Device(format!(
@@ -600,8 +700,7 @@ impl Renderer {
                 dst.len()
             )));
         }
-        self.render_impl(scene, camera, Outputs::RGB, Some(dst))
-            .map(|_| ())
+        self.render_impl(scene, camera, outputs, Some(dst))
     }
 
     fn render_impl(

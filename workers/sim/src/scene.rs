@@ -2,6 +2,7 @@
 
 use assay_core::rng::Rng;
 use assay_core::spec::{Object, Shape, Surface, TABLE_CENTER, TABLE_HALF_EXTENTS, TaskSpec};
+use assay_core::urdf::Geometry;
 use rapier3d::prelude::*;
 
 use crate::SimError;
@@ -67,7 +68,7 @@ pub fn new_world(dt: f32) -> PhysicsWorld {
 /// A collider, the half extents of its box, and (containers) inner half extents and wall.
 type BuiltShape = (ColliderBuilder, Vec3, Option<(Vec3, f32)>);
 
-fn collider_for(shape: &Shape, spec_dir_hint: &str, path: &str) -> Result<BuiltShape, SimError> {
+fn collider_for(shape: &Shape, spec: &TaskSpec, path: &str) -> Result<BuiltShape, SimError> {
     Ok(match shape {
         Shape::Box { half_extents } => {
             let h = v3(*half_extents);
@@ -120,12 +121,52 @@ fn collider_for(shape: &Shape, spec_dir_hint: &str, path: &str) -> Result<BuiltS
                 Some((inner, w)),
             )
         }
+        Shape::Urdf { path: file, joints } => {
+            let full = spec.asset_path(file);
+            let a = assay_core::urdf::assemble(&full, joints)
+                .map_err(|e| SimError::spec(format!("{path}.urdf"), e))?;
+            let mut parts: Vec<(Pose, SharedShape)> = Vec::new();
+            for (k, (part, mesh)) in a.collisions.iter().enumerate() {
+                let [x, y, z] = part.pose.translation.map(|c| c as f32);
+                let [qx, qy, qz, qw] = part.pose.rotation.map(|c| c as f32);
+                let pose =
+                    Pose::from_parts(Vec3::new(x, y, z), Rotation::from_xyzw(qx, qy, qz, qw));
+                let (pose, shape) = match &part.geometry {
+                    Geometry::Box { size } => {
+                        let h = v3(*size) / 2.0;
+                        (pose, SharedShape::cuboid(h.x, h.y, h.z))
+                    }
+                    Geometry::Sphere { radius } => (pose, SharedShape::ball(*radius as f32)),
+                    // URDF cylinders stand on their local z; rapier's on y.
+                    Geometry::Cylinder { radius, length } => (
+                        pose * Pose::new(
+                            Vec3::ZERO,
+                            Vec3::new(std::f32::consts::FRAC_PI_2, 0.0, 0.0),
+                        ),
+                        SharedShape::cylinder(*length as f32 / 2.0, *radius as f32),
+                    ),
+                    Geometry::Mesh { scale, .. } => {
+                        let s = v3(*scale);
+                        let points: Vec<Vec3> = mesh
+                            .iter()
+                            .flat_map(|m| m.vertices.iter())
+                            .map(|v| Vec3::new(v[0], v[1], v[2]) * s)
+                            .collect();
+                        let hull = SharedShape::convex_hull(&points).ok_or_else(|| {
+                            SimError::spec(
+                                format!("{path}.urdf"),
+                                format!("collision part {k}: the mesh has no usable hull"),
+                            )
+                        })?;
+                        (pose, hull)
+                    }
+                };
+                parts.push((pose, shape));
+            }
+            (ColliderBuilder::compound(parts), v3(a.half), None)
+        }
         Shape::Mesh { path: file, scale } => {
-            let full = if std::path::Path::new(file).is_absolute() || spec_dir_hint.is_empty() {
-                std::path::PathBuf::from(file)
-            } else {
-                std::path::Path::new(spec_dir_hint).join(file)
-            };
+            let full = spec.asset_path(file);
             let text = std::fs::read_to_string(&full).map_err(|e| {
                 SimError::spec(
                     format!("{path}.mesh.path"),
@@ -165,13 +206,6 @@ fn collider_for(shape: &Shape, spec_dir_hint: &str, path: &str) -> Result<BuiltS
 pub fn build_scene(spec: &TaskSpec, seed: u64) -> Result<SimScene, SimError> {
     let mut rng = Rng::new(seed, &spec.id);
     let mut world = new_world(spec.physics.dt as f32);
-    let dir = spec
-        .source
-        .origin
-        .as_deref()
-        .and_then(|o| std::path::Path::new(o).parent())
-        .map(|p| p.display().to_string())
-        .unwrap_or_default();
 
     match spec.scene.surface {
         Surface::Table => {
@@ -212,7 +246,7 @@ pub fn build_scene(spec: &TaskSpec, seed: u64) -> Result<SimScene, SimError> {
             )
         };
         let path = format!("scene.objects[{i}].shape");
-        let (collider, half, container) = collider_for(&o.shape, &dir, &path)?;
+        let (collider, half, container) = collider_for(&o.shape, spec, &path)?;
         let body = if o.is_fixed {
             RigidBodyBuilder::fixed()
         } else {

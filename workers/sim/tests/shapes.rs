@@ -81,3 +81,91 @@ goals:
         "{err}"
     );
 }
+
+fn cabinet_urdf() -> String {
+    std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../examples/assets/cabinet/cabinet.urdf")
+        .canonicalize()
+        .unwrap()
+        .display()
+        .to_string()
+}
+
+#[test]
+fn a_urdf_cabinet_is_a_solid_support_at_its_height() {
+    let spec = format!(
+        r#"
+spec_version: 1
+id: block-on-cabinet
+name: put-block-on-cabinet
+description: Put the red block on top of the cabinet.
+group: placement
+scene:
+  objects:
+    - {{id: cabinet, fixed: true, shape: {{urdf: {{path: "{}", joints: {{drawer_slide: 0.0}}}}}}, pose: {{position: [0.62, 0.0, 0.1]}}}}
+    - {{id: block, shape: {{box: {{half_extents: [0.02, 0.02, 0.02]}}}}, color: red, pose: {{position: [0.4, 0.15, 0.02]}}}}
+end_effector: {{type: suction}}
+goals:
+  - on_top_of: {{object: block, support: cabinet}}
+oracle:
+  - pick: {{object: block}}
+  - place: {{target: {{on: cabinet}}}}
+"#,
+        cabinet_urdf()
+    );
+    let spec = parse_task(&spec, Format::Yaml, "cabinet.yaml").unwrap();
+    let ep = assay_sim::simulate(&spec, 0, "oracle").unwrap();
+    assert!(
+        ep.outcome.success,
+        "{:?} {:?}",
+        ep.outcome.predicates, ep.notes
+    );
+    // The block rests on the cabinet's top panel (0.20 m), not inside it or on the table.
+    let block = &ep.keyframes.last().unwrap().1.objects[1];
+    assert!(
+        (block.position[2] - 0.22).abs() < 0.004,
+        "block at {:?}",
+        block.position
+    );
+    // The snapshot names the URDF by a path a renderer anywhere on the node can open.
+    let assay_core::spec::Shape::Urdf { path, .. } = &ep.keyframes[0].1.objects[0].shape else {
+        panic!("the cabinet is drawn from its URDF");
+    };
+    assert!(std::path::Path::new(path).is_absolute(), "{path}");
+}
+
+#[test]
+fn a_bad_urdf_is_a_spec_error_naming_the_field_and_the_joint() {
+    let spec = |joints: &str| {
+        format!(
+            r#"
+spec_version: 1
+id: bad-cabinet
+name: bad-cabinet
+description: A cabinet posed beyond its limits.
+group: placement
+scene:
+  objects:
+    - {{id: cabinet, fixed: true, shape: {{urdf: {{path: "{}", joints: {joints}}}}}, pose: {{position: [0.62, 0.0, 0.1]}}}}
+end_effector: {{type: suction}}
+goals:
+  - within_distance: {{object: cabinet, point: [0.62, 0.0, 0.1], distance: 0.1}}
+"#,
+            cabinet_urdf()
+        )
+    };
+    let run = |joints: &str| {
+        let spec = parse_task(&spec(joints), Format::Yaml, "c.yaml").unwrap();
+        assay_sim::simulate(&spec, 0, "oracle")
+            .err()
+            .expect("an error")
+            .to_string()
+    };
+    let beyond = run("{drawer_slide: 0.5}");
+    assert!(
+        beyond.starts_with("scene.objects[0].shape.urdf") && beyond.contains("drawer_slide"),
+        "{beyond}"
+    );
+    let unknown = run("{no_such_joint: 0.1}");
+    assert!(unknown.contains("no_such_joint"), "{unknown}");
+}

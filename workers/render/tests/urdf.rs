@@ -1,0 +1,107 @@
+//! URDF objects drawn from their visual elements: the cabinet fixture with its drawer shut and
+//! pulled out, seen by the top-down camera through depth and segmentation.
+
+use std::collections::BTreeMap;
+
+use assay_core::policy::observation_camera;
+use assay_core::scene::{FIRST_OBJECT_SEGMENT, Observation, SceneSnapshot, SnapshotObject};
+use assay_core::spec::{Camera, Shape, Surface};
+use assay_render::{Outputs, Renderer};
+
+fn cabinet(drawer: f64) -> (SceneSnapshot, [f64; 3]) {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../examples/assets/cabinet/cabinet.urdf")
+        .canonicalize()
+        .unwrap();
+    let joints = BTreeMap::from([("drawer_slide".to_owned(), drawer)]);
+    let half = assay_core::urdf::assemble(&path, &joints).unwrap().half;
+    let scene = SceneSnapshot {
+        surface: Surface::Table,
+        objects: vec![SnapshotObject {
+            id: "cabinet".into(),
+            shape: Shape::Urdf {
+                path: path.display().to_string(),
+                joints,
+            },
+            color: [1.0, 0.0, 1.0],
+            position: [0.5, 0.0, half[2] as f32],
+            rotation: [0.0, 0.0, 0.0, 1.0],
+        }],
+        tool: None,
+    };
+    (scene, half)
+}
+
+/// World points of the cabinet's pixels, and their colours, from `camera`.
+fn seen(r: &mut Renderer, scene: &SceneSnapshot, camera: &Camera) -> Vec<([f64; 3], [u8; 3])> {
+    let f = r.render_with(scene, camera, Outputs::ALL).unwrap();
+    let obs = Observation {
+        camera: camera.clone(),
+        depth: f.depth,
+        segments: f.segments,
+    };
+    let mut out = Vec::new();
+    for y in 0..camera.height {
+        for x in 0..camera.width {
+            let i = (y * camera.width + x) as usize;
+            if obs.segments[i] == FIRST_OBJECT_SEGMENT {
+                let c = &f.rgba[i * 4..i * 4 + 3];
+                out.push((obs.point(x, y).unwrap(), [c[0], c[1], c[2]]));
+            }
+        }
+    }
+    out
+}
+
+#[test]
+fn the_cabinet_is_drawn_from_its_urdf_and_its_drawer_shows_where_the_joint_puts_it() {
+    let mut r = Renderer::new().expect("an adapter");
+    let camera = Camera {
+        width: 640,
+        height: 480,
+        ..observation_camera()
+    };
+    let (shut, shut_half) = cabinet(0.0);
+    let (open, open_half) = cabinet(0.12);
+    let a = seen(&mut r, &shut, &camera);
+    let b = seen(&mut r, &open, &camera);
+    assert!(
+        a.len() > 5000 && b.len() > a.len(),
+        "{} {}",
+        a.len(),
+        b.len()
+    );
+    let span = |pts: &[([f64; 3], [u8; 3])], k: usize| {
+        let lo = pts.iter().map(|p| p.0[k]).fold(f64::MAX, f64::min);
+        let hi = pts.iter().map(|p| p.0[k]).fold(f64::MIN, f64::max);
+        (lo, hi)
+    };
+    // The top panel is 0.20 m above the table, whatever the drawer does.
+    for pts in [&a, &b] {
+        let top = span(pts, 2).1;
+        assert!((top - 0.20).abs() < 0.003, "top at {top}");
+    }
+    // Seen from above, the cabinet reaches 0.12 m further forward with the drawer out, and its
+    // seen length matches the bounding box the sim collides with (a pixel is about 1.9 mm).
+    let (sa, sb) = (span(&a, 0), span(&b, 0));
+    let grown = (sb.1 - sb.0) - (sa.1 - sa.0);
+    assert!(
+        (grown - 0.12).abs() < 0.006,
+        "grew {grown}: {sa:?} → {sb:?}"
+    );
+    for ((lo, hi), half) in [(sa, shut_half), (sb, open_half)] {
+        assert!(
+            ((hi - lo) - 2.0 * half[0]).abs() < 0.006,
+            "{lo}..{hi} vs ±{}",
+            half[0]
+        );
+    }
+    // The URDF's own colours (grey panels) are drawn, not the spec's magenta.
+    let magenta = a.iter().filter(|p| p.1[1] < 30 && p.1[0] > 150).count();
+    assert_eq!(magenta, 0);
+    let grey = a
+        .iter()
+        .filter(|p| p.1[0].abs_diff(p.1[1]) < 12 && p.1[1].abs_diff(p.1[2]) < 12)
+        .count();
+    assert!(grey * 2 > a.len(), "{grey} of {} grey", a.len());
+}
