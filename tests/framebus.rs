@@ -247,3 +247,64 @@ fn a_render_worker_publishes_on_the_bus_the_pictures_it_stores() {
         "frames on the bus {from_bus:?} are the stored pictures {stored:?}"
     );
 }
+
+#[test]
+fn a_seeing_policy_acts_on_frames_its_worker_renders_while_the_episode_runs() {
+    let dir = tempfile::tempdir().unwrap();
+    let (_coord, addr) = coordinator(dir.path(), "127.0.0.1:0", &[]);
+    let worker_id = format!("test-{}/seeing", std::process::id());
+    let saved = dir.path().join("from-bus");
+    let mut sub = subscriber_with(
+        dir.path(),
+        "policy-sub",
+        &format!("{worker_id}/imagery"),
+        40,
+        &["--save", saved.to_str().unwrap()],
+    );
+    let _worker = Proc::spawn(
+        "render worker",
+        &[
+            "worker",
+            "--coordinator",
+            &addr,
+            "--roles",
+            "sim,render",
+            "--image-size",
+            "160x120",
+            "--worker-id",
+            &worker_id,
+        ],
+        dir.path(),
+    );
+    let r = runtime().block_on(async {
+        let b = submit_for(
+            &addr,
+            &["tests/fixtures/small/small-stack-two-blocks.yaml"],
+            1,
+            "oracle:sense=camera",
+        )
+        .await;
+        wait_for(&addr, &b.batch_id, Duration::from_secs(120), finished).await;
+        common::report(&addr, &b.batch_id).await
+    });
+    let ep = &r.results.tasks[0].episodes[0];
+    assert!(ep.success, "the seeing oracle stacked the blocks: {ep:?}");
+    let got = report(&mut sub, Duration::from_secs(60));
+    assert_eq!(got["corrupt"], 0, "{got}");
+    // The policy's own frames went over the bus as they were rendered: camera 2000, 320 × 240,
+    // one every 8 physics steps.
+    let mut policy_steps = Vec::new();
+    for f in std::fs::read_dir(&saved).unwrap() {
+        let name = f.unwrap().file_name().to_string_lossy().into_owned();
+        let parts: Vec<&str> = name.trim_end_matches(".png").split('-').collect();
+        if parts[1] == "2000" {
+            policy_steps.push(parts[2].parse::<u64>().unwrap());
+            let png =
+                assay_render::image::Rgb::from_png(&std::fs::read(saved.join(&name)).unwrap())
+                    .unwrap();
+            assert_eq!((png.width, png.height), (320, 240));
+        }
+    }
+    assert!(policy_steps.len() >= 20, "policy frames: {policy_steps:?}");
+    assert!(policy_steps.iter().all(|s| s % 8 == 0), "{policy_steps:?}");
+}

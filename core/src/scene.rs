@@ -90,6 +90,69 @@ pub fn task_cameras(own: &[Camera]) -> Vec<Camera> {
     c
 }
 
+/// What a seeing policy gets from one camera at one moment: depth and segment ids, rows top to
+/// bottom (the renderer's conventions).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Observation {
+    pub camera: Camera,
+    /// Distance (m) from the camera plane along its axis; infinity where nothing was drawn.
+    pub depth: Vec<f32>,
+    /// Segment ids, as in segmentation images.
+    pub segments: Vec<u32>,
+}
+
+/// A camera's axes in the world, as the renderer builds its view: right, up and forward. World z
+/// is up; a camera looking straight down takes +x as the image's up.
+pub fn camera_axes(eye: [f64; 3], target: [f64; 3]) -> [[f64; 3]; 3] {
+    let norm = |a: [f64; 3]| {
+        let l = (a[0] * a[0] + a[1] * a[1] + a[2] * a[2]).sqrt();
+        [a[0] / l, a[1] / l, a[2] / l]
+    };
+    let cross = |a: [f64; 3], b: [f64; 3]| {
+        [
+            a[1] * b[2] - a[2] * b[1],
+            a[2] * b[0] - a[0] * b[2],
+            a[0] * b[1] - a[1] * b[0],
+        ]
+    };
+    let f = norm([target[0] - eye[0], target[1] - eye[1], target[2] - eye[2]]);
+    let up = if cross(f, [0.0, 0.0, 1.0]).iter().all(|c| c.abs() < 1e-4) {
+        [1.0, 0.0, 0.0]
+    } else {
+        [0.0, 0.0, 1.0]
+    };
+    let s = norm(cross(f, up));
+    [s, cross(s, f), f]
+}
+
+impl Observation {
+    pub fn width(&self) -> u32 {
+        self.camera.width.max(1)
+    }
+
+    pub fn height(&self) -> u32 {
+        self.camera.height.max(1)
+    }
+
+    /// The world point drawn at the centre of pixel (`x`, `y`), or `None` where nothing was.
+    pub fn point(&self, x: u32, y: u32) -> Option<[f64; 3]> {
+        let (w, h) = (self.width(), self.height());
+        let d = f64::from(*self.depth.get((y * w + x) as usize)?);
+        if !d.is_finite() {
+            return None;
+        }
+        let c = &self.camera;
+        let t = (c.fovy_deg.to_radians() / 2.0).tan();
+        let nx = (f64::from(x) + 0.5) / f64::from(w) * 2.0 - 1.0;
+        let ny = 1.0 - (f64::from(y) + 0.5) / f64::from(h) * 2.0;
+        let (right, up) = (nx * t * f64::from(w) / f64::from(h) * d, ny * t * d);
+        let [s, u, f] = camera_axes(c.eye, c.target);
+        Some(std::array::from_fn(|k| {
+            c.eye[k] + s[k] * right + u[k] * up + f[k] * d
+        }))
+    }
+}
+
 /// A triangle mesh read from Wavefront OBJ text: `v` lines and `f` lines (polygons are fanned;
 /// `v/vt/vn` indices and negative indices are accepted).
 #[derive(Debug, Clone, Default, PartialEq)]

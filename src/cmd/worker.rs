@@ -6,7 +6,7 @@ use std::time::Duration;
 
 use anyhow::{Context, bail};
 use assay_core::report::{EpisodeImagery, Keyframe, NamedArtifact};
-use assay_core::scene::{SceneSnapshot, task_cameras};
+use assay_core::scene::{Observation, SceneSnapshot, task_cameras};
 use assay_core::spec::{Camera, TaskSpec};
 use assay_proto::v1 as pb;
 use assay_render::Renderer;
@@ -81,7 +81,23 @@ struct RenderRole {
     video: bool,
 }
 
-struct RenderJob {
+enum RenderJob {
+    Episode(EpisodeJob),
+    /// What a seeing policy's camera sees now: RGB into a frame-bus sample (camera
+    /// [`POLICY_CAMERA_ID`]), depth and segments back to the policy.
+    Look {
+        shard: u64,
+        step: u64,
+        scene: SceneSnapshot,
+        camera: Camera,
+        reply: std::sync::mpsc::Sender<Result<Observation, assay_render::RenderError>>,
+    },
+}
+
+/// Frame-bus camera id of a seeing policy's frames (keyframes are 0, scene views 1000 + i).
+pub const POLICY_CAMERA_ID: u32 = 2000;
+
+struct EpisodeJob {
     shard: u64,
     initial: SceneSnapshot,
     initial_step: u64,
@@ -128,7 +144,7 @@ impl RenderRole {
         root: &Path,
     ) -> Result<EpisodeImagery, ShardError> {
         let (reply, answer) = std::sync::mpsc::channel();
-        let job = RenderJob {
+        let job = RenderJob::Episode(EpisodeJob {
             shard,
             initial: ep.initial,
             initial_step: ep.initial_step,
@@ -136,7 +152,7 @@ impl RenderRole {
             video: ep.video,
             camera: task_cameras(&spec.cameras).remove(0),
             reply,
-        };
+        });
         let gone = || ShardError::retryable("the render thread stopped");
         self.jobs.send(job).map_err(|_| gone())?;
         let rendered = answer.recv().map_err(|_| gone())?.map_err(|e| {
@@ -181,6 +197,38 @@ impl RenderRole {
     }
 }
 
+/// A seeing policy's camera, served by the render thread.
+struct RoleObserver<'a> {
+    role: &'a RenderRole,
+    shard: u64,
+}
+
+impl assay_sim::Observer for RoleObserver<'_> {
+    fn observe(
+        &mut self,
+        scene: SceneSnapshot,
+        step: u64,
+        camera: &Camera,
+    ) -> Result<Observation, String> {
+        let (reply, answer) = std::sync::mpsc::channel();
+        let gone = || "the render thread stopped".to_owned();
+        self.role
+            .jobs
+            .send(RenderJob::Look {
+                shard: self.shard,
+                step,
+                scene,
+                camera: camera.clone(),
+                reply,
+            })
+            .map_err(|_| gone())?;
+        answer
+            .recv()
+            .map_err(|_| gone())?
+            .map_err(|e| e.to_string())
+    }
+}
+
 /// The frame-bus stream a worker's render role publishes its views and keyframes on.
 pub fn imagery_stream(worker_id: &str) -> String {
     format!("{worker_id}/imagery")
@@ -211,6 +259,46 @@ fn render_loop(
         }
     };
     for job in jobs {
+        let job = match job {
+            RenderJob::Episode(job) => job,
+            RenderJob::Look {
+                shard,
+                step,
+                scene,
+                camera,
+                reply,
+            } => {
+                let outputs = assay_render::Outputs::ALL;
+                let frame = match &publisher {
+                    None => r.render_with(&scene, &camera, outputs),
+                    Some((p, _)) => {
+                        let (cw, ch) = (camera.width.max(1), camera.height.max(1));
+                        let header = FrameHeader {
+                            episode: shard,
+                            step,
+                            camera: POLICY_CAMERA_ID,
+                            format: format::RGBA8,
+                            width: cw,
+                            height: ch,
+                            stride: cw * 4,
+                            ..Default::default()
+                        };
+                        match p.try_publish(header, (cw * ch * 4) as usize, |sample| {
+                            r.render_into(&scene, &camera, outputs, sample)
+                        }) {
+                            Ok(drawn) => drawn.map(|(frame, _reached)| frame),
+                            Err(e) => Err(assay_render::RenderError::Device(e.to_string())),
+                        }
+                    }
+                };
+                let _ = reply.send(frame.map(|f| Observation {
+                    camera,
+                    depth: f.depth,
+                    segments: f.segments,
+                }));
+                continue;
+            }
+        };
         let mut draw = |shot: Shot, scene: &SceneSnapshot, cam: &Camera| {
             let Some((p, _)) = &publisher else {
                 return Ok(Rgb::from_frame(&r.render_with(
@@ -293,7 +381,18 @@ impl SimRole {
             Some(r) if r.video => assay_sim::VIDEO_FRAMES,
             _ => 0,
         };
-        let ep = assay_sim::simulate_with(&spec, a.seed, policy, video_frames).map_err(|e| {
+        let mut observer = self.render.as_ref().map(|role| RoleObserver {
+            role,
+            shard: a.shard_id,
+        });
+        let ep = assay_sim::simulate_with(
+            &spec,
+            a.seed,
+            policy,
+            video_frames,
+            observer.as_mut().map(|o| o as &mut dyn assay_sim::Observer),
+        )
+        .map_err(|e| {
             let msg = format!("task {}: {e}", spec.id);
             if e.retryable() {
                 ShardError::retryable(msg)
@@ -307,6 +406,9 @@ impl SimRole {
         self.counters
             .steps
             .fetch_add(outcome.steps, Ordering::Relaxed);
+        self.counters
+            .frames
+            .fetch_add(ep.observations, Ordering::Relaxed);
         if let Some(render) = &self.render {
             let video_frames = ep.video.len();
             let imagery = render.imagery(&spec, a.shard_id, ep, artifact_root)?;

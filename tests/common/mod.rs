@@ -206,12 +206,22 @@ pub fn documents(paths: &[&str]) -> Vec<pb::TaskDocument> {
 }
 
 pub async fn submit(addr: &str, paths: &[&str], seeds: u64) -> pb::SubmitBatchResponse {
+    submit_for(addr, paths, seeds, "oracle").await
+}
+
+/// [`submit`] for another policy.
+pub async fn submit_for(
+    addr: &str,
+    paths: &[&str],
+    seeds: u64,
+    policy: &str,
+) -> pb::SubmitBatchResponse {
     let mut c = client(addr).await;
     c.submit_batch(pb::SubmitBatchRequest {
         name: "test".into(),
         tasks: documents(paths),
         policies: vec![pb::PolicyRef {
-            name: "oracle".into(),
+            name: policy.into(),
         }],
         seeds: (0..seeds).collect(),
         max_attempts: 0,

@@ -1,10 +1,12 @@
 //! The primitive controller: turns pick / place / push into commanded tool positions, step by
-//! step, reading the live state at the start of each primitive (as a scripted oracle would).
+//! step, locating objects at the start of each primitive — from the live state (as a scripted
+//! oracle would), or for a seeing oracle from what its camera last showed (`perception`).
 
 use assay_core::rng::Rng;
 use assay_core::spec::{EndEffector, PlaceTarget, Primitive, TaskSpec};
 use rapier3d::prelude::*;
 
+use crate::perception::Tracker;
 use crate::scene::{GRIPPER_HALF_EXTENTS, SimScene};
 
 /// Transit speed of the tool (m/s), descents and the push sweep.
@@ -64,6 +66,20 @@ pub struct Controller {
     rng: Rng,
     pub notes: Vec<Note>,
     max_opening: Option<f32>,
+    /// A seeing oracle's estimates from its camera; `None` for one that reads the sim's state.
+    pub tracker: Option<Tracker>,
+    /// Where a seeing oracle believed the object it last went to pick was (its centre).
+    pick_belief: Option<Vec3>,
+    /// The primitive for which a seeing oracle last moved the tool aside to look again.
+    looked_aside: Option<usize>,
+}
+
+/// An object as the policy believes it to be.
+struct Belief {
+    /// Centre of its box.
+    centre: Vec3,
+    /// Height of its top.
+    top: f32,
 }
 
 #[derive(Debug, Clone, Copy)]
@@ -75,7 +91,14 @@ pub struct Held {
 }
 
 impl Controller {
-    pub fn new(spec: &TaskSpec, start: Vec3, noise: f64, seed: u64) -> Self {
+    /// An oracle for `spec`; with a `tracker` it locates objects only through it (its camera).
+    pub fn new(
+        spec: &TaskSpec,
+        start: Vec3,
+        noise: f64,
+        seed: u64,
+        tracker: Option<Tracker>,
+    ) -> Self {
         Self {
             plan: spec.oracle.clone(),
             next: 0,
@@ -90,6 +113,9 @@ impl Controller {
                 EndEffector::Suction => None,
                 EndEffector::ParallelGripper { max_opening } => Some(max_opening as f32),
             },
+            tracker,
+            pick_belief: None,
+            looked_aside: None,
         }
     }
 
@@ -164,15 +190,58 @@ impl Controller {
         ));
     }
 
+    /// Where object `i` is: the sim's state, or the camera's last good view of it (`None` if
+    /// the camera has not seen it).
+    fn belief(&self, scene: &SimScene, i: usize) -> Option<Belief> {
+        let o = &scene.objects[i];
+        match &self.tracker {
+            None => {
+                let p = scene.pose(o).translation;
+                Some(Belief {
+                    centre: p,
+                    top: p.z + o.half.z,
+                })
+            }
+            Some(t) => t.get(i).map(|s| Belief {
+                centre: Vec3::new(s.top.x, s.top.y, s.top.z - o.half.z),
+                top: s.top.z,
+            }),
+        }
+    }
+
+    /// An object the camera has not seen (the tool may be over it): the first time for this
+    /// primitive, move the tool 15 cm aside, wait for fresh frames and try the primitive again;
+    /// then give it up with a note.
+    fn unseen(&mut self, scene: &SimScene, step: u64, id: &str) {
+        let current = self.next - 1;
+        if self.looked_aside != Some(current) {
+            self.looked_aside = Some(current);
+            let dt = scene.world.integration_parameters.dt;
+            let dy = if self.command.y >= 0.0 { -0.15 } else { 0.15 };
+            let aside = Vec3::new(self.command.x, self.command.y + dy, 0.0);
+            self.travel_over(aside, self.safe_height(scene), dt);
+            for _ in 0..3 {
+                self.dwell(Event::None);
+            }
+            self.next = current;
+            return;
+        }
+        self.notes.push(Note {
+            step,
+            text: format!("'{id}' has not been seen by the camera"),
+        });
+    }
+
     /// A height from which the tool, and what it holds, clears everything on the table.
     fn safe_height(&self, scene: &SimScene) -> f32 {
         let mut top = 0.0f32;
-        for (i, o) in scene.objects.iter().enumerate() {
+        for i in 0..scene.objects.len() {
             if self.held.is_some_and(|h| h.object == i) {
                 continue;
             }
-            let p = scene.pose(o).translation;
-            top = top.max(p.z + o.half.z);
+            if let Some(b) = self.belief(scene, i) {
+                top = top.max(b.top);
+            }
         }
         let held_height = self
             .held
@@ -198,9 +267,15 @@ impl Controller {
                         text: format!("'{object}' is wider than the gripper opens ({max} m)"),
                     });
                 }
-                let pos = scene.pose(o).translation + self.jitter();
+                let half = o.half;
+                let Some(seen) = self.belief(scene, i) else {
+                    self.unseen(scene, step, object);
+                    return;
+                };
+                self.pick_belief = Some(seen.centre);
+                let pos = seen.centre + self.jitter();
                 let z_safe = self.safe_height(scene);
-                let top = pos.z + o.half.z;
+                let top = seen.top;
                 self.travel_over(pos, z_safe, dt);
                 self.push_move(
                     Vec3::new(pos.x, pos.y, top + gh),
@@ -209,7 +284,7 @@ impl Controller {
                     dt,
                 );
                 self.dwell(Event::Grasp(i));
-                let lift = z_safe.max(top + gh + 0.02 + 2.0 * o.half.z);
+                let lift = z_safe.max(top + gh + 0.02 + 2.0 * half.z);
                 self.push_move(
                     Vec3::new(pos.x, pos.y, lift),
                     DESCEND_SPEED,
@@ -226,16 +301,28 @@ impl Controller {
                     return;
                 };
                 let held_half = scene.objects[h.object].half;
+                let believed = |id: &str| {
+                    let i = scene.index_of(id)?;
+                    Some((&scene.objects[i], self.belief(scene, i)))
+                };
                 let centre = match target {
-                    PlaceTarget::On(id) => scene.object(id).map(|s| {
-                        let p = scene.pose(s).translation;
-                        Vec3::new(p.x, p.y, p.z + s.half.z + held_half.z)
-                    }),
-                    PlaceTarget::Into(id) => scene.object(id).map(|c| {
-                        let p = scene.pose(c).translation;
-                        let (inner, w) = c.container.unwrap_or((c.half, 0.0));
-                        Vec3::new(p.x, p.y, p.z - (inner.z + w / 2.0) + w + held_half.z)
-                    }),
+                    PlaceTarget::On(id) | PlaceTarget::Into(id) => match believed(id) {
+                        None => None,
+                        Some((_, None)) => {
+                            self.unseen(scene, step, id);
+                            return;
+                        }
+                        Some((c, Some(b))) => Some(match target {
+                            PlaceTarget::On(_) => {
+                                Vec3::new(b.centre.x, b.centre.y, b.top + held_half.z)
+                            }
+                            _ => {
+                                let (inner, w) = c.container.unwrap_or((c.half, 0.0));
+                                let floor = b.centre.z - (inner.z + w / 2.0) + w;
+                                Vec3::new(b.centre.x, b.centre.y, floor + held_half.z)
+                            }
+                        }),
+                    },
                     PlaceTarget::Zone(id) => {
                         scene_zone(scene, id).map(|(c, _)| Vec3::new(c.x, c.y, held_half.z))
                     }
@@ -262,21 +349,32 @@ impl Controller {
                 );
             }
             Primitive::Push { object, to } => {
-                let Some(o) = scene.object(object) else {
+                let Some(i) = scene.index_of(object) else {
                     return;
                 };
-                let pose = scene.pose(o);
-                let p = pose.translation;
+                let Some(seen) = self.belief(scene, i) else {
+                    self.unseen(scene, step, object);
+                    return;
+                };
+                let p = seen.centre;
                 let goal = Vec3::new(to[0] as f32, to[1] as f32, 0.0) + self.jitter();
                 let d = Vec3::new(goal.x - p.x, goal.y - p.y, 0.0);
                 if d.length() < 1e-4 {
                     return;
                 }
                 let dir = d.normalize();
-                // Extent of the object along the push direction, in its own (yawed) frame.
-                let ax = pose.rotation * Vec3::X;
-                let ay = pose.rotation * Vec3::Y;
-                let e = o.half.x * dir.dot(ax).abs() + o.half.y * dir.dot(ay).abs();
+                // Extent of the object along the push direction: from its (yawed) box, or from the
+                // footprint the camera saw.
+                let e = match &self.tracker {
+                    None => {
+                        let o = &scene.objects[i];
+                        let rotation = scene.pose(o).rotation;
+                        let ax = rotation * Vec3::X;
+                        let ay = rotation * Vec3::Y;
+                        o.half.x * dir.dot(ax).abs() + o.half.y * dir.dot(ay).abs()
+                    }
+                    Some(t) => t.get(i).map_or(0.0, |s| s.extent_along(dir)),
+                };
                 let g = GRIPPER_HALF_EXTENTS[0] * (dir.x.abs() + dir.y.abs());
                 let z_low = gh + 0.004;
                 let z_safe = self.safe_height(scene);
@@ -352,9 +450,14 @@ impl Controller {
                 let handle = scene
                     .world
                     .insert_impulse_joint(scene.gripper, o.body, joint);
+                // A seeing oracle knows where it grasped only from what it saw.
+                let believed = match (&self.tracker, self.pick_belief) {
+                    (Some(_), Some(b)) => b,
+                    _ => pose.translation,
+                };
                 self.held = Some(Held {
                     object: i,
-                    offset: pose.translation - tool,
+                    offset: believed - tool,
                     joint: handle,
                 });
             }

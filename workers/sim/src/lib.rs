@@ -6,6 +6,7 @@
 //! caller's thread (a shard thread), never on an async executor.
 
 pub mod controller;
+pub mod perception;
 pub mod predicates;
 pub mod record;
 pub mod reference;
@@ -13,12 +14,13 @@ pub mod scene;
 
 use std::collections::{BTreeMap, HashMap};
 
-use assay_core::policy::PolicySpec;
+use assay_core::policy::{OBSERVE_EVERY_STEPS, PolicySpec, Sense};
 use assay_core::report::{EpisodeOutcome, LabelSource};
-use assay_core::scene::SceneSnapshot;
-use assay_core::spec::TaskSpec;
+use assay_core::scene::{Observation, SceneSnapshot};
+use assay_core::spec::{Camera, TaskSpec};
 
 use crate::controller::Controller;
+use crate::perception::Tracker;
 use crate::record::Recorder;
 
 /// The rapier3d release this crate is built against (pinned in Cargo.lock).
@@ -79,6 +81,20 @@ pub struct Episode {
     pub keyframes: Vec<(u64, SceneSnapshot)>,
     /// States evenly spaced over the same span for an episode video (empty unless asked for).
     pub video: Vec<(u64, SceneSnapshot)>,
+    /// Camera frames the policy looked at (0 for a policy that reads the sim's state).
+    pub observations: u64,
+}
+
+/// Renders what a seeing policy's camera sees, while the episode runs: the render role on the
+/// worker, or a renderer in the same thread.
+pub trait Observer {
+    /// Depth and segments of `scene` (physics step `step`) from `camera`.
+    fn observe(
+        &mut self,
+        scene: SceneSnapshot,
+        step: u64,
+        camera: &Camera,
+    ) -> Result<Observation, String>;
 }
 
 /// Keyframes per episode (task completion is judged on these).
@@ -89,21 +105,41 @@ pub const VIDEO_FRAMES: usize = 48;
 /// Simulates one episode of `spec` with `seed` and `policy`. Deterministic: the same inputs give
 /// the same outcome and the same file, byte for byte.
 pub fn simulate(spec: &TaskSpec, seed: u64, policy: &str) -> Result<Episode, SimError> {
-    simulate_with(spec, seed, policy, 0)
+    simulate_with(spec, seed, policy, 0, None)
 }
 
 /// [`simulate`], also keeping `video_frames` states evenly spaced over the rollout (for an
-/// episode video; [`VIDEO_FRAMES`] is the default count).
+/// episode video; [`VIDEO_FRAMES`] is the default count), with `observer` rendering the frames
+/// of a policy that sees (`oracle:sense=camera`: every [`OBSERVE_EVERY_STEPS`] physics steps
+/// while it acts, and once before).
 pub fn simulate_with(
     spec: &TaskSpec,
     seed: u64,
     policy: &str,
     video_frames: usize,
+    mut observer: Option<&mut dyn Observer>,
 ) -> Result<Episode, SimError> {
-    let PolicySpec::Oracle { noise } = PolicySpec::parse(policy).map_err(SimError::Policy)?;
+    let PolicySpec::Oracle { noise, sense } =
+        PolicySpec::parse(policy).map_err(SimError::Policy)?;
+    let camera = assay_core::policy::observation_camera();
+    if sense == Sense::Camera && observer.is_none() {
+        return Err(SimError::Policy(format!(
+            "policy '{policy}' sees through a camera: it needs a worker with the render role (--roles sim,render)"
+        )));
+    }
     let mut scene = scene::build_scene(spec, seed)?;
     let start = scene.gripper_position();
-    let mut ctl = Controller::new(spec, start, noise, seed);
+    let tracker = (sense == Sense::Camera).then(|| Tracker::new(scene.objects.len()));
+    let mut ctl = Controller::new(spec, start, noise, seed, tracker);
+    let mut look = |scene: &SimScene, ctl: &mut Controller, step: u64| -> Result<(), SimError> {
+        if let (Some(obs), Some(tracker)) = (observer.as_deref_mut(), ctl.tracker.as_mut()) {
+            let seen = obs
+                .observe(record::live_snapshot(scene, spec), step, &camera)
+                .map_err(|e| SimError::internal(format!("policy camera at step {step}: {e}")))?;
+            tracker.update(&seen, step);
+        }
+        Ok(())
+    };
     let dt = f64::from(scene.world.integration_parameters.dt);
     let mut rec = Recorder::new(scene.objects.len());
     let settle = u64::from(spec.physics.settle_steps);
@@ -142,13 +178,18 @@ pub fn simulate_with(
     }
     let first_policy_row = rec.rows() - 1;
     let mut truncated = false;
+    look(&scene, &mut ctl, step)?;
     while !ctl.done() {
         if step >= settle + max_steps {
             truncated = true;
             break;
         }
         advance(&mut scene, &mut ctl, &mut rec, &mut step, true);
+        if step.is_multiple_of(OBSERVE_EVERY_STEPS) {
+            look(&scene, &mut ctl, step)?;
+        }
     }
+    let observations = ctl.tracker.as_ref().map_or(0, |t| t.frames);
     if let Some(h) = ctl.held.take() {
         // A truncated plan may still hold something: let it go before the final settle.
         scene.world.remove_impulse_joint(h.joint);
@@ -202,6 +243,7 @@ pub fn simulate_with(
         ),
         ("assay.dt".to_owned(), dt.to_string()),
         ("assay.record_stride".to_owned(), RECORD_STRIDE.to_string()),
+        ("assay.observations".to_owned(), observations.to_string()),
     ]);
     let file = rec.encode(&object_ids, metadata)?;
     Ok(Episode {
@@ -232,6 +274,7 @@ pub fn simulate_with(
             .into_iter()
             .map(|row| (u64::from(rec.step_at(row)), rec.snapshot(row, spec)))
             .collect(),
+        observations,
     })
 }
 

@@ -57,7 +57,7 @@ impl Recorder {
             .zip(&self.objects)
             .map(|(o, c)| SnapshotObject {
                 id: o.id.clone(),
-                shape: o.shape.clone(),
+                shape: spec.resolved_shape(&o.shape),
                 color: o.color.rgb().unwrap_or([0.5; 3]).map(|x| x as f32),
                 position: [c[0][row], c[1][row], c[2][row]],
                 rotation: [c[3][row], c[4][row], c[5][row], c[6][row]],
@@ -178,4 +178,29 @@ pub fn contact_summary(scene: &SimScene) -> (u32, u32, bool) {
         }
     }
     (pairs, points, ee)
+}
+
+/// The live state of `scene` as a camera can draw it (what a seeing policy's camera renders).
+pub fn live_snapshot(scene: &SimScene, spec: &TaskSpec) -> SceneSnapshot {
+    let objects = spec
+        .scene
+        .objects
+        .iter()
+        .zip(&scene.objects)
+        .map(|(o, s)| {
+            let p = scene.pose(s);
+            SnapshotObject {
+                id: o.id.clone(),
+                shape: spec.resolved_shape(&o.shape),
+                color: o.color.rgb().unwrap_or([0.5; 3]).map(|x| x as f32),
+                position: p.translation.into(),
+                rotation: [p.rotation.x, p.rotation.y, p.rotation.z, p.rotation.w],
+            }
+        })
+        .collect();
+    SceneSnapshot {
+        surface: spec.scene.surface,
+        objects,
+        tool: Some(scene.gripper_position().into()),
+    }
 }
