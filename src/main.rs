@@ -47,6 +47,8 @@ enum Command {
     Top(cmd::top::Args),
     /// Check task specs without running them.
     Validate(cmd::validate::Args),
+    /// Agreement of judges with human ratings from a CSV: Pearson r, MAE, r/MAE, Spearman, Kendall.
+    Agreement(cmd::agreement::Args),
     /// Print the JSON Schema of task spec v1.
     Schema,
     /// Benchmarks on the peer reference scene (compare with shared/bench/peers/peers.py).
@@ -69,6 +71,7 @@ fn main() -> std::process::ExitCode {
         Command::Cancel(a) => cmd::status::cancel(a),
         Command::Top(a) => cmd::top::run(a),
         Command::Validate(a) => cmd::validate::run(a),
+        Command::Agreement(a) => cmd::agreement::run(a),
         Command::Schema => {
             println!(
                 "{}",

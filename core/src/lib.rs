@@ -6,6 +6,7 @@
 //! reading the asset files a spec names (URDF and its meshes), never links physics, rendering,
 //! torch or networking.
 
+pub mod agreement;
 pub mod error;
 pub mod hash;
 pub mod policy;
