@@ -1,6 +1,6 @@
 """Reference values for `assay agreement`, computed with scipy (independently of Assay's Rust code).
 
-Run: python tests/python/agreement_reference.py examples/agreement/paper-table4-scene-alignment.csv
+Run (with scipy installed: pip install scipy numpy): python tests/python/agreement_reference.py examples/agreement/paper-table4-scene-alignment.csv
 Prints, per dataset and model: n, Pearson r, MAE, r/MAE, Spearman rho, Kendall tau-b (None where
 undefined). The numbers are pinned in core/src/agreement.rs's tests.
 """
