@@ -71,7 +71,8 @@ struct Counters {
 }
 
 /// The render role: one thread owns the device (a GPU, or lavapipe) and this worker's frame-bus
-/// stream `<worker-id>/imagery`; shard threads send it episodes and wait for their pictures. Every
+/// stream `<worker-id>/imagery`; shard threads send it episodes and wait for their pictures, and
+/// a seeing policy's frames while its episode runs. Every
 /// view and keyframe is read back straight into a shared-memory sample, encoded from there, and
 /// published: a judge, a viewer or `assay frames relay` on the node reads it in place.
 struct RenderRole {
