@@ -175,21 +175,31 @@ fn a_relay_carries_frames_to_a_grpc_subscriber_intact() {
     );
 }
 
-#[test]
-fn a_render_worker_publishes_on_the_bus_the_pictures_it_stores() {
+/// A coordinator and a `sim,render` worker (160×120 imagery) running one episode of the small
+/// stacking fixture with `policy`, while a subscriber process saves the first `frames` frames of
+/// the worker's imagery stream into `saved`. The processes live as long as the returned guards.
+struct RenderRun {
+    report: assay_core::report::Report,
+    sub: Proc,
+    saved: std::path::PathBuf,
+    // Fields drop in order: the processes stop before their folder is removed.
+    _procs: [Proc; 2],
+    _dir: tempfile::TempDir,
+}
+
+fn render_run(name: &str, policy: &str, frames: u64) -> RenderRun {
     let dir = tempfile::tempdir().unwrap();
-    let (_coord, addr) = coordinator(dir.path(), "127.0.0.1:0", &[]);
-    let worker_id = format!("test-{}/render", std::process::id());
+    let (coord, addr) = coordinator(dir.path(), "127.0.0.1:0", &[]);
+    let worker_id = format!("test-{}/{name}", std::process::id());
     let saved = dir.path().join("from-bus");
-    // 4 scene views and 8 keyframes per episode.
-    let mut sub = subscriber_with(
+    let sub = subscriber_with(
         dir.path(),
-        "imagery-sub",
+        &format!("{name}-sub"),
         &format!("{worker_id}/imagery"),
-        12,
+        frames,
         &["--save", saved.to_str().unwrap()],
     );
-    let _worker = Proc::spawn(
+    let worker = Proc::spawn(
         "render worker",
         &[
             "worker",
@@ -204,16 +214,31 @@ fn a_render_worker_publishes_on_the_bus_the_pictures_it_stores() {
         ],
         dir.path(),
     );
-    let r = runtime().block_on(async {
-        let b = submit(
+    let report = runtime().block_on(async {
+        let b = submit_for(
             &addr,
             &["tests/fixtures/small/small-stack-two-blocks.yaml"],
             1,
+            policy,
         )
         .await;
         wait_for(&addr, &b.batch_id, Duration::from_secs(120), finished).await;
         common::report(&addr, &b.batch_id).await
     });
+    RenderRun {
+        report,
+        sub,
+        saved,
+        _procs: [coord, worker],
+        _dir: dir,
+    }
+}
+
+#[test]
+fn a_render_worker_publishes_on_the_bus_the_pictures_it_stores() {
+    // 4 scene views and 8 keyframes per episode.
+    let mut run = render_run("render", "oracle", 12);
+    let (r, saved) = (&run.report, run.saved.clone());
     let img = r.results.tasks[0].episodes[0].imagery.clone().unwrap();
     let stored: std::collections::BTreeSet<String> = img
         .views
@@ -226,7 +251,7 @@ fn a_render_worker_publishes_on_the_bus_the_pictures_it_stores() {
                 .to_owned()
         })
         .collect();
-    let got = report(&mut sub, Duration::from_secs(60));
+    let got = report(&mut run.sub, Duration::from_secs(60));
     assert_eq!(
         got["corrupt"], 0,
         "every frame was a whole RGBA image: {got}"
@@ -250,46 +275,11 @@ fn a_render_worker_publishes_on_the_bus_the_pictures_it_stores() {
 
 #[test]
 fn a_seeing_policy_acts_on_frames_its_worker_renders_while_the_episode_runs() {
-    let dir = tempfile::tempdir().unwrap();
-    let (_coord, addr) = coordinator(dir.path(), "127.0.0.1:0", &[]);
-    let worker_id = format!("test-{}/seeing", std::process::id());
-    let saved = dir.path().join("from-bus");
-    let mut sub = subscriber_with(
-        dir.path(),
-        "policy-sub",
-        &format!("{worker_id}/imagery"),
-        40,
-        &["--save", saved.to_str().unwrap()],
-    );
-    let _worker = Proc::spawn(
-        "render worker",
-        &[
-            "worker",
-            "--coordinator",
-            &addr,
-            "--roles",
-            "sim,render",
-            "--image-size",
-            "160x120",
-            "--worker-id",
-            &worker_id,
-        ],
-        dir.path(),
-    );
-    let r = runtime().block_on(async {
-        let b = submit_for(
-            &addr,
-            &["tests/fixtures/small/small-stack-two-blocks.yaml"],
-            1,
-            "oracle:sense=camera",
-        )
-        .await;
-        wait_for(&addr, &b.batch_id, Duration::from_secs(120), finished).await;
-        common::report(&addr, &b.batch_id).await
-    });
+    let mut run = render_run("seeing", "oracle:sense=camera", 40);
+    let (r, saved) = (&run.report, run.saved.clone());
     let ep = &r.results.tasks[0].episodes[0];
     assert!(ep.success, "the seeing oracle stacked the blocks: {ep:?}");
-    let got = report(&mut sub, Duration::from_secs(60));
+    let got = report(&mut run.sub, Duration::from_secs(60));
     assert_eq!(got["corrupt"], 0, "{got}");
     // The policy's own frames went over the bus as they were rendered: camera 2000, 320 × 240,
     // one every 8 physics steps.

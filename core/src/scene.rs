@@ -136,19 +136,49 @@ impl Observation {
 
     /// The world point drawn at the centre of pixel (`x`, `y`), or `None` where nothing was.
     pub fn point(&self, x: u32, y: u32) -> Option<[f64; 3]> {
-        let (w, h) = (self.width(), self.height());
-        let d = f64::from(*self.depth.get((y * w + x) as usize)?);
+        let d = *self.depth.get((y * self.width() + x) as usize)?;
+        self.unprojection().point(x, y, d)
+    }
+
+    /// The camera's pixel-to-world mapping, computed once for a whole image.
+    pub fn unprojection(&self) -> Unprojection {
+        let c = &self.camera;
+        let t = (c.fovy_deg.to_radians() / 2.0).tan();
+        let (w, h) = (f64::from(self.width()), f64::from(self.height()));
+        Unprojection {
+            eye: c.eye,
+            axes: camera_axes(c.eye, c.target),
+            half: [t * w / h, t],
+            size: [w, h],
+        }
+    }
+}
+
+/// Pixels of one camera image back to world points.
+#[derive(Debug, Clone, Copy)]
+pub struct Unprojection {
+    eye: [f64; 3],
+    /// Right, up, forward.
+    axes: [[f64; 3]; 3],
+    /// Half the view's width and height at unit depth.
+    half: [f64; 2],
+    size: [f64; 2],
+}
+
+impl Unprojection {
+    /// The world point at the centre of pixel (`x`, `y`) drawn at `depth` (m along the camera
+    /// axis), or `None` where nothing was drawn.
+    pub fn point(&self, x: u32, y: u32, depth: f32) -> Option<[f64; 3]> {
+        let d = f64::from(depth);
         if !d.is_finite() {
             return None;
         }
-        let c = &self.camera;
-        let t = (c.fovy_deg.to_radians() / 2.0).tan();
-        let nx = (f64::from(x) + 0.5) / f64::from(w) * 2.0 - 1.0;
-        let ny = 1.0 - (f64::from(y) + 0.5) / f64::from(h) * 2.0;
-        let (right, up) = (nx * t * f64::from(w) / f64::from(h) * d, ny * t * d);
-        let [s, u, f] = camera_axes(c.eye, c.target);
+        let nx = (f64::from(x) + 0.5) / self.size[0] * 2.0 - 1.0;
+        let ny = 1.0 - (f64::from(y) + 0.5) / self.size[1] * 2.0;
+        let (right, up) = (nx * self.half[0] * d, ny * self.half[1] * d);
+        let [s, u, f] = self.axes;
         Some(std::array::from_fn(|k| {
-            c.eye[k] + s[k] * right + u[k] * up + f[k] * d
+            self.eye[k] + s[k] * right + u[k] * up + f[k] * d
         }))
     }
 }

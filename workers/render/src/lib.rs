@@ -23,7 +23,7 @@ use bytemuck::{Pod, Zeroable};
 use serde::{Deserialize, Serialize};
 use wgpu::util::DeviceExt;
 
-use crate::math::{Mat4, mul, perspective, quat_mul, rotate, trs};
+use crate::math::{Mat4, mul, perspective, rotate, trs};
 use crate::mesh::{MeshData, Vertex};
 
 pub const ZNEAR: f32 = 0.01;
@@ -173,8 +173,7 @@ struct Targets {
 #[derive(Debug, Clone)]
 struct UrdfPart {
     mesh: MeshKey,
-    position: [f32; 3],
-    rotation: [f32; 4],
+    pose: assay_core::urdf::Pose,
     scale: [f32; 3],
     color: Option<[f32; 3]>,
 }
@@ -507,8 +506,7 @@ impl Renderer {
             };
             parts.push(UrdfPart {
                 mesh: key,
-                position: part.pose.translation.map(|x| x as f32),
-                rotation: part.pose.rotation.map(|x| x as f32),
+                pose: part.pose,
                 scale,
                 color: part.color.map(|c| [c[0], c[1], c[2]]),
             });
@@ -621,13 +619,17 @@ impl Renderer {
                     push(key, trs(p, q, [1.0; 3]), o.color, seg);
                 }
                 Shape::Urdf { .. } => {
+                    let object = assay_core::urdf::Pose {
+                        translation: p.map(f64::from),
+                        rotation: q.map(f64::from),
+                    };
                     for part in &self.urdfs[&urdf_keys[&i]] {
-                        let d = rotate(q, part.position);
+                        let world = object.compose(&part.pose);
                         push(
                             part.mesh.clone(),
                             trs(
-                                [p[0] + d[0], p[1] + d[1], p[2] + d[2]],
-                                quat_mul(q, part.rotation),
+                                world.translation.map(|x| x as f32),
+                                world.rotation.map(|x| x as f32),
                                 part.scale,
                             ),
                             part.color.unwrap_or(o.color),

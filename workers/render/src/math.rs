@@ -117,18 +117,6 @@ pub fn rotate(q: [f32; 4], v: [f32; 3]) -> [f32; 3] {
     ]
 }
 
-/// The product a ⊗ b of unit quaternions (x, y, z, w): rotating by `b`, then by `a`.
-pub fn quat_mul(a: [f32; 4], b: [f32; 4]) -> [f32; 4] {
-    let [ax, ay, az, aw] = a;
-    let [bx, by, bz, bw] = b;
-    [
-        aw * bx + ax * bw + ay * bz - az * by,
-        aw * by - ax * bz + ay * bw + az * bx,
-        aw * bz + ax * by - ay * bx + az * bw,
-        aw * bw - ax * bx - ay * by - az * bz,
-    ]
-}
-
 /// Model matrix T · R · S.
 pub fn trs(t: [f32; 3], q: [f32; 4], s: [f32; 3]) -> Mat4 {
     let r = quat_columns(q);

@@ -69,17 +69,19 @@ impl Tracker {
         let mut points: Vec<Vec<[f64; 3]>> = vec![Vec::new(); n];
         let mut area = vec![0.0f64; n];
         let (w, h) = (obs.width(), obs.height());
+        let unproject = obs.unprojection();
         for y in 0..h {
             for x in 0..w {
-                let seg = obs.segments[(y * w + x) as usize];
-                let Some(i) = seg.checked_sub(FIRST_OBJECT_SEGMENT).map(|i| i as usize) else {
+                let k = (y * w + x) as usize;
+                let Some(i) = obs.segments[k].checked_sub(FIRST_OBJECT_SEGMENT) else {
                     continue;
                 };
+                let i = i as usize;
                 if i >= n {
                     continue;
                 }
-                if let Some(p) = obs.point(x, y) {
-                    let d = f64::from(obs.depth[(y * w + x) as usize]);
+                if let Some(p) = unproject.point(x, y, obs.depth[k]) {
+                    let d = f64::from(obs.depth[k]);
                     area[i] += d * d;
                     points[i].push(p);
                 }

@@ -50,24 +50,16 @@ impl Recorder {
 
     /// The recorded state of `row` as a scene a camera can draw.
     pub fn snapshot(&self, row: usize, spec: &TaskSpec) -> SceneSnapshot {
-        let objects = spec
-            .scene
-            .objects
-            .iter()
-            .zip(&self.objects)
-            .map(|(o, c)| SnapshotObject {
-                id: o.id.clone(),
-                shape: spec.resolved_shape(&o.shape),
-                color: o.color.rgb().unwrap_or([0.5; 3]).map(|x| x as f32),
-                position: [c[0][row], c[1][row], c[2][row]],
-                rotation: [c[3][row], c[4][row], c[5][row], c[6][row]],
-            })
-            .collect();
-        SceneSnapshot {
-            surface: spec.scene.surface,
-            objects,
-            tool: Some([self.ee[0][row], self.ee[1][row], self.ee[2][row]]),
-        }
+        snapshot_of(
+            spec,
+            self.objects.iter().map(|c| {
+                (
+                    [c[0][row], c[1][row], c[2][row]],
+                    [c[3][row], c[4][row], c[5][row], c[6][row]],
+                )
+            }),
+            [self.ee[0][row], self.ee[1][row], self.ee[2][row]],
+        )
     }
 
     pub fn record(
@@ -182,25 +174,42 @@ pub fn contact_summary(scene: &SimScene) -> (u32, u32, bool) {
 
 /// The live state of `scene` as a camera can draw it (what a seeing policy's camera renders).
 pub fn live_snapshot(scene: &SimScene, spec: &TaskSpec) -> SceneSnapshot {
+    snapshot_of(
+        spec,
+        scene.objects.iter().map(|o| {
+            let p = scene.pose(o);
+            (
+                p.translation.into(),
+                [p.rotation.x, p.rotation.y, p.rotation.z, p.rotation.w],
+            )
+        }),
+        scene.gripper_position().into(),
+    )
+}
+
+/// `spec`'s objects at `poses` (position, quaternion x y z w; in spec order) with the tool at
+/// `tool`, asset paths resolved.
+fn snapshot_of(
+    spec: &TaskSpec,
+    poses: impl Iterator<Item = ([f32; 3], [f32; 4])>,
+    tool: [f32; 3],
+) -> SceneSnapshot {
     let objects = spec
         .scene
         .objects
         .iter()
-        .zip(&scene.objects)
-        .map(|(o, s)| {
-            let p = scene.pose(s);
-            SnapshotObject {
-                id: o.id.clone(),
-                shape: spec.resolved_shape(&o.shape),
-                color: o.color.rgb().unwrap_or([0.5; 3]).map(|x| x as f32),
-                position: p.translation.into(),
-                rotation: [p.rotation.x, p.rotation.y, p.rotation.z, p.rotation.w],
-            }
+        .zip(poses)
+        .map(|(o, (position, rotation))| SnapshotObject {
+            id: o.id.clone(),
+            shape: spec.resolved_shape(&o.shape),
+            color: o.color.rgb().unwrap_or([0.5; 3]).map(|x| x as f32),
+            position,
+            rotation,
         })
         .collect();
     SceneSnapshot {
         surface: spec.scene.surface,
         objects,
-        tool: Some(scene.gripper_position().into()),
+        tool: Some(tool),
     }
 }
