@@ -7,9 +7,12 @@
 //! torch or networking.
 
 pub mod agreement;
+pub mod caption;
 pub mod error;
 pub mod hash;
 pub mod policy;
+pub mod quality;
+pub mod quality_report;
 pub mod report;
 pub mod rng;
 pub mod scene;

@@ -10,12 +10,16 @@ use std::fmt::Write as _;
 use serde::{Deserialize, Serialize};
 
 use crate::error::SpecError;
+use crate::quality_report::QualityResults;
 use crate::stats::Proportion;
 
 pub const REPORT_VERSION: u32 = 1;
 
 /// Where report.md expects the artifact store, relative to itself (`assay eval` puts it there).
 pub const ARTIFACTS_LINK: &str = "artifacts";
+
+/// The quality figure (scene alignment against completion), written next to report.md.
+pub const QUALITY_FIGURE: &str = "quality.svg";
 
 /// Where a success label came from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Serialize, Deserialize)]
@@ -73,6 +77,10 @@ pub struct EpisodeImagery {
     /// worker was asked for videos.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub video: Option<String>,
+    /// Content address of the scene caption (JSON `assay_core::caption::SceneCaption`): what
+    /// the scene views show, measured from their segments and depth.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub caption: Option<String>,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -86,6 +94,9 @@ pub struct Keyframe {
     pub step: u64,
     pub camera: String,
     pub artifact: String,
+    /// Goal predicates that held in this state (ground truth, for the offline judge).
+    #[serde(default)]
+    pub goals_met: u32,
 }
 
 /// The state of one shard when the report is built.
@@ -131,6 +142,9 @@ pub struct Results {
     pub tasks: Vec<TaskResult>,
     /// Tasks that never ran because their spec is invalid, with every problem found.
     pub invalid_tasks: Vec<SpecError>,
+    /// What the batch's judges said of its tasks (absent when no judge ran).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub quality: Option<QualityResults>,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -387,6 +401,7 @@ pub fn build_results(
         groups,
         tasks: task_results,
         invalid_tasks,
+        quality: None,
     }
 }
 
@@ -540,6 +555,10 @@ impl Report {
                 task.success.trials,
                 cell(&unmet)
             );
+        }
+        if let Some(q) = &r.quality {
+            md.push('\n');
+            md.push_str(&q.markdown(Some(QUALITY_FIGURE)));
         }
         let failures: Vec<_> = r
             .tasks

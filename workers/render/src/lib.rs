@@ -4,6 +4,7 @@
 //!
 //! Owns: the GPU device, pipelines and readback. Never simulates and never does networking.
 
+pub mod caption;
 pub mod image;
 pub mod imagery;
 pub mod math;

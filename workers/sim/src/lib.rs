@@ -79,6 +79,9 @@ pub struct Episode {
     pub initial_step: u64,
     /// `KEYFRAMES` states evenly spaced from the first policy step to the end, with their steps.
     pub keyframes: Vec<(u64, SceneSnapshot)>,
+    /// How many of the task's goal predicates held at each keyframe (the ground truth an offline
+    /// judge reads; the last keyframe is the final state, so it matches `outcome.predicates`).
+    pub keyframe_goals: Vec<u32>,
     /// States evenly spaced over the same span for an episode video (empty unless asked for).
     pub video: Vec<(u64, SceneSnapshot)>,
     /// Camera frames the policy looked at (0 for a policy that reads the sim's state).
@@ -146,9 +149,18 @@ pub fn simulate_with(
     let max_steps = u64::from(spec.physics.max_steps);
     let mut step: u64 = 0;
 
+    // Goals holding at each recorded row, for the keyframes' ground truth.
+    let goals_met = |scene: &SimScene| {
+        predicates::evaluate(&spec.goals, scene)
+            .iter()
+            .filter(|p| p.holds)
+            .count() as u32
+    };
+    let mut met: Vec<u32> = Vec::new();
     let advance = |scene: &mut SimScene,
                    ctl: &mut Controller,
                    rec: &mut Recorder,
+                   met: &mut Vec<u32>,
                    step: &mut u64,
                    act: bool| {
         let ev = if act {
@@ -170,11 +182,13 @@ pub fn simulate_with(
                 ctl.command,
                 ctl.held.map(|h| h.object),
             );
+            met.push(goals_met(scene));
         }
     };
     rec.record(&scene, 0, 0.0, ctl.command, None);
+    met.push(goals_met(&scene));
     for _ in 0..settle {
-        advance(&mut scene, &mut ctl, &mut rec, &mut step, false);
+        advance(&mut scene, &mut ctl, &mut rec, &mut met, &mut step, false);
     }
     let first_policy_row = rec.rows() - 1;
     let mut truncated = false;
@@ -184,7 +198,7 @@ pub fn simulate_with(
             truncated = true;
             break;
         }
-        advance(&mut scene, &mut ctl, &mut rec, &mut step, true);
+        advance(&mut scene, &mut ctl, &mut rec, &mut met, &mut step, true);
         if step.is_multiple_of(OBSERVE_EVERY_STEPS) {
             look(&scene, &mut ctl, step)?;
         }
@@ -195,10 +209,11 @@ pub fn simulate_with(
         scene.world.remove_impulse_joint(h.joint);
     }
     for _ in 0..settle {
-        advance(&mut scene, &mut ctl, &mut rec, &mut step, false);
+        advance(&mut scene, &mut ctl, &mut rec, &mut met, &mut step, false);
     }
     if !step.is_multiple_of(RECORD_STRIDE) {
         rec.record(&scene, step as u32, step as f64 * dt, ctl.command, None);
+        met.push(goals_met(&scene));
     }
 
     let predicates = predicates::evaluate(&spec.goals, &scene);
@@ -246,6 +261,7 @@ pub fn simulate_with(
         ("assay.observations".to_owned(), observations.to_string()),
     ]);
     let file = rec.encode(&object_ids, metadata)?;
+    let keyframe_rows = evenly_spaced(first_policy_row, rec.rows() - 1, KEYFRAMES);
     Ok(Episode {
         outcome: EpisodeOutcome {
             task_id: spec.id.clone(),
@@ -266,10 +282,11 @@ pub fn simulate_with(
         notes,
         initial: rec.snapshot(first_policy_row, spec),
         initial_step: u64::from(rec.step_at(first_policy_row)),
-        keyframes: evenly_spaced(first_policy_row, rec.rows() - 1, KEYFRAMES)
-            .into_iter()
-            .map(|row| (u64::from(rec.step_at(row)), rec.snapshot(row, spec)))
+        keyframes: keyframe_rows
+            .iter()
+            .map(|&row| (u64::from(rec.step_at(row)), rec.snapshot(row, spec)))
             .collect(),
+        keyframe_goals: keyframe_rows.iter().map(|&row| met[row]).collect(),
         video: evenly_spaced(first_policy_row, rec.rows() - 1, video_frames)
             .into_iter()
             .map(|row| (u64::from(rec.step_at(row)), rec.snapshot(row, spec)))

@@ -1,0 +1,1269 @@
+//! Quality in reports: what the judges said about each task (scene alignment 1–5 from the 4 views
+//! of the initial scene, task completion 0–10 from the 8 keyframes), aggregated per task, per
+//! group and per judge, and set against the simulator's ground truth; the "## Quality" section of
+//! report.md and the paper's figure 4 (scene alignment against task completion per setting, marker
+//! size = variance) as a self-contained SVG.
+//!
+//! Owns: the aggregation and its presentation. Never does IO and never calls a judge: it reads
+//! the judge shards as the job store has them and returns data and text. Deterministic: the same
+//! shards in any order give the same results, Markdown and SVG, byte for byte.
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::fmt::Write as _;
+
+use serde::{Deserialize, Serialize};
+
+use crate::agreement::{Agreement, BOOTSTRAP_RESAMPLES, Estimate, agreement};
+use crate::quality::{Item, ItemOutcome, JudgeOutcome, ScoreStats, Usage};
+use crate::report::{EpisodeOutcome, TaskInfo};
+
+/// Seed of the bootstrap behind the judge-vs-simulator intervals (fixed, so reports repeat).
+pub const VS_SIM_SEED: u64 = 0;
+
+/// Item errors and shard failures listed in report.md; the rest are counted (all are in the JSON).
+pub const ERRORS_SHOWN: usize = 50;
+
+/// Characters of a judge's raw answer kept in an error line.
+const RAW_SHOWN: usize = 200;
+
+/// The group of a judged task that the batch's task list does not know.
+pub const NO_GROUP: &str = "(no group)";
+
+/// One judge shard as the job store has it.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct JudgeRecord {
+    pub task_id: String,
+    pub seed: u64,
+    pub policy: String,
+    pub judge: String,
+    pub attempts: u32,
+    pub outcome: Option<JudgeOutcome>,
+    /// Last error, for a shard that failed.
+    pub error: Option<String>,
+    pub cancelled: bool,
+}
+
+/// Quality of every judged task, per judge.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct QualityResults {
+    /// Sorted by name.
+    pub judges: Vec<JudgeSummary>,
+    /// Sorted by (group, task id, judge).
+    pub tasks: Vec<TaskQuality>,
+}
+
+/// One judge over the whole batch.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct JudgeSummary {
+    pub judge: String,
+    /// `offline`, `openai`, `caption+llm`; several joined by ", " if the shards disagree; empty
+    /// when no shard of this judge finished.
+    pub backend: String,
+    pub model: String,
+    /// Distinct prompt versions seen (`completion/v1`, ...), sorted.
+    pub prompts: Vec<String>,
+    /// `backend == "offline"`: the built-in judge, not a vision-language model.
+    pub offline: bool,
+    /// Repeats per item (the largest any shard reports).
+    pub repeats: u32,
+    /// Episodes this judge reported on.
+    pub episodes_judged: u64,
+    /// Shards that failed (not cancelled).
+    pub episodes_failed: u64,
+    /// Shards with no outcome, no error and not cancelled.
+    pub episodes_pending: u64,
+    /// Shards cancelled before an outcome.
+    pub episodes_cancelled: u64,
+    /// Item outcomes with repeats left unasked because the judge budget was spent.
+    pub items_unjudged: u64,
+    /// Repeats that gave no valid score.
+    pub item_errors: u64,
+    pub usage: Usage,
+    /// Over the judge's task means: the mean of the task means and their sample variance.
+    pub scene_alignment: ScoreStats,
+    pub completion: ScoreStats,
+    /// Sorted by name.
+    pub groups: Vec<GroupQuality>,
+    /// Completion (episode mean over repeats, 0–10) against simulator success × 10, over the
+    /// judged episodes with a completion score and a simulator outcome; `None` when there are none.
+    pub vs_sim: Option<Agreement>,
+}
+
+/// One judge over one group: statistics of the group's task means.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct GroupQuality {
+    pub group: String,
+    /// Tasks of the group this judge has shards for.
+    pub tasks: u64,
+    pub scene_alignment: ScoreStats,
+    pub completion: ScoreStats,
+}
+
+/// One judge over one task.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct TaskQuality {
+    pub task_id: String,
+    pub group: String,
+    pub judge: String,
+    /// Over all valid scores of all the task's episodes (every repeat).
+    pub scene_alignment: ScoreStats,
+    pub completion: ScoreStats,
+    /// One line per item error (`seed 3 · oracle · completion · repeat 2: <error> — answer:
+    /// <raw>`) and per failed shard, in (policy, seed) order.
+    pub errors: Vec<String>,
+    /// Item outcomes with repeats left unasked because the judge budget was spent.
+    pub unjudged: u64,
+}
+
+#[derive(Default)]
+struct TaskAcc {
+    scene_alignment: Vec<f64>,
+    completion: Vec<f64>,
+    errors: Vec<String>,
+    unjudged: u64,
+}
+
+#[derive(Default)]
+struct JudgeAcc<'a> {
+    backends: BTreeSet<&'a str>,
+    models: BTreeSet<&'a str>,
+    prompts: BTreeSet<&'a str>,
+    repeats: u32,
+    judged: u64,
+    failed: u64,
+    pending: u64,
+    cancelled: u64,
+    items_unjudged: u64,
+    item_errors: u64,
+    usage: Usage,
+    /// (simulator success × 10, completion episode mean).
+    pairs: Vec<(f64, f64)>,
+    tasks: BTreeMap<&'a str, TaskAcc>,
+}
+
+/// The valid scores of one item outcome (inside the item's range).
+fn valid_scores(item: &ItemOutcome) -> impl Iterator<Item = f64> + '_ {
+    let (lo, hi) = item.item.range();
+    item.scores
+        .iter()
+        .copied()
+        .filter(move |s| s.is_finite() && (lo..=hi).contains(s))
+}
+
+/// Collapses whitespace and keeps the first `RAW_SHOWN` characters.
+fn short(raw: &str) -> String {
+    let flat = raw.split_whitespace().collect::<Vec<_>>().join(" ");
+    match flat.char_indices().nth(RAW_SHOWN) {
+        Some((at, _)) => format!("{}…", &flat[..at]),
+        None => flat,
+    }
+}
+
+/// Quality of every judged task. `None` when there are no judge records. Tasks, episodes and
+/// records may come in any order.
+pub fn build_quality(
+    tasks: &[TaskInfo],
+    episodes: &[EpisodeOutcome],
+    judged: &[JudgeRecord],
+) -> Option<QualityResults> {
+    if judged.is_empty() {
+        return None;
+    }
+    // Duplicates resolved independently of order: the smallest group, success only if every
+    // copy succeeded.
+    let mut group_of: BTreeMap<&str, &str> = BTreeMap::new();
+    for t in tasks {
+        let g = group_of.entry(t.id.as_str()).or_insert(t.group.as_str());
+        *g = (*g).min(t.group.as_str());
+    }
+    let mut truth: BTreeMap<(&str, &str, u64), bool> = BTreeMap::new();
+    for e in episodes {
+        let s = truth
+            .entry((e.task_id.as_str(), e.policy.as_str(), e.seed))
+            .or_insert(e.success);
+        *s &= e.success;
+    }
+    let mut records: Vec<&JudgeRecord> = judged.iter().collect();
+    records.sort_by_key(|r| {
+        (
+            r.judge.as_str(),
+            r.task_id.as_str(),
+            r.policy.as_str(),
+            r.seed,
+            r.outcome.is_some(),
+            r.cancelled,
+            r.attempts,
+            r.error.as_deref(),
+        )
+    });
+
+    let mut judges: BTreeMap<&str, JudgeAcc<'_>> = BTreeMap::new();
+    for r in records {
+        let j = judges.entry(r.judge.as_str()).or_default();
+        let task = j.tasks.entry(r.task_id.as_str()).or_default();
+        let Some(o) = &r.outcome else {
+            match (&r.error, r.cancelled) {
+                (_, true) => j.cancelled += 1,
+                (Some(e), false) => {
+                    j.failed += 1;
+                    task.errors.push(format!(
+                        "seed {} · {} · judge shard failed after {} attempt{}: {}",
+                        r.seed,
+                        r.policy,
+                        r.attempts,
+                        if r.attempts == 1 { "" } else { "s" },
+                        short(e)
+                    ));
+                }
+                (None, false) => j.pending += 1,
+            }
+            continue;
+        };
+        j.judged += 1;
+        j.backends.insert(o.backend.as_str());
+        j.models.insert(o.model.as_str());
+        j.repeats = j.repeats.max(o.repeats);
+        j.usage.add(&o.usage);
+        for item in &o.items {
+            j.prompts.insert(item.prompt.as_str());
+            match item.item {
+                Item::SceneAlignment => task.scene_alignment.extend(valid_scores(item)),
+                Item::Completion => task.completion.extend(valid_scores(item)),
+            }
+            if item.unjudged > 0 {
+                j.items_unjudged += 1;
+                task.unjudged += 1;
+            }
+            j.item_errors += item.errors.len() as u64;
+            for e in &item.errors {
+                let answer = e
+                    .raw
+                    .as_deref()
+                    .map(|raw| format!(" — answer: {}", short(raw)))
+                    .unwrap_or_default();
+                task.errors.push(format!(
+                    "seed {} · {} · {} · repeat {}: {}{answer}",
+                    r.seed,
+                    r.policy,
+                    item.item.name(),
+                    e.repeat,
+                    short(&e.error)
+                ));
+            }
+        }
+        let completion: Vec<f64> = o
+            .item(Item::Completion)
+            .map(|i| valid_scores(i).collect())
+            .unwrap_or_default();
+        let sim = truth.get(&(r.task_id.as_str(), r.policy.as_str(), r.seed));
+        if let (Some(mean), Some(ok)) = (ScoreStats::of(&completion).mean, sim) {
+            j.pairs.push((if *ok { 10.0 } else { 0.0 }, mean));
+        }
+    }
+
+    let mut summaries = Vec::new();
+    let mut task_rows = Vec::new();
+    for (name, j) in judges {
+        let mut by_group: BTreeMap<&str, (u64, Vec<f64>, Vec<f64>)> = BTreeMap::new();
+        let (mut sa_means, mut c_means) = (Vec::new(), Vec::new());
+        for (task_id, t) in j.tasks {
+            let group = group_of.get(task_id).copied().unwrap_or(NO_GROUP);
+            let row = TaskQuality {
+                task_id: task_id.to_owned(),
+                group: group.to_owned(),
+                judge: name.to_owned(),
+                scene_alignment: ScoreStats::of(&t.scene_alignment),
+                completion: ScoreStats::of(&t.completion),
+                errors: t.errors,
+                unjudged: t.unjudged,
+            };
+            let g = by_group.entry(group).or_default();
+            g.0 += 1;
+            if let Some(m) = row.scene_alignment.mean {
+                g.1.push(m);
+                sa_means.push(m);
+            }
+            if let Some(m) = row.completion.mean {
+                g.2.push(m);
+                c_means.push(m);
+            }
+            task_rows.push(row);
+        }
+        let (reference, scores): (Vec<f64>, Vec<f64>) = j.pairs.into_iter().unzip();
+        let join = |s: &BTreeSet<&str>| s.iter().copied().collect::<Vec<_>>().join(", ");
+        let backend = join(&j.backends);
+        summaries.push(JudgeSummary {
+            judge: name.to_owned(),
+            offline: backend == "offline",
+            backend,
+            model: join(&j.models),
+            prompts: j.prompts.iter().map(|p| (*p).to_owned()).collect(),
+            repeats: j.repeats,
+            episodes_judged: j.judged,
+            episodes_failed: j.failed,
+            episodes_pending: j.pending,
+            episodes_cancelled: j.cancelled,
+            items_unjudged: j.items_unjudged,
+            item_errors: j.item_errors,
+            usage: j.usage,
+            scene_alignment: ScoreStats::of(&sa_means),
+            completion: ScoreStats::of(&c_means),
+            groups: by_group
+                .into_iter()
+                .map(|(group, (tasks, sa, c))| GroupQuality {
+                    group: group.to_owned(),
+                    tasks,
+                    scene_alignment: ScoreStats::of(&sa),
+                    completion: ScoreStats::of(&c),
+                })
+                .collect(),
+            vs_sim: (!reference.is_empty())
+                .then(|| agreement(&reference, &scores, BOOTSTRAP_RESAMPLES, VS_SIM_SEED)),
+        });
+    }
+    task_rows
+        .sort_by(|a, b| (&a.group, &a.task_id, &a.judge).cmp(&(&b.group, &b.task_id, &b.judge)));
+    Some(QualityResults {
+        judges: summaries,
+        tasks: task_rows,
+    })
+}
+
+/// Two decimals, never `-0.00`.
+fn num(v: f64) -> String {
+    let s = format!("{v:.2}");
+    if s == "-0.00" { "0.00".into() } else { s }
+}
+
+fn cell(s: &str) -> String {
+    s.replace('|', "\\|").replace('\n', " ")
+}
+
+/// `mean (variance)`, `—` where absent.
+fn mean_var(s: &ScoreStats) -> String {
+    match s.mean {
+        Some(m) => format!("{} ({})", num(m), s.variance.map_or("—".into(), num)),
+        None => "—".into(),
+    }
+}
+
+fn cost(usd: f64) -> String {
+    if usd > 0.0 && usd < 0.01 {
+        format!("{usd:.4}")
+    } else {
+        num(usd)
+    }
+}
+
+/// `value [lo, hi]`, the value alone without an interval, or `undefined: <reason>`.
+fn estimate(e: &Estimate) -> String {
+    match (e.value, e.ci95) {
+        (Some(v), Some([lo, hi])) => format!("{} [{}, {}]", num(v), num(lo), num(hi)),
+        (Some(v), None) => num(v),
+        (None, _) => format!(
+            "undefined: {}",
+            cell(e.undefined.as_deref().unwrap_or("no value"))
+        ),
+    }
+}
+
+/// Colours of the judges in the figure, in name order (cycled beyond eight).
+const PALETTE: [&str; 8] = [
+    "#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e", "#8c564b", "#e377c2", "#17becf",
+];
+
+// The figure's geometry, in px.
+const FIG_W: f64 = 800.0;
+const FIG_H: f64 = 500.0;
+const PLOT_L: f64 = 70.0;
+const PLOT_R: f64 = 530.0;
+const PLOT_T: f64 = 50.0;
+const PLOT_B: f64 = 440.0;
+
+// The axes' domains: the score ranges (1–5, 0–10) with a margin, so that markers at the ends
+// stay inside the frame.
+const X_DOMAIN: (f64, f64) = (0.75, 5.25);
+const Y_DOMAIN: (f64, f64) = (-0.5, 10.5);
+
+fn x_px(scene_alignment: f64) -> f64 {
+    let (lo, hi) = X_DOMAIN;
+    PLOT_L + (scene_alignment.clamp(1.0, 5.0) - lo) / (hi - lo) * (PLOT_R - PLOT_L)
+}
+
+fn y_px(completion: f64) -> f64 {
+    let (lo, hi) = Y_DOMAIN;
+    PLOT_B - (completion.clamp(0.0, 10.0) - lo) / (hi - lo) * (PLOT_B - PLOT_T)
+}
+
+/// How marker size encodes variance, as the legend states it.
+pub const RADIUS_RULE: &str = "r = 4 + 12·√((vSA/4 + vC/25)/2) px";
+
+/// Radius for a spread `f` in 0–1 (see `radius`).
+fn radius_for(f: f64) -> f64 {
+    4.0 + 12.0 * f.clamp(0.0, 1.0).sqrt()
+}
+
+/// Marker radius, `RADIUS_RULE`: each variance (sample variance of the group's task means) as a
+/// fraction of the largest a score in its range can have ((5−1)²/4 = 4 and 10²/4 = 25), the
+/// two averaged and capped at 1; 4 px for no spread (or a single task), 16 px for the most.
+fn radius(g: &GroupQuality) -> f64 {
+    let sa = g.scene_alignment.variance.unwrap_or(0.0) / 4.0;
+    let c = g.completion.variance.unwrap_or(0.0) / 25.0;
+    radius_for((sa + c) / 2.0)
+}
+
+fn xml(s: &str) -> String {
+    s.replace('&', "&amp;")
+        .replace('<', "&lt;")
+        .replace('>', "&gt;")
+        .replace('"', "&quot;")
+}
+
+impl QualityResults {
+    /// The "## Quality" section of report.md. `figure`: relative path of the SVG to link as an
+    /// image, if one was written.
+    pub fn markdown(&self, figure: Option<&str>) -> String {
+        let mut md = String::new();
+        let _ = writeln!(md, "## Quality\n");
+        let _ = writeln!(
+            md,
+            "Each episode is judged on two items, as in the generative-simulation evaluation paper: \
+             scene alignment (1–5, from the 4 views of the initial scene) and task completion \
+             (0–10, from 8 keyframes of the rollout), each asked `repeats` times. Values are means \
+             with the sample variance (n − 1) in parentheses; a group's or a judge's values are \
+             over its task means.\n"
+        );
+        let _ = writeln!(md, "### Judges\n");
+        let _ = writeln!(
+            md,
+            "| judge | backend | model | prompt versions | repeats | episodes judged | failed | pending | cancelled | item errors | unjudged items | calls | cached | tokens in | tokens out | cost USD |\n\
+             |---|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"
+        );
+        for j in &self.judges {
+            let or_dash = |s: &str| if s.is_empty() { "—".into() } else { cell(s) };
+            let _ = writeln!(
+                md,
+                "| `{}` | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
+                cell(&j.judge),
+                or_dash(&j.backend),
+                or_dash(&j.model),
+                or_dash(&j.prompts.join(", ")),
+                j.repeats,
+                j.episodes_judged,
+                j.episodes_failed,
+                j.episodes_pending,
+                j.episodes_cancelled,
+                j.item_errors,
+                j.items_unjudged,
+                j.usage.calls,
+                j.usage.cached,
+                j.usage.tokens_in,
+                j.usage.tokens_out,
+                cost(j.usage.cost_usd)
+            );
+        }
+        for j in self.judges.iter().filter(|j| j.offline) {
+            let _ = writeln!(
+                md,
+                "\n`{}` is Assay's built-in offline judge, not a vision-language model: it scores scene \
+                 alignment by comparing a structured caption of the render (segmentation, measured \
+                 colours, sizes, positions, relations) with the task description, and completion \
+                 from the simulator's goal predicates at the 8 keyframes, so its completion \
+                 agreement with the simulator is high by construction.",
+                cell(&j.judge)
+            );
+        }
+
+        let _ = writeln!(md, "\n### Quality per group\n");
+        for j in &self.judges {
+            let _ = writeln!(md, "#### `{}`\n", cell(&j.judge));
+            let _ = writeln!(
+                md,
+                "| group | tasks | scene alignment (1–5) | completion (0–10) |\n|---|---:|---|---|"
+            );
+            for g in &j.groups {
+                let _ = writeln!(
+                    md,
+                    "| {} | {} | {} | {} |",
+                    cell(&g.group),
+                    g.tasks,
+                    mean_var(&g.scene_alignment),
+                    mean_var(&g.completion)
+                );
+            }
+            let tasks: u64 = j.groups.iter().map(|g| g.tasks).sum();
+            let _ = writeln!(
+                md,
+                "| **all** | {tasks} | {} | {} |\n",
+                mean_var(&j.scene_alignment),
+                mean_var(&j.completion)
+            );
+        }
+
+        let _ = writeln!(md, "### Judge against simulator\n");
+        let _ = writeln!(
+            md,
+            "Completion (an episode's mean over its repeats, 0–10) against the simulator's \
+             ground-truth success × 10, over the judged episodes; 95 % percentile bootstrap \
+             intervals over {BOOTSTRAP_RESAMPLES} resamples of the episodes.\n"
+        );
+        let _ = writeln!(
+            md,
+            "| judge | episodes | Pearson r | MAE | Spearman ρ | Kendall τ |\n|---|---:|---|---|---|---|"
+        );
+        let mut notes = Vec::new();
+        for j in &self.judges {
+            let name = cell(&j.judge);
+            match &j.vs_sim {
+                Some(a) => {
+                    let _ = writeln!(
+                        md,
+                        "| `{name}` | {} | {} | {} | {} | {} |",
+                        a.n,
+                        estimate(&a.pearson),
+                        estimate(&a.mae),
+                        estimate(&a.spearman),
+                        estimate(&a.kendall)
+                    );
+                    // Statistics without an interval, grouped by reason.
+                    let mut missing: BTreeMap<&str, Vec<&str>> = BTreeMap::new();
+                    for (what, e) in [
+                        ("r", &a.pearson),
+                        ("MAE", &a.mae),
+                        ("ρ", &a.spearman),
+                        ("τ", &a.kendall),
+                    ] {
+                        if let Some(why) = &e.no_interval {
+                            missing.entry(why.as_str()).or_default().push(what);
+                        }
+                    }
+                    for (why, what) in missing {
+                        notes.push(format!(
+                            "`{name}`: no interval for {}: {}",
+                            what.join(", "),
+                            cell(why)
+                        ));
+                    }
+                }
+                None => {
+                    let _ = writeln!(md, "| `{name}` | 0 | — | — | — | — |");
+                    notes.push(format!(
+                        "`{name}`: no judged episode has a completion score and a simulator outcome"
+                    ));
+                }
+            }
+        }
+        if !notes.is_empty() {
+            let _ = writeln!(md);
+            for n in notes {
+                let _ = writeln!(md, "- {n}");
+            }
+        }
+
+        if let Some(path) = figure {
+            let _ = writeln!(md, "\n### Scene alignment against completion\n");
+            let _ = writeln!(
+                md,
+                "As the paper's figure 4: one marker per judge and group at the mean of the group's \
+                 task means, its size growing with their variance; faint dots are single tasks.\n"
+            );
+            let _ = writeln!(
+                md,
+                "![Scene alignment against task completion per group]({path})"
+            );
+        }
+
+        let _ = writeln!(md, "\n### Quality per task\n");
+        let _ = writeln!(
+            md,
+            "Over every valid answer to every repeat of every episode of the task.\n"
+        );
+        let _ = writeln!(
+            md,
+            "| task | group | judge | scene alignment (1–5) | n | completion (0–10) | n |\n\
+             |---|---|---|---|---:|---|---:|"
+        );
+        for t in &self.tasks {
+            let _ = writeln!(
+                md,
+                "| `{}` | {} | `{}` | {} | {} | {} | {} |",
+                cell(&t.task_id),
+                cell(&t.group),
+                cell(&t.judge),
+                mean_var(&t.scene_alignment),
+                t.scene_alignment.n,
+                mean_var(&t.completion),
+                t.completion.n
+            );
+        }
+
+        let errors: Vec<(&TaskQuality, &String)> = self
+            .tasks
+            .iter()
+            .flat_map(|t| t.errors.iter().map(move |e| (t, e)))
+            .collect();
+        if !errors.is_empty() {
+            let _ = writeln!(md, "\n### Item errors\n");
+            let _ = writeln!(
+                md,
+                "Repeats that gave no valid score, and judge shards that failed ({} in all).\n",
+                errors.len()
+            );
+            for (t, e) in errors.iter().take(ERRORS_SHOWN) {
+                let _ = writeln!(
+                    md,
+                    "- `{}` · `{}` · {}",
+                    cell(&t.task_id),
+                    cell(&t.judge),
+                    cell(e)
+                );
+            }
+            if errors.len() > ERRORS_SHOWN {
+                let _ = writeln!(
+                    md,
+                    "- … and {} more (all in report.json)",
+                    errors.len() - ERRORS_SHOWN
+                );
+            }
+        }
+        let unjudged: Vec<&TaskQuality> = self.tasks.iter().filter(|t| t.unjudged > 0).collect();
+        if !unjudged.is_empty() {
+            let _ = writeln!(md, "\n### Unjudged items\n");
+            let _ = writeln!(
+                md,
+                "Items with repeats left unasked because the judge budget was spent: {}.\n",
+                self.judges
+                    .iter()
+                    .map(|j| format!("`{}` {}", cell(&j.judge), j.items_unjudged))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            );
+            for t in unjudged.iter().take(ERRORS_SHOWN) {
+                let _ = writeln!(
+                    md,
+                    "- `{}` · `{}`: {} item{}",
+                    cell(&t.task_id),
+                    cell(&t.judge),
+                    t.unjudged,
+                    if t.unjudged == 1 { "" } else { "s" }
+                );
+            }
+            if unjudged.len() > ERRORS_SHOWN {
+                let _ = writeln!(md, "- … and {} more tasks", unjudged.len() - ERRORS_SHOWN);
+            }
+        }
+        md
+    }
+
+    /// The paper's figure 4 as a self-contained SVG: x = scene alignment (1–5), y = completion
+    /// (0–10); one circle (`class="group"`) per (judge, group) with both means, at the means of the
+    /// group's task means, radius `RADIUS_RULE` (stated in the legend); faint
+    /// dots (`class="task"`) for single tasks; one colour per judge.
+    pub fn figure_svg(&self) -> String {
+        let mut s = String::new();
+        let _ = writeln!(
+            s,
+            "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"{FIG_W:.0}\" height=\"{FIG_H:.0}\" \
+             viewBox=\"0 0 {FIG_W:.0} {FIG_H:.0}\" font-family=\"sans-serif\" font-size=\"12\">"
+        );
+        let _ = writeln!(
+            s,
+            "<rect x=\"0\" y=\"0\" width=\"{FIG_W:.0}\" height=\"{FIG_H:.0}\" fill=\"#ffffff\"/>"
+        );
+        let _ = writeln!(
+            s,
+            "<text x=\"{:.1}\" y=\"28\" text-anchor=\"middle\" font-size=\"15\" font-weight=\"bold\">\
+             Single-task quality: scene alignment against task completion</text>",
+            (PLOT_L + PLOT_R) / 2.0
+        );
+        // Grid, ticks and tick labels.
+        for v in 1..=5 {
+            let x = x_px(f64::from(v));
+            let _ = writeln!(
+                s,
+                "<line x1=\"{x:.1}\" y1=\"{PLOT_T:.1}\" x2=\"{x:.1}\" y2=\"{PLOT_B:.1}\" stroke=\"#e5e5e5\"/>\n\
+                 <line x1=\"{x:.1}\" y1=\"{PLOT_B:.1}\" x2=\"{x:.1}\" y2=\"{:.1}\" stroke=\"#000000\"/>\n\
+                 <text x=\"{x:.1}\" y=\"{:.1}\" text-anchor=\"middle\">{v}</text>",
+                PLOT_B + 5.0,
+                PLOT_B + 19.0
+            );
+        }
+        for v in (0..=10).step_by(2) {
+            let y = y_px(f64::from(v));
+            let _ = writeln!(
+                s,
+                "<line x1=\"{PLOT_L:.1}\" y1=\"{y:.1}\" x2=\"{PLOT_R:.1}\" y2=\"{y:.1}\" stroke=\"#e5e5e5\"/>\n\
+                 <line x1=\"{:.1}\" y1=\"{y:.1}\" x2=\"{PLOT_L:.1}\" y2=\"{y:.1}\" stroke=\"#000000\"/>\n\
+                 <text x=\"{:.1}\" y=\"{:.1}\" text-anchor=\"end\">{v}</text>",
+                PLOT_L - 5.0,
+                PLOT_L - 8.0,
+                y + 4.0
+            );
+        }
+        let _ = writeln!(
+            s,
+            "<rect x=\"{PLOT_L:.1}\" y=\"{PLOT_T:.1}\" width=\"{:.1}\" height=\"{:.1}\" fill=\"none\" stroke=\"#000000\"/>",
+            PLOT_R - PLOT_L,
+            PLOT_B - PLOT_T
+        );
+        let _ = writeln!(
+            s,
+            "<text x=\"{:.1}\" y=\"{:.1}\" text-anchor=\"middle\">Scene alignment (1–5)</text>",
+            (PLOT_L + PLOT_R) / 2.0,
+            PLOT_B + 40.0
+        );
+        let mid_y = (PLOT_T + PLOT_B) / 2.0;
+        let _ = writeln!(
+            s,
+            "<text x=\"22\" y=\"{mid_y:.1}\" text-anchor=\"middle\" transform=\"rotate(-90 22 {mid_y:.1})\">\
+             Task completion (0–10)</text>"
+        );
+        // Tasks first, so that the group markers sit on top.
+        let colour = |i: usize| PALETTE[i % PALETTE.len()];
+        for (i, j) in self.judges.iter().enumerate() {
+            for t in self.tasks.iter().filter(|t| t.judge == j.judge) {
+                if let (Some(sa), Some(c)) = (t.scene_alignment.mean, t.completion.mean) {
+                    let _ = writeln!(
+                        s,
+                        "<circle class=\"task\" cx=\"{:.1}\" cy=\"{:.1}\" r=\"2.5\" fill=\"{}\" fill-opacity=\"0.4\">\
+                         <title>{} · {}: {} / {}</title></circle>",
+                        x_px(sa),
+                        y_px(c),
+                        colour(i),
+                        xml(&t.judge),
+                        xml(&t.task_id),
+                        num(sa),
+                        num(c)
+                    );
+                }
+            }
+        }
+        for (i, j) in self.judges.iter().enumerate() {
+            for g in &j.groups {
+                let (Some(sa), Some(c)) = (g.scene_alignment.mean, g.completion.mean) else {
+                    continue;
+                };
+                let (x, y, r) = (x_px(sa), y_px(c), radius(g));
+                let _ = writeln!(
+                    s,
+                    "<circle class=\"group\" cx=\"{x:.1}\" cy=\"{y:.1}\" r=\"{r:.1}\" fill=\"{0}\" fill-opacity=\"0.45\" \
+                     stroke=\"{0}\" stroke-width=\"1.5\"><title>{1} · {2}: scene alignment {3}, completion {4}, \
+                     {5} tasks</title></circle>\n\
+                     <text x=\"{6:.1}\" y=\"{7:.1}\" fill=\"{0}\">{2}</text>",
+                    colour(i),
+                    xml(&j.judge),
+                    xml(&g.group),
+                    mean_var(&g.scene_alignment),
+                    mean_var(&g.completion),
+                    g.tasks,
+                    x + r + 3.0,
+                    y + 4.0
+                );
+            }
+        }
+        // Legend: one entry per judge, then how to read the markers.
+        let lx = PLOT_R + 25.0;
+        let _ = writeln!(
+            s,
+            "<text x=\"{lx:.1}\" y=\"{:.1}\" font-weight=\"bold\">Judges</text>",
+            PLOT_T + 10.0
+        );
+        let mut ly = PLOT_T + 30.0;
+        for (i, j) in self.judges.iter().enumerate() {
+            let _ = writeln!(
+                s,
+                "<rect x=\"{lx:.1}\" y=\"{:.1}\" width=\"12\" height=\"12\" fill=\"{}\"/>\n\
+                 <text x=\"{:.1}\" y=\"{ly:.1}\">{}{}</text>",
+                ly - 10.0,
+                colour(i),
+                lx + 18.0,
+                xml(&j.judge),
+                if j.offline { " (offline)" } else { "" }
+            );
+            ly += 20.0;
+        }
+        ly += 10.0;
+        for line in [
+            "Marker: a group, at the mean of its",
+            "task means; its radius",
+            RADIUS_RULE,
+            "with vSA, vC the sample variances of",
+            "the task means (4 and 25: the largest",
+            "possible; so r is 4 to 16 px).",
+            "Faint dots: single tasks.",
+        ] {
+            let _ = writeln!(
+                s,
+                "<text x=\"{lx:.1}\" y=\"{ly:.1}\" font-size=\"10\">{}</text>",
+                xml(line)
+            );
+            ly += 14.0;
+        }
+        // Radii for no spread, half and full spread, as the markers use them.
+        for (k, (label, v)) in [("none", 0.0), ("half", 0.5), ("most", 1.0_f64)]
+            .into_iter()
+            .enumerate()
+        {
+            let r = radius_for(v);
+            let cx = lx + 18.0 + 60.0 * k as f64;
+            let _ = writeln!(
+                s,
+                "<circle class=\"legend\" cx=\"{cx:.1}\" cy=\"{:.1}\" r=\"{r:.1}\" fill=\"none\" stroke=\"#555555\"/>\n\
+                 <text x=\"{cx:.1}\" y=\"{:.1}\" font-size=\"10\" text-anchor=\"middle\">{}</text>",
+                ly + 20.0,
+                ly + 50.0,
+                label
+            );
+        }
+        s.push_str("</svg>\n");
+        s
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::quality::ItemError;
+    use crate::report::LabelSource;
+
+    fn info(id: &str, group: &str) -> TaskInfo {
+        TaskInfo {
+            id: id.into(),
+            name: id.into(),
+            group: group.into(),
+            pipeline: "assay".into(),
+            origin: String::new(),
+            spec_hash: "h".into(),
+        }
+    }
+
+    fn episode(task: &str, seed: u64, success: bool) -> EpisodeOutcome {
+        EpisodeOutcome {
+            task_id: task.into(),
+            seed,
+            policy: "oracle".into(),
+            success,
+            label_source: LabelSource::Sim,
+            predicates: Vec::new(),
+            steps: 10,
+            sim_time_s: 0.1,
+            artifact: format!("a{seed}"),
+            spec_hash: "h".into(),
+            versions: BTreeMap::new(),
+            imagery: None,
+        }
+    }
+
+    fn item(item: Item, scores: &[f64]) -> ItemOutcome {
+        ItemOutcome {
+            item,
+            prompt: format!("{}/v1", item.name()),
+            scores: scores.to_vec(),
+            errors: Vec::new(),
+            unjudged: 0,
+        }
+    }
+
+    fn judged(judge: &str, task: &str, seed: u64, sa: &[f64], c: &[f64]) -> JudgeRecord {
+        JudgeRecord {
+            task_id: task.into(),
+            seed,
+            policy: "oracle".into(),
+            judge: judge.into(),
+            attempts: 1,
+            outcome: Some(JudgeOutcome {
+                judge: judge.into(),
+                backend: if judge == "offline" {
+                    "offline"
+                } else {
+                    "openai"
+                }
+                .into(),
+                model: if judge == "offline" { "caption" } else { judge }.into(),
+                task_id: task.into(),
+                seed,
+                policy: "oracle".into(),
+                repeats: 2,
+                items: vec![item(Item::SceneAlignment, sa), item(Item::Completion, c)],
+                usage: Usage {
+                    calls: 4,
+                    cached: 1,
+                    tokens_in: 100,
+                    tokens_out: 10,
+                    cost_usd: 0.25,
+                },
+                transcript: None,
+            }),
+            error: None,
+            cancelled: false,
+        }
+    }
+
+    fn unfinished(task: &str, seed: u64, error: Option<&str>, cancelled: bool) -> JudgeRecord {
+        JudgeRecord {
+            task_id: task.into(),
+            seed,
+            policy: "oracle".into(),
+            judge: "offline".into(),
+            attempts: 3,
+            outcome: None,
+            error: error.map(Into::into),
+            cancelled,
+        }
+    }
+
+    fn close(a: Option<f64>, b: f64) {
+        let a = a.expect("a value");
+        assert!((a - b).abs() < 1e-12, "{a} vs {b}");
+    }
+
+    /// Tasks a, b in g1 and c in g2, judged by `offline` and `gpt-4o` (the latter scoring
+    /// higher completion in g2 than in g1).
+    fn fixture() -> (Vec<TaskInfo>, Vec<EpisodeOutcome>, Vec<JudgeRecord>) {
+        let tasks = vec![info("a", "g1"), info("b", "g1"), info("c", "g2")];
+        let episodes = vec![
+            episode("a", 0, true),
+            episode("a", 1, false),
+            episode("b", 0, true),
+            episode("c", 0, false),
+        ];
+        let records = vec![
+            judged("offline", "a", 0, &[4.0, 4.0], &[10.0, 10.0]),
+            judged("offline", "a", 1, &[2.0, 2.0], &[0.0, 0.0]),
+            judged("offline", "b", 0, &[5.0, 3.0], &[8.0, 6.0]),
+            judged("offline", "c", 0, &[1.0, 1.0], &[2.0, 2.0]),
+            judged("gpt-4o", "a", 0, &[3.0, 3.0], &[2.0, 3.0]),
+            judged("gpt-4o", "c", 0, &[4.0, 5.0], &[9.0, 7.0]),
+        ];
+        (tasks, episodes, records)
+    }
+
+    #[test]
+    fn no_records_no_quality() {
+        assert_eq!(build_quality(&[info("a", "g")], &[], &[]), None);
+    }
+
+    #[test]
+    fn aggregates_tasks_groups_and_judges() {
+        let (tasks, episodes, records) = fixture();
+        let q = build_quality(&tasks, &episodes, &records).unwrap();
+        let names: Vec<&str> = q.judges.iter().map(|j| j.judge.as_str()).collect();
+        assert_eq!(names, ["gpt-4o", "offline"]);
+        let order: Vec<(&str, &str)> = q
+            .tasks
+            .iter()
+            .map(|t| (t.task_id.as_str(), t.judge.as_str()))
+            .collect();
+        assert_eq!(
+            order,
+            [
+                ("a", "gpt-4o"),
+                ("a", "offline"),
+                ("b", "offline"),
+                ("c", "gpt-4o"),
+                ("c", "offline")
+            ]
+        );
+
+        // Task a for offline pools every repeat of both episodes.
+        let a = &q.tasks[1];
+        assert_eq!(a.scene_alignment, ScoreStats::of(&[4.0, 4.0, 2.0, 2.0]));
+        assert_eq!(a.scene_alignment.n, 4);
+        close(a.scene_alignment.mean, 3.0);
+        close(a.scene_alignment.variance, 4.0 / 3.0);
+        close(a.completion.mean, 5.0);
+        close(a.completion.variance, 100.0 / 3.0);
+
+        let off = &q.judges[1];
+        assert!(off.offline && !q.judges[0].offline);
+        assert_eq!(off.backend, "offline");
+        assert_eq!(off.model, "caption");
+        assert_eq!(off.prompts, ["completion/v1", "scene_alignment/v1"]);
+        assert_eq!(off.repeats, 2);
+        assert_eq!(off.episodes_judged, 4);
+        assert_eq!(
+            off.usage,
+            Usage {
+                calls: 16,
+                cached: 4,
+                tokens_in: 400,
+                tokens_out: 40,
+                cost_usd: 1.0
+            }
+        );
+        // Judge level: over the task means 3, 4, 1 and 5, 7, 2.
+        assert_eq!(off.scene_alignment, ScoreStats::of(&[3.0, 4.0, 1.0]));
+        assert_eq!(off.completion, ScoreStats::of(&[5.0, 7.0, 2.0]));
+        // Group level: g1 over tasks a and b; g2 has one task and so no variance.
+        let g1 = &off.groups[0];
+        assert_eq!((g1.group.as_str(), g1.tasks), ("g1", 2));
+        close(g1.scene_alignment.mean, 3.5);
+        close(g1.scene_alignment.variance, 0.5);
+        close(g1.completion.mean, 6.0);
+        close(g1.completion.variance, 2.0);
+        let g2 = &off.groups[1];
+        assert_eq!((g2.group.as_str(), g2.tasks), ("g2", 1));
+        close(g2.scene_alignment.mean, 1.0);
+        assert_eq!(g2.scene_alignment.variance, None);
+
+        let gpt = &q.judges[0];
+        assert_eq!(gpt.groups.len(), 2);
+        assert_eq!(gpt.groups[0].tasks, 1);
+        close(gpt.groups[1].completion.mean, 8.0);
+    }
+
+    #[test]
+    fn judge_against_simulator() {
+        let tasks = vec![info("t", "g")];
+        let mut episodes = Vec::new();
+        let mut records = Vec::new();
+        for seed in 0..20u64 {
+            let ok = seed % 3 != 0;
+            episodes.push(episode("t", seed, ok));
+            let wobble = (seed % 4) as f64 * 0.5;
+            let c = if ok {
+                [10.0 - wobble, 9.0]
+            } else {
+                [wobble, 1.0]
+            };
+            records.push(judged("vlm", "t", seed, &[3.0, 3.0], &c));
+        }
+        let q = build_quality(&tasks, &episodes, &records).unwrap();
+        let a = q.judges[0].vs_sim.as_ref().unwrap();
+        assert_eq!(a.n, 20);
+        assert!(a.pearson.value.unwrap() > 0.9, "{a:?}");
+        assert!(a.kendall.value.unwrap() > 0.5, "{a:?}");
+        let [lo, hi] = a.pearson.ci95.unwrap();
+        assert!(lo <= hi);
+
+        // Every episode succeeded: the simulator side is constant, correlations are undefined.
+        for e in &mut episodes {
+            e.success = true;
+        }
+        let q = build_quality(&tasks, &episodes, &records).unwrap();
+        let a = q.judges[0].vs_sim.as_ref().unwrap();
+        assert_eq!(a.pearson.value, None);
+        let why = a.pearson.undefined.as_deref().unwrap();
+        assert!(why.contains("constant"), "{why}");
+        assert!(a.mae.value.is_some());
+        let md = q.markdown(None);
+        assert!(
+            md.contains("undefined: the reference scores are constant"),
+            "{md}"
+        );
+
+        // No completion scores at all: no agreement.
+        for r in &mut records {
+            let o = r.outcome.as_mut().unwrap();
+            o.items.retain(|i| i.item == Item::SceneAlignment);
+        }
+        let q = build_quality(&tasks, &episodes, &records).unwrap();
+        assert_eq!(q.judges[0].vs_sim, None);
+        assert!(
+            q.markdown(None)
+                .contains("no judged episode has a completion score")
+        );
+    }
+
+    #[test]
+    fn input_order_does_not_matter() {
+        let (mut tasks, mut episodes, mut records) = fixture();
+        records.push(unfinished("b", 7, Some("timeout"), false));
+        let q1 = build_quality(&tasks, &episodes, &records).unwrap();
+        tasks.reverse();
+        episodes.reverse();
+        records.reverse();
+        records.rotate_left(3);
+        let q2 = build_quality(&tasks, &episodes, &records).unwrap();
+        assert_eq!(q1, q2);
+        assert_eq!(
+            q1.markdown(Some("quality.svg")),
+            q2.markdown(Some("quality.svg"))
+        );
+        assert_eq!(q1.figure_svg(), q2.figure_svg());
+        assert_eq!(
+            serde_json::to_string(&q1).unwrap(),
+            serde_json::to_string(&q2).unwrap()
+        );
+        // The JSON reads back (serde_json without `float_roundtrip` may move a float by an ulp, so
+        // the floats are not compared here).
+        let back: QualityResults =
+            serde_json::from_str(&serde_json::to_string(&q1).unwrap()).unwrap();
+        assert_eq!(back.tasks.len(), q1.tasks.len());
+        assert_eq!(back.judges[1].groups, q1.judges[1].groups);
+    }
+
+    #[test]
+    fn counts_pending_failed_cancelled_errors_and_unjudged() {
+        let tasks = vec![info("a", "g")];
+        let mut one = judged("offline", "a", 0, &[4.0], &[10.0]);
+        {
+            let o = one.outcome.as_mut().unwrap();
+            o.items[0].errors.push(ItemError {
+                repeat: 2,
+                error: "no line of the form 'Score: X'".into(),
+                raw: Some(format!("I think\n{}", "x".repeat(500))),
+            });
+            o.items[1].errors.push(ItemError {
+                repeat: 1,
+                error: "timeout".into(),
+                raw: None,
+            });
+            o.items[1].unjudged = 1;
+        }
+        let records = vec![
+            one,
+            unfinished("a", 1, Some("model | unreachable"), false),
+            unfinished("a", 2, None, false),
+            unfinished("a", 3, None, true),
+            unfinished("a", 4, Some("cancelled by user"), true),
+            unfinished("x", 0, None, false),
+        ];
+        let q = build_quality(&tasks, &[episode("a", 0, true)], &records).unwrap();
+        let j = &q.judges[0];
+        assert_eq!(j.episodes_judged, 1);
+        assert_eq!(j.episodes_failed, 1);
+        assert_eq!(j.episodes_pending, 2);
+        assert_eq!(j.episodes_cancelled, 2);
+        assert_eq!(j.item_errors, 2);
+        assert_eq!(j.items_unjudged, 1);
+        // The unknown task is kept, under no group.
+        assert_eq!(q.tasks.len(), 2);
+        assert_eq!(
+            (q.tasks[0].task_id.as_str(), q.tasks[0].group.as_str()),
+            ("x", NO_GROUP)
+        );
+
+        let a = &q.tasks[1];
+        assert_eq!(a.unjudged, 1);
+        assert_eq!(a.errors.len(), 3, "{:?}", a.errors);
+        let sa = &a.errors[0];
+        assert!(
+            sa.starts_with(
+                "seed 0 · oracle · scene_alignment · repeat 2: no line of the form 'Score: X' — answer: I think xxx"
+            ),
+            "{sa}"
+        );
+        assert!(sa.ends_with('…') && sa.chars().count() < 300, "{sa}");
+        assert_eq!(
+            a.errors[1],
+            "seed 0 · oracle · completion · repeat 1: timeout"
+        );
+        assert_eq!(
+            a.errors[2],
+            "seed 1 · oracle · judge shard failed after 3 attempts: model | unreachable"
+        );
+
+        let md = q.markdown(None);
+        assert!(md.contains("### Item errors"), "{md}");
+        assert!(md.contains("model \\| unreachable"), "{md}");
+        assert!(md.contains("### Unjudged items"), "{md}");
+        assert!(md.contains("- `a` · `offline`: 1 item\n"), "{md}");
+        assert!(
+            md.contains("| `offline` | offline | caption | completion/v1, scene_alignment/v1 | 2 | 1 | 1 | 2 | 2 | 2 | 1 | 4 | 1 | 100 | 10 | 0.25 |"),
+            "{md}"
+        );
+    }
+
+    #[test]
+    fn item_errors_are_capped_in_markdown() {
+        let mut r = judged("offline", "a", 0, &[4.0], &[10.0]);
+        r.outcome.as_mut().unwrap().items[1].errors = (0..60)
+            .map(|k| ItemError {
+                repeat: k,
+                error: "bad".into(),
+                raw: None,
+            })
+            .collect();
+        let q = build_quality(&[info("a", "g")], &[], &[r]).unwrap();
+        let md = q.markdown(None);
+        assert!(md.contains("(60 in all)"), "{md}");
+        assert!(md.contains("- … and 10 more (all in report.json)"), "{md}");
+        assert_eq!(md.matches("· bad").count(), 0);
+        assert_eq!(md.matches(": bad").count(), ERRORS_SHOWN);
+    }
+
+    #[test]
+    fn markdown_has_the_key_lines() {
+        let (tasks, episodes, records) = fixture();
+        let q = build_quality(&tasks, &episodes, &records).unwrap();
+        let md = q.markdown(Some("quality.svg"));
+        for line in [
+            "## Quality\n",
+            "### Judges\n",
+            "| judge | backend | model | prompt versions | repeats | episodes judged |",
+            "`offline` is Assay's built-in offline judge, not a vision-language model",
+            "high by construction",
+            "#### `offline`\n",
+            "| g1 | 2 | 3.50 (0.50) | 6.00 (2.00) |",
+            "| g2 | 1 | 1.00 (—) | 2.00 (—) |",
+            "| **all** | 3 | 2.67 (2.33) | 4.67 (6.33) |",
+            "### Judge against simulator\n",
+            "| judge | episodes | Pearson r | MAE | Spearman ρ | Kendall τ |",
+            "![Scene alignment against task completion per group](quality.svg)",
+            "### Quality per task\n",
+            "| `a` | g1 | `offline` | 3.00 (1.33) | 4 | 5.00 (33.33) | 4 |",
+        ] {
+            assert!(md.contains(line), "missing {line:?} in\n{md}");
+        }
+        // Offline judge: 4 episodes, completion 10, 0, 7, 2 against 10, 0, 10, 0.
+        let off = q.judges[1].vs_sim.as_ref().unwrap();
+        assert_eq!(off.n, 4);
+        assert!(md.contains(&format!(
+            "| `offline` | 4 | {}",
+            num(off.pearson.value.unwrap())
+        )));
+        assert!(!md.contains("-0.00"));
+        assert!(!q.markdown(None).contains("quality.svg"));
+        // Only the offline judge gets the offline sentence.
+        assert!(!md.contains("`gpt-4o` is Assay's"));
+    }
+
+    #[test]
+    fn figure_places_groups_by_their_means() {
+        let (tasks, episodes, records) = fixture();
+        let q = build_quality(&tasks, &episodes, &records).unwrap();
+        let svg = q.figure_svg();
+        assert!(svg.starts_with("<svg"), "{svg}");
+        assert!(svg.trim_end().ends_with("</svg>"));
+        assert_eq!(svg.matches("<svg").count(), 1);
+        assert_eq!(
+            svg.matches("<circle").count(),
+            svg.matches("</circle>").count() + 3
+        );
+        // One marker per (judge, group): 2 judges × 2 groups.
+        assert_eq!(svg.matches("<circle class=\"group\"").count(), 4);
+        assert_eq!(svg.matches("<circle class=\"task\"").count(), 5);
+        assert!(svg.contains("Scene alignment (1–5)") && svg.contains("Task completion (0–10)"));
+        assert!(svg.contains(RADIUS_RULE));
+        assert!(svg.contains(">offline (offline)</text>") && svg.contains(">gpt-4o</text>"));
+        assert!(svg.contains(PALETTE[0]) && svg.contains(PALETTE[1]));
+
+        let attr = |tag: &str, name: &str| -> f64 {
+            let at = tag.find(&format!(" {name}=\"")).unwrap() + name.len() + 3;
+            tag[at..].split('"').next().unwrap().parse().unwrap()
+        };
+        let marker = |judge: &str, group: &str| -> String {
+            svg.lines()
+                .find(|l| {
+                    l.starts_with("<circle class=\"group\"")
+                        && l.contains(&format!("<title>{judge} · {group}:"))
+                })
+                .unwrap()
+                .to_owned()
+        };
+        // gpt-4o: completion 2.5 in g1, 8 in g2; scene alignment 3 and 4.5.
+        let (g1, g2) = (marker("gpt-4o", "g1"), marker("gpt-4o", "g2"));
+        assert!(attr(&g2, "cy") < attr(&g1, "cy"));
+        assert!(attr(&g2, "cx") > attr(&g1, "cx"));
+        // offline: g1 has completion 6, g2 has 2.
+        let (o1, o2) = (marker("offline", "g1"), marker("offline", "g2"));
+        assert!(attr(&o1, "cy") < attr(&o2, "cy"));
+        // Variance grows the marker: g1 (two tasks that differ) against g2 (one task).
+        assert!(attr(&o1, "r") > attr(&o2, "r"));
+        assert_eq!(attr(&o2, "r"), 4.0);
+        // The score ranges lie inside the frame.
+        assert!(PLOT_L < x_px(1.0) && x_px(1.0) < x_px(5.0) && x_px(5.0) < PLOT_R);
+        assert!(PLOT_B > y_px(0.0) && y_px(0.0) > y_px(10.0) && y_px(10.0) > PLOT_T);
+    }
+}
