@@ -71,11 +71,21 @@ fn eval_runs_a_batch_on_a_local_cluster_and_writes_both_reports() {
     assert_eq!(r.results.tasks.len(), 4);
     assert_eq!(r.run.state, "completed");
     assert_eq!(
-        r.run.workers.len(),
-        2,
-        "both worker processes ran episodes: {:?}",
-        r.run.workers
+        r.run.workers,
+        ["local/judge-0", "local/worker-0", "local/worker-1"],
+        "both sim worker processes ran episodes, the judge worker judged them"
     );
+    // The embedded default judges every episode with the offline judge: both quality scores
+    // for every task.
+    let q = r.results.quality.as_ref().expect("quality");
+    assert_eq!(q.judges.len(), 1);
+    assert!(q.judges[0].offline);
+    assert_eq!(q.judges[0].episodes_judged, 12);
+    assert_eq!(q.tasks.len(), 4);
+    for t in &q.tasks {
+        assert_eq!((t.scene_alignment.n, t.completion.n), (15, 15), "{t:?}");
+        assert!(t.errors.is_empty(), "{t:?}");
+    }
     for t in &r.results.tasks {
         let [lo, hi] = t.success.ci95.unwrap();
         assert!(lo <= t.success.rate.unwrap() && t.success.rate.unwrap() <= hi);

@@ -7,7 +7,7 @@ use std::sync::atomic::{AtomicU32, Ordering};
 use std::time::Duration;
 
 use assay_core::policy::PolicySpec;
-use assay_core::report::{EpisodeOutcome, TaskInfo};
+use assay_core::report::TaskInfo;
 use assay_core::spec::{Format, parse_task};
 use assay_core::{SpecError, SpecErrors};
 use assay_proto::v1 as pb;
@@ -126,6 +126,15 @@ pub fn plan_tasks(docs: &[pb::TaskDocument]) -> (Vec<PlannedTask>, Vec<SpecError
     (planned, errors)
 }
 
+/// Judge names are keys of the judge workers' configuration.
+fn valid_judge_name(name: &str) -> bool {
+    !name.is_empty()
+        && name.len() <= 64
+        && name
+            .chars()
+            .all(|c| c.is_ascii_alphanumeric() || matches!(c, '-' | '_' | '.'))
+}
+
 fn counts_to_pb(c: &BatchCounts, workers: u32) -> pb::BatchStatus {
     let state = match c.state.as_str() {
         batch_state::RUNNING => pb::BatchState::Running,
@@ -148,6 +157,10 @@ fn counts_to_pb(c: &BatchCounts, workers: u32) -> pb::BatchStatus {
         submitted_at_unix_ms: c.submitted_ms,
         finished_at_unix_ms: c.finished_ms.unwrap_or(0),
         workers_connected: workers,
+        judge_total: c.judge_total,
+        judge_done: c.judge_done,
+        judge_failed: c.judge_failed,
+        judge_cost_usd: c.judge_cost_usd,
     }
 }
 
@@ -192,6 +205,20 @@ impl pb::coordinator_server::Coordinator for CoordinatorService {
             PolicySpec::parse(p).map_err(Status::invalid_argument)?;
         }
         let (tasks, invalid) = plan_tasks(&req.tasks);
+        let mut judges = req.judges.clone();
+        judges.sort();
+        judges.dedup();
+        if let Some(bad) = judges.iter().find(|j| !valid_judge_name(j)) {
+            return Err(Status::invalid_argument(format!(
+                "judge name {bad:?}: expected letters, digits, '-', '_' or '.'"
+            )));
+        }
+        if !(req.judge_budget_usd >= 0.0 && req.judge_budget_usd.is_finite()) {
+            return Err(Status::invalid_argument(format!(
+                "judge budget {}: expected a non-negative number of USD",
+                req.judge_budget_usd
+            )));
+        }
         let batch = NewBatch {
             name: if req.name.is_empty() {
                 "batch".into()
@@ -208,6 +235,9 @@ impl pb::coordinator_server::Coordinator for CoordinatorService {
             },
             invalid: invalid.clone(),
             role: pb::Role::Sim.name().into(),
+            judges,
+            judge_repeats: req.judge_repeats,
+            judge_budget_usd: (req.judge_budget_usd > 0.0).then_some(req.judge_budget_usd),
         };
         let accepted = batch.tasks.len() as u32;
         let now = now_ms();
@@ -494,6 +524,14 @@ async fn run_session(
                     seed: l.seed,
                     policy: Some(pb::PolicyRef { name: l.policy }),
                     attempt: l.attempt,
+                    judge: l
+                        .judge
+                        .as_ref()
+                        .map(|j| j.judge.clone())
+                        .unwrap_or_default(),
+                    judge_repeats: l.judge.as_ref().map_or(0, |j| j.repeats),
+                    budget_left_usd: l.judge.as_ref().and_then(|j| j.budget_left_usd),
+                    input_json: l.judge.map(|j| j.episode_json).unwrap_or_default(),
                 };
                 if tx.send(msg(Out::Assignment(a))).await.is_err() {
                     return Ok(SessionEnd::Disconnected(held));
@@ -524,19 +562,10 @@ async fn run_session(
                     }
                     Some(In::Result(r)) => {
                         held.remove(&r.lease_id);
-                        let outcome: EpisodeOutcome = match serde_json::from_str(&r.outcome_json) {
-                            Ok(o) => o,
-                            Err(e) => {
-                                let err = format!("worker sent an unreadable outcome: {e}");
-                                let changed = shared.store.call(move |s| s.fail(r.lease_id, r.shard_id, &err, true, now_ms())).await.map_err(|e| fail(e, &held))?;
-                                shared.publish(&changed);
-                                continue;
-                            }
-                        };
                         let w = worker.clone();
                         let (accepted, changed) = shared
                             .store
-                            .call(move |s| s.complete(&w, r.lease_id, r.shard_id, &outcome, r.wall_time_s, now_ms()))
+                            .call(move |s| s.complete(&w, r.lease_id, r.shard_id, &r.outcome_json, r.wall_time_s, now_ms()))
                             .await
                             .map_err(|e| fail(e, &held))?;
                         if !accepted {

@@ -7,6 +7,8 @@
 use std::path::Path;
 
 use assay_core::SpecError;
+use assay_core::quality::{DEFAULT_REPEATS, JudgeOutcome};
+use assay_core::quality_report::JudgeRecord;
 use assay_core::report::{self, EpisodeOutcome, Report, RunInfo, ShardRecord, TaskInfo};
 use rusqlite::{Connection, OptionalExtension, params};
 
@@ -78,6 +80,22 @@ CREATE INDEX IF NOT EXISTS shards_by_batch ON shards (batch_id, state);
 CREATE UNIQUE INDEX IF NOT EXISTS shards_by_lease ON shards (lease_id);
 "#;
 
+/// Columns added after the first release, added to an older store when it is opened.
+const ADDED_COLUMNS: &[(&str, &str, &str)] = &[
+    ("batches", "judges_json", "TEXT NOT NULL DEFAULT '[]'"),
+    ("batches", "judge_repeats", "INTEGER NOT NULL DEFAULT 5"),
+    ("batches", "judge_budget_usd", "REAL"),
+    // A judge shard: the judge's name and the episode outcome it judges.
+    ("shards", "judge", "TEXT"),
+    ("shards", "input_json", "TEXT"),
+];
+
+/// Shard roles.
+pub mod role {
+    pub const SIM: &str = "sim";
+    pub const JUDGE: &str = "judge";
+}
+
 /// A task accepted by the planner.
 #[derive(Debug, Clone)]
 pub struct PlannedTask {
@@ -95,6 +113,12 @@ pub struct NewBatch {
     pub max_attempts: u32,
     pub invalid: Vec<SpecError>,
     pub role: String,
+    /// Judges that score every rendered episode (empty: none).
+    pub judges: Vec<String>,
+    /// Times each judge item is asked (0: the default, 5).
+    pub judge_repeats: u32,
+    /// USD the batch's judges may spend; None: no limit.
+    pub judge_budget_usd: Option<f64>,
 }
 
 /// A shard handed to a worker.
@@ -108,6 +132,17 @@ pub struct Lease {
     pub policy: String,
     pub role: String,
     pub attempt: u32,
+    /// For a judge shard: the judge, the episode outcome JSON it judges, repeats per item and
+    /// what is left of the batch's budget (None: no limit).
+    pub judge: Option<JudgeLease>,
+}
+
+#[derive(Debug, Clone, PartialEq)]
+pub struct JudgeLease {
+    pub judge: String,
+    pub episode_json: String,
+    pub repeats: u32,
+    pub budget_left_usd: Option<f64>,
 }
 
 #[derive(Debug, Clone, Default, PartialEq)]
@@ -125,6 +160,11 @@ pub struct BatchCounts {
     pub invalid_tasks: u32,
     pub submitted_ms: i64,
     pub finished_ms: Option<i64>,
+    /// Judge shards (the counts above are episodes).
+    pub judge_total: u32,
+    pub judge_done: u32,
+    pub judge_failed: u32,
+    pub judge_cost_usd: f64,
 }
 
 /// What a state change did, so the caller knows whom to wake.
@@ -140,21 +180,55 @@ pub struct Store {
     conn: Connection,
 }
 
-/// id, batch, seed, policy, role, attempts, spec JSON.
-type QueuedShard = (i64, String, i64, String, String, u32, String);
+/// id, batch, seed, policy, role, attempts, spec JSON, judge, input JSON, repeats, budget.
+type QueuedShard = (
+    i64,
+    String,
+    i64,
+    String,
+    String,
+    u32,
+    String,
+    Option<String>,
+    Option<String>,
+    u32,
+    Option<f64>,
+);
 
 impl Store {
     pub fn open(path: &Path) -> Result<Self, CoordError> {
         let conn = Connection::open(path)?;
         conn.busy_timeout(std::time::Duration::from_secs(5))?;
-        conn.execute_batch(SCHEMA)?;
-        Ok(Self { conn })
+        Self::init(conn)
     }
 
     pub fn open_in_memory() -> Result<Self, CoordError> {
-        let conn = Connection::open_in_memory()?;
+        Self::init(Connection::open_in_memory()?)
+    }
+
+    fn init(conn: Connection) -> Result<Self, CoordError> {
         conn.execute_batch(SCHEMA)?;
+        for (table, column, decl) in ADDED_COLUMNS {
+            let present: bool = conn.query_row(
+                &format!("SELECT COUNT(*) FROM pragma_table_info('{table}') WHERE name = ?1"),
+                [column],
+                |r| r.get::<_, i64>(0).map(|n| n > 0),
+            )?;
+            if !present {
+                conn.execute_batch(&format!("ALTER TABLE {table} ADD COLUMN {column} {decl}"))?;
+            }
+        }
         Ok(Self { conn })
+    }
+
+    /// USD the batch's judge shards have spent so far.
+    fn judge_spent(conn: &Connection, batch_id: &str) -> Result<f64, CoordError> {
+        Ok(conn.query_row(
+            "SELECT COALESCE(SUM(json_extract(outcome_json, '$.usage.cost_usd')), 0.0) FROM shards
+             WHERE batch_id = ?1 AND role = 'judge' AND state = 'done'",
+            [batch_id],
+            |r| r.get(0),
+        )?)
     }
 
     fn next_counter(tx: &rusqlite::Transaction<'_>, key: &str, n: u64) -> Result<u64, CoordError> {
@@ -176,8 +250,9 @@ impl Store {
         let seq = Self::next_counter(&tx, "batch_seq", 1)?;
         let id = format!("b{seq:05}-{:x}", now_ms & 0xff_ffff);
         tx.execute(
-            "INSERT INTO batches (id, seq, name, state, policies_json, seeds_json, max_attempts, invalid_json, submitted_ms)
-             VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9)",
+            "INSERT INTO batches (id, seq, name, state, policies_json, seeds_json, max_attempts, invalid_json, submitted_ms,
+             judges_json, judge_repeats, judge_budget_usd)
+             VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12)",
             params![
                 id,
                 seq as i64,
@@ -187,7 +262,10 @@ impl Store {
                 serde_json::to_string(&batch.seeds)?,
                 batch.max_attempts,
                 serde_json::to_string(&batch.invalid)?,
-                now_ms
+                now_ms,
+                serde_json::to_string(&batch.judges)?,
+                if batch.judge_repeats == 0 { DEFAULT_REPEATS } else { batch.judge_repeats },
+                batch.judge_budget_usd,
             ],
         )?;
         for t in &batch.tasks {
@@ -237,8 +315,10 @@ impl Store {
         let tx = self.conn.transaction()?;
         let placeholders = roles.iter().map(|_| "?").collect::<Vec<_>>().join(",");
         let sql = format!(
-            "SELECT s.id, s.batch_id, s.seed, s.policy, s.role, s.attempts, t.spec_json
+            "SELECT s.id, s.batch_id, s.seed, s.policy, s.role, s.attempts, t.spec_json,
+                    s.judge, s.input_json, b.judge_repeats, b.judge_budget_usd
              FROM shards s JOIN tasks t ON t.batch_id = s.batch_id AND t.task_id = s.task_id
+                           JOIN batches b ON b.id = s.batch_id
              WHERE s.state = 'queued' AND s.role IN ({placeholders})
              ORDER BY s.id LIMIT {n}"
         );
@@ -253,15 +333,33 @@ impl Store {
                     r.get(4)?,
                     r.get(5)?,
                     r.get(6)?,
+                    r.get(7)?,
+                    r.get(8)?,
+                    r.get(9)?,
+                    r.get(10)?,
                 ))
             })?;
             it.collect::<Result<_, _>>()?
         };
         let first = Self::next_counter(&tx, "lease_seq", rows.len() as u64)?;
         let mut out = Vec::with_capacity(rows.len());
-        for (k, (shard_id, batch_id, seed, policy, role, attempts, spec)) in
-            rows.into_iter().enumerate()
+        for (
+            k,
+            (shard_id, batch_id, seed, policy, role, attempts, spec, judge, input, repeats, budget),
+        ) in rows.into_iter().enumerate()
         {
+            let judge = match (judge, input) {
+                (Some(judge), Some(episode_json)) => Some(JudgeLease {
+                    judge,
+                    budget_left_usd: match budget {
+                        Some(b) => Some(b - Self::judge_spent(&tx, &batch_id)?),
+                        None => None,
+                    },
+                    episode_json,
+                    repeats,
+                }),
+                _ => None,
+            };
             let lease_id = first + k as u64;
             tx.execute(
                 "UPDATE shards SET state = 'leased', attempts = attempts + 1, lease_id = ?1, lease_worker = ?2,
@@ -277,6 +375,7 @@ impl Store {
                 policy,
                 role,
                 attempt: attempts + 1,
+                judge,
             });
         }
         tx.commit()?;
@@ -306,35 +405,81 @@ impl Store {
         Ok(kept)
     }
 
-    /// Records a finished episode. Accepted only if `lease_id` is the shard's current lease:
-    /// a result from an expired, returned or completed lease is not counted.
+    /// Records a finished shard: `outcome_json` is an `EpisodeOutcome` for a sim shard, a
+    /// `JudgeOutcome` for a judge shard. Accepted only if `lease_id` is the shard's current lease:
+    /// a result from an expired, returned or completed lease is not counted. An outcome that
+    /// does not parse counts as a failed attempt. A rendered episode of a batch with judges
+    /// queues one judge shard per judge, in the same transaction, so the batch cannot look
+    /// finished in between.
     pub fn complete(
         &mut self,
         worker: &str,
         lease_id: u64,
         shard_id: u64,
-        outcome: &EpisodeOutcome,
+        outcome_json: &str,
         wall_time_s: f64,
         now_ms: i64,
     ) -> Result<(bool, Changed), CoordError> {
         let tx = self.conn.transaction()?;
-        let n = tx.execute(
+        let current: Option<(String, String, String, i64, String)> = tx
+            .query_row(
+                "SELECT s.role, s.batch_id, s.task_id, s.seed, s.policy FROM shards s
+                 WHERE s.id = ?1 AND s.lease_id = ?2 AND s.state = 'leased'",
+                params![shard_id as i64, lease_id as i64],
+                |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?, r.get(3)?, r.get(4)?)),
+            )
+            .optional()?;
+        let Some((shard_role, batch, task, seed, policy)) = current else {
+            return Ok((false, Changed::default()));
+        };
+        // What to queue after it: judge shards for a rendered episode of a judged batch.
+        let judges: Vec<String> = match shard_role.as_str() {
+            role::JUDGE => match serde_json::from_str::<JudgeOutcome>(outcome_json) {
+                Ok(_) => Vec::new(),
+                Err(e) => {
+                    drop(tx);
+                    let err = format!("worker sent an unreadable judge outcome: {e}");
+                    return Ok((false, self.fail(lease_id, shard_id, &err, true, now_ms)?));
+                }
+            },
+            _ => match serde_json::from_str::<EpisodeOutcome>(outcome_json) {
+                Ok(o) if o.imagery.is_some() => {
+                    let judges: String = tx.query_row(
+                        "SELECT judges_json FROM batches WHERE id = ?1",
+                        [&batch],
+                        |r| r.get(0),
+                    )?;
+                    serde_json::from_str(&judges)?
+                }
+                Ok(_) => Vec::new(),
+                Err(e) => {
+                    drop(tx);
+                    let err = format!("worker sent an unreadable outcome: {e}");
+                    return Ok((false, self.fail(lease_id, shard_id, &err, true, now_ms)?));
+                }
+            },
+        };
+        tx.execute(
             "UPDATE shards SET state = 'done', outcome_json = ?1, wall_time_s = ?2, worker = ?3, error = NULL,
              lease_expires_ms = NULL WHERE id = ?4 AND lease_id = ?5 AND state = 'leased'",
-            params![serde_json::to_string(outcome)?, wall_time_s, worker, shard_id as i64, lease_id as i64],
+            params![outcome_json, wall_time_s, worker, shard_id as i64, lease_id as i64],
         )?;
-        let mut changed = Changed::default();
-        if n == 1 {
-            let batch: String = tx.query_row(
-                "SELECT batch_id FROM shards WHERE id = ?1",
-                [shard_id as i64],
-                |r| r.get(0),
+        for judge in &judges {
+            tx.execute(
+                "INSERT INTO shards (batch_id, task_id, seed, policy, role, state, judge, input_json)
+                 VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8)",
+                params![batch, task, seed, policy, role::JUDGE, QUEUED, judge, outcome_json],
             )?;
-            Self::finish_if_done(&tx, &batch, now_ms)?;
-            changed.batches.push(batch);
         }
+        Self::finish_if_done(&tx, &batch, now_ms)?;
         tx.commit()?;
-        Ok((n == 1, changed))
+        Ok((
+            true,
+            Changed {
+                batches: vec![batch],
+                requeued: judges.len() as u32,
+            },
+        ))
     }
 
     /// Records a failed attempt: re-queued while attempts remain and the error is retryable,
@@ -581,14 +726,27 @@ impl Store {
             )
             .optional()?
             .ok_or_else(|| CoordError::NotFound(format!("batch '{batch_id}'")))?;
-        let mut stmt = self
-            .conn
-            .prepare("SELECT state, COUNT(*) FROM shards WHERE batch_id = ?1 GROUP BY state")?;
+        let mut stmt = self.conn.prepare(
+            "SELECT state, role, COUNT(*) FROM shards WHERE batch_id = ?1 GROUP BY state, role",
+        )?;
         let rows = stmt.query_map([batch_id], |r| {
-            Ok((r.get::<_, String>(0)?, r.get::<_, u32>(1)?))
+            Ok((
+                r.get::<_, String>(0)?,
+                r.get::<_, String>(1)?,
+                r.get::<_, u32>(2)?,
+            ))
         })?;
         for row in rows {
-            let (state, n) = row?;
+            let (state, shard_role, n) = row?;
+            if shard_role == role::JUDGE {
+                c.judge_total += n;
+                match state.as_str() {
+                    DONE => c.judge_done = n,
+                    FAILED => c.judge_failed = n,
+                    _ => {}
+                }
+                continue;
+            }
             c.total += n;
             match state.as_str() {
                 QUEUED => c.queued = n,
@@ -600,10 +758,12 @@ impl Store {
             }
         }
         c.successes = self.conn.query_row(
-            "SELECT COUNT(*) FROM shards WHERE batch_id = ?1 AND state = 'done' AND json_extract(outcome_json, '$.success') = 1",
+            "SELECT COUNT(*) FROM shards WHERE batch_id = ?1 AND role != 'judge' AND state = 'done'
+             AND json_extract(outcome_json, '$.success') = 1",
             [batch_id],
             |r| r.get(0),
         )?;
+        c.judge_cost_usd = Self::judge_spent(&self.conn, batch_id)?;
         Ok(c)
     }
 
@@ -659,23 +819,43 @@ impl Store {
         let mut workers = std::collections::BTreeSet::new();
         let mut extra_attempts = 0u64;
         let mut shards = Vec::new();
+        let mut judged = Vec::new();
         {
             let mut stmt = self.conn.prepare(
-                "SELECT task_id, seed, policy, attempts, state, outcome_json, error, worker FROM shards WHERE batch_id = ?1",
+                "SELECT task_id, seed, policy, attempts, state, outcome_json, error, worker, role, judge
+                 FROM shards WHERE batch_id = ?1",
             )?;
             let mut rows = stmt.query([batch_id])?;
             while let Some(r) = rows.next()? {
                 let attempts: u32 = r.get(3)?;
                 let state: String = r.get(4)?;
                 let outcome: Option<String> = r.get(5)?;
-                let outcome = match (state.as_str(), outcome) {
-                    (DONE, Some(json)) => Some(serde_json::from_str::<EpisodeOutcome>(&json)?),
-                    _ => None,
-                };
                 if let Some(w) = r.get::<_, Option<String>>(7)? {
                     workers.insert(w);
                 }
                 extra_attempts += u64::from(attempts.saturating_sub(1));
+                if r.get::<_, String>(8)? == role::JUDGE {
+                    judged.push(JudgeRecord {
+                        task_id: r.get(0)?,
+                        seed: r.get::<_, i64>(1)? as u64,
+                        policy: r.get(2)?,
+                        judge: r.get::<_, Option<String>>(9)?.unwrap_or_default(),
+                        attempts,
+                        outcome: match (state.as_str(), outcome) {
+                            (DONE, Some(json)) => {
+                                Some(serde_json::from_str::<JudgeOutcome>(&json)?)
+                            }
+                            _ => None,
+                        },
+                        error: if state == FAILED { r.get(6)? } else { None },
+                        cancelled: state == CANCELLED,
+                    });
+                    continue;
+                }
+                let outcome = match (state.as_str(), outcome) {
+                    (DONE, Some(json)) => Some(serde_json::from_str::<EpisodeOutcome>(&json)?),
+                    _ => None,
+                };
                 let open = state == QUEUED || state == LEASED;
                 shards.push(ShardRecord {
                     task_id: r.get(0)?,
@@ -692,7 +872,11 @@ impl Store {
                 });
             }
         }
-        let results = report::build_results(&name, &policies, &seeds, &tasks, &shards, &invalid);
+        let mut results =
+            report::build_results(&name, &policies, &seeds, &tasks, &shards, &invalid);
+        let episodes: Vec<EpisodeOutcome> =
+            shards.iter().filter_map(|s| s.outcome.clone()).collect();
+        results.quality = assay_core::quality_report::build_quality(&tasks, &episodes, &judged);
         let wall = finished.map(|f| (f - submitted) as f64 / 1000.0);
         let rate = |x: f64| wall.filter(|w| *w > 0.0).map(|w| x / w);
         let run = RunInfo {
@@ -746,10 +930,17 @@ mod tests {
             max_attempts,
             invalid: vec![],
             role: "sim".into(),
+            judges: vec![],
+            judge_repeats: 0,
+            judge_budget_usd: None,
         }
     }
 
-    fn outcome(l: &Lease) -> EpisodeOutcome {
+    fn outcome(l: &Lease) -> String {
+        serde_json::to_string(&episode(l)).unwrap()
+    }
+
+    fn episode(l: &Lease) -> EpisodeOutcome {
         EpisodeOutcome {
             task_id: "x".into(),
             seed: l.seed,
@@ -956,5 +1147,162 @@ mod tests {
                 .0
         );
         assert!(s.lease("w", &sim(), 5, 3, TTL).unwrap().is_empty());
+    }
+
+    fn rendered(l: &Lease) -> String {
+        let mut e = episode(l);
+        e.imagery = Some(assay_core::report::EpisodeImagery {
+            adapter: "test".into(),
+            views: vec![],
+            keyframes: vec![],
+            contact_sheet: String::new(),
+            video: None,
+            caption: None,
+        });
+        serde_json::to_string(&e).unwrap()
+    }
+
+    fn judged(l: &Lease, cost: f64) -> String {
+        let j = l.judge.as_ref().unwrap();
+        serde_json::to_string(&JudgeOutcome {
+            judge: j.judge.clone(),
+            backend: "openai".into(),
+            model: "m".into(),
+            task_id: "a".into(),
+            seed: l.seed,
+            policy: l.policy.clone(),
+            repeats: j.repeats,
+            items: vec![],
+            usage: assay_core::quality::Usage {
+                cost_usd: cost,
+                ..Default::default()
+            },
+            transcript: None,
+        })
+        .unwrap()
+    }
+
+    #[test]
+    fn rendered_episodes_of_judged_batches_queue_one_judge_shard_per_judge() {
+        let mut s = Store::open_in_memory().unwrap();
+        let mut b = batch(&["a", "b"], &[0], 3);
+        b.judges = vec!["offline".into(), "vlm".into()];
+        b.judge_repeats = 3;
+        b.judge_budget_usd = Some(1.0);
+        let (id, _) = s.submit(&b, 0).unwrap();
+        let judge = vec!["judge".to_owned()];
+        let leases = s.lease("w", &sim(), 2, 1, TTL).unwrap();
+        // An episode without imagery cannot be judged: nothing is queued for it.
+        assert!(
+            s.complete(
+                "w",
+                leases[0].lease_id,
+                leases[0].shard_id,
+                &outcome(&leases[0]),
+                0.1,
+                2
+            )
+            .unwrap()
+            .0
+        );
+        assert!(s.lease("w", &judge, 5, 3, TTL).unwrap().is_empty());
+        let c = s.counts(&id).unwrap();
+        assert_eq!((c.judge_total, c.state.as_str()), (0, "running"));
+        // A rendered one gets a shard per judge, carrying the episode, in the same transaction:
+        // the batch is not finished while they wait.
+        let (ok, changed) = s
+            .complete(
+                "w",
+                leases[1].lease_id,
+                leases[1].shard_id,
+                &rendered(&leases[1]),
+                0.1,
+                4,
+            )
+            .unwrap();
+        assert!(ok);
+        assert_eq!(changed.requeued, 2, "judge workers are woken");
+        let c = s.counts(&id).unwrap();
+        assert_eq!((c.total, c.done, c.judge_total, c.judge_done), (2, 2, 2, 0));
+        assert_eq!(c.state, "running");
+        let js = s.lease("j", &judge, 5, 5, TTL).unwrap();
+        assert_eq!(js.len(), 2);
+        let names: Vec<&str> = js
+            .iter()
+            .map(|l| l.judge.as_ref().unwrap().judge.as_str())
+            .collect();
+        assert_eq!(names, ["offline", "vlm"]);
+        for l in &js {
+            let j = l.judge.as_ref().unwrap();
+            assert_eq!((j.repeats, j.budget_left_usd), (3, Some(1.0)));
+            assert_eq!(j.episode_json, rendered(&leases[1]));
+            assert_eq!(l.role, "judge");
+        }
+        // A judge outcome that does not parse is a failed attempt, not a result.
+        let (ok, _) = s
+            .complete("j", js[0].lease_id, js[0].shard_id, "{\"nope\": 1}", 0.1, 6)
+            .unwrap();
+        assert!(!ok);
+        let again = s.lease("j", &judge, 5, 7, TTL).unwrap();
+        assert_eq!(again.len(), 1);
+        // What is spent counts against the budget of shards leased later.
+        assert!(
+            s.complete(
+                "j",
+                js[1].lease_id,
+                js[1].shard_id,
+                &judged(&js[1], 0.25),
+                0.1,
+                8
+            )
+            .unwrap()
+            .0
+        );
+        assert_eq!(s.counts(&id).unwrap().judge_cost_usd, 0.25);
+        s.fail(again[0].lease_id, again[0].shard_id, "flaky", true, 9)
+            .unwrap();
+        let last = s.lease("j", &judge, 5, 10, TTL).unwrap();
+        assert_eq!(last[0].judge.as_ref().unwrap().budget_left_usd, Some(0.75));
+        assert!(
+            s.complete(
+                "j",
+                last[0].lease_id,
+                last[0].shard_id,
+                &judged(&last[0], 0.0),
+                0.1,
+                11
+            )
+            .unwrap()
+            .0
+        );
+        let c = s.counts(&id).unwrap();
+        assert_eq!((c.judge_done, c.state.as_str()), (2, "completed"));
+        // The report has the judges' quality beside the episodes.
+        let r = s.report(&id).unwrap();
+        assert_eq!(r.results.totals.episodes_completed, 2);
+        let q = r.results.quality.unwrap();
+        assert_eq!(q.judges.len(), 2);
+        assert_eq!(q.judges.iter().map(|j| j.episodes_judged).sum::<u64>(), 2);
+    }
+
+    #[test]
+    fn a_store_from_before_judges_gains_their_columns() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("old.db");
+        {
+            let conn = Connection::open(&path).unwrap();
+            conn.execute_batch(SCHEMA).unwrap();
+            conn.execute_batch(
+                "INSERT INTO batches (id, seq, name, state, policies_json, seeds_json, max_attempts, invalid_json, submitted_ms)
+                 VALUES ('b1', 1, 'old', 'completed', '[\"oracle\"]', '[0]', 3, '[]', 0)",
+            )
+            .unwrap();
+        }
+        let s = Store::open(&path).unwrap();
+        let r = s.report("b1").unwrap();
+        assert!(r.results.quality.is_none());
+        let mut s = s;
+        let (id, _) = s.submit(&batch(&["a"], &[0], 3), 1).unwrap();
+        assert_eq!(s.counts(&id).unwrap().total, 1);
     }
 }

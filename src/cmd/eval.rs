@@ -1,5 +1,6 @@
-//! `assay eval`: the embedded default. Starts a coordinator and N sim worker processes on
-//! loopback, submits the batch, shows live progress, and writes report.json and report.md.
+//! `assay eval`: the embedded default. Starts a coordinator, N sim worker processes and a judge
+//! worker on loopback, submits the batch, shows live progress, and writes report.json, report.md
+//! and the quality figure.
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -31,6 +32,16 @@ pub struct Args {
     /// Also a video of every episode (MP4 with ffmpeg installed, else an animated GIF).
     #[arg(long)]
     pub video: bool,
+    /// Configuration file (TOML) with the judges the judge worker may run (`[judges.<name>]`).
+    #[arg(long, env = "ASSAY_CONFIG")]
+    pub config: Option<PathBuf>,
+    /// Judge requests in flight at once in the judge worker (shards it runs at once).
+    #[arg(long, default_value_t = 4)]
+    pub judge_capacity: u32,
+    /// No judging (by default rendered episodes are judged by the built-in `offline` judge,
+    /// or by the judges given with --judge).
+    #[arg(long, conflicts_with = "judges")]
+    pub no_judge: bool,
     /// Output folder: report.json, report.md, artifacts/, and run/ (job store and process logs).
     #[arg(long, default_value = "assay-out")]
     pub out: PathBuf,
@@ -44,8 +55,31 @@ pub struct Args {
     pub quiet: bool,
 }
 
-pub fn run(a: Args) -> anyhow::Result<ExitCode> {
+pub fn run(mut a: Args) -> anyhow::Result<ExitCode> {
     let docs = crate::docs::collect(&a.paths)?;
+    let rendering = a.roles.split(',').any(|r| r.trim() == "render");
+    if a.no_judge || !rendering {
+        if !a.batch.judges.is_empty() {
+            anyhow::bail!("--judge needs rendered episodes: run with --roles sim,render");
+        }
+    } else if a.batch.judges.is_empty() {
+        a.batch.judges.push(assay_judge::OFFLINE.into());
+    }
+    if let Some(path) = &a.config {
+        // Fail here, before anything starts, rather than in the judge worker's log.
+        let cfg = assay_judge::Config::load(path).map_err(anyhow::Error::msg)?;
+        for j in &a.batch.judges {
+            if cfg.judge(j).is_none() {
+                anyhow::bail!(
+                    "judge '{j}' is not in {} (configured: {})",
+                    path.display(),
+                    cfg.names().join(", ")
+                );
+            }
+        }
+    } else if let Some(j) = a.batch.judges.iter().find(|j| *j != assay_judge::OFFLINE) {
+        anyhow::bail!("judge '{j}' needs a configuration file (--config) that defines it");
+    }
     let run_dir = a.out.join("run");
     // Each eval starts from an empty job store: the report covers this run only.
     let _ = std::fs::remove_dir_all(&run_dir);
@@ -101,9 +135,38 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
             &run_dir.join(format!("worker-{i}.log")),
         )?);
     }
+    let sim_workers = workers.len();
+    if !a.batch.judges.is_empty() {
+        let mut args: Vec<String> = vec![
+            "worker".into(),
+            "--coordinator".into(),
+            addr.clone(),
+            "--roles".into(),
+            "judge".into(),
+            "--capacity".into(),
+            a.judge_capacity.max(1).to_string(),
+            "--node-id".into(),
+            "local".into(),
+            "--worker-id".into(),
+            "local/judge-0".into(),
+        ];
+        if let Some(path) = &a.config {
+            args.push("--config".into());
+            args.push(s(path.clone()));
+        }
+        workers.push(ChildProc::spawn(
+            "judge worker",
+            &args,
+            &run_dir.join("judge-0.log"),
+        )?);
+    }
     eprintln!(
-        "local cluster: coordinator at {addr}, {} sim workers; logs in {}",
-        workers.len(),
+        "local cluster: coordinator at {addr}, {sim_workers} sim workers{}; logs in {}",
+        if a.batch.judges.is_empty() {
+            String::new()
+        } else {
+            format!(", a judge worker ({})", a.batch.judges.join(", "))
+        },
         run_dir.display()
     );
 
@@ -175,8 +238,17 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
                 .expect("rates")
                 .values()
                 .fold((0.0, 0.0), |a, r| (a.0 + r.0, a.1 + r.1));
+            let judged = if st.judge_total > 0 {
+                format!(
+                    ", {}/{} judged",
+                    st.judge_done + st.judge_failed,
+                    st.judge_total
+                )
+            } else {
+                String::new()
+            };
             bar.set_message(format!(
-                "{} ok, {} failed, {} running, {} workers, {:.0} steps/s, {:.0} frames/s",
+                "{} ok, {} failed, {} running{judged}, {} workers, {:.0} steps/s, {:.0} frames/s",
                 st.successes,
                 st.shards_failed,
                 st.shards_running,

@@ -14,11 +14,16 @@ pub struct Args {
     pub out: PathBuf,
 }
 
-/// Writes `report.json` and `report.md` into `out`.
+/// Writes `report.json` and `report.md` into `out`, and the quality figure when judges ran.
 pub fn write(out: &Path, r: &pb::GetReportResponse) -> anyhow::Result<()> {
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     std::fs::write(out.join("report.json"), format!("{}\n", r.report_json))?;
     std::fs::write(out.join("report.md"), &r.report_markdown)?;
+    let report: assay_core::report::Report =
+        serde_json::from_str(&r.report_json).context("the coordinator's report")?;
+    if let Some(q) = &report.results.quality {
+        std::fs::write(out.join(assay_core::report::QUALITY_FIGURE), q.figure_svg())?;
+    }
     Ok(())
 }
 

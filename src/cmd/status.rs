@@ -21,8 +21,18 @@ pub struct CancelArgs {
 }
 
 pub fn line(s: &pb::BatchStatus) -> String {
+    let judged = if s.judge_total > 0 {
+        format!(
+            "  {}/{} judged (${:.4})",
+            s.judge_done + s.judge_failed,
+            s.judge_total,
+            s.judge_cost_usd
+        )
+    } else {
+        String::new()
+    };
     format!(
-        "{}  {:<9}  {}/{} done  {} ok  {} failed  {} running  {} queued  {} cancelled  {} invalid tasks  {} workers  {}",
+        "{}  {:<9}  {}/{} done  {} ok  {} failed  {} running  {} queued  {} cancelled  {} invalid tasks{judged}  {} workers  {}",
         s.batch_id,
         super::state_name(s.state),
         s.shards_done + s.shards_failed + s.shards_cancelled,

@@ -31,6 +31,16 @@ pub struct BatchArgs {
     /// Attempts per shard before it is recorded as failed (0: coordinator default).
     #[arg(long, default_value_t = 0)]
     pub max_attempts: u32,
+    /// Judges that score every rendered episode (names from the judge workers' configuration;
+    /// `offline` is built in). Repeat or separate with commas.
+    #[arg(long = "judge", value_delimiter = ',')]
+    pub judges: Vec<String>,
+    /// Times each judge item (scene alignment, completion) is asked.
+    #[arg(long, default_value_t = assay_core::quality::DEFAULT_REPEATS)]
+    pub judge_repeats: u32,
+    /// Stop making judge calls once this batch's judges have spent this many USD (0: no limit).
+    #[arg(long, default_value_t = 0.0)]
+    pub judge_budget_usd: f64,
 }
 
 impl BatchArgs {
@@ -54,6 +64,9 @@ impl BatchArgs {
                 .collect(),
             seeds,
             max_attempts: self.max_attempts,
+            judges: self.judges.clone(),
+            judge_repeats: self.judge_repeats,
+            judge_budget_usd: self.judge_budget_usd,
         }
     }
 }

@@ -18,10 +18,15 @@ use assay_worker_runtime::{ShardError, ShardHandler, WorkerConfig, default_worke
 pub struct Args {
     #[arg(long, env = "ASSAY_COORDINATOR", default_value = super::DEFAULT_COORDINATOR)]
     pub coordinator: String,
-    /// Comma-separated roles: sim, render (judge and trainer come with later releases). With both,
-    /// every episode gets its scene views, keyframes and a contact sheet.
+    /// Comma-separated roles: sim, render, judge (trainer comes with a later release). With sim
+    /// and render, every episode gets its scene views, keyframes, scene caption and a contact
+    /// sheet; judge scores rendered episodes with the judges a batch names.
     #[arg(long, default_value = "sim", value_delimiter = ',')]
     pub roles: Vec<String>,
+    /// Configuration file (TOML) naming the judges this worker can run (`[judges.<name>]`);
+    /// the built-in `offline` judge needs none.
+    #[arg(long, env = "ASSAY_CONFIG")]
+    pub config: Option<std::path::PathBuf>,
     /// Size of rendered views and keyframes, WIDTHxHEIGHT.
     #[arg(long, default_value = "640x480", value_parser = parse_size)]
     pub image_size: (u32, u32),
@@ -68,6 +73,7 @@ struct Counters {
     running: AtomicU64,
     steps: AtomicU64,
     frames: AtomicU64,
+    judged: AtomicU64,
 }
 
 /// The render role: one thread owns the device (a GPU, or lavapipe) and this worker's frame-bus
@@ -112,7 +118,11 @@ struct EpisodeJob {
 struct Rendered {
     imagery: assay_render::imagery::Imagery,
     video: Option<assay_render::video::Video>,
+    caption: assay_core::caption::SceneCaption,
 }
+
+/// Size of the views the scene caption is measured on (depth and segments read back).
+const CAPTION_SIZE: (u32, u32) = (320, 240);
 
 fn io_error(what: &str) -> impl Fn(std::io::Error) -> ShardError + '_ {
     move |e| ShardError::retryable(format!("artifact store: {what}: {e}"))
@@ -145,6 +155,7 @@ impl RenderRole {
         root: &Path,
     ) -> Result<EpisodeImagery, ShardError> {
         let (reply, answer) = std::sync::mpsc::channel();
+        let goals_met = ep.keyframe_goals;
         let job = RenderJob::Episode(EpisodeJob {
             shard,
             initial: ep.initial,
@@ -175,11 +186,12 @@ impl RenderRole {
             });
         }
         let mut keyframes = Vec::new();
-        for (step, cam, i) in &img.keyframes {
+        for (k, (step, cam, i)) in img.keyframes.iter().enumerate() {
             keyframes.push(Keyframe {
                 step: *step,
                 camera: cam.clone(),
                 artifact: put(i.png())?,
+                goals_met: goals_met.get(k).copied().unwrap_or(0),
             });
         }
         let video = match rendered.video {
@@ -188,12 +200,17 @@ impl RenderRole {
             ),
             None => None,
         };
+        let caption = serde_json::to_vec_pretty(&rendered.caption)
+            .map_err(|e| ShardError::permanent(format!("scene caption: {e}")))?;
         Ok(EpisodeImagery {
             adapter: self.adapter.clone(),
             views,
             keyframes,
             contact_sheet: put(img.sheet.png())?,
             video,
+            caption: Some(
+                artifacts::put(root, "captions", "json", &caption).map_err(io_error("captions"))?,
+            ),
         })
     }
 }
@@ -347,7 +364,18 @@ fn render_loop(
                     vh,
                 )?)
             };
-            Ok(Rendered { imagery, video })
+            // Measured on its own small renders with depth and segments: what the views show.
+            let caption = assay_render::caption::caption_scene(
+                &mut r,
+                &job.initial,
+                CAPTION_SIZE.0,
+                CAPTION_SIZE.1,
+            )?;
+            Ok(Rendered {
+                imagery,
+                video,
+                caption,
+            })
         });
         let _ = job.reply.send(result);
     }
@@ -423,23 +451,126 @@ impl SimRole {
     }
 }
 
+/// The judge role: scores judge shards with the judges of the configuration.
+struct JudgeRole {
+    config: assay_judge::Config,
+    /// Where the configuration came from, for errors.
+    origin: String,
+    /// Judges are built on first use and shared by the shards (their endpoints hold the
+    /// concurrency and rate limits).
+    judges: std::sync::Mutex<std::collections::HashMap<String, Arc<assay_judge::Judge>>>,
+    runtime: tokio::runtime::Handle,
+    worker_id: String,
+    counters: Arc<Counters>,
+}
+
+impl JudgeRole {
+    fn judge(&self, name: &str) -> Result<Arc<assay_judge::Judge>, ShardError> {
+        let mut judges = self.judges.lock().expect("judges");
+        if let Some(j) = judges.get(name) {
+            return Ok(j.clone());
+        }
+        let cfg = self.config.judge(name).ok_or_else(|| {
+            ShardError::permanent(format!(
+                "judge '{name}' is not configured on worker {} ({}; configured: {})",
+                self.worker_id,
+                self.origin,
+                self.config.names().join(", ")
+            ))
+        })?;
+        let judge = Arc::new(
+            assay_judge::Judge::new(name, &cfg)
+                .map_err(|e| ShardError::permanent(e.to_string()))?,
+        );
+        judges.insert(name.to_owned(), judge.clone());
+        Ok(judge)
+    }
+
+    fn run(&self, a: &pb::Assignment, root: &Path) -> Result<String, ShardError> {
+        let spec: TaskSpec = serde_json::from_str(&a.task_spec_json).map_err(|e| {
+            ShardError::permanent(format!(
+                "task spec from the coordinator does not parse: {e}"
+            ))
+        })?;
+        let episode: assay_core::report::EpisodeOutcome = serde_json::from_str(&a.input_json)
+            .map_err(|e| {
+                ShardError::permanent(format!(
+                    "task {}: the episode to judge does not parse: {e}",
+                    spec.id
+                ))
+            })?;
+        let judge = self.judge(&a.judge)?;
+        let judged = self
+            .runtime
+            .block_on(judge.judge(
+                &episode,
+                &spec.description,
+                a.judge_repeats,
+                a.budget_left_usd,
+                root,
+            ))
+            .map_err(|e| {
+                let msg = format!("task {} seed {}: judge '{}': {e}", spec.id, a.seed, a.judge);
+                match e {
+                    assay_judge::JudgeError::Permanent(_) => ShardError::permanent(msg),
+                    assay_judge::JudgeError::Retryable(_) => ShardError::retryable(msg),
+                }
+            })?;
+        let mut outcome = judged.outcome;
+        outcome.transcript = Some(
+            artifacts::put(root, "judge", "json", &judged.transcript).map_err(io_error("judge"))?,
+        );
+        self.counters.judged.fetch_add(1, Ordering::Relaxed);
+        serde_json::to_string(&outcome).map_err(|e| ShardError::retryable(e.to_string()))
+    }
+}
+
+/// The roles of one worker process: shards go to the role they were leased for.
+struct Roles {
+    sim: Option<SimRole>,
+    judge: Option<JudgeRole>,
+}
+
+impl ShardHandler for Roles {
+    fn run(&self, a: &pb::Assignment, artifact_root: &Path) -> Result<String, ShardError> {
+        match (pb::Role::try_from(a.role), &self.sim, &self.judge) {
+            (Ok(pb::Role::Judge), _, Some(judge)) => judge.run(a, artifact_root),
+            (Ok(pb::Role::Sim), Some(sim), _) => sim.run(a, artifact_root),
+            (role, _, _) => Err(ShardError::permanent(format!(
+                "this worker does not hold the role of shard {} ({role:?})",
+                a.shard_id
+            ))),
+        }
+    }
+}
+
 pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     let mut roles = Vec::new();
     for r in &a.roles {
         match pb::Role::parse(r) {
-            Some(role @ (pb::Role::Sim | pb::Role::Render)) => roles.push(role),
+            Some(role @ (pb::Role::Sim | pb::Role::Render | pb::Role::Judge)) => roles.push(role),
             Some(other) => bail!(
-                "role '{}' is not available in this build (sim, render)",
+                "role '{}' is not available in this build (sim, render, judge)",
                 other.name()
             ),
             None => bail!("unknown role '{r}' (sim, render, judge, trainer)"),
         }
     }
-    if !roles.contains(&pb::Role::Sim) {
+    if roles.contains(&pb::Role::Render) && !roles.contains(&pb::Role::Sim) {
         bail!(
             "this build runs render together with sim (--roles sim,render): a render-only worker, fed scene states over the frame bus, comes with the policy role"
         );
     }
+    let judge_config = match &a.config {
+        Some(path) => (
+            assay_judge::Config::load(path).map_err(anyhow::Error::msg)?,
+            path.display().to_string(),
+        ),
+        None => (
+            assay_judge::Config::default(),
+            "no configuration file".to_owned(),
+        ),
+    };
     let node_id = a.node_id.unwrap_or_else(|| {
         std::fs::read_to_string("/etc/hostname")
             .map(|s| s.trim().to_owned())
@@ -458,8 +589,10 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     } else {
         None
     };
-    // Shards are leased for the sim role; rendering rides along in the same process.
-    roles.retain(|r| *r == pb::Role::Sim);
+    // Shards are leased for the sim and judge roles; rendering rides along with sim.
+    roles.retain(|r| *r != pb::Role::Render);
+    let judging = roles.contains(&pb::Role::Judge);
+    let simulating = roles.contains(&pb::Role::Sim);
     let (announce, announced) = tokio::sync::watch::channel(None::<(String, String)>);
     let counters = Arc::new(Counters::default());
     let role_names: Vec<String> = a.roles.clone();
@@ -487,7 +620,16 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
             role_names,
             u64::from(config.capacity),
         ));
-        let handler = Arc::new(SimRole { render, counters });
+        let judge = judging.then(|| JudgeRole {
+            config: judge_config.0,
+            origin: judge_config.1,
+            judges: Default::default(),
+            runtime: tokio::runtime::Handle::current(),
+            worker_id: config.worker_id.clone(),
+            counters: counters.clone(),
+        });
+        let sim = simulating.then(|| SimRole { render, counters });
+        let handler = Arc::new(Roles { sim, judge });
         let result = run_worker(config, handler, super::terminated()).await;
         stats.abort();
         let _ = stats.await;

@@ -225,6 +225,7 @@ pub async fn submit_for(
         }],
         seeds: (0..seeds).collect(),
         max_attempts: 0,
+        ..Default::default()
     })
     .await
     .unwrap()
