@@ -271,3 +271,64 @@ fn base64_decode(s: &str) -> Vec<u8> {
     use base64::Engine as _;
     base64::engine::general_purpose::STANDARD.decode(s).unwrap()
 }
+
+#[test]
+fn caption_and_llm_captions_each_image_once_then_scores_the_captions() {
+    // The captioner describes each image by its file name; the scorer answers by prompt.
+    let script: Script = Arc::new(|r: &Received| match r.prompt_version.as_deref() {
+        Some("caption/v1") => {
+            let url = &r.image_urls()[0];
+            let name = base64_decode(url.strip_prefix("data:image/png;base64,").unwrap());
+            Reply::text(format!("a picture ({})", String::from_utf8(name).unwrap()))
+        }
+        Some("scene-alignment-captions/v1") => Reply::text("Score: 2"),
+        Some("completion-captions/v1") => Reply::text("Score: 9"),
+        other => panic!("prompt {other:?}"),
+    });
+    let f = Fixture::start(script).unwrap();
+    let cfg = JudgeConfig::CaptionLlm {
+        captioner: assay_judge::config::Captioner::Endpoint(EndpointConfig::new(
+            f.base_url(),
+            "test-captioner",
+        )),
+        scorer: EndpointConfig::new(f.base_url(), "test-llm"),
+    };
+    let j = Judge::new("two-stage", &cfg).unwrap();
+    assert_eq!(j.model(), "test-captioner → test-llm");
+    let root = tempfile::tempdir().unwrap();
+    let out = run(&j, root.path(), 3, None);
+    let got = f.received();
+    let captions: Vec<&Received> = got
+        .iter()
+        .filter(|r| r.prompt_version.as_deref() == Some("caption/v1"))
+        .collect();
+    assert_eq!(
+        captions.len(),
+        4 + 8,
+        "one caption per image, not per repeat"
+    );
+    assert!(
+        captions
+            .iter()
+            .all(|r| r.images == 1 && r.model == "test-captioner")
+    );
+    let scored: Vec<&Received> = got.iter().filter(|r| r.model == "test-llm").collect();
+    assert_eq!(scored.len(), 2 * 3);
+    for r in &scored {
+        assert_eq!(r.images, 0, "the LLM reads captions, not images");
+        if r.prompt_version.as_deref() == Some("completion-captions/v1") {
+            assert!(r.text.contains("1. a picture (png key0)"), "{}", r.text);
+            assert!(r.text.contains("8. a picture (png key7)"), "{}", r.text);
+        } else {
+            assert!(r.text.contains("4. a picture (png view3)"), "{}", r.text);
+        }
+        assert!(r.text.contains(DESCRIPTION));
+    }
+    assert_eq!(out.item(Item::SceneAlignment).unwrap().scores, [2.0; 3]);
+    assert_eq!(out.item(Item::Completion).unwrap().scores, [9.0; 3]);
+    assert_eq!(
+        out.item(Item::Completion).unwrap().prompt,
+        "completion-captions/v1"
+    );
+    assert_eq!(out.backend, "caption+llm");
+}
