@@ -534,7 +534,12 @@ struct Roles {
 impl ShardHandler for Roles {
     fn run(&self, a: &pb::Assignment, artifact_root: &Path) -> Result<String, ShardError> {
         match (pb::Role::try_from(a.role), &self.sim, &self.judge) {
-            (Ok(pb::Role::Judge), _, Some(judge)) => judge.run(a, artifact_root),
+            (Ok(pb::Role::Judge), _, Some(judge)) => {
+                judge.counters.running.fetch_add(1, Ordering::Relaxed);
+                let result = judge.run(a, artifact_root);
+                judge.counters.running.fetch_sub(1, Ordering::Relaxed);
+                result
+            }
             (Ok(pb::Role::Sim), Some(sim), _) => sim.run(a, artifact_root),
             (role, _, _) => Err(ShardError::permanent(format!(
                 "this worker does not hold the role of shard {} ({role:?})",
@@ -694,6 +699,7 @@ async fn publish_stats(
             roles: roles.clone(),
             episodes_done: counters.episodes.load(Ordering::Relaxed),
             episodes_failed: counters.failed.load(Ordering::Relaxed),
+            judged: counters.judged.load(Ordering::Relaxed),
             leases_held: counters.running.load(Ordering::Relaxed),
             lease_capacity: capacity,
             physics_steps_per_s: (steps - last_steps) as f64 / dt,

@@ -24,6 +24,9 @@ pub struct WorkerStats {
     pub roles: Vec<String>,
     pub episodes_done: u64,
     pub episodes_failed: u64,
+    /// Episodes judged (judge role).
+    #[serde(default)]
+    pub judged: u64,
     /// Leases this worker holds now (shards running).
     pub leases_held: u64,
     /// Leases it may hold at once (its capacity).

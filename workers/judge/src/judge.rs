@@ -584,9 +584,9 @@ async fn ask(
             tokio::time::sleep(wait).await;
         }
     }
+    let attempts = exchange.attempts.len();
     record(exchange);
     let (error, raw) = last.unwrap_or_else(|| ("no attempt was made".into(), None));
-    let attempts = retries + 1;
     Asked::Failed {
         error: format!("after {attempts} attempt(s): {error}"),
         raw,

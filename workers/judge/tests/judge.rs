@@ -332,3 +332,32 @@ fn caption_and_llm_captions_each_image_once_then_scores_the_captions() {
     );
     assert_eq!(out.backend, "caption+llm");
 }
+
+#[test]
+fn a_client_error_is_not_retried() {
+    let script: Script = Arc::new(|r: &Received| {
+        if is_completion(r) {
+            Reply::Status {
+                code: 400,
+                retry_after: None,
+                body: r#"{"error":{"message":"too many images"}}"#.into(),
+            }
+        } else {
+            Reply::text("Score: 5")
+        }
+    });
+    let f = Fixture::start(script).unwrap();
+    let root = tempfile::tempdir().unwrap();
+    let out = run(&judge(endpoint(&f)), root.path(), 2, None);
+    let completion = out.item(Item::Completion).unwrap();
+    assert_eq!(completion.errors.len(), 2);
+    let e = &completion.errors[0];
+    assert!(e.error.starts_with("after 1 attempt(s): "), "{}", e.error);
+    assert!(
+        e.error.contains("400") && e.error.contains("too many images"),
+        "{}",
+        e.error
+    );
+    assert_eq!(f.received().iter().filter(|r| is_completion(r)).count(), 2);
+    assert_eq!(out.item(Item::SceneAlignment).unwrap().scores, [5.0, 5.0]);
+}
