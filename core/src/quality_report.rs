@@ -738,26 +738,45 @@ impl QualityResults {
                 }
             }
         }
+        // Labels of groups that sit close together are stacked downwards, not drawn over
+        // each other.
+        let mut labels: Vec<(f64, f64)> = Vec::new();
         for (i, j) in self.judges.iter().enumerate() {
             for g in &j.groups {
                 let (Some(sa), Some(c)) = (g.scene_alignment.mean, g.completion.mean) else {
                     continue;
                 };
                 let (x, y, r) = (x_px(sa), y_px(c), radius(g));
+                // Right of the marker, or left of it where the label would leave the plot.
+                let width = 7.0 * g.group.chars().count() as f64;
+                let (lx, anchor) = if x + r + 3.0 + width <= PLOT_R {
+                    (x + r + 3.0, "start")
+                } else {
+                    (x - r - 3.0, "end")
+                };
+                let mut ly = y + 4.0;
+                while labels
+                    .iter()
+                    .any(|(px, py)| (px - lx).abs() < 70.0 && (py - ly).abs() < 12.0)
+                {
+                    ly += 12.0;
+                }
+                labels.push((lx, ly));
                 let _ = writeln!(
                     s,
                     "<circle class=\"group\" cx=\"{x:.1}\" cy=\"{y:.1}\" r=\"{r:.1}\" fill=\"{0}\" fill-opacity=\"0.45\" \
                      stroke=\"{0}\" stroke-width=\"1.5\"><title>{1} · {2}: scene alignment {3}, completion {4}, \
                      {5} tasks</title></circle>\n\
-                     <text x=\"{6:.1}\" y=\"{7:.1}\" fill=\"{0}\">{2}</text>",
+                     <text x=\"{6:.1}\" y=\"{7:.1}\" fill=\"{0}\" text-anchor=\"{8}\">{2}</text>",
                     colour(i),
                     xml(&j.judge),
                     xml(&g.group),
                     mean_var(&g.scene_alignment),
                     mean_var(&g.completion),
                     g.tasks,
-                    x + r + 3.0,
-                    y + 4.0
+                    lx,
+                    ly,
+                    anchor
                 );
             }
         }
