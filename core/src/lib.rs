@@ -8,6 +8,7 @@
 
 pub mod agreement;
 pub mod caption;
+pub mod diversity;
 pub mod error;
 pub mod hash;
 pub mod policy;
