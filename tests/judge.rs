@@ -175,30 +175,28 @@ price_output_per_mtok = 10.0
 #[test]
 fn a_judge_that_is_not_configured_is_refused_before_anything_starts() {
     let dir = tempfile::tempdir().unwrap();
-    let o = Command::new(bin())
-        .args(["eval", TASKS[0], "--judge", "gpt-4o", "--out"])
-        .arg(dir.path())
-        .current_dir(repo())
-        .output()
-        .unwrap();
-    assert!(!o.status.success());
-    let stderr = String::from_utf8_lossy(&o.stderr);
+    // `assay eval` with these arguments fails; what it says.
+    let refused = |args: &[&str]| {
+        let o = Command::new(bin())
+            .arg("eval")
+            .arg(TASKS[0])
+            .args(args)
+            .arg("--out")
+            .arg(dir.path())
+            .current_dir(repo())
+            .output()
+            .unwrap();
+        assert!(!o.status.success());
+        String::from_utf8_lossy(&o.stderr).into_owned()
+    };
+    let stderr = refused(&["--judge", "gpt-4o"]);
     assert!(
         stderr.contains("judge 'gpt-4o' needs a configuration file (--config)"),
         "{stderr}"
     );
     let config = dir.path().join("assay.toml");
     std::fs::write(&config, "[judges.local]\nbackend = \"openai\"\nbase_url = \"http://127.0.0.1:9/v1\"\nmodel = \"m\"\nfoo = 1\n").unwrap();
-    let o = Command::new(bin())
-        .args(["eval", TASKS[0], "--judge", "local", "--config"])
-        .arg(&config)
-        .arg("--out")
-        .arg(dir.path())
-        .current_dir(repo())
-        .output()
-        .unwrap();
-    assert!(!o.status.success());
-    let stderr = String::from_utf8_lossy(&o.stderr);
+    let stderr = refused(&["--judge", "local", "--config", config.to_str().unwrap()]);
     assert!(
         stderr.contains("assay.toml") && stderr.contains("foo"),
         "{stderr}"

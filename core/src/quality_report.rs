@@ -15,7 +15,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::agreement::{Agreement, BOOTSTRAP_RESAMPLES, Estimate, agreement};
 use crate::quality::{Item, ItemOutcome, JudgeOutcome, ScoreStats, Usage};
-use crate::report::{EpisodeOutcome, TaskInfo};
+use crate::report::{EpisodeOutcome, TaskInfo, cell};
 
 /// Seed of the bootstrap behind the judge-vs-simulator intervals (fixed, so reports repeat).
 pub const VS_SIM_SEED: u64 = 0;
@@ -333,10 +333,6 @@ pub fn build_quality(
 fn num(v: f64) -> String {
     let s = format!("{v:.2}");
     if s == "-0.00" { "0.00".into() } else { s }
-}
-
-fn cell(s: &str) -> String {
-    s.replace('|', "\\|").replace('\n', " ")
 }
 
 /// `mean (variance)`, `—` where absent.

@@ -414,7 +414,8 @@ fn pct(p: &Proportion) -> String {
     }
 }
 
-fn cell(s: &str) -> String {
+/// A Markdown table cell: pipes escaped, one line.
+pub(crate) fn cell(s: &str) -> String {
     s.replace('|', "\\|").replace('\n', " ")
 }
 

@@ -121,9 +121,6 @@ struct Rendered {
     caption: assay_core::caption::SceneCaption,
 }
 
-/// Size of the views the scene caption is measured on (depth and segments read back).
-const CAPTION_SIZE: (u32, u32) = (320, 240);
-
 fn io_error(what: &str) -> impl Fn(std::io::Error) -> ShardError + '_ {
     move |e| ShardError::retryable(format!("artifact store: {what}: {e}"))
 }
@@ -317,13 +314,21 @@ fn render_loop(
                 continue;
             }
         };
+        // The scene views are drawn with depth and segments too: the scene caption is measured
+        // on the very pictures a judge is shown.
+        let mut views: Vec<(String, Camera, assay_render::Frame)> = Vec::new();
         let mut draw = |shot: Shot, scene: &SceneSnapshot, cam: &Camera| {
+            let outputs = match shot {
+                Shot::View(_) => assay_render::Outputs::ALL,
+                Shot::Keyframe(_) => assay_render::Outputs::RGB,
+            };
             let Some((p, _)) = &publisher else {
-                return Ok(Rgb::from_frame(&r.render_with(
-                    scene,
-                    cam,
-                    assay_render::Outputs::RGB,
-                )?));
+                let frame = r.render_with(scene, cam, outputs)?;
+                let rgb = Rgb::from_frame(&frame);
+                if let Shot::View(_) = shot {
+                    views.push((cam.name.clone(), cam.clone(), frame));
+                }
+                return Ok(rgb);
             };
             let header = FrameHeader {
                 episode: job.shard,
@@ -336,7 +341,11 @@ fn render_loop(
                 ..Default::default()
             };
             match p.try_publish(header, len, |sample| {
-                r.render_rgba_into(scene, cam, sample)?;
+                let mut frame = r.render_into(scene, cam, outputs, sample)?;
+                if let Shot::View(_) = shot {
+                    frame.rgba = sample.to_vec();
+                    views.push((cam.name.clone(), cam.clone(), frame));
+                }
                 Ok(Rgb::from_rgba(w, h, sample))
             }) {
                 Ok(drawn) => drawn.map(|(rgb, _reached)| rgb),
@@ -364,13 +373,7 @@ fn render_loop(
                     vh,
                 )?)
             };
-            // Measured on its own small renders with depth and segments: what the views show.
-            let caption = assay_render::caption::caption_scene(
-                &mut r,
-                &job.initial,
-                CAPTION_SIZE.0,
-                CAPTION_SIZE.1,
-            )?;
+            let caption = assay_render::caption::caption_frames(&job.initial, &views);
             Ok(Rendered {
                 imagery,
                 video,

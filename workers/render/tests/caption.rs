@@ -2,22 +2,14 @@
 //! real task's initial scene shows, hidden objects, colours named back from pixels, and the
 //! offline judge's scene alignment on top of them.
 
-use std::path::{Path, PathBuf};
-use std::time::Instant;
+mod common;
 
 use assay_core::caption::{CaptionObject, SceneCaption, offline_alignment};
 use assay_core::scene::{SceneSnapshot, SnapshotObject, scene_views};
-use assay_core::spec::{COLORS, Camera, Format, Shape, Surface, TaskSpec, parse_task};
+use assay_core::spec::{COLORS, Camera, Shape, Surface};
 use assay_render::caption::{caption_frames, caption_scene};
 use assay_render::{Outputs, Renderer};
-
-fn task(rel: &str) -> TaskSpec {
-    let p: PathBuf = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../../examples/tasks")
-        .join(rel);
-    let text = std::fs::read_to_string(&p).unwrap_or_else(|e| panic!("{}: {e}", p.display()));
-    parse_task(&text, Format::Yaml, &p.display().to_string()).unwrap_or_else(|e| panic!("{e}"))
-}
+use common::task;
 
 fn object(id: &str, shape: Shape, color: [f64; 3], position: [f32; 3]) -> SnapshotObject {
     SnapshotObject {
@@ -80,38 +72,7 @@ fn a_real_task_is_captioned_as_it_renders_and_aligns_with_its_description() {
     let spec = task("assembling/bbsea-put-red-cube-into-box-and-close-lid.yaml");
     let episode = assay_sim::simulate(&spec, 0, "oracle").expect("the episode runs");
     let mut r = Renderer::new().expect("an adapter");
-    let started = Instant::now();
     let caption = caption_scene(&mut r, &episode.initial, 320, 240).unwrap();
-    let first = started.elapsed();
-    let started = Instant::now();
-    let runs = 5;
-    for _ in 0..runs {
-        caption_scene(&mut r, &episode.initial, 320, 240).unwrap();
-    }
-    let each = started.elapsed().as_secs_f64() * 1e3 / f64::from(runs);
-    let frames: Vec<_> = scene_views()
-        .into_iter()
-        .map(|c| {
-            let c = Camera {
-                width: 320,
-                height: 240,
-                ..c
-            };
-            let f = r.render_with(&episode.initial, &c, Outputs::ALL).unwrap();
-            (c.name.clone(), c, f)
-        })
-        .collect();
-    let started = Instant::now();
-    for _ in 0..runs {
-        caption_frames(&episode.initial, &frames);
-    }
-    eprintln!(
-        "caption_scene at 320×240 on {}: first {:.1} ms, then {each:.1} ms each, of which \
-         captioning the 4 frames {:.2} ms",
-        r.adapter(),
-        first.as_secs_f64() * 1e3,
-        started.elapsed().as_secs_f64() * 1e3 / f64::from(runs)
-    );
     let text = caption.to_text();
     eprintln!("{text}");
     assert_eq!(caption.views.len(), 4);

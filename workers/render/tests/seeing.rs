@@ -2,14 +2,15 @@
 //! images rendered every 8 physics steps while it acts (`oracle:sense=camera`), against the real
 //! renderer on the machine's adapter.
 
-use std::path::{Path, PathBuf};
+mod common;
 
 use assay_core::policy::observation_camera;
 use assay_core::scene::{Observation, SceneSnapshot, SnapshotObject};
-use assay_core::spec::{Camera, Format, Shape, Surface, TaskSpec, parse_task};
+use assay_core::spec::{Camera, Shape, Surface};
 use assay_render::{Outputs, Renderer};
 use assay_sim::Observer;
 use assay_sim::perception::Tracker;
+use common::task;
 use rapier3d::prelude::Vec3;
 
 /// Renders in the test's thread; `shift` moves the camera that actually draws away from the one
@@ -41,14 +42,6 @@ impl Observer for InProcess {
             segments: f.segments,
         })
     }
-}
-
-fn task(rel: &str) -> TaskSpec {
-    let p: PathBuf = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../../examples/tasks")
-        .join(rel);
-    let text = std::fs::read_to_string(&p).unwrap_or_else(|e| panic!("{}: {e}", p.display()));
-    parse_task(&text, Format::Yaml, &p.display().to_string()).unwrap_or_else(|e| panic!("{e}"))
 }
 
 #[test]
