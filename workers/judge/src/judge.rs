@@ -562,9 +562,9 @@ async fn ask(
                 }
             }
             Err(e) => {
-                if !matches!(e, CallError::Status { .. } | CallError::BadResponse(_)) {
-                    // Timeouts and transport errors made no billable call we know of.
-                } else {
+                // A server that answered counts as a call; timeouts and transport errors made
+                // none we know of.
+                if matches!(e, CallError::Status { .. } | CallError::BadResponse(_)) {
                     ledger.usage.lock().expect("ledger").calls += 1;
                 }
                 exchange.attempts.push(Attempt {
