@@ -10,3 +10,7 @@ if [ -z "${XDG_RUNTIME_DIR:-}" ]; then
   export XDG_RUNTIME_DIR="$HOME/.cache/assay/xdg-runtime"
   mkdir -p "$XDG_RUNTIME_DIR" && chmod 700 "$XDG_RUNTIME_DIR"
 fi
+# libtorch for the trainer role (tch), installed by scripts/setup-libtorch from PyPI's torch wheel.
+if [ -z "${LIBTORCH:-}" ] && [ -f "$HOME/.cache/assay/libtorch-2.13.0/torch/build-version" ]; then
+  export LIBTORCH="$HOME/.cache/assay/libtorch-2.13.0/torch"
+fi

@@ -49,6 +49,10 @@ enum Command {
     Validate(cmd::validate::Args),
     /// Agreement of judges with human ratings from a CSV: Pearson r, MAE, r/MAE, Spearman, Kendall.
     Agreement(cmd::agreement::Args),
+    /// Text diversity (eq. 1) of groups of texts from a YAML/JSON file, per embedding model, and
+    /// the marginal diversity a new batch adds to a corpus.
+    #[cfg(feature = "trainer")]
+    Diversity(cmd::diversity::Args),
     /// Print the JSON Schema of task spec v1.
     Schema,
     /// Benchmarks on the peer reference scene (compare with shared/bench/peers/peers.py).
@@ -72,6 +76,8 @@ fn main() -> std::process::ExitCode {
         Command::Top(a) => cmd::top::run(a),
         Command::Validate(a) => cmd::validate::run(a),
         Command::Agreement(a) => cmd::agreement::run(a),
+        #[cfg(feature = "trainer")]
+        Command::Diversity(a) => cmd::diversity::run(a),
         Command::Schema => {
             println!(
                 "{}",

@@ -6,6 +6,8 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicU32, Ordering};
 use std::time::Duration;
 
+use assay_core::diversity::task_text;
+use assay_core::dynamics::DynamicsConfig;
 use assay_core::policy::PolicySpec;
 use assay_core::report::TaskInfo;
 use assay_core::spec::{Format, parse_task};
@@ -20,7 +22,7 @@ use tracing::{debug, info, warn};
 use crate::actor::StoreHandle;
 use crate::config::CoordinatorConfig;
 use crate::error::CoordError;
-use crate::store::{BatchCounts, Changed, NewBatch, PlannedTask, batch_state};
+use crate::store::{BatchCounts, Changed, DynamicsPlan, NewBatch, PlannedTask, batch_state};
 
 pub fn now_ms() -> i64 {
     std::time::SystemTime::now()
@@ -126,6 +128,52 @@ pub fn plan_tasks(docs: &[pb::TaskDocument]) -> (Vec<PlannedTask>, Vec<SpecError
     (planned, errors)
 }
 
+/// The texts of the batch's tasks for text diversity: one group per task group (in order of first
+/// appearance), then "All" with every task. A template that names neither `{name}` nor
+/// `{description}` is refused (it would embed the same text for every task).
+fn text_groups(
+    tasks: &[PlannedTask],
+    templates: &std::collections::HashMap<String, String>,
+) -> Result<Vec<(String, Vec<String>)>, Status> {
+    for (pipeline, t) in templates {
+        if !t.contains("{name}") && !t.contains("{description}") {
+            return Err(Status::invalid_argument(format!(
+                "text template for {pipeline:?}: it names neither {{name}} nor {{description}}"
+            )));
+        }
+    }
+    let mut groups: Vec<(String, Vec<String>)> = Vec::new();
+    let mut all = Vec::with_capacity(tasks.len());
+    for t in tasks {
+        let description = serde_json::from_str::<serde_json::Value>(&t.spec_json)
+            .ok()
+            .and_then(|v| {
+                v.get("description")
+                    .and_then(|d| d.as_str())
+                    .map(str::to_owned)
+            })
+            .unwrap_or_default();
+        let text = task_text(
+            &t.info.pipeline,
+            &t.info.name,
+            &description,
+            templates.get(&t.info.pipeline).map(String::as_str),
+        );
+        match groups.iter_mut().find(|(g, _)| *g == t.info.group) {
+            Some((_, texts)) => texts.push(text.clone()),
+            None => groups.push((t.info.group.clone(), vec![text.clone()])),
+        }
+        all.push(text);
+    }
+    let total = if groups.iter().any(|(g, _)| g == "All") {
+        "All tasks"
+    } else {
+        "All"
+    };
+    groups.push((total.to_owned(), all));
+    Ok(groups)
+}
+
 /// Judge names are keys of the judge workers' configuration.
 fn valid_judge_name(name: &str) -> bool {
     !name.is_empty()
@@ -161,6 +209,9 @@ fn counts_to_pb(c: &BatchCounts, workers: u32) -> pb::BatchStatus {
         judge_done: c.judge_done,
         judge_failed: c.judge_failed,
         judge_cost_usd: c.judge_cost_usd,
+        trainer_total: c.trainer_total,
+        trainer_done: c.trainer_done,
+        trainer_failed: c.trainer_failed,
     }
 }
 
@@ -219,6 +270,46 @@ impl pb::coordinator_server::Coordinator for CoordinatorService {
                 req.judge_budget_usd
             )));
         }
+        let mut text_models: Vec<String> = Vec::new();
+        for m in &req.text_models {
+            if !text_models.contains(m) {
+                text_models.push(m.clone());
+            }
+        }
+        if let Some(bad) = text_models.iter().find(|m| !valid_judge_name(m)) {
+            return Err(Status::invalid_argument(format!(
+                "embedding model name {bad:?}: expected letters, digits, '-', '_' or '.'"
+            )));
+        }
+        let text_groups = text_groups(&tasks, &req.text_templates)?;
+        let dynamics = if req.dynamics_budgets.is_empty() {
+            None
+        } else {
+            let config: DynamicsConfig = if req.dynamics_json.trim().is_empty() {
+                DynamicsConfig::default()
+            } else {
+                serde_json::from_str(&req.dynamics_json)
+                    .map_err(|e| Status::invalid_argument(format!("dynamics settings: {e}")))?
+            };
+            let mut budgets = req.dynamics_budgets.clone();
+            budgets.sort_unstable();
+            budgets.dedup();
+            if budgets.contains(&0) {
+                return Err(Status::invalid_argument(
+                    "dynamics budgets: every budget must be at least 1 episode",
+                ));
+            }
+            if config.image_size == 0
+                || !config.image_size.is_multiple_of(16)
+                || config.image_size > 256
+            {
+                return Err(Status::invalid_argument(format!(
+                    "dynamics settings: image_size {} must be a multiple of 16 up to 256",
+                    config.image_size
+                )));
+            }
+            Some(DynamicsPlan { budgets, config })
+        };
         let batch = NewBatch {
             name: if req.name.is_empty() {
                 "batch".into()
@@ -238,6 +329,9 @@ impl pb::coordinator_server::Coordinator for CoordinatorService {
             judges,
             judge_repeats: req.judge_repeats,
             judge_budget_usd: (req.judge_budget_usd > 0.0).then_some(req.judge_budget_usd),
+            text_models,
+            text_groups,
+            dynamics,
         };
         let accepted = batch.tasks.len() as u32;
         let now = now_ms();
@@ -531,7 +625,12 @@ async fn run_session(
                         .unwrap_or_default(),
                     judge_repeats: l.judge.as_ref().map_or(0, |j| j.repeats),
                     budget_left_usd: l.judge.as_ref().and_then(|j| j.budget_left_usd),
-                    input_json: l.judge.map(|j| j.episode_json).unwrap_or_default(),
+                    input_json: match (l.judge, l.trainer_job) {
+                        (Some(j), _) => j.episode_json,
+                        (None, Some(job)) => job,
+                        (None, None) => String::new(),
+                    },
+                    clip_size: l.clip_size,
                 };
                 if tx.send(msg(Out::Assignment(a))).await.is_err() {
                     return Ok(SessionEnd::Disconnected(held));

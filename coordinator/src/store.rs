@@ -7,9 +7,11 @@
 use std::path::Path;
 
 use assay_core::SpecError;
+use assay_core::dynamics::DynamicsConfig;
 use assay_core::quality::{DEFAULT_REPEATS, JudgeOutcome};
 use assay_core::quality_report::JudgeRecord;
 use assay_core::report::{self, EpisodeOutcome, Report, RunInfo, ShardRecord, TaskInfo};
+use assay_core::trainer::{DiversityResults, TrainerJob, TrainerOutcome};
 use rusqlite::{Connection, OptionalExtension, params};
 
 use crate::error::CoordError;
@@ -88,12 +90,27 @@ const ADDED_COLUMNS: &[(&str, &str, &str)] = &[
     // A judge shard: the judge's name and the episode outcome it judges.
     ("shards", "judge", "TEXT"),
     ("shards", "input_json", "TEXT"),
+    // Diversity: the embedding models of the batch's text-diversity shard, and its dynamics
+    // settings (JSON `{"budgets": [...], "config": DynamicsConfig}`; NULL: none).
+    ("batches", "text_models_json", "TEXT NOT NULL DEFAULT '[]'"),
+    ("batches", "dynamics_json", "TEXT"),
+    // A trainer shard: what it computes ("text", "dynamics GROUP @ BUDGET") and its task group.
+    ("shards", "job", "TEXT"),
+    ("shards", "grp", "TEXT"),
 ];
 
 /// Shard roles.
 pub mod role {
     pub const SIM: &str = "sim";
     pub const JUDGE: &str = "judge";
+    pub const TRAINER: &str = "trainer";
+}
+
+/// The dynamics part of a batch: episode budgets and world-model settings.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct DynamicsPlan {
+    pub budgets: Vec<u32>,
+    pub config: DynamicsConfig,
 }
 
 /// A task accepted by the planner.
@@ -119,6 +136,12 @@ pub struct NewBatch {
     pub judge_repeats: u32,
     /// USD the batch's judges may spend; None: no limit.
     pub judge_budget_usd: Option<f64>,
+    /// Embedding models for text diversity (empty: none) and the texts per group ("All" last).
+    pub text_models: Vec<String>,
+    pub text_groups: Vec<(String, Vec<String>)>,
+    /// Dynamics diversity (None: none): every episode renders a clip, and each group's world
+    /// models are queued once its episodes are finished.
+    pub dynamics: Option<DynamicsPlan>,
 }
 
 /// A shard handed to a worker.
@@ -135,6 +158,10 @@ pub struct Lease {
     /// For a judge shard: the judge, the episode outcome JSON it judges, repeats per item and
     /// what is left of the batch's budget (None: no limit).
     pub judge: Option<JudgeLease>,
+    /// For a trainer shard: its job (JSON `assay_core::trainer::TrainerJob`).
+    pub trainer_job: Option<String>,
+    /// For an episode of a batch that measures dynamics diversity: the clip's frame size.
+    pub clip_size: u32,
 }
 
 #[derive(Debug, Clone, PartialEq)]
@@ -165,6 +192,10 @@ pub struct BatchCounts {
     pub judge_done: u32,
     pub judge_failed: u32,
     pub judge_cost_usd: f64,
+    /// Trainer shards (text diversity, world models).
+    pub trainer_total: u32,
+    pub trainer_done: u32,
+    pub trainer_failed: u32,
 }
 
 /// What a state change did, so the caller knows whom to wake.
@@ -180,7 +211,8 @@ pub struct Store {
     conn: Connection,
 }
 
-/// id, batch, seed, policy, role, attempts, spec JSON, judge, input JSON, repeats, budget.
+/// id, batch, seed, policy, role, attempts, spec JSON, judge, input JSON, repeats, budget,
+/// dynamics JSON.
 type QueuedShard = (
     i64,
     String,
@@ -193,6 +225,7 @@ type QueuedShard = (
     Option<String>,
     u32,
     Option<f64>,
+    Option<String>,
 );
 
 impl Store {
@@ -251,8 +284,8 @@ impl Store {
         let id = format!("b{seq:05}-{:x}", now_ms & 0xff_ffff);
         tx.execute(
             "INSERT INTO batches (id, seq, name, state, policies_json, seeds_json, max_attempts, invalid_json, submitted_ms,
-             judges_json, judge_repeats, judge_budget_usd)
-             VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12)",
+             judges_json, judge_repeats, judge_budget_usd, text_models_json, dynamics_json)
+             VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12, ?13, ?14)",
             params![
                 id,
                 seq as i64,
@@ -266,6 +299,8 @@ impl Store {
                 serde_json::to_string(&batch.judges)?,
                 if batch.judge_repeats == 0 { DEFAULT_REPEATS } else { batch.judge_repeats },
                 batch.judge_budget_usd,
+                serde_json::to_string(&batch.text_models)?,
+                batch.dynamics.as_ref().map(serde_json::to_string).transpose()?,
             ],
         )?;
         for t in &batch.tasks {
@@ -296,6 +331,17 @@ impl Store {
                 }
             }
         }
+        if !batch.text_models.is_empty() && !batch.tasks.is_empty() {
+            let job = TrainerJob::Text {
+                models: batch.text_models.clone(),
+                groups: batch.text_groups.clone(),
+            };
+            tx.execute(
+                "INSERT INTO shards (batch_id, task_id, seed, policy, role, state, job, input_json)
+                 VALUES (?1, '', 0, '', ?2, ?3, 'text', ?4)",
+                params![id, role::TRAINER, QUEUED, serde_json::to_string(&job)?],
+            )?;
+        }
         tx.commit()?;
         Ok((id, n))
     }
@@ -315,9 +361,9 @@ impl Store {
         let tx = self.conn.transaction()?;
         let placeholders = roles.iter().map(|_| "?").collect::<Vec<_>>().join(",");
         let sql = format!(
-            "SELECT s.id, s.batch_id, s.seed, s.policy, s.role, s.attempts, t.spec_json,
-                    s.judge, s.input_json, b.judge_repeats, b.judge_budget_usd
-             FROM shards s JOIN tasks t ON t.batch_id = s.batch_id AND t.task_id = s.task_id
+            "SELECT s.id, s.batch_id, s.seed, s.policy, s.role, s.attempts, COALESCE(t.spec_json, ''),
+                    s.judge, s.input_json, b.judge_repeats, b.judge_budget_usd, b.dynamics_json
+             FROM shards s LEFT JOIN tasks t ON t.batch_id = s.batch_id AND t.task_id = s.task_id
                            JOIN batches b ON b.id = s.batch_id
              WHERE s.state = 'queued' AND s.role IN ({placeholders})
              ORDER BY s.id LIMIT {n}"
@@ -337,6 +383,7 @@ impl Store {
                     r.get(8)?,
                     r.get(9)?,
                     r.get(10)?,
+                    r.get(11)?,
                 ))
             })?;
             it.collect::<Result<_, _>>()?
@@ -345,9 +392,33 @@ impl Store {
         let mut out = Vec::with_capacity(rows.len());
         for (
             k,
-            (shard_id, batch_id, seed, policy, role, attempts, spec, judge, input, repeats, budget),
+            (
+                shard_id,
+                batch_id,
+                seed,
+                policy,
+                shard_role,
+                attempts,
+                spec,
+                judge,
+                input,
+                repeats,
+                budget,
+                dynamics,
+            ),
         ) in rows.into_iter().enumerate()
         {
+            let trainer_job = if shard_role == role::TRAINER {
+                input.clone()
+            } else {
+                None
+            };
+            let clip_size = match (&dynamics, shard_role.as_str()) {
+                (Some(d), r) if r != role::JUDGE && r != role::TRAINER => {
+                    serde_json::from_str::<DynamicsPlan>(d)?.config.image_size
+                }
+                _ => 0,
+            };
             let judge = match (judge, input) {
                 (Some(judge), Some(episode_json)) => Some(JudgeLease {
                     judge,
@@ -373,9 +444,11 @@ impl Store {
                 task_spec_json: spec,
                 seed: seed as u64,
                 policy,
-                role,
+                role: shard_role,
                 attempt: attempts + 1,
                 judge,
+                trainer_job,
+                clip_size,
             });
         }
         tx.commit()?;
@@ -439,6 +512,14 @@ impl Store {
                 Err(e) => {
                     drop(tx);
                     let err = format!("worker sent an unreadable judge outcome: {e}");
+                    return Ok((false, self.fail(lease_id, shard_id, &err, true, now_ms)?));
+                }
+            },
+            role::TRAINER => match serde_json::from_str::<TrainerOutcome>(outcome_json) {
+                Ok(_) => Vec::new(),
+                Err(e) => {
+                    drop(tx);
+                    let err = format!("worker sent an unreadable trainer outcome: {e}");
                     return Ok((false, self.fail(lease_id, shard_id, &err, true, now_ms)?));
                 }
             },
@@ -683,6 +764,7 @@ impl Store {
     }
 
     fn finish_if_done(conn: &Connection, batch_id: &str, now_ms: i64) -> Result<(), CoordError> {
+        Self::queue_dynamics(conn, batch_id)?;
         let open: i64 = conn.query_row(
             "SELECT COUNT(*) FROM shards WHERE batch_id = ?1 AND state IN ('queued', 'leased')",
             [batch_id],
@@ -698,6 +780,96 @@ impl Store {
                     batch_state::RUNNING
                 ],
             )?;
+        }
+        Ok(())
+    }
+
+    /// Queues the world models of every group of a running batch whose episodes are all finished
+    /// (none queued or leased) and that has none yet: one trainer shard per budget, on the
+    /// group's first `max(budgets)` clips in planning order (seed-major, so the first budget
+    /// holds one episode per task before any task's second). A group with fewer than 2 clips gets
+    /// one failed shard saying so.
+    fn queue_dynamics(conn: &Connection, batch_id: &str) -> Result<(), CoordError> {
+        let plan: Option<(String, Option<String>)> = conn
+            .query_row(
+                "SELECT state, dynamics_json FROM batches WHERE id = ?1",
+                [batch_id],
+                |r| Ok((r.get(0)?, r.get(1)?)),
+            )
+            .optional()?;
+        let Some((batch_state::RUNNING, Some(plan))) =
+            plan.as_ref().map(|(s, p)| (s.as_str(), p.clone()))
+        else {
+            return Ok(());
+        };
+        let plan: DynamicsPlan = serde_json::from_str(&plan)?;
+        let groups: Vec<String> = {
+            let mut stmt = conn.prepare(
+                "SELECT grp FROM tasks WHERE batch_id = ?1 GROUP BY grp ORDER BY MIN(rowid)",
+            )?;
+            stmt.query_map([batch_id], |r| r.get(0))?
+                .collect::<Result<_, _>>()?
+        };
+        let eval = plan.budgets.iter().copied().max().unwrap_or(0) as usize;
+        for group in groups {
+            let (started, open): (i64, i64) = conn.query_row(
+                "SELECT
+                   (SELECT COUNT(*) FROM shards WHERE batch_id = ?1 AND role = 'trainer' AND grp = ?2),
+                   (SELECT COUNT(*) FROM shards s JOIN tasks t ON t.batch_id = s.batch_id AND t.task_id = s.task_id
+                    WHERE s.batch_id = ?1 AND t.grp = ?2 AND s.role NOT IN ('judge', 'trainer')
+                      AND s.state IN ('queued', 'leased'))",
+                params![batch_id, group],
+                |r| Ok((r.get(0)?, r.get(1)?)),
+            )?;
+            if started > 0 || open > 0 {
+                continue;
+            }
+            let clips: Vec<String> = {
+                let mut stmt = conn.prepare(
+                    "SELECT json_extract(s.outcome_json, '$.imagery.clip') AS clip
+                     FROM shards s JOIN tasks t ON t.batch_id = s.batch_id AND t.task_id = s.task_id
+                     WHERE s.batch_id = ?1 AND t.grp = ?2 AND s.role NOT IN ('judge', 'trainer')
+                       AND s.state = 'done' AND clip IS NOT NULL ORDER BY s.id",
+                )?;
+                stmt.query_map(params![batch_id, group], |r| r.get(0))?
+                    .take(eval)
+                    .collect::<Result<_, _>>()?
+            };
+            if clips.len() < 2 {
+                conn.execute(
+                    "INSERT INTO shards (batch_id, task_id, seed, policy, role, state, job, grp, error)
+                     VALUES (?1, '', 0, '', 'trainer', 'failed', ?2, ?3, ?4)",
+                    params![
+                        batch_id,
+                        format!("dynamics {group}"),
+                        group,
+                        format!(
+                            "group {group:?} has {} episode(s) with a dynamics clip; a world model needs at least 2 \
+                             (clips are rendered by workers with the render role)",
+                            clips.len()
+                        )
+                    ],
+                )?;
+                continue;
+            }
+            for budget in &plan.budgets {
+                let job = TrainerJob::Dynamics {
+                    group: group.clone(),
+                    budget: *budget,
+                    clips: clips.clone(),
+                    config: plan.config.clone(),
+                };
+                conn.execute(
+                    "INSERT INTO shards (batch_id, task_id, seed, policy, role, state, job, grp, input_json)
+                     VALUES (?1, '', 0, '', 'trainer', 'queued', ?2, ?3, ?4)",
+                    params![
+                        batch_id,
+                        format!("dynamics {group} @ {budget}"),
+                        group,
+                        serde_json::to_string(&job)?
+                    ],
+                )?;
+            }
         }
         Ok(())
     }
@@ -738,6 +910,15 @@ impl Store {
         })?;
         for row in rows {
             let (state, shard_role, n) = row?;
+            if shard_role == role::TRAINER {
+                c.trainer_total += n;
+                match state.as_str() {
+                    DONE => c.trainer_done = n,
+                    FAILED => c.trainer_failed = n,
+                    _ => {}
+                }
+                continue;
+            }
             if shard_role == role::JUDGE {
                 c.judge_total += n;
                 match state.as_str() {
@@ -758,7 +939,7 @@ impl Store {
             }
         }
         c.successes = self.conn.query_row(
-            "SELECT COUNT(*) FROM shards WHERE batch_id = ?1 AND role != 'judge' AND state = 'done'
+            "SELECT COUNT(*) FROM shards WHERE batch_id = ?1 AND role NOT IN ('judge', 'trainer') AND state = 'done'
              AND json_extract(outcome_json, '$.success') = 1",
             [batch_id],
             |r| r.get(0),
@@ -820,10 +1001,11 @@ impl Store {
         let mut extra_attempts = 0u64;
         let mut shards = Vec::new();
         let mut judged = Vec::new();
+        let mut diversity: Option<DiversityResults> = None;
         {
             let mut stmt = self.conn.prepare(
-                "SELECT task_id, seed, policy, attempts, state, outcome_json, error, worker, role, judge
-                 FROM shards WHERE batch_id = ?1",
+                "SELECT task_id, seed, policy, attempts, state, outcome_json, error, worker, role, judge, job
+                 FROM shards WHERE batch_id = ?1 ORDER BY id",
             )?;
             let mut rows = stmt.query([batch_id])?;
             while let Some(r) = rows.next()? {
@@ -834,6 +1016,23 @@ impl Store {
                     workers.insert(w);
                 }
                 extra_attempts += u64::from(attempts.saturating_sub(1));
+                if r.get::<_, String>(8)? == role::TRAINER {
+                    let job: String = r.get::<_, Option<String>>(10)?.unwrap_or_default();
+                    let div = diversity.get_or_insert_with(DiversityResults::default);
+                    match (state.as_str(), outcome) {
+                        (DONE, Some(json)) => {
+                            match serde_json::from_str::<TrainerOutcome>(&json)? {
+                                TrainerOutcome::Text { table } => div.text = Some(table),
+                                TrainerOutcome::Dynamics { fit } => div.dynamics.push(*fit),
+                            }
+                        }
+                        (FAILED, _) => div
+                            .errors
+                            .push((job, r.get::<_, Option<String>>(6)?.unwrap_or_default())),
+                        _ => {}
+                    }
+                    continue;
+                }
                 if r.get::<_, String>(8)? == role::JUDGE {
                     judged.push(JudgeRecord {
                         task_id: r.get(0)?,
@@ -877,6 +1076,7 @@ impl Store {
         let episodes: Vec<EpisodeOutcome> =
             shards.iter().filter_map(|s| s.outcome.clone()).collect();
         results.quality = assay_core::quality_report::build_quality(&tasks, &episodes, &judged);
+        results.diversity = diversity;
         let wall = finished.map(|f| (f - submitted) as f64 / 1000.0);
         let rate = |x: f64| wall.filter(|w| *w > 0.0).map(|w| x / w);
         let run = RunInfo {
@@ -933,6 +1133,9 @@ mod tests {
             judges: vec![],
             judge_repeats: 0,
             judge_budget_usd: None,
+            text_models: Vec::new(),
+            text_groups: Vec::new(),
+            dynamics: None,
         }
     }
 
@@ -1158,6 +1361,7 @@ mod tests {
             contact_sheet: String::new(),
             video: None,
             caption: None,
+            clip: None,
         });
         serde_json::to_string(&e).unwrap()
     }

@@ -8,7 +8,9 @@
 
 pub mod agreement;
 pub mod caption;
+pub mod clip;
 pub mod diversity;
+pub mod dynamics;
 pub mod error;
 pub mod hash;
 pub mod policy;
@@ -19,6 +21,7 @@ pub mod rng;
 pub mod scene;
 pub mod spec;
 pub mod stats;
+pub mod trainer;
 pub mod urdf;
 
 pub use error::{SpecError, SpecErrors};

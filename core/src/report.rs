@@ -81,6 +81,10 @@ pub struct EpisodeImagery {
     /// the scene views show, measured from their segments and depth.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub caption: Option<String>,
+    /// Content address of the episode's dynamics clip (`assay_core::clip::Clip`), when the batch
+    /// measures dynamics diversity.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub clip: Option<String>,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -145,6 +149,9 @@ pub struct Results {
     /// What the batch's judges said of its tasks (absent when no judge ran).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub quality: Option<QualityResults>,
+    /// Text and dynamics diversity (absent when the batch asked for neither).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub diversity: Option<crate::trainer::DiversityResults>,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -402,7 +409,42 @@ pub fn build_results(
         tasks: task_results,
         invalid_tasks,
         quality: None,
+        diversity: None,
     }
+}
+
+/// The diversity section: the paper's Tables 1 and 2.
+fn diversity_markdown(d: &crate::trainer::DiversityResults) -> String {
+    let mut md = String::from("\n## Diversity\n");
+    if let Some(t) = &d.text {
+        md.push_str(
+            "\n### Text diversity (eq. 1; higher is more diverse)\n\n\
+             Embeddings of each task's text; `div = -mean_i log(mean_{j≠i} cos(e_i, e_j))`.\n\n",
+        );
+        md.push_str(&t.markdown());
+        md.push('\n');
+    }
+    if !d.dynamics.is_empty() {
+        let f = &d.dynamics[0];
+        let _ = write!(
+            md,
+            "\n### Dynamics diversity (world-model prediction error, ×10⁻³)\n\n\
+             A latent dynamics model (RSSM, DreamerV3-style) trained per group on the first N \
+             episodes, evaluated on the group's first {} episodes: mean squared error of the \
+             one-step prediction of the next {}×{} frame. For a diverse group the error falls as \
+             episodes are added; a group whose error is low already at the smallest budget has \
+             dynamics a few episodes cover. Device: {}.\n\n",
+            f.eval_episodes, f.config.image_size, f.config.image_size, f.device
+        );
+        md.push_str(&d.dynamics_markdown());
+    }
+    if !d.errors.is_empty() {
+        md.push_str("\n| diversity job | error |\n|---|---|\n");
+        for (job, e) in &d.errors {
+            let _ = writeln!(md, "| {} | {} |", cell(job), cell(e));
+        }
+    }
+    md
 }
 
 fn pct(p: &Proportion) -> String {
@@ -560,6 +602,9 @@ impl Report {
         if let Some(q) = &r.quality {
             md.push('\n');
             md.push_str(&q.markdown(Some(QUALITY_FIGURE)));
+        }
+        if let Some(d) = &r.diversity {
+            md.push_str(&diversity_markdown(d));
         }
         let failures: Vec<_> = r
             .tasks

@@ -42,6 +42,10 @@ pub struct Args {
     /// or by the judges given with --judge).
     #[arg(long, conflicts_with = "judges")]
     pub no_judge: bool,
+    /// No diversity (by default: text diversity with minilm, and with rendering, dynamics
+    /// diversity at 10, 20 and 40 episodes per group, on a trainer worker).
+    #[arg(long, conflicts_with_all = ["text_models", "dynamics_budgets"])]
+    pub no_diversity: bool,
     /// Output folder: report.json, report.md, artifacts/, and run/ (job store and process logs).
     #[arg(long, default_value = "assay-out")]
     pub out: PathBuf,
@@ -64,6 +68,23 @@ pub fn run(mut a: Args) -> anyhow::Result<ExitCode> {
         }
     } else if a.batch.judges.is_empty() {
         a.batch.judges.push(assay_judge::OFFLINE.into());
+    }
+    if !a.no_diversity {
+        if a.batch.text_models.is_empty() {
+            a.batch.text_models.push("minilm".into());
+        }
+        if a.batch.dynamics_budgets.is_empty() && rendering {
+            a.batch.dynamics_budgets = assay_core::dynamics::DEFAULT_BUDGETS.to_vec();
+        }
+    }
+    if !a.batch.dynamics_budgets.is_empty() && !rendering {
+        anyhow::bail!("--dynamics-budgets needs rendered clips: run with --roles sim,render");
+    }
+    let training = !a.batch.text_models.is_empty() || !a.batch.dynamics_budgets.is_empty();
+    if training && !cfg!(feature = "trainer") {
+        anyhow::bail!(
+            "this build has no trainer role (built without the `trainer` feature): run with --no-diversity"
+        );
     }
     if let Some(path) = &a.config {
         // Fail here, before anything starts, rather than in the judge worker's log.
@@ -160,13 +181,36 @@ pub fn run(mut a: Args) -> anyhow::Result<ExitCode> {
             &run_dir.join("judge-0.log"),
         )?);
     }
+    if training {
+        let mut args: Vec<String> = vec![
+            "worker".into(),
+            "--coordinator".into(),
+            addr.clone(),
+            "--roles".into(),
+            "trainer".into(),
+            "--node-id".into(),
+            "local".into(),
+            "--worker-id".into(),
+            "local/trainer-0".into(),
+        ];
+        if let Some(path) = &a.config {
+            args.push("--config".into());
+            args.push(s(path.clone()));
+        }
+        workers.push(ChildProc::spawn(
+            "trainer worker",
+            &args,
+            &run_dir.join("trainer-0.log"),
+        )?);
+    }
     eprintln!(
-        "local cluster: coordinator at {addr}, {sim_workers} sim workers{}; logs in {}",
+        "local cluster: coordinator at {addr}, {sim_workers} sim workers{}{}; logs in {}",
         if a.batch.judges.is_empty() {
             String::new()
         } else {
             format!(", a judge worker ({})", a.batch.judges.join(", "))
         },
+        if training { ", a trainer worker" } else { "" },
         run_dir.display()
     );
 
@@ -238,7 +282,7 @@ pub fn run(mut a: Args) -> anyhow::Result<ExitCode> {
                 .expect("rates")
                 .values()
                 .fold((0.0, 0.0), |a, r| (a.0 + r.0, a.1 + r.1));
-            let judged = if st.judge_total > 0 {
+            let mut judged = if st.judge_total > 0 {
                 format!(
                     ", {}/{} judged",
                     st.judge_done + st.judge_failed,
@@ -247,6 +291,13 @@ pub fn run(mut a: Args) -> anyhow::Result<ExitCode> {
             } else {
                 String::new()
             };
+            if st.trainer_total > 0 {
+                judged.push_str(&format!(
+                    ", {}/{} trained",
+                    st.trainer_done + st.trainer_failed,
+                    st.trainer_total
+                ));
+            }
             bar.set_message(format!(
                 "{} ok, {} failed, {} running{judged}, {} workers, {:.0} steps/s, {:.0} frames/s",
                 st.successes,

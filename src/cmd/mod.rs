@@ -3,6 +3,8 @@
 pub mod agreement;
 pub mod bench;
 pub mod coordinator;
+#[cfg(feature = "trainer")]
+pub mod diversity;
 pub mod eval;
 pub mod frames;
 pub mod frames_grpc;
@@ -10,6 +12,8 @@ pub mod report;
 pub mod status;
 pub mod submit;
 pub mod top;
+#[cfg(feature = "trainer")]
+pub mod trainer_role;
 pub mod validate;
 pub mod worker;
 

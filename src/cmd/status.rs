@@ -31,6 +31,15 @@ pub fn line(s: &pb::BatchStatus) -> String {
     } else {
         String::new()
     };
+    let judged = if s.trainer_total > 0 {
+        format!(
+            "{judged}  {}/{} trained",
+            s.trainer_done + s.trainer_failed,
+            s.trainer_total
+        )
+    } else {
+        judged
+    };
     format!(
         "{}  {:<9}  {}/{} done  {} ok  {} failed  {} running  {} queued  {} cancelled  {} invalid tasks{judged}  {} workers  {}",
         s.batch_id,

@@ -41,6 +41,28 @@ pub struct BatchArgs {
     /// Stop making judge calls once this batch's judges have spent this many USD (0: no limit).
     #[arg(long, default_value_t = 0.0)]
     pub judge_budget_usd: f64,
+    /// Text diversity of the task texts with these embedding models (built in: minilm, mpnet;
+    /// others from the trainer workers' `[embedders.NAME]`). Comma-separated.
+    #[arg(long = "text-models", value_delimiter = ',')]
+    pub text_models: Vec<String>,
+    /// Text embedded per source pipeline, `PIPELINE=TEMPLATE` with {name} and {description}
+    /// (default: the paper's GenSim form for GenSim tasks, the description for others).
+    #[arg(long = "text-template", value_parser = parse_template)]
+    pub text_templates: Vec<(String, String)>,
+    /// Dynamics diversity: world models per task group trained on these episode budgets
+    /// (e.g. 10,20,40), evaluated on the group's first max(budgets) episodes.
+    #[arg(long = "dynamics-budgets", value_delimiter = ',')]
+    pub dynamics_budgets: Vec<u32>,
+    /// World-model settings as JSON (fields of assay-core DynamicsConfig, e.g. '{"epochs": 20}').
+    #[arg(long = "world-model")]
+    pub world_model: Option<String>,
+}
+
+fn parse_template(s: &str) -> Result<(String, String), String> {
+    s.split_once('=')
+        .map(|(p, t)| (p.trim().to_owned(), t.to_owned()))
+        .filter(|(p, _)| !p.is_empty())
+        .ok_or_else(|| format!("expected PIPELINE=TEMPLATE, got {s:?}"))
 }
 
 impl BatchArgs {
@@ -67,6 +89,10 @@ impl BatchArgs {
             judges: self.judges.clone(),
             judge_repeats: self.judge_repeats,
             judge_budget_usd: self.judge_budget_usd,
+            text_models: self.text_models.clone(),
+            dynamics_budgets: self.dynamics_budgets.clone(),
+            dynamics_json: self.world_model.clone().unwrap_or_default(),
+            text_templates: self.text_templates.iter().cloned().collect(),
         }
     }
 }

@@ -31,16 +31,17 @@ fn table(
 ) -> String {
     let mut out = String::from("\x1b[2J\x1b[H");
     out.push_str(&format!(
-        "{:<32} {:>9} {:>7} {:>7} {:>8} {:>12} {:>9}\n",
-        "worker", "episodes", "failed", "judged", "leases", "steps/s", "frames/s"
+        "{:<32} {:>9} {:>7} {:>7} {:>7} {:>8} {:>12} {:>9}\n",
+        "worker", "episodes", "failed", "judged", "trained", "leases", "steps/s", "frames/s"
     ));
     for w in workers.values() {
         out.push_str(&format!(
-            "{:<32} {:>9} {:>7} {:>7} {:>8} {:>12.0} {:>9.1}\n",
+            "{:<32} {:>9} {:>7} {:>7} {:>7} {:>8} {:>12.0} {:>9.1}\n",
             w.worker,
             w.episodes_done,
             w.episodes_failed,
             w.judged,
+            w.trained,
             format!("{}/{}", w.leases_held, w.lease_capacity),
             w.physics_steps_per_s,
             w.frames_per_s

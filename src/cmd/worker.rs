@@ -74,6 +74,7 @@ struct Counters {
     steps: AtomicU64,
     frames: AtomicU64,
     judged: AtomicU64,
+    trained: AtomicU64,
 }
 
 /// The render role: one thread owns the device (a GPU, or lavapipe) and this worker's frame-bus
@@ -111,6 +112,8 @@ struct EpisodeJob {
     keyframes: Vec<(u64, SceneSnapshot)>,
     /// Video states; empty when no video is wanted.
     video: Vec<(u64, SceneSnapshot)>,
+    /// Dynamics clip states and the clip's frame size, when the shard asks for a clip.
+    clip: Option<(assay_sim::ClipStates, u32)>,
     camera: Camera,
     reply: std::sync::mpsc::Sender<Result<Rendered, assay_render::RenderError>>,
 }
@@ -119,6 +122,7 @@ struct Rendered {
     imagery: assay_render::imagery::Imagery,
     video: Option<assay_render::video::Video>,
     caption: assay_core::caption::SceneCaption,
+    clip: Option<assay_core::clip::Clip>,
 }
 
 fn io_error(what: &str) -> impl Fn(std::io::Error) -> ShardError + '_ {
@@ -144,11 +148,14 @@ impl RenderRole {
         })
     }
 
+    /// Renders and stores `ep`'s pictures, and its dynamics clip at `clip_size` pixels square
+    /// when it carries clip states.
     fn imagery(
         &self,
         spec: &TaskSpec,
         shard: u64,
         ep: assay_sim::Episode,
+        clip_size: u32,
         root: &Path,
     ) -> Result<EpisodeImagery, ShardError> {
         let (reply, answer) = std::sync::mpsc::channel();
@@ -159,6 +166,7 @@ impl RenderRole {
             initial_step: ep.initial_step,
             keyframes: ep.keyframes,
             video: ep.video,
+            clip: ep.clip.map(|c| (c, clip_size)),
             camera: task_cameras(&spec.cameras).remove(0),
             reply,
         });
@@ -197,6 +205,12 @@ impl RenderRole {
             ),
             None => None,
         };
+        let clip = match rendered.clip {
+            Some(c) => Some(
+                artifacts::put(root, "clips", "clip", &c.encode()).map_err(io_error("clips"))?,
+            ),
+            None => None,
+        };
         let caption = serde_json::to_vec_pretty(&rendered.caption)
             .map_err(|e| ShardError::permanent(format!("scene caption: {e}")))?;
         Ok(EpisodeImagery {
@@ -208,6 +222,7 @@ impl RenderRole {
             caption: Some(
                 artifacts::put(root, "captions", "json", &caption).map_err(io_error("captions"))?,
             ),
+            clip,
         })
     }
 }
@@ -374,10 +389,23 @@ fn render_loop(
                 )?)
             };
             let caption = assay_render::caption::caption_frames(&job.initial, &views);
+            let clip = match job.clip {
+                Some((c, size)) => Some(assay_render::imagery::render_clip(
+                    &mut r,
+                    &c.scenes,
+                    &job.camera,
+                    size,
+                    c.interval_s,
+                    c.proprio,
+                    c.actions,
+                )?),
+                None => None,
+            };
             Ok(Rendered {
                 imagery,
                 video,
                 caption,
+                clip,
             })
         });
         let _ = job.reply.send(result);
@@ -417,14 +445,18 @@ impl SimRole {
             role,
             shard: a.shard_id,
         });
-        let ep = assay_sim::simulate_with(
-            &spec,
-            a.seed,
-            policy,
+        // A dynamics clip is drawn by the render role; a worker without it has no imagery.
+        let clip_size = if self.render.is_some() {
+            a.clip_size
+        } else {
+            0
+        };
+        let options = assay_sim::SimOptions {
             video_frames,
-            observer.as_mut().map(|o| o as &mut dyn assay_sim::Observer),
-        )
-        .map_err(|e| {
+            clip: clip_size > 0,
+            observer: observer.as_mut().map(|o| o as &mut dyn assay_sim::Observer),
+        };
+        let ep = assay_sim::simulate_with(&spec, a.seed, policy, options).map_err(|e| {
             let msg = format!("task {}: {e}", spec.id);
             if e.retryable() {
                 ShardError::retryable(msg)
@@ -443,9 +475,10 @@ impl SimRole {
             .fetch_add(ep.observations, Ordering::Relaxed);
         if let Some(render) = &self.render {
             let video_frames = ep.video.len();
-            let imagery = render.imagery(&spec, a.shard_id, ep, artifact_root)?;
+            let clip_frames = ep.clip.as_ref().map_or(0, |c| c.len());
+            let imagery = render.imagery(&spec, a.shard_id, ep, clip_size, artifact_root)?;
             self.counters.frames.fetch_add(
-                (imagery.views.len() + imagery.keyframes.len() + video_frames) as u64,
+                (imagery.views.len() + imagery.keyframes.len() + video_frames + clip_frames) as u64,
                 Ordering::Relaxed,
             );
             outcome.imagery = Some(imagery);
@@ -532,6 +565,9 @@ impl JudgeRole {
 struct Roles {
     sim: Option<SimRole>,
     judge: Option<JudgeRole>,
+    #[cfg(feature = "trainer")]
+    trainer: Option<super::trainer_role::TrainerRole>,
+    counters: Arc<Counters>,
 }
 
 impl ShardHandler for Roles {
@@ -544,6 +580,17 @@ impl ShardHandler for Roles {
                 result
             }
             (Ok(pb::Role::Sim), Some(sim), _) => sim.run(a, artifact_root),
+            #[cfg(feature = "trainer")]
+            (Ok(pb::Role::Trainer), _, _) if self.trainer.is_some() => {
+                let trainer = self.trainer.as_ref().expect("checked");
+                self.counters.running.fetch_add(1, Ordering::Relaxed);
+                let result = trainer.run(a, artifact_root);
+                self.counters.running.fetch_sub(1, Ordering::Relaxed);
+                if result.is_ok() {
+                    self.counters.trained.fetch_add(1, Ordering::Relaxed);
+                }
+                result
+            }
             (role, _, _) => Err(ShardError::permanent(format!(
                 "this worker does not hold the role of shard {} ({role:?})",
                 a.shard_id
@@ -557,8 +604,10 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     for r in &a.roles {
         match pb::Role::parse(r) {
             Some(role @ (pb::Role::Sim | pb::Role::Render | pb::Role::Judge)) => roles.push(role),
+            #[cfg(feature = "trainer")]
+            Some(pb::Role::Trainer) => roles.push(pb::Role::Trainer),
             Some(other) => bail!(
-                "role '{}' is not available in this build (sim, render, judge)",
+                "role '{}' is not available in this build (built without the `trainer` feature)",
                 other.name()
             ),
             None => bail!("unknown role '{r}' (sim, render, judge, trainer)"),
@@ -600,6 +649,21 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     // Shards are leased for the sim and judge roles; rendering rides along with sim.
     roles.retain(|r| *r != pb::Role::Render);
     let judging = roles.contains(&pb::Role::Judge);
+    #[cfg(feature = "trainer")]
+    let trainer = if roles.contains(&pb::Role::Trainer) {
+        let text = match &a.config {
+            Some(p) => Some(
+                std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?,
+            ),
+            None => None,
+        };
+        Some(
+            super::trainer_role::TrainerRole::new(text.as_deref())
+                .map_err(|e| anyhow::anyhow!("trainer role: {e}"))?,
+        )
+    } else {
+        None
+    };
     let simulating = roles.contains(&pb::Role::Sim);
     let (announce, announced) = tokio::sync::watch::channel(None::<(String, String)>);
     let counters = Arc::new(Counters::default());
@@ -636,8 +700,17 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
             worker_id: config.worker_id.clone(),
             counters: counters.clone(),
         });
-        let sim = simulating.then(|| SimRole { render, counters });
-        let handler = Arc::new(Roles { sim, judge });
+        let sim = simulating.then(|| SimRole {
+            render,
+            counters: counters.clone(),
+        });
+        let handler = Arc::new(Roles {
+            sim,
+            judge,
+            #[cfg(feature = "trainer")]
+            trainer,
+            counters,
+        });
         let result = run_worker(config, handler, super::terminated()).await;
         stats.abort();
         let _ = stats.await;
@@ -703,6 +776,7 @@ async fn publish_stats(
             episodes_done: counters.episodes.load(Ordering::Relaxed),
             episodes_failed: counters.failed.load(Ordering::Relaxed),
             judged: counters.judged.load(Ordering::Relaxed),
+            trained: counters.trained.load(Ordering::Relaxed),
             leases_held: counters.running.load(Ordering::Relaxed),
             lease_capacity: capacity,
             physics_steps_per_s: (steps - last_steps) as f64 / dt,

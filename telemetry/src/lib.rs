@@ -27,6 +27,9 @@ pub struct WorkerStats {
     /// Episodes judged (judge role).
     #[serde(default)]
     pub judged: u64,
+    /// Trainer jobs finished (trainer role: text diversity, world models).
+    #[serde(default)]
+    pub trained: u64,
     /// Leases this worker holds now (shards running).
     pub leases_held: u64,
     /// Leases it may hold at once (its capacity).

@@ -25,8 +25,9 @@ use axum::http::{HeaderMap, Method, Response, StatusCode, Uri, header};
 use serde_json::{Value, json};
 use tokio::sync::oneshot;
 
-/// The path the fixture answers; everything else gets a 404 with a JSON error.
+/// The paths the fixture answers; everything else gets a 404 with a JSON error.
 pub const CHAT_PATH: &str = "/v1/chat/completions";
+pub const EMBEDDINGS_PATH: &str = "/v1/embeddings";
 
 /// Request bodies up to this size are accepted (eight full-HD PNGs fit).
 const MAX_BODY: usize = 256 << 20;
@@ -146,6 +147,59 @@ pub fn scoring_script() -> Script {
 /// division), at most 10. 0 → 1, 1 → 1, 2 → 2, 4 → 4, 6 → 5, 8 → 7, 12 and more → 10.
 pub fn scoring_rule(images: usize) -> u32 {
     (1 + images.saturating_mul(3) / 4).min(10) as u32
+}
+
+/// A script for `POST /v1/embeddings` that answers a real `list` of `embedding` objects: each
+/// input's vector is a bag of its lowercase words, each word hashed (FNV-1a) to one of `dims`
+/// coordinates, plus one coordinate every text has, so texts sharing words are more similar and
+/// the answer is deterministic.
+/// Usage counts one prompt token per word.
+pub fn embedding_script(dims: usize) -> Script {
+    Arc::new(move |r: &Received| {
+        let inputs: Vec<String> = match r.body.get("input") {
+            Some(Value::String(s)) => vec![s.clone()],
+            Some(Value::Array(a)) => a
+                .iter()
+                .map(|v| v.as_str().unwrap_or_default().to_owned())
+                .collect(),
+            _ => Vec::new(),
+        };
+        let mut words = 0;
+        let data: Vec<Value> = inputs
+            .iter()
+            .enumerate()
+            .map(|(i, text)| {
+                let dims = dims.max(1);
+                let mut v = vec![0f64; dims];
+                for word in text
+                    .split(|c: char| !c.is_alphanumeric())
+                    .filter(|w| !w.is_empty())
+                {
+                    words += 1;
+                    let h = word
+                        .to_lowercase()
+                        .bytes()
+                        .fold(0xcbf2_9ce4_8422_2325u64, |h, b| {
+                            (h ^ u64::from(b)).wrapping_mul(0x0000_0100_0000_01b3)
+                        });
+                    v[(h % dims as u64) as usize] += 1.0;
+                }
+                // A component every text shares, as real embeddings have: no two texts are
+                // orthogonal.
+                v[0] += 1.0;
+                json!({"object": "embedding", "index": i, "embedding": v})
+            })
+            .collect();
+        Reply::Json {
+            code: 200,
+            body: json!({
+                "object": "list",
+                "data": data,
+                "model": r.model,
+                "usage": {"prompt_tokens": words, "total_tokens": words},
+            }),
+        }
+    })
 }
 
 /// A running fixture server. Dropping it shuts the server down.
@@ -367,12 +421,12 @@ async fn handle(
         all.push(received.clone());
     }
 
-    if method != Method::POST || received.path != CHAT_PATH {
+    if method != Method::POST || (received.path != CHAT_PATH && received.path != EMBEDDINGS_PATH) {
         return error(
             StatusCode::NOT_FOUND,
             "not_found",
             &format!(
-                "the judge fixture serves only POST {CHAT_PATH}, not {} {}",
+                "the judge fixture serves only POST {CHAT_PATH} and {EMBEDDINGS_PATH}, not {} {}",
                 received.method, received.path
             ),
         );

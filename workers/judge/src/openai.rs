@@ -288,6 +288,7 @@ pub struct Endpoint {
 struct Inner {
     cfg: EndpointConfig,
     url: String,
+    embeddings_url: String,
     api_key: Option<String>,
     client: reqwest::Client,
     permits: Semaphore,
@@ -349,10 +350,9 @@ impl Endpoint {
                 cfg.base_url
             )));
         }
-        let url = format!(
-            "{}/chat/completions",
-            cfg.base_url.trim().trim_end_matches('/')
-        );
+        let base = cfg.base_url.trim().trim_end_matches('/');
+        let url = format!("{base}/chat/completions");
+        let embeddings_url = format!("{base}/embeddings");
         let timeout = cfg.timeout();
         let mut builder = reqwest::Client::builder()
             .connect_timeout(timeout.min(Duration::from_secs(10)))
@@ -372,6 +372,7 @@ impl Endpoint {
                 permits: Semaphore::new(cfg.concurrency),
                 cfg,
                 url,
+                embeddings_url,
                 api_key,
                 client,
                 limiter,
@@ -453,6 +454,93 @@ impl Endpoint {
         parse_answer(&bytes)
     }
 
+    /// ONE attempt at `POST {base_url}/embeddings` with `input` (an array of strings), under the
+    /// same concurrency limit, rate limiter and timeout as [`Endpoint::chat`]. The vectors come
+    /// back in input order (by each item's `index`); usage is `usage.prompt_tokens` (0 when absent).
+    pub async fn embeddings(&self, input: &[String]) -> Result<EmbeddingAnswer, CallError> {
+        let inner = &*self.inner;
+        let body = serde_json::to_vec(&json!({
+            "model": inner.cfg.model,
+            "input": input,
+            "encoding_format": "float",
+        }))
+        .map_err(|e| CallError::Config(format!("cannot encode the request body: {e}")))?;
+        let _permit = inner
+            .permits
+            .acquire()
+            .await
+            .map_err(|_| CallError::Config("the endpoint was closed".to_owned()))?;
+        if let Some(limiter) = &inner.limiter {
+            limiter.wait().await;
+        }
+        let mut request = inner
+            .client
+            .post(&inner.embeddings_url)
+            .header(CONTENT_TYPE, "application/json")
+            .header(ACCEPT, "application/json")
+            .body(body);
+        if let Some(key) = &inner.api_key {
+            request = request.header(AUTHORIZATION, format!("Bearer {key}"));
+        }
+        let timeout = inner.cfg.timeout();
+        let sent = async {
+            let response = request.send().await?;
+            let status = response.status();
+            let headers = response.headers().clone();
+            let bytes = response.bytes().await?;
+            Ok::<_, reqwest::Error>((status, headers, bytes))
+        };
+        let (status, headers, bytes) = match tokio::time::timeout(timeout, sent).await {
+            Err(_elapsed) => return Err(CallError::Timeout(timeout)),
+            Ok(Err(e)) if e.is_timeout() => return Err(CallError::Timeout(timeout)),
+            Ok(Err(e)) => return Err(CallError::Transport(chain(&e))),
+            Ok(Ok(parts)) => parts,
+        };
+        if !status.is_success() {
+            return Err(CallError::Status {
+                code: status.as_u16(),
+                retry_after: retry_after_from(&headers, SystemTime::now()),
+                body: truncate(&String::from_utf8_lossy(&bytes), MAX_ERROR_BODY),
+            });
+        }
+        parse_embeddings(&bytes, input.len())
+    }
+
+    /// [`Endpoint::embeddings`] with the configured retries and backoff (honouring
+    /// `Retry-After`), `batch` texts per request.
+    pub async fn embed_all(
+        &self,
+        texts: &[String],
+        batch: usize,
+    ) -> Result<EmbeddingAnswer, CallError> {
+        let mut all = EmbeddingAnswer {
+            vectors: Vec::with_capacity(texts.len()),
+            tokens_in: 0,
+        };
+        for chunk in texts.chunks(batch.max(1)) {
+            let mut attempt = 0;
+            let answer = loop {
+                match self.embeddings(chunk).await {
+                    Ok(a) => break a,
+                    Err(e) if e.retryable() && attempt < self.inner.cfg.retries => {
+                        let unit = SystemTime::now()
+                            .duration_since(UNIX_EPOCH)
+                            .map(|d| f64::from(d.subsec_nanos()) / 1e9)
+                            .unwrap_or(0.5);
+                        let wait = backoff_delay(&self.inner.cfg, attempt, e.retry_after(), unit);
+                        tracing::debug!(error = %e, ?wait, "embeddings request failed; retrying");
+                        tokio::time::sleep(wait).await;
+                        attempt += 1;
+                    }
+                    Err(e) => return Err(e),
+                }
+            };
+            all.vectors.extend(answer.vectors);
+            all.tokens_in += answer.tokens_in;
+        }
+        Ok(all)
+    }
+
     /// What `tokens_in` input and `tokens_out` output tokens cost at the configured prices, in USD.
     pub fn cost_usd(&self, tokens_in: u64, tokens_out: u64) -> f64 {
         let cfg = &self.inner.cfg;
@@ -460,6 +548,57 @@ impl Endpoint {
             + tokens_out as f64 * cfg.price_output_per_mtok)
             / 1e6
     }
+}
+
+/// The answer to an embeddings request.
+#[derive(Debug, Clone, PartialEq)]
+pub struct EmbeddingAnswer {
+    /// One vector per input text, in input order.
+    pub vectors: Vec<Vec<f32>>,
+    pub tokens_in: u64,
+}
+
+/// Parses an OpenAI embeddings response: `data[*].embedding` (arrays of numbers) placed by
+/// `data[*].index`, exactly one per input.
+fn parse_embeddings(bytes: &[u8], n: usize) -> Result<EmbeddingAnswer, CallError> {
+    let bad = |why: String| CallError::BadResponse(why);
+    let v: Value = serde_json::from_slice(bytes)
+        .map_err(|e| bad(format!("embeddings response is not JSON: {e}")))?;
+    let data = v
+        .get("data")
+        .and_then(Value::as_array)
+        .ok_or_else(|| bad("embeddings response has no data array".into()))?;
+    if data.len() != n {
+        return Err(bad(format!(
+            "embeddings response has {} vectors for {n} inputs",
+            data.len()
+        )));
+    }
+    let mut vectors = vec![Vec::new(); n];
+    for (k, item) in data.iter().enumerate() {
+        let index = item
+            .get("index")
+            .and_then(Value::as_u64)
+            .map(|i| i as usize)
+            .unwrap_or(k);
+        let vector: Vec<f32> = item
+            .get("embedding")
+            .and_then(Value::as_array)
+            .ok_or_else(|| bad(format!("data[{k}] has no embedding array")))?
+            .iter()
+            .map(|x| x.as_f64().map(|f| f as f32))
+            .collect::<Option<_>>()
+            .ok_or_else(|| bad(format!("data[{k}].embedding holds a non-number")))?;
+        if index >= n || !vectors[index].is_empty() {
+            return Err(bad(format!("data[{k}] has index {index} out of place")));
+        }
+        vectors[index] = vector;
+    }
+    let tokens_in = v
+        .pointer("/usage/prompt_tokens")
+        .and_then(Value::as_u64)
+        .unwrap_or(0);
+    Ok(EmbeddingAnswer { vectors, tokens_in })
 }
 
 /// The JSON body of one chat-completions request.

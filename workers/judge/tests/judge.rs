@@ -54,6 +54,7 @@ fn episode(root: &Path) -> EpisodeOutcome {
             contact_sheet: String::new(),
             video: None,
             caption: None,
+            clip: None,
         }),
     }
 }

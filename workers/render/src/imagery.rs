@@ -1,6 +1,8 @@
 //! The pictures every episode gets: views of the initial scene (for scene alignment), keyframes
-//! over the rollout (for task completion), a contact sheet of both, and optionally a video.
+//! over the rollout (for task completion), a contact sheet of both, optionally a video, and a
+//! dynamics clip when the batch measures dynamics diversity.
 
+use assay_core::clip::{ACTION_DIMS, Clip, PROPRIO_DIMS};
 use assay_core::scene::{SceneSnapshot, scene_views};
 use assay_core::spec::Camera;
 
@@ -134,4 +136,55 @@ pub fn render_video(
         )?));
     }
     crate::video::encode(&frames, VIDEO_FPS).map_err(RenderError::Video)
+}
+
+/// The largest dynamics clip frame drawn (pixels square).
+pub const MAX_CLIP_SIZE: u32 = 1024;
+
+/// A dynamics clip ([`Clip`]): `scenes` drawn from `camera` at `size` × `size` RGB (colour only,
+/// one reused render target), with `proprio` and `actions` per frame as the sim role measured
+/// them ([`assay_core::clip::PROPRIO_DIMS`] and [`assay_core::clip::ACTION_DIMS`] values per
+/// scene) and `interval_s` between frames.
+pub fn render_clip(
+    r: &mut Renderer,
+    scenes: &[SceneSnapshot],
+    camera: &Camera,
+    size: u32,
+    interval_s: f32,
+    proprio: Vec<f32>,
+    actions: Vec<f32>,
+) -> Result<Clip, RenderError> {
+    let bad = |reason: String| RenderError::Scene {
+        path: "clip".into(),
+        reason,
+    };
+    if size == 0 || size > MAX_CLIP_SIZE {
+        return Err(bad(format!(
+            "clip frames of {size} pixels square (1..={MAX_CLIP_SIZE})"
+        )));
+    }
+    let cam = Camera {
+        width: size,
+        height: size,
+        ..camera.clone()
+    };
+    let pixels = (size * size) as usize;
+    let mut rgba = vec![0u8; pixels * 4];
+    let mut rgb = Vec::with_capacity(scenes.len() * pixels * 3);
+    for scene in scenes {
+        r.render_rgba_into(scene, &cam, &mut rgba)?;
+        rgb.extend(rgba.chunks_exact(4).flat_map(|p| [p[0], p[1], p[2]]));
+    }
+    let clip = Clip {
+        height: size,
+        width: size,
+        interval_s,
+        proprio_dims: PROPRIO_DIMS as u32,
+        action_dims: ACTION_DIMS as u32,
+        rgb,
+        proprio,
+        actions,
+    };
+    clip.validate().map_err(|e| bad(e.to_string()))?;
+    Ok(clip)
 }

