@@ -220,3 +220,28 @@ impl Embedders {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_example_configuration_names_both_backends_beside_the_built_ins() {
+        let cfg = Config::parse(include_str!("../../../examples/assay.toml")).unwrap();
+        assert!(matches!(
+            cfg.get("e5-small"),
+            Some(EmbedderConfig::Local { batch_size: 32, .. })
+        ));
+        assert!(matches!(
+            cfg.get("llama-70b"),
+            Some(EmbedderConfig::OpenAi(_))
+        ));
+        assert!(matches!(
+            cfg.get("minilm"),
+            Some(EmbedderConfig::Local { .. })
+        ));
+        assert!(cfg.get("nosuch").is_none());
+        let err = Config::parse("[embedders.x]\nbackend = \"onnx\"\n").unwrap_err();
+        assert!(err.contains("onnx"), "{err}");
+    }
+}
