@@ -42,15 +42,15 @@ impl Default for DynamicsConfig {
     fn default() -> Self {
         Self {
             image_size: 64,
-            chunk: 40,
-            batch: 8,
+            chunk: 20,
+            batch: 4,
             epochs: 10,
             deter: 128,
             stoch: 8,
             classes: 8,
             hidden: 128,
             depth: 8,
-            lr: 3e-4,
+            lr: 1e-3,
             free_nats: 1.0,
             seed: 0,
             checkpoint_every: 20,
