@@ -72,8 +72,27 @@ fn eval_runs_a_batch_on_a_local_cluster_and_writes_both_reports() {
     assert_eq!(r.run.state, "completed");
     assert_eq!(
         r.run.workers,
-        ["local/judge-0", "local/worker-0", "local/worker-1"],
-        "both sim worker processes ran episodes, the judge worker judged them"
+        [
+            "local/judge-0",
+            "local/trainer-0",
+            "local/worker-0",
+            "local/worker-1"
+        ],
+        "both sim worker processes ran episodes, the judge worker judged them, the trainer \
+         worker measured diversity"
+    );
+    // By default: text diversity with minilm per group and for All, and a world model per group
+    // and budget on the rendered clips.
+    let d = r.results.diversity.as_ref().expect("diversity");
+    let text = d.text.as_ref().expect("text diversity");
+    assert_eq!(text.models[0].name, "minilm");
+    assert_eq!(text.rows.last().map(|r| r.group.as_str()), Some("All"));
+    assert_eq!(text.rows.last().map(|r| r.n), Some(4));
+    assert!(!d.dynamics.is_empty(), "{:?}", d.errors);
+    assert!(
+        d.dynamics
+            .iter()
+            .all(|f| f.eval_image_mse.is_finite() && f.steps > 0)
     );
     // The embedded default judges every episode with the offline judge: both quality scores
     // for every task.

@@ -88,8 +88,12 @@ pub struct DynamicsFit {
     /// Training step the fit resumed from (a checkpoint left by an earlier attempt), if any.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub resumed_from_step: Option<u64>,
-    /// Training steps per second of this fit (wall clock) and the device it ran on.
+    /// Training steps per second of this fit (wall clock). Measured, so not serialised: a
+    /// report's results are the same for the same batch (the trainer logs it; the shard's wall
+    /// time is in the job store).
+    #[serde(skip)]
     pub steps_per_s: f64,
+    /// The device it ran on (`cpu`, `cuda:0`).
     pub device: String,
     pub config: DynamicsConfig,
 }

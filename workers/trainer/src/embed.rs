@@ -394,59 +394,28 @@ impl SentenceModel {
         let mask = Tensor::from_slice(&mask)
             .view([b, len])
             .to_device(self.device);
-        let mut x = match self.family {
-            Family::Bert => {
-                let positions = Tensor::arange(len, (Kind::Int64, self.device)).unsqueeze(0);
-                let words = Tensor::embedding(
-                    self.w("embeddings.word_embeddings.weight"),
-                    &ids,
-                    -1,
-                    false,
-                    false,
-                );
-                let pos = Tensor::embedding(
-                    self.w("embeddings.position_embeddings.weight"),
-                    &positions,
-                    -1,
-                    false,
-                    false,
-                );
-                let types = Tensor::embedding(
-                    self.w("embeddings.token_type_embeddings.weight"),
-                    &ids.zeros_like(),
-                    -1,
-                    false,
-                    false,
-                );
-                words + types + pos
-            }
-            Family::MPNet => {
-                // Positions count real tokens from padding_idx + 1, as fairseq/RoBERTa do.
-                let positions = mask.cumsum(1, Kind::Int64) * &mask + self.pad_id;
-                let words = Tensor::embedding(
-                    self.w("embeddings.word_embeddings.weight"),
-                    &ids,
-                    -1,
-                    false,
-                    false,
-                );
-                let pos = Tensor::embedding(
-                    self.w("embeddings.position_embeddings.weight"),
-                    &positions,
-                    -1,
-                    false,
-                    false,
-                );
-                words + pos
-            }
+        let lookup = |table: &str, indices: &Tensor| {
+            Tensor::embedding(self.w(table), indices, -1, false, false)
         };
-        x = self.norm(&x, "embeddings.LayerNorm");
+        let positions = match self.family {
+            Family::Bert => Tensor::arange(len, (Kind::Int64, self.device)).unsqueeze(0),
+            // Positions count real tokens from padding_idx + 1, as fairseq/RoBERTa do.
+            Family::MPNet => mask.cumsum(1, Kind::Int64) * &mask + self.pad_id,
+        };
+        let mut x = lookup("embeddings.word_embeddings.weight", &ids)
+            + lookup("embeddings.position_embeddings.weight", &positions);
+        if self.family == Family::Bert {
+            // One segment: every token type is 0.
+            x += lookup("embeddings.token_type_embeddings.weight", &ids.zeros_like());
+        }
+        let mut x = self.norm(&x, "embeddings.LayerNorm");
         // Additive attention mask: the dtype's minimum where a key is padding (as transformers).
         let neg = (mask.ones_like() - &mask).to_kind(Kind::Float) * f64::from(f32::MIN);
-        let mut bias = neg.view([b, 1, 1, len]);
-        if self.family == Family::MPNet {
-            bias += self.position_bias(len);
-        }
+        // Not `+=`: the position bias broadcasts the mask up to [b, heads, len, len].
+        let bias = match self.family {
+            Family::Bert => neg.view([b, 1, 1, len]),
+            Family::MPNet => neg.view([b, 1, 1, len]) + self.position_bias(len),
+        };
         let dh = self.hidden / self.heads;
         let scale = 1.0 / (dh as f64).sqrt();
         for l in 0..self.layers {

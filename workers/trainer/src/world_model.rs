@@ -222,6 +222,7 @@ pub fn fit(
         steps = fit.steps,
         image_mse = fit.eval_image_mse,
         loss = fit.final_train_loss,
+        steps_per_s = fit.steps_per_s,
         "world model fitted"
     );
     Ok(fit)
