@@ -77,21 +77,14 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     let mut embeddings = Vec::new();
     let mut marginal = Vec::new();
     for m in &a.models {
-        let per_group = groups
-            .iter()
-            .map(|(_, texts)| embedders.embed(m, texts))
-            .collect::<Result<Vec<_>, _>>()
-            .map_err(anyhow::Error::msg)?;
-        let mut d = embedders.describe(m).map_err(anyhow::Error::msg)?;
-        if d.dimensions == 0 {
-            d.dimensions = per_group.iter().flatten().map(Vec::len).next().unwrap_or(0);
-        }
+        let texts: Vec<&[String]> = groups.iter().map(|(_, t)| t.as_slice()).collect();
+        let (d, per_group) = embedders.column(m, &texts)?;
         if let Some(base) = &base {
             for ((group, texts), new) in groups.iter().zip(&per_group) {
                 let Some((_, base_texts)) = base.iter().find(|(g, _)| g == group) else {
                     continue;
                 };
-                let base_vecs = embedders.embed(m, base_texts).map_err(anyhow::Error::msg)?;
+                let base_vecs = embedders.embed(m, base_texts)?;
                 let r = marginal_diversity(&base_vecs, base_texts, new, texts);
                 marginal.push(MarginalRow {
                     group: group.clone(),

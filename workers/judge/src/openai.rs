@@ -400,58 +400,17 @@ impl Endpoint {
         let body = serde_json::to_vec(&request_body(&inner.cfg, req))
             .map_err(|e| CallError::Config(format!("cannot encode the request body: {e}")))?;
 
-        let _permit = inner
-            .permits
-            .acquire()
-            .await
-            .map_err(|_| CallError::Config("the endpoint was closed".to_owned()))?;
-        if let Some(limiter) = &inner.limiter {
-            limiter.wait().await;
-        }
-
-        let mut request = inner
-            .client
-            .post(&inner.url)
-            .header(CONTENT_TYPE, "application/json")
-            .header(ACCEPT, "application/json")
-            .header(PROMPT_VERSION_HEADER, version)
-            .body(body);
-        if let Some(key) = &inner.api_key {
-            request = request.header(AUTHORIZATION, format!("Bearer {key}"));
-        }
-
-        let timeout = inner.cfg.timeout();
         let started = Instant::now();
-        let sent = async {
-            let response = request.send().await?;
-            let status = response.status();
-            let headers = response.headers().clone();
-            let bytes = response.bytes().await?;
-            Ok::<_, reqwest::Error>((status, headers, bytes))
-        };
-        let (status, headers, bytes) = match tokio::time::timeout(timeout, sent).await {
-            Err(_elapsed) => return Err(CallError::Timeout(timeout)),
-            Ok(Err(e)) if e.is_timeout() => return Err(CallError::Timeout(timeout)),
-            Ok(Err(e)) => return Err(CallError::Transport(chain(&e))),
-            Ok(Ok(parts)) => parts,
-        };
+        let bytes = self.post(&inner.url, body, Some(version)).await;
         tracing::debug!(
             model = %inner.cfg.model,
             prompt_version = %req.prompt_version,
             images = req.images.len(),
-            status = status.as_u16(),
+            ok = bytes.is_ok(),
             elapsed_ms = started.elapsed().as_millis() as u64,
             "chat completion answered"
         );
-
-        if !status.is_success() {
-            return Err(CallError::Status {
-                code: status.as_u16(),
-                retry_after: retry_after_from(&headers, SystemTime::now()),
-                body: truncate(&String::from_utf8_lossy(&bytes), MAX_ERROR_BODY),
-            });
-        }
-        parse_answer(&bytes)
+        parse_answer(&bytes?)
     }
 
     /// ONE attempt at `POST {base_url}/embeddings` with `input` (an array of strings), under the
@@ -465,6 +424,20 @@ impl Endpoint {
             "encoding_format": "float",
         }))
         .map_err(|e| CallError::Config(format!("cannot encode the request body: {e}")))?;
+        let bytes = self.post(&inner.embeddings_url, body, None).await?;
+        parse_embeddings(&bytes, input.len())
+    }
+
+    /// One POST of a JSON `body` to `url` under the endpoint's concurrency limit, rate limiter,
+    /// key and `timeout_s` (send and read); a non-success status becomes [`CallError::Status`]
+    /// with the server's `Retry-After`.
+    async fn post(
+        &self,
+        url: &str,
+        body: Vec<u8>,
+        prompt_version: Option<HeaderValue>,
+    ) -> Result<Vec<u8>, CallError> {
+        let inner = &*self.inner;
         let _permit = inner
             .permits
             .acquire()
@@ -475,10 +448,13 @@ impl Endpoint {
         }
         let mut request = inner
             .client
-            .post(&inner.embeddings_url)
+            .post(url)
             .header(CONTENT_TYPE, "application/json")
             .header(ACCEPT, "application/json")
             .body(body);
+        if let Some(version) = prompt_version {
+            request = request.header(PROMPT_VERSION_HEADER, version);
+        }
         if let Some(key) = &inner.api_key {
             request = request.header(AUTHORIZATION, format!("Bearer {key}"));
         }
@@ -503,7 +479,7 @@ impl Endpoint {
                 body: truncate(&String::from_utf8_lossy(&bytes), MAX_ERROR_BODY),
             });
         }
-        parse_embeddings(&bytes, input.len())
+        Ok(bytes.to_vec())
     }
 
     /// [`Endpoint::embeddings`] with the configured retries and backoff (honouring

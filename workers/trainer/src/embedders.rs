@@ -120,6 +120,27 @@ fn expand(path: &Path) -> PathBuf {
     }
 }
 
+/// Embeddings per group, per text.
+pub type GroupEmbeddings = Vec<Vec<Vec<f32>>>;
+
+/// Why texts could not be embedded, and whether asking again may help (an endpoint that timed out
+/// or answered 429/5xx).
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("{message}")]
+pub struct EmbedderError {
+    pub message: String,
+    pub retryable: bool,
+}
+
+impl EmbedderError {
+    fn permanent(message: String) -> Self {
+        Self {
+            message,
+            retryable: false,
+        }
+    }
+}
+
 enum Loaded {
     Local {
         model: Box<SentenceModel>,
@@ -144,13 +165,13 @@ impl Embedders {
         }
     }
 
-    fn load(&mut self, name: &str) -> Result<&Loaded, String> {
+    fn load(&mut self, name: &str) -> Result<&Loaded, EmbedderError> {
         if !self.loaded.contains_key(name) {
             let cfg = self.config.get(name).ok_or_else(|| {
-                format!(
+                EmbedderError::permanent(format!(
                     "embedding model {name:?} is not configured (known: {}; add [embedders.{name}] to the configuration)",
                     self.config.names().join(", ")
-                )
+                ))
             })?;
             let loaded = match cfg {
                 EmbedderConfig::Local { path, batch_size } => {
@@ -161,17 +182,18 @@ impl Embedders {
                         } else {
                             ""
                         };
-                        format!("embedding model {name:?}: {e}{hint}")
+                        EmbedderError::permanent(format!("embedding model {name:?}: {e}{hint}"))
                     })?;
                     Loaded::Local {
                         model: Box::new(model),
                         batch: batch_size.max(1),
                     }
                 }
-                EmbedderConfig::OpenAi(endpoint) => Loaded::Remote(
-                    Endpoint::new(endpoint)
-                        .map_err(|e| format!("embedding model {name:?}: {e}"))?,
-                ),
+                EmbedderConfig::OpenAi(endpoint) => {
+                    Loaded::Remote(Endpoint::new(endpoint).map_err(|e| {
+                        EmbedderError::permanent(format!("embedding model {name:?}: {e}"))
+                    })?)
+                }
             };
             self.loaded.insert(name.to_owned(), loaded);
         }
@@ -179,7 +201,7 @@ impl Embedders {
     }
 
     /// What `name` is, for reports.
-    pub fn describe(&mut self, name: &str) -> Result<EmbeddingModel, String> {
+    pub fn describe(&mut self, name: &str) -> Result<EmbeddingModel, EmbedderError> {
         let cfg = self.config.get(name);
         let dims = match self.load(name)? {
             Loaded::Local { model, .. } => model.dimensions() as usize,
@@ -200,22 +222,69 @@ impl Embedders {
         })
     }
 
+    /// Embeddings of every group's texts with `name` (`[group][text]`), each distinct text
+    /// embedded once however many groups hold it (an "All" group repeats every other one).
+    pub fn embed_groups(
+        &mut self,
+        name: &str,
+        groups: &[&[String]],
+    ) -> Result<GroupEmbeddings, EmbedderError> {
+        let mut distinct: Vec<String> = Vec::new();
+        let mut index: HashMap<&str, usize> = HashMap::new();
+        for t in groups.iter().flat_map(|g| g.iter()) {
+            index.entry(t.as_str()).or_insert_with(|| {
+                distinct.push(t.clone());
+                distinct.len() - 1
+            });
+        }
+        let vectors = self.embed(name, &distinct)?;
+        Ok(groups
+            .iter()
+            .map(|g| {
+                g.iter()
+                    .map(|t| vectors[index[t.as_str()]].clone())
+                    .collect()
+            })
+            .collect())
+    }
+
+    /// One column of a text-diversity table: what `name` is and its embeddings of every group
+    /// (`[group][text]`; see [`Embedders::embed_groups`]). An endpoint's dimensions are read
+    /// from its vectors.
+    pub fn column(
+        &mut self,
+        name: &str,
+        groups: &[&[String]],
+    ) -> Result<(EmbeddingModel, GroupEmbeddings), EmbedderError> {
+        let vectors = self.embed_groups(name, groups)?;
+        let mut model = self.describe(name)?;
+        if model.dimensions == 0 {
+            model.dimensions = vectors.iter().flatten().map(Vec::len).next().unwrap_or(0);
+        }
+        Ok((model, vectors))
+    }
+
     /// Embeddings of `texts` with `name`, in their order.
-    pub fn embed(&mut self, name: &str, texts: &[String]) -> Result<Vec<Vec<f32>>, String> {
+    pub fn embed(&mut self, name: &str, texts: &[String]) -> Result<Vec<Vec<f32>>, EmbedderError> {
         match self.load(name)? {
             Loaded::Local { model, batch } => model
                 .encode(texts, *batch)
-                .map_err(|e| format!("embedding model {name:?}: {e}")),
+                .map_err(|e| EmbedderError::permanent(format!("embedding model {name:?}: {e}"))),
             Loaded::Remote(endpoint) => {
                 let endpoint = endpoint.clone();
                 let runtime = tokio::runtime::Builder::new_current_thread()
                     .enable_all()
                     .build()
-                    .map_err(|e| format!("embedding model {name:?}: {e}"))?;
+                    .map_err(|e| {
+                        EmbedderError::permanent(format!("embedding model {name:?}: {e}"))
+                    })?;
                 runtime
                     .block_on(endpoint.embed_all(texts, DEFAULT_BATCH))
                     .map(|a| a.vectors)
-                    .map_err(|e| format!("embedding model {name:?}: {e}"))
+                    .map_err(|e| EmbedderError {
+                        retryable: e.retryable(),
+                        message: format!("embedding model {name:?}: {e}"),
+                    })
             }
         }
     }

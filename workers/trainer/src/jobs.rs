@@ -50,18 +50,12 @@ pub fn run(
         TrainerJob::Text { models, groups } => {
             let mut described = Vec::with_capacity(models.len());
             let mut embeddings = Vec::with_capacity(models.len());
+            let texts: Vec<&[String]> = groups.iter().map(|(_, t)| t.as_slice()).collect();
             for m in models {
-                let mut per_group = Vec::with_capacity(groups.len());
-                for (_, texts) in groups {
-                    per_group.push(embedders.embed(m, texts).map_err(|e| JobError {
-                        retryable: e.contains("transport") || e.contains("timed out"),
-                        message: e,
-                    })?);
-                }
-                let mut d = embedders.describe(m).map_err(JobError::permanent)?;
-                if d.dimensions == 0 {
-                    d.dimensions = per_group.iter().flatten().map(Vec::len).next().unwrap_or(0);
-                }
+                let (d, per_group) = embedders.column(m, &texts).map_err(|e| JobError {
+                    message: e.message,
+                    retryable: e.retryable,
+                })?;
                 described.push(d);
                 embeddings.push(per_group);
             }
