@@ -229,7 +229,7 @@ fn a_world_model_fit_resumes_from_its_checkpoint_after_its_worker_is_killed() {
             seeds: vec![0, 1],
             text_models: vec!["minilm".into()],
             dynamics_budgets: vec![4],
-            dynamics_json: r#"{"epochs": 60, "checkpoint_every": 4}"#.into(),
+            dynamics_json: r#"{"steps": 60, "checkpoint_every": 4}"#.into(),
             ..Default::default()
         })
         .await

@@ -60,7 +60,13 @@ fn read_report(out: &std::path::Path) -> Report {
 #[test]
 fn eval_runs_a_batch_on_a_local_cluster_and_writes_both_reports() {
     let dir = tempfile::tempdir().unwrap();
-    let out = eval(&["tests/fixtures/small"], "3", dir.path(), &["--video"]);
+    // The default world model trains 600 steps per fit; 30 keep this test short.
+    let out = eval(
+        &["tests/fixtures/small"],
+        "3",
+        dir.path(),
+        &["--video", "--world-model", r#"{"steps": 30}"#],
+    );
     assert!(
         out.status.success(),
         "{}",
@@ -89,11 +95,11 @@ fn eval_runs_a_batch_on_a_local_cluster_and_writes_both_reports() {
     assert_eq!(text.rows.last().map(|r| r.group.as_str()), Some("All"));
     assert_eq!(text.rows.last().map(|r| r.n), Some(4));
     assert!(!d.dynamics.is_empty(), "{:?}", d.errors);
-    assert!(
-        d.dynamics
-            .iter()
-            .all(|f| f.eval_image_mse.is_finite() && f.steps > 0)
-    );
+    // One task of 3 episodes per group: the 10-episode budget trains on all 3, and the larger
+    // budgets, which would repeat that fit, are not queued.
+    assert_eq!(d.dynamics.len(), 4, "{:?}", d.errors);
+    assert!(d.dynamics.iter().all(|f| f.eval_image_mse.is_finite()
+        && (f.budget, f.train_episodes, f.eval_episodes, f.steps) == (10, 3, 3, 30)));
     // The embedded default judges every episode with the offline judge: both quality scores
     // for every task.
     let q = r.results.quality.as_ref().expect("quality");
@@ -229,7 +235,7 @@ fn invalid_specs_are_reported_by_task_field_and_reason_and_the_rest_runs() {
         &["tests/fixtures/small", "tests/fixtures/invalid"],
         "2",
         dir.path(),
-        &[],
+        &["--world-model", r#"{"steps": 10}"#],
     );
     assert!(
         out.status.success(),
@@ -286,7 +292,7 @@ fn invalid_specs_are_reported_by_task_field_and_reason_and_the_rest_runs() {
         &["tests/fixtures/small", "tests/fixtures/invalid"],
         "1",
         dir.path(),
-        &["--strict"],
+        &["--strict", "--no-diversity"],
     );
     assert!(!strict.status.success());
 }
@@ -302,7 +308,8 @@ fn the_same_batch_twice_gives_identical_results() {
             ],
             "3",
             d.path(),
-            &[],
+            // Diversity included (short fits): world models are seeded and deterministic.
+            &["--world-model", r#"{"steps": 30}"#],
         );
         assert!(
             out.status.success(),

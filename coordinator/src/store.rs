@@ -852,7 +852,14 @@ impl Store {
                 )?;
                 continue;
             }
-            for budget in &plan.budgets {
+            // A group with fewer clips than a budget trains that budget on all of them; larger
+            // budgets would repeat the same fit, so they are left out (the report shows the
+            // number trained). Budgets are sorted and distinct since submission.
+            let mut budgets = plan.budgets.clone();
+            if let Some(covering) = budgets.iter().position(|b| *b as usize >= clips.len()) {
+                budgets.truncate(covering + 1);
+            }
+            for budget in &budgets {
                 let job = TrainerJob::Dynamics {
                     group: group.clone(),
                     budget: *budget,
@@ -1002,9 +1009,10 @@ impl Store {
         let mut shards = Vec::new();
         let mut judged = Vec::new();
         let mut diversity: Option<DiversityResults> = None;
+        let mut error_groups: Vec<Option<String>> = Vec::new();
         {
             let mut stmt = self.conn.prepare(
-                "SELECT task_id, seed, policy, attempts, state, outcome_json, error, worker, role, judge, job
+                "SELECT task_id, seed, policy, attempts, state, outcome_json, error, worker, role, judge, job, grp
                  FROM shards WHERE batch_id = ?1 ORDER BY id",
             )?;
             let mut rows = stmt.query([batch_id])?;
@@ -1026,9 +1034,11 @@ impl Store {
                                 TrainerOutcome::Dynamics { fit } => div.dynamics.push(*fit),
                             }
                         }
-                        (FAILED, _) => div
-                            .errors
-                            .push((job, r.get::<_, Option<String>>(6)?.unwrap_or_default())),
+                        (FAILED, _) => {
+                            div.errors
+                                .push((job, r.get::<_, Option<String>>(6)?.unwrap_or_default()));
+                            error_groups.push(r.get::<_, Option<String>>(11)?);
+                        }
                         _ => {}
                     }
                     continue;
@@ -1070,6 +1080,20 @@ impl Store {
                     cancelled: state == CANCELLED,
                 });
             }
+        }
+        if let Some(div) = diversity.as_mut() {
+            // Groups finish (and queue their fits) in whatever order their episodes do, and fits
+            // finish in any order: the report lists them by group (task order) and budget.
+            let rank = |g: Option<&str>| g.map(|g| tasks.iter().position(|t| t.group == g));
+            div.dynamics
+                .sort_by_key(|f| (rank(Some(&f.group)), f.budget));
+            let mut errors: Vec<_> = error_groups
+                .iter()
+                .map(|g| rank(g.as_deref()))
+                .zip(std::mem::take(&mut div.errors))
+                .collect();
+            errors.sort_by_key(|(r, _)| *r);
+            div.errors = errors.into_iter().map(|(_, e)| e).collect();
         }
         let mut results =
             report::build_results(&name, &policies, &seeds, &tasks, &shards, &invalid);
@@ -1487,6 +1511,67 @@ mod tests {
         let q = r.results.quality.unwrap();
         assert_eq!(q.judges.len(), 2);
         assert_eq!(q.judges.iter().map(|j| j.episodes_judged).sum::<u64>(), 2);
+    }
+
+    /// Once a group's episodes are done, one fit per budget on its clips in planning order; a
+    /// budget at or above the number of clips covers them all, and larger ones are not queued.
+    #[test]
+    fn a_finished_group_queues_one_fit_per_budget_its_clips_can_tell_apart() {
+        let mut s = Store::open_in_memory().unwrap();
+        let mut b = batch(&["a", "b", "c", "d", "e"], &[0], 3);
+        b.dynamics = Some(DynamicsPlan {
+            budgets: vec![2, 5, 8, 40],
+            config: DynamicsConfig::default(),
+        });
+        let (id, _) = s.submit(&b, 0).unwrap();
+        let trainer = vec!["trainer".to_owned()];
+        let leases = s.lease("w", &sim(), 5, 1, TTL).unwrap();
+        for (i, l) in leases.iter().enumerate() {
+            let mut e = episode(l);
+            e.imagery = Some(assay_core::report::EpisodeImagery {
+                adapter: "test".into(),
+                views: vec![],
+                keyframes: vec![],
+                contact_sheet: String::new(),
+                video: None,
+                caption: None,
+                clip: Some(format!("clips/{i}.clip")),
+            });
+            let json = serde_json::to_string(&e).unwrap();
+            assert!(
+                s.complete("w", l.lease_id, l.shard_id, &json, 0.1, 2)
+                    .unwrap()
+                    .0
+            );
+            // Nothing is trained while the group still has episodes to run.
+            let queued = s.lease("t", &trainer, 10, 2, TTL).unwrap();
+            assert_eq!(queued.is_empty(), i + 1 < leases.len(), "after episode {i}");
+            if !queued.is_empty() {
+                let jobs: Vec<TrainerJob> = queued
+                    .iter()
+                    .map(|l| serde_json::from_str(l.trainer_job.as_deref().unwrap()).unwrap())
+                    .collect();
+                let clips: Vec<String> = (0..5).map(|i| format!("clips/{i}.clip")).collect();
+                let budgets: Vec<u32> = jobs
+                    .iter()
+                    .map(|j| match j {
+                        TrainerJob::Dynamics {
+                            group,
+                            budget,
+                            clips: c,
+                            ..
+                        } => {
+                            assert_eq!((group.as_str(), c), ("g", &clips));
+                            *budget
+                        }
+                        other => panic!("{other:?}"),
+                    })
+                    .collect();
+                assert_eq!(budgets, [2, 5]);
+            }
+        }
+        let c = s.counts(&id).unwrap();
+        assert_eq!((c.trainer_total, c.state.as_str()), (2, "running"));
     }
 
     #[test]

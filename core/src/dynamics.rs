@@ -4,8 +4,8 @@
 
 use serde::{Deserialize, Serialize};
 
-/// World-model settings. The defaults finish in seconds per fit on one CPU core with 64×64
-/// frames; raise `deter`, `hidden`, `depth` and `epochs` on a GPU.
+/// World-model settings. The defaults finish in about 15 s per fit on one CPU core with 64×64
+/// frames; raise `deter`, `hidden`, `depth` and `steps` on a GPU.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct DynamicsConfig {
@@ -15,7 +15,12 @@ pub struct DynamicsConfig {
     pub chunk: usize,
     /// Chunks per training step (the paper: 8).
     pub batch: usize,
-    /// Passes over the training chunks (the paper: 10).
+    /// Training steps of every fit, whatever its budget (chunk order reshuffled at each pass over
+    /// the training chunks). 0: `epochs` passes instead, the paper's protocol, under which a
+    /// larger budget also trains longer, so the error falls with the budget even for identical
+    /// episodes.
+    pub steps: u64,
+    /// Passes over the training chunks when `steps` is 0 (the paper: 10).
     pub epochs: usize,
     /// Deterministic (GRU) state size.
     pub deter: i64,
@@ -44,6 +49,7 @@ impl Default for DynamicsConfig {
             image_size: 64,
             chunk: 20,
             batch: 4,
+            steps: 600,
             epochs: 10,
             deter: 128,
             stoch: 8,
@@ -81,10 +87,11 @@ pub struct DynamicsFit {
     pub per_episode: Vec<f64>,
     /// The clips evaluated, as content addresses (the first `train_episodes` were trained on).
     pub episodes: Vec<String>,
-    /// Training loss (reconstruction + KL) averaged over the last epoch.
+    /// Training loss (reconstruction + KL) averaged over the last pass over the chunks.
     pub final_train_loss: f64,
     pub steps: u64,
-    pub epochs: u32,
+    /// Passes over the training chunks (`steps` / steps per pass; the last may be partial).
+    pub epochs: f64,
     /// Training step the fit resumed from (a checkpoint left by an earlier attempt), if any.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub resumed_from_step: Option<u64>,

@@ -433,8 +433,12 @@ fn diversity_markdown(d: &crate::trainer::DiversityResults) -> String {
              episodes, evaluated on the group's first {} episodes: mean squared error of the \
              one-step prediction of the next {}×{} frame. For a diverse group the error falls as \
              episodes are added; a group whose error is low already at the smallest budget has \
-             dynamics a few episodes cover. Device: {}.\n\n",
-            f.eval_episodes, f.config.image_size, f.config.image_size, f.device
+             dynamics a few episodes cover. {} Device: {}.\n\n",
+            f.eval_episodes,
+            f.config.image_size,
+            f.config.image_size,
+            training_length(&f.config),
+            f.device
         );
         md.push_str(&d.dynamics_markdown());
     }
@@ -445,6 +449,22 @@ fn diversity_markdown(d: &crate::trainer::DiversityResults) -> String {
         }
     }
     md
+}
+
+/// How long the fits of a dynamics table trained, said so the budget curve can be read.
+fn training_length(c: &crate::dynamics::DynamicsConfig) -> String {
+    if c.steps > 0 {
+        format!(
+            "Every fit trains {} steps of {} chunks of {} frames, whatever its budget.",
+            c.steps, c.batch, c.chunk
+        )
+    } else {
+        format!(
+            "Every fit trains {} epochs of batches of {} chunks of {} frames (the paper's \
+             protocol), so a larger budget also trains longer.",
+            c.epochs, c.batch, c.chunk
+        )
+    }
 }
 
 fn pct(p: &Proportion) -> String {

@@ -85,6 +85,12 @@ impl DiversityResults {
             }
             out.push('\n');
         }
+        if self.dynamics.iter().any(|f| f.train_episodes < f.budget) {
+            out.push_str(
+                "\nA group with fewer episodes than a budget is fitted once on all of them \
+                 (\"n trained\"); the larger budgets would repeat that fit and are left empty.\n",
+            );
+        }
         out
     }
 }

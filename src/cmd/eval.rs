@@ -46,6 +46,10 @@ pub struct Args {
     /// diversity at 10, 20 and 40 episodes per group, on a trainer worker).
     #[arg(long, conflicts_with_all = ["text_models", "dynamics_budgets"])]
     pub no_diversity: bool,
+    /// Training shards the trainer worker runs at once (world-model fits use one CPU thread
+    /// each; default: the number of CPUs).
+    #[arg(long)]
+    pub trainer_capacity: Option<u32>,
     /// Output folder: report.json, report.md, artifacts/, and run/ (job store and process logs).
     #[arg(long, default_value = "assay-out")]
     pub out: PathBuf,
@@ -192,6 +196,13 @@ pub fn run(mut a: Args) -> anyhow::Result<ExitCode> {
             "local".into(),
             "--worker-id".into(),
             "local/trainer-0".into(),
+            "--capacity".into(),
+            a.trainer_capacity
+                .unwrap_or_else(|| {
+                    std::thread::available_parallelism().map_or(1, |n| n.get() as u32)
+                })
+                .max(1)
+                .to_string(),
         ];
         if let Some(path) = &a.config {
             args.push("--config".into());

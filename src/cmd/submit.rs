@@ -53,7 +53,7 @@ pub struct BatchArgs {
     /// (e.g. 10,20,40), evaluated on the group's first max(budgets) episodes.
     #[arg(long = "dynamics-budgets", value_delimiter = ',')]
     pub dynamics_budgets: Vec<u32>,
-    /// World-model settings as JSON (fields of assay-core DynamicsConfig, e.g. '{"epochs": 20}').
+    /// World-model settings as JSON (fields of assay-core DynamicsConfig, e.g. '{"steps": 2000}').
     #[arg(long = "world-model")]
     pub world_model: Option<String>,
 }

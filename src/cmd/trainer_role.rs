@@ -35,9 +35,8 @@ impl TrainerRole {
                 a.shard_id
             ))
         })?;
-        let mut embedders = self.embedders.lock().unwrap_or_else(|e| e.into_inner());
         let outcome =
-            assay_trainer::jobs::run(&job, &a.batch_id, root, &mut embedders, self.device)
+            assay_trainer::jobs::run(&job, &a.batch_id, root, &self.embedders, self.device)
                 .map_err(|e| ShardError {
                     message: e.message,
                     retryable: e.retryable,

@@ -104,9 +104,9 @@ fn main() {
         .collect();
     let eval = &train[..1];
     let keys = vec!["bench".to_string()];
-    let run = |epochs: usize| {
+    let run = |steps: usize| {
         let config = DynamicsConfig {
-            epochs,
+            steps: steps as u64,
             checkpoint_every: 0,
             ..cfg.clone()
         };

@@ -2,6 +2,7 @@
 //! checkpoints in the artifact store.
 
 use std::path::{Path, PathBuf};
+use std::sync::Mutex;
 
 use assay_core::clip::Clip;
 use assay_core::diversity::TextDiversityTable;
@@ -38,16 +39,18 @@ pub fn checkpoint_path(artifacts: &Path, batch: &str, job: &TrainerJob) -> PathB
 }
 
 /// Runs `job`. `artifacts` is the artifact store's root (clips are read and checkpoints written
-/// there).
+/// there). Text jobs hold `embedders` (the loaded models) while they run; world-model fits of
+/// one worker run side by side.
 pub fn run(
     job: &TrainerJob,
     batch: &str,
     artifacts: &Path,
-    embedders: &mut Embedders,
+    embedders: &Mutex<Embedders>,
     device: tch::Device,
 ) -> Result<TrainerOutcome, JobError> {
     match job {
         TrainerJob::Text { models, groups } => {
+            let mut embedders = embedders.lock().unwrap_or_else(|e| e.into_inner());
             let mut described = Vec::with_capacity(models.len());
             let mut embeddings = Vec::with_capacity(models.len());
             let texts: Vec<&[String]> = groups.iter().map(|(_, t)| t.as_slice()).collect();

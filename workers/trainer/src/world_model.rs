@@ -26,7 +26,9 @@
 //! least 2 frames is kept (a 1-frame tail holds no transition and is dropped). The chunk order is
 //! shuffled per epoch (`assay_core::rng`, stream `world-model/epoch/{epoch}`), and each step takes
 //! the next `batch` chunks (the last batch of an epoch may be smaller), padded to the longest with
-//! a mask that removes padded frames from the loss. Adam (ours, see `adam.rs`) with gradients
+//! a mask that removes padded frames from the loss. A fit trains `steps` steps whatever its
+//! budget (epochs follow one another until then; the last may be partial), or, with `steps` 0,
+//! `epochs` whole epochs (the paper's protocol). Adam (ours, see `adam.rs`) with gradients
 //! clipped at a global norm of 1000 (DreamerV3's world-model setting).
 //!
 //! All randomness is ours, not libtorch's global generator: initial weights come from the stream
@@ -124,7 +126,17 @@ pub fn fit(
 
     let chunks = make_chunks(req.train, cfg.chunk);
     let steps_per_epoch = chunks.len().div_ceil(cfg.batch) as u64;
-    let total_steps = steps_per_epoch * cfg.epochs as u64;
+    let total_steps = if cfg.steps > 0 {
+        cfg.steps
+    } else {
+        steps_per_epoch * cfg.epochs as u64
+    };
+    if chunks.is_empty() && total_steps > 0 {
+        return Err(WorldModelError::Request(format!(
+            "{} training clips hold no chunk of 2 frames or more to train {total_steps} steps on",
+            req.train.len()
+        )));
+    }
     let config_hash = config_hash(cfg);
     let data_hash = data_hash(req.train);
 
@@ -206,7 +218,7 @@ pub fn fit(
             0.0
         },
         steps: step,
-        epochs: cfg.epochs as u32,
+        epochs: step as f64 / steps_per_epoch.max(1) as f64,
         resumed_from_step,
         steps_per_s: if done > 0 && train_s > 0.0 {
             done as f64 / train_s

@@ -94,6 +94,7 @@ fn tiny() -> DynamicsConfig {
         image_size: SIZE,
         chunk: 10,
         batch: 4,
+        steps: 0,
         epochs: 10,
         deter: 64,
         stoch: 4,
@@ -161,6 +162,7 @@ fn training_lowers_loss_and_prediction_error() {
     );
     assert_eq!(untrained.steps, 0);
     assert_eq!(trained.steps, 25 * 4);
+    assert_eq!(trained.epochs, 25.0);
     assert_eq!(trained.per_episode.len(), 8);
     assert_eq!(trained.episodes, keys(8));
     assert!(trained.final_train_loss < 0.5 * one.final_train_loss);
@@ -171,18 +173,20 @@ fn training_lowers_loss_and_prediction_error() {
 
 /// The paper's signal: for a diverse group, more training episodes lower the error on the
 /// group; for a group of identical episodes a small budget already suffices. Both budgets get
-/// the same number of training steps.
+/// the same number of training steps (`steps`, as the default config does).
 #[test]
 fn diversity_shows_in_the_budget_curve() {
     let mut cfg = tiny();
+    cfg.steps = 240;
     let diverse = diverse_family(8);
     let same: Vec<Clip> = (0..8).map(|_| diverse[0].clone()).collect();
-    let at = |cfg: &mut DynamicsConfig, clips: &[Clip], budget: usize| {
-        cfg.epochs = 60 * 8 / budget;
-        quick(cfg, &clips[..budget], clips).eval_image_mse
+    let at = |clips: &[Clip], budget: usize| {
+        let fit = quick(&cfg, &clips[..budget], clips);
+        assert_eq!(fit.steps, 240);
+        fit.eval_image_mse
     };
-    let (d2, d8) = (at(&mut cfg, &diverse, 2), at(&mut cfg, &diverse, 8));
-    let (s2, s8) = (at(&mut cfg, &same, 2), at(&mut cfg, &same, 8));
+    let (d2, d8) = (at(&diverse, 2), at(&diverse, 8));
+    let (s2, s8) = (at(&same, 2), at(&same, 8));
     eprintln!("diverse: 2 → {d2:.5}, 8 → {d8:.5}; identical: 2 → {s2:.5}, 8 → {s8:.5}");
     assert!(d2 > 1.5 * d8, "diverse: {d2} vs {d8}");
     assert!(
@@ -196,7 +200,7 @@ fn diversity_shows_in_the_budget_curve() {
 fn resumed_fit_matches_an_uninterrupted_one_exactly() {
     let clips = simple_family(6);
     let mut cfg = tiny();
-    cfg.epochs = 4; // 12 chunks → 3 steps per epoch, 12 steps
+    cfg.steps = 11; // 12 chunks → 3 steps per epoch: 3⅔ epochs
     cfg.checkpoint_every = 4;
     let mut seen = Vec::new();
     let full = run(&cfg, &clips, &clips[..3], None, &mut |step, bytes| {
@@ -204,7 +208,8 @@ fn resumed_fit_matches_an_uninterrupted_one_exactly() {
         Ok(())
     })
     .expect("uninterrupted fit");
-    assert_eq!(full.steps, 12);
+    assert_eq!(full.steps, 11);
+    assert!((full.epochs - 11.0 / 3.0).abs() < 1e-12, "{}", full.epochs);
     assert_eq!(seen.iter().map(|s| s.0).collect::<Vec<_>>(), [4, 8]);
 
     // A worker killed after storing its second checkpoint (mid-epoch: step 8 of 3-step epochs).
@@ -275,6 +280,29 @@ fn resumed_fit_matches_an_uninterrupted_one_exactly() {
     })
     .expect("resumed with another checkpoint interval");
     assert_eq!(again.eval_image_mse, full.eval_image_mse);
+}
+
+/// `steps` fixes the training length whatever the budget; `epochs` (with `steps` 0) scales it
+/// with the number of training chunks, as the paper did.
+#[test]
+fn steps_or_epochs_set_the_training_length() {
+    let clips = simple_family(6);
+    let mut cfg = tiny();
+    cfg.steps = 5;
+    for (n, epochs) in [(2, 5.0), (6, 5.0 / 3.0)] {
+        let fit = quick(&cfg, &clips[..n], &clips);
+        assert_eq!((fit.steps, fit.epochs), (5, epochs), "{n} clips");
+    }
+    cfg.steps = 0;
+    cfg.epochs = 2;
+    for (n, steps) in [(2, 2), (6, 6)] {
+        let fit = quick(&cfg, &clips[..n], &clips);
+        assert_eq!((fit.steps, fit.epochs), (steps, 2.0), "{n} clips");
+    }
+    // Nothing to train on: an error, not a division by zero.
+    cfg.steps = 5;
+    let err = run(&cfg, &[], &clips, None, &mut |_, _| Ok(())).expect_err("no chunks");
+    assert!(err.to_string().contains("no chunk of 2 frames"), "{err}");
 }
 
 #[test]
