@@ -4,7 +4,7 @@
 
 use serde::{Deserialize, Serialize};
 
-/// World-model settings. The defaults finish in about 15 s per fit on one CPU core with 64×64
+/// World-model settings. The defaults take about 2½ minutes per fit on one CPU core with 64×64
 /// frames; raise `deter`, `hidden`, `depth` and `steps` on a GPU.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -49,7 +49,7 @@ impl Default for DynamicsConfig {
             image_size: 64,
             chunk: 20,
             batch: 4,
-            steps: 600,
+            steps: 2000,
             epochs: 10,
             deter: 128,
             stoch: 8,
