@@ -1377,6 +1377,11 @@ mod tests {
     }
 
     fn rendered(l: &Lease) -> String {
+        rendered_with_clip(l, None)
+    }
+
+    /// A rendered episode's outcome, with a dynamics clip when `clip` is given.
+    fn rendered_with_clip(l: &Lease, clip: Option<String>) -> String {
         let mut e = episode(l);
         e.imagery = Some(assay_core::report::EpisodeImagery {
             adapter: "test".into(),
@@ -1385,7 +1390,7 @@ mod tests {
             contact_sheet: String::new(),
             video: None,
             caption: None,
-            clip: None,
+            clip,
         });
         serde_json::to_string(&e).unwrap()
     }
@@ -1527,17 +1532,7 @@ mod tests {
         let trainer = vec!["trainer".to_owned()];
         let leases = s.lease("w", &sim(), 5, 1, TTL).unwrap();
         for (i, l) in leases.iter().enumerate() {
-            let mut e = episode(l);
-            e.imagery = Some(assay_core::report::EpisodeImagery {
-                adapter: "test".into(),
-                views: vec![],
-                keyframes: vec![],
-                contact_sheet: String::new(),
-                video: None,
-                caption: None,
-                clip: Some(format!("clips/{i}.clip")),
-            });
-            let json = serde_json::to_string(&e).unwrap();
+            let json = rendered_with_clip(l, Some(format!("clips/{i}.clip")));
             assert!(
                 s.complete("w", l.lease_id, l.shard_id, &json, 0.1, 2)
                     .unwrap()
