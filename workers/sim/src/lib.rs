@@ -173,7 +173,12 @@ pub fn simulate_with(
         mut observer,
     } = options;
     let PolicySpec::Oracle { noise, sense } =
-        PolicySpec::parse(policy).map_err(SimError::Policy)?;
+        PolicySpec::parse(policy).map_err(SimError::Policy)?
+    else {
+        return Err(SimError::Policy(format!(
+            "policy '{policy}' is not built into the simulator: it needs a policy object (SimOptions::policy)"
+        )));
+    };
     let camera = assay_core::policy::observation_camera();
     if sense == Sense::Camera && observer.is_none() {
         return Err(SimError::Policy(format!(
