@@ -10,6 +10,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 "assay/v1/common.proto",
                 "assay/v1/coordinator.proto",
                 "assay/v1/frames.proto",
+                "assay/v1/policy.proto",
                 "assay/v1/worker.proto",
             ],
             &["."],

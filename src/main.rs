@@ -49,6 +49,9 @@ enum Command {
     Validate(cmd::validate::Args),
     /// Agreement of judges with human ratings from a CSV: Pearson r, MAE, r/MAE, Spearman, Kendall.
     Agreement(cmd::agreement::Args),
+    /// Rank policies by a proxy (world model, simulator) against real success from a success
+    /// table: R and R_S per policy, Pearson r, MMRV, Spearman, Kendall; the correlation plot.
+    Rank(cmd::rank::Args),
     /// Text diversity (eq. 1) of groups of texts from a YAML/JSON file, per embedding model, and
     /// the marginal diversity a new batch adds to a corpus.
     #[cfg(feature = "trainer")]
@@ -57,6 +60,8 @@ enum Command {
     Schema,
     /// Benchmarks on the peer reference scene (compare with shared/bench/peers/peers.py).
     Bench(cmd::bench::Args),
+    /// Serve a policy over the assay.v1.Policy gRPC service, or check a policy or policy server.
+    Policy(cmd::policy::Args),
     /// Publish or subscribe to a frame stream on this node's frame bus (tests, diagnostics).
     #[command(hide = true)]
     Frames(cmd::frames::Args),
@@ -76,6 +81,7 @@ fn main() -> std::process::ExitCode {
         Command::Top(a) => cmd::top::run(a),
         Command::Validate(a) => cmd::validate::run(a),
         Command::Agreement(a) => cmd::agreement::run(a),
+        Command::Rank(a) => cmd::rank::run(a),
         #[cfg(feature = "trainer")]
         Command::Diversity(a) => cmd::diversity::run(a),
         Command::Schema => {
@@ -87,6 +93,7 @@ fn main() -> std::process::ExitCode {
         }
         Command::Bench(a) => cmd::bench::run(a),
         Command::Frames(a) => cmd::frames::run(a),
+        Command::Policy(a) => cmd::policy::run(a),
     };
     match result {
         Ok(code) => code,

@@ -8,7 +8,9 @@ use std::time::Duration;
 
 use assay_core::diversity::task_text;
 use assay_core::dynamics::DynamicsConfig;
+use assay_core::generalization::GeneralizationPlan;
 use assay_core::policy::PolicySpec;
+use assay_core::proxy::RankingPlan;
 use assay_core::report::TaskInfo;
 use assay_core::spec::{Format, parse_task};
 use assay_core::{SpecError, SpecErrors};
@@ -310,6 +312,70 @@ impl pb::coordinator_server::Coordinator for CoordinatorService {
             }
             Some(DynamicsPlan { budgets, config })
         };
+        let ranking = if req.ranking_json.trim().is_empty() {
+            None
+        } else {
+            let plan: RankingPlan = serde_json::from_str(&req.ranking_json)
+                .map_err(|e| Status::invalid_argument(format!("ranking settings: {e}")))?;
+            plan.config
+                .validate()
+                .map_err(|e| Status::invalid_argument(format!("ranking settings: {e}")))?;
+            let size = plan.config.world_model.image_size;
+            if size == 0 || !size.is_multiple_of(16) || size > 256 {
+                return Err(Status::invalid_argument(format!(
+                    "ranking settings: world_model.image_size {size} must be a multiple of 16 up to 256"
+                )));
+            }
+            if let Some(d) = &dynamics
+                && d.config.image_size != size
+            {
+                return Err(Status::invalid_argument(format!(
+                    "ranking settings: world_model.image_size {size} differs from the dynamics clips' {}",
+                    d.config.image_size
+                )));
+            }
+            if plan.train_policies.is_empty() {
+                return Err(Status::invalid_argument(
+                    "ranking settings: train_policies is empty (the world model trains on their episodes)",
+                ));
+            }
+            if let Some(p) = plan.train_policies.iter().find(|p| !policies.contains(p)) {
+                return Err(Status::invalid_argument(format!(
+                    "ranking settings: training policy {p:?} is not one of the batch's policies"
+                )));
+            }
+            if policies.iter().all(|p| plan.train_policies.contains(p)) {
+                return Err(Status::invalid_argument(
+                    "ranking settings: every policy trains the proxy; none is left to rank",
+                ));
+            }
+            Some(plan)
+        };
+        let generalization = if req.generalization_json.trim().is_empty() {
+            None
+        } else {
+            let plan: GeneralizationPlan = serde_json::from_str(&req.generalization_json)
+                .map_err(|e| Status::invalid_argument(format!("generalization settings: {e}")))?;
+            plan.validate()
+                .map_err(|e| Status::invalid_argument(format!("generalization settings: {e}")))?;
+            if !policies.contains(&plan.train_policy) {
+                return Err(Status::invalid_argument(format!(
+                    "generalization settings: train_policy {:?} is not one of the batch's policies",
+                    plan.train_policy
+                )));
+            }
+            let size = plan.config.image_size;
+            let other = dynamics
+                .as_ref()
+                .map(|d| d.config.image_size)
+                .or(ranking.as_ref().map(|r| r.config.world_model.image_size));
+            if let Some(other) = other.filter(|o| *o != size) {
+                return Err(Status::invalid_argument(format!(
+                    "generalization settings: config.image_size {size} differs from the clips' {other}"
+                )));
+            }
+            Some(plan)
+        };
         let batch = NewBatch {
             name: if req.name.is_empty() {
                 "batch".into()
@@ -332,6 +398,8 @@ impl pb::coordinator_server::Coordinator for CoordinatorService {
             text_models,
             text_groups,
             dynamics,
+            ranking,
+            generalization,
         };
         let accepted = batch.tasks.len() as u32;
         let now = now_ms();

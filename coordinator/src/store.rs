@@ -8,7 +8,12 @@ use std::path::Path;
 
 use assay_core::SpecError;
 use assay_core::dynamics::DynamicsConfig;
-use assay_core::quality::{DEFAULT_REPEATS, JudgeOutcome};
+use assay_core::generalization::{
+    EvalEpisode, GeneralizationPlan, GeneralizationResults, GroupGeneralization,
+    HELD_OUT_VARIATIONS, TRAIN_VARIATIONS,
+};
+use assay_core::proxy::{ProxyEpisode, RankingPlan, RealEpisode, ranking_results};
+use assay_core::quality::{DEFAULT_REPEATS, Item, JudgeOutcome};
 use assay_core::quality_report::JudgeRecord;
 use assay_core::report::{self, EpisodeOutcome, Report, RunInfo, ShardRecord, TaskInfo};
 use assay_core::trainer::{DiversityResults, TrainerJob, TrainerOutcome};
@@ -97,6 +102,10 @@ const ADDED_COLUMNS: &[(&str, &str, &str)] = &[
     // A trainer shard: what it computes ("text", "dynamics GROUP @ BUDGET") and its task group.
     ("shards", "job", "TEXT"),
     ("shards", "grp", "TEXT"),
+    // Policy ranking (JSON `assay_core::proxy::RankingPlan`; NULL: none).
+    ("batches", "ranking_json", "TEXT"),
+    // Generalization (JSON `assay_core::generalization::GeneralizationPlan`; NULL: none).
+    ("batches", "generalization_json", "TEXT"),
 ];
 
 /// Shard roles.
@@ -142,6 +151,12 @@ pub struct NewBatch {
     /// Dynamics diversity (None: none): every episode renders a clip, and each group's world
     /// models are queued once its episodes are finished.
     pub dynamics: Option<DynamicsPlan>,
+    /// Policy ranking by the world-model proxy (None: none): every episode renders a clip, and
+    /// each group's proxy is queued once its episodes are finished.
+    pub ranking: Option<RankingPlan>,
+    /// Generalization (None: none): every episode renders a clip; each group's diffusion policy
+    /// is trained once its episodes are finished, then run on training and held-out variations.
+    pub generalization: Option<GeneralizationPlan>,
 }
 
 /// A shard handed to a worker.
@@ -212,7 +227,7 @@ pub struct Store {
 }
 
 /// id, batch, seed, policy, role, attempts, spec JSON, judge, input JSON, repeats, budget,
-/// dynamics JSON.
+/// clip size (of the batch's dynamics or ranking world model).
 type QueuedShard = (
     i64,
     String,
@@ -225,7 +240,7 @@ type QueuedShard = (
     Option<String>,
     u32,
     Option<f64>,
-    Option<String>,
+    Option<i64>,
 );
 
 impl Store {
@@ -331,6 +346,18 @@ impl Store {
                 }
             }
         }
+        if let Some(plan) = &batch.ranking {
+            tx.execute(
+                "UPDATE batches SET ranking_json = ?1 WHERE id = ?2",
+                params![serde_json::to_string(plan)?, id],
+            )?;
+        }
+        if let Some(plan) = &batch.generalization {
+            tx.execute(
+                "UPDATE batches SET generalization_json = ?1 WHERE id = ?2",
+                params![serde_json::to_string(plan)?, id],
+            )?;
+        }
         if !batch.text_models.is_empty() && !batch.tasks.is_empty() {
             let job = TrainerJob::Text {
                 models: batch.text_models.clone(),
@@ -362,7 +389,10 @@ impl Store {
         let placeholders = roles.iter().map(|_| "?").collect::<Vec<_>>().join(",");
         let sql = format!(
             "SELECT s.id, s.batch_id, s.seed, s.policy, s.role, s.attempts, COALESCE(t.spec_json, ''),
-                    s.judge, s.input_json, b.judge_repeats, b.judge_budget_usd, b.dynamics_json
+                    s.judge, s.input_json, b.judge_repeats, b.judge_budget_usd,
+                    COALESCE(json_extract(b.dynamics_json, '$.config.image_size'),
+                             json_extract(b.ranking_json, '$.config.world_model.image_size'),
+                             json_extract(b.generalization_json, '$.config.image_size'))
              FROM shards s LEFT JOIN tasks t ON t.batch_id = s.batch_id AND t.task_id = s.task_id
                            JOIN batches b ON b.id = s.batch_id
              WHERE s.state = 'queued' AND s.role IN ({placeholders})
@@ -413,10 +443,8 @@ impl Store {
             } else {
                 None
             };
-            let clip_size = match (&dynamics, shard_role.as_str()) {
-                (Some(d), r) if r != role::JUDGE && r != role::TRAINER => {
-                    serde_json::from_str::<DynamicsPlan>(d)?.config.image_size
-                }
+            let clip_size = match (dynamics, shard_role.as_str()) {
+                (Some(size), r) if r != role::JUDGE && r != role::TRAINER => size as u32,
                 _ => 0,
             };
             let judge = match (judge, input) {
@@ -552,13 +580,20 @@ impl Store {
                 params![batch, task, seed, policy, role::JUDGE, QUEUED, judge, outcome_json],
             )?;
         }
+        let mut queued = judges.len() as u32;
+        if shard_role == role::TRAINER
+            && let Ok(TrainerOutcome::Diffusion { group, model, .. }) =
+                serde_json::from_str::<TrainerOutcome>(outcome_json)
+        {
+            queued += Self::queue_generalization_episodes(&tx, &batch, &group, &model)?;
+        }
         Self::finish_if_done(&tx, &batch, now_ms)?;
         tx.commit()?;
         Ok((
             true,
             Changed {
                 batches: vec![batch],
-                requeued: judges.len() as u32,
+                requeued: queued,
             },
         ))
     }
@@ -765,6 +800,8 @@ impl Store {
 
     fn finish_if_done(conn: &Connection, batch_id: &str, now_ms: i64) -> Result<(), CoordError> {
         Self::queue_dynamics(conn, batch_id)?;
+        Self::queue_proxy(conn, batch_id)?;
+        Self::queue_diffusion(conn, batch_id)?;
         let open: i64 = conn.query_row(
             "SELECT COUNT(*) FROM shards WHERE batch_id = ?1 AND state IN ('queued', 'leased')",
             [batch_id],
@@ -784,44 +821,105 @@ impl Store {
         Ok(())
     }
 
+    /// The plan in `column` of a running batch (None: the batch is not running or has none).
+    fn running_plan<T: serde::de::DeserializeOwned>(
+        conn: &Connection,
+        batch_id: &str,
+        column: &str,
+    ) -> Result<Option<T>, CoordError> {
+        let row: Option<(String, Option<String>)> = conn
+            .query_row(
+                &format!("SELECT state, {column} FROM batches WHERE id = ?1"),
+                [batch_id],
+                |r| Ok((r.get(0)?, r.get(1)?)),
+            )
+            .optional()?;
+        match row {
+            Some((state, Some(plan))) if state == batch_state::RUNNING => {
+                Ok(Some(serde_json::from_str(&plan)?))
+            }
+            _ => Ok(None),
+        }
+    }
+
+    /// The batch's task groups in task order.
+    fn groups(conn: &Connection, batch_id: &str) -> Result<Vec<String>, CoordError> {
+        let mut stmt = conn.prepare(
+            "SELECT grp FROM tasks WHERE batch_id = ?1 GROUP BY grp ORDER BY MIN(rowid)",
+        )?;
+        let groups = stmt
+            .query_map([batch_id], |r| r.get(0))?
+            .collect::<Result<_, _>>()?;
+        Ok(groups)
+    }
+
+    /// Whether `group`'s episodes are all finished and it has no trainer shard whose job starts
+    /// with `job` yet: the moment to queue one.
+    fn group_ready(
+        conn: &Connection,
+        batch_id: &str,
+        group: &str,
+        job: &str,
+    ) -> Result<bool, CoordError> {
+        let (started, open): (i64, i64) = conn.query_row(
+            "SELECT
+               (SELECT COUNT(*) FROM shards WHERE batch_id = ?1 AND role = 'trainer' AND grp = ?2
+                  AND job LIKE ?3 || '%'),
+               (SELECT COUNT(*) FROM shards s JOIN tasks t ON t.batch_id = s.batch_id AND t.task_id = s.task_id
+                WHERE s.batch_id = ?1 AND t.grp = ?2 AND s.role NOT IN ('judge', 'trainer')
+                  AND s.state IN ('queued', 'leased'))",
+            params![batch_id, group, job],
+            |r| Ok((r.get(0)?, r.get(1)?)),
+        )?;
+        Ok(started == 0 && open == 0)
+    }
+
+    /// Records a trainer shard of `group` that cannot run, with the reason.
+    fn insert_failed_trainer_shard(
+        conn: &Connection,
+        batch_id: &str,
+        job: &str,
+        group: &str,
+        error: &str,
+    ) -> Result<(), CoordError> {
+        conn.execute(
+            "INSERT INTO shards (batch_id, task_id, seed, policy, role, state, job, grp, error)
+             VALUES (?1, '', 0, '', 'trainer', 'failed', ?2, ?3, ?4)",
+            params![batch_id, job, group, error],
+        )?;
+        Ok(())
+    }
+
+    /// Queues a trainer shard of `group` running `job`.
+    fn insert_trainer_shard(
+        conn: &Connection,
+        batch_id: &str,
+        name: &str,
+        group: &str,
+        job: &TrainerJob,
+    ) -> Result<(), CoordError> {
+        conn.execute(
+            "INSERT INTO shards (batch_id, task_id, seed, policy, role, state, job, grp, input_json)
+             VALUES (?1, '', 0, '', 'trainer', 'queued', ?2, ?3, ?4)",
+            params![batch_id, name, group, serde_json::to_string(job)?],
+        )?;
+        Ok(())
+    }
+
     /// Queues the world models of every group of a running batch whose episodes are all finished
     /// (none queued or leased) and that has none yet: one trainer shard per budget, on the
     /// group's first `max(budgets)` clips in planning order (seed-major, so the first budget
     /// holds one episode per task before any task's second). A group with fewer than 2 clips gets
     /// one failed shard saying so.
     fn queue_dynamics(conn: &Connection, batch_id: &str) -> Result<(), CoordError> {
-        let plan: Option<(String, Option<String>)> = conn
-            .query_row(
-                "SELECT state, dynamics_json FROM batches WHERE id = ?1",
-                [batch_id],
-                |r| Ok((r.get(0)?, r.get(1)?)),
-            )
-            .optional()?;
-        let Some((batch_state::RUNNING, Some(plan))) =
-            plan.as_ref().map(|(s, p)| (s.as_str(), p.clone()))
+        let Some(plan) = Self::running_plan::<DynamicsPlan>(conn, batch_id, "dynamics_json")?
         else {
             return Ok(());
         };
-        let plan: DynamicsPlan = serde_json::from_str(&plan)?;
-        let groups: Vec<String> = {
-            let mut stmt = conn.prepare(
-                "SELECT grp FROM tasks WHERE batch_id = ?1 GROUP BY grp ORDER BY MIN(rowid)",
-            )?;
-            stmt.query_map([batch_id], |r| r.get(0))?
-                .collect::<Result<_, _>>()?
-        };
+        let groups = Self::groups(conn, batch_id)?;
         let eval = plan.budgets.iter().copied().max().unwrap_or(0) as usize;
         for group in groups {
-            let (started, open): (i64, i64) = conn.query_row(
-                "SELECT
-                   (SELECT COUNT(*) FROM shards WHERE batch_id = ?1 AND role = 'trainer' AND grp = ?2),
-                   (SELECT COUNT(*) FROM shards s JOIN tasks t ON t.batch_id = s.batch_id AND t.task_id = s.task_id
-                    WHERE s.batch_id = ?1 AND t.grp = ?2 AND s.role NOT IN ('judge', 'trainer')
-                      AND s.state IN ('queued', 'leased'))",
-                params![batch_id, group],
-                |r| Ok((r.get(0)?, r.get(1)?)),
-            )?;
-            if started > 0 || open > 0 {
+            if !Self::group_ready(conn, batch_id, &group, "dynamics")? {
                 continue;
             }
             let clips: Vec<String> = {
@@ -829,26 +927,23 @@ impl Store {
                     "SELECT json_extract(s.outcome_json, '$.imagery.clip') AS clip
                      FROM shards s JOIN tasks t ON t.batch_id = s.batch_id AND t.task_id = s.task_id
                      WHERE s.batch_id = ?1 AND t.grp = ?2 AND s.role NOT IN ('judge', 'trainer')
-                       AND s.state = 'done' AND clip IS NOT NULL ORDER BY s.id",
+                       AND s.job IS NULL AND s.state = 'done' AND clip IS NOT NULL ORDER BY s.id",
                 )?;
                 stmt.query_map(params![batch_id, group], |r| r.get(0))?
                     .take(eval)
                     .collect::<Result<_, _>>()?
             };
             if clips.len() < 2 {
-                conn.execute(
-                    "INSERT INTO shards (batch_id, task_id, seed, policy, role, state, job, grp, error)
-                     VALUES (?1, '', 0, '', 'trainer', 'failed', ?2, ?3, ?4)",
-                    params![
-                        batch_id,
-                        format!("dynamics {group}"),
-                        group,
-                        format!(
-                            "group {group:?} has {} episode(s) with a dynamics clip; a world model needs at least 2 \
+                Self::insert_failed_trainer_shard(
+                    conn,
+                    batch_id,
+                    &format!("dynamics {group}"),
+                    &group,
+                    &format!(
+                        "group {group:?} has {} episode(s) with a dynamics clip; a world model needs at least 2 \
                              (clips are rendered by workers with the render role)",
-                            clips.len()
-                        )
-                    ],
+                        clips.len()
+                    ),
                 )?;
                 continue;
             }
@@ -866,19 +961,218 @@ impl Store {
                     clips: clips.clone(),
                     config: plan.config.clone(),
                 };
-                conn.execute(
-                    "INSERT INTO shards (batch_id, task_id, seed, policy, role, state, job, grp, input_json)
-                     VALUES (?1, '', 0, '', 'trainer', 'queued', ?2, ?3, ?4)",
-                    params![
-                        batch_id,
-                        format!("dynamics {group} @ {budget}"),
-                        group,
-                        serde_json::to_string(&job)?
-                    ],
+                Self::insert_trainer_shard(
+                    conn,
+                    batch_id,
+                    &format!("dynamics {group} @ {budget}"),
+                    &group,
+                    &job,
                 )?;
             }
         }
         Ok(())
+    }
+
+    /// Queues the world-model proxy of every group of a running ranking batch whose episodes are
+    /// all finished and that has none yet: one trainer shard per group, trained on the clips of
+    /// the training policies' episodes (with their outcomes) and imagining those of the ranked
+    /// policies (without). A group with fewer than 2 training clips or no ranked clip gets one
+    /// failed shard saying so.
+    fn queue_proxy(conn: &Connection, batch_id: &str) -> Result<(), CoordError> {
+        let Some(plan) = Self::running_plan::<RankingPlan>(conn, batch_id, "ranking_json")? else {
+            return Ok(());
+        };
+        let groups = Self::groups(conn, batch_id)?;
+        for group in groups {
+            if !Self::group_ready(conn, batch_id, &group, "proxy")? {
+                continue;
+            }
+            let (mut train, mut eval) = (Vec::new(), Vec::new());
+            {
+                let mut stmt = conn.prepare(
+                    "SELECT s.task_id, s.policy, s.seed,
+                            json_extract(s.outcome_json, '$.imagery.clip') AS clip,
+                            json_extract(s.outcome_json, '$.success')
+                     FROM shards s JOIN tasks t ON t.batch_id = s.batch_id AND t.task_id = s.task_id
+                     WHERE s.batch_id = ?1 AND t.grp = ?2 AND s.role NOT IN ('judge', 'trainer')
+                       AND s.job IS NULL AND s.state = 'done' AND clip IS NOT NULL ORDER BY s.id",
+                )?;
+                let mut rows = stmt.query(params![batch_id, group])?;
+                while let Some(r) = rows.next()? {
+                    let policy: String = r.get(1)?;
+                    let training = plan.train_policies.contains(&policy);
+                    let ep = ProxyEpisode {
+                        task_id: r.get(0)?,
+                        policy,
+                        seed: r.get::<_, i64>(2)? as u64,
+                        clip: r.get(3)?,
+                        success: training.then(|| r.get::<_, i64>(4).unwrap_or(0) != 0),
+                    };
+                    if training {
+                        train.push(ep);
+                    } else {
+                        eval.push(ep);
+                    }
+                }
+            }
+            let job_name = format!("proxy {group}");
+            if train.len() < 2 || eval.is_empty() {
+                Self::insert_failed_trainer_shard(
+                    conn,
+                    batch_id,
+                    &job_name,
+                    &group,
+                    &format!(
+                        "group {group:?} has {} training episode(s) and {} ranked episode(s) with a clip; \
+                             the proxy needs at least 2 and 1 (clips are rendered by workers with the render role)",
+                        train.len(),
+                        eval.len()
+                    ),
+                )?;
+                continue;
+            }
+            let job = TrainerJob::Proxy {
+                group: group.clone(),
+                train,
+                eval,
+                config: plan.config.clone(),
+            };
+            Self::insert_trainer_shard(conn, batch_id, &job_name, &group, &job)?;
+        }
+        Ok(())
+    }
+
+    /// Queues the diffusion policy of every group of a running generalization batch whose
+    /// episodes are all finished and that has none yet: one trainer shard per group on the
+    /// group's first `episodes` clips of the training policy (planning order). A group with fewer
+    /// than 2 such clips gets one failed shard saying so.
+    fn queue_diffusion(conn: &Connection, batch_id: &str) -> Result<(), CoordError> {
+        let Some(plan) =
+            Self::running_plan::<GeneralizationPlan>(conn, batch_id, "generalization_json")?
+        else {
+            return Ok(());
+        };
+        let groups = Self::groups(conn, batch_id)?;
+        for group in groups {
+            if !Self::group_ready(conn, batch_id, &group, "diffusion")? {
+                continue;
+            }
+            let clips: Vec<String> = {
+                let mut stmt = conn.prepare(
+                    "SELECT json_extract(s.outcome_json, '$.imagery.clip') AS clip
+                     FROM shards s JOIN tasks t ON t.batch_id = s.batch_id AND t.task_id = s.task_id
+                     WHERE s.batch_id = ?1 AND t.grp = ?2 AND s.role NOT IN ('judge', 'trainer')
+                       AND s.policy = ?3 AND s.job IS NULL
+                       AND s.state = 'done' AND clip IS NOT NULL ORDER BY s.id",
+                )?;
+                stmt.query_map(params![batch_id, group, plan.train_policy], |r| r.get(0))?
+                    .take(plan.episodes as usize)
+                    .collect::<Result<_, _>>()?
+            };
+            let job_name = format!("diffusion {group}");
+            if clips.len() < 2 {
+                Self::insert_failed_trainer_shard(
+                    conn,
+                    batch_id,
+                    &job_name,
+                    &group,
+                    &format!(
+                        "group {group:?} has {} episode(s) of {} with a clip; a diffusion policy needs at least 2 \
+                             (clips are rendered by workers with the render role)",
+                        clips.len(),
+                        plan.train_policy
+                    ),
+                )?;
+                continue;
+            }
+            let job = TrainerJob::Diffusion {
+                group: group.clone(),
+                clips,
+                config: plan.config.clone(),
+            };
+            Self::insert_trainer_shard(conn, batch_id, &job_name, &group, &job)?;
+        }
+        Ok(())
+    }
+
+    /// Queues the evaluation episodes of `group`'s trained diffusion policy `model`: every
+    /// (task, seed) it was trained on, and every task of the group under the plan's held-out
+    /// seeds. Returns how many.
+    fn queue_generalization_episodes(
+        conn: &Connection,
+        batch_id: &str,
+        group: &str,
+        model: &str,
+    ) -> Result<u32, CoordError> {
+        let plan: Option<String> = conn.query_row(
+            "SELECT generalization_json FROM batches WHERE id = ?1",
+            [batch_id],
+            |r| r.get(0),
+        )?;
+        let Some(plan) = plan else {
+            return Ok(0);
+        };
+        let plan: GeneralizationPlan = serde_json::from_str(&plan)?;
+        let policy = plan.policy_name(model);
+        let trained: Vec<(String, i64)> = {
+            let mut stmt = conn.prepare(
+                "SELECT s.task_id, s.seed, json_extract(s.outcome_json, '$.imagery.clip') AS clip
+                 FROM shards s JOIN tasks t ON t.batch_id = s.batch_id AND t.task_id = s.task_id
+                 WHERE s.batch_id = ?1 AND t.grp = ?2 AND s.role NOT IN ('judge', 'trainer')
+                   AND s.policy = ?3 AND s.job IS NULL
+                   AND s.state = 'done' AND clip IS NOT NULL ORDER BY s.id",
+            )?;
+            stmt.query_map(params![batch_id, group, plan.train_policy], |r| {
+                Ok((r.get(0)?, r.get(1)?))
+            })?
+            .take(plan.episodes as usize)
+            .collect::<Result<_, _>>()?
+        };
+        let tasks: Vec<String> = {
+            let mut stmt = conn.prepare(
+                "SELECT task_id FROM tasks WHERE batch_id = ?1 AND grp = ?2 ORDER BY rowid",
+            )?;
+            stmt.query_map(params![batch_id, group], |r| r.get(0))?
+                .collect::<Result<_, _>>()?
+        };
+        let role: String = conn.query_row(
+            "SELECT role FROM shards WHERE batch_id = ?1 AND job IS NULL AND role NOT IN ('judge', 'trainer') LIMIT 1",
+            [batch_id],
+            |r| r.get(0),
+        )?;
+        let mut ins = conn.prepare(
+            "INSERT INTO shards (batch_id, task_id, seed, policy, role, state, job, grp)
+             VALUES (?1, ?2, ?3, ?4, ?5, 'queued', ?6, ?7)",
+        )?;
+        let mut n = 0;
+        for (task, seed) in &trained {
+            ins.execute(params![
+                batch_id,
+                task,
+                seed,
+                policy,
+                role,
+                TRAIN_VARIATIONS,
+                group
+            ])?;
+            n += 1;
+        }
+        for k in 0..u64::from(plan.held_out_seeds) {
+            for task in &tasks {
+                let seed = (plan.held_out_seed_base + k) as i64;
+                ins.execute(params![
+                    batch_id,
+                    task,
+                    seed,
+                    policy,
+                    role,
+                    HELD_OUT_VARIATIONS,
+                    group
+                ])?;
+                n += 1;
+            }
+        }
+        Ok(n)
     }
 
     pub fn counts(&self, batch_id: &str) -> Result<BatchCounts, CoordError> {
@@ -976,12 +1270,13 @@ impl Store {
 
     /// Builds the batch's report from the store (partial while the batch runs).
     pub fn report(&self, batch_id: &str) -> Result<Report, CoordError> {
-        let (name, state, policies, seeds, invalid, submitted, finished): (String, String, String, String, String, i64, Option<i64>) =
+        #[allow(clippy::type_complexity)]
+        let (name, state, policies, seeds, invalid, submitted, finished, ranking_plan): (String, String, String, String, String, i64, Option<i64>, Option<String>) =
             self.conn
                 .query_row(
-                    "SELECT name, state, policies_json, seeds_json, invalid_json, submitted_ms, finished_ms FROM batches WHERE id = ?1",
+                    "SELECT name, state, policies_json, seeds_json, invalid_json, submitted_ms, finished_ms, ranking_json FROM batches WHERE id = ?1",
                     [batch_id],
-                    |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?, r.get(3)?, r.get(4)?, r.get(5)?, r.get(6)?)),
+                    |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?, r.get(3)?, r.get(4)?, r.get(5)?, r.get(6)?, r.get(7)?)),
                 )
                 .optional()?
                 .ok_or_else(|| CoordError::NotFound(format!("batch '{batch_id}'")))?;
@@ -1010,6 +1305,11 @@ impl Store {
         let mut judged = Vec::new();
         let mut diversity: Option<DiversityResults> = None;
         let mut error_groups: Vec<Option<String>> = Vec::new();
+        let mut proxies = Vec::new();
+        let mut proxy_errors = Vec::new();
+        let mut trained = Vec::new();
+        let mut general_errors = Vec::new();
+        let mut evaluated = Vec::new();
         {
             let mut stmt = self.conn.prepare(
                 "SELECT task_id, seed, policy, attempts, state, outcome_json, error, worker, role, judge, job, grp
@@ -1026,12 +1326,47 @@ impl Store {
                 extra_attempts += u64::from(attempts.saturating_sub(1));
                 if r.get::<_, String>(8)? == role::TRAINER {
                     let job: String = r.get::<_, Option<String>>(10)?.unwrap_or_default();
+                    if job.starts_with("diffusion") {
+                        let group = r.get::<_, Option<String>>(11)?.unwrap_or_default();
+                        match (state.as_str(), outcome) {
+                            (DONE, Some(json)) => {
+                                if let TrainerOutcome::Diffusion { group, model, fit } =
+                                    serde_json::from_str::<TrainerOutcome>(&json)?
+                                {
+                                    trained.push((group, model, *fit));
+                                }
+                            }
+                            (FAILED, _) => general_errors
+                                .push((group, r.get::<_, Option<String>>(6)?.unwrap_or_default())),
+                            _ => {}
+                        }
+                        continue;
+                    }
+                    if job.starts_with("proxy") {
+                        match (state.as_str(), outcome) {
+                            (DONE, Some(json)) => {
+                                if let TrainerOutcome::Proxy { result } =
+                                    serde_json::from_str::<TrainerOutcome>(&json)?
+                                {
+                                    proxies.push(*result);
+                                }
+                            }
+                            (FAILED, _) => proxy_errors.push((
+                                r.get::<_, Option<String>>(11)?.unwrap_or_default(),
+                                r.get::<_, Option<String>>(6)?.unwrap_or_default(),
+                            )),
+                            _ => {}
+                        }
+                        continue;
+                    }
                     let div = diversity.get_or_insert_with(DiversityResults::default);
                     match (state.as_str(), outcome) {
                         (DONE, Some(json)) => {
                             match serde_json::from_str::<TrainerOutcome>(&json)? {
                                 TrainerOutcome::Text { table } => div.text = Some(table),
                                 TrainerOutcome::Dynamics { fit } => div.dynamics.push(*fit),
+                                TrainerOutcome::Proxy { .. } | TrainerOutcome::Diffusion { .. } => {
+                                }
                             }
                         }
                         (FAILED, _) => {
@@ -1065,6 +1400,25 @@ impl Store {
                     (DONE, Some(json)) => Some(serde_json::from_str::<EpisodeOutcome>(&json)?),
                     _ => None,
                 };
+                let job: Option<String> = r.get(10)?;
+                if let Some(job) = job.filter(|j| j.starts_with("generalization")) {
+                    // A trained policy's evaluation episode: its own section, not the batch's
+                    // success tables.
+                    evaluated.push(EvalEpisode {
+                        group: r.get::<_, Option<String>>(11)?.unwrap_or_default(),
+                        task_id: r.get(0)?,
+                        held_out: job == HELD_OUT_VARIATIONS,
+                        success: match (state.as_str(), &outcome) {
+                            (DONE, Some(o)) => Some(Ok(o.success)),
+                            (FAILED, _) => {
+                                Some(Err(r.get::<_, Option<String>>(6)?.unwrap_or_default()))
+                            }
+                            (CANCELLED, _) => Some(Err("cancelled".into())),
+                            _ => None,
+                        },
+                    });
+                    continue;
+                }
                 let open = state == QUEUED || state == LEASED;
                 shards.push(ShardRecord {
                     task_id: r.get(0)?,
@@ -1101,6 +1455,61 @@ impl Store {
             shards.iter().filter_map(|s| s.outcome.clone()).collect();
         results.quality = assay_core::quality_report::build_quality(&tasks, &episodes, &judged);
         results.diversity = diversity;
+        if !trained.is_empty() || !general_errors.is_empty() {
+            let rank = |g: &str| tasks.iter().position(|t| t.group == g);
+            trained.sort_by_key(|(g, _, _)| rank(g));
+            general_errors.sort_by_key(|(g, _)| rank(g));
+            results.generalization = Some(GeneralizationResults {
+                groups: trained
+                    .into_iter()
+                    .map(|(g, model, fit)| GroupGeneralization::build(&g, &model, fit, &evaluated))
+                    .collect(),
+                errors: general_errors,
+            });
+        }
+        if let Some(plan) = ranking_plan {
+            let plan: RankingPlan = serde_json::from_str(&plan)?;
+            let ranked: Vec<String> = policies
+                .iter()
+                .filter(|p| !plan.train_policies.contains(p))
+                .cloned()
+                .collect();
+            let real: Vec<RealEpisode> = episodes
+                .iter()
+                .filter(|e| ranked.contains(&e.policy))
+                .map(|e| {
+                    let scores: Vec<f64> = judged
+                        .iter()
+                        .filter(|j| {
+                            j.task_id == e.task_id && j.seed == e.seed && j.policy == e.policy
+                        })
+                        .filter_map(|j| j.outcome.as_ref())
+                        .filter_map(|o| o.item(Item::Completion))
+                        .flat_map(|i| i.scores.iter().copied())
+                        .collect();
+                    RealEpisode {
+                        task_id: e.task_id.clone(),
+                        policy: e.policy.clone(),
+                        seed: e.seed,
+                        success: e.success,
+                        judged_completion: (!scores.is_empty())
+                            .then(|| scores.iter().sum::<f64>() / scores.len() as f64),
+                    }
+                })
+                .collect();
+            let task_groups: Vec<(String, String)> = tasks
+                .iter()
+                .map(|t| (t.id.clone(), t.group.clone()))
+                .collect();
+            results.ranking = Some(ranking_results(
+                &plan,
+                &ranked,
+                &task_groups,
+                &real,
+                proxies,
+                proxy_errors,
+            ));
+        }
         let wall = finished.map(|f| (f - submitted) as f64 / 1000.0);
         let rate = |x: f64| wall.filter(|w| *w > 0.0).map(|w| x / w);
         let run = RunInfo {
@@ -1160,6 +1569,8 @@ mod tests {
             text_models: Vec::new(),
             text_groups: Vec::new(),
             dynamics: None,
+            ranking: None,
+            generalization: None,
         }
     }
 
@@ -1567,6 +1978,130 @@ mod tests {
         }
         let c = s.counts(&id).unwrap();
         assert_eq!((c.trainer_total, c.state.as_str()), (2, "running"));
+    }
+
+    #[test]
+    fn a_ranking_batch_queues_one_proxy_per_group_that_never_sees_the_ranked_outcomes() {
+        use assay_core::proxy::{ProxyConfig, ProxyPrediction, ProxyResult};
+        let mut s = Store::open_in_memory().unwrap();
+        let tasks = ["a", "b"];
+        let mut b = batch(&tasks, &[0, 1], 3);
+        let policies = ["oracle", "oracle:noise=0.03", "oracle:noise=0.01"];
+        b.policies = policies.iter().map(|p| p.to_string()).collect();
+        b.ranking = Some(RankingPlan {
+            train_policies: vec!["oracle:noise=0.01".into()],
+            config: ProxyConfig::default(),
+        });
+        let (id, n) = s.submit(&b, 0).unwrap();
+        assert_eq!(n, 12);
+        let trainer = vec!["trainer".to_owned()];
+        let leases = s.lease("w", &sim(), 12, 1, TTL).unwrap();
+        // Every episode of a ranking batch renders a clip of the proxy's frame size.
+        assert!(leases.iter().all(|l| l.clip_size == 64));
+        let mut truth = std::collections::HashMap::new();
+        for (i, l) in leases.iter().enumerate() {
+            // Seed-major, then policy, then task.
+            assert_eq!(l.policy, policies[(i / 2) % 3]);
+            let mut e = episode(l);
+            e.task_id = tasks[i % 2].into();
+            e.success = i % 3 != 0;
+            e.imagery = Some(assay_core::report::EpisodeImagery {
+                adapter: "test".into(),
+                views: vec![],
+                keyframes: vec![],
+                contact_sheet: String::new(),
+                video: None,
+                caption: None,
+                clip: Some(format!("clips/{i}.clip")),
+            });
+            truth.insert((e.task_id.clone(), e.policy.clone(), e.seed), e.success);
+            let json = serde_json::to_string(&e).unwrap();
+            assert!(
+                s.complete("w", l.lease_id, l.shard_id, &json, 0.1, 2)
+                    .unwrap()
+                    .0
+            );
+        }
+        let queued = s.lease("t", &trainer, 10, 3, TTL).unwrap();
+        assert_eq!(queued.len(), 1);
+        let input = queued[0].trainer_job.clone().unwrap();
+        let TrainerJob::Proxy {
+            group, train, eval, ..
+        } = serde_json::from_str(&input).unwrap()
+        else {
+            panic!("{input}")
+        };
+        assert_eq!(group, "g");
+        assert_eq!(train.len(), 4);
+        assert!(
+            train
+                .iter()
+                .all(|e| e.policy == "oracle:noise=0.01" && e.success.is_some())
+        );
+        assert_eq!(eval.len(), 8);
+        // The ranked episodes' outcomes never reach the trainer.
+        assert!(
+            eval.iter()
+                .all(|e| e.success.is_none() && e.policy != "oracle:noise=0.01")
+        );
+        assert_eq!(input.matches("\"success\"").count(), 4);
+        // The proxy predicts the opposite of the truth for one ranked episode.
+        let predictions = eval
+            .iter()
+            .map(|e| {
+                let real = truth[&(e.task_id.clone(), e.policy.clone(), e.seed)];
+                let wrong = e.task_id == "a" && e.seed == 0 && e.policy == "oracle";
+                let success = real != wrong;
+                ProxyPrediction {
+                    task_id: e.task_id.clone(),
+                    policy: e.policy.clone(),
+                    seed: e.seed,
+                    p_success: if success { 0.9 } else { 0.1 },
+                    success,
+                    p_success_real_frame: if real { 0.8 } else { 0.2 },
+                    last_frame_mse: 0.001,
+                }
+            })
+            .collect();
+        let fit: assay_core::dynamics::DynamicsFit = serde_json::from_value(serde_json::json!({
+            "group": "g", "budget": 4, "train_episodes": 4, "eval_episodes": 8, "eval_image_mse": 0.001,
+            "eval_proprio_mse": 0.0, "per_episode": [], "episodes": [], "final_train_loss": 1.0,
+            "steps": 10, "epochs": 1.0, "device": "cpu", "config": {}
+        }))
+        .unwrap();
+        let outcome = TrainerOutcome::Proxy {
+            result: Box::new(ProxyResult {
+                group: "g".into(),
+                world_model: fit,
+                judge_examples: 8,
+                judge_positives: 5,
+                judge_train_accuracy: 1.0,
+                predictions,
+                seconds: 1.0,
+            }),
+        };
+        let json = serde_json::to_string(&outcome).unwrap();
+        let l = &queued[0];
+        assert!(
+            s.complete("t", l.lease_id, l.shard_id, &json, 1.0, 4)
+                .unwrap()
+                .0
+        );
+        assert_eq!(s.counts(&id).unwrap().state, "completed");
+        let k = s.report(&id).unwrap().results.ranking.unwrap();
+        assert_eq!(k.ranked_policies, ["oracle", "oracle:noise=0.03"]);
+        assert_eq!(k.rows.len(), 4);
+        assert!(
+            k.rows
+                .iter()
+                .all(|r| r.real.trials == 2 && r.proxy.as_ref().unwrap().trials == 2)
+        );
+        let agree = k.proxy_agreement.unwrap();
+        assert_eq!((agree.successes, agree.trials), (7, 8));
+        let judge = k.judge_agreement_real_frames.unwrap();
+        assert_eq!((judge.successes, judge.trials), (8, 8));
+        let ranking = k.ranking.expect("two policies ranked");
+        assert_eq!(ranking.comparisons[0].policies.len(), 2);
     }
 
     #[test]

@@ -167,25 +167,10 @@ pub fn agreement(reference: &[f64], judge: &[f64], resamples: usize, seed: u64) 
             }
         }
     }
-    let mut estimates = stats.iter().zip(samples).map(|(stat, mut s)| {
-        let value = stat(reference, judge);
-        let defined = s.len();
-        let ci95 = (value.is_some() && defined * 10 >= resamples * 9 && defined > 0).then(|| {
-            s.sort_by(f64::total_cmp);
-            let at = |q: f64| s[((q * (s.len() - 1) as f64).round() as usize).min(s.len() - 1)];
-            [at(0.025), at(0.975)]
-        });
-        Estimate {
-            value,
-            undefined: value.is_none().then(|| why_undefined(reference, judge)),
-            no_interval: (value.is_some() && ci95.is_none()).then(|| {
-                format!(
-                    "undefined in {} of {resamples} bootstrap resamples (scores nearly constant)",
-                    resamples - defined
-                )
-            }),
-            ci95,
-        }
+    let mut estimates = stats.iter().zip(samples).map(|(stat, s)| {
+        bootstrap_estimate(stat(reference, judge), s, resamples, || {
+            why_undefined(reference, judge)
+        })
     });
     let mut next = || estimates.next().expect("five statistics");
     let (pearson, mae, r_over_mae, spearman, kendall) = (next(), next(), next(), next(), next());
@@ -204,6 +189,35 @@ pub fn agreement(reference: &[f64], judge: &[f64], resamples: usize, seed: u64) 
         r_over_mae,
         spearman,
         kendall,
+    }
+}
+
+/// `value` with the percentile 95 % interval of `samples`, its values in the resamples (of
+/// `resamples` drawn) where it was defined; no interval when it is undefined in more than 10 % of
+/// them. `undefined` says why when `value` is `None`.
+pub(crate) fn bootstrap_estimate(
+    value: Option<f64>,
+    mut samples: Vec<f64>,
+    resamples: usize,
+    undefined: impl FnOnce() -> String,
+) -> Estimate {
+    let defined = samples.len();
+    let ci95 = (value.is_some() && defined * 10 >= resamples * 9 && defined > 0).then(|| {
+        samples.sort_by(f64::total_cmp);
+        let last = samples.len() - 1;
+        let at = |q: f64| samples[((q * last as f64).round() as usize).min(last)];
+        [at(0.025), at(0.975)]
+    });
+    Estimate {
+        value,
+        undefined: value.is_none().then(undefined),
+        no_interval: (value.is_some() && ci95.is_none()).then(|| {
+            format!(
+                "undefined in {} of {resamples} bootstrap resamples (scores nearly constant)",
+                resamples - defined
+            )
+        }),
+        ci95,
     }
 }
 
@@ -228,7 +242,7 @@ pub struct RatingRow {
 }
 
 /// Splits one CSV line (RFC 4180 quoting within the line).
-fn fields(line: &str) -> Vec<String> {
+pub(crate) fn fields(line: &str) -> Vec<String> {
     let mut out = vec![String::new()];
     let mut quoted = false;
     let mut chars = line.chars().peekable();

@@ -9,13 +9,17 @@
 pub mod agreement;
 pub mod caption;
 pub mod clip;
+pub mod diffusion;
 pub mod diversity;
 pub mod dynamics;
 pub mod error;
+pub mod generalization;
 pub mod hash;
 pub mod policy;
+pub mod proxy;
 pub mod quality;
 pub mod quality_report;
+pub mod ranking;
 pub mod report;
 pub mod rng;
 pub mod scene;

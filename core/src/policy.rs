@@ -128,6 +128,13 @@ pub const DEFAULT_REMOTE_TIMEOUT_MS: u64 = 5000;
 
 impl PolicySpec {
     pub fn parse(name: &str) -> Result<PolicySpec, String> {
+        Self::parse_with_horizon(name).map(|(spec, _)| spec)
+    }
+
+    /// [`PolicySpec::parse`], with the episode horizon a policy object may be given
+    /// (`max_steps=N` physics steps, any kind but the oracle, whose plan ends by itself): its
+    /// episodes end there, or at the task's `physics.max_steps` if that comes first.
+    pub fn parse_with_horizon(name: &str) -> Result<(PolicySpec, Option<u32>), String> {
         let (kind, args) = name.split_once(':').unwrap_or((name, ""));
         if !KNOWN_POLICIES.contains(&kind) {
             return Err(format!(
@@ -143,6 +150,27 @@ impl PolicySpec {
                     .ok_or_else(|| format!("policy '{name}': argument '{arg}' is not key=value"))
             })
             .collect::<Result<_, _>>()?;
+        let mut horizon = None;
+        let args: Vec<(&str, &str)> = if kind == "oracle" {
+            args
+        } else {
+            let mut rest = Vec::with_capacity(args.len());
+            for (k, v) in args {
+                if k == "max_steps" {
+                    match v.parse::<u32>() {
+                        Ok(n) if n > 0 => horizon = Some(n),
+                        _ => {
+                            return Err(format!(
+                                "policy '{name}': bad max_steps '{v}' (physics steps, > 0)"
+                            ));
+                        }
+                    }
+                } else {
+                    rest.push((k, v));
+                }
+            }
+            rest
+        };
         let bad = |arg: &(&str, &str), expected: &str| {
             format!(
                 "policy '{name}': bad argument '{}={}' (expected {expected})",
@@ -152,7 +180,7 @@ impl PolicySpec {
         let required = |value: Option<String>, key: &str| {
             value.ok_or_else(|| format!("policy '{name}': missing {key}=..."))
         };
-        match kind {
+        let spec = match kind {
             "oracle" => {
                 let mut noise = 0.0;
                 let mut sense = Sense::State;
@@ -173,7 +201,7 @@ impl PolicySpec {
                         }
                     }
                 }
-                Ok(PolicySpec::Oracle { noise, sense })
+                PolicySpec::Oracle { noise, sense }
             }
             "torchscript" => {
                 let mut path = None;
@@ -183,9 +211,9 @@ impl PolicySpec {
                         _ => return Err(bad(arg, "path=<file.pt>")),
                     }
                 }
-                Ok(PolicySpec::TorchScript {
+                PolicySpec::TorchScript {
                     path: required(path, "path")?,
-                })
+                }
             }
             "remote" => {
                 let mut url = None;
@@ -202,10 +230,10 @@ impl PolicySpec {
                         _ => return Err(bad(arg, "url=http(s)://host:port or timeout_ms=<ms>")),
                     }
                 }
-                Ok(PolicySpec::Remote {
+                PolicySpec::Remote {
                     url: required(url, "url")?,
                     timeout_ms,
-                })
+                }
             }
             _ => {
                 let mut model = None;
@@ -215,11 +243,12 @@ impl PolicySpec {
                         _ => return Err(bad(arg, "model=<artifact key or path>")),
                     }
                 }
-                Ok(PolicySpec::Diffusion {
+                PolicySpec::Diffusion {
                     model: required(model, "model")?,
-                })
+                }
             }
-        }
+        };
+        Ok((spec, horizon))
     }
 
     /// Whether the policy is the simulator's scripted oracle (every other kind acts through
@@ -295,6 +324,17 @@ mod tests {
         assert!(PolicySpec::parse("remote:url=127.0.0.1:1").is_err());
         assert!(PolicySpec::parse("remote:url=http://h:1,timeout_ms=0").is_err());
         assert!(PolicySpec::parse("oracle:noise").is_err());
+        // A policy object's horizon; the oracle's plan has its own end.
+        assert_eq!(
+            PolicySpec::parse_with_horizon("diffusion:model=m,max_steps=6000"),
+            Ok((PolicySpec::Diffusion { model: "m".into() }, Some(6000)))
+        );
+        assert_eq!(
+            PolicySpec::parse_with_horizon("remote:url=http://h:1").map(|p| p.1),
+            Ok(None)
+        );
+        assert!(PolicySpec::parse("torchscript:path=p,max_steps=0").is_err());
+        assert!(PolicySpec::parse("oracle:max_steps=100").is_err());
         assert!(PolicySpec::parse("oracle:noise=-1").is_err());
         assert!(PolicySpec::parse("oracle:speed=2").is_err());
     }

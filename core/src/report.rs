@@ -152,6 +152,13 @@ pub struct Results {
     /// Text and dynamics diversity (absent when the batch asked for neither).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub diversity: Option<crate::trainer::DiversityResults>,
+    /// Policy ranking by the world-model proxy (absent when the batch did not ask for it).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub ranking: Option<crate::proxy::RankingResults>,
+    /// Diffusion policies trained per group and their success on training and held-out
+    /// variations (absent when the batch did not ask for it).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub generalization: Option<crate::generalization::GeneralizationResults>,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -410,6 +417,8 @@ pub fn build_results(
         invalid_tasks,
         quality: None,
         diversity: None,
+        ranking: None,
+        generalization: None,
     }
 }
 
@@ -625,6 +634,16 @@ impl Report {
         }
         if let Some(d) = &r.diversity {
             md.push_str(&diversity_markdown(d));
+        }
+        if let Some(g) = &r.generalization {
+            md.push_str(
+                "\n## Generalization (diffusion policy per group, the paper's Table 3)\n\n",
+            );
+            md.push_str(&g.markdown());
+        }
+        if let Some(k) = &r.ranking {
+            md.push_str("\n## Policy ranking (world-model proxy against the simulator)\n\n");
+            md.push_str(&k.markdown());
         }
         let failures: Vec<_> = r
             .tasks

@@ -3,8 +3,10 @@
 
 use serde::{Deserialize, Serialize};
 
+use crate::diffusion::{DiffusionConfig, DiffusionFit};
 use crate::diversity::TextDiversityTable;
 use crate::dynamics::{DynamicsConfig, DynamicsFit};
+use crate::proxy::{ProxyConfig, ProxyEpisode, ProxyResult};
 
 /// One trainer shard's job (the assignment's `input_json`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -24,14 +26,43 @@ pub enum TrainerJob {
         clips: Vec<String>,
         config: DynamicsConfig,
     },
+    /// A diffusion policy for one group, imitating the given clips (see
+    /// [`crate::generalization`]).
+    Diffusion {
+        group: String,
+        clips: Vec<String>,
+        config: DiffusionConfig,
+    },
+    /// The world-model proxy of one group's ranked episodes (see [`crate::proxy`]).
+    Proxy {
+        group: String,
+        /// Episodes of the training policies, with their real outcomes.
+        train: Vec<ProxyEpisode>,
+        /// Episodes of the ranked policies, without them.
+        eval: Vec<ProxyEpisode>,
+        config: ProxyConfig,
+    },
 }
 
 /// What a trainer shard reports (the result's `outcome_json`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "kind", rename_all = "snake_case")]
 pub enum TrainerOutcome {
-    Text { table: TextDiversityTable },
-    Dynamics { fit: Box<DynamicsFit> },
+    Text {
+        table: TextDiversityTable,
+    },
+    Dynamics {
+        fit: Box<DynamicsFit>,
+    },
+    Proxy {
+        result: Box<ProxyResult>,
+    },
+    /// A trained diffusion policy: its checkpoint's key in the artifact store and its fit.
+    Diffusion {
+        group: String,
+        model: String,
+        fit: Box<DiffusionFit>,
+    },
 }
 
 /// The diversity section of a report.

@@ -84,7 +84,16 @@ pub fn run(mut a: Args) -> anyhow::Result<ExitCode> {
     if !a.batch.dynamics_budgets.is_empty() && !rendering {
         anyhow::bail!("--dynamics-budgets needs rendered clips: run with --roles sim,render");
     }
-    let training = !a.batch.text_models.is_empty() || !a.batch.dynamics_budgets.is_empty();
+    if !a.batch.rank_train_policies.is_empty() && !rendering {
+        anyhow::bail!("--rank-train-policies needs rendered clips: run with --roles sim,render");
+    }
+    if a.batch.generalization.is_some() && !rendering {
+        anyhow::bail!("--generalization needs rendered clips: run with --roles sim,render");
+    }
+    let training = !a.batch.text_models.is_empty()
+        || !a.batch.dynamics_budgets.is_empty()
+        || !a.batch.rank_train_policies.is_empty()
+        || a.batch.generalization.is_some();
     if training && !cfg!(feature = "trainer") {
         anyhow::bail!(
             "this build has no trainer role (built without the `trainer` feature): run with --no-diversity"
@@ -344,6 +353,11 @@ pub fn run(mut a: Args) -> anyhow::Result<ExitCode> {
     coordinator.stop(Duration::from_secs(5));
     let (last, report, rejected) = outcome?;
     super::report::write(&a.out, &report)?;
+    if let Ok(parsed) = serde_json::from_str::<assay_core::report::Report>(&report.report_json) {
+        for line in super::report::ranking_lines(&parsed) {
+            println!("{line}");
+        }
+    }
     let last = last.context("no status from the coordinator")?;
     eprintln!(
         "{}: {}/{} episodes completed, {} succeeded, {} failed; report in {}",

@@ -8,6 +8,8 @@ pub mod diversity;
 pub mod eval;
 pub mod frames;
 pub mod frames_grpc;
+pub mod policy;
+pub mod rank;
 pub mod report;
 pub mod status;
 pub mod submit;

@@ -24,7 +24,49 @@ pub fn write(out: &Path, r: &pb::GetReportResponse) -> anyhow::Result<()> {
     if let Some(q) = &report.results.quality {
         std::fs::write(out.join(assay_core::report::QUALITY_FIGURE), q.figure_svg())?;
     }
+    if let Some(ranking) = report
+        .results
+        .ranking
+        .as_ref()
+        .and_then(|k| k.ranking.as_ref())
+        && !ranking.comparisons.is_empty()
+    {
+        std::fs::write(out.join(assay_core::proxy::RANKING_FIGURE), ranking.svg(0))?;
+    }
     Ok(())
+}
+
+/// One line per ranking comparison of `report` (for a terminal), empty without a ranking.
+pub fn ranking_lines(report: &assay_core::report::Report) -> Vec<String> {
+    let Some(ranking) = report
+        .results
+        .ranking
+        .as_ref()
+        .and_then(|k| k.ranking.as_ref())
+    else {
+        return Vec::new();
+    };
+    let est = |e: &assay_core::agreement::Estimate| match (e.value, e.ci95) {
+        (Some(v), Some([lo, hi])) => format!("{v:.3} [{lo:.3}, {hi:.3}]"),
+        (Some(v), None) => format!("{v:.3}"),
+        (None, _) => "undefined".into(),
+    };
+    ranking
+        .comparisons
+        .iter()
+        .map(|c| {
+            format!(
+                "policy ranking, {} against {} ({} policies): Pearson r {}, MMRV {}, Spearman {}, Kendall {}",
+                c.proxy,
+                c.real,
+                c.policies.len(),
+                est(&c.pearson),
+                est(&c.mmrv),
+                est(&c.spearman),
+                est(&c.kendall)
+            )
+        })
+        .collect()
 }
 
 pub fn run(a: Args) -> anyhow::Result<ExitCode> {

@@ -56,6 +56,19 @@ pub struct BatchArgs {
     /// World-model settings as JSON (fields of assay-core DynamicsConfig, e.g. '{"steps": 2000}').
     #[arg(long = "world-model")]
     pub world_model: Option<String>,
+    /// Rank the batch's policies with a world-model proxy trained on the episodes of these
+    /// policies (comma-separated; they must be among --policies and are not ranked themselves).
+    #[arg(long = "rank-train-policies", value_delimiter = ',')]
+    pub rank_train_policies: Vec<String>,
+    /// Proxy settings as JSON (fields of assay-core ProxyConfig, e.g.
+    /// '{"judge_steps": 600, "world_model": {"steps": 2000}}').
+    #[arg(long = "proxy", requires = "rank_train_policies")]
+    pub proxy: Option<String>,
+    /// Generalization: train a diffusion policy per task group on its oracle episodes and run it
+    /// on training and held-out variations. Optional JSON settings (fields of assay-core
+    /// GeneralizationPlan, e.g. '{"episodes": 40, "held_out_seeds": 3, "config": {"steps": 3000}}').
+    #[arg(long = "generalization", num_args = 0..=1, default_missing_value = "{}")]
+    pub generalization: Option<String>,
 }
 
 fn parse_template(s: &str) -> Result<(String, String), String> {
@@ -66,6 +79,23 @@ fn parse_template(s: &str) -> Result<(String, String), String> {
 }
 
 impl BatchArgs {
+    /// The `RankingPlan` JSON of `--rank-train-policies` and `--proxy` (empty: no ranking). A
+    /// `--proxy` that is not JSON is passed on for the coordinator to reject with its reason.
+    fn ranking_json(&self) -> String {
+        if self.rank_train_policies.is_empty() {
+            return String::new();
+        }
+        let config = match &self.proxy {
+            None => serde_json::json!({}),
+            Some(text) => match serde_json::from_str::<serde_json::Value>(text) {
+                Ok(v) => v,
+                Err(_) => return format!("{{\"config\": {text}}}"),
+            },
+        };
+        serde_json::json!({"train_policies": self.rank_train_policies, "config": config})
+            .to_string()
+    }
+
     pub fn request(
         &self,
         tasks: Vec<pb::TaskDocument>,
@@ -93,6 +123,8 @@ impl BatchArgs {
             dynamics_budgets: self.dynamics_budgets.clone(),
             dynamics_json: self.world_model.clone().unwrap_or_default(),
             text_templates: self.text_templates.iter().cloned().collect(),
+            ranking_json: self.ranking_json(),
+            generalization_json: self.generalization.clone().unwrap_or_default(),
         }
     }
 }

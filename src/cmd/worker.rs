@@ -63,6 +63,8 @@ pub fn parse_size(s: &str) -> Result<(u32, u32), String> {
 struct SimRole {
     render: Option<RenderRole>,
     counters: Arc<Counters>,
+    /// The runtime remote policies' gRPC calls run on (shard threads block on it).
+    runtime: tokio::runtime::Handle,
 }
 
 /// What the worker has done, for telemetry.
@@ -91,6 +93,12 @@ struct RenderRole {
 
 enum RenderJob {
     Episode(EpisodeJob),
+    /// The RGB frame a policy object sees (the task camera at the policy's frame size).
+    Frame {
+        scene: SceneSnapshot,
+        camera: Camera,
+        reply: std::sync::mpsc::Sender<Result<Vec<u8>, assay_render::RenderError>>,
+    },
     /// What a seeing policy's camera sees now: RGB into a frame-bus sample (camera
     /// [`POLICY_CAMERA_ID`]), depth and segments back to the policy.
     Look {
@@ -257,6 +265,28 @@ impl assay_sim::Observer for RoleObserver<'_> {
             .map_err(|_| gone())?
             .map_err(|e| e.to_string())
     }
+
+    fn frame(
+        &mut self,
+        scene: SceneSnapshot,
+        _step: u64,
+        camera: &Camera,
+    ) -> Result<Vec<u8>, String> {
+        let (reply, answer) = std::sync::mpsc::channel();
+        let gone = || "the render thread stopped".to_owned();
+        self.role
+            .jobs
+            .send(RenderJob::Frame {
+                scene,
+                camera: camera.clone(),
+                reply,
+            })
+            .map_err(|_| gone())?;
+        answer
+            .recv()
+            .map_err(|_| gone())?
+            .map_err(|e| e.to_string())
+    }
 }
 
 /// The frame-bus stream a worker's render role publishes its views and keyframes on.
@@ -291,6 +321,20 @@ fn render_loop(
     for job in jobs {
         let job = match job {
             RenderJob::Episode(job) => job,
+            RenderJob::Frame {
+                scene,
+                camera,
+                reply,
+            } => {
+                let mut rgba = vec![0u8; (camera.width * camera.height * 4) as usize];
+                let rgb = r.render_rgba_into(&scene, &camera, &mut rgba).map(|()| {
+                    rgba.chunks_exact(4)
+                        .flat_map(|p| [p[0], p[1], p[2]])
+                        .collect::<Vec<u8>>()
+                });
+                let _ = reply.send(rgb);
+                continue;
+            }
             RenderJob::Look {
                 shard,
                 step,
@@ -451,10 +495,38 @@ impl SimRole {
         } else {
             0
         };
+        // Every policy but the built-in oracle is a policy object, made for this episode: a
+        // remote server is health-checked here, a model is loaded from this worker or the
+        // artifact store.
+        let parsed = assay_core::policy::PolicySpec::parse(policy)
+            .map_err(|e| ShardError::permanent(format!("task {}: {e}", spec.id)))?;
+        let mut object = if parsed.is_oracle() {
+            None
+        } else {
+            let loaded = assay_policy::load_with(
+                &parsed,
+                artifact_root,
+                &self.runtime,
+                super::policy::diffusion_loader(),
+            )
+            .map_err(|e| {
+                let msg = format!("task {} seed {}: policy '{policy}': {e}", spec.id, a.seed);
+                if e.retryable() {
+                    ShardError::retryable(msg)
+                } else {
+                    ShardError::permanent(msg)
+                }
+            })?;
+            Some(loaded)
+        };
         let options = assay_sim::SimOptions {
             video_frames,
             clip: clip_size > 0,
             observer: observer.as_mut().map(|o| o as &mut dyn assay_sim::Observer),
+            policy: object
+                .as_deref_mut()
+                .map(|p| p as &mut dyn assay_core::policy::Policy),
+            frame_size: 0,
         };
         let ep = assay_sim::simulate_with(&spec, a.seed, policy, options).map_err(|e| {
             let msg = format!("task {}: {e}", spec.id);
@@ -703,6 +775,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         let sim = simulating.then(|| SimRole {
             render,
             counters: counters.clone(),
+            runtime: tokio::runtime::Handle::current(),
         });
         let handler = Arc::new(Roles {
             sim,

@@ -119,6 +119,13 @@ impl Controller {
         }
     }
 
+    /// Forgets the plan: a policy object drives the tool (grasps and releases still go through
+    /// [`Controller::apply`]).
+    pub fn clear_plan(&mut self) {
+        self.plan.clear();
+        self.queue.clear();
+    }
+
     pub fn done(&self) -> bool {
         self.queue.is_empty() && self.next >= self.plan.len()
     }

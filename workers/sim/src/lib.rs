@@ -6,6 +6,7 @@
 //! caller's thread (a shard thread), never on an async executor.
 
 pub mod controller;
+pub mod learned;
 pub mod perception;
 pub mod predicates;
 pub mod record;
@@ -15,7 +16,7 @@ pub mod scene;
 use std::collections::{BTreeMap, HashMap};
 
 use assay_core::clip::{ACTION_DIMS, CLIP_STRIDE_STEPS, PROPRIO_DIMS};
-use assay_core::policy::{OBSERVE_EVERY_STEPS, PolicySpec, Sense};
+use assay_core::policy::{OBSERVE_EVERY_STEPS, Policy, PolicySpec, Sense};
 use assay_core::report::{EpisodeOutcome, LabelSource};
 use assay_core::scene::{Observation, SceneSnapshot};
 use assay_core::spec::{Camera, TaskSpec};
@@ -134,7 +135,16 @@ pub struct SimOptions<'a> {
     /// [`OBSERVE_EVERY_STEPS`] physics steps while it acts, and once before); such a policy
     /// fails without one.
     pub observer: Option<&'a mut dyn Observer>,
+    /// The policy object of a policy that is not the built-in oracle (TorchScript, remote,
+    /// diffusion): it acts every [`assay_core::policy::CONTROL_STRIDE_STEPS`] physics steps on
+    /// RGB frames that `observer` draws.
+    pub policy: Option<&'a mut dyn Policy>,
+    /// Side of the square RGB frames a policy object sees (0: [`DEFAULT_FRAME_SIZE`]).
+    pub frame_size: u32,
 }
+
+/// Side of a learned policy's frames unless the policy asks for another: the dynamics clips'.
+pub const DEFAULT_FRAME_SIZE: u32 = 64;
 
 /// Renders what a seeing policy's camera sees, while the episode runs: the render role on the
 /// worker, or a renderer in the same thread.
@@ -146,6 +156,18 @@ pub trait Observer {
         step: u64,
         camera: &Camera,
     ) -> Result<Observation, String>;
+
+    /// RGB of `scene` from `camera` (`height · width · 3` bytes, top row first), for a policy
+    /// object.
+    fn frame(
+        &mut self,
+        scene: SceneSnapshot,
+        step: u64,
+        camera: &Camera,
+    ) -> Result<Vec<u8>, String> {
+        let _ = (scene, step, camera);
+        Err("this observer draws no RGB frames".into())
+    }
 }
 
 /// Keyframes per episode (task completion is judged on these).
@@ -171,25 +193,56 @@ pub fn simulate_with(
         video_frames,
         clip,
         mut observer,
+        policy: policy_object,
+        frame_size,
     } = options;
-    let PolicySpec::Oracle { noise, sense } =
-        PolicySpec::parse(policy).map_err(SimError::Policy)?
-    else {
-        return Err(SimError::Policy(format!(
-            "policy '{policy}' is not built into the simulator: it needs a policy object (SimOptions::policy)"
-        )));
+    let (parsed, horizon) = PolicySpec::parse_with_horizon(policy).map_err(SimError::Policy)?;
+    let (noise, sense) = match parsed {
+        PolicySpec::Oracle { noise, sense } => (noise, sense),
+        // A policy object acts instead of the oracle's plan.
+        _ => (0.0, Sense::State),
     };
-    let camera = assay_core::policy::observation_camera();
-    if sense == Sense::Camera && observer.is_none() {
+    let needs_camera = sense == Sense::Camera || !parsed.is_oracle();
+    if needs_camera && observer.is_none() {
         return Err(SimError::Policy(format!(
             "policy '{policy}' sees through a camera: it needs a worker with the render role (--roles sim,render)"
         )));
     }
+    let mut learned = match (parsed.is_oracle(), policy_object) {
+        (true, _) => None,
+        (false, Some(p)) => {
+            let size = if frame_size == 0 {
+                DEFAULT_FRAME_SIZE
+            } else {
+                frame_size
+            };
+            let camera = Camera {
+                width: size,
+                height: size,
+                ..assay_core::scene::task_cameras(&spec.cameras).remove(0)
+            };
+            Some(learned::Learned::new(p, camera))
+        }
+        (false, None) => {
+            return Err(SimError::Policy(format!(
+                "policy '{policy}' is not built into the simulator and no policy object was given"
+            )));
+        }
+    };
+    let camera = assay_core::policy::observation_camera();
     let mut scene = scene::build_scene(spec, seed)?;
     let start = scene.gripper_position();
     let tracker = (sense == Sense::Camera).then(|| Tracker::new(scene.objects.len()));
     let mut ctl = Controller::new(spec, start, noise, seed, tracker);
-    let mut look = |scene: &SimScene, ctl: &mut Controller, step: u64| -> Result<(), SimError> {
+    if learned.is_some() {
+        // The policy object decides every move: the oracle's plan is not run.
+        ctl.clear_plan();
+    }
+    let look = |observer: &mut Option<&mut dyn Observer>,
+                scene: &SimScene,
+                ctl: &mut Controller,
+                step: u64|
+     -> Result<(), SimError> {
         if let (Some(obs), Some(tracker)) = (observer.as_deref_mut(), ctl.tracker.as_mut()) {
             let seen = obs
                 .observe(record::live_snapshot(scene, spec), step, &camera)
@@ -201,7 +254,8 @@ pub fn simulate_with(
     let dt = f64::from(scene.world.integration_parameters.dt);
     let mut rec = Recorder::new(scene.objects.len());
     let settle = u64::from(spec.physics.settle_steps);
-    let max_steps = u64::from(spec.physics.max_steps);
+    let max_steps =
+        u64::from(horizon.map_or(spec.physics.max_steps, |h| h.min(spec.physics.max_steps)));
     let mut step: u64 = 0;
 
     // Goals holding at each recorded row, for the keyframes' ground truth.
@@ -212,19 +266,23 @@ pub fn simulate_with(
             .count() as u32
     };
     let mut met: Vec<u32> = Vec::new();
+    // One physics step: the tool goes to `act`'s command and its event follows the step; with
+    // `None` the tool holds its last command (the settles).
     let advance = |scene: &mut SimScene,
                    ctl: &mut Controller,
                    rec: &mut Recorder,
                    met: &mut Vec<u32>,
                    step: &mut u64,
-                   act: bool| {
-        let ev = if act {
-            let (cmd, ev) = ctl.step(scene, *step);
-            scene.world.bodies[scene.gripper].set_next_kinematic_translation(cmd);
-            ev
-        } else {
-            scene.world.bodies[scene.gripper].set_next_kinematic_translation(ctl.command);
-            controller::Event::None
+                   act: Option<(rapier3d::prelude::Vec3, controller::Event)>| {
+        let ev = match act {
+            Some((cmd, ev)) => {
+                scene.world.bodies[scene.gripper].set_next_kinematic_translation(cmd);
+                ev
+            }
+            None => {
+                scene.world.bodies[scene.gripper].set_next_kinematic_translation(ctl.command);
+                controller::Event::None
+            }
         };
         scene.world.step();
         ctl.apply(ev, scene, *step);
@@ -243,28 +301,70 @@ pub fn simulate_with(
     rec.record(&scene, 0, 0.0, ctl.command, None);
     met.push(goals_met(&scene));
     for _ in 0..settle {
-        advance(&mut scene, &mut ctl, &mut rec, &mut met, &mut step, false);
+        advance(&mut scene, &mut ctl, &mut rec, &mut met, &mut step, None);
     }
     let first_policy_row = rec.rows() - 1;
     let mut truncated = false;
-    look(&scene, &mut ctl, step)?;
-    while !ctl.done() {
-        if step >= settle + max_steps {
-            truncated = true;
-            break;
-        }
-        advance(&mut scene, &mut ctl, &mut rec, &mut met, &mut step, true);
-        if step.is_multiple_of(OBSERVE_EVERY_STEPS) {
-            look(&scene, &mut ctl, step)?;
+    look(&mut observer, &scene, &mut ctl, step)?;
+    if let Some(l) = learned.as_mut() {
+        l.reset(spec, seed, step)?;
+    }
+    let dt32 = dt as f32;
+    loop {
+        let act = match learned.as_mut() {
+            None => {
+                if ctl.done() {
+                    break;
+                }
+                if step >= settle + max_steps {
+                    truncated = true;
+                    break;
+                }
+                ctl.step(&scene, step)
+            }
+            Some(l) => {
+                // A policy object acts until the goals hold with nothing held (checked at its
+                // control steps), or for `physics.max_steps`; running out of steps is its
+                // failure, not a truncated plan.
+                let since = step - settle;
+                if step >= settle + max_steps {
+                    break;
+                }
+                if since > 0
+                    && since.is_multiple_of(assay_core::policy::CONTROL_STRIDE_STEPS)
+                    && ctl.held.is_none()
+                    && predicates::evaluate(&spec.goals, &scene)
+                        .iter()
+                        .all(|p| p.holds)
+                {
+                    break;
+                }
+                let obs = observer.as_deref_mut().expect("checked above");
+                l.step(&scene, spec, &mut ctl, obs, step, dt32)?
+            }
+        };
+        advance(
+            &mut scene,
+            &mut ctl,
+            &mut rec,
+            &mut met,
+            &mut step,
+            Some(act),
+        );
+        if learned.is_none() && step.is_multiple_of(OBSERVE_EVERY_STEPS) {
+            look(&mut observer, &scene, &mut ctl, step)?;
         }
     }
-    let observations = ctl.tracker.as_ref().map_or(0, |t| t.frames);
+    let observations = match &learned {
+        Some(l) => l.frames,
+        None => ctl.tracker.as_ref().map_or(0, |t| t.frames),
+    };
     if let Some(h) = ctl.held.take() {
         // A truncated plan may still hold something: let it go before the final settle.
         scene.world.remove_impulse_joint(h.joint);
     }
     for _ in 0..settle {
-        advance(&mut scene, &mut ctl, &mut rec, &mut met, &mut step, false);
+        advance(&mut scene, &mut ctl, &mut rec, &mut met, &mut step, None);
     }
     if !step.is_multiple_of(RECORD_STRIDE) {
         rec.record(&scene, step as u32, step as f64 * dt, ctl.command, None);

@@ -7,6 +7,7 @@ use std::sync::Mutex;
 use assay_core::clip::Clip;
 use assay_core::diversity::TextDiversityTable;
 use assay_core::hash::sha256_hex;
+use assay_core::proxy::ProxyEpisode;
 use assay_core::trainer::{TrainerJob, TrainerOutcome};
 
 use crate::embedders::Embedders;
@@ -66,24 +67,77 @@ pub fn run(
                 table: TextDiversityTable::build(described, groups, &embeddings),
             })
         }
+        TrainerJob::Proxy {
+            group,
+            train,
+            eval,
+            config,
+        } => {
+            let keys = |e: &[ProxyEpisode]| e.iter().map(|e| e.clip.clone()).collect::<Vec<_>>();
+            let train_clips = load_clips(artifacts, &keys(train))?;
+            let eval_clips = load_clips(artifacts, &keys(eval))?;
+            let ckpt = checkpoint_path(artifacts, batch, job);
+            let resume = std::fs::read(&ckpt).ok();
+            let mut save = |step: u64, bytes: &[u8]| -> Result<(), String> {
+                write_atomically(&ckpt, bytes)
+                    .map_err(|e| format!("checkpoint {}: {e}", ckpt.display()))?;
+                tracing::debug!(group, step, "proxy world-model checkpoint written");
+                Ok(())
+            };
+            let req = crate::proxy::ProxyRequest {
+                group,
+                train,
+                train_clips: &train_clips,
+                eval,
+                eval_clips: &eval_clips,
+                config,
+                device,
+            };
+            let result =
+                crate::proxy::run_proxy(&req, resume.as_deref(), &mut save).map_err(|e| {
+                    JobError::permanent(format!("world-model proxy of group {group:?}: {e}"))
+                })?;
+            Ok(TrainerOutcome::Proxy {
+                result: Box::new(result),
+            })
+        }
+        TrainerJob::Diffusion {
+            group,
+            clips,
+            config,
+        } => {
+            let loaded = load_clips(artifacts, clips)?;
+            let mut last = std::time::Instant::now();
+            let mut progress = |step: u64, loss: f64| {
+                if last.elapsed().as_secs() >= 30 {
+                    tracing::info!(group, step, loss, "diffusion policy training");
+                    last = std::time::Instant::now();
+                }
+            };
+            let (policy, fit) = crate::diffusion::train(&loaded, config, device, &mut progress)
+                .map_err(|e| {
+                    JobError::permanent(format!("diffusion policy of group {group:?}: {e}"))
+                })?;
+            let bytes = policy.to_bytes();
+            let key = format!("policies/{}.diffusion", sha256_hex(&bytes));
+            write_atomically(&artifacts.join(&key), &bytes).map_err(|e| JobError {
+                message: format!("storing the diffusion policy of group {group:?}: {e}"),
+                retryable: true,
+            })?;
+            tracing::info!(group, model = %key, steps = fit.steps, loss = fit.mean_last_100_loss, "diffusion policy trained");
+            Ok(TrainerOutcome::Diffusion {
+                group: group.clone(),
+                model: key,
+                fit: Box::new(fit),
+            })
+        }
         TrainerJob::Dynamics {
             group,
             budget,
             clips,
             config,
         } => {
-            let mut loaded = Vec::with_capacity(clips.len());
-            for key in clips {
-                let path = artifacts.join(key);
-                let bytes = std::fs::read(&path).map_err(|e| JobError {
-                    message: format!("dynamics clip {key}: {e}"),
-                    retryable: true,
-                })?;
-                loaded.push(
-                    Clip::decode(&bytes)
-                        .map_err(|e| JobError::permanent(format!("dynamics clip {key}: {e}")))?,
-                );
-            }
+            let loaded = load_clips(artifacts, clips)?;
             let train_n = (*budget as usize).min(loaded.len());
             let ckpt = checkpoint_path(artifacts, batch, job);
             let resume = std::fs::read(&ckpt).ok();
@@ -112,6 +166,22 @@ pub fn run(
             Ok(TrainerOutcome::Dynamics { fit: Box::new(fit) })
         }
     }
+}
+
+/// Reads and decodes the clips at `keys` in the artifact store.
+fn load_clips(artifacts: &Path, keys: &[String]) -> Result<Vec<Clip>, JobError> {
+    let mut loaded = Vec::with_capacity(keys.len());
+    for key in keys {
+        let bytes = std::fs::read(artifacts.join(key)).map_err(|e| JobError {
+            message: format!("dynamics clip {key}: {e}"),
+            retryable: true,
+        })?;
+        loaded.push(
+            Clip::decode(&bytes)
+                .map_err(|e| JobError::permanent(format!("dynamics clip {key}: {e}")))?,
+        );
+    }
+    Ok(loaded)
 }
 
 fn write_atomically(path: &Path, bytes: &[u8]) -> std::io::Result<()> {

@@ -1,10 +1,12 @@
 //! The trainer role: sentence embeddings (BERT and MPNet sentence-transformers models, or an
 //! OpenAI-compatible endpoint) for text diversity, and latent world models for dynamics
-//! diversity, on libtorch through tch.
+//! diversity, on libtorch through tch; and diffusion policies trained on the dynamics clips.
 mod adam;
+pub mod diffusion;
 pub mod embed;
 pub mod embedders;
 pub mod jobs;
+pub mod proxy;
 pub mod world_model;
 
 /// The device trainer work runs on: the first CUDA device when libtorch sees one (a binary built

@@ -113,6 +113,32 @@ pub fn fit(
     resume: Option<&[u8]>,
     on_checkpoint: &mut CheckpointSink<'_>,
 ) -> Result<DynamicsFit, WorldModelError> {
+    fit_model(req, resume, on_checkpoint).map(|(_, fit)| fit)
+}
+
+/// A trained world model, kept to imagine rollouts in ([`WorldModel::imagine`]).
+pub struct WorldModel {
+    model: Model,
+    size: i64,
+    device: Device,
+}
+
+/// What the world model imagined for one clip: its frames predicted from the first alone.
+#[derive(Debug, Clone)]
+pub struct Imagined {
+    /// Predicted frames 1..T (`T − 1` frames of `H·W·3` RGB bytes); frame 0 is the real one.
+    pub frames: Vec<Vec<u8>>,
+    /// Mean squared error per pixel-channel (in [0, 1] units) of the last predicted frame
+    /// against the clip's real last frame.
+    pub last_frame_mse: f64,
+}
+
+/// [`fit`], keeping the trained model.
+pub fn fit_model(
+    req: &FitRequest<'_>,
+    resume: Option<&[u8]>,
+    on_checkpoint: &mut CheckpointSink<'_>,
+) -> Result<(WorldModel, DynamicsFit), WorldModelError> {
     let cfg = req.config;
     validate(req)?;
     if req.device == Device::Cpu {
@@ -237,7 +263,88 @@ pub fn fit(
         steps_per_s = fit.steps_per_s,
         "world model fitted"
     );
-    Ok(fit)
+    Ok((
+        WorldModel {
+            model,
+            size,
+            device,
+        },
+        fit,
+    ))
+}
+
+impl WorldModel {
+    /// Imagines every clip open loop from its first frame: the posterior of frame 0 (with
+    /// `h_0 = 0`, as in training), then `h_{t+1} = GRU(h_t, [z_t, a_t])` with the clip's own
+    /// action `a_t` and `z_{t+1}` the mode of the prior — never looking at a real frame after
+    /// the first. Deterministic (modes, no sampling). Clips go through `batch` at a time.
+    pub fn imagine(&self, clips: &[Clip], batch: usize) -> Result<Vec<Imagined>, WorldModelError> {
+        for (i, c) in clips.iter().enumerate() {
+            check_clip(c, self.size as u32).map_err(|reason| WorldModelError::BadClip {
+                clip: format!("imagined clip {i}"),
+                reason,
+            })?;
+        }
+        let size = self.size;
+        let frame = (size * size * 3) as usize;
+        let mut out = Vec::with_capacity(clips.len());
+        tch::no_grad(|| {
+            for first in (0..clips.len()).step_by(batch.max(1)) {
+                let last = (first + batch.max(1)).min(clips.len());
+                let spans: Vec<_> = (first..last).map(|i| (i, 0, clips[i].len())).collect();
+                let b = Batch::from_spans(clips, &spans, size, self.device);
+                let (l, n) = (b.len, b.batch);
+                let m = &self.model;
+                let images = b.images.view([l, n, 3, size, size]);
+                let embed = m.encode(&images.get(0), &b.proprio.get(0));
+                let h0 = Tensor::zeros([n, m.deter], (Kind::Float, self.device));
+                let mut z = m.mode(&m.posterior(&h0, &m.post_e.forward(&embed)));
+                let mut h = h0;
+                let mut feats = Vec::new();
+                for t in 0..l - 1 {
+                    h = m.step_h(&h, &z, &b.actions.get(t));
+                    z = m.mode(&m.prior(&h));
+                    feats.push(Tensor::cat(&[&h, &z], -1));
+                }
+                let feat = Tensor::stack(&feats, 0).view([(l - 1) * n, -1]);
+                let (img, _) = m.decode(&feat);
+                let pixels = ((img.clamp(-0.5, 0.5) + 0.5) * 255.0)
+                    .round()
+                    .to_kind(Kind::Uint8)
+                    .view([l - 1, n, 3, size, size])
+                    .permute([0, 1, 3, 4, 2])
+                    .contiguous()
+                    .to_device(Device::Cpu);
+                let bytes = Vec::<u8>::try_from(pixels.flatten(0, -1))?;
+                for (j, ci) in (first..last).enumerate() {
+                    let t_len = clips[ci].len();
+                    let frames: Vec<Vec<u8>> = (0..t_len - 1)
+                        .map(|t| {
+                            let at = (t * n as usize + j) * frame;
+                            bytes[at..at + frame].to_vec()
+                        })
+                        .collect();
+                    let real = &clips[ci].rgb[(t_len - 1) * frame..t_len * frame];
+                    let predicted = frames.last().expect("clips have 2 frames or more");
+                    let last_frame_mse = real
+                        .iter()
+                        .zip(predicted)
+                        .map(|(a, b)| {
+                            let d = (f64::from(*a) - f64::from(*b)) / 255.0;
+                            d * d
+                        })
+                        .sum::<f64>()
+                        / frame as f64;
+                    out.push(Imagined {
+                        frames,
+                        last_frame_mse,
+                    });
+                }
+            }
+            Ok::<(), WorldModelError>(())
+        })?;
+        Ok(out)
+    }
 }
 
 /// `cpu` or `cuda:N`.
@@ -461,11 +568,11 @@ fn gumbel_noise(cfg: &DynamicsConfig, step: u64, len: i64, batch: i64, device: D
 
 /// Creates parameters from our own random stream, so initialisation is independent of libtorch's
 /// global generator.
-struct Init {
-    rng: Rng,
-    device: Device,
-    names: Vec<String>,
-    params: Vec<Tensor>,
+pub(crate) struct Init {
+    pub(crate) rng: Rng,
+    pub(crate) device: Device,
+    pub(crate) names: Vec<String>,
+    pub(crate) params: Vec<Tensor>,
 }
 
 impl Init {
@@ -480,7 +587,13 @@ impl Init {
     }
 
     /// Xavier-uniform.
-    fn uniform(&mut self, name: String, shape: &[i64], fan_in: i64, fan_out: i64) -> Tensor {
+    pub(crate) fn uniform(
+        &mut self,
+        name: String,
+        shape: &[i64],
+        fan_in: i64,
+        fan_out: i64,
+    ) -> Tensor {
         let bound = (6.0 / (fan_in + fan_out) as f64).sqrt();
         let n: i64 = shape.iter().product();
         let values = (0..n)
@@ -489,26 +602,26 @@ impl Init {
         self.tensor(name, shape, values)
     }
 
-    fn constant(&mut self, name: String, shape: &[i64], value: f32) -> Tensor {
+    pub(crate) fn constant(&mut self, name: String, shape: &[i64], value: f32) -> Tensor {
         let n: i64 = shape.iter().product();
         self.tensor(name, shape, vec![value; n as usize])
     }
 }
 
-struct Linear {
+pub(crate) struct Linear {
     w: Tensor,
     b: Option<Tensor>,
 }
 
 impl Linear {
-    fn new(init: &mut Init, name: &str, i: i64, o: i64, bias: bool) -> Self {
+    pub(crate) fn new(init: &mut Init, name: &str, i: i64, o: i64, bias: bool) -> Self {
         Self {
             w: init.uniform(format!("{name}/w"), &[i, o], i, o),
             b: bias.then(|| init.constant(format!("{name}/b"), &[o], 0.0)),
         }
     }
 
-    fn forward(&self, x: &Tensor) -> Tensor {
+    pub(crate) fn forward(&self, x: &Tensor) -> Tensor {
         let y = x.matmul(&self.w);
         match &self.b {
             Some(b) => y + b,
@@ -559,7 +672,7 @@ impl Dense {
 
 /// A stride-2, kernel-4 convolution (or transposed convolution) with an optional
 /// GroupNorm(1) + SiLU after it (no bias then).
-struct Conv {
+pub(crate) struct Conv {
     w: Tensor,
     b: Option<Tensor>,
     norm: Option<(Tensor, Tensor)>,
@@ -567,7 +680,14 @@ struct Conv {
 }
 
 impl Conv {
-    fn new(init: &mut Init, name: &str, i: i64, o: i64, transposed: bool, norm: bool) -> Self {
+    pub(crate) fn new(
+        init: &mut Init,
+        name: &str,
+        i: i64,
+        o: i64,
+        transposed: bool,
+        norm: bool,
+    ) -> Self {
         let shape = if transposed {
             [i, o, 4, 4]
         } else {
@@ -586,7 +706,7 @@ impl Conv {
         }
     }
 
-    fn forward(&self, x: &Tensor) -> Tensor {
+    pub(crate) fn forward(&self, x: &Tensor) -> Tensor {
         let y = if self.transposed {
             x.conv_transpose2d(&self.w, self.b.as_ref(), [2, 2], [1, 1], [0, 0], 1, [1, 1])
         } else {

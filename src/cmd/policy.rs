@@ -1,0 +1,212 @@
+//! `assay policy`: serve a policy over the `assay.v1.Policy` gRPC service, or check one. The
+//! service, the client and the loaders live in `assay-policy`; this file only parses flags.
+
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::time::Duration;
+
+use anyhow::Context;
+use assay_core::policy::{
+    Action, DEFAULT_REMOTE_TIMEOUT_MS, EpisodeContext, Policy, PolicyError, PolicyObservation,
+    PolicySpec,
+};
+use assay_policy::{PolicyFactory, RemotePolicy, ServerInfo};
+use serde_json::json;
+
+#[derive(clap::Args)]
+pub struct Args {
+    #[command(subcommand)]
+    pub cmd: Cmd,
+}
+
+#[derive(clap::Subcommand)]
+pub enum Cmd {
+    /// Serve a policy Assay can load (e.g. torchscript:path=bc.pt) over gRPC. Prints
+    /// `listening on http://ADDR` as its first line on stdout; stops on SIGTERM or Ctrl-C.
+    Serve {
+        /// The policy to serve (a policy spec: torchscript:path=…, diffusion:model=…, or
+        /// remote:url=… to relay another server).
+        #[arg(long)]
+        policy: String,
+        /// Address to listen on (port 0: any free port).
+        #[arg(long, default_value = "127.0.0.1:0")]
+        listen: SocketAddr,
+        /// For tests of clients: delay every Act by this many milliseconds (a slow server).
+        #[arg(long, default_value_t = 0)]
+        delay_ms: u64,
+        /// Where artifact keys of policies (diffusion:model=<key>) are found.
+        #[arg(long, default_value = ".")]
+        artifact_root: PathBuf,
+    },
+    /// Load a policy spec, or connect to a policy server (a spec remote:url=… or a bare
+    /// http://HOST:PORT), and print what it says about itself as JSON. A loaded policy also acts
+    /// once on a blank 64×64 frame.
+    Check {
+        spec: String,
+        /// Where artifact keys of policies (diffusion:model=<key>) are found.
+        #[arg(long, default_value = ".")]
+        artifact_root: PathBuf,
+    },
+}
+
+pub fn run(a: Args) -> anyhow::Result<ExitCode> {
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .thread_name("assay-policy")
+        .build()
+        .context("tokio runtime")?;
+    match a.cmd {
+        Cmd::Serve {
+            policy,
+            listen,
+            delay_ms,
+            artifact_root,
+        } => {
+            let spec = PolicySpec::parse(&policy).map_err(anyhow::Error::msg)?;
+            let factory =
+                assay_policy::factory(&spec, &artifact_root, rt.handle(), diffusion_loader())?;
+            let factory = delayed(factory, Duration::from_millis(delay_ms));
+            let info = ServerInfo {
+                name: policy.clone(),
+                version: env!("CARGO_PKG_VERSION").into(),
+                ..ServerInfo::default()
+            };
+            rt.block_on(async {
+                let listener = tokio::net::TcpListener::bind(listen)
+                    .await
+                    .with_context(|| format!("cannot listen on {listen}"))?;
+                let addr = listener.local_addr()?;
+                {
+                    use std::io::Write;
+                    let mut out = std::io::stdout().lock();
+                    writeln!(out, "listening on http://{addr}")?;
+                    out.flush()?;
+                }
+                assay_policy::serve(listener, factory, info, super::terminated())
+                    .await
+                    .context("policy server")
+            })?;
+            Ok(ExitCode::SUCCESS)
+        }
+        Cmd::Check {
+            spec,
+            artifact_root,
+        } => {
+            let name = spec;
+            let spec = if name.starts_with("http://") || name.starts_with("https://") {
+                PolicySpec::Remote {
+                    url: name.clone(),
+                    timeout_ms: DEFAULT_REMOTE_TIMEOUT_MS,
+                }
+            } else {
+                PolicySpec::parse(&name).map_err(anyhow::Error::msg)?
+            };
+            let report = match &spec {
+                PolicySpec::Remote { url, timeout_ms } => {
+                    let remote = RemotePolicy::connect(
+                        url,
+                        Duration::from_millis(*timeout_ms),
+                        rt.handle().clone(),
+                    )?;
+                    let h = remote.health()?;
+                    json!({
+                        "url": url,
+                        "name": h.info.name,
+                        "version": h.info.version,
+                        "image_width": h.info.image_width,
+                        "image_height": h.info.image_height,
+                        "chunk_size": h.info.chunk_size,
+                        "live_episodes": h.live_episodes,
+                    })
+                }
+                _ => {
+                    let mut policy = assay_policy::load_with(
+                        &spec,
+                        &artifact_root,
+                        rt.handle(),
+                        diffusion_loader(),
+                    )?;
+                    // f32 → JSON goes through f64: round so 0.1 prints as 0.1.
+                    let chunk: Vec<Vec<f64>> = trial_act(policy.as_mut())?
+                        .iter()
+                        .map(|a| a.iter().map(|x| (*x as f64 * 1e6).round() / 1e6).collect())
+                        .collect();
+                    json!({
+                        "policy": name,
+                        "trial_chunk": chunk,
+                    })
+                }
+            };
+            println!("{}", serde_json::to_string_pretty(&report)?);
+            Ok(ExitCode::SUCCESS)
+        }
+    }
+}
+
+/// How this build loads diffusion checkpoints: with the trainer's libtorch model, or not at all
+/// (the hook of `assay_policy::load_with`; the sim role's and `assay policy`'s).
+pub fn diffusion_loader() -> Option<assay_policy::DiffusionLoader> {
+    #[cfg(feature = "trainer")]
+    {
+        Some(|bytes| {
+            // One libtorch thread per process: episodes run side by side on the shard threads,
+            // and libtorch's intra-op threads collapse under that load on a small node.
+            tch::set_num_threads(1);
+            assay_trainer::diffusion::DiffusionPolicy::from_bytes(bytes, tch::Device::Cpu)
+                .map(|p| Box::new(p) as Box<dyn Policy>)
+                .map_err(|e| PolicyError::Load(e.to_string()))
+        })
+    }
+    #[cfg(not(feature = "trainer"))]
+    {
+        None
+    }
+}
+
+/// One episode step on a blank 64×64 frame with the tool at the origin.
+fn trial_act(policy: &mut dyn Policy) -> Result<Vec<Action>, PolicyError> {
+    policy.reset(&EpisodeContext {
+        task_id: "check".into(),
+        seed: 0,
+        instruction: "check the policy".into(),
+    })?;
+    policy.act(&PolicyObservation {
+        step: 0,
+        width: 64,
+        height: 64,
+        rgb: vec![0; 64 * 64 * 3],
+        proprio: [0.0; 4],
+    })
+}
+
+/// Makes every policy of `factory` answer `delay` late (a slow server, for tests of clients).
+fn delayed(factory: PolicyFactory, delay: Duration) -> PolicyFactory {
+    if delay.is_zero() {
+        return factory;
+    }
+    std::sync::Arc::new(move || {
+        Ok(Box::new(Delayed {
+            inner: factory()?,
+            delay,
+        }) as Box<dyn Policy>)
+    })
+}
+
+struct Delayed {
+    inner: Box<dyn Policy>,
+    delay: Duration,
+}
+
+impl Policy for Delayed {
+    fn reset(&mut self, episode: &EpisodeContext) -> Result<(), PolicyError> {
+        self.inner.reset(episode)
+    }
+
+    fn act(&mut self, obs: &PolicyObservation) -> Result<Vec<Action>, PolicyError> {
+        // Runs on the server's blocking pool: sleeping here holds no executor thread.
+        std::thread::sleep(self.delay);
+        self.inner.act(obs)
+    }
+}

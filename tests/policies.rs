@@ -1,0 +1,231 @@
+//! Policies other than the oracle through the real cluster: a TorchScript module on the worker
+//! and the same module behind `assay policy serve` (the `assay.v1.Policy` gRPC service) act
+//! through the same path and give the same episodes; killing the policy server mid-batch fails
+//! its remaining episodes with a clear error and the batch still completes.
+#![cfg(feature = "trainer")]
+
+mod common;
+
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use assay_core::report::Report;
+use common::bin;
+use tch::{CModule, Device, Kind, Tensor};
+
+/// A pick-and-place task whose episodes end after 1440 physics steps (60 control steps), so a
+/// policy that never finishes costs little (the oracle needs about 1100).
+const TASK: &str = r#"
+spec_version: 1
+id: put-block-in-zone
+name: put-block-in-zone
+description: Put the red block in the green zone.
+group: placement
+scene:
+  objects:
+    - {id: red_block, shape: {box: {half_extents: [0.02, 0.02, 0.02]}}, color: red, pose: {position: [0.5, 0.1, 0.02]}}
+  zones:
+    - {id: goal, center: [0.5, -0.1], half_extents: [0.05, 0.05], color: green}
+end_effector: {type: suction}
+physics: {max_steps: 1440}
+goals:
+  - in_zone: {object: red_block, zone: goal}
+oracle:
+  - pick: {object: red_block}
+  - place: {target: {zone: goal}}
+"#;
+
+/// A proportional controller to a point over the block's nominal position that commands a hold
+/// once the tool is within 5 mm of it: [1, 3, H, W] image and [1, 4] proprio → [1, 2, 4].
+fn controller(_image: &Tensor, proprio: &Tensor) -> Tensor {
+    // Constants are built from the inputs: tracing records tensor operations only (a tensor
+    // made from data inside the closure would be saved as zeros).
+    let zero = proprio.narrow(1, 0, 1).zeros_like();
+    let target = Tensor::cat(&[&zero + 0.5, &zero + 0.1, &zero + 0.09], 1);
+    let error = target - proprio.narrow(1, 0, 3);
+    let velocity = (&error * 5.0).clamp(-0.5, 0.5);
+    let near = error
+        .square()
+        .sum_dim_intlist([1i64].as_slice(), true, Kind::Float)
+        .sqrt()
+        .lt(0.005)
+        .to_kind(Kind::Float);
+    let action = Tensor::cat(&[velocity, near], 1);
+    Tensor::stack(&[&action, &action], 1)
+}
+
+fn torchscript(dir: &Path) -> PathBuf {
+    let image = Tensor::rand([1, 3, 64, 64], (Kind::Float, Device::Cpu));
+    let proprio = Tensor::rand([1, 4], (Kind::Float, Device::Cpu));
+    let module = CModule::create_by_tracing("Policy", "forward", &[image, proprio], &mut |xs| {
+        vec![controller(&xs[0], &xs[1])]
+    })
+    .expect("trace");
+    let path = dir.join("controller.pt");
+    module.save(&path).expect("save");
+    path
+}
+
+/// `assay policy serve` on a free port, its log in `dir`; returns the child and its URL.
+fn serve(dir: &Path, policy: &str, delay_ms: u32) -> (Child, String) {
+    let log = std::fs::File::create(dir.join("policy-server.log")).unwrap();
+    let mut child = Command::new(bin())
+        .args([
+            "policy",
+            "serve",
+            "--policy",
+            policy,
+            "--listen",
+            "127.0.0.1:0",
+        ])
+        .args(["--delay-ms", &delay_ms.to_string()])
+        .env("ASSAY_LOG", "debug")
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(log)
+        .spawn()
+        .unwrap();
+    let mut first = String::new();
+    BufReader::new(child.stdout.take().unwrap())
+        .read_line(&mut first)
+        .unwrap();
+    let url = first
+        .trim()
+        .strip_prefix("listening on ")
+        .unwrap_or_else(|| panic!("first line of the server: {first:?}"))
+        .to_owned();
+    (child, url)
+}
+
+fn eval(dir: &Path, task: &Path, policies: &[&str], seeds: u32) -> Child {
+    let log = std::fs::File::create(dir.join("eval.log")).unwrap();
+    let mut cmd = Command::new(bin());
+    cmd.arg("eval")
+        .arg(task)
+        .args(["--seeds", &seeds.to_string()]);
+    for p in policies {
+        cmd.args(["--policy", p]);
+    }
+    cmd.args([
+        "--no-judge",
+        "--no-diversity",
+        "--image-size",
+        "160x120",
+        "--quiet",
+    ])
+    .arg("--out")
+    .arg(dir.join("out"))
+    .stdin(Stdio::null())
+    .stdout(log.try_clone().unwrap())
+    .stderr(log)
+    .spawn()
+    .unwrap()
+}
+
+fn finish(mut child: Child, within: Duration, dir: &Path) -> Report {
+    let start = Instant::now();
+    loop {
+        if let Some(status) = child.try_wait().unwrap() {
+            let log = std::fs::read_to_string(dir.join("eval.log")).unwrap_or_default();
+            assert!(status.success(), "assay eval failed: {status}\n{log}");
+            break;
+        }
+        if start.elapsed() > within {
+            let _ = child.kill();
+            let log = std::fs::read_to_string(dir.join("eval.log")).unwrap_or_default();
+            panic!("assay eval still running after {within:?}\n{log}");
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    let text = std::fs::read_to_string(dir.join("out/report.json")).unwrap();
+    serde_json::from_str(&text).unwrap()
+}
+
+fn task_file(dir: &Path) -> PathBuf {
+    let path = dir.join("task.yaml");
+    std::fs::write(&path, TASK).unwrap();
+    path
+}
+
+#[test]
+fn a_torchscript_policy_and_the_same_module_served_remotely_act_alike() {
+    let dir = tempfile::tempdir().unwrap();
+    let module = torchscript(dir.path());
+    let local = format!("torchscript:path={}", module.display());
+    let (mut server, url) = serve(dir.path(), &local, 0);
+    let remote = format!("remote:url={url},timeout_ms=5000");
+    let task = task_file(dir.path());
+    let report = finish(
+        eval(dir.path(), &task, &[&local, &remote, "oracle"], 2),
+        Duration::from_secs(240),
+        dir.path(),
+    );
+    let _ = server.kill();
+    let _ = server.wait();
+    let t = &report.results.tasks[0];
+    assert!(t.failures.is_empty(), "{:#?}", t.failures);
+    let of = |p: &str| -> Vec<_> { t.episodes.iter().filter(|e| e.policy == p).collect() };
+    let (l, r) = (of(&local), of(&remote));
+    assert_eq!((l.len(), r.len(), of("oracle").len()), (2, 2, 2));
+    for (a, b) in l.iter().zip(&r) {
+        // One module, one path: the same seed gives the same episode whichever way it is served.
+        assert_eq!((a.seed, a.steps, a.success), (b.seed, b.steps, b.success));
+        assert_eq!(a.unmet, b.unmet);
+        // The controller holds the block but never carries it to the zone: every control step
+        // until max_steps is run.
+        assert!(!a.success);
+        assert!(a.steps >= 1440, "{} steps", a.steps);
+    }
+    assert!(of("oracle").iter().all(|e| e.success));
+}
+
+#[test]
+fn killing_the_policy_server_mid_batch_fails_its_episodes_not_the_batch() {
+    let dir = tempfile::tempdir().unwrap();
+    let module = torchscript(dir.path());
+    let (mut server, url) = serve(
+        dir.path(),
+        &format!("torchscript:path={}", module.display()),
+        20,
+    );
+    let remote = format!("remote:url={url},timeout_ms=1000");
+    let task = task_file(dir.path());
+    let running = eval(dir.path(), &task, &[&remote, "oracle"], 8);
+    // Kill -9 the server once it has finished its first episode.
+    let start = Instant::now();
+    loop {
+        let log = std::fs::read_to_string(dir.path().join("policy-server.log")).unwrap_or_default();
+        if log.contains("episode ended") {
+            break;
+        }
+        assert!(
+            start.elapsed() < Duration::from_secs(120),
+            "no episode ended:\n{log}"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    server.kill().unwrap();
+    server.wait().unwrap();
+    let report = finish(running, Duration::from_secs(240), dir.path());
+    assert_eq!(report.run.state, "completed");
+    let t = &report.results.tasks[0];
+    let done = t.episodes.iter().filter(|e| e.policy == remote).count();
+    let failed: Vec<_> = t.failures.iter().filter(|f| f.policy == remote).collect();
+    assert!(done >= 1, "the episode before the kill is kept");
+    assert!(!failed.is_empty(), "episodes after the kill fail");
+    assert_eq!(done + failed.len(), 8);
+    for f in &failed {
+        assert!(
+            f.error.contains("policy unavailable") && f.error.contains(&url),
+            "{}",
+            f.error
+        );
+    }
+    // The oracle's episodes are untouched.
+    assert_eq!(
+        t.episodes.iter().filter(|e| e.policy == "oracle").count(),
+        8
+    );
+}

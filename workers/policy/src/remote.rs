@@ -1,0 +1,387 @@
+//! A policy served elsewhere over the `assay.v1.Policy` gRPC service
+//! (`proto/assay/v1/policy.proto`), called synchronously from a simulator shard thread.
+//!
+//! Every call has a deadline (the spec's `timeout_ms`): it is sent to the server as
+//! `grpc-timeout` and enforced here as well, so a server that accepts a connection but never
+//! answers fails the episode after the deadline instead of hanging the shard thread. A server that
+//! cannot be reached or answers late is [`PolicyError::Unavailable`] (the shard is retried); an
+//! answer that is not a chunk of finite 4-float actions is [`PolicyError::BadAnswer`].
+//!
+//! The client blocks on the runtime [`Handle`] it is given: call it from plain threads, never from
+//! inside that runtime (tokio panics if `block_on` is called on one of its own threads).
+
+use std::future::Future;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::{Duration, Instant};
+
+use assay_core::clip::{ACTION_DIMS, PROPRIO_DIMS};
+use assay_core::policy::{Action, EpisodeContext, Policy, PolicyError, PolicyObservation};
+use assay_proto::v1 as pb;
+use tokio::runtime::Handle;
+use tonic::transport::{Channel, Endpoint};
+use tracing::debug;
+
+use crate::server::{MAX_CHUNK, MAX_MESSAGE_BYTES, ServerInfo};
+use crate::status::{error_chain, from_status};
+
+/// Longest a client waits for `End` (sent best-effort when an episode is over).
+const END_TIMEOUT: Duration = Duration::from_millis(500);
+
+/// What a policy server said in `Health`.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Health {
+    pub info: ServerInfo,
+    /// Episodes the server holds.
+    pub live_episodes: u32,
+}
+
+/// A connection to one policy server, for one episode at a time.
+pub struct RemotePolicy {
+    url: String,
+    timeout: Duration,
+    rt: Handle,
+    client: pb::policy_client::PolicyClient<Channel>,
+    info: ServerInfo,
+    /// The episode being played, once reset.
+    episode: Option<String>,
+}
+
+impl std::fmt::Debug for RemotePolicy {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("RemotePolicy")
+            .field("url", &self.url)
+            .field("timeout", &self.timeout)
+            .field("info", &self.info)
+            .field("episode", &self.episode)
+            .finish()
+    }
+}
+
+impl RemotePolicy {
+    /// Connects to the policy server at `url` (`http://host:port`) and checks its `Health`, both
+    /// within `timeout`, which is also the deadline of every later call. A server that is down
+    /// or silent is `Unavailable`; one whose action or proprioception dims are not Assay's (4 and
+    /// 4) is `Load`. Blocks on `rt`: do not call it from inside that runtime.
+    pub fn connect(url: &str, timeout: Duration, rt: Handle) -> Result<RemotePolicy, PolicyError> {
+        let start = Instant::now();
+        let endpoint = Endpoint::from_shared(url.to_owned())
+            .map_err(|e| PolicyError::Load(format!("bad policy server address '{url}': {e}")))?
+            .connect_timeout(timeout)
+            .tcp_nodelay(true);
+        let down = |reason: String| {
+            PolicyError::Unavailable(format!(
+                "policy server at {url} is down: {reason} (after {} ms)",
+                start.elapsed().as_millis()
+            ))
+        };
+        let silent = || {
+            down(format!(
+                "no answer to Health within the {} ms deadline",
+                timeout.as_millis()
+            ))
+        };
+        let (client, health) = rt
+            .block_on(async {
+                tokio::time::timeout(timeout, async {
+                    let channel = endpoint
+                        .connect()
+                        .await
+                        .map_err(|e| down(error_chain(&e)))?;
+                    let mut client = pb::policy_client::PolicyClient::new(channel)
+                        .max_decoding_message_size(MAX_MESSAGE_BYTES)
+                        .max_encoding_message_size(MAX_MESSAGE_BYTES);
+                    let answer = client.health(health_request(timeout)).await.map_err(|s| {
+                        if missed_deadline(&s, start.elapsed(), timeout) {
+                            return silent();
+                        }
+                        match from_status(&format!("policy server at {url} failed Health"), &s) {
+                            PolicyError::Unavailable(_) => {
+                                down(format!("Health: {} ({:?})", s.message(), s.code()))
+                            }
+                            other => other,
+                        }
+                    })?;
+                    Ok((client, health_from(url, answer.into_inner())?))
+                })
+                .await
+            })
+            .map_err(|_| silent())??;
+        debug!(%url, name = %health.info.name, version = %health.info.version, "policy server connected");
+        Ok(RemotePolicy {
+            url: url.to_owned(),
+            timeout,
+            rt,
+            client,
+            info: health.info,
+            episode: None,
+        })
+    }
+
+    /// What the server said about its policy when this client connected.
+    pub fn info(&self) -> &ServerInfo {
+        &self.info
+    }
+
+    pub fn url(&self) -> &str {
+        &self.url
+    }
+
+    /// Asks the server's `Health` again (blocks for at most the deadline).
+    pub fn health(&self) -> Result<Health, PolicyError> {
+        let mut client = self.client.clone();
+        let request = health_request(self.timeout);
+        let answer = self.call("Health", async move { client.health(request).await })?;
+        health_from(&self.url, answer)
+    }
+
+    /// Runs one call on the runtime with the deadline. A late answer is `Unavailable`; a failed
+    /// one is mapped by its status code; both errors name the server, the call (`what`), the
+    /// deadline and the time waited.
+    fn call<T>(
+        &self,
+        what: &str,
+        f: impl Future<Output = Result<tonic::Response<T>, tonic::Status>>,
+    ) -> Result<T, PolicyError> {
+        let start = Instant::now();
+        let deadline_ms = self.timeout.as_millis();
+        let late = || {
+            PolicyError::Unavailable(format!(
+                "policy server at {} did not answer {what} within the {deadline_ms} ms deadline \
+                 (waited {} ms)",
+                self.url,
+                start.elapsed().as_millis()
+            ))
+        };
+        match self
+            .rt
+            .block_on(async { tokio::time::timeout(self.timeout, f).await })
+        {
+            Ok(Ok(answer)) => Ok(answer.into_inner()),
+            Ok(Err(status)) if missed_deadline(&status, start.elapsed(), self.timeout) => {
+                Err(late())
+            }
+            Ok(Err(status)) => Err(from_status(
+                &format!(
+                    "policy server at {} failed {what} after {} ms (deadline {deadline_ms} ms)",
+                    self.url,
+                    start.elapsed().as_millis()
+                ),
+                &status,
+            )),
+            Err(_) => Err(late()),
+        }
+    }
+
+    /// Sends `End` for the current episode, if any, without waiting long: from a plain thread it
+    /// waits at most [`END_TIMEOUT`]; from inside a runtime it only spawns the call.
+    fn end_episode(&mut self) {
+        let Some(episode_id) = self.episode.take() else {
+            return;
+        };
+        let mut client = self.client.clone();
+        let wait = self.timeout.min(END_TIMEOUT);
+        let end = async move {
+            let mut request = tonic::Request::new(pb::PolicyEndRequest { episode_id });
+            request.set_timeout(wait);
+            let _ = tokio::time::timeout(wait, client.end(request)).await;
+        };
+        if Handle::try_current().is_ok() {
+            self.rt.spawn(end);
+        } else {
+            self.rt.block_on(end);
+        }
+    }
+}
+
+fn health_request(timeout: Duration) -> tonic::Request<pb::PolicyHealthRequest> {
+    let mut request = tonic::Request::new(pb::PolicyHealthRequest {});
+    request.set_timeout(timeout);
+    request
+}
+
+/// Whether a failed call ran out of time: the deadline passed on the server
+/// (`DEADLINE_EXCEEDED`) or in tonic's client, which cancels a call at its `grpc-timeout`.
+fn missed_deadline(s: &tonic::Status, elapsed: Duration, timeout: Duration) -> bool {
+    match s.code() {
+        tonic::Code::DeadlineExceeded => true,
+        tonic::Code::Cancelled => elapsed >= timeout.mul_f32(0.9),
+        _ => false,
+    }
+}
+
+/// Checks a `Health` answer: a server whose dims are not Assay's cannot be evaluated.
+fn health_from(url: &str, h: pb::PolicyHealthResponse) -> Result<Health, PolicyError> {
+    if h.action_dims as usize != ACTION_DIMS || h.proprio_dims as usize != PROPRIO_DIMS {
+        return Err(PolicyError::Load(format!(
+            "policy server at {url} ({} {}) has action_dims {} and proprio_dims {}; Assay's policies \
+             act with {ACTION_DIMS} and see {PROPRIO_DIMS}",
+            h.name, h.version, h.action_dims, h.proprio_dims
+        )));
+    }
+    Ok(Health {
+        info: ServerInfo {
+            name: h.name,
+            version: h.version,
+            image_width: h.image_width,
+            image_height: h.image_height,
+            chunk_size: h.chunk_size,
+        },
+        live_episodes: h.live_episodes,
+    })
+}
+
+/// A unique episode id: a per-process random prefix and a counter.
+fn new_episode_id() -> String {
+    use std::hash::{BuildHasher, Hasher};
+    static PREFIX: std::sync::OnceLock<u64> = std::sync::OnceLock::new();
+    static NEXT: AtomicU64 = AtomicU64::new(0);
+    let prefix = PREFIX.get_or_init(|| {
+        let mut h = std::collections::hash_map::RandomState::new().build_hasher();
+        h.write_u32(std::process::id());
+        h.write_u128(
+            std::time::SystemTime::now()
+                .duration_since(std::time::UNIX_EPOCH)
+                .map(|d| d.as_nanos())
+                .unwrap_or(0),
+        );
+        h.finish()
+    });
+    format!("{prefix:016x}-{}", NEXT.fetch_add(1, Ordering::Relaxed))
+}
+
+/// Checks an `Act` answer: 1..=MAX_CHUNK actions of [`ACTION_DIMS`] finite floats.
+fn chunk(r: pb::PolicyActResponse) -> Result<Vec<Action>, String> {
+    if r.action_dims as usize != ACTION_DIMS {
+        return Err(format!(
+            "action_dims is {}, expected {ACTION_DIMS}",
+            r.action_dims
+        ));
+    }
+    let n = r.actions.len();
+    if n == 0 || !n.is_multiple_of(ACTION_DIMS) || n / ACTION_DIMS > MAX_CHUNK {
+        return Err(format!(
+            "{n} floats is not a chunk of 1 to {MAX_CHUNK} actions of {ACTION_DIMS}"
+        ));
+    }
+    if let Some(i) = r.actions.iter().position(|x| !x.is_finite()) {
+        return Err(format!(
+            "action {} has the non-finite value {}",
+            i / ACTION_DIMS,
+            r.actions[i]
+        ));
+    }
+    Ok(r.actions
+        .chunks_exact(ACTION_DIMS)
+        .map(|a| a.try_into().expect("chunks of ACTION_DIMS"))
+        .collect())
+}
+
+impl Policy for RemotePolicy {
+    /// Ends the previous episode (best effort) and starts a new one under a fresh episode id.
+    fn reset(&mut self, episode: &EpisodeContext) -> Result<(), PolicyError> {
+        self.end_episode();
+        let episode_id = new_episode_id();
+        let mut request = tonic::Request::new(pb::PolicyResetRequest {
+            episode_id: episode_id.clone(),
+            task_id: episode.task_id.clone(),
+            seed: episode.seed,
+            instruction: episode.instruction.clone(),
+        });
+        request.set_timeout(self.timeout);
+        let mut client = self.client.clone();
+        self.call(
+            &format!("Reset (task {}, seed {})", episode.task_id, episode.seed),
+            async move { client.reset(request).await },
+        )?;
+        self.episode = Some(episode_id);
+        Ok(())
+    }
+
+    /// One `Act` call: blocks the calling thread for at most the deadline.
+    fn act(&mut self, obs: &PolicyObservation) -> Result<Vec<Action>, PolicyError> {
+        let Some(episode_id) = self.episode.clone() else {
+            return Err(PolicyError::Load(format!(
+                "remote policy at {}: act before reset (no episode)",
+                self.url
+            )));
+        };
+        let info = &self.info;
+        if (info.image_width != 0 && obs.width != info.image_width)
+            || (info.image_height != 0 && obs.height != info.image_height)
+        {
+            return Err(PolicyError::Load(format!(
+                "policy server at {} ({}) expects {}×{} frames, the episode has {}×{}",
+                self.url, info.name, info.image_width, info.image_height, obs.width, obs.height
+            )));
+        }
+        let mut request = tonic::Request::new(pb::PolicyActRequest {
+            episode_id,
+            step: obs.step,
+            width: obs.width,
+            height: obs.height,
+            rgb: obs.rgb.clone(),
+            proprio: obs.proprio.to_vec(),
+        });
+        request.set_timeout(self.timeout);
+        let mut client = self.client.clone();
+        let answer = self.call(&format!("Act at step {}", obs.step), async move {
+            client.act(request).await
+        })?;
+        chunk(answer).map_err(|reason| {
+            PolicyError::BadAnswer(format!(
+                "policy server at {} at step {}: {reason}",
+                self.url, obs.step
+            ))
+        })
+    }
+}
+
+impl Drop for RemotePolicy {
+    /// Frees the server's episode state (best effort, waiting at most [`END_TIMEOUT`]).
+    fn drop(&mut self) {
+        // A runtime that is already shut down panics in its timer: nothing to free then.
+        let _ = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| self.end_episode()));
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn answer(actions: Vec<f32>) -> pb::PolicyActResponse {
+        pb::PolicyActResponse {
+            actions,
+            action_dims: 4,
+        }
+    }
+
+    #[test]
+    fn checks_answers() {
+        assert_eq!(
+            chunk(answer(vec![1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 8.0])),
+            Ok(vec![[1.0, 2.0, 3.0, 4.0], [5.0, 6.0, 7.0, 8.0]])
+        );
+        assert!(chunk(answer(vec![])).is_err());
+        assert!(
+            chunk(answer(vec![0.0; 3]))
+                .unwrap_err()
+                .contains("3 floats")
+        );
+        assert!(
+            chunk(answer(vec![0.0, f32::NAN, 0.0, 0.0]))
+                .unwrap_err()
+                .contains("non-finite")
+        );
+        assert!(chunk(answer(vec![0.0; 4 * (MAX_CHUNK + 1)])).is_err());
+        let mut three = answer(vec![0.0; 3]);
+        three.action_dims = 3;
+        assert!(chunk(three).unwrap_err().contains("action_dims"));
+    }
+
+    #[test]
+    fn episode_ids_are_unique() {
+        let (a, b) = (new_episode_id(), new_episode_id());
+        assert_ne!(a, b);
+        assert!(a.len() <= crate::server::MAX_EPISODE_ID_BYTES);
+    }
+}
