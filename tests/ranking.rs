@@ -1,6 +1,7 @@
 //! Policy ranking by the world-model proxy with the real cluster: `assay eval` runs a ladder of
-//! oracles, trains each group's world model and frame judge on the training policies' episodes,
-//! imagines the ranked ones and prints r and MMRV; the report joins real and proxy success per
+//! oracles and a TorchScript policy, trains each group's world model and frame judge on the
+//! training policies' episodes, imagines the ranked ones (the TorchScript policy acting on the
+//! imagined frames) and prints r and MMRV; the report joins real and proxy success per
 //! task and policy and the correlation plot is written beside it. Bad ranking settings are
 //! refused before anything runs, naming the setting.
 #![cfg(feature = "trainer")]
@@ -10,6 +11,7 @@ mod common;
 use std::process::Command;
 
 use assay_core::report::Report;
+use common::torchscript::torchscript;
 use common::*;
 
 const TASKS: [&str; 2] = [
@@ -48,9 +50,13 @@ fn eval(out: &std::path::Path, extra: &[&str]) -> std::process::Output {
 #[test]
 fn eval_ranks_a_ladder_by_the_world_model_proxy() {
     let dir = tempfile::tempdir().unwrap();
+    let module = torchscript(dir.path());
+    let learned = format!("torchscript:path={},max_steps=480", module.display());
     let out = eval(
         dir.path(),
         &[
+            "--policy",
+            &learned,
             "--rank-train-policies",
             "oracle:noise=0.01,oracle:noise=0.03",
             "--proxy",
@@ -61,7 +67,7 @@ fn eval_ranks_a_ladder_by_the_world_model_proxy() {
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "{stdout}\n{stderr}");
     assert!(
-        stdout.contains("policy ranking, world-model against sim (2 policies): Pearson r")
+        stdout.contains("policy ranking, world-model against sim (3 policies): Pearson r")
             && stdout.contains("MMRV"),
         "{stdout}"
     );
@@ -69,17 +75,20 @@ fn eval_ranks_a_ladder_by_the_world_model_proxy() {
         serde_json::from_str(&std::fs::read_to_string(dir.path().join("report.json")).unwrap())
             .unwrap();
     let k = report.results.ranking.expect("a ranking section");
-    assert_eq!(k.ranked_policies, ["oracle", "oracle:noise=0.05"]);
+    assert_eq!(
+        k.ranked_policies,
+        ["oracle", "oracle:noise=0.05", learned.as_str()]
+    );
     assert_eq!(k.train_policies, ["oracle:noise=0.01", "oracle:noise=0.03"]);
-    // 2 tasks × 2 ranked policies, each with real and proxy success over the 2 seeds.
-    assert_eq!(k.rows.len(), 4);
+    // 2 tasks × 3 ranked policies, each with real and proxy success over the 2 seeds.
+    assert_eq!(k.rows.len(), 6);
     for r in &k.rows {
         assert_eq!(r.real.trials, 2);
         assert_eq!(r.proxy.as_ref().map(|p| p.trials), Some(2), "{r:?}");
     }
     assert_eq!(k.groups.len(), 1);
     let g = &k.groups[0];
-    assert_eq!((g.group.as_str(), g.predictions.len()), ("placement", 8));
+    assert_eq!((g.group.as_str(), g.predictions.len()), ("placement", 12));
     // The judge learned from 2 × (real + imagined) last frames of each training episode.
     assert_eq!(g.judge_examples, 2 * 2 * 2 * 2);
     assert!(
@@ -88,7 +97,7 @@ fn eval_ranks_a_ladder_by_the_world_model_proxy() {
             .all(|p| (0.0..=1.0).contains(&p.p_success))
     );
     let ranking = k.ranking.expect("statistics");
-    assert_eq!(ranking.comparisons[0].policies.len(), 2);
+    assert_eq!(ranking.comparisons[0].policies.len(), 3);
     let md = std::fs::read_to_string(dir.path().join("report.md")).unwrap();
     assert!(
         md.contains("| put-block-in-bowl | oracle:noise=0.05 |"),

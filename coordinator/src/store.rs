@@ -992,7 +992,8 @@ impl Store {
                 let mut stmt = conn.prepare(
                     "SELECT s.task_id, s.policy, s.seed,
                             json_extract(s.outcome_json, '$.imagery.clip') AS clip,
-                            json_extract(s.outcome_json, '$.success')
+                            json_extract(s.outcome_json, '$.success'),
+                            COALESCE(json_extract(t.spec_json, '$.description'), '')
                      FROM shards s JOIN tasks t ON t.batch_id = s.batch_id AND t.task_id = s.task_id
                      WHERE s.batch_id = ?1 AND t.grp = ?2 AND s.role NOT IN ('judge', 'trainer')
                        AND s.job IS NULL AND s.state = 'done' AND clip IS NOT NULL ORDER BY s.id",
@@ -1006,6 +1007,7 @@ impl Store {
                         policy,
                         seed: r.get::<_, i64>(2)? as u64,
                         clip: r.get(3)?,
+                        instruction: r.get(5)?,
                         success: training.then(|| r.get::<_, i64>(4).unwrap_or(0) != 0),
                     };
                     if training {

@@ -71,6 +71,9 @@ pub struct ProxyEpisode {
     pub policy: String,
     pub seed: u64,
     pub clip: String,
+    /// The task's instruction (what a policy object is told when it acts in the world model).
+    #[serde(default)]
+    pub instruction: String,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub success: Option<bool>,
 }

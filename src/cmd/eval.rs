@@ -238,6 +238,16 @@ pub fn run(mut a: Args) -> anyhow::Result<ExitCode> {
         .batch
         .request(docs, &super::submit::default_name(&a.paths));
     let quiet = a.quiet;
+    // A local process that dies (a crash, the OOM killer) would leave the batch waiting for it
+    // forever: the watch below stops with the process's name and log instead.
+    let watched: Vec<(String, u32)> = workers
+        .iter()
+        .map(|w| (w.name.clone(), w.child.id()))
+        .chain(std::iter::once((
+            coordinator.name.clone(),
+            coordinator.child.id(),
+        )))
+        .collect();
     let outcome = super::block_on(async {
         let mut c = super::client(&addr).await?;
         let r = c.submit_batch(req).await?.into_inner();
@@ -294,7 +304,25 @@ pub fn run(mut a: Args) -> anyhow::Result<ExitCode> {
             .await?
             .into_inner();
         let mut last = None;
-        while let Some(st) = stream.message().await? {
+        let mut check = tokio::time::interval(Duration::from_secs(1));
+        loop {
+            let next = tokio::select! {
+                st = stream.message() => Some(st?),
+                _ = check.tick() => None,
+            };
+            let st = match next {
+                Some(Some(st)) => st,
+                Some(None) => break,
+                None => {
+                    if let Some(name) = crate::proc::first_exited(&watched) {
+                        anyhow::bail!(
+                            "the local {name} process exited while the batch ran; its log is in {}",
+                            run_dir.display()
+                        );
+                    }
+                    continue;
+                }
+            };
             let finished = st.shards_done + st.shards_failed + st.shards_cancelled;
             bar.set_position(u64::from(finished));
             let (steps, frames) = rates

@@ -3,6 +3,7 @@
 use std::path::Path;
 use std::sync::Mutex;
 
+use assay_core::policy::{Policy, PolicyError, PolicySpec};
 use assay_core::trainer::TrainerJob;
 use assay_proto::v1 as pb;
 use assay_trainer::embedders::{Config, Embedders};
@@ -11,6 +12,9 @@ use assay_worker_runtime::ShardError;
 pub struct TrainerRole {
     embedders: Mutex<Embedders>,
     device: tch::Device,
+    /// Remote policies ranked by the world-model proxy call their servers on this runtime (set
+    /// by [`TrainerRole::on`] once the worker's runtime runs).
+    runtime: Option<tokio::runtime::Handle>,
 }
 
 impl TrainerRole {
@@ -25,7 +29,16 @@ impl TrainerRole {
         Ok(Self {
             embedders: Mutex::new(Embedders::new(config, device)),
             device,
+            runtime: None,
         })
+    }
+
+    /// The role, running its remote policies' calls on `runtime`.
+    pub fn on(self, runtime: tokio::runtime::Handle) -> Self {
+        Self {
+            runtime: Some(runtime),
+            ..self
+        }
     }
 
     pub fn run(&self, a: &pb::Assignment, root: &Path) -> Result<String, ShardError> {
@@ -35,12 +48,27 @@ impl TrainerRole {
                 a.shard_id
             ))
         })?;
-        let outcome =
-            assay_trainer::jobs::run(&job, &a.batch_id, root, &self.embedders, self.device)
-                .map_err(|e| ShardError {
-                    message: e.message,
-                    retryable: e.retryable,
-                })?;
+        // Policy objects ranked by the world-model proxy act in it: built here as a sim worker
+        // builds them.
+        let policies = |name: &str| -> Result<Box<dyn Policy>, PolicyError> {
+            let spec = PolicySpec::parse(name).map_err(PolicyError::Load)?;
+            let runtime = self.runtime.as_ref().ok_or_else(|| {
+                PolicyError::Load("the trainer role has no runtime for policy calls".into())
+            })?;
+            assay_policy::load_with(&spec, root, runtime, super::policy::diffusion_loader())
+        };
+        let outcome = assay_trainer::jobs::run(
+            &job,
+            &a.batch_id,
+            root,
+            &self.embedders,
+            &policies,
+            self.device,
+        )
+        .map_err(|e| ShardError {
+            message: e.message,
+            retryable: e.retryable,
+        })?;
         serde_json::to_string(&outcome)
             .map_err(|e| ShardError::permanent(format!("trainer outcome: {e}")))
     }

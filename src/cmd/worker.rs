@@ -780,8 +780,9 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         let handler = Arc::new(Roles {
             sim,
             judge,
+            // Made before the runtime (a bad configuration fails first); runs on it.
             #[cfg(feature = "trainer")]
-            trainer,
+            trainer: trainer.map(|t| t.on(tokio::runtime::Handle::current())),
             counters,
         });
         let result = run_worker(config, handler, super::terminated()).await;

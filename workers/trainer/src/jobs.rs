@@ -11,6 +11,7 @@ use assay_core::proxy::ProxyEpisode;
 use assay_core::trainer::{TrainerJob, TrainerOutcome};
 
 use crate::embedders::Embedders;
+use crate::proxy::PolicyLoader;
 use crate::world_model::{FitRequest, fit};
 
 /// Why a trainer shard failed, and whether another attempt could succeed.
@@ -47,6 +48,7 @@ pub fn run(
     batch: &str,
     artifacts: &Path,
     embedders: &Mutex<Embedders>,
+    policies: &PolicyLoader<'_>,
     device: tch::Device,
 ) -> Result<TrainerOutcome, JobError> {
     match job {
@@ -86,6 +88,7 @@ pub fn run(
             };
             let req = crate::proxy::ProxyRequest {
                 group,
+                policies,
                 train,
                 train_clips: &train_clips,
                 eval,

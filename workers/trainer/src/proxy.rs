@@ -11,15 +11,19 @@
 //! outcome. Initial weights and batches come from `assay_core::rng` streams: deterministic.
 //!
 //! # What the ranked policies act on
-//! The ranked episodes are imagined with the actions their policy took in the simulator. For the
-//! scripted oracle ladder this is the policy acting on its own: it is open loop once it has read
-//! the initial scene, which the world model is given too (the first real frame). A closed-loop
-//! policy (diffusion, TorchScript, remote) would need to be run on the imagined frames instead;
-//! [`WorldModel::imagine`] does not do that yet.
+//! A policy object (diffusion, TorchScript, remote) acts on the imagined frames: it is built
+//! again for the episode (`ProxyRequest::policies`), shown the frame and proprioception the world
+//! model decodes at each step and its actions drive the model, for as many frames as its real
+//! episode had ([`crate::world_model::WorldModel::imagine_policy`]). The scripted oracle cannot
+//! run outside the simulator (its plan reads the scene's state), but it is open loop once it has
+//! read the initial scene, which the world model is given too (the first real frame): its
+//! episodes are imagined with the actions it took in the simulator
+//! ([`crate::world_model::WorldModel::imagine`]).
 
 use std::time::Instant;
 
 use assay_core::clip::Clip;
+use assay_core::policy::{EpisodeContext, Policy, PolicyError, PolicySpec};
 use assay_core::proxy::{ProxyConfig, ProxyEpisode, ProxyPrediction, ProxyResult};
 use assay_core::rng::Rng;
 use tch::{Device, Kind, Tensor};
@@ -167,9 +171,14 @@ pub fn train_frame_judge(
     (judge, accuracy)
 }
 
+/// Builds a policy object from its name (`assay_policy::load_with` in the binary).
+pub type PolicyLoader<'a> = dyn Fn(&str) -> Result<Box<dyn Policy>, PolicyError> + Sync + 'a;
+
 /// The proxy of one group: its episodes with their loaded clips (same order).
 pub struct ProxyRequest<'a> {
     pub group: &'a str,
+    /// Builds the policy object a ranked episode names (not called for the oracle).
+    pub policies: &'a PolicyLoader<'a>,
     pub train: &'a [ProxyEpisode],
     pub train_clips: &'a [Clip],
     pub eval: &'a [ProxyEpisode],
@@ -187,6 +196,7 @@ pub fn run_proxy(
 ) -> Result<ProxyResult, WorldModelError> {
     let ProxyRequest {
         group,
+        policies,
         train,
         train_clips,
         eval,
@@ -214,7 +224,46 @@ pub fn run_proxy(
     let (model, fit) = fit_model(&req, resume, on_checkpoint)?;
     let batch = config.world_model.batch.max(1);
     let imagined_train = model.imagine(train_clips, batch)?;
-    let imagined_eval = model.imagine(eval_clips, batch)?;
+    // The oracle's episodes open loop, in batches; policy objects closed loop, one by one.
+    let oracle: Vec<bool> = eval
+        .iter()
+        .map(|e| PolicySpec::parse(&e.policy).is_ok_and(|p| p.is_oracle()))
+        .collect();
+    let open: Vec<Clip> = eval_clips
+        .iter()
+        .zip(&oracle)
+        .filter(|(_, o)| **o)
+        .map(|(c, _)| c.clone())
+        .collect();
+    let mut open = model.imagine(&open, batch)?.into_iter();
+    let mut imagined_eval = Vec::with_capacity(eval.len());
+    for (i, e) in eval.iter().enumerate() {
+        if oracle[i] {
+            imagined_eval.push(open.next().expect("one per oracle episode"));
+            continue;
+        }
+        let what = |err: String| {
+            WorldModelError::Request(format!(
+                "policy '{}' on task {} seed {}: {err}",
+                e.policy, e.task_id, e.seed
+            ))
+        };
+        let mut policy = policies(&e.policy).map_err(|err| what(err.to_string()))?;
+        let episode = EpisodeContext {
+            task_id: e.task_id.clone(),
+            seed: e.seed,
+            instruction: e.instruction.clone(),
+        };
+        let im = model
+            .imagine_policy(
+                &eval_clips[i],
+                eval_clips[i].len(),
+                policy.as_mut(),
+                &episode,
+            )
+            .map_err(|err| what(err.to_string()))?;
+        imagined_eval.push(im);
+    }
 
     let size = config.world_model.image_size;
     let frame = (size * size * 3) as usize;

@@ -58,6 +58,7 @@ use std::time::Instant;
 
 use assay_core::clip::{ACTION_DIMS, Clip, PROPRIO_DIMS};
 use assay_core::dynamics::{DynamicsConfig, DynamicsFit};
+use assay_core::policy::{Action, EpisodeContext, Policy, PolicyError, PolicyObservation};
 use assay_core::rng::Rng;
 use tch::{Device, Kind, Tensor};
 use thiserror::Error;
@@ -274,6 +275,111 @@ pub fn fit_model(
 }
 
 impl WorldModel {
+    /// Imagines a policy acting inside the world model, closed loop: from `first`'s frame 0 and
+    /// proprioception (the real ones, as in [`WorldModel::imagine`]), the policy is shown the
+    /// frame and proprioception the model decodes at each step (holding rounded to 0 or 1) and
+    /// its actions drive the next step, for `steps` frames in all. `policy` is reset with
+    /// `episode` first. Deterministic for a deterministic policy.
+    pub fn imagine_policy(
+        &self,
+        first: &Clip,
+        steps: usize,
+        policy: &mut dyn Policy,
+        episode: &EpisodeContext,
+    ) -> Result<Imagined, WorldModelError> {
+        check_clip(first, self.size as u32).map_err(|reason| WorldModelError::BadClip {
+            clip: "first frame of a policy's imagined episode".into(),
+            reason,
+        })?;
+        let size = self.size;
+        let frame = (size * size * 3) as usize;
+        let m = &self.model;
+        let policy_error = |step: usize, e: PolicyError| {
+            WorldModelError::Request(format!("imagined step {step}: {e}"))
+        };
+        policy.reset(episode).map_err(|e| policy_error(0, e))?;
+        tch::no_grad(|| {
+            let image = Tensor::from_slice(&first.rgb[..frame])
+                .view([1, size, size, 3])
+                .to_device(self.device)
+                .permute([0, 3, 1, 2])
+                .to_kind(Kind::Float)
+                / 255.0
+                - 0.5;
+            let proprio0: [f32; PROPRIO_DIMS] = first.proprio[..PROPRIO_DIMS]
+                .try_into()
+                .expect("PROPRIO_DIMS values");
+            let prop = Tensor::from_slice(&proprio0)
+                .view([1, -1])
+                .to_device(self.device);
+            let h0 = Tensor::zeros([1, m.deter], (Kind::Float, self.device));
+            let mut z = m.mode(&m.posterior(&h0, &m.post_e.forward(&m.encode(&image, &prop))));
+            let mut h = h0;
+            let mut seen = (first.rgb[..frame].to_vec(), proprio0);
+            let mut chunk = std::collections::VecDeque::new();
+            let mut frames = Vec::with_capacity(steps.saturating_sub(1));
+            for t in 0..steps.saturating_sub(1) {
+                if chunk.is_empty() {
+                    let obs = PolicyObservation {
+                        step: t as u32,
+                        width: size as u32,
+                        height: size as u32,
+                        rgb: seen.0.clone(),
+                        proprio: seen.1,
+                    };
+                    let answer = policy.act(&obs).map_err(|e| policy_error(t, e))?;
+                    if answer.is_empty() || answer.iter().flatten().any(|x| !x.is_finite()) {
+                        return Err(policy_error(
+                            t,
+                            PolicyError::BadAnswer("an empty or non-finite chunk".into()),
+                        ));
+                    }
+                    chunk.extend(answer);
+                }
+                let a: Action = chunk.pop_front().expect("a non-empty chunk");
+                let a = Tensor::from_slice(&a).view([1, -1]).to_device(self.device);
+                h = m.step_h(&h, &z, &a);
+                z = m.mode(&m.prior(&h));
+                let (img, prop) = m.decode(&Tensor::cat(&[&h, &z], -1));
+                let pixels = ((img.clamp(-0.5, 0.5) + 0.5) * 255.0)
+                    .round()
+                    .to_kind(Kind::Uint8)
+                    .permute([0, 2, 3, 1])
+                    .contiguous()
+                    .to_device(Device::Cpu);
+                let rgb = Vec::<u8>::try_from(pixels.flatten(0, -1))?;
+                let p = Vec::<f32>::try_from(prop.to_device(Device::Cpu).flatten(0, -1))?;
+                let mut proprio = [0f32; PROPRIO_DIMS];
+                proprio.copy_from_slice(&p[..PROPRIO_DIMS]);
+                proprio[PROPRIO_DIMS - 1] = if proprio[PROPRIO_DIMS - 1] >= 0.5 {
+                    1.0
+                } else {
+                    0.0
+                };
+                frames.push(rgb.clone());
+                seen = (rgb, proprio);
+            }
+            Ok::<_, WorldModelError>(frames)
+        })
+        .map(|frames| {
+            let real = &first.rgb[(first.len() - 1) * frame..first.len() * frame];
+            let last_frame_mse = frames.last().map_or(0.0, |predicted| {
+                real.iter()
+                    .zip(predicted)
+                    .map(|(a, b)| {
+                        let d = (f64::from(*a) - f64::from(*b)) / 255.0;
+                        d * d
+                    })
+                    .sum::<f64>()
+                    / frame as f64
+            });
+            Imagined {
+                frames,
+                last_frame_mse,
+            }
+        })
+    }
+
     /// Imagines every clip open loop from its first frame: the posterior of frame 0 (with
     /// `h_0 = 0`, as in training), then `h_{t+1} = GRU(h_t, [z_t, a_t])` with the clip's own
     /// action `a_t` and `z_{t+1}` the mode of the prior — never looking at a real frame after

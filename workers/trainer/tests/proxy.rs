@@ -126,3 +126,83 @@ fn the_world_model_imagines_every_frame_after_the_first_deterministically() {
         "{e}"
     );
 }
+
+/// Always moves right, in chunks of 3; remembers what it saw.
+#[derive(Default)]
+struct Rightwards {
+    seen: Vec<assay_core::policy::PolicyObservation>,
+    resets: u32,
+}
+
+impl assay_core::policy::Policy for Rightwards {
+    fn reset(
+        &mut self,
+        _: &assay_core::policy::EpisodeContext,
+    ) -> Result<(), assay_core::policy::PolicyError> {
+        self.resets += 1;
+        Ok(())
+    }
+    fn act(
+        &mut self,
+        obs: &assay_core::policy::PolicyObservation,
+    ) -> Result<Vec<assay_core::policy::Action>, assay_core::policy::PolicyError> {
+        self.seen.push(obs.clone());
+        Ok(vec![[0.1, 0.0, 0.0, 0.0]; 3])
+    }
+}
+
+#[test]
+fn a_policy_acts_inside_the_world_model_on_the_frames_it_imagines() {
+    let config = DynamicsConfig {
+        image_size: SIZE,
+        steps: 20,
+        chunk: 6,
+        deter: 32,
+        hidden: 32,
+        depth: 4,
+        ..Default::default()
+    };
+    let clips: Vec<Clip> = (0..3).map(|i| clip(i, 8)).collect();
+    let keys: Vec<String> = (0..3).map(|i| format!("c{i}")).collect();
+    let req = FitRequest {
+        config: &config,
+        group: "g",
+        budget: 3,
+        train: &clips,
+        eval: &clips,
+        eval_keys: &keys,
+        device: Device::Cpu,
+    };
+    let (model, _) = fit_model(&req, None, &mut |_, _| Ok(())).unwrap();
+    let episode = assay_core::policy::EpisodeContext {
+        task_id: "t".into(),
+        seed: 0,
+        instruction: "move right".into(),
+    };
+    let mut policy = Rightwards::default();
+    let im = model
+        .imagine_policy(&clips[1], 8, &mut policy, &episode)
+        .unwrap();
+    assert_eq!(policy.resets, 1);
+    assert_eq!(im.frames.len(), 7);
+    // Asked at steps 0, 3 and 6 (chunks of 3): first the real frame, then imagined ones.
+    let steps: Vec<u32> = policy.seen.iter().map(|o| o.step).collect();
+    assert_eq!(steps, [0, 3, 6]);
+    let frame = (SIZE * SIZE * 3) as usize;
+    assert_eq!(policy.seen[0].rgb, clips[1].rgb[..frame]);
+    assert_eq!(policy.seen[0].proprio, [1.0 / 16.0, 0.4, 0.1, 0.0]);
+    assert_eq!(policy.seen[1].rgb, im.frames[2]);
+    assert_eq!(policy.seen[2].rgb, im.frames[5]);
+    assert!(
+        policy
+            .seen
+            .iter()
+            .all(|o| o.proprio[3] == 0.0 || o.proprio[3] == 1.0)
+    );
+    // The same policy again imagines the same episode.
+    let mut again = Rightwards::default();
+    let im2 = model
+        .imagine_policy(&clips[1], 8, &mut again, &episode)
+        .unwrap();
+    assert_eq!(im.frames, im2.frames);
+}
