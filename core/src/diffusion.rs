@@ -199,8 +199,9 @@ pub struct DiffusionFit {
     pub final_loss: f64,
     /// Mean training loss over the last 100 steps (all of them when fewer).
     pub mean_last_100_loss: f64,
-    /// Wall-clock seconds of the training loop. Measured, so it differs between identical runs:
-    /// keep it out of a report's deterministic results.
+    /// Wall-clock seconds of the training loop. Measured, so not serialised: a report's results
+    /// are the same for the same batch (the trainer logs it).
+    #[serde(skip)]
     pub train_seconds: f64,
     /// Trainable parameters (image encoder, step embedding and U-Net).
     pub parameters: u64,

@@ -212,7 +212,7 @@ mod tests {
 
     fn fit() -> DiffusionFit {
         serde_json::from_value(serde_json::json!({
-            "steps": 10, "final_loss": 0.1, "mean_last_100_loss": 0.1, "train_seconds": 1.0,
+            "steps": 10, "final_loss": 0.1, "mean_last_100_loss": 0.1,
             "parameters": 5, "clips": 4, "samples": 40, "device": "cpu", "config": {}
         }))
         .unwrap()

@@ -92,6 +92,11 @@ pub trait Policy: Send {
     fn reset(&mut self, episode: &EpisodeContext) -> Result<(), PolicyError>;
     /// The actions to take from `obs` on.
     fn act(&mut self, obs: &PolicyObservation) -> Result<Vec<Action>, PolicyError>;
+    /// The side of the square frames the policy wants (None: any; the simulator then draws the
+    /// clips' 64).
+    fn frame_size(&self) -> Option<u32> {
+        None
+    }
 }
 
 /// Where a policy learns where things are.

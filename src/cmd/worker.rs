@@ -519,6 +519,7 @@ impl SimRole {
             })?;
             Some(loaded)
         };
+        let frame_size = object.as_ref().and_then(|p| p.frame_size()).unwrap_or(0);
         let options = assay_sim::SimOptions {
             video_frames,
             clip: clip_size > 0,
@@ -526,7 +527,7 @@ impl SimRole {
             policy: object
                 .as_deref_mut()
                 .map(|p| p as &mut dyn assay_core::policy::Policy),
-            frame_size: 0,
+            frame_size,
         };
         let ep = assay_sim::simulate_with(&spec, a.seed, policy, options).map_err(|e| {
             let msg = format!("task {}: {e}", spec.id);

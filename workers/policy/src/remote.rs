@@ -277,6 +277,12 @@ fn chunk(r: pb::PolicyActResponse) -> Result<Vec<Action>, String> {
 }
 
 impl Policy for RemotePolicy {
+    /// The server's frame size when it asked for a square one.
+    fn frame_size(&self) -> Option<u32> {
+        let info = &self.info;
+        (info.image_width != 0 && info.image_width == info.image_height).then_some(info.image_width)
+    }
+
     /// Ends the previous episode (best effort) and starts a new one under a fresh episode id.
     fn reset(&mut self, episode: &EpisodeContext) -> Result<(), PolicyError> {
         self.end_episode();

@@ -1061,6 +1061,10 @@ impl DiffusionPolicy {
 }
 
 impl Policy for DiffusionPolicy {
+    fn frame_size(&self) -> Option<u32> {
+        Some(self.cfg.image_size)
+    }
+
     fn reset(&mut self, episode: &EpisodeContext) -> Result<(), PolicyError> {
         self.history.clear();
         self.episode = Rng::new(
