@@ -298,9 +298,14 @@ pub struct Variations {
     /// Uniform jitter (± degrees) added to every non-fixed object's initial yaw.
     #[serde(default)]
     pub yaw_jitter_deg: f64,
-    /// Colours objects may be drawn from (rendering and generalization; physics ignores them).
+    /// The palette `recolor`'s objects draw their colour from, uniformly per seed (rendering,
+    /// captions and the policies that see them; physics ignores colour).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub colors: Vec<Color>,
+    /// Objects whose colour is drawn from `colors` per seed: those the description does not name
+    /// by colour (distractors), so that a new colour is a new variation of the same task.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub recolor: Vec<String>,
     /// Range of the end effector's start position.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub ee_start: Option<PoseRange>,
@@ -696,6 +701,33 @@ pub fn validate(spec: &TaskSpec, origin: &str) -> Vec<SpecError> {
     if let Some(r) = &spec.variations.ee_start {
         v.range("variations.ee_start", r);
     }
+    for (i, c) in spec.variations.colors.iter().enumerate() {
+        let p = format!("variations.colors[{i}]");
+        match c.rgb() {
+            None => v.err(&p, format!("unknown colour {c:?}")),
+            Some(rgb) if rgb.iter().any(|x| !(0.0..=1.0).contains(x)) => {
+                v.err(&p, "rgb components must lie in 0..1".into())
+            }
+            Some(_) => {}
+        }
+    }
+    match (
+        spec.variations.colors.is_empty(),
+        spec.variations.recolor.is_empty(),
+    ) {
+        (false, true) => v.err(
+            "variations.colors",
+            "no object is recoloured: name the objects that draw from this palette in variations.recolor".into(),
+        ),
+        (true, false) => v.err(
+            "variations.recolor",
+            "needs a palette to draw from in variations.colors".into(),
+        ),
+        _ => {}
+    }
+    for (i, id) in spec.variations.recolor.iter().enumerate() {
+        obj(&mut v, &format!("variations.recolor[{i}]"), id);
+    }
 
     // The plan must be executable: pick before place, one object held at a time.
     let mut held: Option<&str> = None;
@@ -949,6 +981,24 @@ impl TaskSpec {
         }
     }
 
+    /// The spec as episode `seed` sees it: every object named in `variations.recolor` takes a
+    /// colour drawn from `variations.colors`. The draw has a stream of its own, so a palette
+    /// never moves the poses a seed draws. Borrowed when nothing is recoloured.
+    pub fn for_seed(&self, seed: u64) -> std::borrow::Cow<'_, TaskSpec> {
+        if self.variations.recolor.is_empty() || self.variations.colors.is_empty() {
+            return std::borrow::Cow::Borrowed(self);
+        }
+        let mut rng = crate::rng::Rng::new(seed, &format!("{}/colors", self.id));
+        let mut spec = self.clone();
+        let palette = &self.variations.colors;
+        for o in &mut spec.scene.objects {
+            if self.variations.recolor.contains(&o.id) {
+                o.color = palette[(rng.next_u64() % palette.len() as u64) as usize].clone();
+            }
+        }
+        std::borrow::Cow::Owned(spec)
+    }
+
     pub fn object(&self, id: &str) -> Option<&Object> {
         self.scene.objects.iter().find(|o| o.id == id)
     }
@@ -1031,6 +1081,69 @@ oracle:
         // A document too broken to parse is still named by its id.
         let e = &errors("id: broken-task\nscene: [unclosed\n")[0];
         assert_eq!(e.task.as_deref(), Some("broken-task"));
+    }
+
+    /// MINIMAL with a blue distractor that draws its colour per seed.
+    fn recoloured(variations: &str) -> String {
+        MINIMAL.replace(
+            "  zones:",
+            "    - {id: distractor, shape: {sphere: {radius: 0.02}}, color: blue, pose: {position: [0.4, 0.2, 0.02]}}\n  zones:",
+        ) + variations
+    }
+
+    #[test]
+    fn recoloured_objects_draw_from_the_palette_per_seed_and_nothing_else_changes() {
+        let spec = parse_task(
+            &recoloured("variations: {colors: [orange, purple, cyan], recolor: [distractor]}\n"),
+            Format::Yaml,
+            "t.yaml",
+        )
+        .unwrap();
+        let colors: Vec<Color> = (0..40)
+            .map(|seed| {
+                let s = spec.for_seed(seed);
+                // The block the description names keeps its colour; only the distractor varies.
+                assert_eq!(s.scene.objects[0], spec.scene.objects[0]);
+                let mut rest = s.clone().into_owned();
+                rest.scene.objects[1].color = spec.scene.objects[1].color.clone();
+                assert_eq!(rest, spec);
+                s.scene.objects[1].color.clone()
+            })
+            .collect();
+        for c in ["orange", "purple", "cyan"] {
+            assert!(colors.contains(&Color::Named(c.into())), "{c} never drawn");
+        }
+        assert!(!colors.contains(&Color::Named("blue".into())));
+        // The same seed, the same colours.
+        assert_eq!(spec.for_seed(7), spec.for_seed(7));
+        // Without a palette the spec is lent as it is.
+        let plain = parse_task(MINIMAL, Format::Yaml, "t.yaml").unwrap();
+        assert!(matches!(plain.for_seed(3), std::borrow::Cow::Borrowed(_)));
+    }
+
+    #[test]
+    fn a_palette_without_objects_or_objects_without_a_palette_are_errors() {
+        let es = errors(&recoloured("variations: {colors: [orange]}\n"));
+        assert!(
+            es.iter()
+                .any(|e| e.path == "variations.colors" && e.reason.contains("recolor")),
+            "{es:?}"
+        );
+        let es = errors(&recoloured("variations: {recolor: [distractor]}\n"));
+        assert!(es.iter().any(|e| e.path == "variations.recolor"), "{es:?}");
+        let es = errors(&recoloured(
+            "variations: {colors: [orange, mauve], recolor: [distractor, ghost]}\n",
+        ));
+        assert!(
+            es.iter()
+                .any(|e| e.path == "variations.colors[1]" && e.reason.contains("mauve")),
+            "{es:?}"
+        );
+        assert!(
+            es.iter()
+                .any(|e| e.path == "variations.recolor[1]" && e.reason.contains("ghost")),
+            "{es:?}"
+        );
     }
 
     #[test]

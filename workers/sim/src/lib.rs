@@ -196,6 +196,11 @@ pub fn simulate_with(
         policy: policy_object,
         frame_size,
     } = options;
+    // The task as submitted is what the episode names; this seed's variation of it (recoloured
+    // objects) is what it runs and draws.
+    let spec_hash = spec.spec_hash();
+    let varied = spec.for_seed(seed);
+    let spec: &TaskSpec = &varied;
     let (parsed, horizon) = PolicySpec::parse_with_horizon(policy).map_err(SimError::Policy)?;
     let (noise, sense) = match parsed {
         PolicySpec::Oracle { noise, sense } => (noise, sense),
@@ -381,7 +386,6 @@ pub fn simulate_with(
     if truncated {
         notes.push(format!("plan cut off at physics.max_steps = {max_steps}"));
     }
-    let spec_hash = spec.spec_hash();
     let versions = versions();
     let object_ids: Vec<String> = scene.objects.iter().map(|o| o.id.clone()).collect();
     let metadata = HashMap::from([
