@@ -12,10 +12,15 @@ use assay_core::generalization::{
     EvalEpisode, GeneralizationPlan, GeneralizationResults, GroupGeneralization,
     HELD_OUT_VARIATIONS, TRAIN_VARIATIONS,
 };
-use assay_core::proxy::{ProxyEpisode, RankingPlan, RealEpisode, ranking_results};
+use assay_core::proxy::{
+    IMAGINED_JUDGING, ImaginedJudgement, ProxyEpisode, ProxyResult, RankingPlan, RealEpisode,
+    ranking_results,
+};
 use assay_core::quality::{DEFAULT_REPEATS, Item, JudgeOutcome};
 use assay_core::quality_report::JudgeRecord;
-use assay_core::report::{self, EpisodeOutcome, Report, RunInfo, ShardRecord, TaskInfo};
+use assay_core::report::{
+    self, EpisodeImagery, EpisodeOutcome, Report, RunInfo, ShardRecord, TaskInfo,
+};
 use assay_core::trainer::{DiversityResults, TrainerJob, TrainerOutcome};
 use rusqlite::{Connection, OptionalExtension, params};
 
@@ -581,11 +586,16 @@ impl Store {
             )?;
         }
         let mut queued = judges.len() as u32;
-        if shard_role == role::TRAINER
-            && let Ok(TrainerOutcome::Diffusion { group, model, .. }) =
-                serde_json::from_str::<TrainerOutcome>(outcome_json)
-        {
-            queued += Self::queue_generalization_episodes(&tx, &batch, &group, &model)?;
+        if shard_role == role::TRAINER {
+            match serde_json::from_str::<TrainerOutcome>(outcome_json) {
+                Ok(TrainerOutcome::Diffusion { group, model, .. }) => {
+                    queued += Self::queue_generalization_episodes(&tx, &batch, &group, &model)?;
+                }
+                Ok(TrainerOutcome::Proxy { result }) => {
+                    queued += Self::queue_imagined_judging(&tx, &batch, &result)?;
+                }
+                _ => {}
+            }
         }
         Self::finish_if_done(&tx, &batch, now_ms)?;
         tx.commit()?;
@@ -1100,6 +1110,76 @@ impl Store {
     /// Queues the evaluation episodes of `group`'s trained diffusion policy `model`: every
     /// (task, seed) it was trained on, and every task of the group under the plan's held-out
     /// seeds. Returns how many.
+    /// Queues, for every judge of the batch that looks at images (every one but the built-in
+    /// `offline`, whose completion is the simulator's), one judge shard per imagined rollout of
+    /// a finished proxy: the ranked episode's outcome with the imagined keyframes as its imagery
+    /// and no scene views, so the judge is asked about completion only.
+    fn queue_imagined_judging(
+        conn: &Connection,
+        batch_id: &str,
+        result: &ProxyResult,
+    ) -> Result<u32, CoordError> {
+        let judges: String = conn.query_row(
+            "SELECT judges_json FROM batches WHERE id = ?1",
+            [batch_id],
+            |r| r.get(0),
+        )?;
+        let judges: Vec<String> = serde_json::from_str(&judges)?;
+        let judges: Vec<&String> = judges.iter().filter(|j| *j != "offline").collect();
+        if judges.is_empty() {
+            return Ok(0);
+        }
+        let mut real = conn.prepare(
+            "SELECT outcome_json FROM shards WHERE batch_id = ?1 AND task_id = ?2 AND seed = ?3
+               AND policy = ?4 AND role NOT IN ('judge', 'trainer') AND job IS NULL AND state = 'done'",
+        )?;
+        let mut ins = conn.prepare(
+            "INSERT INTO shards (batch_id, task_id, seed, policy, role, state, judge, input_json, job, grp)
+             VALUES (?1, ?2, ?3, ?4, ?5, 'queued', ?6, ?7, ?8, ?9)",
+        )?;
+        let mut n = 0;
+        for p in result
+            .predictions
+            .iter()
+            .filter(|p| !p.imagined_keyframes.is_empty())
+        {
+            let Some(json) = real
+                .query_row(params![batch_id, p.task_id, p.seed as i64, p.policy], |r| {
+                    r.get::<_, String>(0)
+                })
+                .optional()?
+            else {
+                continue;
+            };
+            let mut episode: EpisodeOutcome = serde_json::from_str(&json)?;
+            episode.imagery = Some(EpisodeImagery {
+                adapter: "world model (imagined)".into(),
+                views: Vec::new(),
+                keyframes: p.imagined_keyframes.clone(),
+                contact_sheet: String::new(),
+                video: None,
+                caption: None,
+                clip: None,
+            });
+            let input = serde_json::to_string(&episode)?;
+            for judge in &judges {
+                ins.execute(params![
+                    batch_id,
+                    p.task_id,
+                    p.seed as i64,
+                    p.policy,
+                    role::JUDGE,
+                    judge,
+                    input,
+                    IMAGINED_JUDGING,
+                    result.group,
+                ])?;
+                n += 1;
+            }
+        }
+        Ok(n)
+    }
+
     fn queue_generalization_episodes(
         conn: &Connection,
         batch_id: &str,
@@ -1309,6 +1389,7 @@ impl Store {
         let mut error_groups: Vec<Option<String>> = Vec::new();
         let mut proxies = Vec::new();
         let mut proxy_errors = Vec::new();
+        let mut imagined = Vec::new();
         let mut trained = Vec::new();
         let mut general_errors = Vec::new();
         let mut evaluated = Vec::new();
@@ -1378,6 +1459,36 @@ impl Store {
                         }
                         _ => {}
                     }
+                    continue;
+                }
+                if r.get::<_, String>(8)? == role::JUDGE
+                    && r.get::<_, Option<String>>(10)?.as_deref() == Some(IMAGINED_JUDGING)
+                {
+                    // A judge's verdict on an imagined rollout: a proxy's, not quality.
+                    let completion = match (state.as_str(), outcome) {
+                        (DONE, Some(json)) => {
+                            let o = serde_json::from_str::<JudgeOutcome>(&json)?;
+                            let item = o.item(Item::Completion);
+                            let scores = item.map(|i| i.scores.as_slice()).unwrap_or_default();
+                            if scores.is_empty() {
+                                Err(item
+                                    .and_then(|i| i.errors.first())
+                                    .map_or("no completion score".into(), |e| e.error.clone()))
+                            } else {
+                                Ok(scores.iter().sum::<f64>() / scores.len() as f64)
+                            }
+                        }
+                        (FAILED, _) => Err(r.get::<_, Option<String>>(6)?.unwrap_or_default()),
+                        (CANCELLED, _) => Err("cancelled".into()),
+                        _ => continue,
+                    };
+                    imagined.push(ImaginedJudgement {
+                        task_id: r.get(0)?,
+                        seed: r.get::<_, i64>(1)? as u64,
+                        policy: r.get(2)?,
+                        judge: r.get::<_, Option<String>>(9)?.unwrap_or_default(),
+                        completion,
+                    });
                     continue;
                 }
                 if r.get::<_, String>(8)? == role::JUDGE {
@@ -1455,6 +1566,9 @@ impl Store {
             report::build_results(&name, &policies, &seeds, &tasks, &shards, &invalid);
         let episodes: Vec<EpisodeOutcome> =
             shards.iter().filter_map(|s| s.outcome.clone()).collect();
+        // A trained policy's evaluation episodes (generalization) are judged too when the batch
+        // has judges, but quality is about the batch's own policies' episodes.
+        judged.retain(|j| policies.contains(&j.policy));
         results.quality = assay_core::quality_report::build_quality(&tasks, &episodes, &judged);
         results.diversity = diversity;
         if !trained.is_empty() || !general_errors.is_empty() {
@@ -1509,6 +1623,7 @@ impl Store {
                 &task_groups,
                 &real,
                 proxies,
+                &imagined,
                 proxy_errors,
             ));
         }
@@ -1984,12 +2099,16 @@ mod tests {
 
     #[test]
     fn a_ranking_batch_queues_one_proxy_per_group_that_never_sees_the_ranked_outcomes() {
-        use assay_core::proxy::{ProxyConfig, ProxyPrediction, ProxyResult};
+        use assay_core::proxy::{ProxyConfig, ProxyPrediction};
+        use assay_core::quality::ItemOutcome;
+        use assay_core::report::Keyframe;
         let mut s = Store::open_in_memory().unwrap();
         let tasks = ["a", "b"];
         let mut b = batch(&tasks, &[0, 1], 3);
         let policies = ["oracle", "oracle:noise=0.03", "oracle:noise=0.01"];
         b.policies = policies.iter().map(|p| p.to_string()).collect();
+        // The offline judge judges the real episodes only; a VLM judges the imagined ones too.
+        b.judges = vec!["offline".into(), "vlm".into()];
         b.ranking = Some(RankingPlan {
             train_policies: vec!["oracle:noise=0.01".into()],
             config: ProxyConfig::default(),
@@ -2020,6 +2139,16 @@ mod tests {
             let json = serde_json::to_string(&e).unwrap();
             assert!(
                 s.complete("w", l.lease_id, l.shard_id, &json, 0.1, 2)
+                    .unwrap()
+                    .0
+            );
+        }
+        let judge = vec!["judge".to_owned()];
+        let real_judging = s.lease("j", &judge, 100, 2, TTL).unwrap();
+        assert_eq!(real_judging.len(), 24);
+        for l in &real_judging {
+            assert!(
+                s.complete("j", l.lease_id, l.shard_id, &judged(l, 0.0), 0.1, 2)
                     .unwrap()
                     .0
             );
@@ -2062,6 +2191,14 @@ mod tests {
                     success,
                     p_success_real_frame: if real { 0.8 } else { 0.2 },
                     last_frame_mse: 0.001,
+                    imagined_keyframes: (0..8)
+                        .map(|k| Keyframe {
+                            step: k,
+                            camera: "imagined".into(),
+                            artifact: format!("imagery/{}-{}-{k}.png", e.task_id, e.seed),
+                            goals_met: 0,
+                        })
+                        .collect(),
                 }
             })
             .collect();
@@ -2080,6 +2217,7 @@ mod tests {
                 judge_train_accuracy: 1.0,
                 predictions,
                 seconds: 1.0,
+                imagined_frames: Vec::new(),
             }),
         };
         let json = serde_json::to_string(&outcome).unwrap();
@@ -2089,6 +2227,46 @@ mod tests {
                 .unwrap()
                 .0
         );
+        // The VLM is asked about every imagined rollout: the real episode with the imagined
+        // keyframes for imagery and no scene views. The batch waits for it.
+        assert_eq!(s.counts(&id).unwrap().state, "running");
+        let imagined = s.lease("j", &judge, 100, 5, TTL).unwrap();
+        assert_eq!(imagined.len(), 8);
+        for (k, l) in imagined.iter().enumerate() {
+            let j = l.judge.as_ref().unwrap();
+            assert_eq!(j.judge, "vlm");
+            let e: EpisodeOutcome = serde_json::from_str(&j.episode_json).unwrap();
+            let img = e.imagery.unwrap();
+            assert!(img.views.is_empty());
+            assert_eq!(img.keyframes.len(), 8);
+            assert!(
+                img.keyframes[7]
+                    .artifact
+                    .ends_with(&format!("{}-{}-7.png", e.task_id, e.seed))
+            );
+            if k == 0 {
+                s.fail(l.lease_id, l.shard_id, "HTTP 400", false, 6)
+                    .unwrap();
+                continue;
+            }
+            // The VLM says what really happened.
+            let real = truth[&(e.task_id.clone(), e.policy.clone(), e.seed)];
+            let mut o: JudgeOutcome = serde_json::from_str(&judged(l, 0.0)).unwrap();
+            o.task_id = e.task_id.clone();
+            o.items = vec![ItemOutcome {
+                item: Item::Completion,
+                prompt: "completion/v1".into(),
+                scores: vec![if real { 9.0 } else { 1.0 }],
+                errors: vec![],
+                unjudged: 0,
+            }];
+            let o = serde_json::to_string(&o).unwrap();
+            assert!(
+                s.complete("j", l.lease_id, l.shard_id, &o, 0.1, 6)
+                    .unwrap()
+                    .0
+            );
+        }
         assert_eq!(s.counts(&id).unwrap().state, "completed");
         let k = s.report(&id).unwrap().results.ranking.unwrap();
         assert_eq!(k.ranked_policies, ["oracle", "oracle:noise=0.03"]);
@@ -2102,8 +2280,29 @@ mod tests {
         assert_eq!((agree.successes, agree.trials), (7, 8));
         let judge = k.judge_agreement_real_frames.unwrap();
         assert_eq!((judge.successes, judge.trials), (8, 8));
+        // Verdicts on imagined rollouts are a proxy of their own, not quality.
+        assert_eq!(k.judging_errors.len(), 1);
+        assert!(k.judging_errors[0].4.contains("HTTP 400"));
+        let judged: u64 = k
+            .rows
+            .iter()
+            .flat_map(|r| &r.judged_proxy)
+            .map(|j| j.success.trials)
+            .sum();
+        assert_eq!(judged, 7);
         let ranking = k.ranking.expect("two policies ranked");
+        let proxies: Vec<&str> = ranking
+            .comparisons
+            .iter()
+            .map(|c| c.proxy.as_str())
+            .collect();
+        assert_eq!(proxies, ["world-model", "world-model+vlm"]);
         assert_eq!(ranking.comparisons[0].policies.len(), 2);
+        assert_eq!(ranking.comparisons[1].mmrv.value, Some(0.0));
+        // The VLM's quality covers the batch's 12 real episodes, not its imagined rollouts.
+        let q = s.report(&id).unwrap().results.quality.unwrap();
+        let vlm = q.judges.iter().find(|j| j.judge == "vlm").unwrap();
+        assert_eq!((vlm.episodes_judged, vlm.episodes_failed), (12, 0));
     }
 
     #[test]

@@ -1,14 +1,17 @@
 //! The world-model proxy of policy ranking (the video-world-model paper, §III): per task group,
 //! a world model is trained on the episodes of *training* policies (never the ranked ones, as
 //! the paper's footnote asks), each ranked episode is imagined from its first real frame, and a
-//! frame judge decides from the last imagined frame whether the task was done. The predicted
-//! success rates R_S are then ranked against the real ones R from the simulator
-//! ([`crate::ranking`]). Plain data: the models live in `assay-trainer`.
+//! frame judge decides from the last imagined frame whether the task was done. When the batch
+//! has judges (VLMs), each imagined rollout's keyframes are also judged by the judge role, as the
+//! paper does: every such judge is a proxy of its own. The predicted success rates R_S are then
+//! ranked against the real ones R from the simulator ([`crate::ranking`]). Plain data: the
+//! models live in `assay-trainer`.
 
 use serde::{Deserialize, Serialize};
 
 use crate::dynamics::{DynamicsConfig, DynamicsFit};
 use crate::ranking::{Cell, Ranking, RankingConfig, rank};
+use crate::report::Keyframe;
 use crate::stats::Proportion;
 
 /// Settings of the proxy: the world model and the frame judge.
@@ -23,6 +26,9 @@ pub struct ProxyConfig {
     pub judge_lr: f64,
     /// An imagined episode succeeds when the judge's probability is at least this.
     pub threshold: f64,
+    /// An imagined episode judged by the judge role succeeds when its mean completion score
+    /// (0–10) is at least this.
+    pub completion_threshold: f64,
 }
 
 impl Default for ProxyConfig {
@@ -32,6 +38,7 @@ impl Default for ProxyConfig {
             judge_steps: 600,
             judge_lr: 1e-3,
             threshold: 0.5,
+            completion_threshold: 5.0,
         }
     }
 }
@@ -49,6 +56,12 @@ impl ProxyConfig {
         }
         if !(0.0..=1.0).contains(&self.threshold) {
             return Err(format!("threshold: {} is outside [0, 1]", self.threshold));
+        }
+        if !(0.0..=10.0).contains(&self.completion_threshold) {
+            return Err(format!(
+                "completion_threshold: {} is outside [0, 10]",
+                self.completion_threshold
+            ));
         }
         Ok(())
     }
@@ -93,6 +106,42 @@ pub struct ProxyPrediction {
     pub p_success_real_frame: f64,
     /// Mean squared error per pixel-channel of the last imagined frame against the real one.
     pub last_frame_mse: f64,
+    /// The imagined rollout as the judge role sees it: [`IMAGINED_KEYFRAMES`] frames evenly
+    /// spaced from the real first frame to the last imagined one, PNGs in the artifact store
+    /// (`step` is the frame's index at the clip's rate, `camera` is `imagined`).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub imagined_keyframes: Vec<Keyframe>,
+}
+
+/// Keyframes of an imagined rollout: as many as the completion prompt shows of a real one.
+pub const IMAGINED_KEYFRAMES: usize = 8;
+
+/// The `job` of a judge shard that judges an imagined rollout (not a real episode).
+pub const IMAGINED_JUDGING: &str = "proxy imagined";
+
+/// A judge's verdict on one ranked episode's imagined rollout.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ImaginedJudgement {
+    pub task_id: String,
+    pub policy: String,
+    pub seed: u64,
+    pub judge: String,
+    /// Mean completion score (0–10); Err when the judge shard failed or gave no score.
+    pub completion: Result<f64, String>,
+}
+
+/// One judge's verdicts on the imagined rollouts of one (task, policy).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct JudgedProxy {
+    pub judge: String,
+    /// Rollouts whose mean completion reached `completion_threshold`.
+    pub success: Proportion,
+    pub mean_completion: Option<f64>,
+}
+
+/// The ranking source of a judge's verdicts on imagined rollouts.
+pub fn judged_source(judge: &str) -> String {
+    format!("{PROXY_SOURCE}+{judge}")
 }
 
 /// What the proxy job of one group reports.
@@ -112,6 +161,10 @@ pub struct ProxyResult {
     /// serialised: a report's results are the same for the same batch (the trainer logs it).
     #[serde(skip)]
     pub seconds: f64,
+    /// Per prediction, the imagined keyframes' RGB bytes (`image_size`², frame index first),
+    /// before the job runner stores them and names them in `imagined_keyframes`.
+    #[serde(skip)]
+    pub imagined_frames: Vec<Vec<(u64, Vec<u8>)>>,
 }
 
 /// One ranked episode as the report builder reads it from the store.
@@ -142,6 +195,9 @@ pub struct RankingRow {
     /// Mean completion (0–10) the batch's judges gave the real rollouts, when they were judged.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub judged_completion: Option<f64>,
+    /// The judge role's verdicts on the imagined rollouts, one per judge (VLM judges only).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub judged_proxy: Vec<JudgedProxy>,
 }
 
 /// The policy-ranking section of a report.
@@ -169,6 +225,9 @@ pub struct RankingResults {
     /// Proxy jobs that failed: (group, error).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub errors: Vec<(String, String)>,
+    /// Imagined rollouts the judge role could not judge: (judge, task, policy, seed, error).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub judging_errors: Vec<(String, String, String, u64, String)>,
 }
 
 /// Source names of the ranking's success cells.
@@ -178,19 +237,45 @@ pub const PROXY_SOURCE: &str = "world-model";
 /// The correlation plot written beside `report.md` (predicted against real success).
 pub const RANKING_FIGURE: &str = "ranking.svg";
 
+/// The file of the correlation plot of `proxy`: [`RANKING_FIGURE`] for the frame judge's, one
+/// per judge for the judge role's verdicts on imagined rollouts.
+pub fn ranking_figure(proxy: &str) -> String {
+    match proxy.strip_prefix(&format!("{PROXY_SOURCE}+")) {
+        Some(judge) => {
+            let safe: String = judge
+                .chars()
+                .map(|c| {
+                    if c.is_ascii_alphanumeric() || c == '-' {
+                        c
+                    } else {
+                        '_'
+                    }
+                })
+                .collect();
+            format!("ranking-{safe}.svg")
+        }
+        None => RANKING_FIGURE.to_owned(),
+    }
+}
+
 /// Bootstrap resamples of the report's ranking statistics.
 pub const RANKING_RESAMPLES: usize = 2000;
 
 /// Builds the ranking section: `episodes` are the finished episodes of the ranked policies,
-/// `groups` the finished proxy jobs, `task_groups` (task id, group) in report order.
+/// `groups` the finished proxy jobs, `imagined` the judge role's verdicts on their imagined
+/// rollouts, `task_groups` (task id, group) in report order.
 pub fn ranking_results(
     plan: &RankingPlan,
     ranked_policies: &[String],
     task_groups: &[(String, String)],
     episodes: &[RealEpisode],
     mut groups: Vec<ProxyResult>,
+    imagined: &[ImaginedJudgement],
     errors: Vec<(String, String)>,
 ) -> RankingResults {
+    let mut judges: Vec<&str> = imagined.iter().map(|j| j.judge.as_str()).collect();
+    judges.sort_unstable();
+    judges.dedup();
     let group_order = |g: &str| task_groups.iter().position(|(_, x)| x == g);
     groups.sort_by_key(|r| group_order(&r.group));
     let predictions: Vec<&ProxyPrediction> =
@@ -231,6 +316,35 @@ pub fn ranking_results(
                 )
             });
             let judged: Vec<f64> = eps.iter().filter_map(|e| e.judged_completion).collect();
+            let mut judged_proxy = Vec::new();
+            for judge in &judges {
+                let scores: Vec<f64> = imagined
+                    .iter()
+                    .filter(|j| j.judge == *judge && &j.task_id == task && &j.policy == policy)
+                    .filter_map(|j| j.completion.as_ref().ok().copied())
+                    .collect();
+                if scores.is_empty() {
+                    continue;
+                }
+                let ok = scores
+                    .iter()
+                    .filter(|c| **c >= plan.config.completion_threshold)
+                    .count() as u64;
+                let success = Proportion::new(ok, scores.len() as u64);
+                cells.push(Cell {
+                    task: task.clone(),
+                    policy: policy.clone(),
+                    source: judged_source(judge),
+                    trials: Some(success.trials),
+                    successes: Some(success.successes),
+                    rate: success.rate.unwrap_or(0.0),
+                });
+                judged_proxy.push(JudgedProxy {
+                    judge: (*judge).to_owned(),
+                    success,
+                    mean_completion: Some(scores.iter().sum::<f64>() / scores.len() as f64),
+                });
+            }
             cells.push(Cell {
                 task: task.clone(),
                 policy: policy.clone(),
@@ -259,15 +373,21 @@ pub fn ranking_results(
                     .then(|| preds.iter().map(|p| p.p_success).sum::<f64>() / preds.len() as f64),
                 judged_completion: (!judged.is_empty())
                     .then(|| judged.iter().sum::<f64>() / judged.len() as f64),
+                judged_proxy,
             });
         }
     }
-    let (ranking, ranking_missing) = if !cells.iter().any(|c| c.source == PROXY_SOURCE) {
+    // The frame judge's proxy first, then each judge's, as far as they have verdicts.
+    let proxies: Vec<String> = std::iter::once(PROXY_SOURCE.to_owned())
+        .chain(judges.iter().map(|j| judged_source(j)))
+        .filter(|p| cells.iter().any(|c| &c.source == p))
+        .collect();
+    let (ranking, ranking_missing) = if proxies.is_empty() {
         (None, Some("no proxy job has finished".to_owned()))
     } else {
         let cfg = RankingConfig {
             real: REAL_SOURCE.into(),
-            proxies: vec![PROXY_SOURCE.into()],
+            proxies,
             resamples: RANKING_RESAMPLES,
             seed: 0,
         };
@@ -287,6 +407,20 @@ pub fn ranking_results(
         judge_agreement_real_frames: (judge_real.1 > 0)
             .then(|| Proportion::new(judge_real.0, judge_real.1)),
         errors,
+        judging_errors: imagined
+            .iter()
+            .filter_map(|j| {
+                j.completion.as_ref().err().map(|e| {
+                    (
+                        j.judge.clone(),
+                        j.task_id.clone(),
+                        j.policy.clone(),
+                        j.seed,
+                        e.clone(),
+                    )
+                })
+            })
+            .collect(),
     }
 }
 
@@ -302,15 +436,32 @@ impl RankingResults {
             self.ranked_policies.join(", "),
             self.train_policies.join(", ")
         );
-        out.push_str("| task | policy | real (sim) | world-model proxy | proxy mean p | judged completion |\n|---|---|---:|---:|---:|---:|\n");
+        out.push_str("| task | policy | real (sim) | world-model proxy | proxy mean p | imagined, judged (mean completion) | judged completion |\n|---|---|---:|---:|---:|---:|---:|\n");
         for r in &self.rows {
+            let judged_proxy: Vec<String> = r
+                .judged_proxy
+                .iter()
+                .map(|j| {
+                    format!(
+                        "{}: {} ({})",
+                        j.judge,
+                        pct(&j.success),
+                        j.mean_completion.map_or("–".into(), |c| format!("{c:.1}"))
+                    )
+                })
+                .collect();
             out.push_str(&format!(
-                "| {} | {} | {} | {} | {} | {} |\n",
+                "| {} | {} | {} | {} | {} | {} | {} |\n",
                 r.task_id,
                 r.policy,
                 pct(&r.real),
                 r.proxy.as_ref().map_or("–".into(), pct),
                 r.proxy_mean_p.map_or("–".into(), |p| format!("{p:.2}")),
+                if judged_proxy.is_empty() {
+                    "–".into()
+                } else {
+                    judged_proxy.join("; ")
+                },
                 r.judged_completion
                     .map_or("–".into(), |c| format!("{c:.1}")),
             ));
@@ -347,9 +498,11 @@ impl RankingResults {
         match (&self.ranking, &self.ranking_missing) {
             (Some(r), _) => {
                 out.push_str(&r.markdown());
-                if !r.comparisons.is_empty() {
+                for c in &r.comparisons {
                     out.push_str(&format!(
-                        "\n![predicted against real success, one point per policy]({RANKING_FIGURE})\n"
+                        "\n![{}: predicted against real success, one point per policy]({})\n",
+                        c.proxy,
+                        ranking_figure(&c.proxy)
                     ));
                 }
             }
@@ -359,6 +512,167 @@ impl RankingResults {
         for (group, e) in &self.errors {
             out.push_str(&format!("\nProxy of group {group} failed: {e}\n"));
         }
+        if let Some((judge, task, policy, seed, e)) = self.judging_errors.first() {
+            out.push_str(&format!(
+                "\n{} imagined rollouts could not be judged; the first: {judge} on {task} / {policy} / seed {seed}: {e}\n",
+                self.judging_errors.len()
+            ));
+        }
         out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn real(task: &str, policy: &str, seed: u64, success: bool) -> RealEpisode {
+        RealEpisode {
+            task_id: task.into(),
+            policy: policy.into(),
+            seed,
+            success,
+            judged_completion: None,
+        }
+    }
+
+    fn verdict(
+        judge: &str,
+        task: &str,
+        policy: &str,
+        seed: u64,
+        completion: Result<f64, &str>,
+    ) -> ImaginedJudgement {
+        ImaginedJudgement {
+            task_id: task.into(),
+            policy: policy.into(),
+            seed,
+            judge: judge.into(),
+            completion: completion.map_err(str::to_owned),
+        }
+    }
+
+    #[test]
+    fn each_judge_of_imagined_rollouts_is_a_proxy_of_its_own() {
+        let plan = RankingPlan {
+            train_policies: vec!["teacher".into()],
+            config: ProxyConfig::default(),
+        };
+        let ranked: Vec<String> = ["good", "fair", "poor"].map(String::from).to_vec();
+        let task_groups = vec![("t1".into(), "g".into()), ("t2".into(), "g".into())];
+        let mut episodes = Vec::new();
+        let mut imagined = Vec::new();
+        // Real success: good 4/4, fair 2/4, poor 0/4. The VLM's completions on the imagined
+        // rollouts follow it (threshold 5: 4/4, 2/4, 0/3 and one error); "coarse" judges only
+        // two policies and gets them the wrong way round.
+        let vlm = [
+            ("good", [9.0, 8.0, 7.0, 6.0]),
+            ("fair", [6.0, 2.0, 5.0, 1.0]),
+            ("poor", [1.0, 0.0, 4.9, f64::NAN]),
+        ];
+        for (policy, scores) in vlm {
+            for (k, score) in scores.into_iter().enumerate() {
+                let (task, seed) = (if k < 2 { "t1" } else { "t2" }, k as u64 % 2);
+                let ok = match policy {
+                    "good" => true,
+                    "fair" => seed == 0,
+                    _ => false,
+                };
+                episodes.push(real(task, policy, seed, ok));
+                imagined.push(verdict(
+                    "vlm",
+                    task,
+                    policy,
+                    seed,
+                    if score.is_nan() {
+                        Err("HTTP 500")
+                    } else {
+                        Ok(score)
+                    },
+                ));
+            }
+        }
+        imagined.push(verdict("coarse", "t1", "good", 0, Ok(2.0)));
+        imagined.push(verdict("coarse", "t1", "poor", 0, Ok(8.0)));
+        let r = ranking_results(
+            &plan,
+            &ranked,
+            &task_groups,
+            &episodes,
+            Vec::new(),
+            &imagined,
+            Vec::new(),
+        );
+
+        let ranking = r.ranking.as_ref().unwrap_or_else(|| panic!("{r:?}"));
+        let proxies: Vec<&str> = ranking
+            .comparisons
+            .iter()
+            .map(|c| c.proxy.as_str())
+            .collect();
+        // No frame-judge proxy has finished; each judge is a proxy, in name order.
+        assert_eq!(proxies, ["world-model+coarse", "world-model+vlm"]);
+        let v = &ranking.comparisons[1];
+        let points: Vec<(&str, f64, f64)> = v
+            .policies
+            .iter()
+            .map(|p| (p.policy.as_str(), p.real, p.proxy))
+            .collect();
+        assert_eq!(
+            points,
+            [("good", 1.0, 1.0), ("fair", 0.5, 0.5), ("poor", 0.0, 0.0)]
+        );
+        assert_eq!(v.mmrv.value, Some(0.0));
+        assert!((v.pearson.value.unwrap() - 1.0).abs() < 1e-12);
+        let c = &ranking.comparisons[0];
+        assert_eq!(c.policies.len(), 2);
+        // Ranked the wrong way round: every policy's worst swap is the full real gap.
+        assert_eq!(c.mmrv.value, Some(1.0));
+
+        let row = |task: &str, policy: &str| {
+            r.rows
+                .iter()
+                .find(|x| x.task_id == task && x.policy == policy)
+                .unwrap()
+        };
+        let fair = &row("t1", "fair").judged_proxy;
+        assert_eq!(fair.len(), 1);
+        assert_eq!(
+            (fair[0].judge.as_str(), &fair[0].success),
+            ("vlm", &Proportion::new(1, 2))
+        );
+        assert_eq!(fair[0].mean_completion, Some(4.0));
+        // 4.9 is below the threshold; the failed shard is not a verdict but an error.
+        assert_eq!(
+            row("t2", "poor").judged_proxy[0].success,
+            Proportion::new(0, 1)
+        );
+        assert_eq!(
+            r.judging_errors,
+            [(
+                "vlm".into(),
+                "t2".into(),
+                "poor".into(),
+                1,
+                "HTTP 500".into()
+            )]
+        );
+        let md = r.markdown();
+        assert!(md.contains("vlm: 50 % (1/2) (4.0)"), "{md}");
+        assert!(md.contains("(ranking-vlm.svg)"), "{md}");
+        assert!(
+            md.contains("1 imagined rollouts could not be judged"),
+            "{md}"
+        );
+    }
+
+    #[test]
+    fn figures_are_named_by_proxy() {
+        assert_eq!(ranking_figure(PROXY_SOURCE), RANKING_FIGURE);
+        assert_eq!(
+            ranking_figure(&judged_source("gpt-4o")),
+            "ranking-gpt-4o.svg"
+        );
+        assert_eq!(ranking_figure(&judged_source("a/b c")), "ranking-a_b_c.svg");
     }
 }

@@ -29,9 +29,13 @@ pub fn write(out: &Path, r: &pb::GetReportResponse) -> anyhow::Result<()> {
         .ranking
         .as_ref()
         .and_then(|k| k.ranking.as_ref())
-        && !ranking.comparisons.is_empty()
     {
-        std::fs::write(out.join(assay_core::proxy::RANKING_FIGURE), ranking.svg(0))?;
+        for (i, c) in ranking.comparisons.iter().enumerate() {
+            std::fs::write(
+                out.join(assay_core::proxy::ranking_figure(&c.proxy)),
+                ranking.svg(i),
+            )?;
+        }
     }
     Ok(())
 }

@@ -155,7 +155,9 @@ impl Judge {
     }
 
     /// Judges one rendered episode of a task described by `description`: scene alignment from
-    /// its 4 views and completion from its 8 keyframes, each asked `repeats` times. Answers come
+    /// its 4 views and completion from its 8 keyframes, each asked `repeats` times. An imagined
+    /// rollout (a world model's, for policy ranking) has keyframes and no views: only its
+    /// completion is asked. Answers come
     /// from the cache under `root` when the same question was asked before; no new request is
     /// made once `budget_left_usd` is spent (those repeats are counted as unjudged).
     pub async fn judge(
@@ -185,14 +187,25 @@ impl Judge {
             .iter()
             .map(|k| k.artifact.clone())
             .collect();
+        // Items with images to show: an imagined rollout has no scene views.
+        let asked: Vec<(Item, &Vec<String>)> = [
+            (Item::SceneAlignment, &views),
+            (Item::Completion, &keyframes),
+        ]
+        .into_iter()
+        .filter(|(item, keys)| *item == Item::Completion || !keys.is_empty())
+        .collect();
         let items = match &self.kind {
+            Kind::Offline if views.is_empty() => {
+                return Err(JudgeError::Permanent(format!(
+                    "task {} seed {}: the offline judge cannot judge a rollout without scene views (an imagined one): its completion is the simulator's",
+                    episode.task_id, episode.seed
+                )));
+            }
             Kind::Offline => offline(episode, description, repeats, root, &ledger)?,
             Kind::Vlm(endpoint) => {
                 let mut items = Vec::new();
-                for (item, keys) in [
-                    (Item::SceneAlignment, &views),
-                    (Item::Completion, &keyframes),
-                ] {
+                for &(item, keys) in &asked {
                     let images = read_images(root, keys, item)?;
                     let prompt = Prompt::for_images(item);
                     let text = prompt.render(description, &[]);
@@ -207,10 +220,7 @@ impl Judge {
             }
             Kind::CaptionLlm { captioner, scorer } => {
                 let mut items = Vec::new();
-                for (item, keys) in [
-                    (Item::SceneAlignment, &views),
-                    (Item::Completion, &keyframes),
-                ] {
+                for &(item, keys) in &asked {
                     let captions = match captioner {
                         Some(c) => {
                             let images = read_images(root, keys, item)?;

@@ -8,6 +8,7 @@ use assay_core::clip::Clip;
 use assay_core::diversity::TextDiversityTable;
 use assay_core::hash::sha256_hex;
 use assay_core::proxy::ProxyEpisode;
+use assay_core::report::Keyframe;
 use assay_core::trainer::{TrainerJob, TrainerOutcome};
 
 use crate::embedders::Embedders;
@@ -96,10 +97,29 @@ pub fn run(
                 config,
                 device,
             };
-            let result =
+            let mut result =
                 crate::proxy::run_proxy(&req, resume.as_deref(), &mut save).map_err(|e| {
                     JobError::permanent(format!("world-model proxy of group {group:?}: {e}"))
                 })?;
+            // The imagined keyframes go to the artifact store, for the judge role.
+            let size = config.world_model.image_size;
+            let frames = std::mem::take(&mut result.imagined_frames);
+            for (p, frames) in result.predictions.iter_mut().zip(frames) {
+                for (index, rgb) in frames {
+                    let png = encode_png(&rgb, size);
+                    let key = format!("imagery/{}.png", sha256_hex(&png));
+                    write_atomically(&artifacts.join(&key), &png).map_err(|e| JobError {
+                        message: format!("storing an imagined keyframe of group {group:?}: {e}"),
+                        retryable: true,
+                    })?;
+                    p.imagined_keyframes.push(Keyframe {
+                        step: index,
+                        camera: "imagined".into(),
+                        artifact: key,
+                        goals_met: 0,
+                    });
+                }
+            }
             Ok(TrainerOutcome::Proxy {
                 result: Box::new(result),
             })
@@ -185,6 +205,18 @@ fn load_clips(artifacts: &Path, keys: &[String]) -> Result<Vec<Clip>, JobError> 
         );
     }
     Ok(loaded)
+}
+
+/// An 8-bit RGB PNG of a square `size`² frame.
+fn encode_png(rgb: &[u8], size: u32) -> Vec<u8> {
+    let mut out = Vec::new();
+    let mut enc = png::Encoder::new(&mut out, size, size);
+    enc.set_color(png::ColorType::Rgb);
+    enc.set_depth(png::BitDepth::Eight);
+    let mut w = enc.write_header().expect("png header to memory");
+    w.write_image_data(rgb).expect("png data to memory");
+    w.finish().expect("png to memory");
+    out
 }
 
 fn write_atomically(path: &Path, bytes: &[u8]) -> std::io::Result<()> {

@@ -24,7 +24,9 @@ use std::time::Instant;
 
 use assay_core::clip::Clip;
 use assay_core::policy::{EpisodeContext, Policy, PolicyError, PolicySpec};
-use assay_core::proxy::{ProxyConfig, ProxyEpisode, ProxyPrediction, ProxyResult};
+use assay_core::proxy::{
+    IMAGINED_KEYFRAMES, ProxyConfig, ProxyEpisode, ProxyPrediction, ProxyResult,
+};
 use assay_core::rng::Rng;
 use tch::{Device, Kind, Tensor};
 
@@ -303,7 +305,14 @@ pub fn run_proxy(
             success: p_imagined[i] >= config.threshold,
             p_success_real_frame: p_real[i],
             last_frame_mse: imagined_eval[i].last_frame_mse,
+            // Named by the job runner once it has stored `imagined_frames`.
+            imagined_keyframes: Vec::new(),
         })
+        .collect();
+    let imagined_frames = imagined_eval
+        .iter()
+        .zip(eval_clips)
+        .map(|(im, clip)| keyframes_of(clip, im, frame))
         .collect();
     tracing::info!(
         group,
@@ -321,7 +330,28 @@ pub fn run_proxy(
         judge_train_accuracy,
         predictions,
         seconds: started.elapsed().as_secs_f64(),
+        imagined_frames,
     })
+}
+
+/// [`IMAGINED_KEYFRAMES`] frames of an imagined rollout, evenly spaced from the clip's real
+/// first frame (what the world model was given) to the last imagined one, with their indices.
+fn keyframes_of(
+    clip: &Clip,
+    imagined: &crate::world_model::Imagined,
+    frame: usize,
+) -> Vec<(u64, Vec<u8>)> {
+    let last = imagined.frames.len();
+    (0..IMAGINED_KEYFRAMES)
+        .map(|k| {
+            let t = (last as f64 * k as f64 / (IMAGINED_KEYFRAMES - 1) as f64).round() as usize;
+            let rgb = match t {
+                0 => clip.rgb[..frame].to_vec(),
+                t => imagined.frames[t - 1].clone(),
+            };
+            (t as u64, rgb)
+        })
+        .collect()
 }
 
 impl FrameJudge {
