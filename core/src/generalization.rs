@@ -1,8 +1,9 @@
 //! Generalization (the generative-simulation paper's §3.5 and §4.3, Table 3): per task group, a
 //! diffusion policy trained on the group's episodes of one policy (the oracle's: 40 trajectories
 //! by default, as the paper), then run on **held-out variations** — the same tasks under seeds
-//! never trained on, which redraw every object pose within the task's ranges and the tool's start
-//! — and on the variations it was trained on. A policy that fails even on its training variations
+//! never trained on, which redraw whatever the task's `variations` declare (object poses, the
+//! tool's start, the colours of the objects it recolours) — and on the variations it was
+//! trained on. A policy that fails even on its training variations
 //! did not learn the group; its held-out rate says nothing about generalization, and the report
 //! says so. Plain data: training lives in `assay-trainer`, the episodes in the sim role.
 
@@ -189,8 +190,8 @@ impl GeneralizationResults {
         }
         out.push_str(
             "\nSuccess rates with Wilson 95 % intervals, in percent. Held-out variations: the same \
-             tasks under seeds never trained on (object poses within the tasks' ranges, the tool's \
-             start).\n",
+             tasks under seeds never trained on, redrawing what each task's variations declare \
+             (object poses, the tool's start, colours).\n",
         );
         for (group, e) in &self.errors {
             out.push_str(&format!(

@@ -157,9 +157,9 @@ impl Judge {
     /// Judges one rendered episode of a task described by `description`: scene alignment from
     /// its 4 views and completion from its 8 keyframes, each asked `repeats` times. An imagined
     /// rollout (a world model's, for policy ranking) has keyframes and no views: only its
-    /// completion is asked. Answers come
-    /// from the cache under `root` when the same question was asked before; no new request is
-    /// made once `budget_left_usd` is spent (those repeats are counted as unjudged).
+    /// completion is asked. Answers come from the cache under `root` when the same question was
+    /// asked before; no new request is made once `budget_left_usd` is spent (those repeats are
+    /// counted as unjudged).
     pub async fn judge(
         &self,
         episode: &EpisodeOutcome,
