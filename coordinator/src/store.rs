@@ -1107,9 +1107,6 @@ impl Store {
         Ok(())
     }
 
-    /// Queues the evaluation episodes of `group`'s trained diffusion policy `model`: every
-    /// (task, seed) it was trained on, and every task of the group under the plan's held-out
-    /// seeds. Returns how many.
     /// Queues, for every judge of the batch that looks at images (every one but the built-in
     /// `offline`, whose completion is the simulator's), one judge shard per imagined rollout of
     /// a finished proxy: the ranked episode's outcome with the imagined keyframes as its imagery
@@ -1180,6 +1177,9 @@ impl Store {
         Ok(n)
     }
 
+    /// Queues the evaluation episodes of `group`'s trained diffusion policy `model`: every
+    /// (task, seed) it was trained on, and every task of the group under the plan's held-out
+    /// seeds. Returns how many.
     fn queue_generalization_episodes(
         conn: &Connection,
         batch_id: &str,
