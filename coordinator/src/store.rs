@@ -1110,7 +1110,7 @@ impl Store {
     /// Queues, for every judge of the batch that looks at images (every one but the built-in
     /// `offline`, whose completion is the simulator's), one judge shard per imagined rollout of
     /// a finished proxy: the ranked episode's outcome with the imagined keyframes as its imagery
-    /// and no scene views, so the judge is asked about completion only.
+    /// and no scene views, so the judge is asked about completion only. Returns how many.
     fn queue_imagined_judging(
         conn: &Connection,
         batch_id: &str,

@@ -549,20 +549,7 @@ pub fn validate(spec: &TaskSpec, origin: &str) -> Vec<SpecError> {
         if let Some(m) = o.mass {
             v.positive(&format!("{p}.mass"), m);
         }
-        if o.color.rgb().is_none() {
-            v.err(
-                &format!("{p}.color"),
-                format!("unknown colour {:?}", o.color),
-            );
-        }
-        if let Color::Rgb(c) = o.color
-            && c.iter().any(|x| !(0.0..=1.0).contains(x))
-        {
-            v.err(
-                &format!("{p}.color"),
-                "rgb components must lie in 0..1".into(),
-            );
-        }
+        v.color(&format!("{p}.color"), &o.color);
         match (&o.pose, &o.pose_range) {
             (Some(pose), None) => {
                 v.finite3(&format!("{p}.pose.position"), &pose.position);
@@ -702,14 +689,7 @@ pub fn validate(spec: &TaskSpec, origin: &str) -> Vec<SpecError> {
         v.range("variations.ee_start", r);
     }
     for (i, c) in spec.variations.colors.iter().enumerate() {
-        let p = format!("variations.colors[{i}]");
-        match c.rgb() {
-            None => v.err(&p, format!("unknown colour {c:?}")),
-            Some(rgb) if rgb.iter().any(|x| !(0.0..=1.0).contains(x)) => {
-                v.err(&p, "rgb components must lie in 0..1".into())
-            }
-            Some(_) => {}
-        }
+        v.color(&format!("variations.colors[{i}]"), c);
     }
     match (
         spec.variations.colors.is_empty(),
@@ -876,6 +856,17 @@ impl Validator<'_> {
             self.err(path, format!("must be zero or positive, got {x}"));
         }
     }
+    /// A colour name Assay knows, or RGB components in 0..1.
+    fn color(&mut self, path: &str, c: &Color) {
+        match c.rgb() {
+            None => self.err(path, format!("unknown colour {c:?}")),
+            Some(rgb) if rgb.iter().any(|x| !(0.0..=1.0).contains(x)) => {
+                self.err(path, "rgb components must lie in 0..1".into())
+            }
+            Some(_) => {}
+        }
+    }
+
     fn range(&mut self, path: &str, r: &PoseRange) {
         self.finite3(&format!("{path}.min"), &r.min);
         self.finite3(&format!("{path}.max"), &r.max);
