@@ -23,6 +23,10 @@ pub struct SnapshotObject {
     pub position: [f32; 3],
     /// Unit quaternion (x, y, z, w).
     pub rotation: [f32; 4],
+    /// Joint positions of an articulated URDF object at this moment (its shape's `joints` are
+    /// the initial ones, which fix its frame); empty for everything else.
+    #[serde(default, skip_serializing_if = "std::collections::BTreeMap::is_empty")]
+    pub joints: std::collections::BTreeMap<String, f64>,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

@@ -81,6 +81,10 @@ pub struct Joint {
     pub axis: [f64; 3],
     /// (lower, upper) in radians or metres; present for revolute and prismatic joints only.
     pub limit: Option<[f64; 2]>,
+    /// `<dynamics friction>`: the force (N) or torque (N m) the joint resists motion with.
+    pub friction: f64,
+    /// `<dynamics damping>`: resistance proportional to velocity (N s/m or N m s/rad).
+    pub damping: f64,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -210,6 +214,11 @@ impl Urdf {
     /// Index of the root link (the one that is no joint's child).
     pub fn root(&self) -> usize {
         self.root
+    }
+
+    /// Joint indices, each parent link's joint before its children's.
+    pub fn joint_order(&self) -> &[usize] {
+        &self.order
     }
 
     /// Pose of every link (in `links` order) in the root link's frame. `positions` maps movable
@@ -479,6 +488,19 @@ fn joint(name: &str, n: Node<'_, '_>, links: &[Link]) -> Result<Joint, String> {
         }
         JointKind::Fixed | JointKind::Continuous => None,
     };
+    let (friction, damping) = match element(n, "dynamics") {
+        Some(d) => {
+            let value = |key| -> Result<f64, String> {
+                let x = numbers::<1>(d, key, Some([0.0])).map_err(|e| format!("dynamics {e}"))?[0];
+                if x < 0.0 {
+                    return Err(format!("dynamics {key} {x}: must not be negative"));
+                }
+                Ok(x)
+            };
+            (value("friction")?, value("damping")?)
+        }
+        None => (0.0, 0.0),
+    };
     Ok(Joint {
         name: name.to_owned(),
         kind,
@@ -487,6 +509,8 @@ fn joint(name: &str, n: Node<'_, '_>, links: &[Link]) -> Result<Joint, String> {
         origin: origin(n)?,
         axis,
         limit,
+        friction,
+        damping,
     })
 }
 
@@ -719,6 +743,11 @@ pub struct Assembled {
     pub collisions: Vec<(PlacedPart, Option<TriangleMesh>)>,
     /// Half extents of the visual parts' bounding box.
     pub half: [f64; 3],
+    /// The object's frame (the centre of that box) in the root link's frame: a part's pose in
+    /// the object frame is its pose in the root frame moved by `-centre`.
+    pub centre: [f64; 3],
+    /// The URDF as read.
+    pub urdf: Urdf,
 }
 
 /// Points bounding a part placed by `pose` (corners of its box, or its mesh's vertices).
@@ -753,6 +782,17 @@ fn part_corners(part: &PlacedPart, mesh: Option<&TriangleMesh>) -> Vec<[f64; 3]>
 /// Reads the URDF at `path` (its meshes must lie inside its own folder) and poses it at
 /// `positions`.
 pub fn assemble(path: &Path, positions: &BTreeMap<String, f64>) -> Result<Assembled, String> {
+    assemble_posed(path, positions, positions)
+}
+
+/// [`assemble`] with the object's frame fixed by the visual bounding box at `frame_at` and the
+/// links posed at `positions`: an articulated object drawn as its joints move keeps its frame
+/// on its root link (the bounding box, and so `half`, are those at `frame_at`).
+pub fn assemble_posed(
+    path: &Path,
+    frame_at: &BTreeMap<String, f64>,
+    positions: &BTreeMap<String, f64>,
+) -> Result<Assembled, String> {
     let text = std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;
     let urdf = parse(&text).map_err(|e| format!("{}: {e}", path.display()))?;
     let dir = path.parent().unwrap_or(Path::new("."));
@@ -775,10 +815,15 @@ pub fn assemble(path: &Path, positions: &BTreeMap<String, f64>) -> Result<Assemb
             })
             .collect()
     };
+    let framing = if frame_at == positions {
+        None
+    } else {
+        Some(with_meshes(urdf.placed_visuals(frame_at)?)?)
+    };
     let mut visuals = with_meshes(urdf.placed_visuals(positions)?)?;
     let mut collisions = with_meshes(urdf.placed_collisions(positions)?)?;
     let (mut lo, mut hi) = ([f64::MAX; 3], [f64::MIN; 3]);
-    for (p, m) in &visuals {
+    for (p, m) in framing.as_ref().unwrap_or(&visuals) {
         for c in part_corners(p, m.as_ref()) {
             for k in 0..3 {
                 lo[k] = lo[k].min(c[k]);
@@ -799,6 +844,8 @@ pub fn assemble(path: &Path, positions: &BTreeMap<String, f64>) -> Result<Assemb
         visuals,
         collisions,
         half: std::array::from_fn(|k| (hi[k] - lo[k]) / 2.0),
+        centre,
+        urdf,
     })
 }
 

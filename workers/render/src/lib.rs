@@ -188,6 +188,9 @@ enum MeshKey {
     File(String),
 }
 
+/// How many posed URDF objects the renderer keeps before it starts over.
+const MAX_URDF_POSES: usize = 512;
+
 pub struct Renderer {
     device: wgpu::Device,
     queue: wgpu::Queue,
@@ -477,24 +480,31 @@ impl Renderer {
         }
     }
 
-    /// Reads a URDF object once: its visual parts, with their meshes uploaded.
+    /// Reads a URDF object once per joint positions: its visual parts, with their meshes
+    /// uploaded. `frame_at` fixes the object's frame (an articulated object's initial joints),
+    /// `joints` poses the links.
     fn load_urdf(
         &mut self,
         i: usize,
         path: &str,
+        frame_at: &std::collections::BTreeMap<String, f64>,
         joints: &std::collections::BTreeMap<String, f64>,
     ) -> Result<String, RenderError> {
         use assay_core::urdf::Geometry;
-        let key = format!("{path}|{joints:?}");
+        let key = format!("{path}|{frame_at:?}|{joints:?}");
         if self.urdfs.contains_key(&key) {
             return Ok(key);
         }
-        let a =
-            assay_core::urdf::assemble(std::path::Path::new(path), joints).map_err(|reason| {
-                RenderError::Scene {
-                    path: format!("scene.objects[{i}].shape.urdf"),
-                    reason,
-                }
+        // An articulated object takes a new pose every frame: bound the cache.
+        if self.urdfs.len() >= MAX_URDF_POSES {
+            self.urdfs.clear();
+            self.meshes
+                .retain(|k, _| !matches!(k, MeshKey::File(f) if f.contains('|')));
+        }
+        let a = assay_core::urdf::assemble_posed(std::path::Path::new(path), frame_at, joints)
+            .map_err(|reason| RenderError::Scene {
+                path: format!("scene.objects[{i}].shape.urdf"),
+                reason,
             })?;
         let mut parts = Vec::new();
         for (k, (part, mesh)) in a.visuals.iter().enumerate() {
@@ -534,8 +544,22 @@ impl Renderer {
     ) -> Result<Vec<(MeshKey, Vec<Instance>)>, RenderError> {
         let mut urdf_keys = HashMap::new();
         for (i, o) in scene.objects.iter().enumerate() {
-            if let Shape::Urdf { path, joints } = &o.shape {
-                urdf_keys.insert(i, self.load_urdf(i, path, joints)?);
+            if let Shape::Urdf {
+                path,
+                joints,
+                articulated,
+            } = &o.shape
+            {
+                // A snapshot of an articulated object carries its joints at that moment.
+                let posed = if *articulated && !o.joints.is_empty() {
+                    &o.joints
+                } else {
+                    joints
+                };
+                // Its frame is fixed by its links at their default positions.
+                let none = std::collections::BTreeMap::new();
+                let frame_at = if *articulated { &none } else { joints };
+                urdf_keys.insert(i, self.load_urdf(i, path, frame_at, posed)?);
             }
         }
         let mut by_mesh: Vec<(MeshKey, Vec<Instance>)> = Vec::new();

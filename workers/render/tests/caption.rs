@@ -18,6 +18,7 @@ fn object(id: &str, shape: Shape, color: [f64; 3], position: [f32; 3]) -> Snapsh
         color: color.map(|c| c as f32),
         position,
         rotation: [0.0, 0.0, 0.0, 1.0],
+        joints: Default::default(),
     }
 }
 

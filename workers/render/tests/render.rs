@@ -23,6 +23,7 @@ fn object(
         color,
         position,
         rotation: [0.0, 0.0, h.0, h.1],
+        joints: Default::default(),
     }
 }
 

@@ -58,6 +58,7 @@ fn the_camera_sees_a_box_where_it_is() {
             color: [0.8, 0.2, 0.2],
             position: [0.58, -0.11, 0.025],
             rotation: [0.0, 0.0, yaw.0, yaw.1],
+            joints: Default::default(),
         }],
         tool: None,
     };

@@ -22,10 +22,12 @@ fn cabinet(drawer: f64) -> (SceneSnapshot, [f64; 3]) {
             shape: Shape::Urdf {
                 path: path.display().to_string(),
                 joints,
+                articulated: false,
             },
             color: [1.0, 0.0, 1.0],
             position: [0.5, 0.0, half[2] as f32],
             rotation: [0.0, 0.0, 0.0, 1.0],
+            joints: Default::default(),
         }],
         tool: None,
     };

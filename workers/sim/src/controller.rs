@@ -19,6 +19,10 @@ const DWELL_STEPS: u32 = 8;
 const PLACE_CLEARANCE: f32 = 0.004;
 /// How far the tool's face may be from an object's top and still grasp it (m).
 const GRASP_REACH: f32 = 0.012;
+/// How far inside a link's top edge the tool grasps it (m).
+const HANDLE_INSET: f32 = 0.02;
+/// Largest joint motion between two waypoints of an `actuate` (rad or m).
+const ACTUATE_STEP: f64 = 0.05;
 
 /// One straight move of the tool, with ease-in/ease-out.
 #[derive(Debug, Clone, Copy)]
@@ -42,6 +46,12 @@ pub enum Event {
     None,
     /// Try to grasp this object (index into `SimScene::objects`).
     Grasp(usize),
+    /// Try to grasp the moving link of joint `joint` of articulated object `object` at the
+    /// tool's face (a ball joint: the link turns under the tool).
+    GraspLink {
+        object: usize,
+        joint: usize,
+    },
     Release,
 }
 
@@ -334,6 +344,9 @@ impl Controller {
                         scene_zone(scene, id).map(|(c, _)| Vec3::new(c.x, c.y, held_half.z))
                     }
                     PlaceTarget::At(xy) => Some(Vec3::new(xy[0] as f32, xy[1] as f32, held_half.z)),
+                    PlaceTarget::AtPoint(p) => {
+                        Some(Vec3::new(p[0] as f32, p[1] as f32, p[2] as f32))
+                    }
                 };
                 let Some(centre) = centre else { return };
                 let centre = centre + self.jitter();
@@ -354,6 +367,9 @@ impl Controller {
                     Event::None,
                     dt,
                 );
+            }
+            Primitive::Actuate { object, joint, to } => {
+                self.actuate(scene, step, object, joint, *to);
             }
             Primitive::Push { object, to } => {
                 let Some(i) = scene.index_of(object) else {
@@ -412,6 +428,119 @@ impl Controller {
         }
     }
 
+    /// Grasp the moving link of a joint at the top point farthest from the joint (along the axis
+    /// for a prismatic joint), carry it along the joint's motion to `to`, release, retreat.
+    /// Joint positions are read from the sim's state, also by a seeing oracle (its camera
+    /// tracks objects, not joints).
+    fn actuate(&mut self, scene: &SimScene, step: u64, object: &str, joint: &str, to: f64) {
+        let dt = scene.world.integration_parameters.dt;
+        let gh = GRIPPER_HALF_EXTENTS[2];
+        let Some(i) = scene.index_of(object) else {
+            return;
+        };
+        let o = &scene.objects[i];
+        let Some(k) = o.joints.iter().position(|j| j.name == joint) else {
+            return;
+        };
+        let j = &o.joints[k];
+        let q = j.position(&scene.world);
+        let to = match j.limit {
+            Some([lo, hi]) => to.clamp(lo, hi),
+            None => to,
+        };
+        let zero = *scene.world.bodies[j.parent].position() * j.frame;
+        let (origin, axis) = (zero.translation, zero.rotation * Vec3::X);
+        // Candidate points: the corners, edge midpoints and face centres of every part of the
+        // moving link's shape, with the centre of the part each belongs to.
+        let mut points: Vec<(Vec3, Vec3)> = Vec::new();
+        for h in scene.world.bodies[j.child].colliders() {
+            let c = &scene.world.colliders[*h];
+            let parts: Vec<(Pose, rapier3d::parry::shape::SharedShape)> =
+                match c.shape().as_compound() {
+                    Some(compound) => compound.shapes().to_vec(),
+                    None => vec![(Pose::IDENTITY, c.shared_shape().clone())],
+                };
+            for (local, shape) in parts {
+                let pose = *c.position() * local;
+                let b = shape.compute_local_aabb();
+                let (lo, hi) = (b.mins, b.maxs);
+                let mid = (lo + hi) / 2.0;
+                let centre = pose.transform_point(mid);
+                for fx in [lo.x, mid.x, hi.x] {
+                    for fy in [lo.y, mid.y, hi.y] {
+                        for fz in [lo.z, mid.z, hi.z] {
+                            points.push((pose.transform_point(Vec3::new(fx, fy, fz)), centre));
+                        }
+                    }
+                }
+            }
+        }
+        let Some(top) = points.iter().map(|(p, _)| p.z).reduce(f32::max) else {
+            return;
+        };
+        let reach = |p: Vec3| {
+            if j.prismatic {
+                p.dot(axis)
+            } else {
+                let d = p - origin;
+                (d - axis * d.dot(axis)).length()
+            }
+        };
+        // On the top, as far from the joint as it goes, and as near the middle of its part as
+        // that allows (an edge's midpoint rather than its corner).
+        let score =
+            |(p, c): &(Vec3, Vec3)| reach(*p) - 0.5 * Vec3::new(p.x - c.x, p.y - c.y, 0.0).length();
+        let Some((mut grasp, centre)) = points
+            .iter()
+            .filter(|(p, _)| p.z >= top - 0.005)
+            .copied()
+            .max_by(|a, b| score(a).total_cmp(&score(b)))
+        else {
+            return;
+        };
+        // Inside the edge, so that the tool's face rests on the part.
+        let inward = Vec3::new(centre.x - grasp.x, centre.y - grasp.y, 0.0);
+        grasp += inward.normalize_or_zero() * inward.length().min(HANDLE_INSET);
+        let grasp = grasp + self.jitter();
+        let z_safe = self.safe_height(scene).max(grasp.z + gh + 0.05);
+        self.travel_over(grasp, z_safe, dt);
+        self.push_move(
+            Vec3::new(grasp.x, grasp.y, grasp.z + gh),
+            DESCEND_SPEED,
+            Event::None,
+            dt,
+        );
+        self.dwell(Event::GraspLink {
+            object: i,
+            joint: k,
+        });
+        let n = ((to - q).abs() / ACTUATE_STEP).ceil().max(10.0) as u32;
+        let mut last = grasp;
+        for s in 1..=n {
+            let dq = ((to - q) * f64::from(s) / f64::from(n)) as f32;
+            let p = if j.prismatic {
+                grasp + axis * dq
+            } else {
+                origin + Rotation::from_axis_angle(axis, dq) * (grasp - origin)
+            };
+            self.push_move(
+                Vec3::new(p.x, p.y, p.z + gh),
+                DESCEND_SPEED,
+                Event::None,
+                dt,
+            );
+            last = p;
+        }
+        self.dwell(Event::Release);
+        self.push_move(
+            Vec3::new(last.x, last.y, last.z + gh + 0.08),
+            DESCEND_SPEED,
+            Event::None,
+            dt,
+        );
+        let _ = step;
+    }
+
     /// Applies a grasp or release to the world.
     pub fn apply(&mut self, ev: Event, scene: &mut SimScene, step: u64) {
         match ev {
@@ -465,6 +594,41 @@ impl Controller {
                 self.held = Some(Held {
                     object: i,
                     offset: believed - tool,
+                    joint: handle,
+                });
+            }
+            Event::GraspLink { object, joint } => {
+                let o = &scene.objects[object];
+                let j = &o.joints[joint];
+                let face = scene.gripper_position() - Vec3::new(0.0, 0.0, GRIPPER_HALF_EXTENTS[2]);
+                let distance = scene.world.bodies[j.child]
+                    .colliders()
+                    .iter()
+                    .map(|h| {
+                        let c = &scene.world.colliders[*h];
+                        c.shape().distance_to_point(c.position(), face, true)
+                    })
+                    .fold(f32::MAX, f32::min);
+                if distance > GRASP_REACH {
+                    self.notes.push(Note {
+                        step,
+                        text: format!(
+                            "grasp of '{}' (the link of joint '{}') failed: tool face {distance:.3} m from it",
+                            o.id, j.name
+                        ),
+                    });
+                    return;
+                }
+                let child = j.child;
+                let link = *scene.world.bodies[child].position();
+                let ball = SphericalJointBuilder::new()
+                    .local_anchor1(Vec3::new(0.0, 0.0, -GRIPPER_HALF_EXTENTS[2]))
+                    .local_anchor2(link.inverse_transform_point(face))
+                    .contacts_enabled(false);
+                let handle = scene.world.insert_impulse_joint(scene.gripper, child, ball);
+                self.held = Some(Held {
+                    object,
+                    offset: Vec3::ZERO,
                     joint: handle,
                 });
             }

@@ -177,6 +177,56 @@ pub const VIDEO_FRAMES: usize = 48;
 
 /// Simulates one episode of `spec` with `seed` and `policy`. Deterministic: the same inputs give
 /// the same outcome and the same file, byte for byte.
+/// Whether a `lifted` goal names object `i` (the episode may end holding it up).
+fn lifts(spec: &TaskSpec, scene: &SimScene, i: usize) -> bool {
+    let id = &scene.objects[i].id;
+    spec.goals
+        .iter()
+        .any(|g| matches!(g, assay_core::spec::Goal::Lifted { object, .. } if object == id))
+}
+
+/// Joint goals and `actuate` steps name moving joints of their articulated objects: checked once
+/// the URDFs are read (the spec alone does not know their joints).
+fn check_joints(spec: &TaskSpec, scene: &SimScene) -> Result<(), SimError> {
+    use assay_core::spec::{Goal, Primitive};
+    let refs = spec
+        .goals
+        .iter()
+        .enumerate()
+        .filter_map(|(i, g)| match g {
+            Goal::JointPosition { object, joint, .. } => {
+                Some((format!("goals[{i}].joint_position.joint"), object, joint))
+            }
+            _ => None,
+        })
+        .chain(spec.oracle.iter().enumerate().filter_map(|(i, p)| match p {
+            Primitive::Actuate { object, joint, .. } => {
+                Some((format!("oracle[{i}].actuate.joint"), object, joint))
+            }
+            _ => None,
+        }));
+    for (path, object, joint) in refs {
+        let Some(o) = scene.object(object) else {
+            continue;
+        };
+        if scene.joint(o, joint).is_none() {
+            let known: Vec<&str> = o.joints.iter().map(|j| j.name.as_str()).collect();
+            return Err(SimError::spec(
+                path,
+                format!(
+                    "'{object}' has no moving joint '{joint}' (its moving joints: {})",
+                    if known.is_empty() {
+                        "none".to_string()
+                    } else {
+                        known.join(", ")
+                    }
+                ),
+            ));
+        }
+    }
+    Ok(())
+}
+
 pub fn simulate(spec: &TaskSpec, seed: u64, policy: &str) -> Result<Episode, SimError> {
     simulate_with(spec, seed, policy, SimOptions::default())
 }
@@ -236,6 +286,7 @@ pub fn simulate_with(
     };
     let camera = assay_core::policy::observation_camera();
     let mut scene = scene::build_scene(spec, seed)?;
+    check_joints(spec, &scene)?;
     let start = scene.gripper_position();
     let tracker = (sense == Sense::Camera).then(|| Tracker::new(scene.objects.len()));
     let mut ctl = Controller::new(spec, start, noise, seed, tracker);
@@ -289,6 +340,7 @@ pub fn simulate_with(
                 controller::Event::None
             }
         };
+        scene.hold_joints();
         scene.world.step();
         ctl.apply(ev, scene, *step);
         *step += 1;
@@ -337,7 +389,7 @@ pub fn simulate_with(
                 }
                 if since > 0
                     && since.is_multiple_of(assay_core::policy::CONTROL_STRIDE_STEPS)
-                    && ctl.held.is_none()
+                    && ctl.held.is_none_or(|h| lifts(spec, &scene, h.object))
                     && predicates::evaluate(&spec.goals, &scene)
                         .iter()
                         .all(|p| p.holds)
@@ -364,8 +416,12 @@ pub fn simulate_with(
         Some(l) => l.frames,
         None => ctl.tracker.as_ref().map_or(0, |t| t.frames),
     };
-    if let Some(h) = ctl.held.take() {
-        // A truncated plan may still hold something: let it go before the final settle.
+    // A truncated plan may still hold something: let it go before the final settle. What a
+    // `lifted` goal wants held up stays held to the end.
+    if let Some(h) = ctl.held
+        && (truncated || !lifts(spec, &scene, h.object))
+    {
+        ctl.held = None;
         scene.world.remove_impulse_joint(h.joint);
     }
     for _ in 0..settle {

@@ -143,5 +143,34 @@ fn holds(goal: &Goal, scene: &SimScene) -> (bool, String) {
             }
             (ok, detail)
         }
+        Goal::JointPosition {
+            object,
+            joint,
+            min,
+            max,
+        } => {
+            let o = obj(scene, object);
+            let Some(j) = scene.joint(o, joint) else {
+                return (false, format!("'{object}' has no moving joint '{joint}'"));
+            };
+            let q = j.position(&scene.world);
+            let ok = min.is_none_or(|lo| q >= lo) && max.is_none_or(|hi| q <= hi);
+            let unit = if j.prismatic { "m" } else { "rad" };
+            let bounds = match (min, max) {
+                (Some(lo), Some(hi)) => format!("[{lo}, {hi}]"),
+                (Some(lo), None) => format!(">= {lo}"),
+                (None, Some(hi)) => format!("<= {hi}"),
+                (None, None) => "anything".into(),
+            };
+            (ok, format!("'{joint}' at {q:.3} {unit} (wanted {bounds})"))
+        }
+        Goal::Lifted { object, height } => {
+            let o = obj(scene, object);
+            let bottom = scene.pose(o).translation.z - o.half.z;
+            (
+                f64::from(bottom) >= *height,
+                format!("bottom at {bottom:.3} m (wanted at least {height} m)"),
+            )
+        }
     }
 }

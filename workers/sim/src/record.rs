@@ -30,12 +30,15 @@ pub struct Recorder {
     ee_contact: Vec<bool>,
     /// Per object: x, y, z, qx, qy, qz, qw.
     objects: Vec<[Vec<f32>; 7]>,
+    /// Per object: each moving joint's name and position (articulated objects only).
+    joints: Vec<Vec<(String, Vec<f32>)>>,
 }
 
 impl Recorder {
     pub fn new(objects: usize) -> Self {
         Self {
             objects: (0..objects).map(|_| Default::default()).collect(),
+            joints: vec![Vec::new(); objects],
             ..Default::default()
         }
     }
@@ -75,6 +78,12 @@ impl Recorder {
                 )
             }),
             [self.ee[0][row], self.ee[1][row], self.ee[2][row]],
+            |i| {
+                self.joints[i]
+                    .iter()
+                    .map(|(name, q)| (name.clone(), f64::from(q[row])))
+                    .collect()
+            },
         )
     }
 
@@ -104,6 +113,14 @@ impl Recorder {
             let q = p.rotation;
             for (k, v) in [t.x, t.y, t.z, q.x, q.y, q.z, q.w].into_iter().enumerate() {
                 cols[k].push(v);
+            }
+        }
+        for (o, cols) in scene.objects.iter().zip(self.joints.iter_mut()) {
+            if cols.is_empty() {
+                cols.extend(o.joints.iter().map(|j| (j.name.clone(), Vec::new())));
+            }
+            for (j, (_, col)) in o.joints.iter().zip(cols.iter_mut()) {
+                col.push(j.position(&scene.world) as f32);
             }
         }
     }
@@ -144,6 +161,16 @@ impl Recorder {
             for (k, c) in ["x", "y", "z", "qx", "qy", "qz", "qw"].iter().enumerate() {
                 fields.push(Field::new(format!("{id}.{c}"), DataType::Float32, false));
                 cols.push(Arc::new(Float32Array::from(data[k].clone())));
+            }
+        }
+        for (id, joints) in object_ids.iter().zip(&self.joints) {
+            for (name, data) in joints {
+                fields.push(Field::new(
+                    format!("{id}.joint.{name}"),
+                    DataType::Float32,
+                    false,
+                ));
+                cols.push(Arc::new(Float32Array::from(data.clone())));
             }
         }
         let schema = Arc::new(Schema::new(fields).with_metadata(metadata));
@@ -200,6 +227,7 @@ pub fn live_snapshot(scene: &SimScene, spec: &TaskSpec) -> SceneSnapshot {
             )
         }),
         scene.gripper_position().into(),
+        |i| scene.joint_positions(&scene.objects[i]),
     )
 }
 
@@ -209,18 +237,21 @@ fn snapshot_of(
     spec: &TaskSpec,
     poses: impl Iterator<Item = ([f32; 3], [f32; 4])>,
     tool: [f32; 3],
+    joints: impl Fn(usize) -> std::collections::BTreeMap<String, f64>,
 ) -> SceneSnapshot {
     let objects = spec
         .scene
         .objects
         .iter()
         .zip(poses)
-        .map(|(o, (position, rotation))| SnapshotObject {
+        .enumerate()
+        .map(|(i, (o, (position, rotation)))| SnapshotObject {
             id: o.id.clone(),
             shape: spec.resolved_shape(&o.shape),
             color: o.color.rgb().unwrap_or([0.5; 3]).map(|x| x as f32),
             position,
             rotation,
+            joints: joints(i),
         })
         .collect();
     SceneSnapshot {

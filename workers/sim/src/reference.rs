@@ -128,6 +128,7 @@ impl Contract {
                     half: Vec3::splat(h),
                     fixed: false,
                     container: None,
+                    joints: Vec::new(),
                 }
             })
             .collect();
@@ -245,6 +246,7 @@ pub fn snapshot(scene: &SimScene) -> SceneSnapshot {
                 color: PALETTE[i % PALETTE.len()],
                 position: p.translation.into(),
                 rotation: [p.rotation.x, p.rotation.y, p.rotation.z, p.rotation.w],
+                joints: Default::default(),
             }
         })
         .collect();

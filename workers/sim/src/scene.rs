@@ -24,6 +24,59 @@ pub struct SimObject {
     pub fixed: bool,
     /// For containers: inner half extents and wall thickness.
     pub container: Option<(Vec3, f32)>,
+    /// For articulated URDF objects: the moving joints (`body` is the root link's body).
+    pub joints: Vec<SimJoint>,
+}
+
+/// A moving joint of an articulated object in the world.
+#[derive(Debug, Clone)]
+pub struct SimJoint {
+    pub name: String,
+    pub prismatic: bool,
+    pub parent: RigidBodyHandle,
+    /// The body of the joint's child link (and the links fixed to it).
+    pub child: RigidBodyHandle,
+    /// The joint frame at position 0 in the parent body's frame, turned so that its x axis is
+    /// the joint axis; the child body's frame is this frame moved by the joint, then turned back
+    /// by `align`.
+    pub frame: Pose,
+    pub align: Rotation,
+    pub limit: Option<[f64; 2]>,
+    pub handle: ImpulseJointHandle,
+    /// `<dynamics friction>` (N or N m); 0 for none.
+    pub friction: f64,
+    /// Where the friction spring holds the joint (see [`SimScene::hold_joints`]).
+    pub anchor: f64,
+}
+
+/// How far (rad or m) a joint with friction gives before it slips: its friction is a spring of
+/// stiffness `friction / JOINT_SLIP` that holds it at an anchor, and the anchor follows the
+/// joint when the spring's force would exceed the friction (stick-slip Coulomb friction). A
+/// velocity motor bounded by the friction would let a lid creep down under gravity.
+pub const JOINT_SLIP: f64 = 0.01;
+
+impl SimJoint {
+    fn axis(&self) -> JointAxis {
+        if self.prismatic {
+            JointAxis::LinX
+        } else {
+            JointAxis::AngX
+        }
+    }
+
+    /// The joint's position (rad or m) in the current state.
+    pub fn position(&self, world: &PhysicsWorld) -> f64 {
+        let parent = world.bodies[self.parent].position();
+        let child = world.bodies[self.child].position();
+        // Child frame in the joint's zero frame, x axis along the joint axis.
+        let rel = (*parent * self.frame).inverse() * (*child * Pose::from_rotation(self.align));
+        if self.prismatic {
+            f64::from(rel.translation.x)
+        } else {
+            let q = rel.rotation;
+            f64::from(2.0 * q.x.atan2(q.w))
+        }
+    }
 }
 
 pub struct SimScene {
@@ -51,6 +104,215 @@ impl SimScene {
     pub fn gripper_position(&self) -> Vec3 {
         self.world.bodies[self.gripper].translation()
     }
+
+    /// Joint `name` of object `o`, if it is a moving joint of an articulated object.
+    pub fn joint<'a>(&self, o: &'a SimObject, name: &str) -> Option<&'a SimJoint> {
+        o.joints.iter().find(|j| j.name == name)
+    }
+
+    /// Joint friction, before each physics step: a joint pulled further than [`JOINT_SLIP`]
+    /// from its anchor slips (the anchor follows it); otherwise its spring holds it.
+    pub fn hold_joints(&mut self) {
+        for o in &mut self.objects {
+            for j in &mut o.joints {
+                if j.friction <= 0.0 {
+                    continue;
+                }
+                let q = j.position(&self.world);
+                if (j.anchor - q).abs() <= JOINT_SLIP {
+                    continue;
+                }
+                j.anchor = q + JOINT_SLIP * (j.anchor - q).signum();
+                let axis = j.axis();
+                if let Some(joint) = self.world.impulse_joints.get_mut(j.handle, true) {
+                    let stiffness = (j.friction / JOINT_SLIP) as f32;
+                    let damping = joint.data.motor(axis).map_or(0.0, |m| m.damping);
+                    joint
+                        .data
+                        .set_motor_position(axis, j.anchor as f32, stiffness, damping);
+                }
+            }
+        }
+    }
+
+    /// Every moving joint's position of object `o`, by name.
+    pub fn joint_positions(&self, o: &SimObject) -> std::collections::BTreeMap<String, f64> {
+        o.joints
+            .iter()
+            .map(|j| (j.name.clone(), j.position(&self.world)))
+            .collect()
+    }
+}
+
+fn to_pose(p: &assay_core::urdf::Pose) -> Pose {
+    let [x, y, z] = p.translation.map(|c| c as f32);
+    let [qx, qy, qz, qw] = p.rotation.map(|c| c as f32);
+    Pose::from_parts(Vec3::new(x, y, z), Rotation::from_xyzw(qx, qy, qz, qw))
+}
+
+/// A URDF collision part as a rapier shape and its pose in the frame the part is placed in.
+fn urdf_part(
+    part: &assay_core::urdf::PlacedPart,
+    mesh: Option<&assay_core::scene::TriangleMesh>,
+    k: usize,
+    path: &str,
+) -> Result<(Pose, SharedShape), SimError> {
+    let pose = to_pose(&part.pose);
+    Ok(match &part.geometry {
+        Geometry::Box { size } => {
+            let h = v3(*size) / 2.0;
+            (pose, SharedShape::cuboid(h.x, h.y, h.z))
+        }
+        Geometry::Sphere { radius } => (pose, SharedShape::ball(*radius as f32)),
+        // URDF cylinders stand on their local z; rapier's on y.
+        Geometry::Cylinder { radius, length } => (
+            pose * Pose::new(Vec3::ZERO, Vec3::new(std::f32::consts::FRAC_PI_2, 0.0, 0.0)),
+            SharedShape::cylinder(*length as f32 / 2.0, *radius as f32),
+        ),
+        Geometry::Mesh { scale, .. } => {
+            let s = v3(*scale);
+            let points: Vec<Vec3> = mesh
+                .iter()
+                .flat_map(|m| m.vertices.iter())
+                .map(|v| Vec3::new(v[0], v[1], v[2]) * s)
+                .collect();
+            let hull = SharedShape::convex_hull(&points).ok_or_else(|| {
+                SimError::spec(
+                    format!("{path}.urdf"),
+                    format!("collision part {k}: the mesh has no usable hull"),
+                )
+            })?;
+            (pose, hull)
+        }
+    })
+}
+
+/// One rigid body of an articulated object: its frame in the object's frame and its parts.
+struct LinkBody {
+    frame: Pose,
+    parts: Vec<(Pose, SharedShape)>,
+}
+
+/// The bodies and joints of an articulated URDF object posed at `pose`: links joined by fixed
+/// joints share a body; every revolute, continuous or prismatic joint joins two bodies with a
+/// rapier joint that has the URDF's limits and resists motion with its `<dynamics friction>`.
+fn insert_articulated(
+    world: &mut PhysicsWorld,
+    a: &assay_core::urdf::Assembled,
+    pose: Pose,
+    root: RigidBodyHandle,
+    mass: f32,
+    sleeping: bool,
+    joints: &std::collections::BTreeMap<String, f64>,
+    path: &str,
+) -> Result<Vec<SimJoint>, SimError> {
+    use assay_core::urdf::JointKind;
+    let urdf = &a.urdf;
+    let err = |reason: String| SimError::spec(format!("{path}.urdf"), reason);
+    let links = urdf.link_poses(joints).map_err(err)?;
+    let centre = Vec3::new(a.centre[0] as f32, a.centre[1] as f32, a.centre[2] as f32);
+    // Link frames in the object's frame.
+    let in_object = |l: usize| Pose::from_translation(-centre) * to_pose(&links[l]);
+    let mut body_of = vec![0usize; urdf.links.len()];
+    let mut bodies = vec![LinkBody {
+        frame: Pose::IDENTITY,
+        parts: Vec::new(),
+    }];
+    for &j in urdf.joint_order() {
+        let joint = &urdf.joints[j];
+        if joint.kind == JointKind::Fixed {
+            body_of[joint.child] = body_of[joint.parent];
+        } else {
+            body_of[joint.child] = bodies.len();
+            bodies.push(LinkBody {
+                frame: in_object(joint.child),
+                parts: Vec::new(),
+            });
+        }
+    }
+    for (k, (part, mesh)) in a.collisions.iter().enumerate() {
+        let (p, shape) = urdf_part(part, mesh.as_ref(), k, path)?;
+        let b = &mut bodies[body_of[part.link]];
+        b.parts.push((b.frame.inverse() * p, shape));
+    }
+    let mut handles = vec![root];
+    for (b, body) in bodies.iter().enumerate().skip(1) {
+        if body.parts.is_empty() {
+            return Err(err(format!(
+                "moving body {b} has no collision or visual geometry"
+            )));
+        }
+        let (h, _) = world.insert(
+            RigidBodyBuilder::dynamic()
+                .pose(pose * body.frame)
+                .can_sleep(sleeping),
+            ColliderBuilder::compound(body.parts.clone())
+                .mass(mass)
+                .friction(OBJECT_FRICTION)
+                .restitution(0.0),
+        );
+        handles.push(h);
+    }
+    let mut out = Vec::new();
+    for &j in urdf.joint_order() {
+        let joint = &urdf.joints[j];
+        if joint.kind == JointKind::Fixed {
+            continue;
+        }
+        let (pb, cb) = (body_of[joint.parent], body_of[joint.child]);
+        // The joint frame at position 0, in the parent body's frame.
+        let zero = Pose::from_translation(-centre)
+            * to_pose(&links[joint.parent])
+            * to_pose(&assay_core::urdf::Pose::from_origin(&joint.origin));
+        let axis = v3(joint.axis).normalize();
+        let align = Rotation::from_rotation_arc(Vec3::X, axis);
+        let frame = bodies[pb].frame.inverse() * zero * Pose::from_rotation(align);
+        let prismatic = joint.kind == JointKind::Prismatic;
+        let (mask, axis_id) = if prismatic {
+            (JointAxesMask::LOCKED_PRISMATIC_AXES, JointAxis::LinX)
+        } else {
+            (JointAxesMask::LOCKED_REVOLUTE_AXES, JointAxis::AngX)
+        };
+        let mut builder = GenericJointBuilder::new(mask)
+            .local_frame1(frame)
+            .local_frame2(Pose::from_rotation(align))
+            .contacts_enabled(false);
+        if let Some([lo, hi]) = joint.limit {
+            builder = builder.limits(axis_id, [lo as f32, hi as f32]);
+        }
+        let q0 = joints
+            .get(&joint.name)
+            .copied()
+            .unwrap_or_else(|| joint.default_position());
+        if joint.friction > 0.0 || joint.damping > 0.0 {
+            // Friction: a spring to an anchor that slips (`SimScene::hold_joints`), bounded by
+            // the friction; damping: the motor's damping.
+            let stiffness = (joint.friction / JOINT_SLIP) as f32;
+            let max = if joint.friction > 0.0 {
+                joint.friction as f32
+            } else {
+                f32::MAX
+            };
+            builder = builder
+                .motor_model(axis_id, MotorModel::ForceBased)
+                .motor_position(axis_id, q0 as f32, stiffness, joint.damping as f32)
+                .motor_max_force(axis_id, max);
+        }
+        let handle = world.insert_impulse_joint(handles[pb], handles[cb], builder.build());
+        out.push(SimJoint {
+            name: joint.name.clone(),
+            prismatic,
+            parent: handles[pb],
+            child: handles[cb],
+            frame,
+            align,
+            limit: joint.limit,
+            handle,
+            friction: joint.friction,
+            anchor: q0,
+        });
+    }
+    Ok(out)
 }
 
 pub fn v3(a: [f64; 3]) -> Vec3 {
@@ -65,18 +327,36 @@ pub fn new_world(dt: f32) -> PhysicsWorld {
     world
 }
 
-/// A collider, the half extents of its box, and (containers) inner half extents and wall.
-type BuiltShape = (ColliderBuilder, Vec3, Option<(Vec3, f32)>);
+/// A collider, the half extents of its box, (containers) inner half extents and wall, and
+/// (URDF objects) the assembled URDF.
+type BuiltShape = (
+    ColliderBuilder,
+    Vec3,
+    Option<(Vec3, f32)>,
+    Option<assay_core::urdf::Assembled>,
+);
+
+/// Whether `link` is joined to `ancestor` by fixed joints only.
+fn fixed_to(urdf: &assay_core::urdf::Urdf, link: usize, ancestor: usize) -> bool {
+    let mut l = link;
+    while l != ancestor {
+        match urdf.joints.iter().find(|j| j.child == l) {
+            Some(j) if j.kind == assay_core::urdf::JointKind::Fixed => l = j.parent,
+            _ => return false,
+        }
+    }
+    true
+}
 
 fn collider_for(shape: &Shape, spec: &TaskSpec, path: &str) -> Result<BuiltShape, SimError> {
     Ok(match shape {
         Shape::Box { half_extents } => {
             let h = v3(*half_extents);
-            (ColliderBuilder::cuboid(h.x, h.y, h.z), h, None)
+            (ColliderBuilder::cuboid(h.x, h.y, h.z), h, None, None)
         }
         Shape::Sphere { radius } => {
             let r = *radius as f32;
-            (ColliderBuilder::ball(r), Vec3::splat(r), None)
+            (ColliderBuilder::ball(r), Vec3::splat(r), None, None)
         }
         Shape::Cylinder {
             radius,
@@ -89,7 +369,7 @@ fn collider_for(shape: &Shape, spec: &TaskSpec, path: &str) -> Result<BuiltShape
                 0.0,
                 0.0,
             ));
-            (c, Vec3::new(r, r, hh), None)
+            (c, Vec3::new(r, r, hh), None, None)
         }
         Shape::Container {
             inner_half_extents,
@@ -119,54 +399,49 @@ fn collider_for(shape: &Shape, spec: &TaskSpec, path: &str) -> Result<BuiltShape
                 ColliderBuilder::compound(parts),
                 Vec3::new(inner.x + w, inner.y + w, big_h),
                 Some((inner, w)),
+                None,
             )
         }
-        Shape::Urdf { path: file, joints } => {
-            let full = spec.asset_path(file);
-            let a = assay_core::urdf::assemble(&full, joints)
+        Shape::Urdf {
+            path: file,
+            joints,
+            articulated,
+        } => {
+            let full = spec
+                .resolve_asset(file)
+                .map_err(|e| SimError::spec(format!("{path}.urdf.path"), e))?;
+            // An articulated object's frame is fixed by its links at their default positions,
+            // so that where it stands does not depend on how far it starts open.
+            let frame_at = if *articulated {
+                std::collections::BTreeMap::new()
+            } else {
+                joints.clone()
+            };
+            let a = assay_core::urdf::assemble_posed(&full, &frame_at, joints)
                 .map_err(|e| SimError::spec(format!("{path}.urdf"), e))?;
+            let root = a.urdf.root();
             let mut parts: Vec<(Pose, SharedShape)> = Vec::new();
             for (k, (part, mesh)) in a.collisions.iter().enumerate() {
-                let [x, y, z] = part.pose.translation.map(|c| c as f32);
-                let [qx, qy, qz, qw] = part.pose.rotation.map(|c| c as f32);
-                let pose =
-                    Pose::from_parts(Vec3::new(x, y, z), Rotation::from_xyzw(qx, qy, qz, qw));
-                let (pose, shape) = match &part.geometry {
-                    Geometry::Box { size } => {
-                        let h = v3(*size) / 2.0;
-                        (pose, SharedShape::cuboid(h.x, h.y, h.z))
-                    }
-                    Geometry::Sphere { radius } => (pose, SharedShape::ball(*radius as f32)),
-                    // URDF cylinders stand on their local z; rapier's on y.
-                    Geometry::Cylinder { radius, length } => (
-                        pose * Pose::new(
-                            Vec3::ZERO,
-                            Vec3::new(std::f32::consts::FRAC_PI_2, 0.0, 0.0),
-                        ),
-                        SharedShape::cylinder(*length as f32 / 2.0, *radius as f32),
-                    ),
-                    Geometry::Mesh { scale, .. } => {
-                        let s = v3(*scale);
-                        let points: Vec<Vec3> = mesh
-                            .iter()
-                            .flat_map(|m| m.vertices.iter())
-                            .map(|v| Vec3::new(v[0], v[1], v[2]) * s)
-                            .collect();
-                        let hull = SharedShape::convex_hull(&points).ok_or_else(|| {
-                            SimError::spec(
-                                format!("{path}.urdf"),
-                                format!("collision part {k}: the mesh has no usable hull"),
-                            )
-                        })?;
-                        (pose, hull)
-                    }
-                };
-                parts.push((pose, shape));
+                // An articulated object's root body holds the root link and what is fixed to
+                // it; its moving links become bodies of their own (`insert_articulated`).
+                if *articulated && !fixed_to(&a.urdf, part.link, root) {
+                    continue;
+                }
+                parts.push(urdf_part(part, mesh.as_ref(), k, path)?);
             }
-            (ColliderBuilder::compound(parts), v3(a.half), None)
+            if parts.is_empty() {
+                return Err(SimError::spec(
+                    format!("{path}.urdf"),
+                    "the root link has no collision or visual geometry".to_string(),
+                ));
+            }
+            let half = v3(a.half);
+            (ColliderBuilder::compound(parts), half, None, Some(a))
         }
         Shape::Mesh { path: file, scale } => {
-            let full = spec.asset_path(file);
+            let full = spec
+                .resolve_asset(file)
+                .map_err(|e| SimError::spec(format!("{path}.mesh.path"), e))?;
             let text = std::fs::read_to_string(&full).map_err(|e| {
                 SimError::spec(
                     format!("{path}.mesh.path"),
@@ -196,7 +471,7 @@ fn collider_for(shape: &Shape, spec: &TaskSpec, path: &str) -> Result<BuiltShape
                 (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)),
                 |(lo, hi), p| (lo.min(*p), hi.max(*p)),
             );
-            (collider, (hi - lo) / 2.0, None)
+            (collider, (hi - lo) / 2.0, None, None)
         }
     })
 }
@@ -246,7 +521,7 @@ pub fn build_scene(spec: &TaskSpec, seed: u64) -> Result<SimScene, SimError> {
             )
         };
         let path = format!("scene.objects[{i}].shape");
-        let (collider, half, container) = collider_for(&o.shape, spec, &path)?;
+        let (collider, half, container, urdf) = collider_for(&o.shape, spec, &path)?;
         let body = if o.is_fixed {
             RigidBodyBuilder::fixed()
         } else {
@@ -263,12 +538,36 @@ pub fn build_scene(spec: &TaskSpec, seed: u64) -> Result<SimScene, SimError> {
             .friction(OBJECT_FRICTION)
             .restitution(0.0);
         let (handle, _) = world.insert(body, collider);
+        let joints = match (&o.shape, &urdf) {
+            (
+                Shape::Urdf {
+                    joints,
+                    articulated: true,
+                    ..
+                },
+                Some(a),
+            ) => {
+                let pose = *world.bodies[handle].position();
+                insert_articulated(
+                    &mut world,
+                    a,
+                    pose,
+                    handle,
+                    o.mass.unwrap_or(DEFAULT_MASS) as f32,
+                    spec.physics.sleeping,
+                    joints,
+                    &path,
+                )?
+            }
+            _ => Vec::new(),
+        };
         objects.push(SimObject {
             id: o.id.clone(),
             body: handle,
             half,
             fixed: o.is_fixed,
             container,
+            joints,
         });
     }
 

@@ -21,11 +21,12 @@ spec_version: 1
 id: mesh-cube
 name: place-mesh-cube
 description: Move the mesh cube onto the target point.
+source: {{asset_root: "{}"}}
 group: placement
 scene:
   surface: ground
   objects:
-    - {{id: cube, shape: {{mesh: {{path: "{}", scale: 0.02}}}}, pose: {{position: [0.5, 0.1, 0.02]}}}}
+    - {{id: cube, shape: {{mesh: {{path: cube.obj, scale: 0.02}}}}, pose: {{position: [0.5, 0.1, 0.02]}}}}
 end_effector: {{type: suction}}
 goals:
   - pose_within: {{object: cube, position: [0.5, -0.1, 0.02], tolerance: 0.01}}
@@ -35,7 +36,7 @@ oracle:
   - pick: {{object: cube}}
   - place: {{target: {{at: [0.5, -0.1]}}}}
 "#,
-        obj.display()
+        dir.path().display()
     );
     let spec = parse_task(&spec, Format::Yaml, "mesh.yaml").unwrap();
     let ep = assay_sim::simulate(&spec, 1, "oracle").unwrap();
@@ -65,7 +66,7 @@ description: A mesh that is not there.
 group: placement
 scene:
   objects:
-    - {id: thing, shape: {mesh: {path: /nonexistent/thing.obj}}, pose: {position: [0.5, 0.0, 0.05]}}
+    - {id: thing, shape: {mesh: {path: nonexistent/thing.obj}}, pose: {position: [0.5, 0.0, 0.05]}}
 end_effector: {type: suction}
 goals:
   - within_distance: {object: thing, point: [0.5, 0.0, 0.05], distance: 0.1}
@@ -82,9 +83,10 @@ goals:
     );
 }
 
-fn cabinet_urdf() -> String {
+/// The asset root of the example cabinet (`cabinet/cabinet.urdf` under it).
+fn assets() -> String {
     std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../../examples/assets/cabinet/cabinet.urdf")
+        .join("../../examples/assets")
         .canonicalize()
         .unwrap()
         .display()
@@ -99,10 +101,11 @@ spec_version: 1
 id: block-on-cabinet
 name: put-block-on-cabinet
 description: Put the red block on top of the cabinet.
+source: {{asset_root: "{}"}}
 group: placement
 scene:
   objects:
-    - {{id: cabinet, fixed: true, shape: {{urdf: {{path: "{}", joints: {{drawer_slide: 0.0}}}}}}, pose: {{position: [0.62, 0.0, 0.1]}}}}
+    - {{id: cabinet, fixed: true, shape: {{urdf: {{path: cabinet/cabinet.urdf, joints: {{drawer_slide: 0.0}}}}}}, pose: {{position: [0.62, 0.0, 0.1]}}}}
     - {{id: block, shape: {{box: {{half_extents: [0.02, 0.02, 0.02]}}}}, color: red, pose: {{position: [0.4, 0.15, 0.02]}}}}
 end_effector: {{type: suction}}
 goals:
@@ -111,7 +114,7 @@ oracle:
   - pick: {{object: block}}
   - place: {{target: {{on: cabinet}}}}
 "#,
-        cabinet_urdf()
+        assets()
     );
     let spec = parse_task(&spec, Format::Yaml, "cabinet.yaml").unwrap();
     let ep = assay_sim::simulate(&spec, 0, "oracle").unwrap();
@@ -143,15 +146,16 @@ spec_version: 1
 id: bad-cabinet
 name: bad-cabinet
 description: A cabinet posed beyond its limits.
+source: {{asset_root: "{}"}}
 group: placement
 scene:
   objects:
-    - {{id: cabinet, fixed: true, shape: {{urdf: {{path: "{}", joints: {joints}}}}}, pose: {{position: [0.62, 0.0, 0.1]}}}}
+    - {{id: cabinet, fixed: true, shape: {{urdf: {{path: cabinet/cabinet.urdf, joints: {joints}}}}}}, pose: {{position: [0.62, 0.0, 0.1]}}}}
 end_effector: {{type: suction}}
 goals:
   - within_distance: {{object: cabinet, point: [0.62, 0.0, 0.1], distance: 0.1}}
 "#,
-            cabinet_urdf()
+            assets()
         )
     };
     let run = |joints: &str| {
