@@ -62,6 +62,14 @@ pub struct Source {
     /// The file or record the task was imported from.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub origin: Option<String>,
+    /// The folder asset paths (`mesh.path`, `urdf.path`) are relative to: absolute, or relative
+    /// to the folder of `origin`. Default: the folder of `origin`. An asset path must stay inside
+    /// it (no absolute paths, no `..` that leaves it, no symbolic link that leads out).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub asset_root: Option<String>,
+    /// Hex SHA-256 of the source file(s) an importer read (the same source gives the same hash).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub content_hash: Option<String>,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
@@ -136,21 +144,29 @@ pub enum Shape {
         #[serde(default = "one")]
         scale: f64,
     },
-    /// A URDF file (relative to the spec file; its meshes, OBJ or STL, inside the URDF's own
+    /// A URDF file (inside the asset root; its meshes, OBJ or STL, inside the URDF's own
     /// folder), drawn from its visual elements and collided as the compound of its collision
-    /// elements (a link's visuals where it has none, meshes as convex hulls). Posed rigidly at
-    /// `joints` (joint name → position, rad or m; a joint not named sits at 0, or at its lower
-    /// limit when 0 is outside its limits): spec v1 does not move joints. The object's frame is
-    /// the centre of its visual bounding box, like every other shape's.
+    /// elements (a link's visuals where it has none, meshes as convex hulls). `joints` gives the
+    /// initial joint positions (joint name → rad or m; a joint not named sits at 0, or at its
+    /// lower limit when 0 is outside its limits). Rigid unless `articulated`: then every
+    /// revolute, continuous and prismatic joint moves, within its limits, against its URDF
+    /// `<dynamics friction>`, and the object (its root link) follows `fixed` like any other.
+    /// The object's frame is the centre of its visual bounding box at the initial joint positions.
     Urdf {
         path: String,
         #[serde(default)]
         joints: BTreeMap<String, f64>,
+        #[serde(default, skip_serializing_if = "is_false")]
+        articulated: bool,
     },
 }
 
 fn one() -> f64 {
     1.0
+}
+
+fn is_false(b: &bool) -> bool {
+    !*b
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
@@ -261,6 +277,19 @@ pub enum Goal {
         #[serde(default, skip_serializing_if = "Option::is_none")]
         yaw_tolerance_deg: Option<f64>,
     },
+    /// A joint of an articulated URDF object lies within [`min`, `max`] (rad or m; either may be
+    /// left out): "opened beyond" is a `min`, "closed" a `max`.
+    JointPosition {
+        object: String,
+        joint: String,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        min: Option<f64>,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        max: Option<f64>,
+    },
+    /// The object's bottom is at least `height` above the surface (held up or resting on
+    /// something).
+    Lifted { object: String, height: f64 },
 }
 
 impl Goal {
@@ -284,6 +313,18 @@ impl Goal {
                 (None, None) => format!("within_distance({object}, ?, {distance})"),
             },
             Goal::PoseWithin { object, .. } => format!("pose_within({object})"),
+            Goal::JointPosition {
+                object,
+                joint,
+                min,
+                max,
+            } => match (min, max) {
+                (Some(lo), Some(hi)) => format!("joint_position({object}.{joint} in [{lo}, {hi}])"),
+                (Some(lo), None) => format!("joint_position({object}.{joint} >= {lo})"),
+                (None, Some(hi)) => format!("joint_position({object}.{joint} <= {hi})"),
+                (None, None) => format!("joint_position({object}.{joint})"),
+            },
+            Goal::Lifted { object, height } => format!("lifted({object}, {height})"),
         }
     }
 }
@@ -321,6 +362,14 @@ pub enum Primitive {
     Place { target: PlaceTarget },
     /// Sweep the object along the table to `to` (x, y).
     Push { object: String, to: [f64; 2] },
+    /// Grasp the moving link of `joint` of an articulated object from above, at the point of its
+    /// top farthest from the joint (a handle, a lid's edge), carry it along the joint's motion to
+    /// position `to` (rad or m), release, retreat.
+    Actuate {
+        object: String,
+        joint: String,
+        to: f64,
+    },
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
@@ -590,6 +639,16 @@ pub fn validate(spec: &TaskSpec, origin: &str) -> Vec<SpecError> {
             v.err(path, format!("refers to unknown object '{id}'"));
         }
     };
+    // Joint goals and `actuate` need an articulated URDF object (its joint names are checked
+    // when the URDF is read).
+    let articulated = |v: &mut Validator<'_>, path: &str, id: &str| match spec.object(id) {
+        None => v.err(path, format!("refers to unknown object '{id}'")),
+        Some(o) if !matches!(o.shape, Shape::Urdf { articulated: true, .. }) => v.err(
+            path,
+            format!("'{id}' is not an articulated URDF object (urdf with articulated: true)"),
+        ),
+        Some(_) => {}
+    };
     if spec.goals.is_empty() {
         v.err("goals", "a task needs at least one goal predicate".into());
     }
@@ -676,6 +735,34 @@ pub fn validate(spec: &TaskSpec, origin: &str) -> Vec<SpecError> {
                         "yaw_deg and yaw_tolerance_deg go together".into(),
                     );
                 }
+            }
+            Goal::JointPosition {
+                object,
+                joint,
+                min,
+                max,
+            } => {
+                let path = format!("{p}.joint_position");
+                articulated(&mut v, &format!("{path}.object"), object);
+                if joint.is_empty() {
+                    v.err(&format!("{path}.joint"), "must not be empty".into());
+                }
+                match (min, max) {
+                    (None, None) => v.err(&path, "give min, max or both".into()),
+                    (Some(lo), Some(hi)) if lo > hi => {
+                        v.err(&path, format!("min {lo} exceeds max {hi}"))
+                    }
+                    _ => {}
+                }
+                for (k, x) in [("min", min), ("max", max)] {
+                    if let Some(x) = x {
+                        v.finite(&format!("{path}.{k}"), *x);
+                    }
+                }
+            }
+            Goal::Lifted { object, height } => {
+                obj(&mut v, &format!("{p}.lifted.object"), object);
+                v.positive(&format!("{p}.lifted.height"), *height);
             }
         }
     }
@@ -783,6 +870,19 @@ pub fn validate(spec: &TaskSpec, origin: &str) -> Vec<SpecError> {
                     );
                 }
             }
+            Primitive::Actuate { object, joint, to } => {
+                articulated(&mut v, &format!("{p}.actuate.object"), object);
+                if joint.is_empty() {
+                    v.err(&format!("{p}.actuate.joint"), "must not be empty".into());
+                }
+                v.finite(&format!("{p}.actuate.to"), *to);
+                if held.is_some() {
+                    v.err(
+                        &format!("{p}.actuate"),
+                        "cannot actuate a joint while holding an object".into(),
+                    );
+                }
+            }
         }
     }
     if held.is_some() {
@@ -867,6 +967,13 @@ impl Validator<'_> {
         }
     }
 
+    /// An asset path: relative, and staying inside the asset root as written.
+    fn asset(&mut self, path: &str, file: &str) {
+        if let Err(reason) = check_asset_path(file) {
+            self.err(path, reason);
+        }
+    }
+
     fn range(&mut self, path: &str, r: &PoseRange) {
         self.finite3(&format!("{path}.min"), &r.min);
         self.finite3(&format!("{path}.max"), &r.max);
@@ -908,21 +1015,46 @@ impl Validator<'_> {
                 self.positive(&format!("{path}.container.wall"), *wall);
             }
             Shape::Mesh { path: file, scale } => {
-                if file.is_empty() {
-                    self.err(&format!("{path}.mesh.path"), "must not be empty".into());
-                }
+                self.asset(&format!("{path}.mesh.path"), file);
                 self.positive(&format!("{path}.mesh.scale"), *scale);
             }
-            Shape::Urdf { path: file, joints } => {
-                if file.is_empty() {
-                    self.err(&format!("{path}.urdf.path"), "must not be empty".into());
-                }
+            Shape::Urdf {
+                path: file, joints, ..
+            } => {
+                self.asset(&format!("{path}.urdf.path"), file);
                 for (name, q) in joints {
                     self.finite(&format!("{path}.urdf.joints.{name}"), *q);
                 }
             }
         }
     }
+}
+
+/// Checks an asset path from its text alone (before touching the file system): not empty, not
+/// absolute, and no `..` that climbs above the asset root.
+pub fn check_asset_path(file: &str) -> Result<(), String> {
+    if file.trim().is_empty() {
+        return Err("must not be empty".into());
+    }
+    let p = std::path::Path::new(file);
+    if p.is_absolute() || file.starts_with('/') || file.starts_with('\\') {
+        return Err(format!(
+            "'{file}' is absolute: asset paths are relative to the asset root"
+        ));
+    }
+    let mut depth = 0i32;
+    for c in p.components() {
+        match c {
+            std::path::Component::ParentDir => depth -= 1,
+            std::path::Component::Normal(_) => depth += 1,
+            std::path::Component::CurDir => {}
+            _ => depth = -1,
+        }
+        if depth < 0 {
+            return Err(format!("'{file}' leaves the asset root"));
+        }
+    }
+    Ok(())
 }
 
 /// The JSON Schema of task spec v1 (committed as `schema/task-spec-v1.schema.json`).
@@ -941,19 +1073,54 @@ impl TaskSpec {
         crate::hash::sha256_hex(self.canonical_json().as_bytes())
     }
 
-    /// Where an asset path of the spec points: relative paths are relative to the spec file's
-    /// folder (when the spec came from a file).
-    pub fn asset_path(&self, path: &str) -> std::path::PathBuf {
-        let p = std::path::Path::new(path);
-        match self
+    /// The asset root: `source.asset_root` (relative to the folder of `source.origin`), else
+    /// that folder, else the working folder.
+    pub fn asset_root(&self) -> std::path::PathBuf {
+        let dir = self
             .source
             .origin
             .as_deref()
             .and_then(|o| std::path::Path::new(o).parent())
-        {
-            Some(dir) if !p.is_absolute() => dir.join(p),
-            _ => p.to_path_buf(),
+            .map(std::path::Path::to_path_buf)
+            .unwrap_or_default();
+        match &self.source.asset_root {
+            Some(root) => dir.join(root),
+            None => dir,
         }
+    }
+
+    /// Where an asset path of the spec points: inside [`TaskSpec::asset_root`].
+    pub fn asset_path(&self, path: &str) -> std::path::PathBuf {
+        let p = std::path::Path::new(path);
+        if p.is_absolute() {
+            return p.to_path_buf();
+        }
+        self.asset_root().join(p)
+    }
+
+    /// [`TaskSpec::asset_path`], checked on the file system: the file exists and, symbolic
+    /// links followed, lies inside the asset root.
+    pub fn resolve_asset(&self, path: &str) -> Result<std::path::PathBuf, String> {
+        check_asset_path(path)?;
+        let root = self.asset_root();
+        let full = self.asset_path(path);
+        let canonical = full.canonicalize().map_err(|e| {
+            format!(
+                "asset '{path}' not found under the asset root {}: {e}",
+                root.display()
+            )
+        })?;
+        let root_c = root
+            .canonicalize()
+            .map_err(|e| format!("asset root {}: {e}", root.display()))?;
+        if !canonical.starts_with(&root_c) {
+            return Err(format!(
+                "'{path}' leads out of the asset root {} (to {})",
+                root.display(),
+                canonical.display()
+            ));
+        }
+        Ok(canonical)
     }
 
     /// `shape` with its file path made to point where [`TaskSpec::asset_path`] says, so that a
@@ -964,9 +1131,14 @@ impl TaskSpec {
                 path: self.asset_path(path).display().to_string(),
                 scale: *scale,
             },
-            Shape::Urdf { path, joints } => Shape::Urdf {
+            Shape::Urdf {
+                path,
+                joints,
+                articulated,
+            } => Shape::Urdf {
                 path: self.asset_path(path).display().to_string(),
                 joints: joints.clone(),
+                articulated: *articulated,
             },
             other => other.clone(),
         }
