@@ -42,7 +42,12 @@ pub(crate) fn import(root: &Path, asset_root: &Path) -> (Vec<ImportedTask>, Vec<
     };
     let lib: serde_json::Map<String, serde_json::Value> = match serde_json::from_str(&text) {
         Ok(v) => v,
-        Err(e) => return (Vec::new(), vec![fail(format!("not a GenSim task library: {e}"))]),
+        Err(e) => {
+            return (
+                Vec::new(),
+                vec![fail(format!("not a GenSim task library: {e}"))],
+            );
+        }
     };
     let tasks = lib
         .iter()
@@ -136,7 +141,15 @@ fn import_one(
         }
         notes.mapped("assets-used", "checked against the asset root");
     }
-    let spec = build(&id, &name, &description, &code, asset_root, &missing, &mut notes);
+    let spec = build(
+        &id,
+        &name,
+        &description,
+        &code,
+        asset_root,
+        &missing,
+        &mut notes,
+    );
     if let Some(mut spec) = spec.filter(|_| notes.errors.is_empty()) {
         spec.source = Source {
             pipeline: Pipeline::Gensim.name().into(),
@@ -440,13 +453,25 @@ impl Eval {
             }
         }
         for (prefix, what) in [
-            ("self.make_ropes", "make_ropes: a deformable rope (a chain of small articulated blocks) is not representable in spec v1"),
-            ("self.make_piles", "make_piles: a pile of small particles is not representable in spec v1"),
-            ("self.make_kitting", "kitting shapes are not representable in spec v1"),
+            (
+                "self.make_ropes",
+                "make_ropes: a deformable rope (a chain of small articulated blocks) is not representable in spec v1",
+            ),
+            (
+                "self.make_piles",
+                "make_piles: a pile of small particles is not representable in spec v1",
+            ),
+            (
+                "self.make_kitting",
+                "kitting shapes are not representable in spec v1",
+            ),
         ] {
             if e.starts_with(prefix) {
-                self.unmappable
-                    .push((prefix.trim_start_matches("self.").into(), what.into(), true));
+                self.unmappable.push((
+                    prefix.trim_start_matches("self.").into(),
+                    what.into(),
+                    true,
+                ));
                 return Val::Other(e.into());
             }
         }
@@ -491,7 +516,10 @@ impl Eval {
 
     fn add_object(&mut self, a: &str) -> Val {
         let (pos, kw) = args(a);
-        let urdf = pos.first().map(|s| self.eval(s)).unwrap_or(Val::Other("".into()));
+        let urdf = pos
+            .first()
+            .map(|s| self.eval(s))
+            .unwrap_or(Val::Other("".into()));
         let pose = match pos.get(1).map(|s| self.eval(s)) {
             Some(Val::Pose(p)) => Some(p),
             _ => None,
@@ -963,7 +991,10 @@ fn build(
                         target: PlaceTarget::Zone(zone.clone()),
                     });
                 }
-                notes.mapped(&format!("{field}.metric"), format!("'zone' → in_zone({zone}) for each object"));
+                notes.mapped(
+                    &format!("{field}.metric"),
+                    format!("'zone' → in_zone({zone}) for each object"),
+                );
                 notes.not_mapped(
                     &format!("{field}.params"),
                     "zone partial credit: GenSim counts the fraction of the object's points inside the zone, Assay tests the centre",
@@ -1010,7 +1041,10 @@ fn build(
                                     }
                                 };
                                 let Some(position) = position else {
-                                    notes.error(&format!("{field}.targ_poses"), "no free target position");
+                                    notes.error(
+                                        &format!("{field}.targ_poses"),
+                                        "no free target position",
+                                    );
                                     return None;
                                 };
                                 let tolerance = if lang.contains("bowl") {
@@ -1021,7 +1055,9 @@ fn build(
                                     pos_eps.unwrap_or(0.01)
                                 };
                                 let sym = match g.kwargs.get("symmetries") {
-                                    Some(Val::Seq(s)) => matches!(s.first(), Some(Val::Num(x)) if *x > 0.0),
+                                    Some(Val::Seq(s)) => {
+                                        matches!(s.first(), Some(Val::Num(x)) if *x > 0.0)
+                                    }
                                     _ => false,
                                 };
                                 goals.push(Goal::PoseWithin {
@@ -1076,8 +1112,15 @@ fn build(
         stack.sort_by(|a, b| a.0.total_cmp(&b.0));
         let order: Vec<String> = stack.into_iter().map(|(_, o)| o).collect();
         let at = stack_goal_at.unwrap_or(goals.len());
-        goals.insert(at, Goal::Stacked { order: order.clone() });
-        let size = stack_base.map(|b| ev.poses[b].clone()).unwrap_or(vec![0.04; 3]);
+        goals.insert(
+            at,
+            Goal::Stacked {
+                order: order.clone(),
+            },
+        );
+        let size = stack_base
+            .map(|b| ev.poses[b].clone())
+            .unwrap_or(vec![0.04; 3]);
         let r = radius([size[0] / 2.0, size[1] / 2.0, 0.0]);
         let Some(spot) = placer.place(
             [BOUNDS.0[0] + r, BOUNDS.0[1] + r],
@@ -1122,7 +1165,10 @@ fn build(
         "oracle",
         "per goal: pick, then place into the container / in the zone / on the block below (the stack's first block at a free spot)",
     );
-    notes.mapped("end_effector", "suction (Ravens' default self.ee = Suction)");
+    notes.mapped(
+        "end_effector",
+        "suction (Ravens' default self.ee = Suction)",
+    );
     let group = group_for(name, Pipeline::Gensim, notes);
     Some(TaskSpec {
         spec_version: SPEC_VERSION,

@@ -128,10 +128,13 @@ pub struct ImportedEpisode {
 
 /// Imports every task under `root`.
 pub fn import(pipeline: Pipeline, root: &Path, options: &ImportOptions) -> Import {
-    let asset_root = options.asset_root.clone().unwrap_or_else(|| match pipeline {
-        Pipeline::Gensim | Pipeline::Robogen => root.join("assets"),
-        Pipeline::Bbsea => root.to_path_buf(),
-    });
+    let asset_root = options
+        .asset_root
+        .clone()
+        .unwrap_or_else(|| match pipeline {
+            Pipeline::Gensim | Pipeline::Robogen => root.join("assets"),
+            Pipeline::Bbsea => root.to_path_buf(),
+        });
     let mut out = Import {
         pipeline,
         root: root.to_path_buf(),
@@ -409,13 +412,4 @@ impl Placer {
 /// Half-diagonal of a footprint.
 pub(crate) fn radius(half: [f64; 3]) -> f64 {
     (half[0] * half[0] + half[1] * half[1]).sqrt()
-}
-
-/// Bounds of Assay's table top shrunk by `r` (x, y).
-pub(crate) fn table_bounds(r: f64) -> ([f64; 2], [f64; 2]) {
-    let (c, h) = (spec::TABLE_CENTER, spec::TABLE_HALF_EXTENTS);
-    (
-        [c[0] - h[0] + r, c[1] - h[1] + r],
-        [c[0] + h[0] - r, c[1] + h[1] - r],
-    )
 }
