@@ -436,7 +436,7 @@ fn import_task(
         task.errors = notes.errors;
         return task;
     };
-    let by_name = |n: &str| sc.instances.iter().find(|i| i.name == n).map(|i| i.clone());
+    let by_name = |n: &str| sc.instances.iter().find(|i| i.name == n).cloned();
     let mut goals = Vec::new();
     let mut oracle = Vec::new();
     let mut held: Option<String> = None;

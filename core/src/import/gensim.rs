@@ -357,10 +357,10 @@ impl Eval {
             return Val::Num(std::f64::consts::PI);
         }
         let div = split_top(e, '/');
-        if div.len() == 2 {
-            if let (Val::Num(a), Val::Num(b)) = (self.eval(&div[0]), self.eval(&div[1])) {
-                return Val::Num(a / b);
-            }
+        if div.len() == 2
+            && let (Val::Num(a), Val::Num(b)) = (self.eval(&div[0]), self.eval(&div[1]))
+        {
+            return Val::Num(a / b);
         }
         if e.starts_with('(') && e.ends_with(')') && depth(&e[1..e.len() - 1]) == 0 {
             let inner = &e[1..e.len() - 1];
@@ -372,34 +372,32 @@ impl Eval {
         }
         if e.starts_with('[') && e.ends_with(']') && depth(&e[1..e.len() - 1]) == 0 {
             let inner = &e[1..e.len() - 1];
-            if let Some((expr, rest)) = inner.split_once(" for ") {
-                if let Some((var, iter)) = rest.split_once(" in ") {
-                    let items = self.iterate(iter);
-                    let saved = self.vars.get(var.trim()).cloned();
-                    let mut out = Vec::new();
-                    for it in items {
-                        self.vars.insert(var.trim().to_owned(), it);
-                        out.push(self.eval(expr));
-                    }
-                    match saved {
-                        Some(v) => self.vars.insert(var.trim().to_owned(), v),
-                        None => self.vars.remove(var.trim()),
-                    };
-                    return Val::Seq(out);
+            if let Some((expr, rest)) = inner.split_once(" for ")
+                && let Some((var, iter)) = rest.split_once(" in ")
+            {
+                let items = self.iterate(iter);
+                let saved = self.vars.get(var.trim()).cloned();
+                let mut out = Vec::new();
+                for it in items {
+                    self.vars.insert(var.trim().to_owned(), it);
+                    out.push(self.eval(expr));
                 }
+                match saved {
+                    Some(v) => self.vars.insert(var.trim().to_owned(), v),
+                    None => self.vars.remove(var.trim()),
+                };
+                return Val::Seq(out);
             }
             return Val::Seq(split_top(inner, ',').iter().map(|p| self.eval(p)).collect());
         }
         if let Some(a) = call_args(e, "utils.apply") {
             let parts = split_top(a, ',');
-            if parts.len() == 2 {
-                if let (Val::Pose(base), Val::Seq(off)) =
+            if parts.len() == 2
+                && let (Val::Pose(base), Val::Seq(off)) =
                     (self.eval(&parts[0]), self.eval(&parts[1]))
-                {
-                    if let Some(Val::Num(dz)) = off.get(2) {
-                        return Val::Stack { base, dz: *dz };
-                    }
-                }
+                && let Some(Val::Num(dz)) = off.get(2)
+            {
+                return Val::Stack { base, dz: *dz };
             }
             return Val::Other(e.into());
         }
@@ -447,10 +445,10 @@ impl Eval {
         if let Some(a) = call_args(e, "env.add_object") {
             return self.add_object(a);
         }
-        if let Some(a) = call_args(e, "range") {
-            if let Val::Num(n) = self.eval(a) {
-                return Val::Seq((0..n as usize).map(|i| Val::Num(i as f64)).collect());
-            }
+        if let Some(a) = call_args(e, "range")
+            && let Val::Num(n) = self.eval(a)
+        {
+            return Val::Seq((0..n as usize).map(|i| Val::Num(i as f64)).collect());
         }
         for (prefix, what) in [
             (
@@ -487,22 +485,23 @@ impl Eval {
             ));
             return Val::Other(e.into());
         }
-        if let Some(open) = e.find('[') {
-            if e.ends_with(']') && is_ident(&e[..open]) {
-                let base = self.eval(&e[..open]);
-                let idx = self.eval(&e[open + 1..e.len() - 1]);
-                if let (Val::Seq(v), Val::Num(i)) = (&base, idx) {
-                    if let Some(x) = v.get(i as usize) {
-                        return x.clone();
-                    }
-                }
-                return Val::Other(e.into());
+        if let Some(open) = e.find('[')
+            && e.ends_with(']')
+            && is_ident(&e[..open])
+        {
+            let base = self.eval(&e[..open]);
+            let idx = self.eval(&e[open + 1..e.len() - 1]);
+            if let (Val::Seq(v), Val::Num(i)) = (&base, idx)
+                && let Some(x) = v.get(i as usize)
+            {
+                return x.clone();
             }
+            return Val::Other(e.into());
         }
-        if is_ident(e) {
-            if let Some(v) = self.vars.get(e) {
-                return v.clone();
-            }
+        if is_ident(e)
+            && let Some(v) = self.vars.get(e)
+        {
+            return v.clone();
         }
         Val::Other(e.into())
     }
@@ -570,14 +569,14 @@ impl Eval {
             self.goals.push(g);
             return;
         }
-        if let Some((target, arg)) = s.split_once(".append(") {
-            if is_ident(target) {
-                let v = self.eval(arg.trim_end_matches(')'));
-                if let Some(Val::Seq(list)) = self.vars.get_mut(target) {
-                    list.push(v);
-                }
-                return;
+        if let Some((target, arg)) = s.split_once(".append(")
+            && is_ident(target)
+        {
+            let v = self.eval(arg.trim_end_matches(')'));
+            if let Some(Val::Seq(list)) = self.vars.get_mut(target) {
+                list.push(v);
             }
+            return;
         }
         self.eval(s);
     }
@@ -654,16 +653,15 @@ fn build(
     let lines = logical_lines(code);
     // The class docstring and __init__ attributes.
     let class = lines.iter().position(|(_, t)| t.starts_with("class "));
-    if let Some(c) = class {
-        if lines
+    if let Some(c) = class
+        && lines
             .get(c + 1)
             .is_some_and(|(_, t)| t.starts_with("\"\"\"") || t.starts_with("'''"))
-        {
-            notes.not_mapped(
-                "docstring",
-                "the class docstring is a longer variant of task-description, which is the description",
-            );
-        }
+    {
+        notes.not_mapped(
+            "docstring",
+            "the class docstring is a longer variant of task-description, which is the description",
+        );
     }
     let mut ev = Eval::default();
     ev.block(method(&lines, "__init__"));
@@ -712,16 +710,15 @@ fn build(
     for g in &ev.goals {
         if let Some(Val::Seq(params)) = g.kwargs.get("params") {
             for p in params {
-                if let Val::Seq(pair) = p {
-                    if let (Some(Val::Pose(pi)), Some(Val::Seq(size))) = (pair.first(), pair.get(1))
-                    {
-                        zone_sizes.insert(
-                            *pi,
-                            size.iter()
-                                .map(|x| if let Val::Num(n) = x { *n } else { 0.0 })
-                                .collect(),
-                        );
-                    }
+                if let Val::Seq(pair) = p
+                    && let (Some(Val::Pose(pi)), Some(Val::Seq(size))) = (pair.first(), pair.get(1))
+                {
+                    zone_sizes.insert(
+                        *pi,
+                        size.iter()
+                            .map(|x| if let Val::Num(n) = x { *n } else { 0.0 })
+                            .collect(),
+                    );
                 }
             }
         }

@@ -727,6 +727,9 @@ fn import_one(root: &Path, asset_root: &Path, file: &Path) -> Option<ImportedTas
     Some(task)
 }
 
+/// Bounds of some boxes, and each box's bounds.
+type BoxesBounds = ([f64; 3], [f64; 3], Vec<([f64; 3], [f64; 3])>);
+
 /// The interior bottom centre of a URDF box (world, + 0.03 m) and a release point 0.06 m from
 /// it away from the moving parts (a lid), from the boxes of its visuals.
 fn interior(o: &Obj) -> Option<([f64; 3], [f64; 2])> {
@@ -753,33 +756,32 @@ fn interior(o: &Obj) -> Option<([f64; 3], [f64; 2])> {
             break;
         }
     }
-    let bbox =
-        |sel: &dyn Fn(usize) -> bool| -> Option<([f64; 3], [f64; 3], Vec<([f64; 3], [f64; 3])>)> {
-            let (mut lo, mut hi) = ([f64::MAX; 3], [f64::MIN; 3]);
-            let mut each = Vec::new();
-            for p in parts.iter().filter(|p| sel(p.link)) {
-                let Geometry::Box { size } = p.geometry else {
-                    continue;
-                };
-                let (mut plo, mut phi) = ([f64::MAX; 3], [f64::MIN; 3]);
-                for c in 0..8 {
-                    let s = |b: usize| if c & (1 << b) == 0 { -0.5 } else { 0.5 };
-                    let q =
-                        p.pose
-                            .transform_point([s(0) * size[0], s(1) * size[1], s(2) * size[2]]);
-                    for k in 0..3 {
-                        plo[k] = plo[k].min(q[k]);
-                        phi[k] = phi[k].max(q[k]);
-                    }
-                }
+    let bbox = |sel: &dyn Fn(usize) -> bool| -> Option<BoxesBounds> {
+        let (mut lo, mut hi) = ([f64::MAX; 3], [f64::MIN; 3]);
+        let mut each = Vec::new();
+        for p in parts.iter().filter(|p| sel(p.link)) {
+            let Geometry::Box { size } = p.geometry else {
+                continue;
+            };
+            let (mut plo, mut phi) = ([f64::MAX; 3], [f64::MIN; 3]);
+            for c in 0..8 {
+                let s = |b: usize| if c & (1 << b) == 0 { -0.5 } else { 0.5 };
+                let q = p
+                    .pose
+                    .transform_point([s(0) * size[0], s(1) * size[1], s(2) * size[2]]);
                 for k in 0..3 {
-                    lo[k] = lo[k].min(plo[k]);
-                    hi[k] = hi[k].max(phi[k]);
+                    plo[k] = plo[k].min(q[k]);
+                    phi[k] = phi[k].max(q[k]);
                 }
-                each.push((plo, phi));
             }
-            (lo[0] <= hi[0]).then_some((lo, hi, each))
-        };
+            for k in 0..3 {
+                lo[k] = lo[k].min(plo[k]);
+                hi[k] = hi[k].max(phi[k]);
+            }
+            each.push((plo, phi));
+        }
+        (lo[0] <= hi[0]).then_some((lo, hi, each))
+    };
     let (alo, ahi, _) = bbox(&|_| true)?;
     let (blo, bhi, body) = bbox(&|l| !moving.contains(&l))?;
     let floor = body
