@@ -643,20 +643,10 @@ pub fn validate(spec: &TaskSpec, origin: &str) -> Vec<SpecError> {
     // when the URDF is read).
     let articulated = |v: &mut Validator<'_>, path: &str, id: &str| match spec.object(id) {
         None => v.err(path, format!("refers to unknown object '{id}'")),
-        Some(o)
-            if !matches!(
-                o.shape,
-                Shape::Urdf {
-                    articulated: true,
-                    ..
-                }
-            ) =>
-        {
-            v.err(
-                path,
-                format!("'{id}' is not an articulated URDF object (urdf with articulated: true)"),
-            )
-        }
+        Some(o) if !matches!(o.shape, Shape::Urdf { articulated: true, .. }) => v.err(
+            path,
+            format!("'{id}' is not an articulated URDF object (urdf with articulated: true)"),
+        ),
         Some(_) => {}
     };
     if spec.goals.is_empty() {
