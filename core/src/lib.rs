@@ -15,6 +15,7 @@ pub mod dynamics;
 pub mod error;
 pub mod generalization;
 pub mod hash;
+pub mod import;
 pub mod policy;
 pub mod proxy;
 pub mod quality;
