@@ -47,6 +47,8 @@ enum Command {
     Top(cmd::top::Args),
     /// Check task specs without running them.
     Validate(cmd::validate::Args),
+    /// Read a GenSim, RoboGen or BBSEA batch as task specs, with the per-task mapping report.
+    Import(cmd::import::Args),
     /// Agreement of judges with human ratings from a CSV: Pearson r, MAE, r/MAE, Spearman, Kendall.
     Agreement(cmd::agreement::Args),
     /// Rank policies by a proxy (world model, simulator) against real success from a success
@@ -80,6 +82,7 @@ fn main() -> std::process::ExitCode {
         Command::Cancel(a) => cmd::status::cancel(a),
         Command::Top(a) => cmd::top::run(a),
         Command::Validate(a) => cmd::validate::run(a),
+        Command::Import(a) => cmd::import::run(a),
         Command::Agreement(a) => cmd::agreement::run(a),
         Command::Rank(a) => cmd::rank::run(a),
         #[cfg(feature = "trainer")]

@@ -14,9 +14,14 @@ use crate::proc::{ChildProc, wait_for_file};
 
 #[derive(clap::Args)]
 pub struct Args {
-    /// Task spec files or folders (walked for .yaml, .yml, .json).
+    /// Task spec files or folders (walked for .yaml, .yml, .json); with --import, the
+    /// generator's output trees.
     #[arg(required = true)]
     pub paths: Vec<PathBuf>,
+    /// Read PATHS as a generator's own output (gensim, robogen or bbsea): import them first,
+    /// print the per-task mapping report and write it to OUT/import-report.json.
+    #[arg(long, value_name = "PIPELINE")]
+    pub import: Option<assay_core::import::Pipeline>,
     /// Sim worker processes to start.
     #[arg(long, default_value_t = 2)]
     pub workers: u32,
@@ -64,7 +69,32 @@ pub struct Args {
 }
 
 pub fn run(mut a: Args) -> anyhow::Result<ExitCode> {
-    let docs = crate::docs::collect(&a.paths)?;
+    let docs = match a.import {
+        None => crate::docs::collect(&a.paths)?,
+        Some(pipeline) => {
+            let mut docs = Vec::new();
+            for (k, path) in a.paths.iter().enumerate() {
+                let batch = super::import::read(pipeline, path, None)?;
+                print!("{}", batch.report());
+                let dir = match k {
+                    0 => a.out.clone(),
+                    _ => a.out.join(format!("import-{k}")),
+                };
+                super::import::write(&batch, &dir)?;
+                println!(
+                    "imported {} of {} {pipeline} task(s) from {} ({} not imported; mapping in {})",
+                    batch.specs().len(),
+                    batch.tasks.len(),
+                    path.display(),
+                    super::import::failed(&batch),
+                    dir.join("import-report.json").display()
+                );
+                docs.extend(super::import::documents(&batch));
+            }
+            anyhow::ensure!(!docs.is_empty(), "no task could be imported");
+            docs
+        }
+    };
     let rendering = a.roles.split(',').any(|r| r.trim() == "render");
     if a.no_judge || !rendering {
         if !a.batch.judges.is_empty() {

@@ -8,6 +8,7 @@ pub mod diversity;
 pub mod eval;
 pub mod frames;
 pub mod frames_grpc;
+pub mod import;
 pub mod policy;
 pub mod rank;
 pub mod report;

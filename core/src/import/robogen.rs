@@ -60,6 +60,9 @@ struct Obj {
     object: Object,
     half: [f64; 3],
     urdf: Option<(PathBuf, crate::urdf::Urdf)>,
+    /// A URDF's frame with every joint at its default position minus its frame at the initial
+    /// joints: an articulated object's frame is the former (see `Shape::Urdf`).
+    frame_shift: [f64; 3],
 }
 
 fn task_id(name: &str) -> String {
@@ -248,7 +251,7 @@ fn import_one(root: &Path, asset_root: &Path, file: &Path) -> Option<ImportedTas
             .and_then(|v| v.as_bool())
             .unwrap_or(false);
         let movable = it.get("movable").and_then(|v| v.as_bool());
-        let (shape, half, urdf) = if kind == "urdf" {
+        let (shape, half, urdf, frame_shift) = if kind == "urdf" {
             let text = std::fs::read_to_string(&full).unwrap_or_default();
             let u = match crate::urdf::parse(&text) {
                 Ok(u) => u,
@@ -283,6 +286,7 @@ fn import_one(root: &Path, asset_root: &Path, file: &Path) -> Option<ImportedTas
                 let v = v.clamp(JOINT_CLAMP.0, JOINT_CLAMP.1);
                 joints.insert(j.name.clone(), r6(lo + v * (hi - lo)));
             }
+            let mut shift = [0.0; 3];
             let a = match crate::urdf::assemble(&full, &joints) {
                 Ok(a) => a,
                 Err(e) => {
@@ -292,6 +296,7 @@ fn import_one(root: &Path, asset_root: &Path, file: &Path) -> Option<ImportedTas
                 }
             };
             if let Ok(a0) = crate::urdf::assemble(&full, &BTreeMap::new()) {
+                shift = std::array::from_fn(|k| a0.centre[k] - a.centre[k]);
                 let d = 2.0 * (a0.half[0].powi(2) + a0.half[1].powi(2) + a0.half[2].powi(2)).sqrt();
                 if (d - size).abs() > 0.05 {
                     notes.not_mapped(&f("size"), format!("{size}: RoboGen scales the model to this diagonal; the URDF's own is {d:.3} and spec v1 has no URDF scale"));
@@ -310,6 +315,7 @@ fn import_one(root: &Path, asset_root: &Path, file: &Path) -> Option<ImportedTas
                 },
                 a.half.map(r6),
                 Some((full.clone(), u)),
+                shift,
             )
         } else if kind == "mesh" {
             let text = std::fs::read_to_string(&full).unwrap_or_default();
@@ -348,6 +354,7 @@ fn import_one(root: &Path, asset_root: &Path, file: &Path) -> Option<ImportedTas
                 },
                 std::array::from_fn(|k| r6((hi[k] - lo[k]) / 2.0 * scale)),
                 None,
+                [0.0; 3],
             )
         } else {
             notes.error(
@@ -422,6 +429,7 @@ fn import_one(root: &Path, asset_root: &Path, file: &Path) -> Option<ImportedTas
             },
             half,
             urdf,
+            frame_shift,
         });
     }
     if let Some((i, v)) = get("spatial_relationships") {
@@ -599,6 +607,13 @@ fn import_one(root: &Path, asset_root: &Path, file: &Path) -> Option<ImportedTas
                     });
                     if let Shape::Urdf { articulated, .. } = &mut objs[k].object.shape {
                         *articulated = true;
+                        // Its frame is now the one at default joint positions (yaw is 0).
+                        let shift = objs[k].frame_shift;
+                        if let Some(p) = &mut objs[k].object.pose {
+                            for (c, d) in p.position.iter_mut().zip(shift) {
+                                *c = r6(*c + d);
+                            }
+                        }
                     }
                 }
             }

@@ -199,7 +199,6 @@ struct LinkBody {
 fn insert_articulated(
     world: &mut PhysicsWorld,
     a: &assay_core::urdf::Assembled,
-    pose: Pose,
     root: RigidBodyHandle,
     mass: f32,
     sleeping: bool,
@@ -208,6 +207,7 @@ fn insert_articulated(
 ) -> Result<Vec<SimJoint>, SimError> {
     use assay_core::urdf::JointKind;
     let urdf = &a.urdf;
+    let pose = *world.bodies[root].position();
     let err = |reason: String| SimError::spec(format!("{path}.urdf"), reason);
     let links = urdf.link_poses(joints).map_err(err)?;
     let centre = Vec3::new(a.centre[0] as f32, a.centre[1] as f32, a.centre[2] as f32);
@@ -546,19 +546,15 @@ pub fn build_scene(spec: &TaskSpec, seed: u64) -> Result<SimScene, SimError> {
                     ..
                 },
                 Some(a),
-            ) => {
-                let pose = *world.bodies[handle].position();
-                insert_articulated(
-                    &mut world,
-                    a,
-                    pose,
-                    handle,
-                    o.mass.unwrap_or(DEFAULT_MASS) as f32,
-                    spec.physics.sleeping,
-                    joints,
-                    &path,
-                )?
-            }
+            ) => insert_articulated(
+                &mut world,
+                a,
+                handle,
+                o.mass.unwrap_or(DEFAULT_MASS) as f32,
+                spec.physics.sleeping,
+                joints,
+                &path,
+            )?,
             _ => Vec::new(),
         };
         objects.push(SimObject {

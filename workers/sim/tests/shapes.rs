@@ -150,7 +150,7 @@ source: {{asset_root: "{}"}}
 group: placement
 scene:
   objects:
-    - {{id: cabinet, fixed: true, shape: {{urdf: {{path: cabinet/cabinet.urdf, joints: {joints}}}}}}, pose: {{position: [0.62, 0.0, 0.1]}}}}
+    - {{id: cabinet, fixed: true, shape: {{urdf: {{path: cabinet/cabinet.urdf, joints: {joints}}}}}, pose: {{position: [0.62, 0.0, 0.1]}}}}
 end_effector: {{type: suction}}
 goals:
   - within_distance: {{object: cabinet, point: [0.62, 0.0, 0.1], distance: 0.1}}
