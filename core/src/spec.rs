@@ -1345,6 +1345,82 @@ oracle:
     }
 
     #[test]
+    fn asset_paths_that_leave_the_asset_root_are_errors_from_their_text() {
+        let with = |path: &str| {
+            MINIMAL.replace(
+                "  zones:",
+                &format!("    - {{id: thing, shape: {{mesh: {{path: \"{path}\"}}}}, pose: {{position: [0.4, 0.2, 0.02]}}}}\n  zones:"),
+            )
+        };
+        for (path, reason) in [
+            ("/etc/thing.obj", "is absolute"),
+            ("../thing.obj", "leaves the asset root"),
+            ("meshes/../../thing.obj", "leaves the asset root"),
+            ("", "must not be empty"),
+        ] {
+            let es = errors(&with(path));
+            assert!(
+                es.iter().any(|e| e.path == "scene.objects[1].shape.mesh.path"
+                    && e.reason.contains(reason)),
+                "{path}: {es:?}"
+            );
+        }
+        // Inside the root, `..` that does not climb out is fine; the file is checked by the sim.
+        let spec = parse_task(&with("meshes/../thing.obj"), Format::Yaml, "dir/t.yaml").unwrap();
+        assert_eq!(spec.source.origin.as_deref(), Some("dir/t.yaml"));
+        assert_eq!(
+            spec.asset_path("thing.obj"),
+            std::path::Path::new("dir/thing.obj")
+        );
+        let err = spec.resolve_asset("meshes/../thing.obj").unwrap_err();
+        assert!(err.contains("not found under the asset root dir"), "{err}");
+    }
+
+    #[test]
+    fn joint_goals_and_actuate_need_an_articulated_urdf_and_lifted_may_end_holding() {
+        let text = MINIMAL
+            .replace(
+                "  zones:",
+                "    - {id: box, fixed: true, shape: {urdf: {path: box.urdf}}, pose: {position: [0.4, 0.2, 0.1]}}\n  zones:",
+            )
+            .replace(
+                "  - in_zone: {object: red_block, zone: goal}",
+                "  - joint_position: {object: box, joint: lid, min: 1.0, max: 0.5}\n  - joint_position: {object: red_block, joint: lid}",
+            )
+            .replace(
+                "  - pick: {object: red_block}\n  - place: {target: {zone: goal}}",
+                "  - actuate: {object: box, joint: lid, to: 1.2}\n  - pick: {object: red_block}",
+            );
+        let es = errors(&text);
+        let has = |path: &str, reason: &str| {
+            assert!(
+                es.iter()
+                    .any(|e| e.path == path && e.reason.contains(reason)),
+                "{path}: {reason} in {es:?}"
+            )
+        };
+        has("goals[0].joint_position.object", "not an articulated URDF");
+        has("goals[0].joint_position", "min 1 exceeds max 0.5");
+        has("goals[1].joint_position", "give min, max or both");
+        has("oracle[0].actuate.object", "not an articulated URDF");
+        has("oracle", "ends holding an object");
+        // Articulated, consistent, and the plan ends holding what a lifted goal names.
+        let ok = text
+            .replace("urdf: {path: box.urdf}", "urdf: {path: box.urdf, articulated: true}")
+            .replace("min: 1.0, max: 0.5", "min: 1.0")
+            .replace(
+                "  - joint_position: {object: red_block, joint: lid}",
+                "  - lifted: {object: red_block, height: 0.1}",
+            );
+        let spec = parse_task(&ok, Format::Yaml, "t.yaml").unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(
+            spec.goals[0].label(),
+            "joint_position(box.lid >= 1)"
+        );
+        assert_eq!(spec.goals[1].label(), "lifted(red_block, 0.1)");
+    }
+
+    #[test]
     fn the_committed_json_schema_is_current() {
         let committed = include_str!("../../schema/task-spec-v1.schema.json");
         let committed: serde_json::Value = serde_json::from_str(committed).unwrap();
