@@ -35,6 +35,17 @@ pub struct SceneSnapshot {
     pub objects: Vec<SnapshotObject>,
     /// Tool centre, if the tool is drawn.
     pub tool: Option<[f32; 3]>,
+    /// The finger pads of a parallel gripper that grasps by friction (drawn as the tool).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub fingers: Vec<SnapshotBox>,
+}
+
+/// A box: centre, unit quaternion (x, y, z, w) and half extents.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct SnapshotBox {
+    pub position: [f32; 3],
+    pub rotation: [f32; 4],
+    pub half_extents: [f32; 3],
 }
 
 impl SceneSnapshot {

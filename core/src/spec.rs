@@ -245,7 +245,29 @@ pub enum EndEffector {
     /// A suction cup: grasps the top face of any object it touches.
     Suction,
     /// A parallel-jaw gripper: grasps objects narrower than `max_opening` (m).
-    ParallelGripper { max_opening: f64 },
+    ParallelGripper {
+        max_opening: f64,
+        /// How a grasp holds: `attach` (default) welds the object to the tool where it was
+        /// grasped; `friction` closes two finger pads on it, and only their contact friction
+        /// holds it (it can slip, turn, or not come up).
+        #[serde(default, skip_serializing_if = "Grasp::is_attach")]
+        grasp: Grasp,
+    },
+}
+
+/// How a parallel gripper holds what it grasps.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum Grasp {
+    #[default]
+    Attach,
+    Friction,
+}
+
+impl Grasp {
+    fn is_attach(&self) -> bool {
+        *self == Grasp::Attach
+    }
 }
 
 /// A goal predicate, evaluated on the final state.
@@ -639,7 +661,7 @@ pub fn validate(spec: &TaskSpec, origin: &str) -> Vec<SpecError> {
 
     match spec.end_effector {
         EndEffector::Suction => {}
-        EndEffector::ParallelGripper { max_opening } => {
+        EndEffector::ParallelGripper { max_opening, .. } => {
             v.positive("end_effector.max_opening", max_opening)
         }
     }
@@ -1360,8 +1382,9 @@ oracle:
         ] {
             let es = errors(&with(path));
             assert!(
-                es.iter().any(|e| e.path == "scene.objects[1].shape.mesh.path"
-                    && e.reason.contains(reason)),
+                es.iter()
+                    .any(|e| e.path == "scene.objects[1].shape.mesh.path"
+                        && e.reason.contains(reason)),
                 "{path}: {es:?}"
             );
         }
@@ -1406,17 +1429,17 @@ oracle:
         has("oracle", "ends holding an object");
         // Articulated, consistent, and the plan ends holding what a lifted goal names.
         let ok = text
-            .replace("urdf: {path: box.urdf}", "urdf: {path: box.urdf, articulated: true}")
+            .replace(
+                "urdf: {path: box.urdf}",
+                "urdf: {path: box.urdf, articulated: true}",
+            )
             .replace("min: 1.0, max: 0.5", "min: 1.0")
             .replace(
                 "  - joint_position: {object: red_block, joint: lid}",
                 "  - lifted: {object: red_block, height: 0.1}",
             );
         let spec = parse_task(&ok, Format::Yaml, "t.yaml").unwrap_or_else(|e| panic!("{e}"));
-        assert_eq!(
-            spec.goals[0].label(),
-            "joint_position(box.lid >= 1)"
-        );
+        assert_eq!(spec.goals[0].label(), "joint_position(box.lid >= 1)");
         assert_eq!(spec.goals[1].label(), "lifted(red_block, 0.1)");
     }
 

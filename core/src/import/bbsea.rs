@@ -524,7 +524,10 @@ fn import_task(
             objects,
             zones: Vec::new(),
         },
-        end_effector: EndEffector::ParallelGripper { max_opening: 0.08 },
+        end_effector: EndEffector::ParallelGripper {
+            max_opening: 0.08,
+            grasp: Default::default(),
+        },
         goals,
         variations: Variations {
             position_jitter: JITTER,

@@ -720,7 +720,10 @@ fn import_one(root: &Path, asset_root: &Path, file: &Path) -> Option<ImportedTas
                 objects: objs.iter().map(|o| o.object.clone()).collect(),
                 zones: Vec::new(),
             },
-            end_effector: EndEffector::ParallelGripper { max_opening: 0.08 },
+            end_effector: EndEffector::ParallelGripper {
+                max_opening: 0.08,
+                grasp: Default::default(),
+            },
             goals,
             variations: Variations::default(),
             oracle,

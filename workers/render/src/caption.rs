@@ -34,6 +34,7 @@ pub fn caption_scene(
 ) -> Result<SceneCaption, RenderError> {
     let scene = SceneSnapshot {
         tool: None,
+        fingers: Vec::new(),
         ..initial.clone()
     };
     let mut frames = Vec::with_capacity(4);

@@ -86,6 +86,7 @@ pub fn render_episode_with(
     // The views show the scene as the task set it up: without the tool in the way.
     let scene = SceneSnapshot {
         tool: None,
+        fingers: Vec::new(),
         ..initial.clone()
     };
     for (i, cam) in scene_views().iter().enumerate() {

@@ -602,6 +602,14 @@ impl Renderer {
                 SEGMENT_TOOL,
             );
         }
+        for f in &scene.fingers {
+            push(
+                MeshKey::Box,
+                trs(f.position, f.rotation, f.half_extents),
+                TOOL_COLOR,
+                SEGMENT_TOOL,
+            );
+        }
         let mut files = Vec::new();
         for (i, o) in scene.objects.iter().enumerate() {
             let seg = FIRST_OBJECT_SEGMENT + i as u32;

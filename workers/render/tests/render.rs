@@ -69,6 +69,7 @@ fn scene() -> SceneSnapshot {
             ),
         ],
         tool: Some([0.55, 0.0, 0.3]),
+        fingers: Vec::new(),
     }
 }
 
@@ -211,4 +212,30 @@ fn rendering_into_a_caller_buffer_gives_the_same_pixels() {
     r.render_rgba_into(&scene(), &cam, &mut dst).unwrap();
     assert_eq!(dst, frame.rgba);
     assert!(r.render_rgba_into(&scene(), &cam, &mut dst[..100]).is_err());
+}
+
+/// A friction gripper's finger pads are drawn as the tool: seen from the side, with their
+/// segment id and at their depth.
+#[test]
+fn finger_pads_are_drawn_as_the_tool() {
+    let mut r = Renderer::new().expect("a graphics adapter");
+    let cam = camera("side", [0.55, -1.0, 0.2], [0.55, 0.0, 0.2], 320, 240);
+    let mut s = scene();
+    s.objects.clear();
+    let pad = |y: f32| assay_core::scene::SnapshotBox {
+        position: [0.55, y, 0.2],
+        rotation: [0.0, 0.0, 0.0, 1.0],
+        half_extents: [0.01, 0.005, 0.025],
+    };
+    s.tool = None;
+    s.fingers = vec![pad(-0.03), pad(0.03)];
+    let f = r.render(&s, &cam).unwrap();
+    // The nearer pad's face (y = -0.035) is 0.965 m from the camera.
+    let (x, y) = pixel(&cam, [0.55, -0.035, 0.2]);
+    let i = (y * f.width + x) as usize;
+    assert_eq!(f.segments[i], SEGMENT_TOOL);
+    assert!((f.depth[i] - 0.965).abs() < 0.003, "{}", f.depth[i]);
+    // Beside the pads there is nothing but the background.
+    let (x, y) = pixel(&cam, [0.62, 0.0, 0.2]);
+    assert_ne!(f.segments[(y * f.width + x) as usize], SEGMENT_TOOL);
 }

@@ -61,6 +61,7 @@ fn the_camera_sees_a_box_where_it_is() {
             joints: Default::default(),
         }],
         tool: None,
+        fingers: Vec::new(),
     };
     let camera = observation_camera();
     let f = r.render_with(&scene, &camera, Outputs::ALL).unwrap();

@@ -30,6 +30,7 @@ fn cabinet(drawer: f64) -> (SceneSnapshot, [f64; 3]) {
             joints: Default::default(),
         }],
         tool: None,
+        fingers: Vec::new(),
     };
     (scene, half)
 }

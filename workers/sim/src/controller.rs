@@ -23,6 +23,60 @@ const GRASP_REACH: f32 = 0.012;
 const HANDLE_INSET: f32 = 0.02;
 /// Largest joint motion between two waypoints of an `actuate` (rad or m).
 const ACTUATE_STEP: f64 = 0.05;
+/// How far (m) inside what it grasps each finger pad of a friction gripper is driven: its motor
+/// presses with `stiffness × SQUEEZE` (10 N), within its force limit.
+const SQUEEZE: f32 = 0.005;
+
+/// The yaw (rad) that closes a friction gripper's pads across object `i`'s narrower horizontal
+/// side, and how wide the object is there between the pads held at `at` (the tool's position):
+/// rays cast towards each other along the closing axis, across the pads' width and height, find
+/// its widest part (a handle, not the ring it joins; the box when nothing is hit).
+fn grip(scene: &SimScene, i: usize, at: Vec3) -> (f32, f32) {
+    use rapier3d::parry::query::Ray;
+    let o = &scene.objects[i];
+    let x = scene.pose(o).rotation * Vec3::X;
+    let yaw = x.y.atan2(x.x);
+    let (yaw, boxed) = if o.half.y <= o.half.x {
+        (yaw, 2.0 * o.half.y)
+    } else {
+        (yaw + std::f32::consts::FRAC_PI_2, 2.0 * o.half.x)
+    };
+    let turn = Rotation::from_rotation_z(yaw);
+    let (across, along) = (turn * Vec3::Y, turn * Vec3::X);
+    let reach = boxed / 2.0 + 0.05;
+    let centre = scene.pose(o).translation;
+    let h = (0.8 * o.half.z).min(0.02);
+    let colliders = scene.world.bodies[o.body].colliders();
+    let hit = |from: Vec3, dir: Vec3| {
+        colliders
+            .iter()
+            .filter_map(|c| {
+                let c = &scene.world.colliders[*c];
+                c.shape()
+                    .cast_ray(c.position(), &Ray::new(from, dir), 2.0 * reach, true)
+            })
+            .reduce(f32::min)
+    };
+    let mut width: Option<f32> = None;
+    for dz in [-h, 0.0, h] {
+        for dx in [-0.9, 0.0, 0.9].map(|k| k * crate::scene::FINGER_HALF_EXTENTS[0]) {
+            let p = Vec3::new(at.x, at.y, centre.z + dz) + along * dx;
+            if let (Some(a), Some(b)) = (
+                hit(p - across * reach, across),
+                hit(p + across * reach, -across),
+            ) {
+                let w = 2.0 * reach - a - b;
+                width = Some(width.map_or(w, |v| v.max(w)));
+            }
+        }
+    }
+    (yaw, width.unwrap_or(boxed))
+}
+
+/// Steps to wait for the pads of a friction gripper to travel `gap` (m) and settle.
+fn finger_steps(gap: f32, dt: f32) -> u32 {
+    (gap.abs() / (crate::scene::FINGER_SPEED * dt)).ceil() as u32 + 24
+}
 
 /// One straight move of the tool, with ease-in/ease-out.
 #[derive(Debug, Clone, Copy)]
@@ -52,6 +106,8 @@ pub enum Event {
         object: usize,
         joint: usize,
     },
+    /// Turn the (open) finger pads of a friction gripper about z to this yaw (rad).
+    Turn(f32),
     Release,
 }
 
@@ -97,7 +153,8 @@ pub struct Held {
     pub object: usize,
     /// Object centre minus tool centre at the grasp (world frame).
     pub offset: Vec3,
-    pub joint: ImpulseJointHandle,
+    /// The joint that welds it to the tool (`None`: finger pads hold it by friction).
+    pub joint: Option<ImpulseJointHandle>,
 }
 
 impl Controller {
@@ -121,7 +178,7 @@ impl Controller {
             notes: Vec::new(),
             max_opening: match spec.end_effector {
                 EndEffector::Suction => None,
-                EndEffector::ParallelGripper { max_opening } => Some(max_opening as f32),
+                EndEffector::ParallelGripper { max_opening, .. } => Some(max_opening as f32),
             },
             tracker,
             pick_belief: None,
@@ -193,6 +250,19 @@ impl Controller {
             Event::None,
             dt,
         );
+    }
+
+    /// Turns a friction gripper's pads to `yaw` where the tool is, before it moves on.
+    fn push_turn(&mut self, yaw: f32) {
+        let at = self.queue.back().map(|(s, _)| s.to).unwrap_or(self.command);
+        self.queue.push_back((
+            Segment {
+                from: at,
+                to: at,
+                steps: 1,
+            },
+            Event::Turn(yaw),
+        ));
     }
 
     fn dwell(&mut self, ev: Event) {
@@ -293,15 +363,36 @@ impl Controller {
                 let pos = seen.centre + self.jitter();
                 let z_safe = self.safe_height(scene);
                 let top = seen.top;
+                // Finger pads hang below the tool: its face stops just over the object's top, or
+                // higher for a flat object, so that the pads' tips clear the table.
+                let (face, fingers) = match &scene.fingers {
+                    Some(f) => {
+                        let (yaw, width) = grip(scene, i, pos);
+                        self.push_turn(yaw);
+                        let pad = 2.0 * crate::scene::FINGER_HALF_EXTENTS[2];
+                        let bottom = top - 2.0 * half.z;
+                        // An object wider than the pads open: they stop on its top.
+                        let face = if width > f.max_opening {
+                            top + pad + 0.002
+                        } else {
+                            (top + 0.002).max(bottom + pad + 0.004)
+                        };
+                        (face, Some(finger_steps(f.max_opening - width, dt)))
+                    }
+                    None => (top, None),
+                };
                 self.travel_over(pos, z_safe, dt);
                 self.push_move(
-                    Vec3::new(pos.x, pos.y, top + gh),
+                    Vec3::new(pos.x, pos.y, face + gh),
                     DESCEND_SPEED,
                     Event::None,
                     dt,
                 );
                 self.dwell(Event::Grasp(i));
-                let lift = z_safe.max(top + gh + 0.02 + 2.0 * half.z);
+                for _ in 0..fingers.unwrap_or(0).div_ceil(DWELL_STEPS) {
+                    self.dwell(Event::None);
+                }
+                let lift = z_safe.max(face + gh + 0.02 + 2.0 * half.z);
                 self.push_move(
                     Vec3::new(pos.x, pos.y, lift),
                     DESCEND_SPEED,
@@ -361,6 +452,12 @@ impl Controller {
                 );
                 self.dwell(Event::Release);
                 self.dwell(Event::None);
+                if let Some(f) = &scene.fingers {
+                    let n = finger_steps(f.max_opening - 2.0 * held_half.x.min(held_half.y), dt);
+                    for _ in 0..n.div_ceil(DWELL_STEPS) {
+                        self.dwell(Event::None);
+                    }
+                }
                 self.push_move(
                     Vec3::new(tool.x, tool.y, z_safe),
                     DESCEND_SPEED,
@@ -541,10 +638,66 @@ impl Controller {
         let _ = step;
     }
 
+    /// A friction gripper's grasp: the pads close across the object's narrower side to press
+    /// [`SQUEEZE`] into it, and only their friction holds it. Refused, with a note, when the tool
+    /// is not over the object, the object is fixed or wider than the gripper opens.
+    fn close_fingers(&mut self, i: usize, scene: &mut SimScene, step: u64) {
+        let o = &scene.objects[i];
+        let tool = scene.gripper_position();
+        let pose = scene.pose(o);
+        let horizontal = Vec3::new(
+            pose.translation.x - tool.x,
+            pose.translation.y - tool.y,
+            0.0,
+        )
+        .length();
+        let (yaw, width) = grip(scene, i, tool);
+        let Some(f) = &scene.fingers else { return };
+        let reason = if o.fixed {
+            Some("it is fixed".to_string())
+        } else if width > f.max_opening {
+            Some(format!(
+                "{width:.3} m wide, the gripper opens {:.3} m",
+                f.max_opening
+            ))
+        } else if horizontal > o.half.x.max(o.half.y) {
+            Some(format!("the tool is {horizontal:.3} m off its centre"))
+        } else {
+            None
+        };
+        if let Some(reason) = reason {
+            self.notes.push(Note {
+                step,
+                text: format!("grasp of '{}' failed: {reason}", o.id),
+            });
+            return;
+        }
+        let believed = match (&self.tracker, self.pick_belief) {
+            (Some(_), Some(b)) => b,
+            _ => pose.translation,
+        };
+        self.held = Some(Held {
+            object: i,
+            offset: believed - tool,
+            joint: None,
+        });
+        // A policy that grasps without turning the pads first: turn them (they are open).
+        if scene
+            .fingers
+            .as_ref()
+            .is_some_and(|f| (f.yaw - yaw).abs() > 1e-3)
+        {
+            scene.turn_fingers(yaw);
+        }
+        scene.set_finger_target((width - 2.0 * SQUEEZE).max(0.0));
+    }
+
     /// Applies a grasp or release to the world.
     pub fn apply(&mut self, ev: Event, scene: &mut SimScene, step: u64) {
         match ev {
             Event::None => {}
+            Event::Turn(yaw) => scene.turn_fingers(yaw),
+            Event::Grasp(i) if scene.fingers.is_some() => self.close_fingers(i, scene, step),
             Event::Grasp(i) => {
                 let o = scene.objects[i].clone();
                 let tool = scene.gripper_position();
@@ -594,7 +747,7 @@ impl Controller {
                 self.held = Some(Held {
                     object: i,
                     offset: believed - tool,
-                    joint: handle,
+                    joint: Some(handle),
                 });
             }
             Event::GraspLink { object, joint } => {
@@ -629,12 +782,17 @@ impl Controller {
                 self.held = Some(Held {
                     object,
                     offset: Vec3::ZERO,
-                    joint: handle,
+                    joint: Some(handle),
                 });
             }
             Event::Release => {
+                if let Some(max) = scene.fingers.as_ref().map(|f| f.max_opening) {
+                    scene.set_finger_target(max);
+                }
                 if let Some(h) = self.held.take() {
-                    scene.world.remove_impulse_joint(h.joint);
+                    if let Some(j) = h.joint {
+                        scene.world.remove_impulse_joint(j);
+                    }
                     let body = scene.objects[h.object].body;
                     scene.world.wake_up(body, true);
                 }

@@ -341,6 +341,7 @@ pub fn simulate_with(
             }
         };
         scene.hold_joints();
+        scene.drive_fingers();
         scene.world.step();
         ctl.apply(ev, scene, *step);
         *step += 1;
@@ -422,7 +423,12 @@ pub fn simulate_with(
         && (truncated || !lifts(spec, &scene, h.object))
     {
         ctl.held = None;
-        scene.world.remove_impulse_joint(h.joint);
+        if let Some(j) = h.joint {
+            scene.world.remove_impulse_joint(j);
+        }
+        if let Some(max) = scene.fingers.as_ref().map(|f| f.max_opening) {
+            scene.set_finger_target(max);
+        }
     }
     for _ in 0..settle {
         advance(&mut scene, &mut ctl, &mut rec, &mut met, &mut step, None);

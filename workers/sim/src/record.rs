@@ -8,7 +8,7 @@ use arrow_array::{
     ArrayRef, BooleanArray, Float32Array, Float64Array, Int16Array, RecordBatch, UInt32Array,
 };
 use arrow_schema::{DataType, Field, Schema};
-use assay_core::scene::{SceneSnapshot, SnapshotObject};
+use assay_core::scene::{SceneSnapshot, SnapshotBox, SnapshotObject};
 use assay_core::spec::TaskSpec;
 use rapier3d::prelude::*;
 
@@ -32,6 +32,8 @@ pub struct Recorder {
     objects: Vec<[Vec<f32>; 7]>,
     /// Per object: each moving joint's name and position (articulated objects only).
     joints: Vec<Vec<(String, Vec<f32>)>>,
+    /// A friction gripper's pads: the gap between them and their yaw (empty without pads).
+    fingers: [Vec<f32>; 2],
 }
 
 impl Recorder {
@@ -84,6 +86,7 @@ impl Recorder {
                     .map(|(name, q)| (name.clone(), f64::from(q[row])))
                     .collect()
             },
+            (!self.fingers[0].is_empty()).then(|| (self.fingers[0][row], self.fingers[1][row])),
         )
     }
 
@@ -114,6 +117,10 @@ impl Recorder {
             for (k, v) in [t.x, t.y, t.z, q.x, q.y, q.z, q.w].into_iter().enumerate() {
                 cols[k].push(v);
             }
+        }
+        if let Some(f) = &scene.fingers {
+            self.fingers[0].push(f.opening(&scene.world));
+            self.fingers[1].push(f.yaw);
         }
         for (o, cols) in scene.objects.iter().zip(self.joints.iter_mut()) {
             if cols.is_empty() {
@@ -163,6 +170,15 @@ impl Recorder {
                 cols.push(Arc::new(Float32Array::from(data[k].clone())));
             }
         }
+        if !self.fingers[0].is_empty() {
+            for (name, data) in [
+                ("gripper_opening", &self.fingers[0]),
+                ("gripper_yaw", &self.fingers[1]),
+            ] {
+                fields.push(Field::new(name, DataType::Float32, false));
+                cols.push(Arc::new(Float32Array::from(data.clone())));
+            }
+        }
         for (id, joints) in object_ids.iter().zip(&self.joints) {
             for (name, data) in joints {
                 fields.push(Field::new(
@@ -208,7 +224,14 @@ pub fn contact_summary(scene: &SimScene) -> (u32, u32, bool) {
         }
         pairs += 1;
         points += touching;
-        if pair.collider1 == scene.gripper_collider || pair.collider2 == scene.gripper_collider {
+        let tool = |c: ColliderHandle| {
+            c == scene.gripper_collider
+                || scene
+                    .fingers
+                    .as_ref()
+                    .is_some_and(|f| f.colliders.contains(&c))
+        };
+        if tool(pair.collider1) || tool(pair.collider2) {
             ee = true;
         }
     }
@@ -228,6 +251,10 @@ pub fn live_snapshot(scene: &SimScene, spec: &TaskSpec) -> SceneSnapshot {
         }),
         scene.gripper_position().into(),
         |i| scene.joint_positions(&scene.objects[i]),
+        scene
+            .fingers
+            .as_ref()
+            .map(|f| (f.opening(&scene.world), f.yaw)),
     )
 }
 
@@ -238,6 +265,7 @@ fn snapshot_of(
     poses: impl Iterator<Item = ([f32; 3], [f32; 4])>,
     tool: [f32; 3],
     joints: impl Fn(usize) -> std::collections::BTreeMap<String, f64>,
+    fingers: Option<(f32, f32)>,
 ) -> SceneSnapshot {
     let objects = spec
         .scene
@@ -258,5 +286,16 @@ fn snapshot_of(
         surface: spec.scene.surface,
         objects,
         tool: Some(tool),
+        fingers: fingers
+            .map(|(opening, yaw)| {
+                crate::scene::Fingers::poses(Vec3::from(tool), opening, yaw)
+                    .map(|p| SnapshotBox {
+                        position: p.translation.into(),
+                        rotation: [p.rotation.x, p.rotation.y, p.rotation.z, p.rotation.w],
+                        half_extents: crate::scene::FINGER_HALF_EXTENTS,
+                    })
+                    .to_vec()
+            })
+            .unwrap_or_default(),
     }
 }

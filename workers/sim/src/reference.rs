@@ -148,6 +148,7 @@ impl Contract {
             objects,
             gripper,
             gripper_collider,
+            fingers: None,
             zones: Vec::new(),
         }
     }
@@ -254,6 +255,7 @@ pub fn snapshot(scene: &SimScene) -> SceneSnapshot {
         surface: Surface::Ground,
         objects,
         tool: Some(scene.gripper_position().into()),
+        fingers: Vec::new(),
     }
 }
 

@@ -79,11 +79,144 @@ impl SimJoint {
     }
 }
 
+/// Half extents of a finger pad of a gripper that grasps by friction: 2 cm wide, 1 cm thick
+/// (along the closing axis), 5 cm long, hanging below the tool's face.
+pub const FINGER_HALF_EXTENTS: [f32; 3] = [0.01, 0.005, 0.025];
+/// The most force (N) each pad's motor presses with: a Franka hand's continuous grip force is
+/// 70 N for both fingers; a lighter 20 N each keeps light objects from being crushed into the
+/// pads by the solver.
+pub const GRIP_FORCE: f32 = 20.0;
+/// Stiffness (N/m) and damping (N s/m) of each pad's position motor.
+const PAD_STIFFNESS: f32 = 2000.0;
+const PAD_DAMPING: f32 = 60.0;
+/// Mass of a pad (kg).
+const PAD_MASS: f32 = 0.05;
+/// Friction of the finger pads (rubber).
+pub const FINGER_FRICTION: f32 = 1.2;
+/// How fast the pads' target gap closes or opens (m/s).
+pub const FINGER_SPEED: f32 = 0.15;
+
+/// The two finger pads of a parallel gripper that grasps by friction: dynamic boxes below the
+/// tool, each on a prismatic joint along the closing axis (the tool's y axis turned by `yaw`),
+/// driven towards a gap of `target` by a position motor whose force is bounded by
+/// [`GRIP_FORCE`]. Closed on an object they stop against it and press it with that force; only
+/// the pads' friction holds it.
+#[derive(Debug, Clone)]
+pub struct Fingers {
+    pub bodies: [RigidBodyHandle; 2],
+    pub colliders: [ColliderHandle; 2],
+    pub joints: [ImpulseJointHandle; 2],
+    /// The gap the pads are driven to now: it moves towards `goal` at [`FINGER_SPEED`], so
+    /// that thin pads do not tunnel into what they close on.
+    pub target: f32,
+    pub goal: f32,
+    pub yaw: f32,
+    pub max_opening: f32,
+}
+
+impl Fingers {
+    /// The pads' poses for the tool at `tool` (centre), the gap `opening` and turn `yaw`.
+    pub fn poses(tool: Vec3, opening: f32, yaw: f32) -> [Pose; 2] {
+        let [_, t, h] = FINGER_HALF_EXTENTS;
+        let turn = Rotation::from_rotation_z(yaw);
+        let below = -(GRIPPER_HALF_EXTENTS[2] + h);
+        [-1.0f32, 1.0].map(|s| {
+            Pose::from_parts(
+                tool + turn * Vec3::new(0.0, s * (opening / 2.0 + t), below),
+                turn,
+            )
+        })
+    }
+
+    /// The gap between the pads' inner faces, measured.
+    pub fn opening(&self, world: &PhysicsWorld) -> f32 {
+        let [a, b] = self.bodies.map(|h| world.bodies[h].translation());
+        let axis = Rotation::from_rotation_z(self.yaw) * Vec3::Y;
+        (b - a).dot(axis) - 2.0 * FINGER_HALF_EXTENTS[1]
+    }
+
+    /// Pads and joints for the tool `gripper` where it is, turned by `yaw`, `opening` apart.
+    fn insert(
+        world: &mut PhysicsWorld,
+        gripper: RigidBodyHandle,
+        yaw: f32,
+        opening: f32,
+        max_opening: f32,
+        target: f32,
+        colliders: Option<[ColliderHandle; 2]>,
+    ) -> Self {
+        let [fx, fy, fz] = FINGER_HALF_EXTENTS;
+        let tool = world.bodies[gripper].translation();
+        let poses = Self::poses(tool, opening, yaw);
+        let mut bodies = Vec::new();
+        let mut cols = Vec::new();
+        let mut joints = Vec::new();
+        for (k, (s, pose)) in [-1.0f32, 1.0].into_iter().zip(poses).enumerate() {
+            let (b, c) = match colliders {
+                // Turning: the same pads, moved.
+                Some(cs) => {
+                    let b = world.colliders[cs[k]].parent().expect("a pad has a body");
+                    world.bodies[b].set_position(pose, true);
+                    world.bodies[b].set_linvel(Vec3::ZERO, true);
+                    world.bodies[b].set_angvel(Vec3::ZERO, true);
+                    (b, cs[k])
+                }
+                None => world.insert(
+                    RigidBodyBuilder::dynamic()
+                        .pose(pose)
+                        .can_sleep(false)
+                        .ccd_enabled(true),
+                    ColliderBuilder::cuboid(fx, fy, fz)
+                        .mass(PAD_MASS)
+                        .friction(FINGER_FRICTION)
+                        .restitution(0.0),
+                ),
+            };
+            let half_turn = Rotation::from_rotation_z(std::f32::consts::FRAC_PI_2);
+            let below = -(GRIPPER_HALF_EXTENTS[2] + fz);
+            let joint = GenericJointBuilder::new(JointAxesMask::LOCKED_PRISMATIC_AXES)
+                .local_frame1(Pose::from_parts(
+                    Vec3::new(0.0, 0.0, below),
+                    Rotation::from_rotation_z(yaw) * half_turn,
+                ))
+                .local_frame2(Pose::from_rotation(half_turn))
+                .limits(JointAxis::LinX, {
+                    let (near, far) = (fy, max_opening / 2.0 + fy);
+                    if s < 0.0 { [-far, -near] } else { [near, far] }
+                })
+                .motor_model(JointAxis::LinX, MotorModel::ForceBased)
+                .motor_position(
+                    JointAxis::LinX,
+                    s * (target / 2.0 + fy),
+                    PAD_STIFFNESS,
+                    PAD_DAMPING,
+                )
+                .motor_max_force(JointAxis::LinX, GRIP_FORCE)
+                .contacts_enabled(false);
+            let j = world.insert_impulse_joint(gripper, b, joint);
+            bodies.push(b);
+            cols.push(c);
+            joints.push(j);
+        }
+        Self {
+            bodies: [bodies[0], bodies[1]],
+            colliders: [cols[0], cols[1]],
+            joints: [joints[0], joints[1]],
+            target,
+            goal: target,
+            yaw,
+            max_opening,
+        }
+    }
+}
+
 pub struct SimScene {
     pub world: PhysicsWorld,
     pub objects: Vec<SimObject>,
     pub gripper: RigidBodyHandle,
     pub gripper_collider: ColliderHandle,
+    /// Finger pads, for a parallel gripper that grasps by friction.
+    pub fingers: Option<Fingers>,
     /// Zones: id, centre (z = 0), half extents (z = 0).
     pub zones: Vec<(String, Vec3, Vec3)>,
 }
@@ -133,6 +266,58 @@ impl SimScene {
                 }
             }
         }
+    }
+
+    /// Drives the finger pads towards a gap of `goal` (m); they stop against what lies
+    /// between them.
+    pub fn set_finger_target(&mut self, goal: f32) {
+        if let Some(f) = &mut self.fingers {
+            f.goal = goal;
+        }
+    }
+
+    /// Before each physics step: the pads' motor target a step closer to their goal.
+    pub fn drive_fingers(&mut self) {
+        let dt = self.world.integration_parameters.dt;
+        let Some(f) = &mut self.fingers else { return };
+        if f.target == f.goal {
+            return;
+        }
+        let step = FINGER_SPEED * dt;
+        f.target += (f.goal - f.target).clamp(-step, step);
+        let fy = FINGER_HALF_EXTENTS[1];
+        for (s, j) in [-1.0f32, 1.0].into_iter().zip(f.joints) {
+            if let Some(joint) = self.world.impulse_joints.get_mut(j, true) {
+                joint.data.set_motor_position(
+                    JointAxis::LinX,
+                    s * (f.target / 2.0 + fy),
+                    PAD_STIFFNESS,
+                    PAD_DAMPING,
+                );
+            }
+        }
+    }
+
+    /// Turns the open finger pads to `yaw` about the tool's axis (between grasps).
+    pub fn turn_fingers(&mut self, yaw: f32) {
+        let Some(f) = self.fingers.clone() else {
+            return;
+        };
+        for j in f.joints {
+            self.world.remove_impulse_joint(j);
+        }
+        let opening = f.opening(&self.world);
+        let goal = f.goal;
+        self.fingers = Some(Fingers::insert(
+            &mut self.world,
+            self.gripper,
+            yaw,
+            opening,
+            f.max_opening,
+            f.target,
+            Some(f.colliders),
+        ));
+        self.set_finger_target(goal);
     }
 
     /// Every moving joint's position of object `o`, by name.
@@ -580,6 +765,18 @@ pub fn build_scene(spec: &TaskSpec, seed: u64) -> Result<SimScene, SimError> {
         RigidBodyBuilder::kinematic_position_based().translation(start),
         ColliderBuilder::cuboid(gx, gy, gz).friction(OBJECT_FRICTION),
     );
+    let fingers = match spec.end_effector {
+        assay_core::spec::EndEffector::ParallelGripper {
+            max_opening,
+            grasp: assay_core::spec::Grasp::Friction,
+        } => {
+            let max = max_opening as f32;
+            Some(Fingers::insert(
+                &mut world, gripper, 0.0, max, max, max, None,
+            ))
+        }
+        _ => None,
+    };
     let zones = spec
         .scene
         .zones
@@ -597,6 +794,7 @@ pub fn build_scene(spec: &TaskSpec, seed: u64) -> Result<SimScene, SimError> {
         objects,
         gripper,
         gripper_collider,
+        fingers,
         zones,
     })
 }
