@@ -38,6 +38,9 @@ pub struct SceneSnapshot {
     /// The finger pads of a parallel gripper that grasps by friction (drawn as the tool).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub fingers: Vec<SnapshotBox>,
+    /// The links of the arm that carries the tool, if there is one (drawn as the tool).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub arm: Vec<SnapshotBox>,
 }
 
 /// A box: centre, unit quaternion (x, y, z, w) and half extents.

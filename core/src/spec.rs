@@ -33,6 +33,10 @@ pub struct TaskSpec {
     pub group: String,
     pub scene: Scene,
     pub end_effector: EndEffector,
+    /// The robot arm that carries the end effector. Without one the tool moves on its own (a
+    /// free-floating kinematic tool, as in the peer reference scene).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub arm: Option<Arm>,
     /// Goal predicates; the episode succeeds when all hold at the end.
     pub goals: Vec<Goal>,
     /// Ranges sampled per seed (and, later, held out for generalization).
@@ -253,6 +257,24 @@ pub enum EndEffector {
         #[serde(default, skip_serializing_if = "Grasp::is_attach")]
         grasp: Grasp,
     },
+}
+
+/// The arms Assay has built in (their URDFs ship with the simulator).
+pub const ARM_MODELS: &[&str] = &["ur5"];
+
+/// A robot arm from URDF, driven by inverse kinematics: the tool goes where the arm can put it,
+/// pointing straight down; its links collide with the scene.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct Arm {
+    /// A built-in arm: `ur5` (GenSim's and Ravens' arm).
+    pub model: String,
+    /// Where its base stands (m); default the origin, the table's near edge.
+    #[serde(default)]
+    pub base: [f64; 3],
+    /// Its base's rotation about z (degrees).
+    #[serde(default)]
+    pub base_yaw_deg: f64,
 }
 
 /// How a parallel gripper holds what it grasps.
@@ -659,6 +681,20 @@ pub fn validate(spec: &TaskSpec, origin: &str) -> Vec<SpecError> {
         }
     }
 
+    if let Some(arm) = &spec.arm {
+        if !ARM_MODELS.contains(&arm.model.as_str()) {
+            v.err(
+                "arm.model",
+                format!(
+                    "unknown arm '{}' (built in: {})",
+                    arm.model,
+                    ARM_MODELS.join(", ")
+                ),
+            );
+        }
+        v.finite3("arm.base", &arm.base);
+        v.finite("arm.base_yaw_deg", arm.base_yaw_deg);
+    }
     match spec.end_effector {
         EndEffector::Suction => {}
         EndEffector::ParallelGripper { max_opening, .. } => {

@@ -528,6 +528,7 @@ fn import_task(
             max_opening: 0.08,
             grasp: Default::default(),
         },
+        arm: None,
         goals,
         variations: Variations {
             position_jitter: JITTER,

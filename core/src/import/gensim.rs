@@ -1166,6 +1166,10 @@ fn build(
         "end_effector",
         "suction (Ravens' default self.ee = Suction)",
     );
+    notes.mapped(
+        "arm",
+        "ur5 at the origin (Ravens' UR5 stands at (0, 0, 0) facing +x; its workspace x 0.25-0.75 m)",
+    );
     let group = group_for(name, Pipeline::Gensim, notes);
     Some(TaskSpec {
         spec_version: SPEC_VERSION,
@@ -1180,6 +1184,11 @@ fn build(
             zones,
         },
         end_effector: EndEffector::Suction,
+        arm: Some(crate::spec::Arm {
+            model: "ur5".into(),
+            base: [0.0; 3],
+            base_yaw_deg: 0.0,
+        }),
         goals,
         variations: Variations {
             position_jitter: JITTER,

@@ -724,6 +724,7 @@ fn import_one(root: &Path, asset_root: &Path, file: &Path) -> Option<ImportedTas
                 max_opening: 0.08,
                 grasp: Default::default(),
             },
+            arm: None,
             goals,
             variations: Variations::default(),
             oracle,

@@ -35,6 +35,7 @@ pub fn caption_scene(
     let scene = SceneSnapshot {
         tool: None,
         fingers: Vec::new(),
+        arm: Vec::new(),
         ..initial.clone()
     };
     let mut frames = Vec::with_capacity(4);

@@ -87,6 +87,7 @@ pub fn render_episode_with(
     let scene = SceneSnapshot {
         tool: None,
         fingers: Vec::new(),
+        arm: Vec::new(),
         ..initial.clone()
     };
     for (i, cam) in scene_views().iter().enumerate() {

@@ -602,7 +602,7 @@ impl Renderer {
                 SEGMENT_TOOL,
             );
         }
-        for f in &scene.fingers {
+        for f in scene.fingers.iter().chain(&scene.arm) {
             push(
                 MeshKey::Box,
                 trs(f.position, f.rotation, f.half_extents),

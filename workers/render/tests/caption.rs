@@ -167,6 +167,7 @@ fn hidden_objects_are_not_captioned_as_visible() {
         ],
         tool: None,
         fingers: Vec::new(),
+        arm: Vec::new(),
     };
     let mut r = Renderer::new().expect("an adapter");
     let caption = caption_scene(&mut r, &scene, 320, 240).unwrap();
@@ -209,6 +210,7 @@ fn every_palette_colour_is_named_back_from_the_top_view() {
             )],
             tool: None,
             fingers: Vec::new(),
+            arm: Vec::new(),
         };
         let frame = r.render_with(&scene, &top, Outputs::ALL).unwrap();
         let caption = caption_frames(&scene, &[(top.name.clone(), top.clone(), frame)]);
@@ -266,6 +268,7 @@ fn stacks_containers_and_floating_objects_are_measured() {
         ],
         tool: None,
         fingers: Vec::new(),
+        arm: Vec::new(),
     };
     let mut r = Renderer::new().expect("an adapter");
     let caption = caption_scene(&mut r, &scene, 320, 240).unwrap();

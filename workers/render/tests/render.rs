@@ -70,6 +70,7 @@ fn scene() -> SceneSnapshot {
         ],
         tool: Some([0.55, 0.0, 0.3]),
         fingers: Vec::new(),
+        arm: Vec::new(),
     }
 }
 

@@ -62,6 +62,7 @@ fn the_camera_sees_a_box_where_it_is() {
         }],
         tool: None,
         fingers: Vec::new(),
+        arm: Vec::new(),
     };
     let camera = observation_camera();
     let f = r.render_with(&scene, &camera, Outputs::ALL).unwrap();

@@ -31,6 +31,7 @@ fn cabinet(drawer: f64) -> (SceneSnapshot, [f64; 3]) {
         }],
         tool: None,
         fingers: Vec::new(),
+        arm: Vec::new(),
     };
     (scene, half)
 }

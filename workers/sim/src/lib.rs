@@ -5,6 +5,7 @@
 //! Owns physics. Never does networking: the worker binary feeds it assignments. Runs on the
 //! caller's thread (a shard thread), never on an async executor.
 
+pub mod arm;
 pub mod controller;
 pub mod learned;
 pub mod perception;
@@ -332,11 +333,13 @@ pub fn simulate_with(
                    act: Option<(rapier3d::prelude::Vec3, controller::Event)>| {
         let ev = match act {
             Some((cmd, ev)) => {
-                scene.world.bodies[scene.gripper].set_next_kinematic_translation(cmd);
+                let at = scene.drive_arm(cmd);
+                scene.world.bodies[scene.gripper].set_next_kinematic_translation(at);
                 ev
             }
             None => {
-                scene.world.bodies[scene.gripper].set_next_kinematic_translation(ctl.command);
+                let at = scene.drive_arm(ctl.command);
+                scene.world.bodies[scene.gripper].set_next_kinematic_translation(at);
                 controller::Event::None
             }
         };

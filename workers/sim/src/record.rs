@@ -34,6 +34,8 @@ pub struct Recorder {
     joints: Vec<Vec<(String, Vec<f32>)>>,
     /// A friction gripper's pads: the gap between them and their yaw (empty without pads).
     fingers: [Vec<f32>; 2],
+    /// The arm's joints: name and position (empty without an arm).
+    arm: Vec<(String, Vec<f32>)>,
 }
 
 impl Recorder {
@@ -87,6 +89,12 @@ impl Recorder {
                     .collect()
             },
             (!self.fingers[0].is_empty()).then(|| (self.fingers[0][row], self.fingers[1][row])),
+            spec.arm.as_ref().map_or_else(Vec::new, |a| {
+                let q: Vec<f64> = self.arm.iter().map(|(_, c)| f64::from(c[row])).collect();
+                crate::arm::Arm::new(&a.model, a.base, a.base_yaw_deg)
+                    .map(|arm| arm.boxes_at(&q))
+                    .unwrap_or_default()
+            }),
         )
     }
 
@@ -116,6 +124,18 @@ impl Recorder {
             let q = p.rotation;
             for (k, v) in [t.x, t.y, t.z, q.x, q.y, q.z, q.w].into_iter().enumerate() {
                 cols[k].push(v);
+            }
+        }
+        if let Some(arm) = &scene.arm {
+            if self.arm.is_empty() {
+                self.arm = arm
+                    .joint_names()
+                    .into_iter()
+                    .map(|n| (n, Vec::new()))
+                    .collect();
+            }
+            for ((_, col), q) in self.arm.iter_mut().zip(&arm.q) {
+                col.push(*q as f32);
             }
         }
         if let Some(f) = &scene.fingers {
@@ -169,6 +189,10 @@ impl Recorder {
                 fields.push(Field::new(format!("{id}.{c}"), DataType::Float32, false));
                 cols.push(Arc::new(Float32Array::from(data[k].clone())));
             }
+        }
+        for (name, data) in &self.arm {
+            fields.push(Field::new(format!("arm.{name}"), DataType::Float32, false));
+            cols.push(Arc::new(Float32Array::from(data.clone())));
         }
         if !self.fingers[0].is_empty() {
             for (name, data) in [
@@ -224,12 +248,14 @@ pub fn contact_summary(scene: &SimScene) -> (u32, u32, bool) {
         }
         pairs += 1;
         points += touching;
+        // The tool, its pads and the arm that carries it.
         let tool = |c: ColliderHandle| {
             c == scene.gripper_collider
                 || scene
                     .fingers
                     .as_ref()
                     .is_some_and(|f| f.colliders.contains(&c))
+                || scene.arm.as_ref().is_some_and(|a| a.colliders.contains(&c))
         };
         if tool(pair.collider1) || tool(pair.collider2) {
             ee = true;
@@ -255,6 +281,10 @@ pub fn live_snapshot(scene: &SimScene, spec: &TaskSpec) -> SceneSnapshot {
             .fingers
             .as_ref()
             .map(|f| (f.opening(&scene.world), f.yaw)),
+        scene
+            .arm
+            .as_ref()
+            .map_or_else(Vec::new, |a| a.boxes_at(&a.q)),
     )
 }
 
@@ -266,6 +296,7 @@ fn snapshot_of(
     tool: [f32; 3],
     joints: impl Fn(usize) -> std::collections::BTreeMap<String, f64>,
     fingers: Option<(f32, f32)>,
+    arm: Vec<SnapshotBox>,
 ) -> SceneSnapshot {
     let objects = spec
         .scene
@@ -297,5 +328,6 @@ fn snapshot_of(
                     .to_vec()
             })
             .unwrap_or_default(),
+        arm,
     }
 }

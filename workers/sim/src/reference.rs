@@ -149,6 +149,7 @@ impl Contract {
             gripper,
             gripper_collider,
             fingers: None,
+            arm: None,
             zones: Vec::new(),
         }
     }
@@ -256,6 +257,7 @@ pub fn snapshot(scene: &SimScene) -> SceneSnapshot {
         objects,
         tool: Some(scene.gripper_position().into()),
         fingers: Vec::new(),
+        arm: Vec::new(),
     }
 }
 

@@ -217,6 +217,8 @@ pub struct SimScene {
     pub gripper_collider: ColliderHandle,
     /// Finger pads, for a parallel gripper that grasps by friction.
     pub fingers: Option<Fingers>,
+    /// The arm that carries the tool, if the task has one.
+    pub arm: Option<crate::arm::Arm>,
     /// Zones: id, centre (z = 0), half extents (z = 0).
     pub zones: Vec<(String, Vec3, Vec3)>,
 }
@@ -265,6 +267,19 @@ impl SimScene {
                         .set_motor_position(axis, j.anchor as f32, stiffness, damping);
                 }
             }
+        }
+    }
+
+    /// Where the tool goes for the command `cmd`: with an arm, where inverse kinematics puts it
+    /// (the links follow at the next step); without, `cmd`.
+    pub fn drive_arm(&mut self, cmd: Vec3) -> Vec3 {
+        match &mut self.arm {
+            Some(arm) => {
+                let at = arm.reach(cmd);
+                arm.move_links(&mut self.world);
+                at
+            }
+            None => cmd,
         }
     }
 
@@ -760,6 +775,22 @@ pub fn build_scene(spec: &TaskSpec, seed: u64) -> Result<SimScene, SimError> {
         ),
         None => Vec3::from(GRIPPER_PARK),
     };
+    // With an arm, the tool starts where the arm can put it, moved there from its home.
+    let mut arm = match &spec.arm {
+        Some(a) => Some(
+            crate::arm::Arm::new(&a.model, a.base, a.base_yaw_deg)
+                .map_err(|e| SimError::spec("arm.model", e))?,
+        ),
+        None => None,
+    };
+    let start = match &mut arm {
+        Some(a) => {
+            let at = a.settle_at(start);
+            a.insert_links(&mut world);
+            at
+        }
+        None => start,
+    };
     let [gx, gy, gz] = GRIPPER_HALF_EXTENTS;
     let (gripper, gripper_collider) = world.insert(
         RigidBodyBuilder::kinematic_position_based().translation(start),
@@ -795,6 +826,7 @@ pub fn build_scene(spec: &TaskSpec, seed: u64) -> Result<SimScene, SimError> {
         gripper,
         gripper_collider,
         fingers,
+        arm,
         zones,
     })
 }

@@ -9,7 +9,11 @@ const SEEDS: u64 = 20;
 const REQUIRED: f64 = 0.9;
 
 fn corpus() -> Vec<(PathBuf, TaskSpec)> {
-    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../examples/tasks");
+    // ASSAY_CORPUS_DIR=DIR runs another folder of tasks (trying out changes to many tasks).
+    let root = std::env::var_os("ASSAY_CORPUS_DIR").map_or_else(
+        || Path::new(env!("CARGO_MANIFEST_DIR")).join("../../examples/tasks"),
+        PathBuf::from,
+    );
     let mut files = Vec::new();
     let mut stack = vec![root];
     while let Some(dir) = stack.pop() {
