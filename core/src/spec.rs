@@ -260,14 +260,15 @@ pub enum EndEffector {
 }
 
 /// The arms Assay has built in (their URDFs ship with the simulator).
-pub const ARM_MODELS: &[&str] = &["ur5"];
+pub const ARM_MODELS: &[&str] = &["ur5", "panda"];
 
 /// A robot arm from URDF, driven by inverse kinematics: the tool goes where the arm can put it,
 /// pointing straight down; its links collide with the scene.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct Arm {
-    /// A built-in arm: `ur5` (GenSim's and Ravens' arm).
+    /// A built-in arm: `ur5` (GenSim's and Ravens' arm) or `panda` (a Franka Emika Panda,
+    /// RoboGen's and RoboMimic's).
     pub model: String,
     /// Where its base stands (m); default the origin, the table's near edge.
     #[serde(default)]

@@ -171,7 +171,14 @@ fn robogen_imports_examples() {
     );
     assert_eq!(
         fields(&imp, "open-the-laptops-lid", MappingStatus::Inferred),
-        ["[1].center", "goals", "oracle", "end_effector", "group"]
+        [
+            "[1].center",
+            "goals",
+            "oracle",
+            "end_effector",
+            "arm",
+            "group"
+        ]
     );
 }
 

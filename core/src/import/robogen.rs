@@ -700,6 +700,10 @@ fn import_one(root: &Path, asset_root: &Path, file: &Path) -> Option<ImportedTas
         }
     }
     notes.inferred("end_effector", "parallel_gripper, max_opening 0.08 (RoboGen's Franka); the imported objects and lids fit it");
+    notes.inferred(
+        "arm",
+        "panda at Assay's robot base, the origin (RoboGen draws its robot at random; the Franka is one of them)",
+    );
     let group = group_for(&name, Pipeline::Robogen, &mut notes);
     if !fatal {
         let mut spec = TaskSpec {
@@ -724,7 +728,11 @@ fn import_one(root: &Path, asset_root: &Path, file: &Path) -> Option<ImportedTas
                 max_opening: 0.08,
                 grasp: Default::default(),
             },
-            arm: None,
+            arm: Some(crate::spec::Arm {
+                model: "panda".into(),
+                base: [0.0; 3],
+                base_yaw_deg: 0.0,
+            }),
             goals,
             variations: Variations::default(),
             oracle,

@@ -10,17 +10,38 @@ use rapier3d::prelude::*;
 
 use crate::scene::GRIPPER_HALF_EXTENTS;
 
-/// Built-in arms: name, URDF, the link the tool is mounted on, its home joint positions.
-const ARMS: &[(&str, &str, &str, &[f64])] = &[(
-    "ur5",
-    include_str!("../robots/ur5.urdf"),
-    "flange",
-    &[0.0, -1.2, 1.9, -2.27, -std::f64::consts::FRAC_PI_2, 0.0],
-)];
+/// A built-in arm.
+struct Model {
+    name: &'static str,
+    urdf: &'static str,
+    /// The link the tool is mounted on.
+    flange: &'static str,
+    /// The axis of the flange's parent link the tool points along.
+    tool_axis: [f32; 3],
+    /// Joint positions the arm starts from, the tool pointing down over the table.
+    home: &'static [f64],
+}
+
+const ARMS: &[Model] = &[
+    Model {
+        name: "ur5",
+        urdf: include_str!("../robots/ur5.urdf"),
+        flange: "flange",
+        tool_axis: [0.0, 1.0, 0.0],
+        home: &[0.0, -1.2, 1.9, -2.27, -std::f64::consts::FRAC_PI_2, 0.0],
+    },
+    Model {
+        name: "panda",
+        urdf: include_str!("../robots/panda.urdf"),
+        flange: "flange",
+        tool_axis: [0.0, 0.0, 1.0],
+        home: &[0.0, -0.3, 0.0, -2.2, 0.0, 1.9, 0.785],
+    },
+];
 
 /// The names of the built-in arms.
 pub fn models() -> Vec<&'static str> {
-    ARMS.iter().map(|a| a.0).collect()
+    ARMS.iter().map(|a| a.name).collect()
 }
 
 /// Iterations of the solver per physics step (warm-started from the last step's solution).
@@ -36,8 +57,9 @@ pub struct Arm {
     /// The moving joints from the root to the flange, in order (indices into `urdf.joints`).
     chain: Vec<usize>,
     flange: usize,
-    /// The link whose +y is the tool's pointing direction (the flange's parent).
+    /// The flange's parent link, and the axis in its frame the tool points along.
     wrist: usize,
+    tool_axis: Vec3,
     /// The arm's base in the world.
     base: Pose,
     /// Joint positions along `chain`.
@@ -85,10 +107,11 @@ impl Arm {
     /// The built-in arm `model` with its base at `base` (position, yaw in degrees), at its home
     /// configuration, not yet in a world.
     pub fn new(model: &str, base: [f64; 3], yaw_deg: f64) -> Result<Self, String> {
-        let (name, text, flange_name, home) = ARMS
+        let m = ARMS
             .iter()
-            .find(|a| a.0 == model)
+            .find(|a| a.name == model)
             .ok_or_else(|| format!("unknown arm '{model}' (built in: {})", models().join(", ")))?;
+        let (name, text, flange_name, home) = (&m.name, m.urdf, &m.flange, m.home);
         let urdf = assay_core::urdf::parse(text).map_err(|e| format!("arm '{name}': {e}"))?;
         let flange = urdf
             .links
@@ -138,6 +161,7 @@ impl Arm {
             chain,
             flange,
             wrist,
+            tool_axis: Vec3::from(m.tool_axis),
             base,
             q: home.to_vec(),
             bodies: Vec::new(),
@@ -207,7 +231,7 @@ impl Arm {
     pub fn tool_position(&self) -> Vec3 {
         let poses = self.link_poses();
         let flange = poses[self.flange].translation;
-        let down = poses[self.wrist].rotation * Vec3::Y;
+        let down = poses[self.wrist].rotation * self.tool_axis;
         flange + down * GRIPPER_HALF_EXTENTS[2]
     }
 
@@ -221,7 +245,7 @@ impl Arm {
         for _ in 0..IK_ITERATIONS {
             let poses = self.world_poses(&q);
             let p = poses[self.flange].translation;
-            let a = poses[self.wrist].rotation * Vec3::Y;
+            let a = poses[self.wrist].rotation * self.tool_axis;
             // Position error, and the rotation that turns the tool's axis onto straight down.
             let ep = [
                 t[0] - f64::from(p.x),
@@ -318,38 +342,47 @@ mod tests {
     use super::*;
 
     #[test]
-    fn the_ur5_reaches_the_workspace_pointing_down_and_not_beyond_its_reach() {
-        let mut arm = Arm::new("ur5", [0.0; 3], 0.0).unwrap();
-        // Home: the tool above the table, pointing down.
-        let home = arm.tool_position();
-        assert!(home.z > 0.1 && home.x > 0.2, "home tool at {home:?}");
-        // GenSim's workspace, followed in small steps as the controller commands it.
-        let mut at = home;
-        for target in [
-            Vec3::new(0.5, 0.0, 0.3),
-            Vec3::new(0.25, -0.4, 0.1),
-            Vec3::new(0.75, 0.4, 0.08),
-            Vec3::new(0.5, 0.2, 0.5),
-        ] {
-            for k in 1..=200 {
-                let t = at.lerp(target, k as f32 / 200.0);
-                arm.reach(t);
-            }
-            at = target;
-            let got = arm.tool_position();
+    fn each_arm_reaches_the_workspace_pointing_down_and_not_beyond_its_reach() {
+        assert_eq!(models(), assay_core::spec::ARM_MODELS);
+        for model in models() {
+            let mut arm = Arm::new(model, [0.0; 3], 0.0).unwrap();
+            // Home: the tool above the table.
+            let home = arm.tool_position();
             assert!(
-                got.distance(target) < 1e-3,
-                "{target:?}: the tool at {got:?}"
+                home.z > 0.1 && home.x > 0.2,
+                "{model}: home tool at {home:?}"
             );
-            let poses = arm.link_poses();
-            let down = poses[arm.wrist].rotation * Vec3::Y;
-            assert!(down.dot(-Vec3::Z) > 0.999, "{target:?}: tool axis {down:?}");
+            // GenSim's workspace, followed in small steps as the controller commands it.
+            let mut at = home;
+            for target in [
+                Vec3::new(0.5, 0.0, 0.3),
+                Vec3::new(0.3, -0.4, 0.1),
+                Vec3::new(0.7, 0.35, 0.08),
+                Vec3::new(0.5, 0.2, 0.5),
+            ] {
+                for k in 1..=200 {
+                    let t = at.lerp(target, k as f32 / 200.0);
+                    arm.reach(t);
+                }
+                at = target;
+                let got = arm.tool_position();
+                assert!(
+                    got.distance(target) < 1e-3,
+                    "{model} {target:?}: the tool at {got:?}"
+                );
+                let poses = arm.link_poses();
+                let down = poses[arm.wrist].rotation * arm.tool_axis;
+                assert!(
+                    down.dot(-Vec3::Z) > 0.999,
+                    "{model} {target:?}: tool axis {down:?}"
+                );
+            }
+            // 1.5 m away is out of reach (0.85 m for both): the tool stops short.
+            for k in 1..=200 {
+                arm.reach(at.lerp(Vec3::new(1.5, 0.0, 0.1), k as f32 / 200.0));
+            }
+            let got = arm.tool_position();
+            assert!(got.x < 1.0, "{model}: the tool reached {got:?}");
         }
-        // 1.5 m away is out of reach (the UR5 reaches 0.85 m): the tool stops short.
-        for k in 1..=200 {
-            arm.reach(at.lerp(Vec3::new(1.5, 0.0, 0.1), k as f32 / 200.0));
-        }
-        let got = arm.tool_position();
-        assert!(got.x < 1.0, "the tool reached {got:?}");
     }
 }
