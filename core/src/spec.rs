@@ -86,7 +86,40 @@ pub struct Scene {
     /// Flat target regions drawn on the surface (no collision).
     #[serde(default)]
     pub zones: Vec<Zone>,
+    /// Piles of many small identical objects (beans, chips, debris), drawn per seed.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub piles: Vec<Pile>,
 }
+
+/// `count` copies of one small shape, heaped in a region of the table: each seed lays them on a
+/// grid over the region, in layers, each copy shifted within its cell and turned. Copy `k` is
+/// object `{id}_{k}` (drawn, simulated and recorded like any object); goals and the oracle refer
+/// to the pile by `id`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct Pile {
+    pub id: String,
+    pub count: u32,
+    pub shape: Shape,
+    #[serde(default)]
+    pub color: Color,
+    /// Mass of each copy (kg); default 0.01.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mass: Option<f64>,
+    /// The region (x, y) the pile is heaped over.
+    pub region: Region,
+}
+
+/// An axis-aligned rectangle of the table.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct Region {
+    pub min: [f64; 2],
+    pub max: [f64; 2],
+}
+
+/// The most copies a pile may have.
+pub const MAX_PILE: u32 = 200;
 
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
 #[serde(rename_all = "snake_case")]
@@ -337,6 +370,12 @@ pub enum Goal {
     /// The object's bottom is at least `height` above the surface (held up or resting on
     /// something).
     Lifted { object: String, height: f64 },
+    /// At least `fraction` of a pile's copies lie over the zone (GenSim's sweeping score).
+    PileInZone {
+        pile: String,
+        zone: String,
+        fraction: f64,
+    },
 }
 
 impl Goal {
@@ -372,6 +411,11 @@ impl Goal {
                 (None, None) => format!("joint_position({object}.{joint})"),
             },
             Goal::Lifted { object, height } => format!("lifted({object}, {height})"),
+            Goal::PileInZone {
+                pile,
+                zone,
+                fraction,
+            } => format!("pile_in_zone({pile}, {zone}, {fraction})"),
         }
     }
 }
@@ -409,6 +453,10 @@ pub enum Primitive {
     Place { target: PlaceTarget },
     /// Sweep the object along the table to `to` (x, y).
     Push { object: String, to: [f64; 2] },
+    /// Sweep a pile into a zone: strokes of the tool along the table from behind the pile to the
+    /// zone, side by side across the pile's width, twice (the second time over what is still
+    /// outside).
+    Sweep { pile: String, zone: String },
     /// Grasp the moving link of `joint` of an articulated object from above, at the point of its
     /// top farthest from the joint (a handle, a lid's edge), carry it along the joint's motion to
     /// position `to` (rad or m), release, retreat.
@@ -642,7 +690,7 @@ pub fn validate(spec: &TaskSpec, origin: &str) -> Vec<SpecError> {
     }
 
     let mut object_ids = BTreeSet::new();
-    if spec.scene.objects.is_empty() {
+    if spec.scene.objects.is_empty() && spec.scene.piles.is_empty() {
         v.err("scene.objects", "a task needs at least one object".into());
     }
     for (i, o) in spec.scene.objects.iter().enumerate() {
@@ -668,6 +716,57 @@ pub fn validate(spec: &TaskSpec, origin: &str) -> Vec<SpecError> {
             (None, Some(r)) => v.range(&format!("{p}.pose_range"), r),
             (Some(_), Some(_)) => v.err(&p, "give either pose or pose_range, not both".into()),
             (None, None) => v.err(&p, "missing pose (or pose_range)".into()),
+        }
+    }
+    let mut pile_ids = BTreeSet::new();
+    for (i, pile) in spec.scene.piles.iter().enumerate() {
+        let p = format!("scene.piles[{i}]");
+        if pile.id.is_empty() {
+            v.err(&format!("{p}.id"), "must not be empty".into());
+        } else if object_ids.contains(pile.id.as_str()) || !pile_ids.insert(pile.id.as_str()) {
+            v.err(&format!("{p}.id"), format!("duplicate id '{}'", pile.id));
+        }
+        if !(1..=MAX_PILE).contains(&pile.count) {
+            v.err(
+                &format!("{p}.count"),
+                format!("must lie in 1..={MAX_PILE}, got {}", pile.count),
+            );
+        }
+        if !matches!(
+            pile.shape,
+            Shape::Box { .. } | Shape::Sphere { .. } | Shape::Cylinder { .. }
+        ) {
+            v.err(
+                &format!("{p}.shape"),
+                "a pile is made of boxes, spheres or cylinders".into(),
+            );
+        }
+        v.shape(&format!("{p}.shape"), &pile.shape);
+        v.color(&format!("{p}.color"), &pile.color);
+        if let Some(m) = pile.mass {
+            v.positive(&format!("{p}.mass"), m);
+        }
+        v.finite2(&format!("{p}.region.min"), &pile.region.min);
+        v.finite2(&format!("{p}.region.max"), &pile.region.max);
+        for k in 0..2 {
+            if pile.region.min[k] >= pile.region.max[k] {
+                v.err(
+                    &format!("{p}.region"),
+                    format!(
+                        "min {} is not below max {}",
+                        pile.region.min[k], pile.region.max[k]
+                    ),
+                );
+            }
+        }
+        for k in 0..pile.count {
+            let copy = format!("{}_{k}", pile.id);
+            if object_ids.contains(copy.as_str()) {
+                v.err(
+                    &format!("{p}.id"),
+                    format!("copy '{copy}' has the id of an object"),
+                );
+            }
         }
     }
     let mut zone_ids = BTreeSet::new();
@@ -849,6 +948,30 @@ pub fn validate(spec: &TaskSpec, origin: &str) -> Vec<SpecError> {
                 obj(&mut v, &format!("{p}.lifted.object"), object);
                 v.positive(&format!("{p}.lifted.height"), *height);
             }
+            Goal::PileInZone {
+                pile,
+                zone,
+                fraction,
+            } => {
+                if !pile_ids.contains(pile.as_str()) {
+                    v.err(
+                        &format!("{p}.pile_in_zone.pile"),
+                        format!("refers to unknown pile '{pile}'"),
+                    );
+                }
+                if !zone_ids.contains(zone.as_str()) {
+                    v.err(
+                        &format!("{p}.pile_in_zone.zone"),
+                        format!("refers to unknown zone '{zone}'"),
+                    );
+                }
+                if !(fraction.is_finite() && *fraction > 0.0 && *fraction <= 1.0) {
+                    v.err(
+                        &format!("{p}.pile_in_zone.fraction"),
+                        format!("must lie in (0, 1], got {fraction}"),
+                    );
+                }
+            }
         }
     }
 
@@ -955,6 +1078,26 @@ pub fn validate(spec: &TaskSpec, origin: &str) -> Vec<SpecError> {
                     v.err(
                         &format!("{p}.push"),
                         "cannot push while holding an object".into(),
+                    );
+                }
+            }
+            Primitive::Sweep { pile, zone } => {
+                if !pile_ids.contains(pile.as_str()) {
+                    v.err(
+                        &format!("{p}.sweep.pile"),
+                        format!("refers to unknown pile '{pile}'"),
+                    );
+                }
+                if !zone_ids.contains(zone.as_str()) {
+                    v.err(
+                        &format!("{p}.sweep.zone"),
+                        format!("refers to unknown zone '{zone}'"),
+                    );
+                }
+                if held.is_some() {
+                    v.err(
+                        &format!("{p}.sweep"),
+                        "cannot sweep while holding an object".into(),
                     );
                 }
             }
@@ -1124,6 +1267,19 @@ impl Validator<'_> {
     }
 }
 
+/// Half extents of a pile copy's upright box.
+fn pile_half_extents(shape: &Shape) -> [f64; 3] {
+    match shape {
+        Shape::Box { half_extents } => *half_extents,
+        Shape::Sphere { radius } => [*radius; 3],
+        Shape::Cylinder {
+            radius,
+            half_height,
+        } => [*radius, *radius, *half_height],
+        _ => [0.01; 3],
+    }
+}
+
 /// Checks an asset path from its text alone (before touching the file system): not empty, not
 /// absolute, and no `..` that climbs above the asset root.
 pub fn check_asset_path(file: &str) -> Result<(), String> {
@@ -1242,18 +1398,65 @@ impl TaskSpec {
     /// colour drawn from `variations.colors`. The draw has a stream of its own, so a palette
     /// never moves the poses a seed draws. Borrowed when nothing is recoloured.
     pub fn for_seed(&self, seed: u64) -> std::borrow::Cow<'_, TaskSpec> {
-        if self.variations.recolor.is_empty() || self.variations.colors.is_empty() {
+        let recolour = !self.variations.recolor.is_empty() && !self.variations.colors.is_empty();
+        if !recolour && self.scene.piles.is_empty() {
             return std::borrow::Cow::Borrowed(self);
         }
-        let mut rng = crate::rng::Rng::new(seed, &format!("{}/colors", self.id));
         let mut spec = self.clone();
-        let palette = &self.variations.colors;
-        for o in &mut spec.scene.objects {
-            if self.variations.recolor.contains(&o.id) {
-                o.color = palette[(rng.next_u64() % palette.len() as u64) as usize].clone();
+        if recolour {
+            let mut rng = crate::rng::Rng::new(seed, &format!("{}/colors", self.id));
+            let palette = &self.variations.colors;
+            for o in &mut spec.scene.objects {
+                if self.variations.recolor.contains(&o.id) {
+                    o.color = palette[(rng.next_u64() % palette.len() as u64) as usize].clone();
+                }
+            }
+        }
+        // Piles become their copies, laid out for this seed (their own random stream).
+        let mut rng = crate::rng::Rng::new(seed, &format!("{}/piles", self.id));
+        for pile in &self.scene.piles {
+            // Already laid out (a spec that went through here before).
+            if self.object(&format!("{}_0", pile.id)).is_some() {
+                continue;
+            }
+            let half = pile_half_extents(&pile.shape);
+            let cell = 2.0 * half[0].max(half[1]) + 0.004;
+            let [x0, y0] = pile.region.min;
+            let [x1, y1] = pile.region.max;
+            let cols = (((x1 - x0) / cell).floor() as u32).max(1);
+            let rows = (((y1 - y0) / cell).floor() as u32).max(1);
+            let slack = (cell - 2.0 * half[0].max(half[1])) / 2.0;
+            for k in 0..pile.count {
+                let (layer, at) = (k / (cols * rows), k % (cols * rows));
+                let (cx, cy) = (at % cols, at / cols);
+                let x = x0 + cell * (f64::from(cx) + 0.5) + rng.uniform(-slack, slack);
+                let y = y0 + cell * (f64::from(cy) + 0.5) + rng.uniform(-slack, slack);
+                let z = half[2] + f64::from(layer) * (2.0 * half[2] + 0.002);
+                spec.scene.objects.push(Object {
+                    id: format!("{}_{k}", pile.id),
+                    shape: pile.shape.clone(),
+                    color: pile.color.clone(),
+                    mass: Some(pile.mass.unwrap_or(0.01)),
+                    is_fixed: false,
+                    pose: Some(Pose {
+                        position: [x, y, z],
+                        yaw_deg: rng.uniform(0.0, 90.0),
+                    }),
+                    pose_range: None,
+                });
             }
         }
         std::borrow::Cow::Owned(spec)
+    }
+
+    /// The ids of pile `id`'s copies (objects of a spec from [`TaskSpec::for_seed`]).
+    pub fn pile_copies(&self, id: &str) -> Vec<String> {
+        self.scene
+            .piles
+            .iter()
+            .filter(|p| p.id == id)
+            .flat_map(|p| (0..p.count).map(move |k| format!("{}_{k}", p.id)))
+            .collect()
     }
 
     pub fn object(&self, id: &str) -> Option<&Object> {
@@ -1478,6 +1681,81 @@ oracle:
         let spec = parse_task(&ok, Format::Yaml, "t.yaml").unwrap_or_else(|e| panic!("{e}"));
         assert_eq!(spec.goals[0].label(), "joint_position(box.lid >= 1)");
         assert_eq!(spec.goals[1].label(), "lifted(red_block, 0.1)");
+    }
+
+    #[test]
+    fn a_pile_is_laid_out_per_seed_as_copies_that_do_not_overlap() {
+        let text = MINIMAL.replace(
+            "  zones:",
+            "  piles:\n    - {id: bean, count: 30, shape: {box: {half_extents: [0.006, 0.006, 0.006]}}, color: brown, region: {min: [0.3, -0.05], max: [0.4, 0.05]}}\n  zones:",
+        ).replace(
+            "  - in_zone: {object: red_block, zone: goal}",
+            "  - in_zone: {object: red_block, zone: goal}\n  - pile_in_zone: {pile: bean, zone: goal, fraction: 0.8}",
+        );
+        let spec = parse_task(&text, Format::Yaml, "t.yaml").unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(
+            spec.scene.objects.len(),
+            1,
+            "the submitted spec keeps the pile as one entry"
+        );
+        let a = spec.for_seed(1);
+        assert_eq!(a.scene.objects.len(), 31);
+        assert_eq!(a.pile_copies("bean").len(), 30);
+        assert!(a.object("bean_29").is_some() && a.object("bean_30").is_none());
+        // Inside the region, resting on the table or on the layer below, never overlapping.
+        let at: Vec<[f64; 3]> = a.scene.objects[1..]
+            .iter()
+            .map(|o| o.pose.unwrap().position)
+            .collect();
+        for (i, p) in at.iter().enumerate() {
+            assert!(
+                (0.3..=0.4).contains(&p[0]) && (-0.05..=0.05).contains(&p[1]),
+                "{p:?}"
+            );
+            assert!((p[2] - 0.006).abs() < 1e-9 || p[2] > 0.012, "{p:?}");
+            for q in &at[i + 1..] {
+                let apart = (p[0] - q[0])
+                    .abs()
+                    .max((p[1] - q[1]).abs())
+                    .max((p[2] - q[2]).abs());
+                assert!(apart >= 0.0119, "{p:?} and {q:?} overlap");
+            }
+        }
+        // The same seed lays it out the same way; another seed differently; laying it out again
+        // adds nothing.
+        assert_eq!(spec.for_seed(1).scene.objects, a.scene.objects);
+        assert_ne!(spec.for_seed(2).scene.objects, a.scene.objects);
+        assert_eq!(a.for_seed(1).scene.objects.len(), 31);
+
+        for (bad, path, reason) in [
+            ("count: 30", "scene.piles[0].count", "must lie in 1..=200"),
+            (
+                "fraction: 0.8",
+                "goals[1].pile_in_zone.fraction",
+                "must lie in (0, 1]",
+            ),
+        ] {
+            let broken = text.replace(
+                bad,
+                if bad.starts_with("count") {
+                    "count: 0"
+                } else {
+                    "fraction: 1.5"
+                },
+            );
+            let es = errors(&broken);
+            assert!(
+                es.iter()
+                    .any(|e| e.path == path && e.reason.contains(reason)),
+                "{path}: {es:?}"
+            );
+        }
+        let es = errors(&text.replace("pile: bean", "pile: rice"));
+        assert!(
+            es.iter()
+                .any(|e| e.path == "goals[1].pile_in_zone.pile" && e.reason.contains("rice")),
+            "{es:?}"
+        );
     }
 
     #[test]

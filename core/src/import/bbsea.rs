@@ -523,6 +523,7 @@ fn import_task(
             surface: Surface::Table,
             objects,
             zones: Vec::new(),
+            piles: Vec::new(),
         },
         end_effector: EndEffector::ParallelGripper {
             max_opening: 0.08,

@@ -1182,6 +1182,7 @@ fn build(
             surface: Surface::Table,
             objects,
             zones,
+            piles: Vec::new(),
         },
         end_effector: EndEffector::Suction,
         arm: Some(crate::spec::Arm {

@@ -723,6 +723,7 @@ fn import_one(root: &Path, asset_root: &Path, file: &Path) -> Option<ImportedTas
                 surface,
                 objects: objs.iter().map(|o| o.object.clone()).collect(),
                 zones: Vec::new(),
+                piles: Vec::new(),
             },
             end_effector: EndEffector::ParallelGripper {
                 max_opening: 0.08,

@@ -13,6 +13,10 @@ use crate::scene::{GRIPPER_HALF_EXTENTS, SimScene};
 const TRANSIT_SPEED: f32 = 0.8;
 const DESCEND_SPEED: f32 = 0.25;
 const PUSH_SPEED: f32 = 0.12;
+/// Speed of a sweep's strokes (m/s).
+const SWEEP_SPEED: f32 = 0.12;
+/// The most strokes of one pass of a sweep.
+const MAX_STROKES: u32 = 8;
 const MIN_SEGMENT_STEPS: u32 = 20;
 const DWELL_STEPS: u32 = 8;
 /// Gap left under a placed object before release (m).
@@ -138,6 +142,8 @@ pub struct Controller {
     pick_belief: Option<Vec3>,
     /// The primitive for which a seeing oracle last moved the tool aside to look again.
     looked_aside: Option<usize>,
+    /// The `sweep` whose first pass has been planned.
+    swept: Option<usize>,
 }
 
 /// An object as the policy believes it to be.
@@ -183,6 +189,7 @@ impl Controller {
             tracker,
             pick_belief: None,
             looked_aside: None,
+            swept: None,
         }
     }
 
@@ -468,6 +475,16 @@ impl Controller {
             Primitive::Actuate { object, joint, to } => {
                 self.actuate(scene, step, object, joint, *to);
             }
+            Primitive::Sweep { pile, zone } => {
+                // Two passes: the second is planned from where the first left the pile.
+                let current = self.next - 1;
+                let first = self.swept != Some(current);
+                self.sweep(scene, pile, zone);
+                if first {
+                    self.swept = Some(current);
+                    self.next = current;
+                }
+            }
             Primitive::Push { object, to } => {
                 let Some(i) = scene.index_of(object) else {
                     return;
@@ -522,6 +539,95 @@ impl Controller {
                     dt,
                 );
             }
+        }
+    }
+
+    /// One pass of a sweep: strokes 3 cm apart across the part of the pile still outside the
+    /// zone, each from 3 cm behind it along the table to the zone's centre line, the tool's face
+    /// 4 mm over the table. Reads the sim's state (a seeing oracle too: its camera tracks
+    /// objects one by one, not heaps of them).
+    fn sweep(&mut self, scene: &SimScene, pile: &str, zone: &str) {
+        let dt = scene.world.integration_parameters.dt;
+        let gh = GRIPPER_HALF_EXTENTS[2];
+        let g = GRIPPER_HALF_EXTENTS[0];
+        let Some((zc, zh)) = scene_zone(scene, zone) else {
+            return;
+        };
+        let outside: Vec<Vec3> = crate::predicates::pile_copies(scene, pile)
+            .into_iter()
+            .map(|i| scene.pose(&scene.objects[i]).translation)
+            .filter(|p| (p.x - zc.x).abs() > zh.x * 0.8 || (p.y - zc.y).abs() > zh.y * 0.8)
+            // Not what fell off the table.
+            .filter(|p| p.z > -0.01)
+            .collect();
+        if outside.is_empty() {
+            return;
+        }
+        // The heap, not the strays far from it: what lies within 15 cm of its median.
+        let median = |f: fn(&Vec3) -> f32| {
+            let mut v: Vec<f32> = outside.iter().map(f).collect();
+            v.sort_by(f32::total_cmp);
+            v[v.len() / 2]
+        };
+        let heart = Vec3::new(median(|p| p.x), median(|p| p.y), 0.0);
+        let outside: Vec<Vec3> = outside
+            .into_iter()
+            .filter(|p| Vec3::new(p.x - heart.x, p.y - heart.y, 0.0).length() < 0.15)
+            .collect();
+        let extent = crate::predicates::pile_copies(scene, pile)
+            .first()
+            .map_or(0.01, |&i| {
+                scene.objects[i].half.x.max(scene.objects[i].half.y)
+            });
+        let centroid = outside.iter().copied().sum::<Vec3>() / outside.len() as f32;
+        let d = Vec3::new(zc.x - centroid.x, zc.y - centroid.y, 0.0).normalize_or_zero();
+        if d == Vec3::ZERO {
+            return;
+        }
+        let n = Vec3::new(-d.y, d.x, 0.0);
+        let along = |p: Vec3| (p - zc).dot(d);
+        let across = |p: Vec3| (p - zc).dot(n);
+        let back = outside.iter().map(|p| along(*p)).fold(f32::MAX, f32::min);
+        let (lo, hi) = outside
+            .iter()
+            .map(|p| across(*p))
+            .fold((f32::MAX, f32::MIN), |(a, b), x| (a.min(x), b.max(x)));
+        // How far across the zone a stroke may end and still leave what it pushes inside.
+        let room = (zh.x * n.x.abs() + zh.y * n.y.abs() - extent - g).max(0.0);
+        let strokes = (((hi - lo) / 0.03).ceil() as u32).clamp(1, MAX_STROKES);
+        let z_low = gh + 0.004;
+        let z_safe = self.safe_height(scene);
+        // Between strokes the tool hops just over the table (3 cm over anything that is not the
+        // pile), not up to the safe height.
+        let copies = crate::predicates::pile_copies(scene, pile);
+        let top = (0..scene.objects.len())
+            .filter(|i| !copies.contains(i))
+            .filter_map(|i| self.belief(scene, i).map(|b| b.top))
+            .fold(0.0f32, f32::max);
+        let hop = (top + gh + 0.03).max(gh + 0.03);
+        for k in 0..=strokes {
+            let o = lo + (hi - lo) * k as f32 / strokes as f32;
+            let start = zc + d * (back - extent - g - 0.03) + n * o;
+            let end = zc + n * o.clamp(-room, room);
+            if k == 0 {
+                self.travel_over(start, z_safe, dt);
+            } else {
+                // Up from the last stroke: over to the next one at the hop height.
+                self.push_move(
+                    Vec3::new(start.x, start.y, hop),
+                    TRANSIT_SPEED,
+                    Event::None,
+                    dt,
+                );
+            }
+            self.push_move(
+                Vec3::new(start.x, start.y, z_low),
+                DESCEND_SPEED,
+                Event::None,
+                dt,
+            );
+            self.push_move(Vec3::new(end.x, end.y, z_low), SWEEP_SPEED, Event::None, dt);
+            self.push_move(Vec3::new(end.x, end.y, hop), DESCEND_SPEED, Event::None, dt);
         }
     }
 

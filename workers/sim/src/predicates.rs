@@ -23,6 +23,21 @@ pub fn evaluate(goals: &[Goal], scene: &SimScene) -> Vec<PredicateValue> {
         .collect()
 }
 
+/// The objects that are copies of pile `pile` (`{pile}_0`, `{pile}_1`, ...).
+pub fn pile_copies(scene: &SimScene, pile: &str) -> Vec<usize> {
+    let prefix = format!("{pile}_");
+    scene
+        .objects
+        .iter()
+        .enumerate()
+        .filter(|(_, o)| {
+            o.id.strip_prefix(&prefix)
+                .is_some_and(|k| !k.is_empty() && k.bytes().all(|b| b.is_ascii_digit()))
+        })
+        .map(|(i, _)| i)
+        .collect()
+}
+
 fn obj<'a>(scene: &'a SimScene, id: &str) -> &'a SimObject {
     scene.object(id).expect("validated: goal objects exist")
 }
@@ -163,6 +178,35 @@ fn holds(goal: &Goal, scene: &SimScene) -> (bool, String) {
                 (None, None) => "anything".into(),
             };
             (ok, format!("'{joint}' at {q:.3} {unit} (wanted {bounds})"))
+        }
+        Goal::PileInZone {
+            pile,
+            zone,
+            fraction,
+        } => {
+            let (_, c, h) = scene
+                .zones
+                .iter()
+                .find(|z| &z.0 == zone)
+                .expect("validated: zone exists");
+            let copies = pile_copies(scene, pile);
+            let inside = copies
+                .iter()
+                .filter(|&&i| {
+                    let p = scene.pose(&scene.objects[i]).translation;
+                    (p.x - c.x).abs() <= h.x && (p.y - c.y).abs() <= h.y && p.z > -0.02
+                })
+                .count();
+            let share = inside as f64 / copies.len().max(1) as f64;
+            (
+                !copies.is_empty() && share >= *fraction,
+                format!(
+                    "{inside} of {} over the zone ({:.0} %, wanted {:.0} %)",
+                    copies.len(),
+                    share * 100.0,
+                    fraction * 100.0
+                ),
+            )
         }
         Goal::Lifted { object, height } => {
             let o = obj(scene, object);

@@ -49,7 +49,7 @@ fn every_oracle_plan_succeeds_on_at_least_90_percent_of_20_seeds() {
     let groups: std::collections::BTreeSet<_> =
         tasks.iter().map(|(_, t)| t.group.clone()).collect();
     if std::env::var_os("ASSAY_CORPUS_ONLY").is_none() {
-        assert!(tasks.len() >= 60, "the corpus has {} tasks", tasks.len());
+        assert!(tasks.len() >= 65, "the corpus has {} tasks", tasks.len());
         assert!(groups.len() >= 7, "groups: {groups:?}");
         let articulated = tasks.iter().filter(|(_, t)| t.group == "articulated");
         assert!(
