@@ -175,11 +175,15 @@ pub enum Shape {
         inner_half_extents: [f64; 3],
         wall: f64,
     },
-    /// A Wavefront OBJ file (relative to the spec file), collided as its convex hull.
+    /// A Wavefront OBJ file (inside the asset root), collided as its convex hull, or with
+    /// `collision: decomposition` as the convex parts of an approximate convex decomposition
+    /// (V-HACD) of its triangles, so that a bowl or a mug keeps its hollow.
     Mesh {
         path: String,
         #[serde(default = "one")]
         scale: f64,
+        #[serde(default, skip_serializing_if = "MeshCollision::is_hull")]
+        collision: MeshCollision,
     },
     /// A URDF file (inside the asset root; its meshes, OBJ or STL, inside the URDF's own
     /// folder), drawn from its visual elements and collided as the compound of its collision
@@ -202,6 +206,23 @@ pub enum Shape {
 
 fn one() -> f64 {
     1.0
+}
+
+/// How a mesh collides.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum MeshCollision {
+    /// Its convex hull (fast; fills hollows).
+    #[default]
+    Hull,
+    /// The convex parts of a V-HACD decomposition of its triangles.
+    Decomposition,
+}
+
+impl MeshCollision {
+    fn is_hull(&self) -> bool {
+        *self == MeshCollision::Hull
+    }
 }
 
 fn is_false(b: &bool) -> bool {
@@ -1251,7 +1272,9 @@ impl Validator<'_> {
                 }
                 self.positive(&format!("{path}.container.wall"), *wall);
             }
-            Shape::Mesh { path: file, scale } => {
+            Shape::Mesh {
+                path: file, scale, ..
+            } => {
                 self.asset(&format!("{path}.mesh.path"), file);
                 self.positive(&format!("{path}.mesh.scale"), *scale);
             }
@@ -1377,9 +1400,14 @@ impl TaskSpec {
     /// renderer in another working folder finds it.
     pub fn resolved_shape(&self, shape: &Shape) -> Shape {
         match shape {
-            Shape::Mesh { path, scale } => Shape::Mesh {
+            Shape::Mesh {
+                path,
+                scale,
+                collision,
+            } => Shape::Mesh {
                 path: self.asset_path(path).display().to_string(),
                 scale: *scale,
+                collision: *collision,
             },
             Shape::Urdf {
                 path,

@@ -351,6 +351,7 @@ fn import_one(root: &Path, asset_root: &Path, file: &Path) -> Option<ImportedTas
                 Shape::Mesh {
                     path: path.clone(),
                     scale,
+                    collision: Default::default(),
                 },
                 std::array::from_fn(|k| r6((hi[k] - lo[k]) / 2.0 * scale)),
                 None,

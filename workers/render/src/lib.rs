@@ -657,7 +657,7 @@ impl Renderer {
                         );
                     }
                 }
-                Shape::Mesh { path, scale } => {
+                Shape::Mesh { path, scale, .. } => {
                     let key = MeshKey::File(format!("{path}@{scale}"));
                     files.push((i, path.clone(), *scale as f32, key.clone()));
                     push(key, trs(p, q, [1.0; 3]), o.color, seg);

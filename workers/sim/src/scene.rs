@@ -1,7 +1,9 @@
 //! Building a rapier3d world from a task spec and a seed.
 
 use assay_core::rng::Rng;
-use assay_core::spec::{Object, Shape, Surface, TABLE_CENTER, TABLE_HALF_EXTENTS, TaskSpec};
+use assay_core::spec::{
+    MeshCollision, Object, Shape, Surface, TABLE_CENTER, TABLE_HALF_EXTENTS, TaskSpec,
+};
 use assay_core::urdf::Geometry;
 use rapier3d::prelude::*;
 
@@ -536,6 +538,30 @@ type BuiltShape = (
     Option<assay_core::urdf::Assembled>,
 );
 
+/// The V-HACD decomposition of a mesh, computed once per file and scale in a process (it takes
+/// far longer than building a scene).
+fn decomposition(
+    file: &std::path::Path,
+    scale: f32,
+    points: &[Vec3],
+    triangles: &[[u32; 3]],
+) -> SharedShape {
+    type Cache =
+        std::sync::Mutex<std::collections::HashMap<(std::path::PathBuf, u32), SharedShape>>;
+    static CACHE: std::sync::OnceLock<Cache> = std::sync::OnceLock::new();
+    let key = (file.to_path_buf(), scale.to_bits());
+    let cache = CACHE.get_or_init(Default::default);
+    if let Some(shape) = cache.lock().expect("decomposition cache").get(&key) {
+        return shape.clone();
+    }
+    let shape = SharedShape::convex_decomposition(points, triangles);
+    cache
+        .lock()
+        .expect("decomposition cache")
+        .insert(key, shape.clone());
+    shape
+}
+
 /// Whether `link` is joined to `ancestor` by fixed joints only.
 fn fixed_to(urdf: &assay_core::urdf::Urdf, link: usize, ancestor: usize) -> bool {
     let mut l = link;
@@ -638,7 +664,11 @@ fn collider_for(shape: &Shape, spec: &TaskSpec, path: &str) -> Result<BuiltShape
             let half = v3(a.half);
             (ColliderBuilder::compound(parts), half, None, Some(a))
         }
-        Shape::Mesh { path: file, scale } => {
+        Shape::Mesh {
+            path: file,
+            scale,
+            collision,
+        } => {
             let full = spec
                 .resolve_asset(file)
                 .map_err(|e| SimError::spec(format!("{path}.mesh.path"), e))?;
@@ -648,20 +678,31 @@ fn collider_for(shape: &Shape, spec: &TaskSpec, path: &str) -> Result<BuiltShape
                     format!("cannot read {}: {e}", full.display()),
                 )
             })?;
+            let mesh = assay_core::scene::parse_obj(&text).map_err(|e| {
+                SimError::spec(
+                    format!("{path}.mesh.path"),
+                    format!("{}: {e}", full.display()),
+                )
+            })?;
             let s = *scale as f32;
-            let points: Vec<Vec3> = text
-                .lines()
-                .filter_map(|l| l.strip_prefix("v "))
-                .filter_map(|l| {
-                    let c: Vec<f32> = l
-                        .split_whitespace()
-                        .take(3)
-                        .filter_map(|x| x.parse().ok())
-                        .collect();
-                    (c.len() == 3).then(|| Vec3::new(c[0], c[1], c[2]) * s)
-                })
+            let points: Vec<Vec3> = mesh
+                .vertices
+                .iter()
+                .map(|v| Vec3::new(v[0], v[1], v[2]) * s)
                 .collect();
-            let collider = ColliderBuilder::convex_hull(&points).ok_or_else(|| {
+            let shape = match collision {
+                MeshCollision::Hull => SharedShape::convex_hull(&points),
+                MeshCollision::Decomposition if !mesh.triangles.is_empty() => {
+                    Some(decomposition(&full, s, &points, &mesh.triangles))
+                }
+                MeshCollision::Decomposition => {
+                    return Err(SimError::spec(
+                        format!("{path}.mesh.collision"),
+                        format!("{} has no faces to decompose", full.display()),
+                    ));
+                }
+            };
+            let shape = shape.ok_or_else(|| {
                 SimError::spec(
                     format!("{path}.mesh.path"),
                     format!("{} has no usable vertices", full.display()),
@@ -671,7 +712,7 @@ fn collider_for(shape: &Shape, spec: &TaskSpec, path: &str) -> Result<BuiltShape
                 (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)),
                 |(lo, hi), p| (lo.min(*p), hi.max(*p)),
             );
-            (collider, (hi - lo) / 2.0, None, None)
+            (ColliderBuilder::new(shape), (hi - lo) / 2.0, None, None)
         }
     })
 }

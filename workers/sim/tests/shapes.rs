@@ -231,3 +231,75 @@ oracle:
     }
     assert!(drawn.len() >= 2, "six seeds drew one colour: {drawn:?}");
 }
+
+/// A mesh with a hollow (a box open at the top, written as five solid slabs): decomposed into
+/// convex parts it keeps its hollow and a cube dropped over it falls inside; as its convex hull
+/// the hollow is filled and the cube rests on top.
+#[test]
+fn a_decomposed_mesh_keeps_its_hollow_and_its_hull_does_not() {
+    let dir = tempfile::tempdir().unwrap();
+    // Slabs (min, max) of an open box 10 × 10 × 6 cm, walls and floor 1 cm thick; a mesh is
+    // placed by its own origin, here the middle of its bottom.
+    let slabs: [([f32; 3], [f32; 3]); 5] = [
+        ([-0.05, -0.05, 0.0], [0.05, 0.05, 0.01]),
+        ([-0.05, -0.05, 0.0], [-0.04, 0.05, 0.06]),
+        ([0.04, -0.05, 0.0], [0.05, 0.05, 0.06]),
+        ([-0.04, -0.05, 0.0], [0.04, -0.04, 0.06]),
+        ([-0.04, 0.04, 0.0], [0.04, 0.05, 0.06]),
+    ];
+    let mut text = String::new();
+    for (k, (lo, hi)) in slabs.iter().enumerate() {
+        for c in 0..8 {
+            let p = |a: usize| if c & (1 << a) == 0 { lo[a] } else { hi[a] };
+            text.push_str(&format!("v {} {} {}\n", p(0), p(1), p(2)));
+        }
+        let b = 8 * k + 1;
+        for [i, j, l] in [
+            [0, 2, 1],
+            [1, 2, 3],
+            [4, 5, 6],
+            [5, 7, 6],
+            [0, 1, 4],
+            [1, 5, 4],
+            [2, 6, 3],
+            [3, 6, 7],
+            [0, 4, 2],
+            [2, 4, 6],
+            [1, 3, 5],
+            [3, 7, 5],
+        ] {
+            text.push_str(&format!("f {} {} {}\n", b + i, b + j, b + l));
+        }
+    }
+    std::fs::write(dir.path().join("tray.obj"), text).unwrap();
+    let rest = |collision: &str| {
+        let spec = format!(
+            r#"
+spec_version: 1
+id: cube-in-tray
+name: cube-in-tray
+description: A cube falls onto a tray.
+source: {{asset_root: "{}"}}
+group: placement
+scene:
+  objects:
+    - {{id: tray, fixed: true, shape: {{mesh: {{path: tray.obj, collision: {collision}}}}}, pose: {{position: [0.5, 0.0, 0.0]}}}}
+    - {{id: cube, shape: {{box: {{half_extents: [0.015, 0.015, 0.015]}}}}, pose: {{position: [0.5, 0.0, 0.12]}}}}
+end_effector: {{type: suction}}
+goals:
+  - within_distance: {{object: cube, point: [0.5, 0.0, 0.025], distance: 0.01}}
+"#,
+            dir.path().display()
+        );
+        let spec = parse_task(&spec, Format::Yaml, "tray.yaml").unwrap_or_else(|e| panic!("{e}"));
+        let ep = assay_sim::simulate(&spec, 0, "oracle").unwrap();
+        (
+            ep.outcome.success,
+            ep.keyframes.last().unwrap().1.objects[1].position[2],
+        )
+    };
+    let (inside, z) = rest("decomposition");
+    assert!(inside, "decomposed: the cube rests at z {z}");
+    let (inside, z) = rest("hull");
+    assert!(!inside && z > 0.07, "hull: the cube rests at z {z}");
+}
