@@ -95,6 +95,11 @@ pub enum JointKind {
     Prismatic,
 }
 
+/// How far (rad or m) a joint position may lie outside its limits and be taken as at them: a
+/// simulated joint passes its limit by a hair, and a position recorded in single precision
+/// rounds across it.
+pub const LIMIT_SLACK: f64 = 1e-5;
+
 /// A rigid transform: rotate by the unit quaternion `rotation` (x, y, z, w), then translate.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Pose {
@@ -234,7 +239,7 @@ impl Urdf {
                 return Err(format!("joint '{name}': position {q} is not finite"));
             }
             if let Some([lo, hi]) = joint.limit
-                && !(lo..=hi).contains(&q)
+                && !(lo - LIMIT_SLACK..=hi + LIMIT_SLACK).contains(&q)
             {
                 return Err(format!(
                     "joint '{name}': position {q} is outside its limits [{lo}, {hi}]"
@@ -248,6 +253,10 @@ impl Urdf {
                 .get(&joint.name)
                 .copied()
                 .unwrap_or_else(|| joint.default_position());
+            let q = match joint.limit {
+                Some([lo, hi]) => q.clamp(lo, hi),
+                None => q,
+            };
             poses[joint.child] = poses[joint.parent].compose(&joint.transform(q));
         }
         Ok(poses)

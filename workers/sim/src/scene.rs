@@ -66,8 +66,17 @@ impl SimJoint {
         }
     }
 
-    /// The joint's position (rad or m) in the current state.
+    /// The joint's position (rad or m) in the current state, within its limits (the solver lets
+    /// a joint pass them by a hair, which a URDF reader would refuse to draw).
     pub fn position(&self, world: &PhysicsWorld) -> f64 {
+        let q = self.unclamped(world);
+        match self.limit {
+            Some([lo, hi]) => q.clamp(lo, hi),
+            None => q,
+        }
+    }
+
+    fn unclamped(&self, world: &PhysicsWorld) -> f64 {
         let parent = world.bodies[self.parent].position();
         let child = world.bodies[self.child].position();
         // Child frame in the joint's zero frame, x axis along the joint axis.
