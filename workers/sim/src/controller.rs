@@ -473,7 +473,7 @@ impl Controller {
                 );
             }
             Primitive::Actuate { object, joint, to } => {
-                self.actuate(scene, step, object, joint, *to);
+                self.actuate(scene, object, joint, *to);
             }
             Primitive::Sweep { pile, zone } => {
                 // Two passes: the second is planned from where the first left the pile.
@@ -635,7 +635,7 @@ impl Controller {
     /// for a prismatic joint), carry it along the joint's motion to `to`, release, retreat.
     /// Joint positions are read from the sim's state, also by a seeing oracle (its camera
     /// tracks objects, not joints).
-    fn actuate(&mut self, scene: &SimScene, step: u64, object: &str, joint: &str, to: f64) {
+    fn actuate(&mut self, scene: &SimScene, object: &str, joint: &str, to: f64) {
         let dt = scene.world.integration_parameters.dt;
         let gh = GRIPPER_HALF_EXTENTS[2];
         let Some(i) = scene.index_of(object) else {
@@ -741,7 +741,6 @@ impl Controller {
             Event::None,
             dt,
         );
-        let _ = step;
     }
 
     /// A friction gripper's grasp: the pads close across the object's narrower side to press

@@ -176,8 +176,6 @@ pub const KEYFRAMES: usize = 8;
 /// Frames of an episode video (4 s at 12 frames/s, whatever the episode's length).
 pub const VIDEO_FRAMES: usize = 48;
 
-/// Simulates one episode of `spec` with `seed` and `policy`. Deterministic: the same inputs give
-/// the same outcome and the same file, byte for byte.
 /// Whether a `lifted` goal names object `i` (the episode may end holding it up).
 fn lifts(spec: &TaskSpec, scene: &SimScene, i: usize) -> bool {
     let id = &scene.objects[i].id;
@@ -228,6 +226,8 @@ fn check_joints(spec: &TaskSpec, scene: &SimScene) -> Result<(), SimError> {
     Ok(())
 }
 
+/// Simulates one episode of `spec` with `seed` and `policy`. Deterministic: the same inputs give
+/// the same outcome and the same file, byte for byte.
 pub fn simulate(spec: &TaskSpec, seed: u64, policy: &str) -> Result<Episode, SimError> {
     simulate_with(spec, seed, policy, SimOptions::default())
 }

@@ -93,9 +93,9 @@ impl SimJoint {
 /// Half extents of a finger pad of a gripper that grasps by friction: 2 cm wide, 1 cm thick
 /// (along the closing axis), 5 cm long, hanging below the tool's face.
 pub const FINGER_HALF_EXTENTS: [f32; 3] = [0.01, 0.005, 0.025];
-/// The most force (N) each pad's motor presses with: a Franka hand's continuous grip force is
-/// 70 N for both fingers; a lighter 20 N each keeps light objects from being crushed into the
-/// pads by the solver.
+/// The most force (N) each pad's motor presses with (a Franka hand grips with up to 70 N for
+/// both fingers). The controller drives the pads 5 mm inside what they close on, so they press
+/// with about `PAD_STIFFNESS` × 5 mm = 10 N each, within this bound.
 pub const GRIP_FORCE: f32 = 20.0;
 /// Stiffness (N/m) and damping (N s/m) of each pad's position motor.
 const PAD_STIFFNESS: f32 = 2000.0;
@@ -404,7 +404,7 @@ struct LinkBody {
     parts: Vec<(Pose, SharedShape)>,
 }
 
-/// The bodies and joints of an articulated URDF object posed at `pose`: links joined by fixed
+/// The bodies and joints of an articulated URDF object whose root body is `root`: links joined by fixed
 /// joints share a body; every revolute, continuous or prismatic joint joins two bodies with a
 /// rapier joint that has the URDF's limits and resists motion with its `<dynamics friction>`.
 fn insert_articulated(
