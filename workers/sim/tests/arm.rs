@@ -1,5 +1,9 @@
 //! A UR5 from URDF carrying the tool, driven by inverse kinematics.
 
+mod common;
+
+use common::column;
+
 use std::path::Path;
 
 use assay_core::spec::{Arm, Format, TaskSpec, parse_task};
@@ -19,21 +23,6 @@ fn with_ur5(mut spec: TaskSpec) -> TaskSpec {
         base_yaw_deg: 0.0,
     });
     spec
-}
-
-fn column(ep: &assay_sim::Episode, name: &str) -> Vec<f32> {
-    let reader =
-        arrow_ipc::reader::FileReader::try_new(std::io::Cursor::new(ep.file.clone()), None)
-            .unwrap();
-    let batch = reader.into_iter().next().unwrap().unwrap();
-    batch
-        .column_by_name(name)
-        .unwrap_or_else(|| panic!("no column {name}"))
-        .as_any()
-        .downcast_ref::<arrow_array::Float32Array>()
-        .unwrap()
-        .values()
-        .to_vec()
 }
 
 /// One task of each group, carried by the arm: the oracle still succeeds, and the tool is where

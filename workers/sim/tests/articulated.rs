@@ -1,6 +1,10 @@
 //! Articulated URDF objects: joints that move within their limits against their friction, joint
 //! goals, and the oracle's `actuate`.
 
+mod common;
+
+use common::column;
+
 use assay_core::spec::{Format, TaskSpec, parse_task};
 
 fn assets() -> String {
@@ -156,18 +160,7 @@ fn joint_positions_are_columns_of_the_episode_file() {
         "{actuate: {object: laptop, joint: hinge, to: 1.6}}",
     );
     let ep = assay_sim::simulate(&spec, 2, "oracle").unwrap();
-    let reader =
-        arrow_ipc::reader::FileReader::try_new(std::io::Cursor::new(ep.file.clone()), None)
-            .unwrap();
-    let schema = reader.schema();
-    assert!(schema.field_with_name("laptop.joint.hinge").is_ok());
-    let batch = reader.into_iter().next().unwrap().unwrap();
-    let col = batch
-        .column_by_name("laptop.joint.hinge")
-        .unwrap()
-        .as_any()
-        .downcast_ref::<arrow_array::Float32Array>()
-        .unwrap();
-    let last = col.value(col.len() - 1);
+    let col = column(&ep, "laptop.joint.hinge");
+    let last = col[col.len() - 1];
     assert!(last > 1.2, "last recorded hinge {last}");
 }

@@ -1,6 +1,10 @@
 //! A parallel gripper that grasps by friction: two finger pads close on the object and only
 //! their contact holds it.
 
+mod common;
+
+use common::column;
+
 use assay_core::spec::{Format, TaskSpec, parse_task};
 
 fn lift(grasp: &str, object: &str) -> TaskSpec {
@@ -22,21 +26,6 @@ oracle:
 "#
     );
     parse_task(&text, Format::Yaml, "lift.yaml").unwrap_or_else(|e| panic!("{e}"))
-}
-
-fn column(ep: &assay_sim::Episode, name: &str) -> Vec<f32> {
-    let reader =
-        arrow_ipc::reader::FileReader::try_new(std::io::Cursor::new(ep.file.clone()), None)
-            .unwrap();
-    let batch = reader.into_iter().next().unwrap().unwrap();
-    batch
-        .column_by_name(name)
-        .unwrap_or_else(|| panic!("no column {name}"))
-        .as_any()
-        .downcast_ref::<arrow_array::Float32Array>()
-        .unwrap()
-        .values()
-        .to_vec()
 }
 
 #[test]
