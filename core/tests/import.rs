@@ -403,3 +403,41 @@ fn report_names_every_task_and_dropped_field() {
         serde_json::to_string(&imp).expect("the report serialises");
     }
 }
+
+/// Task code the evaluator does not read is listed, not skipped: a call it does not know and
+/// control flow it does not follow each get a not-mapped line, and the task still imports.
+#[test]
+fn gensim_code_the_importer_does_not_read_is_listed() {
+    let tmp = std::env::temp_dir().join(format!("assay-import-unread-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&tmp);
+    copy_dir(&fixtures().join("gensim"), &tmp);
+    let code = tmp.join("generated_tasks/place_red_block_in_green_bowl.py");
+    let text = std::fs::read_to_string(&code).unwrap();
+    let changed = text.replace(
+        "        super().reset(env)\n",
+        "        super().reset(env)\n        self.spawn_distractors(env, n=3)\n        if self.mode == 'test':\n            self.lighting = 0.5\n",
+    );
+    assert_ne!(changed, text);
+    std::fs::write(&code, changed).unwrap();
+    let imp = run(Pipeline::Gensim, &tmp, None);
+    let task = imp
+        .tasks
+        .iter()
+        .find(|t| t.id == "place-red-block-in-green-bowl")
+        .unwrap();
+    assert!(task.spec.is_some(), "{:?}", task.errors);
+    let unread: Vec<&str> = task
+        .mapping
+        .iter()
+        .filter(|m| m.status == MappingStatus::NotMapped && m.field.starts_with("code `"))
+        .map(|m| m.field.as_str())
+        .collect();
+    assert_eq!(
+        unread,
+        [
+            "code `self.spawn_distractors(env, n=3)`",
+            "code `if self.mode == 'test':`"
+        ]
+    );
+    let _ = std::fs::remove_dir_all(&tmp);
+}

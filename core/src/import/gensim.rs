@@ -578,7 +578,38 @@ impl Eval {
             }
             return;
         }
-        self.eval(s);
+        // Nothing is dropped silently: control flow the evaluator does not follow, and calls it
+        // does not read, are listed (not fatal: the rest of the task may still import).
+        let t = s.trim();
+        if ["if ", "elif ", "while ", "with ", "try:", "else:"]
+            .iter()
+            .any(|k| t.starts_with(k))
+        {
+            self.unread(
+                t,
+                "control flow is not followed: the lines under it were read as if they ran",
+            );
+            return;
+        }
+        let v = self.eval(s);
+        if matches!(v, Val::Other(_))
+            && t.contains('(')
+            && !t.starts_with("super()")
+            // The base class's bookkeeping between episodes (language goals), no scene.
+            && !t.starts_with("self.additional_reset()")
+            && !t.starts_with("return")
+        {
+            self.unread(t, "a call the importer does not read");
+        }
+    }
+
+    /// Lists a line of task code the evaluator did not read, once.
+    fn unread(&mut self, line: &str, reason: &str) {
+        let short: String = line.chars().take(60).collect();
+        let field = format!("code `{short}`");
+        if !self.unmappable.iter().any(|(f, _, _)| *f == field) {
+            self.unmappable.push((field, reason.into(), false));
+        }
     }
 
     fn block(&mut self, lines: &[(usize, String)]) {
