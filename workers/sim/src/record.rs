@@ -36,6 +36,8 @@ pub struct Recorder {
     fingers: [Vec<f32>; 2],
     /// The arm's joints: name and position (empty without an arm).
     arm: Vec<(String, Vec<f32>)>,
+    /// The arm as drawn in snapshots, read once from its URDF.
+    drawn_arm: std::cell::OnceCell<Option<crate::arm::Arm>>,
 }
 
 impl Recorder {
@@ -89,12 +91,16 @@ impl Recorder {
                     .collect()
             },
             (!self.fingers[0].is_empty()).then(|| (self.fingers[0][row], self.fingers[1][row])),
-            spec.arm.as_ref().map_or_else(Vec::new, |a| {
-                let q: Vec<f64> = self.arm.iter().map(|(_, c)| f64::from(c[row])).collect();
-                crate::arm::Arm::new(&a.model, a.base, a.base_yaw_deg)
-                    .map(|arm| arm.boxes_at(&q))
-                    .unwrap_or_default()
-            }),
+            self.drawn_arm
+                .get_or_init(|| {
+                    let a = spec.arm.as_ref()?;
+                    crate::arm::Arm::new(&a.model, a.base, a.base_yaw_deg).ok()
+                })
+                .as_ref()
+                .map_or_else(Vec::new, |arm| {
+                    let q: Vec<f64> = self.arm.iter().map(|(_, c)| f64::from(c[row])).collect();
+                    arm.boxes_at(&q)
+                }),
         )
     }
 
