@@ -39,10 +39,7 @@ pub(crate) fn import(root: &Path, asset_root: &Path) -> (Vec<ImportedTask>, Vec<
     let mut errors = Vec::new();
     let mut scenes: BTreeMap<String, Result<SceneCfg, String>> = BTreeMap::new();
     let scene_dir = root.join("config/scene");
-    let mut files: Vec<PathBuf> = std::fs::read_dir(&scene_dir)
-        .map(|rd| rd.flatten().map(|e| e.path()).collect())
-        .unwrap_or_default();
-    files.sort();
+    let files = super::sorted_entries(&scene_dir, |_| true);
     for f in files
         .iter()
         .filter(|f| f.extension().is_some_and(|e| e == "yaml"))
@@ -70,31 +67,13 @@ pub(crate) fn import(root: &Path, asset_root: &Path) -> (Vec<ImportedTask>, Vec<
     }
     let mut tasks = Vec::new();
     let log = root.join("output/log");
-    let mut sids: Vec<PathBuf> = std::fs::read_dir(&log)
-        .map(|rd| {
-            rd.flatten()
-                .map(|e| e.path())
-                .filter(|p| p.is_dir())
-                .collect()
-        })
-        .unwrap_or_default();
-    sids.sort();
-    for sdir in sids {
+    for sdir in super::sorted_entries(&log, Path::is_dir) {
         let sid = sdir
             .file_name()
             .and_then(|s| s.to_str())
             .unwrap_or("")
             .to_owned();
-        let mut tdirs: Vec<PathBuf> = std::fs::read_dir(&sdir)
-            .map(|rd| {
-                rd.flatten()
-                    .map(|e| e.path())
-                    .filter(|p| p.is_dir())
-                    .collect()
-            })
-            .unwrap_or_default();
-        tdirs.sort();
-        for t in tdirs {
+        for t in super::sorted_entries(&sdir, Path::is_dir) {
             tasks.push(import_task(&t, &sid, scenes.get(&sid), asset_root));
         }
     }
@@ -280,10 +259,7 @@ fn import_task(
     let origin = dir.display().to_string();
     let mut notes = Notes::new(&id, &origin);
     // Episodes.
-    let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
-        .map(|rd| rd.flatten().map(|e| e.path()).collect())
-        .unwrap_or_default();
-    files.sort();
+    let files = super::sorted_entries(dir, |_| true);
     let mut episodes = Vec::new();
     let mut logs: Vec<(String, Vec<u8>)> = Vec::new();
     for f in &files {
@@ -539,13 +515,6 @@ fn import_task(
         cameras: Vec::new(),
         physics: PhysicsSettings::default(),
     };
-    let errs = crate::spec::validate(&spec, &origin);
-    if errs.is_empty() {
-        task.spec = Some(spec);
-    } else {
-        notes.errors.extend(errs);
-    }
-    task.mapping = notes.mapping;
-    task.errors = notes.errors;
+    notes.settle(&mut task, Some(spec));
     task
 }

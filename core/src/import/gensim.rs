@@ -150,7 +150,7 @@ fn import_one(
         &missing,
         &mut notes,
     );
-    if let Some(mut spec) = spec.filter(|_| notes.errors.is_empty()) {
+    let spec = spec.filter(|_| notes.errors.is_empty()).map(|mut spec| {
         spec.source = Source {
             pipeline: Pipeline::Gensim.name().into(),
             generator: None,
@@ -158,15 +158,9 @@ fn import_one(
             asset_root: Some(asset_root.display().to_string()),
             content_hash: Some(content_hash),
         };
-        let errs = crate::spec::validate(&spec, &origin);
-        if errs.is_empty() {
-            task.spec = Some(spec);
-        } else {
-            notes.errors.extend(errs);
-        }
-    }
-    task.mapping = notes.mapping;
-    task.errors = notes.errors;
+        spec
+    });
+    notes.settle(&mut task, spec);
     task
 }
 

@@ -233,6 +233,15 @@ pub fn spec_to_yaml(spec: &TaskSpec) -> String {
 // ---------------------------------------------------------------------------------------------
 // Shared helpers.
 
+/// The entries of `dir` that `keep` accepts, sorted by path (none when it cannot be read).
+pub(crate) fn sorted_entries(dir: &Path, keep: impl Fn(&Path) -> bool) -> Vec<PathBuf> {
+    let mut v: Vec<PathBuf> = std::fs::read_dir(dir)
+        .map(|rd| rd.flatten().map(|e| e.path()).filter(|p| keep(p)).collect())
+        .unwrap_or_default();
+    v.sort();
+    v
+}
+
 /// Collects mapping lines and errors for one task.
 #[derive(Debug, Default)]
 pub(crate) struct Notes {
@@ -243,6 +252,21 @@ pub(crate) struct Notes {
 }
 
 impl Notes {
+    /// Ends a task: `spec` (if one was built) is kept when it validates, else its validation
+    /// errors join the task's; the mapping lines and errors go to `task`.
+    pub fn settle(mut self, task: &mut ImportedTask, spec: Option<TaskSpec>) {
+        if let Some(spec) = spec {
+            let errs = spec::validate(&spec, &self.origin);
+            if errs.is_empty() {
+                task.spec = Some(spec);
+            } else {
+                self.errors.extend(errs);
+            }
+        }
+        task.mapping = self.mapping;
+        task.errors = self.errors;
+    }
+
     pub fn new(task: &str, origin: &str) -> Self {
         Notes {
             task: task.into(),

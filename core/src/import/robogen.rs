@@ -41,16 +41,9 @@ pub(crate) fn import(root: &Path, asset_root: &Path) -> (Vec<ImportedTask>, Vec<
 }
 
 fn yaml_files(dir: &Path) -> Vec<PathBuf> {
-    let mut v: Vec<PathBuf> = std::fs::read_dir(dir)
-        .map(|rd| {
-            rd.flatten()
-                .map(|e| e.path())
-                .filter(|p| p.is_file() && p.extension().is_some_and(|e| e == "yaml" || e == "yml"))
-                .collect()
-        })
-        .unwrap_or_default();
-    v.sort();
-    v
+    super::sorted_entries(dir, |p| {
+        p.is_file() && p.extension().is_some_and(|e| e == "yaml" || e == "yml")
+    })
 }
 
 struct Obj {
@@ -744,15 +737,10 @@ fn import_one(root: &Path, asset_root: &Path, file: &Path) -> Option<ImportedTas
         if spec.scene.objects.iter().any(|o| !o.is_fixed) {
             spec.variations.position_jitter = super::JITTER;
         }
-        let errs = crate::spec::validate(&spec, &origin);
-        if errs.is_empty() {
-            task.spec = Some(spec);
-        } else {
-            notes.errors.extend(errs);
-        }
+        notes.settle(&mut task, Some(spec));
+    } else {
+        notes.settle(&mut task, None);
     }
-    task.mapping = notes.mapping;
-    task.errors = notes.errors;
     Some(task)
 }
 
