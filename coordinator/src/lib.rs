@@ -7,6 +7,7 @@
 pub mod actor;
 pub mod config;
 pub mod error;
+pub mod metrics;
 pub mod service;
 pub mod store;
 
@@ -28,10 +29,12 @@ use crate::actor::StoreHandle;
 use crate::service::{CoordinatorService, Shared, WorkerSessionService, now_ms};
 
 /// Serves both services on `listener` until `shutdown` resolves, then tells every worker goodbye
-/// (their leases stay in the store, so a restarted coordinator picks them up) and returns.
+/// (their leases stay in the store, so a restarted coordinator picks them up) and returns. With
+/// `metrics`, serves `GET /metrics` (Prometheus) and `GET /healthz` there too.
 pub async fn serve(
     config: CoordinatorConfig,
     listener: TcpListener,
+    metrics: Option<TcpListener>,
     shutdown: impl Future<Output = ()> + Send + 'static,
 ) -> Result<(), CoordError> {
     std::fs::create_dir_all(&config.artifact_root).map_err(|e| {
@@ -99,6 +102,10 @@ pub async fn serve(
         },
         None => None,
     };
+    let metrics = metrics.map(|l| {
+        info!(addr = ?l.local_addr().ok(), "metrics at /metrics");
+        tokio::spawn(serve_metrics(shared.clone(), l, stop_rx.clone()))
+    });
     let addr = listener.local_addr().ok();
     info!(addr = ?addr, "coordinator listening");
     let server = tonic::transport::Server::builder()
@@ -131,11 +138,56 @@ pub async fn serve(
     let out = result.await;
     trigger.abort();
     let _ = sweeper.await;
+    if let Some(m) = metrics {
+        let _ = m.await;
+    }
     if let Some((session, task)) = telemetry {
         let _ = task.await;
         assay_telemetry::close(session).await;
     }
     out.map_err(|e| CoordError::InvalidRequest(format!("server: {e}")))
+}
+
+/// `GET /metrics` and `GET /healthz` until `stop` changes.
+async fn serve_metrics(
+    shared: Arc<Shared>,
+    listener: TcpListener,
+    mut stop: watch::Receiver<bool>,
+) {
+    use axum::http::{StatusCode, header};
+    use axum::response::IntoResponse;
+    let app = axum::Router::new()
+        .route(
+            "/metrics",
+            axum::routing::get(move || {
+                let shared = shared.clone();
+                async move {
+                    let workers = shared
+                        .workers_connected
+                        .load(std::sync::atomic::Ordering::Relaxed);
+                    match shared.store.call(|s| s.metrics()).await {
+                        Ok(snapshot) => (
+                            StatusCode::OK,
+                            [(
+                                header::CONTENT_TYPE,
+                                "text/plain; version=0.0.4; charset=utf-8",
+                            )],
+                            snapshot.render(workers),
+                        )
+                            .into_response(),
+                        Err(e) => (StatusCode::SERVICE_UNAVAILABLE, format!("job store: {e}\n"))
+                            .into_response(),
+                    }
+                }
+            }),
+        )
+        .route("/healthz", axum::routing::get(|| async { "ok\n" }));
+    let served = axum::serve(listener, app).with_graceful_shutdown(async move {
+        let _ = stop.changed().await;
+    });
+    if let Err(e) = served.await {
+        warn!(error = %e, "metrics server stopped");
+    }
 }
 
 /// Publishes a batch's progress on `assay/<cluster>/batches/<batch>/progress` whenever it changes.

@@ -1331,6 +1331,11 @@ impl Store {
         Ok(c)
     }
 
+    /// The figures `/metrics` shows, read in one pass.
+    pub fn metrics(&self) -> Result<crate::metrics::Snapshot, CoordError> {
+        crate::metrics::Snapshot::read(&self.conn)
+    }
+
     pub fn batch_ids(&self) -> Result<Vec<String>, CoordError> {
         let mut stmt = self.conn.prepare("SELECT id FROM batches ORDER BY seq")?;
         let ids = stmt

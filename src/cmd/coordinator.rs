@@ -35,6 +35,10 @@ pub struct Args {
     /// Cluster name in telemetry key expressions (assay/<cluster>/...).
     #[arg(long, env = "ASSAY_CLUSTER", default_value = "local")]
     pub cluster: String,
+    /// Where to serve Prometheus metrics (`GET /metrics`) and `GET /healthz`: an address
+    /// (`0.0.0.0:9464`; port 0 picks a free port, written as line 3 of --addr-file), or `off`.
+    #[arg(long, env = "ASSAY_METRICS_LISTEN", default_value = "off")]
+    pub metrics_listen: String,
 }
 
 pub fn run(a: Args) -> anyhow::Result<ExitCode> {
@@ -57,13 +61,26 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
             .await
             .with_context(|| format!("binding {}", a.listen))?;
         let addr = listener.local_addr()?;
+        let metrics = match a.metrics_listen.as_str() {
+            "off" => None,
+            at => Some(
+                tokio::net::TcpListener::bind(at)
+                    .await
+                    .with_context(|| format!("binding the metrics address {at}"))?,
+            ),
+        };
+        let metrics_line = match &metrics {
+            Some(l) => l.local_addr()?.to_string(),
+            None => "off".into(),
+        };
         if let Some(f) = &a.addr_file {
             let tmp = f.with_extension("tmp");
-            // Line 1: the gRPC address; line 2: the telemetry endpoint (or "off").
-            std::fs::write(&tmp, format!("{addr}\n{telemetry_line}\n"))?;
+            // Line 1: the gRPC address; line 2: the telemetry endpoint (or "off"); line 3: the
+            // metrics address (or "off").
+            std::fs::write(&tmp, format!("{addr}\n{telemetry_line}\n{metrics_line}\n"))?;
             std::fs::rename(&tmp, f)?;
         }
-        assay_coordinator::serve(config, listener, super::terminated()).await?;
+        assay_coordinator::serve(config, listener, metrics, super::terminated()).await?;
         Ok(ExitCode::SUCCESS)
     })
 }
