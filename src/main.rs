@@ -58,8 +58,11 @@ enum Command {
     /// the marginal diversity a new batch adds to a corpus.
     #[cfg(feature = "trainer")]
     Diversity(cmd::diversity::Args),
-    /// Print the JSON Schema of task spec v1.
-    Schema,
+    /// Print a JSON Schema: of task spec v1 (`task`, the default) or of report.json (`report`).
+    Schema {
+        #[arg(default_value = "task", value_parser = ["task", "report"])]
+        of: String,
+    },
     /// Benchmarks on the peer reference scene (compare with shared/bench/peers/peers.py).
     Bench(cmd::bench::Args),
     /// Serve a policy over the assay.v1.Policy gRPC service, or check a policy or policy server.
@@ -87,11 +90,12 @@ fn main() -> std::process::ExitCode {
         Command::Rank(a) => cmd::rank::run(a),
         #[cfg(feature = "trainer")]
         Command::Diversity(a) => cmd::diversity::run(a),
-        Command::Schema => {
-            println!(
-                "{}",
-                serde_json::to_string_pretty(&assay_core::spec::json_schema()).expect("schema")
-            );
+        Command::Schema { of } => {
+            let schema = match of.as_str() {
+                "report" => assay_core::report::json_schema(),
+                _ => assay_core::spec::json_schema(),
+            };
+            println!("{}", serde_json::to_string_pretty(&schema).expect("schema"));
             Ok(std::process::ExitCode::SUCCESS)
         }
         Command::Bench(a) => cmd::bench::run(a),

@@ -1331,6 +1331,27 @@ impl Store {
         Ok(c)
     }
 
+    /// SHA-256 of a batch's settings as canonical JSON (see `Provenance::config_hash`).
+    fn config_hash(&self, batch_id: &str) -> Result<String, CoordError> {
+        let settings: serde_json::Value = self.conn.query_row(
+            "SELECT json_object('policies', json(policies_json), 'seeds', json(seeds_json),
+                    'max_attempts', max_attempts, 'judges', json(judges_json),
+                    'judge_repeats', judge_repeats, 'judge_budget_usd', judge_budget_usd,
+                    'text_models', json(text_models_json), 'dynamics', json(dynamics_json),
+                    'ranking', json(ranking_json), 'generalization', json(generalization_json))
+             FROM batches WHERE id = ?1",
+            [batch_id],
+            |r| {
+                let text: String = r.get(0)?;
+                Ok(serde_json::from_str(&text).unwrap_or(serde_json::Value::Null))
+            },
+        )?;
+        // serde_json's maps are sorted by key: the same settings give the same text.
+        Ok(assay_core::hash::sha256_hex(
+            settings.to_string().as_bytes(),
+        ))
+    }
+
     /// The figures `/metrics` shows, read in one pass.
     pub fn metrics(&self) -> Result<crate::metrics::Snapshot, CoordError> {
         crate::metrics::Snapshot::read(&self.conn)
@@ -1645,10 +1666,17 @@ impl Store {
             extra_attempts,
             workers: workers.into_iter().collect(),
         };
+        let provenance = report::Provenance::of(
+            &results,
+            &episodes,
+            concat!("assay-coordinator ", env!("CARGO_PKG_VERSION")),
+            &self.config_hash(batch_id)?,
+        );
         Ok(Report {
             report_version: report::REPORT_VERSION,
             results,
             run,
+            provenance,
         })
     }
 }

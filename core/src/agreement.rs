@@ -101,7 +101,7 @@ pub fn mmrv(sim: &[f64], real: &[f64]) -> Option<f64> {
 }
 
 /// One statistic: its value and bootstrap 95 % interval, or why it is undefined.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct Estimate {
     pub value: Option<f64>,
     /// Percentile interval over the bootstrap resamples where the statistic is defined; absent when
@@ -115,7 +115,7 @@ pub struct Estimate {
 }
 
 /// A judge against a reference (human ratings): the paper's figure 3 and more.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct Agreement {
     pub n: usize,
     pub pearson: Estimate,
@@ -342,7 +342,7 @@ pub fn parse_ratings(text: &str, reference: &str, group: Option<&str>) -> Result
 }
 
 /// Agreement of every judge with the reference, per group and over all rows.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct AgreementTable {
     pub reference: String,
     pub group_column: Option<String>,
@@ -350,7 +350,7 @@ pub struct AgreementTable {
     pub rows: Vec<AgreementRow>,
 }
 
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct AgreementRow {
     /// The group, or `None` for all rows together.
     pub group: Option<String>,

@@ -16,7 +16,7 @@ use serde::{Deserialize, Serialize};
 use crate::spec::{COLORS, Shape};
 
 /// What the scene views show, measured from their pixels.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct SceneCaption {
     /// The views captioned (top, front, oblique_left, oblique_right).
     pub views: Vec<String>,
@@ -30,7 +30,7 @@ pub struct SceneCaption {
 
 /// One object of the scene as the views show it. Everything but `segment` and `form` is measured
 /// from the rendered pixels.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct CaptionObject {
     /// Segment id in the segmentation images (3 + the object's index in the scene).
     pub segment: u32,
@@ -56,7 +56,7 @@ pub struct CaptionObject {
 }
 
 /// `subject` is `on` / `in` / `next to` `object` (segment ids), from the measured boxes.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct Relation {
     pub subject: u32,
     pub relation: String,
@@ -64,7 +64,7 @@ pub struct Relation {
 }
 
 /// The offline judge's verdict on scene alignment.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct OfflineScore {
     /// In [1, 5], rounded to 2 decimals.
     pub score: f64,

@@ -16,7 +16,7 @@ use serde::{Deserialize, Serialize};
 /// at 256/512/1024), and 3000 training steps of 64 samples — about 0.1 CPU-seconds per step on
 /// one core, 5 minutes for a run; a chunk takes about 12 ms to sample (10 DDIM steps). Raise
 /// `down_dims`, `batch` and `steps` on a GPU.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct DiffusionConfig {
     /// Observed control steps per prediction, the current one included (Chi et al.: 2).
@@ -192,7 +192,7 @@ impl DiffusionConfig {
 }
 
 /// What one diffusion-policy training run reports.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct DiffusionFit {
     pub steps: u64,
     /// Training loss (MSE of the predicted noise) of the last step.
@@ -211,6 +211,9 @@ pub struct DiffusionFit {
     pub samples: u64,
     /// The device it ran on (`cpu`, `cuda:0`).
     pub device: String,
+    /// The libtorch it ran with (`2.13.0+cpu`; empty in reports written before it was kept).
+    #[serde(default, skip_serializing_if = "String::is_empty")]
+    pub libtorch: String,
     pub config: DiffusionConfig,
 }
 

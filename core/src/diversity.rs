@@ -104,7 +104,7 @@ pub fn task_text(pipeline: &str, name: &str, description: &str, template: Option
 pub const GENSIM_TEMPLATE: &str = "Task: {name} \n Description: {description}";
 
 /// One embedding model of a text-diversity table.
-#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize, schemars::JsonSchema)]
 pub struct EmbeddingModel {
     /// The configured name (`minilm`, `mpnet`, or a `[embedders.NAME]` of the configuration).
     pub name: String,
@@ -116,7 +116,7 @@ pub struct EmbeddingModel {
 /// One row of the paper's Table 1: a group of texts and its diversity under each model (in the
 /// order of [`TextDiversityTable::models`]); a model that could not score the group has its error
 /// instead.
-#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize, schemars::JsonSchema)]
 pub struct TextDiversityRow {
     pub group: String,
     pub n: usize,
@@ -126,7 +126,7 @@ pub struct TextDiversityRow {
 }
 
 /// Text diversity of several groups under several models: the paper's Table 1.
-#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize, schemars::JsonSchema)]
 pub struct TextDiversityTable {
     pub models: Vec<EmbeddingModel>,
     pub rows: Vec<TextDiversityRow>,
@@ -238,7 +238,7 @@ pub fn parse_text_groups(text: &str) -> Result<Vec<(String, Vec<String>)>, Strin
 /// How much a new batch of texts adds to an existing corpus: the diversity of the corpus, of the
 /// corpus with the batch added, and the difference (positive: the batch makes the corpus more
 /// diverse).
-#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize, schemars::JsonSchema)]
 pub struct Marginal {
     pub base_n: usize,
     pub new_n: usize,

@@ -6,7 +6,7 @@ use serde::{Deserialize, Serialize};
 
 /// World-model settings. The defaults take about 2½ minutes per fit on one CPU core with 64×64
 /// frames; raise `deter`, `hidden`, `depth` and `steps` on a GPU.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct DynamicsConfig {
     /// Frame size the clips are rendered at (square), pixels.
@@ -70,7 +70,7 @@ pub const DEFAULT_BUDGETS: [u32; 3] = [10, 20, 40];
 
 /// One world-model fit: trained on the first `train_episodes` episodes of a group, evaluated on
 /// `eval_episodes` (the first `max(budgets)` episodes of the group).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct DynamicsFit {
     pub group: String,
     /// The budget asked for.
@@ -102,5 +102,8 @@ pub struct DynamicsFit {
     pub steps_per_s: f64,
     /// The device it ran on (`cpu`, `cuda:0`).
     pub device: String,
+    /// The libtorch it ran with (`2.13.0+cpu`; empty in reports written before it was kept).
+    #[serde(default, skip_serializing_if = "String::is_empty")]
+    pub libtorch: String,
     pub config: DynamicsConfig,
 }

@@ -3,7 +3,9 @@
 use serde::{Deserialize, Serialize};
 
 /// One problem with one task spec.
-#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize, thiserror::Error)]
+#[derive(
+    Debug, Clone, PartialEq, Eq, Serialize, Deserialize, thiserror::Error, schemars::JsonSchema,
+)]
 #[error("task {}: {}: {}{}", task.as_deref().unwrap_or("<unknown id>"), if path.is_empty() { "<document>" } else { path }, reason, origin_suffix(origin))]
 pub struct SpecError {
     /// The task id, when the document got far enough to have one.
@@ -24,6 +26,8 @@ fn origin_suffix(origin: &str) -> String {
 }
 
 /// All problems found in one task spec.
-#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize, thiserror::Error)]
+#[derive(
+    Debug, Clone, PartialEq, Eq, Serialize, Deserialize, thiserror::Error, schemars::JsonSchema,
+)]
 #[error("{}", .0.iter().map(ToString::to_string).collect::<Vec<_>>().join("; "))]
 pub struct SpecErrors(pub Vec<SpecError>);

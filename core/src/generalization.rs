@@ -13,7 +13,7 @@ use crate::diffusion::{DiffusionConfig, DiffusionFit};
 use crate::stats::Proportion;
 
 /// The generalization part of a batch.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct GeneralizationPlan {
     /// Whose episodes the policy imitates.
@@ -78,7 +78,7 @@ pub struct EvalEpisode {
 }
 
 /// One group's trained policy and its success.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct GroupGeneralization {
     pub group: String,
     /// The model's key in the artifact store.
@@ -100,7 +100,7 @@ fn is_zero(n: &u32) -> bool {
 }
 
 /// The generalization section of a report: the paper's Table 3.
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct GeneralizationResults {
     pub groups: Vec<GroupGeneralization>,
     /// Training jobs that failed: (group, error).

@@ -15,7 +15,7 @@ use crate::report::Keyframe;
 use crate::stats::Proportion;
 
 /// Settings of the proxy: the world model and the frame judge.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct ProxyConfig {
     /// The world model (the dynamics-diversity model and its settings).
@@ -69,7 +69,7 @@ impl ProxyConfig {
 
 /// The ranking part of a batch: which of its policies only provide the world model's training
 /// episodes (every other policy of the batch is ranked), and the proxy's settings.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct RankingPlan {
     pub train_policies: Vec<String>,
     #[serde(default)]
@@ -78,7 +78,7 @@ pub struct RankingPlan {
 
 /// One episode the proxy uses: its dynamics clip in the artifact store and, for a training
 /// episode only, its real outcome (the ranked episodes' outcomes never reach the trainer).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct ProxyEpisode {
     pub task_id: String,
     pub policy: String,
@@ -92,7 +92,7 @@ pub struct ProxyEpisode {
 }
 
 /// The proxy's verdict on one ranked episode.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct ProxyPrediction {
     pub task_id: String,
     pub policy: String,
@@ -131,7 +131,7 @@ pub struct ImaginedJudgement {
 }
 
 /// One judge's verdicts on the imagined rollouts of one (task, policy).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct JudgedProxy {
     pub judge: String,
     /// Rollouts whose mean completion reached `completion_threshold`.
@@ -145,7 +145,7 @@ pub fn judged_source(judge: &str) -> String {
 }
 
 /// What the proxy job of one group reports.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct ProxyResult {
     pub group: String,
     /// The world model's fit (its one-step error measured on the ranked episodes).
@@ -179,7 +179,7 @@ pub struct RealEpisode {
 }
 
 /// Real, proxy and judged success of one (task, ranked policy).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct RankingRow {
     pub task_id: String,
     pub group: String,
@@ -201,7 +201,7 @@ pub struct RankingRow {
 }
 
 /// The policy-ranking section of a report.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct RankingResults {
     pub train_policies: Vec<String>,
     pub ranked_policies: Vec<String>,

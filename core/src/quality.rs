@@ -12,7 +12,19 @@ use serde::{Deserialize, Serialize};
 pub const DEFAULT_REPEATS: u32 = 5;
 
 /// The two questions a judge answers about an episode.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
+#[derive(
+    Debug,
+    Clone,
+    Copy,
+    PartialEq,
+    Eq,
+    PartialOrd,
+    Ord,
+    Hash,
+    Serialize,
+    Deserialize,
+    schemars::JsonSchema,
+)]
 #[serde(rename_all = "snake_case")]
 pub enum Item {
     /// Does the initial scene fit the task description? 1–5, from the 4 scene views.
@@ -87,7 +99,7 @@ pub fn parse_score(text: &str, item: Item) -> Result<f64, String> {
 }
 
 /// Tokens, calls and money a judge spent.
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct Usage {
     /// Requests sent to a model (retries included; cache hits excluded).
     pub calls: u64,
@@ -110,7 +122,7 @@ impl Usage {
 }
 
 /// A repeat that gave no score.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct ItemError {
     pub repeat: u32,
     pub error: String,
@@ -120,7 +132,7 @@ pub struct ItemError {
 }
 
 /// One item (scene alignment or completion) of one episode, asked `repeats` times.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct ItemOutcome {
     pub item: Item,
     /// The prompt template's name and version, e.g. `completion/v1`.
@@ -134,7 +146,7 @@ pub struct ItemOutcome {
 }
 
 /// What one judge shard reports for one episode.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct JudgeOutcome {
     /// The judge's name in the configuration (`offline`, `gpt-4o`, ...).
     pub judge: String,
@@ -161,7 +173,7 @@ impl JudgeOutcome {
 
 /// Mean and sample variance (n − 1, as the paper's tables: five answers 0, 0, 0, 0, 4 give
 /// 0.80 (3.20)) of some scores; variance is absent below two scores, mean below one.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct ScoreStats {
     pub n: u64,
     pub mean: Option<f64>,

@@ -30,7 +30,7 @@ const RAW_SHOWN: usize = 200;
 pub const NO_GROUP: &str = "(no group)";
 
 /// One judge shard as the job store has it.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct JudgeRecord {
     pub task_id: String,
     pub seed: u64,
@@ -44,7 +44,7 @@ pub struct JudgeRecord {
 }
 
 /// Quality of every judged task, per judge.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct QualityResults {
     /// Sorted by name.
     pub judges: Vec<JudgeSummary>,
@@ -53,7 +53,7 @@ pub struct QualityResults {
 }
 
 /// One judge over the whole batch.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct JudgeSummary {
     pub judge: String,
     /// `offline`, `openai`, `caption+llm`; several joined by ", " if the shards disagree; empty
@@ -90,7 +90,7 @@ pub struct JudgeSummary {
 }
 
 /// One judge over one group: statistics of the group's task means.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct GroupQuality {
     pub group: String,
     /// Tasks of the group this judge has shards for.
@@ -100,7 +100,7 @@ pub struct GroupQuality {
 }
 
 /// One judge over one task.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct TaskQuality {
     pub task_id: String,
     pub group: String,

@@ -45,7 +45,7 @@ use crate::agreement::{
 use crate::rng::Rng;
 
 /// One row of a success table: how often `policy` succeeded at `task` according to `source`.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct Cell {
     pub task: String,
     pub policy: String,
@@ -58,7 +58,7 @@ pub struct Cell {
 }
 
 /// What to compare.
-#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct RankingConfig {
     /// The source that is the ground truth (default `real`).
     pub real: String,
@@ -82,7 +82,7 @@ impl Default for RankingConfig {
 }
 
 /// Every proxy against the real source.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct Ranking {
     pub real: String,
     pub resamples: usize,
@@ -91,7 +91,7 @@ pub struct Ranking {
 }
 
 /// One proxy against the real source, over the policies and tasks both have.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct Comparison {
     pub proxy: String,
     pub real: String,
@@ -115,7 +115,7 @@ pub struct Comparison {
 }
 
 /// One policy's real and predicted success.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct PolicyPoint {
     pub policy: String,
     /// R: mean over `tasks` of the real success rate.
@@ -130,7 +130,7 @@ pub struct PolicyPoint {
 }
 
 /// A cell (`task` set) or a whole policy (`task` null) left out of a comparison.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct Excluded {
     pub task: Option<String>,
     pub policy: String,
@@ -138,7 +138,7 @@ pub struct Excluded {
 }
 
 /// How a comparison's bootstrap resampled (see the module documentation).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum Bootstrap {
     /// Every cell has counts: successes redrawn ~ Binomial(trials, observed rate); tasks fixed.

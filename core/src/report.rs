@@ -13,7 +13,9 @@ use crate::error::SpecError;
 use crate::quality_report::QualityResults;
 use crate::stats::Proportion;
 
-pub const REPORT_VERSION: u32 = 1;
+/// The report's schema version. 2 added `provenance`; a version-1 report reads as one with
+/// empty provenance. Field names are stable within a version: a rename or removal bumps it.
+pub const REPORT_VERSION: u32 = 2;
 
 /// Where report.md expects the artifact store, relative to itself (`assay eval` puts it there).
 pub const ARTIFACTS_LINK: &str = "artifacts";
@@ -22,7 +24,9 @@ pub const ARTIFACTS_LINK: &str = "artifacts";
 pub const QUALITY_FIGURE: &str = "quality.svg";
 
 /// Where a success label came from.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Serialize, Deserialize)]
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Serialize, Deserialize, schemars::JsonSchema,
+)]
 #[serde(rename_all = "snake_case")]
 pub enum LabelSource {
     Sim,
@@ -32,7 +36,7 @@ pub enum LabelSource {
 }
 
 /// The value of one goal predicate at the end of an episode.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct PredicateValue {
     pub label: String,
     pub holds: bool,
@@ -41,7 +45,7 @@ pub struct PredicateValue {
 }
 
 /// What a sim worker reports for one finished episode (everything here is deterministic).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct EpisodeOutcome {
     pub task_id: String,
     pub seed: u64,
@@ -63,7 +67,7 @@ pub struct EpisodeOutcome {
 }
 
 /// Pictures of one episode, as artifact keys.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct EpisodeImagery {
     /// The graphics adapter that drew them (a GPU, or a software rasteriser).
     pub adapter: String,
@@ -87,13 +91,13 @@ pub struct EpisodeImagery {
     pub clip: Option<String>,
 }
 
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct NamedArtifact {
     pub name: String,
     pub artifact: String,
 }
 
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct Keyframe {
     pub step: u64,
     pub camera: String,
@@ -104,7 +108,7 @@ pub struct Keyframe {
 }
 
 /// The state of one shard when the report is built.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct ShardRecord {
     pub task_id: String,
     pub seed: u64,
@@ -117,7 +121,7 @@ pub struct ShardRecord {
 }
 
 /// A task as the planner accepted it.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct TaskInfo {
     pub id: String,
     pub name: String,
@@ -127,14 +131,145 @@ pub struct TaskInfo {
     pub spec_hash: String,
 }
 
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct Report {
     pub report_version: u32,
     pub results: Results,
     pub run: RunInfo,
+    /// What produced the figures: code and model versions, settings, inputs, devices.
+    #[serde(default)]
+    pub provenance: Provenance,
 }
 
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+/// What produced a report's figures, so two reports can be told apart or trusted to compare.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+pub struct Provenance {
+    /// The coordinator that built the report (`assay-coordinator 0.1.0`).
+    pub assay_version: String,
+    /// SHA-256 of the batch's settings (policies, seeds, attempts, judges and their repeats and
+    /// budget, embedding models, dynamics budgets and world-model settings, ranking and
+    /// generalization plans) as canonical JSON: equal hashes, equal settings.
+    pub config_hash: String,
+    /// SHA-256 of the batch's tasks: their spec hashes, sorted, one per line. A batch with the
+    /// same tasks has the same hash wherever its files came from (`assay watch` skips it).
+    pub batch_hash: String,
+    pub seeds: Vec<u64>,
+    /// Task id → SHA-256 of its canonical spec.
+    pub spec_hashes: BTreeMap<String, String>,
+    /// Versions of the code that ran the episodes (`assay-sim`, `rapier3d`, ...), over all.
+    pub code_versions: BTreeMap<String, String>,
+    /// Judges: backend, model and prompt versions.
+    pub judges: Vec<JudgeProvenance>,
+    /// Sentence-embedding models of text diversity (name, model, dimensions).
+    pub embedding_models: Vec<crate::diversity::EmbeddingModel>,
+    /// Graphics adapters that rendered the episodes.
+    pub render_adapters: Vec<String>,
+    /// Devices and libtorch versions of the trainer's fits (`cpu · libtorch 2.13.0+cpu`).
+    pub trainer_devices: Vec<String>,
+}
+
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+pub struct JudgeProvenance {
+    pub judge: String,
+    pub backend: String,
+    pub model: String,
+    pub prompts: Vec<String>,
+}
+
+/// Where the committed JSON Schema of report.json lives, relative to the repository.
+pub const SCHEMA_FILE: &str = "schema/report-v2.schema.json";
+
+/// The JSON Schema of report.json at [`REPORT_VERSION`] (committed as [`SCHEMA_FILE`]).
+pub fn json_schema() -> serde_json::Value {
+    let mut schema =
+        serde_json::to_value(schemars::schema_for!(Report)).expect("schema serialises");
+    schema["$id"] = format!("https://assay.dev/{SCHEMA_FILE}").into();
+    schema["description"] = format!(
+        "Assay report.json, report_version {REPORT_VERSION}. `results` depends only on the batch, \
+         its seeds and the code's versions; `run` on the machine and the moment; `provenance` \
+         says what produced the figures."
+    )
+    .into();
+    schema
+}
+
+/// [`Provenance::batch_hash`] of tasks with these spec hashes.
+pub fn batch_hash<'a>(spec_hashes: impl IntoIterator<Item = &'a str>) -> String {
+    let mut hashes: Vec<&str> = spec_hashes.into_iter().collect();
+    hashes.sort_unstable();
+    let mut text = String::new();
+    for h in hashes {
+        text.push_str(h);
+        text.push('\n');
+    }
+    crate::hash::sha256_hex(text.as_bytes())
+}
+
+impl Provenance {
+    /// Provenance of `results`, built by `assay_version` with settings hashed to `config_hash`.
+    /// `episodes` are the batch's episode outcomes (their code versions are kept).
+    pub fn of(
+        results: &Results,
+        episodes: &[EpisodeOutcome],
+        assay_version: &str,
+        config_hash: &str,
+    ) -> Self {
+        let mut code_versions = BTreeMap::new();
+        let mut adapters = std::collections::BTreeSet::new();
+        for e in results.tasks.iter().flat_map(|t| &t.episodes) {
+            if let Some(i) = &e.imagery {
+                adapters.insert(i.adapter.clone());
+            }
+        }
+        for (k, v) in episodes.iter().flat_map(|e| &e.versions) {
+            code_versions.insert(k.clone(), v.clone());
+        }
+        let judges = results
+            .quality
+            .iter()
+            .flat_map(|q| &q.judges)
+            .map(|j| JudgeProvenance {
+                judge: j.judge.clone(),
+                backend: j.backend.clone(),
+                model: j.model.clone(),
+                prompts: j.prompts.clone(),
+            })
+            .collect();
+        let div = results.diversity.as_ref();
+        let mut devices = std::collections::BTreeSet::new();
+        let device = |d: &str, lib: &str| match lib {
+            "" => d.to_owned(),
+            lib => format!("{d} · libtorch {lib}"),
+        };
+        for f in div.iter().flat_map(|d| &d.dynamics) {
+            devices.insert(device(&f.device, &f.libtorch));
+        }
+        for g in results.generalization.iter().flat_map(|g| &g.groups) {
+            devices.insert(device(&g.fit.device, &g.fit.libtorch));
+        }
+        Provenance {
+            assay_version: assay_version.to_owned(),
+            config_hash: config_hash.to_owned(),
+            batch_hash: batch_hash(results.tasks.iter().map(|t| t.spec_hash.as_str())),
+            seeds: results.seeds.clone(),
+            spec_hashes: results
+                .tasks
+                .iter()
+                .map(|t| (t.id.clone(), t.spec_hash.clone()))
+                .collect(),
+            code_versions,
+            judges,
+            embedding_models: div
+                .and_then(|d| d.text.as_ref())
+                .map(|t| t.models.clone())
+                .unwrap_or_default(),
+            render_adapters: adapters.into_iter().collect(),
+            trainer_devices: devices.into_iter().collect(),
+        }
+    }
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct Results {
     pub batch_name: String,
     pub policies: Vec<String>,
@@ -161,7 +296,7 @@ pub struct Results {
     pub generalization: Option<crate::generalization::GeneralizationResults>,
 }
 
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct Totals {
     pub tasks: u64,
     pub invalid_tasks: u64,
@@ -174,7 +309,7 @@ pub struct Totals {
     pub sim_time_s: f64,
 }
 
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct GroupResult {
     pub group: String,
     pub tasks: u64,
@@ -184,7 +319,7 @@ pub struct GroupResult {
 }
 
 /// One policy's ground-truth success.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct PolicySuccess {
     pub policy: String,
     pub success: Proportion,
@@ -211,7 +346,7 @@ fn per_policy<'a>(
         .collect()
 }
 
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct TaskResult {
     pub id: String,
     pub name: String,
@@ -229,14 +364,14 @@ pub struct TaskResult {
     pub failures: Vec<FailureRow>,
 }
 
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct PredicateRate {
     pub label: String,
     pub holds: u64,
     pub of: u64,
 }
 
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct EpisodeRow {
     pub seed: u64,
     pub policy: String,
@@ -250,7 +385,7 @@ pub struct EpisodeRow {
     pub imagery: Option<EpisodeImagery>,
 }
 
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct FailureRow {
     pub seed: u64,
     pub policy: String,
@@ -260,7 +395,7 @@ pub struct FailureRow {
 }
 
 /// What depends on the run, not on the batch.
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct RunInfo {
     pub batch_id: String,
     pub state: String,
@@ -499,9 +634,8 @@ impl Report {
         let _ = writeln!(md, "# Assay report — {}\n", r.batch_name);
         let _ = writeln!(
             md,
-            "Batch `{}` · state **{}** · policies {} · seeds {}\n",
-            self.run.batch_id,
-            self.run.state,
+            "Policies {} · seeds {}. Everything above the Run section depends only on the batch, \
+             its seeds and the versions of the code: the same batch gives the same text.\n",
             r.policies.join(", "),
             r.seeds
                 .iter()
@@ -529,17 +663,6 @@ impl Report {
             "| simulated steps | {} ({:.0} s of sim time) |",
             t.sim_steps, t.sim_time_s
         );
-        if let Some(w) = self.run.wall_time_s {
-            let _ = writeln!(md, "| wall time | {w:.1} s |");
-        }
-        if let Some(e) = self.run.episodes_per_s {
-            let _ = writeln!(
-                md,
-                "| throughput | {e:.2} episodes/s, {:.0} steps/s |",
-                self.run.sim_steps_per_s.unwrap_or(0.0)
-            );
-        }
-        let _ = writeln!(md, "| workers | {} |", self.run.workers.len());
         // With several policies, success is shown per policy: pooling them would mislead.
         let multi = r.policies.len() > 1;
         let policy_cols = |by: &[PolicySuccess]| {
@@ -721,6 +844,77 @@ impl Report {
                 }
             }
         }
+        md.push_str(&self.run_markdown());
+        md
+    }
+
+    /// The Run and Provenance sections: what depends on the machine and the moment, and what
+    /// produced the figures.
+    fn run_markdown(&self) -> String {
+        let run = &self.run;
+        let p = &self.provenance;
+        let mut md = String::new();
+        let _ = writeln!(md, "\n## Run\n");
+        let _ = writeln!(md, "| measure | value |\n|---|---|");
+        let _ = writeln!(md, "| batch | `{}` ({}) |", run.batch_id, run.state);
+        if let Some(w) = run.wall_time_s {
+            let _ = writeln!(md, "| wall time | {w:.1} s |");
+        }
+        if let Some(e) = run.episodes_per_s {
+            let _ = writeln!(
+                md,
+                "| throughput | {e:.2} episodes/s, {:.0} steps/s |",
+                run.sim_steps_per_s.unwrap_or(0.0)
+            );
+        }
+        let _ = writeln!(md, "| attempts beyond the first | {} |", run.extra_attempts);
+        let _ = writeln!(
+            md,
+            "| workers | {} ({}) |",
+            run.workers.len(),
+            cell(&run.workers.join(", "))
+        );
+        let _ = writeln!(md, "\n## Provenance\n");
+        let _ = writeln!(md, "| what | value |\n|---|---|");
+        let list = |v: &[String]| match v {
+            [] => "—".to_owned(),
+            v => cell(&v.join("; ")),
+        };
+        let _ = writeln!(md, "| built by | {} |", cell(&p.assay_version));
+        let _ = writeln!(md, "| settings (SHA-256) | `{}` |", p.config_hash);
+        let _ = writeln!(
+            md,
+            "| tasks (SHA-256 of spec hashes) | `{}` |",
+            p.batch_hash
+        );
+        let code: Vec<String> = p
+            .code_versions
+            .iter()
+            .map(|(k, v)| format!("{k} {v}"))
+            .collect();
+        let _ = writeln!(md, "| code | {} |", list(&code));
+        let judges: Vec<String> = p
+            .judges
+            .iter()
+            .map(|j| {
+                format!(
+                    "{}: {} {} ({})",
+                    j.judge,
+                    j.backend,
+                    j.model,
+                    j.prompts.join(", ")
+                )
+            })
+            .collect();
+        let _ = writeln!(md, "| judges | {} |", list(&judges));
+        let models: Vec<String> = p
+            .embedding_models
+            .iter()
+            .map(|m| format!("{}: {} ({} dimensions)", m.name, m.model, m.dimensions))
+            .collect();
+        let _ = writeln!(md, "| embedding models | {} |", list(&models));
+        let _ = writeln!(md, "| rendered on | {} |", list(&p.render_adapters));
+        let _ = writeln!(md, "| trained on | {} |", list(&p.trainer_devices));
         md
     }
 }
@@ -728,6 +922,18 @@ impl Report {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_committed_report_schema_is_current() {
+        let committed = include_str!("../../schema/report-v2.schema.json");
+        let committed: serde_json::Value = serde_json::from_str(committed).unwrap();
+        assert_eq!(
+            committed,
+            json_schema(),
+            "the report's fields changed: if a field was renamed or removed, bump REPORT_VERSION; \
+             then regenerate with: assay schema report > {SCHEMA_FILE}"
+        );
+    }
 
     fn outcome(task: &str, seed: u64, success: bool) -> EpisodeOutcome {
         EpisodeOutcome {
@@ -854,6 +1060,7 @@ mod tests {
             report_version: REPORT_VERSION,
             results: r,
             run: RunInfo::default(),
+            provenance: Provenance::default(),
         };
         let md = report.to_markdown();
         assert!(md.contains("## Success per policy"), "{md}");

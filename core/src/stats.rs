@@ -3,7 +3,7 @@
 use serde::{Deserialize, Serialize};
 
 /// A proportion with its Wilson score interval.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct Proportion {
     pub successes: u64,
     pub trials: u64,

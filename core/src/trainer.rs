@@ -9,7 +9,7 @@ use crate::dynamics::{DynamicsConfig, DynamicsFit};
 use crate::proxy::{ProxyConfig, ProxyEpisode, ProxyResult};
 
 /// One trainer shard's job (the assignment's `input_json`).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(tag = "kind", rename_all = "snake_case")]
 pub enum TrainerJob {
     /// Text diversity of the batch's task texts per group and for all of them, with each model.
@@ -45,7 +45,7 @@ pub enum TrainerJob {
 }
 
 /// What a trainer shard reports (the result's `outcome_json`).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(tag = "kind", rename_all = "snake_case")]
 pub enum TrainerOutcome {
     Text {
@@ -66,7 +66,7 @@ pub enum TrainerOutcome {
 }
 
 /// The diversity section of a report.
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct DiversityResults {
     /// Text diversity (the paper's Table 1), when the batch asked for it and it finished.
     #[serde(default, skip_serializing_if = "Option::is_none")]

@@ -205,6 +205,7 @@ pub fn train(
         clips: clips.len() as u32,
         samples: data.samples.len() as u64,
         device: device_name(device),
+        libtorch: crate::libtorch_version(),
         config: cfg.clone(),
     };
     tracing::info!(

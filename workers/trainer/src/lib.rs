@@ -14,3 +14,14 @@ pub mod world_model;
 pub fn default_device() -> tch::Device {
     tch::Device::cuda_if_available()
 }
+
+/// The libtorch this process runs with, for a report's provenance: the `build-version` file of
+/// `$LIBTORCH` (`2.13.0+cpu`), or what is known without it.
+pub fn libtorch_version() -> String {
+    std::env::var_os("LIBTORCH")
+        .map(std::path::PathBuf::from)
+        .and_then(|dir| std::fs::read_to_string(dir.join("build-version")).ok())
+        .map(|v| v.trim().to_owned())
+        .filter(|v| !v.is_empty())
+        .unwrap_or_else(|| "unknown (LIBTORCH is not set)".into())
+}

@@ -253,6 +253,7 @@ pub fn fit_model(
             0.0
         },
         device: device_name(device),
+        libtorch: crate::libtorch_version(),
         config: cfg.clone(),
     };
     tracing::info!(
