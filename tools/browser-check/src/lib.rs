@@ -15,10 +15,12 @@
 //! Console warnings are collected in [`PageCheck::warnings`] and do not fail the check.
 //!
 //! Favicons: with Chromium 156 `--headless=new`, a page under `file://` without
-//! `<link rel="icon">` makes no favicon request that the page's DevTools session sees (no
-//! `Network.requestWillBeSent` for `favicon.ico`; the test `no_favicon_request_without_icon_link`
-//! pins it). Headful Chromium fetches favicons from the browser process, outside the page's
-//! network domain, so a `<link rel="icon" href="data:,">` stays the safe choice for reports.
+//! `<link rel="icon">` makes no favicon request: no `Network.requestWillBeSent` for
+//! `favicon.ico` (the test `no_favicon_request_without_icon_link` pins it), and under strace no
+//! process of the browser even looks for `favicon.ico` next to the page. Chromium only guesses
+//! `/favicon.ico` for http(s) pages, and a favicon it does fetch comes from the browser process,
+//! outside the page's network domain. `<link rel="icon" href="data:,">` stays the safe choice
+//! for reports served over http.
 //!
 //! Chromium is found through `ASSAY_CHROMIUM`, else `chromium`, `chromium-browser` or
 //! `google-chrome` on `PATH` (Debian: `apt-get install chromium`).
@@ -152,6 +154,8 @@ pub enum Error {
     Protocol { method: String, message: String },
     #[error("DevTools {0} got no answer in time")]
     CommandTimeout(String),
+    #[error("the renderer crashed while loading {0}")]
+    Crashed(String),
     #[error("navigation to {url} failed: {error}")]
     Navigate { url: String, error: String },
 }
@@ -190,6 +194,7 @@ fn run_check(cdp: &mut Cdp, url: &str, options: &Options) -> Result<PageCheck, E
         "Runtime.enable",
         "Log.enable",
         "Network.enable",
+        "Inspector.enable",
     ] {
         cdp.call(s, method, json!({}))?;
     }
@@ -237,6 +242,9 @@ fn run_check(cdp: &mut Cdp, url: &str, options: &Options) -> Result<PageCheck, E
         };
         if event.get("sessionId").and_then(Value::as_str) != s {
             continue;
+        }
+        if event["method"] == "Inspector.targetCrashed" {
+            return Err(Error::Crashed(url.to_owned()));
         }
         if watch.observe(&event) {
             last_network = Instant::now();
@@ -505,6 +513,10 @@ impl Browser {
             .arg(format!("--user-data-dir={}", profile.display()))
             .arg(format!("--window-size={width},{height}"))
             .arg("about:blank")
+            // Crashpad keeps its database under $XDG_CONFIG_HOME/chromium whatever the profile:
+            // keep that in the temporary folder too instead of the user's ~/.config.
+            .env("XDG_CONFIG_HOME", dir.path().join("config"))
+            .env("XDG_CACHE_HOME", dir.path().join("cache"))
             .stdin(Stdio::null())
             .stdout(Stdio::null())
             .stderr(log)

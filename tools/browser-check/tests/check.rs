@@ -148,6 +148,8 @@ fn unhandled_rejection_fails() {
     );
 }
 
+/// Port 9 is on Chromium's unsafe-port list: the request fails at once (`ERR_UNSAFE_PORT`)
+/// without a connection attempt, so the test needs no network and no closed-port luck.
 #[test]
 fn request_to_the_network_fails_as_external() {
     if !have_chromium() {
