@@ -315,6 +315,7 @@ fn run_check(cdp: &mut Cdp, url: &str, options: &Options) -> Result<PageCheck, E
 #[derive(Default)]
 struct Watch {
     check: PageCheck,
+    navigated: bool,
     loaded: bool,
     timed_out: bool,
     /// requestId -> URL of every request seen, for naming failures.
@@ -327,7 +328,19 @@ impl Watch {
     fn observe(&mut self, event: &Value) -> bool {
         let p = &event["params"];
         match event["method"].as_str().unwrap_or_default() {
-            "Page.loadEventFired" => self.loaded = true,
+            // The main frame committed the report: a load event from here on is the report's,
+            // not a late one from the about:blank the target started with.
+            "Page.frameNavigated" => {
+                let frame = &p["frame"];
+                if frame.get("parentId").is_none()
+                    && frame["url"]
+                        .as_str()
+                        .is_some_and(|u| u.starts_with("file:"))
+                {
+                    self.navigated = true;
+                }
+            }
+            "Page.loadEventFired" => self.loaded |= self.navigated,
             "Runtime.consoleAPICalled" => {
                 let text = console_text(p);
                 match p["type"].as_str().unwrap_or_default() {

@@ -1,5 +1,6 @@
 //! Each test writes a small page to a temporary folder and checks it in headless Chromium.
-//! Skipped (passing, with a note on stderr) where no Chromium is installed.
+//! Skipped (passing, with a note on stderr) where no Chromium is installed, unless
+//! `ASSAY_REQUIRE_CHROMIUM` is set.
 
 use std::path::Path;
 
@@ -8,12 +9,17 @@ use assay_browser_check::{Error, Options, PageCheck, check_file, find_chromium};
 /// 1x1 opaque red PNG.
 const RED_PIXEL: &str = "iVBORw0KGgoAAAANSUhEUgAAAAEAAAABCAYAAAAfFcSJAAAADUlEQVR42mP8z8DwHwAFBQIAX8jx0gAAAABJRU5ErkJggg==";
 
+/// False (the test passes as skipped) where no Chromium is installed, unless
+/// `ASSAY_REQUIRE_CHROMIUM` is set: then a missing Chromium fails the test.
 fn have_chromium() -> bool {
-    let found = find_chromium().is_ok();
-    if !found {
-        eprintln!("no Chromium installed (apt-get install chromium): skipped");
+    match find_chromium() {
+        Ok(_) => true,
+        Err(e) if std::env::var_os("ASSAY_REQUIRE_CHROMIUM").is_some() => panic!("{e}"),
+        Err(_) => {
+            eprintln!("no Chromium installed (apt-get install chromium): skipped");
+            false
+        }
     }
-    found
 }
 
 fn page(dir: &Path, body: &str, icon: bool) -> std::path::PathBuf {
