@@ -250,7 +250,10 @@ fn run_check(cdp: &mut Cdp, url: &str, options: &Options) -> Result<PageCheck, E
             last_network = Instant::now();
         }
     }
+    watch.check.timed_out = watch.timed_out;
     if watch.timed_out {
+        // A script that never returns would also hold up the probes below: stop it.
+        cdp.call(s, "Runtime.terminateExecution", json!({}))?;
         for url in watch.in_flight.values() {
             watch
                 .check

@@ -213,6 +213,29 @@ fn no_favicon_request_without_icon_link() {
 }
 
 #[test]
+fn page_that_never_finishes_times_out() {
+    if !have_chromium() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let path = page(dir.path(), "<script>while (true) {}</script>", true);
+    let options = Options {
+        timeout: std::time::Duration::from_secs(3),
+        ..Options::default()
+    };
+    let started = std::time::Instant::now();
+    let check = check_file(&path, &options).unwrap();
+    assert!(check.timed_out, "{check:?}");
+    assert!(!check.is_clean());
+    // The spinning script is terminated: the probes and the screenshot do not wait for it.
+    assert!(
+        started.elapsed() < std::time::Duration::from_secs(30),
+        "{:?}",
+        started.elapsed()
+    );
+}
+
+#[test]
 fn missing_file_is_an_error() {
     let err = check_file(Path::new("/nonexistent/report.html"), &Options::default()).unwrap_err();
     assert!(matches!(err, Error::Io(..)), "{err}");
