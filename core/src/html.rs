@@ -1188,3 +1188,579 @@ pub fn thumbnail(bytes: &[u8], width: u32) -> Result<(Vec<u8>, u32, u32), String
     }
     Ok((png_out, tw as u32, th as u32))
 }
+
+#[cfg(test)]
+mod tests {
+    use std::collections::BTreeMap;
+
+    use super::*;
+    use crate::agreement::{AgreementRow, agreement};
+    use crate::diversity::{EmbeddingModel, TextDiversityRow, TextDiversityTable};
+    use crate::dynamics::{DynamicsConfig, DynamicsFit};
+    use crate::generalization::{EvalEpisode, GeneralizationResults, GroupGeneralization};
+    use crate::proxy::RankingResults;
+    use crate::quality::{Item, ItemOutcome, JudgeOutcome, Usage};
+    use crate::quality_report::{JudgeRecord, build_quality};
+    use crate::ranking::{Cell, RankingConfig, rank};
+    use crate::report::{
+        EpisodeOutcome, Keyframe, LabelSource, NamedArtifact, PredicateValue, ShardRecord,
+        TaskInfo, build_results,
+    };
+    use crate::trainer::DiversityResults;
+
+    const EVIL: &str = "<script>alert(1)</script>";
+
+    fn tiny_png(w: u32, h: u32, colour: png::ColorType, depth: png::BitDepth) -> Vec<u8> {
+        let channels = match colour {
+            png::ColorType::Grayscale => 1,
+            png::ColorType::GrayscaleAlpha => 2,
+            png::ColorType::Rgb => 3,
+            _ => 4,
+        };
+        let bytes_per = if depth == png::BitDepth::Sixteen {
+            2
+        } else {
+            1
+        };
+        let data: Vec<u8> = (0..w * h * channels * bytes_per)
+            .map(|i| (i * 7) as u8)
+            .collect();
+        let mut out = Vec::new();
+        let mut enc = png::Encoder::new(&mut out, w, h);
+        enc.set_color(colour);
+        enc.set_depth(depth);
+        let mut writer = enc.write_header().unwrap();
+        writer.write_image_data(&data).unwrap();
+        writer.finish().unwrap();
+        out
+    }
+
+    fn artifact(key: &str) -> Option<Vec<u8>> {
+        match key {
+            "imagery/ok.png" => Some(tiny_png(4, 3, png::ColorType::Rgb, png::BitDepth::Eight)),
+            "imagery/big.png" => Some(tiny_png(
+                640,
+                480,
+                png::ColorType::Rgba,
+                png::BitDepth::Eight,
+            )),
+            "imagery/grey.png" => Some(tiny_png(
+                5,
+                5,
+                png::ColorType::Grayscale,
+                png::BitDepth::Eight,
+            )),
+            "imagery/deep.png" => Some(tiny_png(2, 2, png::ColorType::Rgb, png::BitDepth::Sixteen)),
+            "imagery/junk.png" => Some(b"not a png".to_vec()),
+            _ => None,
+        }
+    }
+
+    fn info(id: &str, name: &str, group: &str) -> TaskInfo {
+        TaskInfo {
+            id: id.into(),
+            name: name.into(),
+            group: group.into(),
+            pipeline: "assay".into(),
+            origin: format!("tasks/{id}.yaml"),
+            spec_hash: "h".into(),
+        }
+    }
+
+    fn imagery() -> EpisodeImagery {
+        let views = ["ok", "missing", "grey", "deep"];
+        let frames = ["big", "ok", "junk", "ok"];
+        EpisodeImagery {
+            adapter: "test".into(),
+            views: views
+                .iter()
+                .map(|v| NamedArtifact {
+                    name: format!("view {v}"),
+                    artifact: format!("imagery/{v}.png"),
+                })
+                .collect(),
+            keyframes: frames
+                .iter()
+                .enumerate()
+                .map(|(i, f)| Keyframe {
+                    step: i as u64 * 10,
+                    camera: "front".into(),
+                    artifact: format!("imagery/{f}.png"),
+                    goals_met: 0,
+                })
+                .collect(),
+            contact_sheet: "imagery/sheet.png".into(),
+            video: None,
+            caption: None,
+            clip: None,
+        }
+    }
+
+    fn outcome(task: &str, seed: u64, success: bool, pictures: bool) -> EpisodeOutcome {
+        EpisodeOutcome {
+            task_id: task.into(),
+            seed,
+            policy: "oracle".into(),
+            success,
+            label_source: LabelSource::Sim,
+            predicates: vec![PredicateValue {
+                label: "on(cube, plate)".into(),
+                holds: success,
+                detail: format!("distance {} m", if success { 0.01 } else { 0.3 }),
+            }],
+            steps: 100,
+            sim_time_s: 1.0,
+            artifact: format!("episodes/{task}-{seed}"),
+            spec_hash: "h".into(),
+            versions: BTreeMap::new(),
+            imagery: pictures.then(imagery),
+        }
+    }
+
+    fn judged(judge: &str, task: &str, seed: u64, sa: &[f64], c: &[f64]) -> JudgeRecord {
+        let item = |item: Item, scores: &[f64]| ItemOutcome {
+            item,
+            prompt: "p".into(),
+            scores: scores.to_vec(),
+            errors: Vec::new(),
+            unjudged: 0,
+        };
+        JudgeRecord {
+            task_id: task.into(),
+            seed,
+            policy: "oracle".into(),
+            judge: judge.into(),
+            attempts: 1,
+            outcome: Some(JudgeOutcome {
+                judge: judge.into(),
+                backend: "offline".into(),
+                model: "caption".into(),
+                task_id: task.into(),
+                seed,
+                policy: "oracle".into(),
+                repeats: 2,
+                items: vec![item(Item::SceneAlignment, sa), item(Item::Completion, c)],
+                usage: Usage::default(),
+                transcript: None,
+            }),
+            error: None,
+            cancelled: false,
+        }
+    }
+
+    fn fit(group: &str, budget: u32, trained: u32, mse: f64) -> DynamicsFit {
+        DynamicsFit {
+            group: group.into(),
+            budget,
+            train_episodes: trained,
+            eval_episodes: 6,
+            eval_image_mse: mse,
+            eval_proprio_mse: 0.0,
+            per_episode: Vec::new(),
+            episodes: Vec::new(),
+            final_train_loss: 0.1,
+            steps: 10,
+            epochs: 1.0,
+            resumed_from_step: None,
+            steps_per_s: 1.0,
+            device: "cpu".into(),
+            config: DynamicsConfig::default(),
+        }
+    }
+
+    fn generalization() -> GeneralizationResults {
+        let fit: crate::diffusion::DiffusionFit = serde_json::from_value(serde_json::json!({
+            "steps": 10, "final_loss": 0.1, "mean_last_100_loss": 0.1,
+            "parameters": 5, "clips": 4, "samples": 40, "device": "cpu", "config": {}
+        }))
+        .unwrap();
+        let ep = |group: &str, held_out: bool, ok: bool| EvalEpisode {
+            group: group.into(),
+            task_id: "a".into(),
+            held_out,
+            success: Some(Ok(ok)),
+        };
+        let eps = [
+            ep("g1", false, true),
+            ep("g1", false, true),
+            ep("g1", true, false),
+            ep("g2", false, false),
+        ];
+        GeneralizationResults {
+            groups: vec![
+                GroupGeneralization::build("g1", "policies/g1", fit.clone(), &eps),
+                GroupGeneralization::build("g2", "policies/g2", fit, &eps),
+            ],
+            errors: vec![("g3".into(), "out of <memory>".into())],
+        }
+    }
+
+    fn ranking() -> RankingResults {
+        let mut cells = Vec::new();
+        for (p, real, proxy) in [("good", 0.9, 0.8), ("fair", 0.5, 0.6), ("poor", 0.1, 0.2)] {
+            for (source, rate) in [("real", real), ("world-model", proxy)] {
+                cells.push(Cell {
+                    task: "a".into(),
+                    policy: p.into(),
+                    source: source.into(),
+                    trials: None,
+                    successes: None,
+                    rate,
+                });
+            }
+        }
+        let cfg = RankingConfig {
+            resamples: 50,
+            ..RankingConfig::default()
+        };
+        RankingResults {
+            train_policies: vec!["oracle".into()],
+            ranked_policies: vec!["good".into(), "fair".into(), "poor".into()],
+            rows: Vec::new(),
+            groups: Vec::new(),
+            ranking: Some(rank(&cells, &cfg).unwrap()),
+            ranking_missing: None,
+            proxy_agreement: Some(Proportion::new(5, 6)),
+            judge_agreement_real_frames: None,
+            errors: Vec::new(),
+            judging_errors: Vec::new(),
+        }
+    }
+
+    /// Two groups, three tasks (one named like a script), two judges, every section.
+    fn report() -> Report {
+        let tasks = vec![
+            info("a", EVIL, "g1"),
+            info("b c/é", "b", "g1"),
+            info("c", "c", "g2"),
+        ];
+        let outcomes = vec![
+            outcome("a", 0, true, true),
+            outcome("a", 1, false, true),
+            outcome("b c/é", 0, true, false),
+            outcome("c", 0, false, false),
+        ];
+        let mut shards: Vec<ShardRecord> = outcomes
+            .iter()
+            .map(|o| ShardRecord {
+                task_id: o.task_id.clone(),
+                seed: o.seed,
+                policy: o.policy.clone(),
+                attempts: 1,
+                outcome: Some(o.clone()),
+                error: None,
+                cancelled: false,
+            })
+            .collect();
+        shards.push(ShardRecord {
+            task_id: "c".into(),
+            seed: 1,
+            policy: "oracle".into(),
+            attempts: 3,
+            outcome: None,
+            error: Some("worker <lost>".into()),
+            cancelled: false,
+        });
+        let invalid = vec![crate::SpecError {
+            task: Some("bad".into()),
+            origin: "tasks/bad.yaml".into(),
+            path: "scene.objects[0]".into(),
+            reason: "unknown shape <blob>".into(),
+        }];
+        let mut results = build_results(
+            "demo & test",
+            &["oracle".into()],
+            &[0, 1],
+            &tasks,
+            &shards,
+            &invalid,
+        );
+        let records = vec![
+            judged("offline", "a", 0, &[4.0, 4.0], &[10.0, 9.0]),
+            judged("offline", "a", 1, &[2.0, 3.0], &[1.0, 0.0]),
+            judged("offline", "b c/é", 0, &[5.0, 5.0], &[8.0, 8.0]),
+            judged("offline", "c", 0, &[1.0, 1.0], &[2.0, 2.0]),
+            judged("vlm", "a", 0, &[3.0, 3.0], &[5.0, 5.0]),
+            judged("vlm", "c", 0, &[3.0, 3.0], &[5.0, 5.0]),
+        ];
+        results.quality = build_quality(&tasks, &outcomes, &records);
+        let model = |name: &str| EmbeddingModel {
+            name: name.into(),
+            model: format!("{name}-model"),
+            dimensions: 384,
+        };
+        results.diversity = Some(DiversityResults {
+            text: Some(TextDiversityTable {
+                models: vec![model("minilm"), model("mpnet")],
+                rows: vec![
+                    TextDiversityRow {
+                        group: "g1".into(),
+                        n: 2,
+                        div: vec![Some(0.4), None],
+                        errors: vec![None, Some("endpoint down".into())],
+                    },
+                    TextDiversityRow {
+                        group: "All".into(),
+                        n: 3,
+                        div: vec![Some(0.5), Some(0.45)],
+                        errors: Vec::new(),
+                    },
+                ],
+            }),
+            dynamics: vec![
+                fit("g1", 10, 10, 0.002),
+                fit("g1", 20, 12, 0.0015),
+                fit("g2", 10, 4, 0.003),
+            ],
+            errors: vec![("dynamics g2 @ 20".into(), "trainer crashed".into())],
+        });
+        results.generalization = Some(generalization());
+        results.ranking = Some(ranking());
+        Report {
+            report_version: crate::report::REPORT_VERSION,
+            results,
+            run: RunInfo {
+                batch_id: "b00001".into(),
+                state: "completed".into(),
+                submitted_at_unix_ms: 1_700_000_000_000,
+                finished_at_unix_ms: Some(1_700_000_060_000),
+                wall_time_s: Some(60.0),
+                episodes_per_s: Some(0.1),
+                sim_steps_per_s: Some(10.0),
+                extra_attempts: 0,
+                workers: vec!["local/worker-0".into()],
+            },
+        }
+    }
+
+    fn human() -> AgreementTable {
+        AgreementTable {
+            reference: "human".into(),
+            group_column: None,
+            resamples: 50,
+            rows: vec![
+                AgreementRow {
+                    group: None,
+                    judge: "offline".into(),
+                    agreement: agreement(&[1.0, 5.0, 7.0, 9.0], &[2.0, 4.0, 8.0, 9.0], 50, 0),
+                },
+                AgreementRow {
+                    group: None,
+                    judge: "vlm".into(),
+                    agreement: agreement(&[3.0, 3.0, 3.0], &[2.0, 4.0, 8.0], 50, 0),
+                },
+            ],
+        }
+    }
+
+    fn render(report: &Report, human: Option<&AgreementTable>) -> String {
+        report_html(&HtmlInputs {
+            report,
+            artifact: &artifact,
+            human,
+        })
+    }
+
+    /// Every `data:image/png;base64,` payload of `html`.
+    fn data_pngs(html: &str) -> Vec<Vec<u8>> {
+        let prefix = "data:image/png;base64,";
+        html.match_indices(prefix)
+            .map(|(i, _)| {
+                let rest = &html[i + prefix.len()..];
+                let end = rest.find('"').unwrap();
+                base64::engine::general_purpose::STANDARD
+                    .decode(&rest[..end])
+                    .unwrap()
+            })
+            .collect()
+    }
+
+    #[test]
+    fn the_page_is_self_contained_and_valid_enough() {
+        let report = report();
+        let human = human();
+        let html = render(&report, Some(&human));
+        assert!(html.starts_with("<!DOCTYPE html>\n<html lang=\"en\">"));
+        assert!(html.contains("<meta charset=\"utf-8\">"));
+        assert!(html.contains("<title>Assay report: demo &amp; test</title>"));
+        assert!(html.contains("<link rel=\"icon\" href=\"data:,\">"));
+        let lower = html.to_lowercase();
+        for bad in [
+            "src=\"http",
+            "href=\"http",
+            "url(http",
+            "<script",
+            "@import",
+            "<?xml",
+        ] {
+            assert!(!lower.contains(bad), "found {bad}");
+        }
+        // Every reference points into the page or is inline data.
+        for attr in ["src=\"", "href=\""] {
+            for (i, _) in html.match_indices(attr) {
+                let target = &html[i + attr.len()..];
+                assert!(
+                    target.starts_with('#') || target.starts_with("data:"),
+                    "{}",
+                    &target[..target.len().min(60)]
+                );
+            }
+        }
+        assert!(!html.contains("NaN"));
+        assert_eq!(html.matches("<svg").count(), html.matches("</svg>").count());
+        for id in [
+            "overview", "figure-4", "figure-3", "table-1", "table-2", "table-3", "ranking",
+            "invalid", "tasks",
+        ] {
+            assert!(html.contains(&format!("id=\"{id}\"")), "{id}");
+            assert!(html.contains(&format!("href=\"#{id}\"")), "{id}");
+        }
+        assert!(
+            !lower.contains("not in this batch"),
+            "every section is present"
+        );
+    }
+
+    #[test]
+    fn every_task_has_a_page_linked_from_the_index() {
+        let report = report();
+        let html = render(&report, None);
+        assert_eq!(report.results.tasks.len(), 3);
+        for t in &report.results.tasks {
+            let anchor = task_anchor(&t.id);
+            assert!(anchor.starts_with("task-"));
+            assert!(
+                anchor
+                    .chars()
+                    .all(|c| c.is_ascii_alphanumeric() || "-._".contains(c)),
+                "{anchor}"
+            );
+            assert!(html.contains(&format!("<section class=\"task\" id=\"{anchor}\">")));
+            assert!(html.contains(&format!("href=\"#{anchor}\"")));
+        }
+        assert_ne!(task_anchor("a b"), task_anchor("a_20b"));
+        assert!(html.contains("section.task:target{display:block}"));
+        // The failed shard and the unmet predicate are on their task's page.
+        assert!(html.contains("worker &lt;lost&gt;"));
+        assert!(html.contains("distance 0.3 m"));
+    }
+
+    #[test]
+    fn pictures_are_inline_thumbnails_or_say_why_not() {
+        let html = render(&report(), None);
+        let pngs = data_pngs(&html);
+        // Task a's first episode: views ok + grey, keyframes big + ok + ok.
+        assert_eq!(pngs.len(), 5);
+        assert_eq!(html.matches("<img ").count(), 5);
+        for bytes in &pngs {
+            let reader = png::Decoder::new(std::io::Cursor::new(bytes))
+                .read_info()
+                .unwrap();
+            assert!(reader.info().width <= THUMB_WIDTH);
+        }
+        assert!(html.contains("width=\"192\" height=\"144\""));
+        assert!(html.contains("(artifact missing: imagery/missing.png)"));
+        assert_eq!(html.matches("(image format not shown").count(), 2);
+        assert!(html.contains("No pictures"));
+    }
+
+    #[test]
+    fn thumbnails_keep_the_colour_type_and_refuse_other_formats() {
+        let big = tiny_png(640, 480, png::ColorType::Rgba, png::BitDepth::Eight);
+        let (png_bytes, w, h) = thumbnail(&big, 192).unwrap();
+        assert_eq!((w, h), (192, 144));
+        let reader = png::Decoder::new(std::io::Cursor::new(png_bytes))
+            .read_info()
+            .unwrap();
+        assert_eq!(reader.info().color_type, png::ColorType::Rgba);
+        let grey = tiny_png(1, 1, png::ColorType::GrayscaleAlpha, png::BitDepth::Eight);
+        assert_eq!(thumbnail(&grey, 192).unwrap().1, 1);
+        let deep = tiny_png(2, 2, png::ColorType::Rgb, png::BitDepth::Sixteen);
+        assert!(thumbnail(&deep, 192).is_err());
+        assert!(thumbnail(b"junk", 192).is_err());
+    }
+
+    #[test]
+    fn report_text_is_escaped() {
+        let html = render(&report(), None);
+        assert!(!html.contains(EVIL));
+        assert!(html.contains("&lt;script&gt;alert(1)&lt;/script&gt;"));
+        assert!(html.contains("unknown shape &lt;blob&gt;"));
+        assert!(html.contains("out of &lt;memory&gt;"));
+    }
+
+    #[test]
+    fn undefined_agreement_is_shown_with_its_reason() {
+        let human = human();
+        assert!(human.rows[1].agreement.pearson.value.is_none());
+        let html = render(&report(), Some(&human));
+        assert!(html.contains("undefined — the reference scores are constant"));
+        assert!(html.contains("humans (human)"));
+        let e = Estimate {
+            value: None,
+            ci95: None,
+            undefined: Some("needs 2".into()),
+            no_interval: None,
+        };
+        assert!(estimate(&e).contains("undefined — needs 2"));
+    }
+
+    #[test]
+    fn absent_sections_say_how_to_get_them() {
+        let mut report = report();
+        report.results.quality = None;
+        report.results.diversity = None;
+        report.results.ranking = None;
+        report.results.generalization = None;
+        let html = render(&report, None);
+        for flag in ["--rank-train-policies", "--generalization"] {
+            assert!(
+                html.contains(&format!("Not in this batch (run with {flag})")),
+                "{flag}"
+            );
+        }
+        assert!(html.contains("Not in this batch (no judge ran: run with --judge)"));
+        assert_eq!(html.matches("<svg").count(), 0);
+        let with_quality = render(&self::report(), None);
+        assert!(
+            with_quality.contains("Not in this batch (human ratings: run with --human-ratings)")
+        );
+    }
+
+    #[test]
+    fn the_same_inputs_give_the_same_page() {
+        let (a, b) = (report(), report());
+        let human = human();
+        assert_eq!(render(&a, Some(&human)), render(&b, Some(&human)));
+    }
+
+    #[test]
+    fn utc_dates() {
+        assert_eq!(utc(0), "1970-01-01 00:00:00 UTC");
+        assert_eq!(utc(1_700_000_000_000), "2023-11-14 22:13:20 UTC");
+    }
+
+    /// The demo batch's page, for looking at by hand: writes /tmp/report.html.
+    /// `ASSAY_DEMO_DIR` (default /work/main/out/demo) holds report.json and artifacts/.
+    #[test]
+    #[ignore = "needs a demo run's report and artifacts"]
+    fn demo_report_html() {
+        let dir = std::path::PathBuf::from(
+            std::env::var("ASSAY_DEMO_DIR").unwrap_or_else(|_| "/work/main/out/demo".into()),
+        );
+        let report: Report =
+            serde_json::from_slice(&std::fs::read(dir.join("report.json")).unwrap()).unwrap();
+        let artifacts = dir.join("artifacts");
+        let html = report_html(&HtmlInputs {
+            report: &report,
+            artifact: &|key: &str| std::fs::read(artifacts.join(key)).ok(),
+            human: None,
+        });
+        std::fs::write("/tmp/report.html", &html).unwrap();
+        println!(
+            "/tmp/report.html: {} bytes, {} images",
+            html.len(),
+            html.matches("<img ").count()
+        );
+    }
+}
