@@ -284,15 +284,19 @@ pub fn bar_chart(c: &BarChart<'_>) -> String {
                 .draw_series(bars)?
                 .label(s.name.clone())
                 .legend(move |(x, y)| Rectangle::new([(x, y - 5), (x + 10, y + 5)], col.filled()));
-            let undefined = s.values.iter().enumerate().take(n).filter_map(|(i, v)| {
-                (!v.is_some_and(f64::is_finite)).then(|| {
+            let undefined = s
+                .values
+                .iter()
+                .enumerate()
+                .take(n)
+                .filter(|(_, v)| !v.is_some_and(f64::is_finite))
+                .map(|(i, _)| {
                     Text::new(
                         "n/a",
                         (left(i), base),
                         ("sans-serif", 11).into_font().color(&col),
                     )
-                })
-            });
+                });
             chart.draw_series(undefined)?;
             let whiskers = s
                 .intervals
