@@ -121,6 +121,38 @@ fn eval_runs_a_batch_on_a_local_cluster_and_writes_both_reports() {
         "{md}"
     );
 
+    // report.html: one self-contained file, opened in headless Chromium: no console error, no
+    // failed or non-local request, no broken image; the screenshot of its overview is kept.
+    let html = std::fs::read_to_string(dir.path().join("report.html")).unwrap();
+    for view in [
+        "id=\"figure-4\"",
+        "id=\"figure-3\"",
+        "id=\"table-1\"",
+        "id=\"table-2\"",
+        "id=\"table-3\"",
+        "id=\"ranking\"",
+    ] {
+        assert!(html.contains(view), "report.html has no {view}");
+    }
+    assert!(html.matches("<svg").count() >= 4, "figures drawn inline");
+    for t in &r.results.tasks {
+        assert!(html.contains(&format!("id=\"task-{}\"", t.id)), "{}", t.id);
+    }
+    match chromium_check(&dir.path().join("report.html"), "report-overview.png") {
+        Some(page) => {
+            assert!(
+                page.is_clean(),
+                "report.html in Chromium: {:?}",
+                page.problems()
+            );
+            // Every task page shows its 4 scene views and 8 keyframes as thumbnails.
+            assert_eq!(page.images, 4 * 12, "{page:?}");
+            assert_eq!(page.broken_images, 0);
+            assert!(page.title.contains("small"), "{}", page.title);
+        }
+        None => eprintln!("SKIPPED the Chromium check of report.html: no chromium installed"),
+    }
+
     // Every episode file is in the artifact store under its hash, readable as Arrow IPC.
     for t in &r.results.tasks {
         for e in &t.episodes {

@@ -251,15 +251,16 @@ fn header(report: &Report) -> String {
         }
         out.push_str("</ul>\n");
     }
-    out.push_str(&provenance_section(&report.run));
+    out.push_str(&provenance_section(&report.run, &report.provenance));
     out.push_str("</header>\n");
     out
 }
 
 /// Where the run happened and how long it took: the report's `run` part (ids, timing, workers).
 /// The place for provenance (code versions, machine, configuration) when the report carries it.
-pub fn provenance_section(run: &RunInfo) -> String {
-    let mut out = String::from("<details open id=\"provenance\"><summary>Run</summary>\n<table>\n");
+pub fn provenance_section(run: &RunInfo, p: &crate::report::Provenance) -> String {
+    let mut out =
+        String::from("<details id=\"provenance\"><summary>Run and provenance</summary>\n<table>\n");
     let mut row = |k: &str, v: String| {
         let _ = writeln!(out, "<tr><th>{k}</th><td>{v}</td></tr>");
     };
@@ -278,6 +279,47 @@ pub fn provenance_section(run: &RunInfo) -> String {
         "workers",
         format!("{} ({})", run.workers.len(), esc(&run.workers.join(", "))),
     );
+    let list = |v: &[String]| match v {
+        [] => "–".to_owned(),
+        v => v.iter().map(|x| esc(x)).collect::<Vec<_>>().join("<br>"),
+    };
+    row("built by", esc(&p.assay_version));
+    row(
+        "settings (SHA-256)",
+        format!("<code>{}</code>", esc(&p.config_hash)),
+    );
+    row(
+        "tasks (SHA-256 of spec hashes)",
+        format!("<code>{}</code>", esc(&p.batch_hash)),
+    );
+    let code: Vec<String> = p
+        .code_versions
+        .iter()
+        .map(|(k, v)| format!("{k} {v}"))
+        .collect();
+    row("code", list(&code));
+    let judges: Vec<String> = p
+        .judges
+        .iter()
+        .map(|j| {
+            format!(
+                "{}: {} {} ({})",
+                j.judge,
+                j.backend,
+                j.model,
+                j.prompts.join(", ")
+            )
+        })
+        .collect();
+    row("judges", list(&judges));
+    let models: Vec<String> = p
+        .embedding_models
+        .iter()
+        .map(|m| format!("{}: {} ({} dimensions)", m.name, m.model, m.dimensions))
+        .collect();
+    row("embedding models", list(&models));
+    row("rendered on", list(&p.render_adapters));
+    row("trained on", list(&p.trainer_devices));
     out.push_str("</table>\n</details>\n");
     out
 }
@@ -1363,6 +1405,7 @@ mod tests {
             epochs: 1.0,
             resumed_from_step: None,
             steps_per_s: 1.0,
+            libtorch: String::new(),
             device: "cpu".into(),
             config: DynamicsConfig::default(),
         }
@@ -1518,6 +1561,7 @@ mod tests {
         results.ranking = Some(ranking());
         Report {
             report_version: crate::report::REPORT_VERSION,
+            provenance: Default::default(),
             results,
             run: RunInfo {
                 batch_id: "b00001".into(),

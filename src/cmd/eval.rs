@@ -60,6 +60,8 @@ pub struct Args {
     pub out: PathBuf,
     #[command(flatten)]
     pub batch: super::submit::BatchArgs,
+    #[command(flatten)]
+    pub human: super::report::HumanArgs,
     /// Exit non-zero if any task was invalid or any episode failed with an error.
     #[arg(long)]
     pub strict: bool,
@@ -69,6 +71,8 @@ pub struct Args {
 }
 
 pub fn run(mut a: Args) -> anyhow::Result<ExitCode> {
+    // Read before anything starts: a bad ratings file fails now, not after the batch.
+    let human = a.human.table()?;
     let docs = match a.import {
         None => crate::docs::collect(&a.paths)?,
         Some(pipeline) => {
@@ -410,11 +414,15 @@ pub fn run(mut a: Args) -> anyhow::Result<ExitCode> {
     }
     coordinator.stop(Duration::from_secs(5));
     let (last, report, rejected) = outcome?;
-    super::report::write(&a.out, &report)?;
-    if let Ok(parsed) = serde_json::from_str::<assay_core::report::Report>(&report.report_json) {
-        for line in super::report::ranking_lines(&parsed) {
-            println!("{line}");
-        }
+    let parsed = super::report::parse(&report)?;
+    super::report::write(
+        &a.out,
+        &parsed,
+        &a.out.join(assay_core::report::ARTIFACTS_LINK),
+        human.as_ref(),
+    )?;
+    for line in super::report::ranking_lines(&parsed) {
+        println!("{line}");
     }
     let last = last.context("no status from the coordinator")?;
     eprintln!(

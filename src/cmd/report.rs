@@ -6,21 +6,82 @@ use assay_proto::v1 as pb;
 
 #[derive(clap::Args)]
 pub struct Args {
-    pub batch: String,
+    /// The batch whose report the coordinator builds (or --from a report.json).
+    #[arg(required_unless_present = "from", conflicts_with = "from")]
+    pub batch: Option<String>,
     #[arg(long, env = "ASSAY_COORDINATOR", default_value = super::DEFAULT_COORDINATOR)]
     pub coordinator: String,
-    /// Folder for report.json and report.md.
+    /// Write report.md and report.html again from this report.json, without a coordinator.
+    #[arg(long, value_name = "REPORT_JSON")]
+    pub from: Option<PathBuf>,
+    /// Folder for report.json, report.md, report.html and the figures.
     #[arg(long, default_value = ".")]
     pub out: PathBuf,
+    /// The artifact store, for the scene views and keyframes in report.html (default: the
+    /// `artifacts` folder beside the report, where `assay eval` puts it).
+    #[arg(long, env = "ASSAY_ARTIFACTS")]
+    pub artifacts: Option<PathBuf>,
+    #[command(flatten)]
+    pub human: HumanArgs,
 }
 
-/// Writes `report.json` and `report.md` into `out`, and the quality figure when judges ran.
-pub fn write(out: &Path, r: &pb::GetReportResponse) -> anyhow::Result<()> {
+/// Human ratings for the report's judge-agreement view (the paper's figure 3).
+#[derive(clap::Args, Clone, Default)]
+pub struct HumanArgs {
+    /// CSV of human ratings beside the judges' scores of the same items, as `assay agreement`
+    /// reads it (a `human` column, one column per judge, optionally `dataset`/`group`).
+    #[arg(long, value_name = "CSV")]
+    pub human_ratings: Option<PathBuf>,
+}
+
+impl HumanArgs {
+    /// The agreement table of the ratings, when given.
+    pub fn table(&self) -> anyhow::Result<Option<assay_core::agreement::AgreementTable>> {
+        let Some(path) = &self.human_ratings else {
+            return Ok(None);
+        };
+        let text =
+            std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+        let ratings = assay_core::agreement::parse_ratings(&text, "human", None)
+            .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+        Ok(Some(
+            ratings.agreement(assay_core::agreement::BOOTSTRAP_RESAMPLES, 0),
+        ))
+    }
+}
+
+/// Writes `report.json`, `report.md` and `report.html` into `out`, and the figures (quality,
+/// ranking) as SVG files beside them. Pictures in report.html come from `artifacts`.
+pub fn write(
+    out: &Path,
+    report: &assay_core::report::Report,
+    artifacts: &Path,
+    human: Option<&assay_core::agreement::AgreementTable>,
+) -> anyhow::Result<()> {
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
-    std::fs::write(out.join("report.json"), format!("{}\n", r.report_json))?;
-    std::fs::write(out.join("report.md"), &r.report_markdown)?;
-    let report: assay_core::report::Report =
-        serde_json::from_str(&r.report_json).context("the coordinator's report")?;
+    std::fs::write(
+        out.join("report.json"),
+        format!("{}\n", serde_json::to_string_pretty(report)?),
+    )?;
+    std::fs::write(out.join("report.md"), report.to_markdown())?;
+    let read = |key: &str| -> Option<Vec<u8>> {
+        // Keys are relative paths inside the store; never follow one out of it.
+        let rel = Path::new(key);
+        if rel.is_absolute()
+            || rel
+                .components()
+                .any(|c| !matches!(c, std::path::Component::Normal(_)))
+        {
+            return None;
+        }
+        std::fs::read(artifacts.join(rel)).ok()
+    };
+    let html = assay_core::html::report_html(&assay_core::html::HtmlInputs {
+        report,
+        artifact: &read,
+        human,
+    });
+    std::fs::write(out.join("report.html"), html)?;
     if let Some(q) = &report.results.quality {
         std::fs::write(out.join(assay_core::report::QUALITY_FIGURE), q.figure_svg())?;
     }
@@ -38,6 +99,11 @@ pub fn write(out: &Path, r: &pb::GetReportResponse) -> anyhow::Result<()> {
         }
     }
     Ok(())
+}
+
+/// The coordinator's report, parsed.
+pub fn parse(r: &pb::GetReportResponse) -> anyhow::Result<assay_core::report::Report> {
+    serde_json::from_str(&r.report_json).context("the coordinator's report")
 }
 
 /// One line per ranking comparison of `report` (for a terminal), empty without a ranking.
@@ -74,17 +140,37 @@ pub fn ranking_lines(report: &assay_core::report::Report) -> Vec<String> {
 }
 
 pub fn run(a: Args) -> anyhow::Result<ExitCode> {
+    let human = a.human.table()?;
+    let artifacts = a.artifacts.clone().unwrap_or_else(|| {
+        a.from
+            .as_deref()
+            .and_then(Path::parent)
+            .unwrap_or(&a.out)
+            .join(assay_core::report::ARTIFACTS_LINK)
+    });
+    if let Some(from) = &a.from {
+        let text =
+            std::fs::read_to_string(from).with_context(|| format!("reading {}", from.display()))?;
+        let report: assay_core::report::Report =
+            serde_json::from_str(&text).with_context(|| format!("{}", from.display()))?;
+        write(&a.out, &report, &artifacts, human.as_ref())?;
+        eprintln!(
+            "wrote report.json, report.md and report.html in {}",
+            a.out.display()
+        );
+        return Ok(ExitCode::SUCCESS);
+    }
+    let batch = a.batch.clone().unwrap_or_default();
     super::block_on(async move {
         let mut c = super::client(&a.coordinator).await?;
         let r = c
-            .get_report(pb::GetReportRequest { batch_id: a.batch })
+            .get_report(pb::GetReportRequest { batch_id: batch })
             .await?
             .into_inner();
-        write(&a.out, &r)?;
+        write(&a.out, &parse(&r)?, &artifacts, human.as_ref())?;
         eprintln!(
-            "wrote {} and {}{}",
-            a.out.join("report.json").display(),
-            a.out.join("report.md").display(),
+            "wrote report.json, report.md and report.html in {}{}",
+            a.out.display(),
             if r.r#final {
                 ""
             } else {

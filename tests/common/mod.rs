@@ -309,3 +309,27 @@ pub fn assert_each_episode_once(r: &Report, tasks: usize, seeds: u64) {
     }
     assert_eq!(seen.len() as u64, t.episodes_planned);
 }
+
+/// Opens `html` in headless Chromium (no network, viewport 1280 × 1000) and saves a screenshot
+/// as `screenshot` in the test's temporary target folder. `None` when Chromium is not installed,
+/// unless `ASSAY_REQUIRE_CHROMIUM` is set (scripts/test sets it), which fails the test instead.
+#[allow(dead_code)]
+pub fn chromium_check(html: &Path, screenshot: &str) -> Option<assay_browser_check::PageCheck> {
+    if assay_browser_check::find_chromium().is_err()
+        && std::env::var_os("ASSAY_REQUIRE_CHROMIUM").is_none()
+    {
+        return None;
+    }
+    let shot = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(screenshot);
+    let page = assay_browser_check::check_file(
+        html,
+        &assay_browser_check::Options {
+            viewport: (1280, 1000),
+            screenshot: Some(shot.clone()),
+            ..Default::default()
+        },
+    )
+    .unwrap_or_else(|e| panic!("Chromium on {}: {e}", html.display()));
+    eprintln!("screenshot of {}: {}", html.display(), shot.display());
+    Some(page)
+}

@@ -60,6 +60,8 @@ pub struct Options {
     /// Where to write the PNG screenshot (one is always taken, so a page that cannot be
     /// rendered fails the check either way).
     pub screenshot: Option<PathBuf>,
+    /// Opened as `FILE#fragment` (a page's anchor or a `:target` section).
+    pub fragment: Option<String>,
 }
 
 impl Default for Options {
@@ -69,6 +71,7 @@ impl Default for Options {
             full_page: false,
             timeout: Duration::from_secs(60),
             screenshot: None,
+            fragment: None,
         }
     }
 }
@@ -172,7 +175,11 @@ impl From<tungstenite::Error> for Error {
 pub fn check_file(path: &Path, options: &Options) -> Result<PageCheck, Error> {
     let abs = fs::canonicalize(path)
         .map_err(|e| Error::Io(format!("cannot open {}", path.display()), e))?;
-    let url = file_url(&abs);
+    let mut url = file_url(&abs);
+    if let Some(f) = &options.fragment {
+        url.push('#');
+        url.push_str(f);
+    }
     let mut browser = Browser::launch(options.viewport)?;
     let result = run_check(&mut browser.cdp, &url, options);
     browser.close();

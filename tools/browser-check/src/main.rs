@@ -8,7 +8,7 @@ use std::time::{Duration, Instant};
 
 use assay_browser_check::{Options, check_file};
 
-const USAGE: &str = "usage: assay-browser-check FILE [--screenshot OUT.png] [--width W --height H] [--full-page] [--timeout SECONDS]";
+const USAGE: &str = "usage: assay-browser-check FILE [--screenshot OUT.png] [--width W --height H] [--full-page] [--fragment ID] [--timeout SECONDS]";
 
 fn main() -> ExitCode {
     let (file, options) = match parse(std::env::args().skip(1)) {
@@ -62,6 +62,7 @@ fn parse(mut args: impl Iterator<Item = String>) -> Result<(PathBuf, Options), S
             "--height" => options.viewport.1 = number(&value("--height")?)?,
             "--timeout" => options.timeout = Duration::from_secs(number(&value("--timeout")?)?.into()),
             "--full-page" => options.full_page = true,
+            "--fragment" => options.fragment = Some(value("--fragment")?),
             "-h" | "--help" => return Err("Opens an HTML file in headless Chromium; fails on console errors, exceptions, failed or non-local requests.".into()),
             a if a.starts_with('-') => return Err(format!("unknown option {a}")),
             a if file.is_none() => file = Some(PathBuf::from(a)),
