@@ -31,6 +31,10 @@ struct Cli {
 enum Command {
     /// Run a batch end to end on a local cluster (coordinator + N sim workers) and write a report.
     Eval(cmd::eval::Args),
+    /// Continuous evaluation: evaluate every batch (sub-folder of task specs) that lands in a
+    /// folder, skip repeats by content hash, report each batch's marginal diversity.
+    #[cfg(feature = "trainer")]
+    Watch(cmd::watch::Args),
     /// Run the coordinator (one per cluster).
     Coordinator(cmd::coordinator::Args),
     /// Run a worker process with one or more roles.
@@ -77,6 +81,8 @@ fn main() -> std::process::ExitCode {
     logging::init(&cli.log_format);
     let result = match cli.command {
         Command::Eval(a) => cmd::eval::run(a),
+        #[cfg(feature = "trainer")]
+        Command::Watch(a) => cmd::watch::run(a),
         Command::Coordinator(a) => cmd::coordinator::run(a),
         Command::Worker(a) => cmd::worker::run(a),
         Command::Submit(a) => cmd::submit::run(a),

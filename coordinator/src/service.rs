@@ -133,7 +133,7 @@ pub fn plan_tasks(docs: &[pb::TaskDocument]) -> (Vec<PlannedTask>, Vec<SpecError
 /// The texts of the batch's tasks for text diversity: one group per task group (in order of first
 /// appearance), then "All" with every task. A template that names neither `{name}` nor
 /// `{description}` is refused (it would embed the same text for every task).
-fn text_groups(
+pub fn text_groups(
     tasks: &[PlannedTask],
     templates: &std::collections::HashMap<String, String>,
 ) -> Result<Vec<(String, Vec<String>)>, Status> {
@@ -185,11 +185,29 @@ fn valid_judge_name(name: &str) -> bool {
             .all(|c| c.is_ascii_alphanumeric() || matches!(c, '-' | '_' | '.'))
 }
 
+/// SHA-256 of a batch's tasks: the spec hashes of `tasks` and the SHA-256 of the documents that
+/// did not become tasks (`invalid`), sorted, one per line. The same tasks give the same hash,
+/// whatever their file names, order or YAML formatting.
+fn content_hash(
+    docs: &[pb::TaskDocument],
+    tasks: &[PlannedTask],
+    invalid: &[assay_core::SpecError],
+) -> String {
+    let mut hashes: Vec<String> = tasks.iter().map(|t| t.info.spec_hash.clone()).collect();
+    for d in docs {
+        if invalid.iter().any(|e| e.origin == d.origin) {
+            hashes.push(assay_core::hash::sha256_hex(d.content.as_bytes()));
+        }
+    }
+    assay_core::report::batch_hash(hashes.iter().map(String::as_str))
+}
+
 fn counts_to_pb(c: &BatchCounts, workers: u32) -> pb::BatchStatus {
     let state = match c.state.as_str() {
         batch_state::RUNNING => pb::BatchState::Running,
         batch_state::COMPLETED => pb::BatchState::Completed,
         batch_state::CANCELLED => pb::BatchState::Cancelled,
+        batch_state::SKIPPED => pb::BatchState::Skipped,
         _ => pb::BatchState::Unspecified,
     };
     pb::BatchStatus {
@@ -214,6 +232,8 @@ fn counts_to_pb(c: &BatchCounts, workers: u32) -> pb::BatchStatus {
         trainer_total: c.trainer_total,
         trainer_done: c.trainer_done,
         trainer_failed: c.trainer_failed,
+        content_hash: c.content_hash.clone(),
+        duplicate_of: c.duplicate_of.clone().unwrap_or_default(),
     }
 }
 
@@ -376,6 +396,7 @@ impl pb::coordinator_server::Coordinator for CoordinatorService {
             }
             Some(plan)
         };
+        let content_hash = content_hash(&req.tasks, &tasks, &invalid);
         let batch = NewBatch {
             name: if req.name.is_empty() {
                 "batch".into()
@@ -395,6 +416,7 @@ impl pb::coordinator_server::Coordinator for CoordinatorService {
             judges,
             judge_repeats: req.judge_repeats,
             judge_budget_usd: (req.judge_budget_usd > 0.0).then_some(req.judge_budget_usd),
+            content_hash,
             text_models,
             text_groups,
             dynamics,
@@ -403,17 +425,35 @@ impl pb::coordinator_server::Coordinator for CoordinatorService {
         };
         let accepted = batch.tasks.len() as u32;
         let now = now_ms();
-        let (batch_id, shards) = self
+        let content_hash = batch.content_hash.clone();
+        let skip = req.skip_if_evaluated;
+        let (batch_id, shards, duplicate_of) = self
             .shared
             .store
             .call(move |s| {
+                if skip && let Some(earlier) = s.evaluated_with(&batch.content_hash)? {
+                    let id = s.record_skipped(&batch, &earlier, now)?;
+                    return Ok((id, 0, earlier));
+                }
                 let (id, n) = s.submit(&batch, now)?;
                 if n == 0 {
                     s.finish_if_empty(&id, now)?;
                 }
-                Ok((id, n))
+                Ok((id, n, String::new()))
             })
             .await?;
+        if !duplicate_of.is_empty() {
+            info!(batch = %batch_id, %duplicate_of, %content_hash, "batch skipped: the same tasks were evaluated before");
+            let _ = self.shared.events.send(batch_id.clone());
+            return Ok(Response::new(pb::SubmitBatchResponse {
+                batch_id,
+                accepted_tasks: accepted,
+                shards: 0,
+                rejected: invalid.iter().map(spec_error_to_pb).collect(),
+                content_hash,
+                duplicate_of,
+            }));
+        }
         info!(batch = %batch_id, accepted, rejected = invalid.len(), shards, "batch submitted");
         for e in &invalid {
             warn!(batch = %batch_id, "{e}");
@@ -425,6 +465,8 @@ impl pb::coordinator_server::Coordinator for CoordinatorService {
             accepted_tasks: accepted,
             shards,
             rejected: invalid.iter().map(spec_error_to_pb).collect(),
+            content_hash,
+            duplicate_of: String::new(),
         }))
     }
 

@@ -41,6 +41,8 @@ pub mod batch_state {
     pub const RUNNING: &str = "running";
     pub const COMPLETED: &str = "completed";
     pub const CANCELLED: &str = "cancelled";
+    /// Not run: the same tasks were evaluated before (`duplicate_of`).
+    pub const SKIPPED: &str = "skipped";
 }
 
 const SCHEMA: &str = r#"
@@ -111,6 +113,10 @@ const ADDED_COLUMNS: &[(&str, &str, &str)] = &[
     ("batches", "ranking_json", "TEXT"),
     // Generalization (JSON `assay_core::generalization::GeneralizationPlan`; NULL: none).
     ("batches", "generalization_json", "TEXT"),
+    // Continuous evaluation: the batch's content hash, and for a skipped batch the batch it
+    // repeats.
+    ("batches", "content_hash", "TEXT NOT NULL DEFAULT ''"),
+    ("batches", "duplicate_of", "TEXT"),
 ];
 
 /// Shard roles.
@@ -150,6 +156,8 @@ pub struct NewBatch {
     pub judge_repeats: u32,
     /// USD the batch's judges may spend; None: no limit.
     pub judge_budget_usd: Option<f64>,
+    /// SHA-256 of the batch's tasks (see `SubmitBatchResponse.content_hash`).
+    pub content_hash: String,
     /// Embedding models for text diversity (empty: none) and the texts per group ("All" last).
     pub text_models: Vec<String>,
     pub text_groups: Vec<(String, Vec<String>)>,
@@ -216,6 +224,9 @@ pub struct BatchCounts {
     pub trainer_total: u32,
     pub trainer_done: u32,
     pub trainer_failed: u32,
+    pub content_hash: String,
+    /// A skipped batch: the batch it repeats.
+    pub duplicate_of: Option<String>,
 }
 
 /// What a state change did, so the caller knows whom to wake.
@@ -296,6 +307,59 @@ impl Store {
         Ok(first)
     }
 
+    /// The first batch evaluated (running or completed, not itself skipped) with this content
+    /// hash, if any.
+    pub fn evaluated_with(&self, content_hash: &str) -> Result<Option<String>, CoordError> {
+        Ok(self
+            .conn
+            .query_row(
+                "SELECT id FROM batches WHERE content_hash = ?1 AND state IN ('running', 'completed')
+                 ORDER BY seq LIMIT 1",
+                [content_hash],
+                |r| r.get(0),
+            )
+            .optional()?)
+    }
+
+    /// Records `batch` as skipped, a repeat of `duplicate_of`: in the history, with no shards.
+    pub fn record_skipped(
+        &mut self,
+        batch: &NewBatch,
+        duplicate_of: &str,
+        now_ms: i64,
+    ) -> Result<String, CoordError> {
+        let tx = self.conn.transaction()?;
+        let seq = Self::next_counter(&tx, "batch_seq", 1)?;
+        let id = format!("b{seq:05}-{:x}", now_ms & 0xff_ffff);
+        tx.execute(
+            "INSERT INTO batches (id, seq, name, state, policies_json, seeds_json, max_attempts, invalid_json, submitted_ms,
+             finished_ms, content_hash, duplicate_of)
+             VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?9, ?10, ?11)",
+            params![
+                id,
+                seq as i64,
+                batch.name,
+                batch_state::SKIPPED,
+                serde_json::to_string(&batch.policies)?,
+                serde_json::to_string(&batch.seeds)?,
+                batch.max_attempts,
+                serde_json::to_string(&batch.invalid)?,
+                now_ms,
+                batch.content_hash,
+                duplicate_of,
+            ],
+        )?;
+        for t in &batch.tasks {
+            tx.execute(
+                "INSERT INTO tasks (batch_id, task_id, name, grp, pipeline, origin, spec_hash, spec_json)
+                 VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8)",
+                params![id, t.info.id, t.info.name, t.info.group, t.info.pipeline, t.info.origin, t.info.spec_hash, t.spec_json],
+            )?;
+        }
+        tx.commit()?;
+        Ok(id)
+    }
+
     /// Stores a batch and plans its shards: seed-major (every task's first seed runs before any
     /// task's second), then policy, then task in submission order.
     pub fn submit(&mut self, batch: &NewBatch, now_ms: i64) -> Result<(String, u32), CoordError> {
@@ -351,6 +415,10 @@ impl Store {
                 }
             }
         }
+        tx.execute(
+            "UPDATE batches SET content_hash = ?1 WHERE id = ?2",
+            params![batch.content_hash, id],
+        )?;
         if let Some(plan) = &batch.ranking {
             tx.execute(
                 "UPDATE batches SET ranking_json = ?1 WHERE id = ?2",
@@ -1261,7 +1329,7 @@ impl Store {
         let mut c: BatchCounts = self
             .conn
             .query_row(
-                "SELECT id, name, state, submitted_ms, finished_ms, invalid_json FROM batches WHERE id = ?1",
+                "SELECT id, name, state, submitted_ms, finished_ms, invalid_json, content_hash, duplicate_of FROM batches WHERE id = ?1",
                 [batch_id],
                 |r| {
                     let invalid: String = r.get(5)?;
@@ -1275,6 +1343,8 @@ impl Store {
                         submitted_ms: r.get(3)?,
                         finished_ms: r.get(4)?,
                         invalid_tasks: distinct.len() as u32,
+                        content_hash: r.get(6)?,
+                        duplicate_of: r.get(7)?,
                         ..Default::default()
                     })
                 },
@@ -1716,6 +1786,7 @@ mod tests {
             judges: vec![],
             judge_repeats: 0,
             judge_budget_usd: None,
+            content_hash: tasks.join(","),
             text_models: Vec::new(),
             text_groups: Vec::new(),
             dynamics: None,

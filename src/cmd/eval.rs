@@ -10,8 +10,6 @@ use anyhow::Context;
 use assay_proto::v1 as pb;
 use indicatif::{ProgressBar, ProgressStyle};
 
-use crate::proc::{ChildProc, wait_for_file};
-
 #[derive(clap::Args)]
 pub struct Args {
     /// Task spec files or folders (walked for .yaml, .yml, .json); with --import, the
@@ -151,122 +149,24 @@ pub fn run(mut a: Args) -> anyhow::Result<ExitCode> {
     let run_dir = a.out.join("run");
     // Each eval starts from an empty job store: the report covers this run only.
     let _ = std::fs::remove_dir_all(&run_dir);
-    std::fs::create_dir_all(&run_dir).with_context(|| format!("creating {}", run_dir.display()))?;
-    let addr_file = run_dir.join("coordinator.addr");
-    let s = |p: PathBuf| p.display().to_string();
-    let mut coordinator = ChildProc::spawn(
-        "coordinator",
-        &[
-            "coordinator".into(),
-            "--listen".into(),
-            "127.0.0.1:0".into(),
-            "--store".into(),
-            s(run_dir.join("jobs.db")),
-            "--artifacts".into(),
-            s(a.out.join("artifacts")),
-            "--addr-file".into(),
-            s(addr_file.clone()),
-        ],
-        &run_dir.join("coordinator.log"),
-    )?;
-    let announced = wait_for_file(&addr_file, Duration::from_secs(30), &mut coordinator)?;
-    let mut lines = announced.lines();
-    let addr = format!("http://{}", lines.next().unwrap_or_default().trim());
-    let telemetry = lines
-        .next()
-        .map(str::trim)
-        .filter(|l| !l.is_empty() && *l != "off")
-        .map(str::to_owned);
-    let mut workers = Vec::new();
-    for i in 0..a.workers.max(1) {
-        let mut args: Vec<String> = vec![
-            "worker".into(),
-            "--coordinator".into(),
-            addr.clone(),
-            "--roles".into(),
-            a.roles.clone(),
-            "--image-size".into(),
-            a.image_size.clone(),
-            "--capacity".into(),
-            a.capacity.to_string(),
-            "--node-id".into(),
-            "local".into(),
-            "--worker-id".into(),
-            format!("local/worker-{i}"),
-        ];
-        if a.video {
-            args.push("--video".into());
-        }
-        workers.push(ChildProc::spawn(
-            &format!("worker {i}"),
-            &args,
-            &run_dir.join(format!("worker-{i}.log")),
-        )?);
-    }
-    let sim_workers = workers.len();
-    if !a.batch.judges.is_empty() {
-        let mut args: Vec<String> = vec![
-            "worker".into(),
-            "--coordinator".into(),
-            addr.clone(),
-            "--roles".into(),
-            "judge".into(),
-            "--capacity".into(),
-            a.judge_capacity.max(1).to_string(),
-            "--node-id".into(),
-            "local".into(),
-            "--worker-id".into(),
-            "local/judge-0".into(),
-        ];
-        if let Some(path) = &a.config {
-            args.push("--config".into());
-            args.push(s(path.clone()));
-        }
-        workers.push(ChildProc::spawn(
-            "judge worker",
-            &args,
-            &run_dir.join("judge-0.log"),
-        )?);
-    }
-    if training {
-        let mut args: Vec<String> = vec![
-            "worker".into(),
-            "--coordinator".into(),
-            addr.clone(),
-            "--roles".into(),
-            "trainer".into(),
-            "--node-id".into(),
-            "local".into(),
-            "--worker-id".into(),
-            "local/trainer-0".into(),
-            "--capacity".into(),
-            a.trainer_capacity
-                .unwrap_or_else(|| {
-                    std::thread::available_parallelism().map_or(1, |n| n.get() as u32)
-                })
-                .max(1)
-                .to_string(),
-        ];
-        if let Some(path) = &a.config {
-            args.push("--config".into());
-            args.push(s(path.clone()));
-        }
-        workers.push(ChildProc::spawn(
-            "trainer worker",
-            &args,
-            &run_dir.join("trainer-0.log"),
-        )?);
-    }
-    eprintln!(
-        "local cluster: coordinator at {addr}, {sim_workers} sim workers{}{}; logs in {}",
-        if a.batch.judges.is_empty() {
-            String::new()
-        } else {
-            format!(", a judge worker ({})", a.batch.judges.join(", "))
+    let cluster = super::cluster::LocalCluster::start(
+        &super::cluster::Plan {
+            workers: a.workers,
+            capacity: a.capacity,
+            roles: a.roles.clone(),
+            image_size: a.image_size.clone(),
+            video: a.video,
+            config: a.config.clone(),
+            judges: a.batch.judges.clone(),
+            judge_capacity: a.judge_capacity,
+            training,
+            trainer_capacity: a.trainer_capacity,
         },
-        if training { ", a trainer worker" } else { "" },
-        run_dir.display()
-    );
+        &run_dir,
+        &a.out.join(assay_core::report::ARTIFACTS_LINK),
+    )?;
+    let addr = cluster.addr.clone();
+    let telemetry = cluster.telemetry.clone();
 
     let req = a
         .batch
@@ -274,14 +174,7 @@ pub fn run(mut a: Args) -> anyhow::Result<ExitCode> {
     let quiet = a.quiet;
     // A local process that dies (a crash, the OOM killer) would leave the batch waiting for it
     // forever: the watch below stops with the process's name and log instead.
-    let watched: Vec<(String, u32)> = workers
-        .iter()
-        .map(|w| (w.name.clone(), w.child.id()))
-        .chain(std::iter::once((
-            coordinator.name.clone(),
-            coordinator.child.id(),
-        )))
-        .collect();
+    let watched = cluster.watched();
     let outcome = super::block_on(async {
         let mut c = super::client(&addr).await?;
         let r = c.submit_batch(req).await?.into_inner();
@@ -409,10 +302,7 @@ pub fn run(mut a: Args) -> anyhow::Result<ExitCode> {
             .into_inner();
         anyhow::Ok((last, report, r.rejected.len()))
     });
-    for w in &mut workers {
-        w.stop(Duration::from_secs(5));
-    }
-    coordinator.stop(Duration::from_secs(5));
+    cluster.stop();
     let (last, report, rejected) = outcome?;
     let parsed = super::report::parse(&report)?;
     super::report::write(

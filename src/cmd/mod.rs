@@ -2,6 +2,7 @@
 
 pub mod agreement;
 pub mod bench;
+pub mod cluster;
 pub mod coordinator;
 #[cfg(feature = "trainer")]
 pub mod diversity;
@@ -18,6 +19,8 @@ pub mod top;
 #[cfg(feature = "trainer")]
 pub mod trainer_role;
 pub mod validate;
+#[cfg(feature = "trainer")]
+pub mod watch;
 pub mod worker;
 
 use std::future::Future;
@@ -74,6 +77,7 @@ pub fn state_name(state: i32) -> &'static str {
         pb::BatchState::Running => "running",
         pb::BatchState::Completed => "completed",
         pb::BatchState::Cancelled => "cancelled",
+        pb::BatchState::Skipped => "skipped",
         pb::BatchState::Unspecified => "unknown",
     }
 }

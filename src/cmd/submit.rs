@@ -12,6 +12,10 @@ pub struct Args {
     pub coordinator: String,
     #[command(flatten)]
     pub batch: BatchArgs,
+    /// Do not run the batch if the same tasks (same content hash) were evaluated on this
+    /// coordinator before: record it as skipped, a duplicate of that batch.
+    #[arg(long)]
+    pub skip_if_evaluated: bool,
 }
 
 #[derive(clap::Args, Clone)]
@@ -125,6 +129,7 @@ impl BatchArgs {
             text_templates: self.text_templates.iter().cloned().collect(),
             ranking_json: self.ranking_json(),
             generalization_json: self.generalization.clone().unwrap_or_default(),
+            skip_if_evaluated: false,
         }
     }
 }
@@ -139,11 +144,20 @@ pub fn default_name(paths: &[PathBuf]) -> String {
 
 pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     let docs = crate::docs::collect(&a.paths)?;
-    let req = a.batch.request(docs, &default_name(&a.paths));
+    let mut req = a.batch.request(docs, &default_name(&a.paths));
+    req.skip_if_evaluated = a.skip_if_evaluated;
     super::block_on(async move {
         let mut c = super::client(&a.coordinator).await?;
         let r = c.submit_batch(req).await?.into_inner();
         super::print_rejected(&r.rejected);
+        if !r.duplicate_of.is_empty() {
+            eprintln!(
+                "skipped {}: the same tasks (content {}) were evaluated in batch {}",
+                r.batch_id, r.content_hash, r.duplicate_of
+            );
+            println!("{}", r.batch_id);
+            return Ok(ExitCode::SUCCESS);
+        }
         eprintln!(
             "submitted {}: {} tasks accepted, {} rejected, {} shards",
             r.batch_id,

@@ -1,0 +1,198 @@
+//! A local cluster of real processes on loopback: a coordinator, sim workers, and a judge and a
+//! trainer worker when the batch needs them (`assay eval`, `assay watch`).
+
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use anyhow::Context;
+
+use crate::proc::{ChildProc, wait_for_file};
+
+/// What to start.
+pub struct Plan {
+    /// Sim worker processes.
+    pub workers: u32,
+    /// Shards each sim worker runs at once.
+    pub capacity: u32,
+    /// Roles of the sim workers (`sim,render` or `sim`).
+    pub roles: String,
+    pub image_size: String,
+    pub video: bool,
+    /// Configuration file passed to the judge and trainer workers.
+    pub config: Option<PathBuf>,
+    /// Judges; a judge worker is started when there are any.
+    pub judges: Vec<String>,
+    pub judge_capacity: u32,
+    /// Start a trainer worker.
+    pub training: bool,
+    pub trainer_capacity: Option<u32>,
+}
+
+/// The running processes; stopped (SIGTERM, then SIGKILL) on [`LocalCluster::stop`] or drop.
+pub struct LocalCluster {
+    /// The coordinator's gRPC address (`http://127.0.0.1:PORT`).
+    pub addr: String,
+    /// The telemetry endpoint, when on.
+    pub telemetry: Option<String>,
+    coordinator: ChildProc,
+    workers: Vec<ChildProc>,
+}
+
+impl LocalCluster {
+    /// Starts the processes, with the job store and logs in `run_dir` (an existing store is
+    /// reopened) and the artifact store at `artifacts`.
+    pub fn start(plan: &Plan, run_dir: &Path, artifacts: &Path) -> anyhow::Result<Self> {
+        std::fs::create_dir_all(run_dir)
+            .with_context(|| format!("creating {}", run_dir.display()))?;
+        let addr_file = run_dir.join("coordinator.addr");
+        let _ = std::fs::remove_file(&addr_file);
+        let s = |p: PathBuf| p.display().to_string();
+        let mut coordinator = ChildProc::spawn(
+            "coordinator",
+            &[
+                "coordinator".into(),
+                "--listen".into(),
+                "127.0.0.1:0".into(),
+                "--store".into(),
+                s(run_dir.join("jobs.db")),
+                "--artifacts".into(),
+                s(artifacts.to_path_buf()),
+                "--addr-file".into(),
+                s(addr_file.clone()),
+                "--metrics-listen".into(),
+                "127.0.0.1:0".into(),
+            ],
+            &run_dir.join("coordinator.log"),
+        )?;
+        let announced = wait_for_file(&addr_file, Duration::from_secs(30), &mut coordinator)?;
+        let mut lines = announced.lines().map(str::trim);
+        let addr = format!("http://{}", lines.next().unwrap_or_default());
+        let on = |l: Option<&str>| {
+            l.filter(|l| !l.is_empty() && *l != "off")
+                .map(str::to_owned)
+        };
+        let telemetry = on(lines.next());
+        let metrics = on(lines.next());
+        let mut workers = Vec::new();
+        for i in 0..plan.workers.max(1) {
+            let mut args: Vec<String> = vec![
+                "worker".into(),
+                "--coordinator".into(),
+                addr.clone(),
+                "--roles".into(),
+                plan.roles.clone(),
+                "--image-size".into(),
+                plan.image_size.clone(),
+                "--capacity".into(),
+                plan.capacity.to_string(),
+                "--node-id".into(),
+                "local".into(),
+                "--worker-id".into(),
+                format!("local/worker-{i}"),
+            ];
+            if plan.video {
+                args.push("--video".into());
+            }
+            workers.push(ChildProc::spawn(
+                &format!("worker {i}"),
+                &args,
+                &run_dir.join(format!("worker-{i}.log")),
+            )?);
+        }
+        let sim_workers = workers.len();
+        if !plan.judges.is_empty() {
+            let mut args: Vec<String> = vec![
+                "worker".into(),
+                "--coordinator".into(),
+                addr.clone(),
+                "--roles".into(),
+                "judge".into(),
+                "--capacity".into(),
+                plan.judge_capacity.max(1).to_string(),
+                "--node-id".into(),
+                "local".into(),
+                "--worker-id".into(),
+                "local/judge-0".into(),
+            ];
+            if let Some(path) = &plan.config {
+                args.push("--config".into());
+                args.push(s(path.clone()));
+            }
+            workers.push(ChildProc::spawn(
+                "judge worker",
+                &args,
+                &run_dir.join("judge-0.log"),
+            )?);
+        }
+        if plan.training {
+            let mut args: Vec<String> = vec![
+                "worker".into(),
+                "--coordinator".into(),
+                addr.clone(),
+                "--roles".into(),
+                "trainer".into(),
+                "--node-id".into(),
+                "local".into(),
+                "--worker-id".into(),
+                "local/trainer-0".into(),
+                "--capacity".into(),
+                plan.trainer_capacity
+                    .unwrap_or_else(|| {
+                        std::thread::available_parallelism().map_or(1, |n| n.get() as u32)
+                    })
+                    .max(1)
+                    .to_string(),
+            ];
+            if let Some(path) = &plan.config {
+                args.push("--config".into());
+                args.push(s(path.clone()));
+            }
+            workers.push(ChildProc::spawn(
+                "trainer worker",
+                &args,
+                &run_dir.join("trainer-0.log"),
+            )?);
+        }
+        eprintln!(
+            "local cluster: coordinator at {addr}, {sim_workers} sim workers{}{}; metrics at {}; logs in {}",
+            if plan.judges.is_empty() {
+                String::new()
+            } else {
+                format!(", a judge worker ({})", plan.judges.join(", "))
+            },
+            if plan.training {
+                ", a trainer worker"
+            } else {
+                ""
+            },
+            metrics
+                .as_deref()
+                .map_or_else(|| "(off)".into(), |m| format!("http://{m}/metrics")),
+            run_dir.display()
+        );
+        Ok(Self {
+            addr,
+            telemetry,
+            coordinator,
+            workers,
+        })
+    }
+
+    /// (name, pid) of every process, for `crate::proc::first_exited`: a local process that dies
+    /// (a crash, the OOM killer) would leave a batch waiting for it forever.
+    pub fn watched(&self) -> Vec<(String, u32)> {
+        self.workers
+            .iter()
+            .chain(std::iter::once(&self.coordinator))
+            .map(|p| (p.name.clone(), p.child.id()))
+            .collect()
+    }
+
+    /// Workers first (they hand their leases back), then the coordinator.
+    pub fn stop(mut self) {
+        for w in &mut self.workers {
+            w.stop(Duration::from_secs(5));
+        }
+        self.coordinator.stop(Duration::from_secs(5));
+    }
+}
