@@ -2,11 +2,12 @@
 //! workspace's libraries.
 
 mod cmd;
+mod config;
 mod docs;
 mod logging;
 mod proc;
 
-use clap::{Parser, Subcommand};
+use clap::{CommandFactory, FromArgMatches, Parser, Subcommand};
 
 #[derive(Parser)]
 #[command(
@@ -77,7 +78,19 @@ enum Command {
 }
 
 fn main() -> std::process::ExitCode {
-    let cli = Cli::parse();
+    // Layered configuration: the TOML file < ASSAY_* variables < flags (src/config.rs).
+    let args: Vec<std::ffi::OsString> = std::env::args_os().collect();
+    let command = match config::layer(Cli::command(), config::file(&args).as_deref()) {
+        Ok(c) => c,
+        Err(e) => {
+            eprintln!("error: {e}");
+            return std::process::ExitCode::FAILURE;
+        }
+    };
+    let cli = match Cli::from_arg_matches(&command.get_matches_from(args)) {
+        Ok(cli) => cli,
+        Err(e) => e.exit(),
+    };
     logging::init(&cli.log_format);
     let result = match cli.command {
         Command::Eval(a) => cmd::eval::run(a),

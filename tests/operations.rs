@@ -113,3 +113,85 @@ fn metrics_are_scraped_while_a_batch_runs() {
         assert!(buckets.windows(2).all(|w| w[0] <= w[1]), "{buckets:?}");
     });
 }
+
+/// Starts `assay coordinator` with `extra` flags and `env`, waits for its address file and
+/// returns its three lines (gRPC address, telemetry, metrics); the process is killed after.
+fn announced(dir: &std::path::Path, extra: &[&str], env: &[(&str, &str)]) -> Vec<String> {
+    let addr_file = dir.join("coordinator.addr");
+    let _ = std::fs::remove_file(&addr_file);
+    let mut cmd = std::process::Command::new(bin());
+    cmd.args(["coordinator", "--listen", "127.0.0.1:0", "--addr-file"])
+        .arg(&addr_file)
+        .arg("--store")
+        .arg(dir.join("jobs.db"))
+        .arg("--artifacts")
+        .arg(dir.join("artifacts"))
+        .args(extra)
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null());
+    for (k, v) in env {
+        cmd.env(k, v);
+    }
+    let mut child = cmd.spawn().unwrap();
+    let deadline = Instant::now() + Duration::from_secs(30);
+    let text = loop {
+        if let Ok(t) = std::fs::read_to_string(&addr_file)
+            && t.lines().count() == 3
+        {
+            break t;
+        }
+        assert!(child.try_wait().unwrap().is_none(), "coordinator exited");
+        assert!(Instant::now() < deadline, "coordinator did not start");
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    let _ = child.kill();
+    let _ = child.wait();
+    text.lines().map(str::to_owned).collect()
+}
+
+#[test]
+fn configuration_layers_the_file_under_the_environment_under_flags() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("cluster.toml");
+    std::fs::write(
+        &file,
+        "# a cluster's settings\n[coordinator]\ntelemetry = \"off\"\nmetrics-listen = \"off\"\n\n\
+         [judges.offline-copy]\nbackend = \"offline\"\n",
+    )
+    .unwrap();
+    let cfg = file.to_str().unwrap();
+    // Default: telemetry on loopback, metrics off.
+    let l = announced(dir.path(), &[], &[]);
+    assert!(l[1].starts_with("tcp/127.0.0.1:"), "{l:?}");
+    assert_eq!(l[2], "off");
+    // The file beats the defaults.
+    let l = announced(dir.path(), &[], &[("ASSAY_CONFIG", cfg)]);
+    assert_eq!((l[1].as_str(), l[2].as_str()), ("off", "off"), "{l:?}");
+    // An ASSAY_* variable beats the file.
+    let env = [
+        ("ASSAY_CONFIG", cfg),
+        ("ASSAY_METRICS_LISTEN", "127.0.0.1:0"),
+    ];
+    let l = announced(dir.path(), &[], &env);
+    assert_eq!(l[1], "off");
+    assert!(l[2].starts_with("127.0.0.1:"), "{l:?}");
+    // A flag beats the variable.
+    let l = announced(dir.path(), &["--metrics-listen", "off"], &env);
+    assert_eq!(l[2], "off");
+
+    // A mistyped key fails before anything starts, naming the file, the section and the key.
+    std::fs::write(&file, "[coordinator]\nmetrics-lsten = \"off\"\n").unwrap();
+    let out = std::process::Command::new(bin())
+        .args(["coordinator"])
+        .env("ASSAY_CONFIG", cfg)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(
+        err.contains("cluster.toml")
+            && err.contains("[coordinator] has no option 'metrics-lsten'")
+            && err.contains("metrics-listen"),
+        "{err}"
+    );
+}
