@@ -36,6 +36,9 @@ enum Command {
     /// folder, skip repeats by content hash, report each batch's marginal diversity.
     #[cfg(feature = "trainer")]
     Watch(cmd::watch::Args),
+    /// Check this machine for what Assay's roles need (Vulkan, libtorch, embedding models,
+    /// zenoh, shared memory, judge endpoints) and say what to fix.
+    Doctor(cmd::doctor::Args),
     /// Run the coordinator (one per cluster).
     Coordinator(cmd::coordinator::Args),
     /// Run a worker process with one or more roles.
@@ -96,6 +99,7 @@ fn main() -> std::process::ExitCode {
         Command::Eval(a) => cmd::eval::run(a),
         #[cfg(feature = "trainer")]
         Command::Watch(a) => cmd::watch::run(a),
+        Command::Doctor(a) => cmd::doctor::run(a),
         Command::Coordinator(a) => cmd::coordinator::run(a),
         Command::Worker(a) => cmd::worker::run(a),
         Command::Submit(a) => cmd::submit::run(a),

