@@ -102,7 +102,7 @@ pub struct DynamicsFit {
     pub steps_per_s: f64,
     /// The device it ran on (`cpu`, `cuda:0`).
     pub device: String,
-    /// The libtorch it ran with (`2.13.0+cpu`; empty in reports written before it was kept).
+    /// The libtorch it ran with (`2.13.0`; empty in reports written before it was kept).
     #[serde(default, skip_serializing_if = "String::is_empty")]
     pub libtorch: String,
     pub config: DynamicsConfig,

@@ -164,7 +164,7 @@ pub struct Provenance {
     pub embedding_models: Vec<crate::diversity::EmbeddingModel>,
     /// Graphics adapters that rendered the episodes.
     pub render_adapters: Vec<String>,
-    /// Devices and libtorch versions of the trainer's fits (`cpu · libtorch 2.13.0+cpu`).
+    /// Devices and libtorch versions of the trainer's fits (`cpu · libtorch 2.13.0`).
     pub trainer_devices: Vec<String>,
 }
 

@@ -316,13 +316,13 @@ pub fn run(mut a: Args) -> anyhow::Result<ExitCode> {
     }
     let last = last.context("no status from the coordinator")?;
     eprintln!(
-        "{}: {}/{} episodes completed, {} succeeded, {} failed; report in {}",
+        "{}: {}/{} episodes completed, {} succeeded, {} failed; report in {} (and report.md, report.json)",
         super::state_name(last.state),
         last.shards_done,
         last.shards_total,
         last.successes,
         last.shards_failed,
-        a.out.join("report.md").display()
+        a.out.join("report.html").display()
     );
     let completed = last.state == pb::BatchState::Completed as i32;
     let clean = rejected == 0 && last.shards_failed == 0;

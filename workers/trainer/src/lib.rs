@@ -16,7 +16,7 @@ pub fn default_device() -> tch::Device {
 }
 
 /// The libtorch this process runs with, for a report's provenance: the `build-version` file of
-/// `$LIBTORCH` (`2.13.0+cpu`), or what is known without it.
+/// `$LIBTORCH` (`2.13.0`), or what is known without it.
 pub fn libtorch_version() -> String {
     std::env::var_os("LIBTORCH")
         .map(std::path::PathBuf::from)
