@@ -307,6 +307,21 @@ impl Store {
         Ok(first)
     }
 
+    fn insert_tasks(
+        tx: &rusqlite::Transaction<'_>,
+        batch_id: &str,
+        tasks: &[PlannedTask],
+    ) -> Result<(), CoordError> {
+        for t in tasks {
+            tx.execute(
+                "INSERT INTO tasks (batch_id, task_id, name, grp, pipeline, origin, spec_hash, spec_json)
+                 VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8)",
+                params![batch_id, t.info.id, t.info.name, t.info.group, t.info.pipeline, t.info.origin, t.info.spec_hash, t.spec_json],
+            )?;
+        }
+        Ok(())
+    }
+
     /// The first batch evaluated (running or completed, not itself skipped) with this content
     /// hash, if any.
     pub fn evaluated_with(&self, content_hash: &str) -> Result<Option<String>, CoordError> {
@@ -349,13 +364,7 @@ impl Store {
                 duplicate_of,
             ],
         )?;
-        for t in &batch.tasks {
-            tx.execute(
-                "INSERT INTO tasks (batch_id, task_id, name, grp, pipeline, origin, spec_hash, spec_json)
-                 VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8)",
-                params![id, t.info.id, t.info.name, t.info.group, t.info.pipeline, t.info.origin, t.info.spec_hash, t.spec_json],
-            )?;
-        }
+        Self::insert_tasks(&tx, &id, &batch.tasks)?;
         tx.commit()?;
         Ok(id)
     }
@@ -387,13 +396,7 @@ impl Store {
                 batch.dynamics.as_ref().map(serde_json::to_string).transpose()?,
             ],
         )?;
-        for t in &batch.tasks {
-            tx.execute(
-                "INSERT INTO tasks (batch_id, task_id, name, grp, pipeline, origin, spec_hash, spec_json)
-                 VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8)",
-                params![id, t.info.id, t.info.name, t.info.group, t.info.pipeline, t.info.origin, t.info.spec_hash, t.spec_json],
-            )?;
-        }
+        Self::insert_tasks(&tx, &id, &batch.tasks)?;
         let mut n = 0u32;
         {
             let mut ins = tx.prepare(

@@ -279,47 +279,14 @@ pub fn provenance_section(run: &RunInfo, p: &crate::report::Provenance) -> Strin
         "workers",
         format!("{} ({})", run.workers.len(), esc(&run.workers.join(", "))),
     );
-    let list = |v: &[String]| match v {
-        [] => "–".to_owned(),
-        v => v.iter().map(|x| esc(x)).collect::<Vec<_>>().join("<br>"),
-    };
-    row("built by", esc(&p.assay_version));
-    row(
-        "settings (SHA-256)",
-        format!("<code>{}</code>", esc(&p.config_hash)),
-    );
-    row(
-        "tasks (SHA-256 of spec hashes)",
-        format!("<code>{}</code>", esc(&p.batch_hash)),
-    );
-    let code: Vec<String> = p
-        .code_versions
-        .iter()
-        .map(|(k, v)| format!("{k} {v}"))
-        .collect();
-    row("code", list(&code));
-    let judges: Vec<String> = p
-        .judges
-        .iter()
-        .map(|j| {
-            format!(
-                "{}: {} {} ({})",
-                j.judge,
-                j.backend,
-                j.model,
-                j.prompts.join(", ")
-            )
-        })
-        .collect();
-    row("judges", list(&judges));
-    let models: Vec<String> = p
-        .embedding_models
-        .iter()
-        .map(|m| format!("{}: {} ({} dimensions)", m.name, m.model, m.dimensions))
-        .collect();
-    row("embedding models", list(&models));
-    row("rendered on", list(&p.render_adapters));
-    row("trained on", list(&p.trainer_devices));
+    for (what, values) in p.rows() {
+        let value = match values.as_slice() {
+            [] => "–".to_owned(),
+            [hash] if what.contains("SHA-256") => format!("<code>{}</code>", esc(hash)),
+            v => v.iter().map(|x| esc(x)).collect::<Vec<_>>().join("<br>"),
+        };
+        row(what, value);
+    }
     out.push_str("</table>\n</details>\n");
     out
 }

@@ -206,6 +206,50 @@ pub fn batch_hash<'a>(spec_hashes: impl IntoIterator<Item = &'a str>) -> String 
 }
 
 impl Provenance {
+    /// (what, values) in the order people read them: report.md and report.html show these.
+    pub fn rows(&self) -> Vec<(&'static str, Vec<String>)> {
+        let one = |s: &str| match s {
+            "" => Vec::new(),
+            s => vec![s.to_owned()],
+        };
+        vec![
+            ("built by", one(&self.assay_version)),
+            ("settings (SHA-256)", one(&self.config_hash)),
+            ("tasks (SHA-256 of spec hashes)", one(&self.batch_hash)),
+            (
+                "code",
+                self.code_versions
+                    .iter()
+                    .map(|(k, v)| format!("{k} {v}"))
+                    .collect(),
+            ),
+            (
+                "judges",
+                self.judges
+                    .iter()
+                    .map(|j| {
+                        format!(
+                            "{}: {} {} ({})",
+                            j.judge,
+                            j.backend,
+                            j.model,
+                            j.prompts.join(", ")
+                        )
+                    })
+                    .collect(),
+            ),
+            (
+                "embedding models",
+                self.embedding_models
+                    .iter()
+                    .map(|m| format!("{}: {} ({} dimensions)", m.name, m.model, m.dimensions))
+                    .collect(),
+            ),
+            ("rendered on", self.render_adapters.clone()),
+            ("trained on", self.trainer_devices.clone()),
+        ]
+    }
+
     /// Provenance of `results`, built by `assay_version` with settings hashed to `config_hash`.
     /// `episodes` are the batch's episode outcomes (their code versions are kept).
     pub fn of(
@@ -876,45 +920,14 @@ impl Report {
         );
         let _ = writeln!(md, "\n## Provenance\n");
         let _ = writeln!(md, "| what | value |\n|---|---|");
-        let list = |v: &[String]| match v {
-            [] => "—".to_owned(),
-            v => cell(&v.join("; ")),
-        };
-        let _ = writeln!(md, "| built by | {} |", cell(&p.assay_version));
-        let _ = writeln!(md, "| settings (SHA-256) | `{}` |", p.config_hash);
-        let _ = writeln!(
-            md,
-            "| tasks (SHA-256 of spec hashes) | `{}` |",
-            p.batch_hash
-        );
-        let code: Vec<String> = p
-            .code_versions
-            .iter()
-            .map(|(k, v)| format!("{k} {v}"))
-            .collect();
-        let _ = writeln!(md, "| code | {} |", list(&code));
-        let judges: Vec<String> = p
-            .judges
-            .iter()
-            .map(|j| {
-                format!(
-                    "{}: {} {} ({})",
-                    j.judge,
-                    j.backend,
-                    j.model,
-                    j.prompts.join(", ")
-                )
-            })
-            .collect();
-        let _ = writeln!(md, "| judges | {} |", list(&judges));
-        let models: Vec<String> = p
-            .embedding_models
-            .iter()
-            .map(|m| format!("{}: {} ({} dimensions)", m.name, m.model, m.dimensions))
-            .collect();
-        let _ = writeln!(md, "| embedding models | {} |", list(&models));
-        let _ = writeln!(md, "| rendered on | {} |", list(&p.render_adapters));
-        let _ = writeln!(md, "| trained on | {} |", list(&p.trainer_devices));
+        for (what, values) in p.rows() {
+            let value = match values.as_slice() {
+                [] => "—".to_owned(),
+                [hash] if what.contains("SHA-256") => format!("`{hash}`"),
+                v => cell(&v.join("; ")),
+            };
+            let _ = writeln!(md, "| {what} | {value} |");
+        }
         md
     }
 }
