@@ -14,7 +14,7 @@ use std::fmt::Write as _;
 use base64::Engine as _;
 
 use crate::agreement::{Agreement, AgreementTable, Estimate};
-use crate::figures::{self, BarChart, Bars, Line, ScenePoint};
+use crate::figures::{self, BarChart, Bars, Line};
 use crate::quality::ScoreStats;
 use crate::quality_report::{QualityResults, TaskQuality};
 use crate::report::{EpisodeImagery, Report, RunInfo, TaskResult};
@@ -349,25 +349,7 @@ fn figure_4(quality: Option<&QualityResults>) -> String {
         out.push_str("</section>\n");
         return out;
     };
-    let judge_index = |j: &str| {
-        q.judges
-            .iter()
-            .position(|s| s.judge == j)
-            .unwrap_or(q.judges.len())
-    };
-    let points: Vec<ScenePoint> = q
-        .tasks
-        .iter()
-        .filter_map(|t| {
-            Some(ScenePoint {
-                group: t.group.clone(),
-                judge: judge_index(&t.judge),
-                scene_alignment: t.scene_alignment.mean?,
-                completion: t.completion.mean?,
-                spread: figures::spread(t.scene_alignment.variance, t.completion.variance),
-            })
-        })
-        .collect();
+    let points = q.scene_points();
     out.push_str(&inline_svg(&figures::scene_vs_completion(&points)));
     let judges: Vec<String> = q
         .judges

@@ -1,8 +1,8 @@
 //! Quality in reports: what the judges said about each task (scene alignment 1–5 from the 4 views
 //! of the initial scene, task completion 0–10 from the 8 keyframes), aggregated per task, per
 //! group and per judge, and set against the simulator's ground truth; the "## Quality" section of
-//! report.md and the paper's figure 4 (scene alignment against task completion per setting, marker
-//! size = variance) as a self-contained SVG.
+//! report.md and the points of the paper's figure 4 (scene alignment against task completion,
+//! marker size = variance), drawn by `crate::figures`.
 //!
 //! Owns: the aggregation and its presentation. Never does IO and never calls a judge: it reads
 //! the judge shards as the job store has them and returns data and text. Deterministic: the same
@@ -363,58 +363,6 @@ fn estimate(e: &Estimate) -> String {
     }
 }
 
-/// Colours of the judges in the figure, in name order (cycled beyond eight).
-const PALETTE: [&str; 8] = [
-    "#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e", "#8c564b", "#e377c2", "#17becf",
-];
-
-// The figure's geometry, in px.
-const FIG_W: f64 = 800.0;
-const FIG_H: f64 = 500.0;
-const PLOT_L: f64 = 70.0;
-const PLOT_R: f64 = 530.0;
-const PLOT_T: f64 = 50.0;
-const PLOT_B: f64 = 440.0;
-
-// The axes' domains: the score ranges (1–5, 0–10) with a margin, so that markers at the ends
-// stay inside the frame.
-const X_DOMAIN: (f64, f64) = (0.75, 5.25);
-const Y_DOMAIN: (f64, f64) = (-0.5, 10.5);
-
-fn x_px(scene_alignment: f64) -> f64 {
-    let (lo, hi) = X_DOMAIN;
-    PLOT_L + (scene_alignment.clamp(1.0, 5.0) - lo) / (hi - lo) * (PLOT_R - PLOT_L)
-}
-
-fn y_px(completion: f64) -> f64 {
-    let (lo, hi) = Y_DOMAIN;
-    PLOT_B - (completion.clamp(0.0, 10.0) - lo) / (hi - lo) * (PLOT_B - PLOT_T)
-}
-
-/// How marker size encodes variance, as the legend states it.
-pub const RADIUS_RULE: &str = "r = 4 + 12·√((vSA/4 + vC/25)/2) px";
-
-/// Radius for a spread `f` in 0–1 (see `radius`).
-fn radius_for(f: f64) -> f64 {
-    4.0 + 12.0 * f.clamp(0.0, 1.0).sqrt()
-}
-
-/// Marker radius, `RADIUS_RULE`: each variance (sample variance of the group's task means) as a
-/// fraction of the largest a score in its range can have ((5−1)²/4 = 4 and 10²/4 = 25), the
-/// two averaged and capped at 1; 4 px for no spread (or a single task), 16 px for the most.
-fn radius(g: &GroupQuality) -> f64 {
-    let sa = g.scene_alignment.variance.unwrap_or(0.0) / 4.0;
-    let c = g.completion.variance.unwrap_or(0.0) / 25.0;
-    radius_for((sa + c) / 2.0)
-}
-
-fn xml(s: &str) -> String {
-    s.replace('&', "&amp;")
-        .replace('<', "&lt;")
-        .replace('>', "&gt;")
-        .replace('"', "&quot;")
-}
-
 impl QualityResults {
     /// The "## Quality" section of report.md. `figure`: relative path of the SVG to link as an
     /// image, if one was written.
@@ -560,8 +508,9 @@ impl QualityResults {
             let _ = writeln!(md, "\n### Scene alignment against completion\n");
             let _ = writeln!(
                 md,
-                "As the paper's figure 4: one marker per judge and group at the mean of the group's \
-                 task means, its size growing with their variance; faint dots are single tasks.\n"
+                "As the paper's figure 4: one marker per task and judge at the judge's mean scores, \
+                 coloured by group, its area growing with the variance of the scores (the first judge \
+                 filled, others as outlines).\n"
             );
             let _ = writeln!(
                 md,
@@ -651,187 +600,36 @@ impl QualityResults {
         md
     }
 
-    /// The paper's figure 4 as a self-contained SVG: x = scene alignment (1–5), y = completion
-    /// (0–10); one circle (`class="group"`) per (judge, group) with both means, at the means of the
-    /// group's task means, radius `RADIUS_RULE` (stated in the legend); faint
-    /// dots (`class="task"`) for single tasks; one colour per judge.
+    /// One marker per (task, judge) with both means: the points of the paper's figure 4,
+    /// coloured by group, sized by the scores' spread ([`crate::figures::SPREAD_RULE`]).
+    pub fn scene_points(&self) -> Vec<crate::figures::ScenePoint> {
+        let judge_index = |j: &str| {
+            self.judges
+                .iter()
+                .position(|s| s.judge == j)
+                .unwrap_or(self.judges.len())
+        };
+        self.tasks
+            .iter()
+            .filter_map(|t| {
+                Some(crate::figures::ScenePoint {
+                    group: t.group.clone(),
+                    judge: judge_index(&t.judge),
+                    scene_alignment: t.scene_alignment.mean?,
+                    completion: t.completion.mean?,
+                    spread: crate::figures::spread(
+                        t.scene_alignment.variance,
+                        t.completion.variance,
+                    ),
+                })
+            })
+            .collect()
+    }
+
+    /// The paper's figure 4 as a standalone SVG drawn by plotters: scene alignment (1–5) against
+    /// completion (0–10), one marker per (task, judge) (see [`Self::scene_points`]).
     pub fn figure_svg(&self) -> String {
-        let mut s = String::new();
-        let _ = writeln!(
-            s,
-            "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"{FIG_W:.0}\" height=\"{FIG_H:.0}\" \
-             viewBox=\"0 0 {FIG_W:.0} {FIG_H:.0}\" font-family=\"sans-serif\" font-size=\"12\">"
-        );
-        let _ = writeln!(
-            s,
-            "<rect x=\"0\" y=\"0\" width=\"{FIG_W:.0}\" height=\"{FIG_H:.0}\" fill=\"#ffffff\"/>"
-        );
-        let _ = writeln!(
-            s,
-            "<text x=\"{:.1}\" y=\"28\" text-anchor=\"middle\" font-size=\"15\" font-weight=\"bold\">\
-             Single-task quality: scene alignment against task completion</text>",
-            (PLOT_L + PLOT_R) / 2.0
-        );
-        // Grid, ticks and tick labels.
-        for v in 1..=5 {
-            let x = x_px(f64::from(v));
-            let _ = writeln!(
-                s,
-                "<line x1=\"{x:.1}\" y1=\"{PLOT_T:.1}\" x2=\"{x:.1}\" y2=\"{PLOT_B:.1}\" stroke=\"#e5e5e5\"/>\n\
-                 <line x1=\"{x:.1}\" y1=\"{PLOT_B:.1}\" x2=\"{x:.1}\" y2=\"{:.1}\" stroke=\"#000000\"/>\n\
-                 <text x=\"{x:.1}\" y=\"{:.1}\" text-anchor=\"middle\">{v}</text>",
-                PLOT_B + 5.0,
-                PLOT_B + 19.0
-            );
-        }
-        for v in (0..=10).step_by(2) {
-            let y = y_px(f64::from(v));
-            let _ = writeln!(
-                s,
-                "<line x1=\"{PLOT_L:.1}\" y1=\"{y:.1}\" x2=\"{PLOT_R:.1}\" y2=\"{y:.1}\" stroke=\"#e5e5e5\"/>\n\
-                 <line x1=\"{:.1}\" y1=\"{y:.1}\" x2=\"{PLOT_L:.1}\" y2=\"{y:.1}\" stroke=\"#000000\"/>\n\
-                 <text x=\"{:.1}\" y=\"{:.1}\" text-anchor=\"end\">{v}</text>",
-                PLOT_L - 5.0,
-                PLOT_L - 8.0,
-                y + 4.0
-            );
-        }
-        let _ = writeln!(
-            s,
-            "<rect x=\"{PLOT_L:.1}\" y=\"{PLOT_T:.1}\" width=\"{:.1}\" height=\"{:.1}\" fill=\"none\" stroke=\"#000000\"/>",
-            PLOT_R - PLOT_L,
-            PLOT_B - PLOT_T
-        );
-        let _ = writeln!(
-            s,
-            "<text x=\"{:.1}\" y=\"{:.1}\" text-anchor=\"middle\">Scene alignment (1–5)</text>",
-            (PLOT_L + PLOT_R) / 2.0,
-            PLOT_B + 40.0
-        );
-        let mid_y = (PLOT_T + PLOT_B) / 2.0;
-        let _ = writeln!(
-            s,
-            "<text x=\"22\" y=\"{mid_y:.1}\" text-anchor=\"middle\" transform=\"rotate(-90 22 {mid_y:.1})\">\
-             Task completion (0–10)</text>"
-        );
-        // Tasks first, so that the group markers sit on top.
-        let colour = |i: usize| PALETTE[i % PALETTE.len()];
-        for (i, j) in self.judges.iter().enumerate() {
-            for t in self.tasks.iter().filter(|t| t.judge == j.judge) {
-                if let (Some(sa), Some(c)) = (t.scene_alignment.mean, t.completion.mean) {
-                    let _ = writeln!(
-                        s,
-                        "<circle class=\"task\" cx=\"{:.1}\" cy=\"{:.1}\" r=\"2.5\" fill=\"{}\" fill-opacity=\"0.4\">\
-                         <title>{} · {}: {} / {}</title></circle>",
-                        x_px(sa),
-                        y_px(c),
-                        colour(i),
-                        xml(&t.judge),
-                        xml(&t.task_id),
-                        num(sa),
-                        num(c)
-                    );
-                }
-            }
-        }
-        // Labels of groups that sit close together are stacked downwards, not drawn over
-        // each other.
-        let mut labels: Vec<(f64, f64)> = Vec::new();
-        for (i, j) in self.judges.iter().enumerate() {
-            for g in &j.groups {
-                let (Some(sa), Some(c)) = (g.scene_alignment.mean, g.completion.mean) else {
-                    continue;
-                };
-                let (x, y, r) = (x_px(sa), y_px(c), radius(g));
-                // Right of the marker, or left of it where the label would leave the plot.
-                let width = 7.0 * g.group.chars().count() as f64;
-                let (lx, anchor) = if x + r + 3.0 + width <= PLOT_R {
-                    (x + r + 3.0, "start")
-                } else {
-                    (x - r - 3.0, "end")
-                };
-                let mut ly = y + 4.0;
-                while labels
-                    .iter()
-                    .any(|(px, py)| (px - lx).abs() < 70.0 && (py - ly).abs() < 12.0)
-                {
-                    ly += 12.0;
-                }
-                labels.push((lx, ly));
-                let _ = writeln!(
-                    s,
-                    "<circle class=\"group\" cx=\"{x:.1}\" cy=\"{y:.1}\" r=\"{r:.1}\" fill=\"{0}\" fill-opacity=\"0.45\" \
-                     stroke=\"{0}\" stroke-width=\"1.5\"><title>{1} · {2}: scene alignment {3}, completion {4}, \
-                     {5} tasks</title></circle>\n\
-                     <text x=\"{6:.1}\" y=\"{7:.1}\" fill=\"{0}\" text-anchor=\"{8}\">{2}</text>",
-                    colour(i),
-                    xml(&j.judge),
-                    xml(&g.group),
-                    mean_var(&g.scene_alignment),
-                    mean_var(&g.completion),
-                    g.tasks,
-                    lx,
-                    ly,
-                    anchor
-                );
-            }
-        }
-        // Legend: one entry per judge, then how to read the markers.
-        let lx = PLOT_R + 25.0;
-        let _ = writeln!(
-            s,
-            "<text x=\"{lx:.1}\" y=\"{:.1}\" font-weight=\"bold\">Judges</text>",
-            PLOT_T + 10.0
-        );
-        let mut ly = PLOT_T + 30.0;
-        for (i, j) in self.judges.iter().enumerate() {
-            let _ = writeln!(
-                s,
-                "<rect x=\"{lx:.1}\" y=\"{:.1}\" width=\"12\" height=\"12\" fill=\"{}\"/>\n\
-                 <text x=\"{:.1}\" y=\"{ly:.1}\">{}{}</text>",
-                ly - 10.0,
-                colour(i),
-                lx + 18.0,
-                xml(&j.judge),
-                if j.offline { " (offline)" } else { "" }
-            );
-            ly += 20.0;
-        }
-        ly += 10.0;
-        for line in [
-            "Marker: a group, at the mean of its",
-            "task means; its radius",
-            RADIUS_RULE,
-            "with vSA, vC the sample variances of",
-            "the task means (4 and 25: the largest",
-            "possible; so r is 4 to 16 px).",
-            "Faint dots: single tasks.",
-        ] {
-            let _ = writeln!(
-                s,
-                "<text x=\"{lx:.1}\" y=\"{ly:.1}\" font-size=\"10\">{}</text>",
-                xml(line)
-            );
-            ly += 14.0;
-        }
-        // Radii for no spread, half and full spread, as the markers use them.
-        for (k, (label, v)) in [("none", 0.0), ("half", 0.5), ("most", 1.0_f64)]
-            .into_iter()
-            .enumerate()
-        {
-            let r = radius_for(v);
-            let cx = lx + 18.0 + 60.0 * k as f64;
-            let _ = writeln!(
-                s,
-                "<circle class=\"legend\" cx=\"{cx:.1}\" cy=\"{:.1}\" r=\"{r:.1}\" fill=\"none\" stroke=\"#555555\"/>\n\
-                 <text x=\"{cx:.1}\" y=\"{:.1}\" font-size=\"10\" text-anchor=\"middle\">{}</text>",
-                ly + 20.0,
-                ly + 50.0,
-                label
-            );
-        }
-        s.push_str("</svg>\n");
-        s
+        crate::figures::scene_vs_completion(&self.scene_points())
     }
 }
 
@@ -1235,50 +1033,27 @@ mod tests {
     }
 
     #[test]
-    fn figure_places_groups_by_their_means() {
+    fn figure_has_a_marker_per_task_and_judge_at_its_means() {
         let (tasks, episodes, records) = fixture();
         let q = build_quality(&tasks, &episodes, &records).unwrap();
+        let points = q.scene_points();
+        // Every (task, judge) with both scores, judges numbered in name order.
+        assert_eq!(points.len(), q.tasks.len());
+        for (p, t) in points.iter().zip(&q.tasks) {
+            assert_eq!(p.scene_alignment, t.scene_alignment.mean.unwrap());
+            assert_eq!(p.completion, t.completion.mean.unwrap());
+            assert_eq!(
+                p.judge,
+                q.judges.iter().position(|j| j.judge == t.judge).unwrap()
+            );
+            assert!((0.0..=1.0).contains(&p.spread));
+        }
         let svg = q.figure_svg();
-        assert!(svg.starts_with("<svg"), "{svg}");
-        assert!(svg.trim_end().ends_with("</svg>"));
-        assert_eq!(svg.matches("<svg").count(), 1);
-        assert_eq!(
-            svg.matches("<circle").count(),
-            svg.matches("</circle>").count() + 3
+        assert!(
+            svg.contains("<svg") && svg.trim_end().ends_with("</svg>"),
+            "{svg}"
         );
-        // One marker per (judge, group): 2 judges × 2 groups.
-        assert_eq!(svg.matches("<circle class=\"group\"").count(), 4);
-        assert_eq!(svg.matches("<circle class=\"task\"").count(), 5);
-        assert!(svg.contains("Scene alignment (1–5)") && svg.contains("Task completion (0–10)"));
-        assert!(svg.contains(RADIUS_RULE));
-        assert!(svg.contains(">offline (offline)</text>") && svg.contains(">gpt-4o</text>"));
-        assert!(svg.contains(PALETTE[0]) && svg.contains(PALETTE[1]));
-
-        let attr = |tag: &str, name: &str| -> f64 {
-            let at = tag.find(&format!(" {name}=\"")).unwrap() + name.len() + 3;
-            tag[at..].split('"').next().unwrap().parse().unwrap()
-        };
-        let marker = |judge: &str, group: &str| -> String {
-            svg.lines()
-                .find(|l| {
-                    l.starts_with("<circle class=\"group\"")
-                        && l.contains(&format!("<title>{judge} · {group}:"))
-                })
-                .unwrap()
-                .to_owned()
-        };
-        // gpt-4o: completion 2.5 in g1, 8 in g2; scene alignment 3 and 4.5.
-        let (g1, g2) = (marker("gpt-4o", "g1"), marker("gpt-4o", "g2"));
-        assert!(attr(&g2, "cy") < attr(&g1, "cy"));
-        assert!(attr(&g2, "cx") > attr(&g1, "cx"));
-        // offline: g1 has completion 6, g2 has 2.
-        let (o1, o2) = (marker("offline", "g1"), marker("offline", "g2"));
-        assert!(attr(&o1, "cy") < attr(&o2, "cy"));
-        // Variance grows the marker: g1 (two tasks that differ) against g2 (one task).
-        assert!(attr(&o1, "r") > attr(&o2, "r"));
-        assert_eq!(attr(&o2, "r"), 4.0);
-        // The score ranges lie inside the frame.
-        assert!(PLOT_L < x_px(1.0) && x_px(1.0) < x_px(5.0) && x_px(5.0) < PLOT_R);
-        assert!(PLOT_B > y_px(0.0) && y_px(0.0) > y_px(10.0) && y_px(10.0) > PLOT_T);
+        assert!(svg.matches("<circle").count() >= points.len());
+        assert_eq!(svg, q.figure_svg(), "deterministic");
     }
 }
