@@ -21,6 +21,16 @@ pub struct CancelArgs {
 }
 
 pub fn line(s: &pb::BatchStatus) -> String {
+    if !s.duplicate_of.is_empty() {
+        return format!(
+            "{}  {:<9}  repeats {} (content {})  {}",
+            s.batch_id,
+            super::state_name(s.state),
+            s.duplicate_of,
+            s.content_hash.get(..12).unwrap_or(&s.content_hash),
+            s.name
+        );
+    }
     let judged = if s.judge_total > 0 {
         format!(
             "  {}/{} judged (${:.4})",

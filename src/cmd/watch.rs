@@ -348,6 +348,7 @@ pub fn run(mut a: Args) -> anyhow::Result<ExitCode> {
                     &corpus,
                     &mut embedders,
                     &watched,
+                    &stop,
                 );
                 eprintln!("{}", summary(&entry, &corpus.models));
                 corpus.batches.push(entry);
@@ -423,6 +424,7 @@ fn handle(
     corpus: &Corpus,
     embedders: &mut assay_trainer::embedders::Embedders,
     watched: &[(String, u32)],
+    stop: &std::sync::atomic::AtomicBool,
 ) -> Entry {
     let mut entry = Entry {
         name: name.to_owned(),
@@ -443,7 +445,7 @@ fn handle(
         finished_at_unix_ms: 0,
     };
     if let Err(e) = evaluate(
-        a, rt, addr, folder, name, artifacts, corpus, embedders, watched, &mut entry,
+        a, rt, addr, folder, name, artifacts, corpus, embedders, watched, stop, &mut entry,
     ) {
         entry.outcome = "failed".into();
         entry.error = Some(format!("{e:#}"));
@@ -463,6 +465,7 @@ fn evaluate(
     corpus: &Corpus,
     embedders: &mut assay_trainer::embedders::Embedders,
     watched: &[(String, u32)],
+    stop: &std::sync::atomic::AtomicBool,
     entry: &mut Entry,
 ) -> anyhow::Result<()> {
     let docs = crate::docs::collect(&[folder.to_path_buf()])?;
@@ -496,6 +499,12 @@ fn evaluate(
             if let Some(p) = crate::proc::first_exited(watched) {
                 anyhow::bail!(
                     "the local {p} process exited while batch {} ran",
+                    r.batch_id
+                );
+            }
+            if stop.load(std::sync::atomic::Ordering::Relaxed) {
+                anyhow::bail!(
+                    "stopped while batch {} ran (on a running coordinator it carries on)",
                     r.batch_id
                 );
             }
