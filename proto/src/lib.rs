@@ -38,6 +38,6 @@ impl Role {
 
 impl BatchState {
     pub fn is_final(self) -> bool {
-        matches!(self, BatchState::Completed | BatchState::Cancelled)
+        matches!(self, BatchState::Completed | BatchState::Cancelled | BatchState::Skipped)
     }
 }
