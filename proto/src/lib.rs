@@ -38,6 +38,9 @@ impl Role {
 
 impl BatchState {
     pub fn is_final(self) -> bool {
-        matches!(self, BatchState::Completed | BatchState::Cancelled | BatchState::Skipped)
+        matches!(
+            self,
+            BatchState::Completed | BatchState::Cancelled | BatchState::Skipped
+        )
     }
 }
