@@ -18,6 +18,8 @@ pub struct CoordinatorConfig {
     pub telemetry: Option<String>,
     /// Cluster name in telemetry key expressions.
     pub cluster: String,
+    /// The cluster token every call must carry (None: calls are not checked).
+    pub token: Option<assay_proto::auth::Token>,
 }
 
 impl CoordinatorConfig {
@@ -30,6 +32,7 @@ impl CoordinatorConfig {
             max_attempts: 3,
             telemetry: None,
             cluster: "local".into(),
+            token: None,
         }
     }
 }

@@ -107,8 +107,15 @@ pub async fn serve(
         tokio::spawn(serve_metrics(shared.clone(), l, stop_rx.clone()))
     });
     let addr = listener.local_addr().ok();
-    info!(addr = ?addr, "coordinator listening");
+    info!(
+        addr = ?addr,
+        token = if shared.config.token.is_some() { "required" } else { "not required" },
+        "coordinator listening"
+    );
     let server = tonic::transport::Server::builder()
+        .layer(tonic::service::InterceptorLayer::new(
+            assay_proto::auth::RequireToken::new(shared.config.token.clone()),
+        ))
         .http2_keepalive_interval(Some(Duration::from_secs(5)))
         .http2_keepalive_timeout(Some(Duration::from_secs(10)))
         .add_service(

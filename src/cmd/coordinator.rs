@@ -48,6 +48,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     config.heartbeat_interval = Duration::from_millis(a.heartbeat_ms);
     config.max_attempts = a.max_attempts.max(1);
     config.cluster = a.cluster.clone();
+    config.token = assay_proto::auth::Token::from_env().map_err(anyhow::Error::msg)?;
     config.telemetry = match a.telemetry.as_str() {
         "off" => None,
         "loopback" => {

@@ -28,7 +28,6 @@ use std::future::Future;
 
 use anyhow::Context;
 use assay_proto::v1 as pb;
-use tonic::transport::Channel;
 
 /// The default coordinator address, also read from ASSAY_COORDINATOR.
 pub const DEFAULT_COORDINATOR: &str = "http://127.0.0.1:7878";
@@ -44,18 +43,24 @@ pub fn block_on<F: Future>(f: F) -> F::Output {
         .block_on(f)
 }
 
+/// A client of the coordinator at `addr`, carrying the cluster token when one is set
+/// (`assay_proto::auth`).
 pub async fn client(
     addr: &str,
-) -> anyhow::Result<pb::coordinator_client::CoordinatorClient<Channel>> {
+) -> anyhow::Result<pb::coordinator_client::CoordinatorClient<assay_proto::auth::Channel>> {
+    let token = assay_proto::auth::Token::from_env().map_err(anyhow::Error::msg)?;
     let channel = tonic::transport::Endpoint::from_shared(addr.to_owned())
         .with_context(|| format!("bad coordinator address '{addr}'"))?
         .connect_timeout(std::time::Duration::from_secs(5))
         .connect()
         .await
         .with_context(|| format!("no coordinator at {addr}"))?;
-    Ok(pb::coordinator_client::CoordinatorClient::new(channel)
-        .max_decoding_message_size(assay_proto::MAX_MESSAGE_BYTES)
-        .max_encoding_message_size(assay_proto::MAX_MESSAGE_BYTES))
+    Ok(pb::coordinator_client::CoordinatorClient::with_interceptor(
+        channel,
+        assay_proto::auth::AttachToken::new(token),
+    )
+    .max_decoding_message_size(assay_proto::MAX_MESSAGE_BYTES)
+    .max_encoding_message_size(assay_proto::MAX_MESSAGE_BYTES))
 }
 
 /// Resolves on SIGTERM or Ctrl-C. The handlers are installed when this is called (inside the

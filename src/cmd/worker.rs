@@ -752,6 +752,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         versions,
         max_backoff: Duration::from_secs(2),
         give_up_after: None,
+        token: assay_proto::auth::Token::from_env().map_err(anyhow::Error::msg)?,
         on_registered: Some(Arc::new(move |r: &pb::Registered| {
             let _ = announce.send(Some((r.telemetry_endpoint.clone(), r.cluster.clone())));
         })),

@@ -32,6 +32,11 @@ pub struct Proc {
 
 impl Proc {
     pub fn spawn(name: &str, args: &[&str], dir: &Path) -> Proc {
+        Self::spawn_env(name, args, dir, &[])
+    }
+
+    /// [`Proc::spawn`] with extra environment variables.
+    pub fn spawn_env(name: &str, args: &[&str], dir: &Path, env: &[(&str, &str)]) -> Proc {
         let log = dir.join(format!("{}.log", name.replace(' ', "-")));
         let f = std::fs::OpenOptions::new()
             .create(true)
@@ -40,6 +45,7 @@ impl Proc {
             .unwrap();
         let child = Command::new(bin())
             .args(args)
+            .envs(env.iter().copied())
             .env("ASSAY_LOG_FORMAT", "json")
             .env("ASSAY_LOG", "info")
             .stdin(Stdio::null())

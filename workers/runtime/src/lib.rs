@@ -67,6 +67,8 @@ pub struct WorkerConfig {
     pub give_up_after: Option<Duration>,
     /// Called after every (re)registration with what the coordinator announced.
     pub on_registered: Option<RegisteredHook>,
+    /// The cluster token sent with every call (`assay_proto::auth`); None: no token.
+    pub token: Option<assay_proto::auth::Token>,
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -75,6 +77,10 @@ pub enum WorkerError {
     Address(String, String),
     #[error("no coordinator at {0} for {1:?}")]
     GaveUp(String, Duration),
+    /// The coordinator refused this worker (a missing or wrong cluster token): retrying would
+    /// not help.
+    #[error("the coordinator at {0} refused this worker: {1}")]
+    Refused(String, String),
 }
 
 struct Done {
@@ -127,9 +133,12 @@ pub async fn run_worker(
                 continue;
             }
         };
-        let mut client = pb::worker_session_client::WorkerSessionClient::new(channel)
-            .max_decoding_message_size(assay_proto::MAX_MESSAGE_BYTES)
-            .max_encoding_message_size(assay_proto::MAX_MESSAGE_BYTES);
+        let mut client = pb::worker_session_client::WorkerSessionClient::with_interceptor(
+            channel,
+            assay_proto::auth::AttachToken::new(config.token.clone()),
+        )
+        .max_decoding_message_size(assay_proto::MAX_MESSAGE_BYTES)
+        .max_encoding_message_size(assay_proto::MAX_MESSAGE_BYTES);
         let (out_tx, out_rx) = mpsc::channel::<pb::WorkerMessage>(256);
         let send = |m: Out| pb::WorkerMessage { msg: Some(m) };
         let register = pb::Register {
@@ -143,6 +152,12 @@ pub async fn run_worker(
         let _ = out_tx.send(send(Out::Register(register))).await;
         let mut inbound = match client.session(ReceiverStream::new(out_rx)).await {
             Ok(r) => r.into_inner(),
+            Err(e) if e.code() == tonic::Code::Unauthenticated => {
+                return Err(WorkerError::Refused(
+                    config.coordinator.clone(),
+                    e.message().to_owned(),
+                ));
+            }
             Err(e) => {
                 warn!(error = %e, "session refused");
                 tokio::time::sleep(backoff).await;

@@ -1,0 +1,184 @@
+//! A cluster with a token: clients and workers without it (or with another) are refused, those
+//! with it work, and the token appears in no log.
+
+mod common;
+
+use std::time::{Duration, Instant};
+
+use assay_proto::auth::{AttachToken, Token};
+use assay_proto::v1 as pb;
+use common::*;
+
+const TOKEN: &str = "s3cr3t-cluster-token-0123456789";
+
+async fn client_with(
+    addr: &str,
+    token: Option<&str>,
+) -> pb::coordinator_client::CoordinatorClient<assay_proto::auth::Channel> {
+    let channel = tonic::transport::Endpoint::from_shared(addr.to_owned())
+        .unwrap()
+        .connect()
+        .await
+        .unwrap();
+    pb::coordinator_client::CoordinatorClient::with_interceptor(
+        channel,
+        AttachToken::new(token.map(|t| Token::new(t).unwrap())),
+    )
+}
+
+#[test]
+fn without_the_cluster_token_clients_and_workers_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    // The coordinator reads the token from a file (as from a mounted Secret).
+    let token_file = dir.path().join("token");
+    std::fs::write(&token_file, format!("{TOKEN}\n")).unwrap();
+    let mut coordinator = Proc::spawn_env(
+        "coordinator",
+        &[
+            "coordinator",
+            "--listen",
+            "127.0.0.1:0",
+            "--store",
+            dir.path().join("jobs.db").to_str().unwrap(),
+            "--artifacts",
+            dir.path().join("artifacts").to_str().unwrap(),
+            "--addr-file",
+            dir.path().join("coordinator.addr").to_str().unwrap(),
+            "--telemetry",
+            "off",
+        ],
+        dir.path(),
+        &[("ASSAY_CLUSTER_TOKEN_FILE", token_file.to_str().unwrap())],
+    );
+    wait_for_file(
+        &coordinator,
+        &dir.path().join("coordinator.addr"),
+        "the coordinator did not start",
+    );
+    let announced = std::fs::read_to_string(dir.path().join("coordinator.addr")).unwrap();
+    let addr = format!("http://{}", announced.lines().next().unwrap().trim());
+
+    // A worker without the token is refused at registration and exits saying why.
+    let mut intruder = Proc::spawn(
+        "intruder",
+        &[
+            "worker",
+            "--coordinator",
+            &addr,
+            "--roles",
+            "sim",
+            "--worker-id",
+            "intruder",
+        ],
+        dir.path(),
+    );
+    let deadline = Instant::now() + Duration::from_secs(30);
+    let status = loop {
+        if let Some(st) = intruder.child.try_wait().unwrap() {
+            break st;
+        }
+        assert!(Instant::now() < deadline, "{}", intruder.log_text());
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    assert!(!status.success());
+    assert!(
+        intruder.log_text().contains("refused this worker")
+            && intruder.log_text().contains("requires the cluster token"),
+        "{}",
+        intruder.log_text()
+    );
+    // A worker with a wrong token too.
+    let mut wrong = Proc::spawn_env(
+        "wrong",
+        &[
+            "worker",
+            "--coordinator",
+            &addr,
+            "--roles",
+            "sim",
+            "--worker-id",
+            "wrong",
+        ],
+        dir.path(),
+        &[("ASSAY_CLUSTER_TOKEN", "not-the-cluster-token-at-all")],
+    );
+    let deadline = Instant::now() + Duration::from_secs(30);
+    while wrong.child.try_wait().unwrap().is_none() {
+        assert!(Instant::now() < deadline, "{}", wrong.log_text());
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    assert!(
+        wrong.log_text().contains("wrong cluster token"),
+        "{}",
+        wrong.log_text()
+    );
+
+    let _worker = Proc::spawn_env(
+        "worker",
+        &[
+            "worker",
+            "--coordinator",
+            &addr,
+            "--roles",
+            "sim",
+            "--worker-id",
+            "member",
+        ],
+        dir.path(),
+        &[("ASSAY_CLUSTER_TOKEN", TOKEN)],
+    );
+    runtime().block_on(async {
+        // Clients without the token, or with another, get UNAUTHENTICATED on every call.
+        for token in [None, Some("another-token-of-enough-length")] {
+            let mut c = client_with(&addr, token).await;
+            let e = c.list_batches(pb::ListBatchesRequest {}).await.unwrap_err();
+            assert_eq!(e.code(), tonic::Code::Unauthenticated, "{e}");
+            let e = c
+                .submit_batch(pb::SubmitBatchRequest {
+                    tasks: documents(&["tests/fixtures/small/small-stack-two-blocks.yaml"]),
+                    seeds: vec![0],
+                    ..Default::default()
+                })
+                .await
+                .unwrap_err();
+            assert_eq!(e.code(), tonic::Code::Unauthenticated, "{e}");
+        }
+        // With it, a batch runs on the member worker (and only on it).
+        let mut c = client_with(&addr, Some(TOKEN)).await;
+        let sub = c
+            .submit_batch(pb::SubmitBatchRequest {
+                tasks: documents(&["tests/fixtures/small/small-stack-two-blocks.yaml"]),
+                seeds: vec![0, 1],
+                ..Default::default()
+            })
+            .await
+            .unwrap()
+            .into_inner();
+        let deadline = Instant::now() + Duration::from_secs(120);
+        loop {
+            let st = c
+                .get_batch(pb::GetBatchRequest {
+                    batch_id: sub.batch_id.clone(),
+                })
+                .await
+                .unwrap()
+                .into_inner();
+            if st.state == pb::BatchState::Completed as i32 {
+                assert_eq!((st.shards_done, st.workers_connected), (2, 1));
+                break;
+            }
+            assert!(Instant::now() < deadline, "{st:?}");
+            tokio::time::sleep(Duration::from_millis(100)).await;
+        }
+    });
+    // The token is in no log.
+    coordinator.term(Duration::from_secs(5));
+    for entry in std::fs::read_dir(dir.path()).unwrap() {
+        let path = entry.unwrap().path();
+        if path.extension().is_some_and(|e| e == "log") {
+            let text = std::fs::read_to_string(&path).unwrap();
+            assert!(!text.contains(TOKEN), "{} shows the token", path.display());
+            assert!(!text.contains("s3cr3t"), "{}", path.display());
+        }
+    }
+}
