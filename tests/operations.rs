@@ -286,3 +286,24 @@ fn doctor_checks_the_machine_for_real_and_names_the_fix() {
     assert!(!ok, "the second judge is still down");
     assert_eq!(verdict(&checks, "judge local-vlm")["verdict"], "ok");
 }
+
+#[test]
+fn the_coordinator_benchmark_runs_every_shard_once_at_small_scale() {
+    let out = std::process::Command::new(bin())
+        .args(["bench", "coordinator", "--workers", "8", "--shards", "300"])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let line = String::from_utf8(out.stdout).unwrap();
+    let v: serde_json::Value = serde_json::from_str(line.trim()).unwrap();
+    for part in ["store", "grpc"] {
+        assert_eq!(v[part]["shards"], 300, "{v:#}");
+        assert!(v[part]["shards_per_s"].as_f64().unwrap() > 0.0, "{v:#}");
+    }
+    assert_eq!(v["grpc"]["workers"], 8);
+    assert!(v["grpc"]["peak_rss_mib"].as_f64().unwrap() > 0.0);
+}

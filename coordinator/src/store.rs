@@ -297,13 +297,14 @@ impl Store {
 
     fn next_counter(tx: &rusqlite::Transaction<'_>, key: &str, n: u64) -> Result<u64, CoordError> {
         let cur: Option<i64> = tx
-            .query_row("SELECT value FROM meta WHERE key = ?1", [key], |r| r.get(0))
+            .prepare_cached("SELECT value FROM meta WHERE key = ?1")?
+            .query_row([key], |r| r.get(0))
             .optional()?;
         let first = cur.unwrap_or(1) as u64;
-        tx.execute(
+        tx.prepare_cached(
             "INSERT INTO meta (key, value) VALUES (?1, ?2) ON CONFLICT(key) DO UPDATE SET value = excluded.value",
-            params![key, (first + n) as i64],
-        )?;
+        )?
+        .execute(params![key, (first + n) as i64])?;
         Ok(first)
     }
 
@@ -475,7 +476,7 @@ impl Store {
              ORDER BY s.id LIMIT {n}"
         );
         let rows: Vec<QueuedShard> = {
-            let mut stmt = tx.prepare(&sql)?;
+            let mut stmt = tx.prepare_cached(&sql)?;
             let it = stmt.query_map(rusqlite::params_from_iter(roles.iter()), |r| {
                 Ok((
                     r.get(0)?,
@@ -536,11 +537,11 @@ impl Store {
                 _ => None,
             };
             let lease_id = first + k as u64;
-            tx.execute(
+            tx.prepare_cached(
                 "UPDATE shards SET state = 'leased', attempts = attempts + 1, lease_id = ?1, lease_worker = ?2,
                  lease_expires_ms = ?3 WHERE id = ?4 AND state = 'queued'",
-                params![lease_id as i64, worker, now_ms + ttl_ms, shard_id],
-            )?;
+            )?
+            .execute(params![lease_id as i64, worker, now_ms + ttl_ms, shard_id])?;
             out.push(Lease {
                 lease_id,
                 shard_id: shard_id as u64,
@@ -599,12 +600,13 @@ impl Store {
     ) -> Result<(bool, Changed), CoordError> {
         let tx = self.conn.transaction()?;
         let current: Option<(String, String, String, i64, String)> = tx
-            .query_row(
+            .prepare_cached(
                 "SELECT s.role, s.batch_id, s.task_id, s.seed, s.policy FROM shards s
                  WHERE s.id = ?1 AND s.lease_id = ?2 AND s.state = 'leased'",
-                params![shard_id as i64, lease_id as i64],
-                |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?, r.get(3)?, r.get(4)?)),
-            )
+            )?
+            .query_row(params![shard_id as i64, lease_id as i64], |r| {
+                Ok((r.get(0)?, r.get(1)?, r.get(2)?, r.get(3)?, r.get(4)?))
+            })
             .optional()?;
         let Some((shard_role, batch, task, seed, policy)) = current else {
             return Ok((false, Changed::default()));
@@ -644,11 +646,11 @@ impl Store {
                 }
             },
         };
-        tx.execute(
+        tx.prepare_cached(
             "UPDATE shards SET state = 'done', outcome_json = ?1, wall_time_s = ?2, worker = ?3, error = NULL,
              lease_expires_ms = NULL WHERE id = ?4 AND lease_id = ?5 AND state = 'leased'",
-            params![outcome_json, wall_time_s, worker, shard_id as i64, lease_id as i64],
-        )?;
+        )?
+        .execute(params![outcome_json, wall_time_s, worker, shard_id as i64, lease_id as i64])?;
         for judge in &judges {
             tx.execute(
                 "INSERT INTO shards (batch_id, task_id, seed, policy, role, state, judge, input_json)
@@ -883,12 +885,14 @@ impl Store {
         Self::queue_dynamics(conn, batch_id)?;
         Self::queue_proxy(conn, batch_id)?;
         Self::queue_diffusion(conn, batch_id)?;
-        let open: i64 = conn.query_row(
-            "SELECT COUNT(*) FROM shards WHERE batch_id = ?1 AND state IN ('queued', 'leased')",
-            [batch_id],
-            |r| r.get(0),
-        )?;
-        if open == 0 {
+        // EXISTS, not COUNT: this runs on every completion, and counting the open shards made
+        // each one O(open shards) — quadratic over a batch (`assay bench coordinator` found it).
+        let open: bool = conn
+            .prepare_cached(
+                "SELECT EXISTS (SELECT 1 FROM shards WHERE batch_id = ?1 AND state IN ('queued', 'leased'))",
+            )?
+            .query_row([batch_id], |r| r.get(0))?;
+        if !open {
             conn.execute(
                 "UPDATE batches SET state = ?1, finished_ms = ?2 WHERE id = ?3 AND state = ?4",
                 params![
@@ -909,11 +913,10 @@ impl Store {
         column: &str,
     ) -> Result<Option<T>, CoordError> {
         let row: Option<(String, Option<String>)> = conn
-            .query_row(
-                &format!("SELECT state, {column} FROM batches WHERE id = ?1"),
-                [batch_id],
-                |r| Ok((r.get(0)?, r.get(1)?)),
-            )
+            .prepare_cached(&format!(
+                "SELECT state, {column} FROM batches WHERE id = ?1"
+            ))?
+            .query_row([batch_id], |r| Ok((r.get(0)?, r.get(1)?)))
             .optional()?;
         match row {
             Some((state, Some(plan))) if state == batch_state::RUNNING => {

@@ -14,8 +14,17 @@ use serde_json::json;
 
 #[derive(clap::Args)]
 pub struct Args {
-    /// physics | render | rollout | handoff
+    /// physics | render | rollout | handoff | coordinator
     pub measure: String,
+    /// `coordinator`: fake workers (sessions over loopback gRPC).
+    #[arg(long, default_value_t = 1000)]
+    pub workers: u32,
+    /// `coordinator`: shards in the batch.
+    #[arg(long, default_value_t = 100_000)]
+    pub shards: u64,
+    /// `coordinator`: shards each fake worker holds at once (and the store bench's lease grant).
+    #[arg(long, default_value_t = 1)]
+    pub capacity: u32,
     /// The scene contract.
     #[arg(long, default_value = "bench/reference-scene.json")]
     pub scene: PathBuf,
@@ -88,6 +97,9 @@ fn time_trials(
 }
 
 pub fn run(a: Args) -> anyhow::Result<ExitCode> {
+    if a.measure == "coordinator" {
+        return super::bench_coordinator::run(a.workers, a.shards, a.capacity);
+    }
     let text = std::fs::read_to_string(&a.scene)
         .with_context(|| format!("reading {}", a.scene.display()))?;
     let sha = assay_core::hash::sha256_hex(text.as_bytes());

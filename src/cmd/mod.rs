@@ -2,6 +2,7 @@
 
 pub mod agreement;
 pub mod bench;
+pub mod bench_coordinator;
 pub mod cluster;
 pub mod coordinator;
 #[cfg(feature = "trainer")]

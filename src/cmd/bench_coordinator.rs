@@ -1,0 +1,312 @@
+//! `assay bench coordinator`: the coordinator at scale, on paper. Two measurements, one JSON line:
+//!
+//! - `store`: the job store alone (the coordinator's single-threaded core): a batch of N shards
+//!   planned, then leased in grants of `capacity` and completed one by one, as workers would, in
+//!   one thread. Lease+complete throughput, and the store's file size.
+//! - `grpc`: a real coordinator (`assay_coordinator::serve`, its gRPC services, store actor and
+//!   lease sweeper) in this process, with W fake workers — real `WorkerSession` streams over
+//!   loopback that answer every assignment at once with a valid episode outcome. Throughput
+//!   from the first assignment to the last acknowledgement, the process's CPU time and its peak
+//!   resident memory (coordinator and fake workers together: they share the process).
+
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::{Duration, Instant};
+
+use anyhow::Context;
+use assay_coordinator::store::{NewBatch, Store};
+use assay_proto::v1 as pb;
+use serde_json::json;
+use tokio_stream::wrappers::ReceiverStream;
+
+const SPEC: &str = include_str!("../../tests/fixtures/small/small-stack-two-blocks.yaml");
+
+fn cpu_s() -> f64 {
+    let t = nix::time::clock_gettime(nix::time::ClockId::CLOCK_PROCESS_CPUTIME_ID)
+        .expect("process CPU clock");
+    t.tv_sec() as f64 + t.tv_nsec() as f64 * 1e-9
+}
+
+/// A line of /proc/self/status in MiB (`VmHWM`: peak resident, `VmRSS`: resident now).
+fn status_mib(key: &str) -> f64 {
+    std::fs::read_to_string("/proc/self/status")
+        .ok()
+        .and_then(|s| {
+            s.lines()
+                .find(|l| l.starts_with(key))
+                .and_then(|l| l.split_whitespace().nth(1)?.parse::<f64>().ok())
+        })
+        .map_or(f64::NAN, |kb| kb / 1024.0)
+}
+
+/// One valid episode outcome, sent for every shard.
+fn outcome_json() -> String {
+    serde_json::to_string(&assay_core::report::EpisodeOutcome {
+        task_id: "small-stack-two-blocks".into(),
+        seed: 0,
+        policy: "oracle".into(),
+        success: true,
+        label_source: assay_core::report::LabelSource::Sim,
+        predicates: Vec::new(),
+        steps: 1,
+        sim_time_s: 0.01,
+        artifact: "episodes/bench.arrow".into(),
+        spec_hash: String::new(),
+        versions: Default::default(),
+        imagery: None,
+    })
+    .expect("outcome serialises")
+}
+
+fn docs() -> Vec<pb::TaskDocument> {
+    vec![pb::TaskDocument {
+        origin: "bench.yaml".into(),
+        format: String::new(),
+        content: SPEC.into(),
+    }]
+}
+
+fn store_bench(
+    dir: &std::path::Path,
+    shards: u64,
+    capacity: u32,
+) -> anyhow::Result<serde_json::Value> {
+    let path = dir.join("store-bench.db");
+    let mut store = Store::open(&path)?;
+    let (tasks, invalid) = assay_coordinator::service::plan_tasks(&docs());
+    anyhow::ensure!(invalid.is_empty(), "the bench spec is invalid: {invalid:?}");
+    let batch = NewBatch {
+        name: "bench".into(),
+        tasks,
+        policies: vec!["oracle".into()],
+        seeds: (0..shards).collect(),
+        max_attempts: 3,
+        invalid: Vec::new(),
+        role: "sim".into(),
+        judges: Vec::new(),
+        judge_repeats: 0,
+        judge_budget_usd: None,
+        content_hash: String::new(),
+        text_models: Vec::new(),
+        text_groups: Vec::new(),
+        dynamics: None,
+        ranking: None,
+        generalization: None,
+    };
+    let t = Instant::now();
+    store.submit(&batch, 0)?;
+    let plan_s = t.elapsed().as_secs_f64();
+    let outcome = outcome_json();
+    let roles = vec!["sim".to_owned()];
+    let (t, cpu) = (Instant::now(), cpu_s());
+    let mut done = 0u64;
+    let mut now = 1i64;
+    loop {
+        let leases = store.lease("bench/worker", &roles, capacity, now, 60_000)?;
+        if leases.is_empty() {
+            break;
+        }
+        for l in leases {
+            let (ok, _) =
+                store.complete("bench/worker", l.lease_id, l.shard_id, &outcome, 0.001, now)?;
+            done += u64::from(ok);
+        }
+        now += 1;
+    }
+    let wall = t.elapsed().as_secs_f64();
+    let cpu = cpu_s() - cpu;
+    anyhow::ensure!(
+        done == shards,
+        "the store completed {done} of {shards} shards"
+    );
+    let bytes = std::fs::metadata(&path).map_or(0, |m| m.len())
+        + std::fs::metadata(path.with_extension("db-wal")).map_or(0, |m| m.len());
+    Ok(json!({
+        "shards": shards,
+        "grant": capacity,
+        "plan_s": plan_s,
+        "lease_complete_s": wall,
+        "shards_per_s": shards as f64 / wall,
+        "cpu_s": cpu,
+        "store_mib": bytes as f64 / 1048576.0,
+    }))
+}
+
+async fn fake_worker(
+    channel: tonic::transport::Channel,
+    id: String,
+    capacity: u32,
+    outcome: Arc<str>,
+    acked: Arc<AtomicU64>,
+    first: Arc<std::sync::OnceLock<Instant>>,
+    total: u64,
+) -> anyhow::Result<()> {
+    let mut client = pb::worker_session_client::WorkerSessionClient::new(channel)
+        .max_decoding_message_size(assay_proto::MAX_MESSAGE_BYTES);
+    let (tx, rx) = tokio::sync::mpsc::channel::<pb::WorkerMessage>(64);
+    use pb::worker_message::Msg as Out;
+    tx.send(pb::WorkerMessage {
+        msg: Some(Out::Register(pb::Register {
+            worker_id: id,
+            node_id: "bench".into(),
+            roles: vec![pb::Role::Sim as i32],
+            capacity,
+            ..Default::default()
+        })),
+    })
+    .await?;
+    let mut inbound = client.session(ReceiverStream::new(rx)).await?.into_inner();
+    use pb::coordinator_message::Msg as In;
+    while let Some(m) = inbound.message().await? {
+        match m.msg {
+            Some(In::Assignment(a)) => {
+                first.get_or_init(Instant::now);
+                tx.send(pb::WorkerMessage {
+                    msg: Some(Out::Result(pb::ShardResult {
+                        lease_id: a.lease_id,
+                        shard_id: a.shard_id,
+                        outcome_json: outcome.to_string(),
+                        wall_time_s: 0.001,
+                    })),
+                })
+                .await?;
+            }
+            Some(In::Ack(ack)) if ack.accepted => {
+                if acked.fetch_add(1, Ordering::Relaxed) + 1 >= total {
+                    return Ok(());
+                }
+            }
+            _ => {}
+        }
+        if acked.load(Ordering::Relaxed) >= total {
+            return Ok(());
+        }
+    }
+    Ok(())
+}
+
+async fn grpc_bench(
+    dir: &std::path::Path,
+    workers: u32,
+    shards: u64,
+    capacity: u32,
+) -> anyhow::Result<serde_json::Value> {
+    let mut config =
+        assay_coordinator::CoordinatorConfig::new(dir.join("grpc-bench.db"), dir.join("artifacts"));
+    config.lease_ttl = Duration::from_secs(120);
+    config.heartbeat_interval = Duration::from_secs(30);
+    let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await?;
+    let addr = format!("http://{}", listener.local_addr()?);
+    let (stop_tx, stop_rx) = tokio::sync::oneshot::channel::<()>();
+    let server = tokio::spawn(assay_coordinator::serve(
+        config,
+        listener,
+        None,
+        async move {
+            let _ = stop_rx.await;
+        },
+    ));
+    let rss_idle = status_mib("VmRSS");
+    let mut c = super::client(&addr).await?;
+    let t = Instant::now();
+    let sub = c
+        .submit_batch(pb::SubmitBatchRequest {
+            name: "bench".into(),
+            tasks: docs(),
+            seeds: (0..shards).collect(),
+            ..Default::default()
+        })
+        .await?
+        .into_inner();
+    let submit_s = t.elapsed().as_secs_f64();
+    anyhow::ensure!(sub.shards as u64 == shards, "planned {} shards", sub.shards);
+    let rss_planned = status_mib("VmRSS");
+    let outcome: Arc<str> = outcome_json().into();
+    let acked = Arc::new(AtomicU64::new(0));
+    let first = Arc::new(std::sync::OnceLock::new());
+    // Workers share a few HTTP/2 connections, as many sessions over each as a node would have.
+    let mut channels = Vec::new();
+    for _ in 0..workers.clamp(1, 16) {
+        channels.push(
+            tonic::transport::Endpoint::from_shared(addr.clone())?
+                .connect()
+                .await?,
+        );
+    }
+    let cpu = cpu_s();
+    let mut tasks = Vec::new();
+    for i in 0..workers {
+        tasks.push(tokio::spawn(fake_worker(
+            channels[i as usize % channels.len()].clone(),
+            format!("bench/worker-{i}"),
+            capacity,
+            outcome.clone(),
+            acked.clone(),
+            first.clone(),
+            shards,
+        )));
+    }
+    let deadline = Instant::now() + Duration::from_secs(3600);
+    while acked.load(Ordering::Relaxed) < shards {
+        anyhow::ensure!(
+            Instant::now() < deadline,
+            "the benchmark did not finish in an hour"
+        );
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    let end = Instant::now();
+    let cpu = cpu_s() - cpu;
+    let wall = end
+        .duration_since(*first.get().context("no assignment was made")?)
+        .as_secs_f64();
+    let st = c
+        .get_batch(pb::GetBatchRequest {
+            batch_id: sub.batch_id.clone(),
+        })
+        .await?
+        .into_inner();
+    let connected = st.workers_connected;
+    for t in tasks {
+        t.abort();
+    }
+    let _ = stop_tx.send(());
+    let _ = server.await;
+    anyhow::ensure!(
+        st.shards_done as u64 == shards,
+        "the coordinator counted {} of {shards} shards done",
+        st.shards_done
+    );
+    Ok(json!({
+        "workers": workers,
+        "workers_connected_at_end": connected,
+        "capacity_per_worker": capacity,
+        "shards": shards,
+        "submit_and_plan_s": submit_s,
+        "lease_complete_s": wall,
+        "shards_per_s": shards as f64 / wall,
+        "process_cpu_s": cpu,
+        "rss_idle_mib": rss_idle,
+        "rss_after_planning_mib": rss_planned,
+        "peak_rss_mib": status_mib("VmHWM"),
+    }))
+}
+
+pub fn run(workers: u32, shards: u64, capacity: u32) -> anyhow::Result<std::process::ExitCode> {
+    let dir = std::env::temp_dir().join(format!("assay-bench-coordinator-{}", std::process::id()));
+    std::fs::create_dir_all(&dir)?;
+    let result = (|| -> anyhow::Result<serde_json::Value> {
+        let store = store_bench(&dir, shards, capacity.max(1))?;
+        eprintln!("store: {store}");
+        let grpc = super::block_on(grpc_bench(&dir, workers, shards, capacity.max(1)))?;
+        eprintln!("grpc: {grpc}");
+        Ok(json!({
+            "measure": "coordinator",
+            "cpus": std::thread::available_parallelism().map_or(1, |n| n.get()),
+            "store": store,
+            "grpc": grpc,
+        }))
+    })();
+    let _ = std::fs::remove_dir_all(&dir);
+    println!("{}", result?);
+    Ok(std::process::ExitCode::SUCCESS)
+}
