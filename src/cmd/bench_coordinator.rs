@@ -171,10 +171,10 @@ async fn fake_worker(
                 })
                 .await?;
             }
-            Some(In::Ack(ack)) if ack.accepted => {
-                if acked.fetch_add(1, Ordering::Relaxed) + 1 >= total {
-                    return Ok(());
-                }
+            Some(In::Ack(ack))
+                if ack.accepted && acked.fetch_add(1, Ordering::Relaxed) + 1 >= total =>
+            {
+                return Ok(());
             }
             _ => {}
         }
