@@ -1455,7 +1455,10 @@ impl TaskSpec {
             let rows = (((y1 - y0) / cell).floor() as u32).max(1);
             let slack = (cell - 2.0 * half[0].max(half[1])) / 2.0;
             for k in 0..pile.count {
-                let (layer, at) = (k / (cols * rows), k % (cols * rows));
+                // Saturating: a region of 1e308 m has u32::MAX columns and rows (found by
+                // core/tests/fuzz.rs); a pile of at most MAX_PILE copies fits one layer then.
+                let per_layer = cols.saturating_mul(rows);
+                let (layer, at) = (k / per_layer, k % per_layer);
                 let (cx, cy) = (at % cols, at / cols);
                 let x = x0 + cell * (f64::from(cx) + 0.5) + rng.uniform(-slack, slack);
                 let y = y0 + cell * (f64::from(cy) + 0.5) + rng.uniform(-slack, slack);
@@ -1709,6 +1712,19 @@ oracle:
         let spec = parse_task(&ok, Format::Yaml, "t.yaml").unwrap_or_else(|e| panic!("{e}"));
         assert_eq!(spec.goals[0].label(), "joint_position(box.lid >= 1)");
         assert_eq!(spec.goals[1].label(), "lifted(red_block, 0.1)");
+    }
+
+    #[test]
+    fn a_pile_in_a_huge_region_is_laid_out_without_overflow() {
+        // Found by core/tests/fuzz.rs: u32::MAX columns times u32::MAX rows overflowed.
+        let text = MINIMAL.replace(
+            "  zones:",
+            "  piles:\n    - {id: bean, count: 30, shape: {box: {half_extents: [0.006, 0.006, 0.006]}}, color: brown, region: {min: [-1e308, -1e308], max: [1e308, 1e308]}}\n  zones:",
+        );
+        match parse_task(&text, Format::Yaml, "t.yaml") {
+            Ok(spec) => assert_eq!(spec.for_seed(1).scene.objects.len(), 31),
+            Err(e) => panic!("{e}"),
+        }
     }
 
     #[test]

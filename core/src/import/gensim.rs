@@ -16,6 +16,8 @@ use crate::spec::{
 };
 
 /// GenSim's workspace on the table (x, y), inside Assay's table top as it is.
+/// The longest `range(n)` the evaluator unrolls (GenSim tasks place a handful of objects).
+const MAX_RANGE: f64 = 1000.0;
 const BOUNDS: ([f64; 2], [f64; 2]) = ([0.25, -0.5], [0.75, 0.5]);
 
 /// GenSim colours missing from Assay's named palette (`utils.COLORS`, 0..1).
@@ -439,8 +441,11 @@ impl Eval {
         if let Some(a) = call_args(e, "env.add_object") {
             return self.add_object(a);
         }
+        // A bound on unrolled loops: `range(4294967296)` would otherwise allocate 200 GB and
+        // abort (found by core/tests/fuzz.rs); larger ranges stay unread expressions.
         if let Some(a) = call_args(e, "range")
             && let Val::Num(n) = self.eval(a)
+            && n <= MAX_RANGE
         {
             return Val::Seq((0..n as usize).map(|i| Val::Num(i as f64)).collect());
         }
@@ -1247,5 +1252,19 @@ mod tests {
         assert_eq!(ev.objects.len(), 2);
         assert_eq!(ev.objects[1].color.as_deref(), Some("blue"));
         assert_eq!(ev.vars["objs"], Val::Seq(vec![Val::Obj(0), Val::Obj(1)]));
+    }
+
+    #[test]
+    fn huge_ranges_are_not_unrolled() {
+        // Found by core/tests/fuzz.rs: a number in a task file replaced by 4294967296 made the
+        // evaluator allocate 200 GB and abort.
+        let mut ev = Eval::default();
+        assert!(matches!(ev.eval("range(4294967296)"), Val::Other(_)));
+        assert!(matches!(ev.eval("range(1e308)"), Val::Other(_)));
+        assert_eq!(
+            ev.eval("range(2)"),
+            Val::Seq(vec![Val::Num(0.0), Val::Num(1.0)])
+        );
+        assert_eq!(ev.eval("range(-3)"), Val::Seq(vec![]));
     }
 }

@@ -371,14 +371,14 @@ fn import_one(root: &Path, asset_root: &Path, file: &Path) -> Option<ImportedTas
             || (use_table && center[2] == 0.0 && center[0] <= 1.0 && center[1] <= 1.0)
         {
             let r = radius(half);
-            let x = (0.25 + center[0] * 0.5).clamp(
-                TABLE_CENTER[0] - TABLE_HALF_EXTENTS[0] + r,
-                TABLE_CENTER[0] + TABLE_HALF_EXTENTS[0] - r,
-            );
-            let y = (-0.5 + center[1] * 1.0).clamp(
-                TABLE_CENTER[1] - TABLE_HALF_EXTENTS[1] + r,
-                TABLE_CENTER[1] + TABLE_HALF_EXTENTS[1] - r,
-            );
+            let Some((x, y)) = table_xy(center, r) else {
+                notes.error(
+                    &f("size"),
+                    format!("object '{oid}' (radius {r} m) does not fit on the table"),
+                );
+                fatal = true;
+                continue;
+            };
             notes.inferred(&f("center"), format!("table fractions ({}, {}) → ({:.3}, {:.3}) over Assay's reachable workspace x 0.25-0.75, y -0.5-0.5; z: resting on the table", center[0], center[1], x, y));
             (x, y)
         } else {
@@ -826,4 +826,32 @@ fn interior(o: &Obj) -> Option<([f64; 3], [f64; 2])> {
         goal,
         [r3(goal[0] + 0.06 * dir[0]), r3(goal[1] + 0.06 * dir[1])],
     ))
+}
+
+/// RoboGen's table fractions `center` → a table position for an object of radius `r`, kept on
+/// the table; `None` when the object does not fit on it (a clamp with min > max panics; found
+/// by core/tests/fuzz.rs with a `size` of 1e308).
+fn table_xy(center: [f64; 3], r: f64) -> Option<(f64, f64)> {
+    let lo = [0, 1].map(|k| TABLE_CENTER[k] - TABLE_HALF_EXTENTS[k] + r);
+    let hi = [0, 1].map(|k| TABLE_CENTER[k] + TABLE_HALF_EXTENTS[k] - r);
+    if !(lo[0] <= hi[0] && lo[1] <= hi[1]) {
+        return None;
+    }
+    Some((
+        (0.25 + center[0] * 0.5).clamp(lo[0], hi[0]),
+        (-0.5 + center[1] * 1.0).clamp(lo[1], hi[1]),
+    ))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn objects_too_large_for_the_table_are_errors() {
+        assert!(table_xy([0.5, 0.5, 0.0], 0.05).is_some());
+        assert!(table_xy([0.5, 0.5, 0.0], f64::INFINITY).is_none());
+        assert!(table_xy([0.5, 0.5, 0.0], f64::NAN).is_none());
+        assert!(table_xy([0.5, 0.5, 0.0], 10.0).is_none());
+    }
 }
