@@ -778,7 +778,7 @@ async fn run_session(
                             .await
                             .map_err(|e| fail(e, &held))?;
                         if !accepted {
-                            debug!(%worker, lease = r.lease_id, "late result not counted");
+                            info!(%worker, lease = r.lease_id, "late result not counted (its lease expired or moved on)");
                         }
                         shared.publish(&changed);
                         if tx.send(msg(Out::Ack(pb::ResultAck { lease_id: r.lease_id, accepted }))).await.is_err() {

@@ -35,6 +35,32 @@ impl Proc {
         Self::spawn_env(name, args, dir, &[])
     }
 
+    /// Runs `program args` (a wrapper such as `ip netns exec NS assay ...`) as [`Proc::spawn`]
+    /// runs the binary.
+    #[allow(dead_code)]
+    pub fn spawn_cmd(name: &str, program: &str, args: &[&str], dir: &Path) -> Proc {
+        let log = dir.join(format!("{}.log", name.replace(' ', "-")));
+        let f = std::fs::OpenOptions::new()
+            .create(true)
+            .append(true)
+            .open(&log)
+            .unwrap();
+        let child = Command::new(program)
+            .args(args)
+            .env("ASSAY_LOG_FORMAT", "json")
+            .env("ASSAY_LOG", "info")
+            .stdin(Stdio::null())
+            .stdout(f.try_clone().unwrap())
+            .stderr(f)
+            .spawn()
+            .unwrap();
+        Proc {
+            name: name.into(),
+            child,
+            log,
+        }
+    }
+
     /// [`Proc::spawn`] with extra environment variables.
     pub fn spawn_env(name: &str, args: &[&str], dir: &Path, env: &[(&str, &str)]) -> Proc {
         let log = dir.join(format!("{}.log", name.replace(' ', "-")));
