@@ -182,3 +182,34 @@ fn without_the_cluster_token_clients_and_workers_are_refused() {
         }
     }
 }
+
+#[test]
+fn a_message_over_the_size_bound_is_refused_and_the_coordinator_goes_on() {
+    let dir = tempfile::tempdir().unwrap();
+    let (_c, addr) = coordinator(dir.path(), "127.0.0.1:0", &["--telemetry", "off"]);
+    runtime().block_on(async {
+        let mut c = client(&addr).await;
+        let huge = "#".repeat(assay_proto::MAX_MESSAGE_BYTES + 1024);
+        let e = c
+            .submit_batch(pb::SubmitBatchRequest {
+                tasks: vec![pb::TaskDocument {
+                    origin: "huge.yaml".into(),
+                    format: String::new(),
+                    content: huge,
+                }],
+                seeds: vec![0],
+                ..Default::default()
+            })
+            .await
+            .unwrap_err();
+        assert!(
+            matches!(
+                e.code(),
+                tonic::Code::OutOfRange | tonic::Code::ResourceExhausted
+            ),
+            "{e}"
+        );
+        // The coordinator is still there.
+        c.list_batches(pb::ListBatchesRequest {}).await.unwrap();
+    });
+}
