@@ -39,37 +39,29 @@ impl Proc {
     /// runs the binary.
     #[allow(dead_code)]
     pub fn spawn_cmd(name: &str, program: &str, args: &[&str], dir: &Path) -> Proc {
-        let log = dir.join(format!("{}.log", name.replace(' ', "-")));
-        let f = std::fs::OpenOptions::new()
-            .create(true)
-            .append(true)
-            .open(&log)
-            .unwrap();
-        let child = Command::new(program)
-            .args(args)
-            .env("ASSAY_LOG_FORMAT", "json")
-            .env("ASSAY_LOG", "info")
-            .stdin(Stdio::null())
-            .stdout(f.try_clone().unwrap())
-            .stderr(f)
-            .spawn()
-            .unwrap();
-        Proc {
-            name: name.into(),
-            child,
-            log,
-        }
+        Self::start(name, Command::new(program), args, dir, &[])
     }
 
     /// [`Proc::spawn`] with extra environment variables.
     pub fn spawn_env(name: &str, args: &[&str], dir: &Path, env: &[(&str, &str)]) -> Proc {
+        Self::start(name, Command::new(bin()), args, dir, env)
+    }
+
+    /// Starts `cmd args` with JSON logs at info into `dir/<name>.log`.
+    fn start(
+        name: &str,
+        mut cmd: Command,
+        args: &[&str],
+        dir: &Path,
+        env: &[(&str, &str)],
+    ) -> Proc {
         let log = dir.join(format!("{}.log", name.replace(' ', "-")));
         let f = std::fs::OpenOptions::new()
             .create(true)
             .append(true)
             .open(&log)
             .unwrap();
-        let child = Command::new(bin())
+        let child = cmd
             .args(args)
             .envs(env.iter().copied())
             .env("ASSAY_LOG_FORMAT", "json")
