@@ -325,6 +325,28 @@ fn bbsea_malformed_scene_is_reported_once() {
 }
 
 #[test]
+fn a_bbsea_asset_asking_for_too_many_copies_is_an_error_not_an_allocation() {
+    // Found by core/tests/fuzz.rs: a huge `number` built that many instances (it ran out of
+    // 24 GB). 1000 is over the bound and cheap even without it.
+    let tmp = tempfile::tempdir().unwrap();
+    copy_dir(&fixtures().join("bbsea"), tmp.path());
+    let scene = tmp.path().join("config/scene/7.yaml");
+    let text = std::fs::read_to_string(&scene).unwrap();
+    std::fs::write(&scene, text.replacen("number: 1", "number: 1000", 1)).unwrap();
+    let imp = run(Pipeline::Bbsea, tmp.path(), None);
+    let e = imp
+        .errors
+        .iter()
+        .chain(imp.tasks.iter().flat_map(|t| &t.errors))
+        .find(|e| e.path == "assets[0].number")
+        .unwrap_or_else(|| panic!("no error on assets[0].number: {:?}", imp.errors));
+    assert!(
+        e.reason.contains("1000 copies") && e.reason.contains("at most 200"),
+        "{e}"
+    );
+}
+
+#[test]
 fn content_hash_is_stable_and_follows_the_source() {
     let a = well_formed(Pipeline::Robogen);
     let b = well_formed(Pipeline::Robogen);

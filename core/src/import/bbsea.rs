@@ -15,6 +15,9 @@ use crate::spec::{
     Scene, Shape, Source, Surface, TaskSpec, Variations,
 };
 
+/// Copies of one asset a scene may ask for (`number`), as many as a pile may hold.
+const MAX_NUMBER: u64 = crate::spec::MAX_PILE as u64;
+
 /// One asset instance of a scene.
 #[derive(Clone)]
 struct Inst {
@@ -106,7 +109,16 @@ fn read_scene(f: &Path, asset_root: &Path) -> Result<SceneCfg, (String, String)>
             .and_then(|v| v.as_str())
             .unwrap_or("")
             .to_owned();
-        let number = a.get("number").and_then(|v| v.as_u64()).unwrap_or(1) as usize;
+        let number = a.get("number").and_then(|v| v.as_u64()).unwrap_or(1);
+        // A scene of thousands of copies is a typo, and unbounded it is an allocation of any
+        // size (core/tests/fuzz.rs ran out of 24 GB on one).
+        if number > MAX_NUMBER {
+            return Err((
+                field("number"),
+                format!("'{name}': {number} copies; at most {MAX_NUMBER} are imported"),
+            ));
+        }
+        let number = number as usize;
         let model = a.get("model_path").and_then(|v| v.as_str()).unwrap_or("");
         let ranges: Vec<Vec<f64>> = a
             .get("qpos_ranges")
