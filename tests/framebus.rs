@@ -298,3 +298,85 @@ fn a_seeing_policy_acts_on_frames_its_worker_renders_while_the_episode_runs() {
     assert!(policy_steps.len() >= 20, "policy frames: {policy_steps:?}");
     assert!(policy_steps.iter().all(|s| s % 8 == 0), "{policy_steps:?}");
 }
+
+#[test]
+fn a_relay_with_the_cluster_token_refuses_a_subscriber_without_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let s = stream("relay-token");
+    let addr_file = dir.path().join("relay.addr");
+    let token = [("ASSAY_CLUSTER_TOKEN", "relay-token-0123456789abcdef")];
+    let _relay = Proc::spawn_env(
+        "relay",
+        &[
+            "frames",
+            "relay",
+            "--stream",
+            &s,
+            "--listen",
+            "127.0.0.1:0",
+            "--addr-file",
+            addr_file.to_str().unwrap(),
+        ],
+        dir.path(),
+        &token,
+    );
+    wait_for_file(&_relay, &addr_file, "the relay did not start");
+    let url = format!("http://{}", std::fs::read_to_string(&addr_file).unwrap());
+    let args = [
+        "frames",
+        "subscribe",
+        "--stream",
+        &s,
+        "--count",
+        "1",
+        "--timeout-s",
+        "10",
+        "--grpc",
+        &url,
+    ];
+    let mut intruder = Proc::spawn("intruder", &args, dir.path());
+    let deadline = Instant::now() + Duration::from_secs(30);
+    let status = loop {
+        if let Some(st) = intruder.child.try_wait().unwrap() {
+            break st;
+        }
+        assert!(Instant::now() < deadline, "{}", intruder.log_text());
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    assert!(!status.success());
+    assert!(
+        intruder.log_text().contains("requires the cluster token"),
+        "{}",
+        intruder.log_text()
+    );
+    // With the token, frames arrive.
+    let ready = dir.path().join("member.ready");
+    let mut member = Proc::spawn_env(
+        "member",
+        &[
+            "frames",
+            "subscribe",
+            "--stream",
+            &s,
+            "--count",
+            "5",
+            "--timeout-s",
+            "60",
+            "--grpc",
+            &url,
+            "--ready-file",
+            ready.to_str().unwrap(),
+        ],
+        dir.path(),
+        &token,
+    );
+    wait_for_file(
+        &member,
+        &ready,
+        "the subscriber with the token did not connect",
+    );
+    let _sender = publisher(dir.path(), "pub", &s, 40, 5000);
+    let r = report(&mut member, Duration::from_secs(60));
+    assert!(r["received"].as_u64().unwrap() >= 1, "{r}");
+    assert_eq!(r["corrupt"], 0, "{r}");
+}

@@ -368,7 +368,7 @@ impl Transport {
                 let url = format!("http://{}", listener.local_addr()?);
                 rt.spawn(
                     crate::cmd::frames_grpc::server_builder()
-                        .add_service(hub.server())
+                        .add_service(hub.server(None))
                         .serve_with_incoming(tokio_stream::wrappers::TcpListenerStream::new(
                             listener,
                         )),

@@ -356,8 +356,9 @@ fn relay(
             std::fs::write(&tmp, bound.to_string())?;
             std::fs::rename(&tmp, &f)?;
         }
+        let token = assay_proto::auth::Token::from_env().map_err(anyhow::Error::msg)?;
         super::frames_grpc::server_builder()
-            .add_service(hub.server())
+            .add_service(hub.server(token))
             .serve_with_incoming_shutdown(
                 tokio_stream::wrappers::TcpListenerStream::new(listener),
                 crate::cmd::terminated(),

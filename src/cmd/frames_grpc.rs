@@ -43,9 +43,19 @@ impl FrameHub {
             .clone()
     }
 
-    pub fn server(self) -> pb::frames_server::FramesServer<Self> {
-        pb::frames_server::FramesServer::new(self)
-            .max_encoding_message_size(assay_proto::MAX_MESSAGE_BYTES)
+    /// The Frames service; with `token`, every subscription must carry the cluster token.
+    pub fn server(
+        self,
+        token: Option<assay_proto::auth::Token>,
+    ) -> tonic::service::interceptor::InterceptedService<
+        pb::frames_server::FramesServer<Self>,
+        assay_proto::auth::RequireToken,
+    > {
+        tonic::service::interceptor::InterceptedService::new(
+            pb::frames_server::FramesServer::new(self)
+                .max_encoding_message_size(assay_proto::MAX_MESSAGE_BYTES),
+            assay_proto::auth::RequireToken::new(token),
+        )
     }
 }
 
@@ -97,8 +107,12 @@ pub async fn subscribe(url: &str, stream: &str) -> anyhow::Result<tonic::Streami
         .connect()
         .await
         .with_context(|| format!("no frame relay at {url}"))?;
-    let mut client = pb::frames_client::FramesClient::new(channel)
-        .max_decoding_message_size(assay_proto::MAX_MESSAGE_BYTES);
+    let token = assay_proto::auth::Token::from_env().map_err(anyhow::Error::msg)?;
+    let mut client = pb::frames_client::FramesClient::with_interceptor(
+        channel,
+        assay_proto::auth::AttachToken::new(token),
+    )
+    .max_decoding_message_size(assay_proto::MAX_MESSAGE_BYTES);
     Ok(client
         .subscribe(pb::SubscribeFrames {
             stream: stream.to_owned(),
