@@ -335,14 +335,7 @@ fn a_relay_with_the_cluster_token_refuses_a_subscriber_without_it() {
         &url,
     ];
     let mut intruder = Proc::spawn("intruder", &args, dir.path());
-    let deadline = Instant::now() + Duration::from_secs(30);
-    let status = loop {
-        if let Some(st) = intruder.child.try_wait().unwrap() {
-            break st;
-        }
-        assert!(Instant::now() < deadline, "{}", intruder.log_text());
-        std::thread::sleep(Duration::from_millis(50));
-    };
+    let status = intruder.wait_exit(Duration::from_secs(30));
     assert!(!status.success());
     assert!(
         intruder.log_text().contains("requires the cluster token"),

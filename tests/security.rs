@@ -72,14 +72,7 @@ fn without_the_cluster_token_clients_and_workers_are_refused() {
         ],
         dir.path(),
     );
-    let deadline = Instant::now() + Duration::from_secs(30);
-    let status = loop {
-        if let Some(st) = intruder.child.try_wait().unwrap() {
-            break st;
-        }
-        assert!(Instant::now() < deadline, "{}", intruder.log_text());
-        std::thread::sleep(Duration::from_millis(50));
-    };
+    let status = intruder.wait_exit(Duration::from_secs(30));
     assert!(!status.success());
     assert!(
         intruder.log_text().contains("refused this worker")
@@ -102,11 +95,7 @@ fn without_the_cluster_token_clients_and_workers_are_refused() {
         dir.path(),
         &[("ASSAY_CLUSTER_TOKEN", "not-the-cluster-token-at-all")],
     );
-    let deadline = Instant::now() + Duration::from_secs(30);
-    while wrong.child.try_wait().unwrap().is_none() {
-        assert!(Instant::now() < deadline, "{}", wrong.log_text());
-        std::thread::sleep(Duration::from_millis(50));
-    }
+    wrong.wait_exit(Duration::from_secs(30));
     assert!(
         wrong.log_text().contains("wrong cluster token"),
         "{}",

@@ -92,14 +92,7 @@ fn watch_evaluates_new_batches_skips_repeats_and_reports_marginal_diversity() {
     drop_batch(&dir, &staging, "batch-2", &first, "copy-of-");
     wait_for_batches(&mut watch, &out, 2);
     drop_batch(&dir, &staging, "batch-3", &third, "");
-    let deadline = Instant::now() + Duration::from_secs(300);
-    let status = loop {
-        if let Some(st) = watch.child.try_wait().unwrap() {
-            break st;
-        }
-        assert!(Instant::now() < deadline, "{}", watch.log_text());
-        std::thread::sleep(Duration::from_millis(200));
-    };
+    let status = watch.wait_exit(Duration::from_secs(300));
     assert!(status.success(), "{}", watch.log_text());
 
     let c = corpus(&out);
