@@ -300,7 +300,7 @@ fn the_coordinator_benchmark_runs_every_shard_once_at_small_scale() {
     );
     let line = String::from_utf8(out.stdout).unwrap();
     let v: serde_json::Value = serde_json::from_str(line.trim()).unwrap();
-    for part in ["store", "grpc"] {
+    for part in ["store", "store_actor", "grpc"] {
         assert_eq!(v[part]["shards"], 300, "{v:#}");
         assert!(v[part]["shards_per_s"].as_f64().unwrap() > 0.0, "{v:#}");
     }

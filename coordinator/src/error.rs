@@ -10,6 +10,8 @@ pub enum CoordError {
     NotFound(String),
     #[error("invalid request: {0}")]
     InvalidRequest(String),
+    #[error("job store: the transaction this call was grouped in did not commit: {0}")]
+    GroupCommit(String),
     #[error("the job store has stopped")]
     StoreStopped,
 }

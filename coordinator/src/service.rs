@@ -663,6 +663,56 @@ fn msg(m: pb::coordinator_message::Msg) -> Result<pb::CoordinatorMessage, Status
     Ok(pb::CoordinatorMessage { msg: Some(m) })
 }
 
+/// Sends `leases` to the worker as assignments and adds them to `held`; false when the worker
+/// has gone.
+async fn assign(
+    shared: &Shared,
+    tx: &Outbound,
+    leases: Vec<crate::store::Lease>,
+    held: &mut BTreeSet<u64>,
+) -> bool {
+    use pb::coordinator_message::Msg as Out;
+    if leases.is_empty() {
+        return true;
+    }
+    let mut batches = BTreeSet::new();
+    for l in leases {
+        held.insert(l.lease_id);
+        batches.insert(l.batch_id.clone());
+        let a = pb::Assignment {
+            lease_id: l.lease_id,
+            shard_id: l.shard_id,
+            batch_id: l.batch_id,
+            role: pb::Role::parse(&l.role).unwrap_or(pb::Role::Unspecified) as i32,
+            task_spec_json: l.task_spec_json,
+            seed: l.seed,
+            policy: Some(pb::PolicyRef { name: l.policy }),
+            attempt: l.attempt,
+            judge: l
+                .judge
+                .as_ref()
+                .map(|j| j.judge.clone())
+                .unwrap_or_default(),
+            judge_repeats: l.judge.as_ref().map_or(0, |j| j.repeats),
+            budget_left_usd: l.judge.as_ref().and_then(|j| j.budget_left_usd),
+            input_json: match (l.judge, l.trainer_job) {
+                (Some(j), _) => j.episode_json,
+                (None, Some(job)) => job,
+                (None, None) => String::new(),
+            },
+            clip_size: l.clip_size,
+        };
+        if tx.send(msg(Out::Assignment(a))).await.is_err() {
+            return false;
+        }
+    }
+    shared.publish(&Changed {
+        batches: batches.into_iter().collect(),
+        requeued: 0,
+    });
+    true
+}
+
 async fn run_session(
     shared: &Arc<Shared>,
     register: pb::Register,
@@ -702,8 +752,17 @@ async fn run_session(
     let mut shutdown = shared.shutdown.clone();
     // A worker that hands leases back is leaving: it gets no new work.
     let mut draining = false;
+    // Set when the last lease call found less work than it asked for: the next one waits for a
+    // wake-up (work queued, or the periodic retry) rather than asking again at once.
+    let mut queue_empty = false;
+    let mut retry = tokio::time::interval(Duration::from_millis(500));
+    retry.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
     loop {
-        if held.len() < capacity && !draining && !*shutdown.borrow() {
+        // Registered before the lease call, so work queued while it runs still wakes this session.
+        let work = shared.work.notified();
+        tokio::pin!(work);
+        work.as_mut().enable();
+        if held.len() < capacity && !draining && !*shutdown.borrow() && !queue_empty {
             let (w, r, n, ttl) = (
                 worker.clone(),
                 roles.clone(),
@@ -715,43 +774,11 @@ async fn run_session(
                 .call(move |s| s.lease(&w, &r, n, now_ms(), ttl))
                 .await
                 .map_err(|e| fail(e, &held))?;
-            let mut batches = BTreeSet::new();
-            for l in leases {
-                held.insert(l.lease_id);
-                batches.insert(l.batch_id.clone());
-                let a = pb::Assignment {
-                    lease_id: l.lease_id,
-                    shard_id: l.shard_id,
-                    batch_id: l.batch_id,
-                    role: pb::Role::parse(&l.role).unwrap_or(pb::Role::Unspecified) as i32,
-                    task_spec_json: l.task_spec_json,
-                    seed: l.seed,
-                    policy: Some(pb::PolicyRef { name: l.policy }),
-                    attempt: l.attempt,
-                    judge: l
-                        .judge
-                        .as_ref()
-                        .map(|j| j.judge.clone())
-                        .unwrap_or_default(),
-                    judge_repeats: l.judge.as_ref().map_or(0, |j| j.repeats),
-                    budget_left_usd: l.judge.as_ref().and_then(|j| j.budget_left_usd),
-                    input_json: match (l.judge, l.trainer_job) {
-                        (Some(j), _) => j.episode_json,
-                        (None, Some(job)) => job,
-                        (None, None) => String::new(),
-                    },
-                    clip_size: l.clip_size,
-                };
-                if tx.send(msg(Out::Assignment(a))).await.is_err() {
-                    return Ok(SessionEnd::Disconnected(held));
-                }
+            queue_empty = leases.len() < n as usize;
+            if !assign(shared, tx, leases, &mut held).await {
+                return Ok(SessionEnd::Disconnected(held));
             }
-            shared.publish(&Changed {
-                batches: batches.into_iter().collect(),
-                requeued: 0,
-            });
         }
-        let work = shared.work.notified();
         tokio::select! {
             m = inbound.message() => {
                 let m = match m {
@@ -771,17 +798,28 @@ async fn run_session(
                     }
                     Some(In::Result(r)) => {
                         held.remove(&r.lease_id);
-                        let w = worker.clone();
-                        let (accepted, changed) = shared
+                        // The result and the worker's next leases in one store call.
+                        let want = if draining || *shutdown.borrow() { 0 } else { capacity - held.len() } as u32;
+                        let (w, lease_id, roles, ttl) = (worker.clone(), r.lease_id, roles.clone(), shared.ttl_ms());
+                        let ((accepted, changed), leases) = shared
                             .store
-                            .call(move |s| s.complete(&w, r.lease_id, r.shard_id, &r.outcome_json, r.wall_time_s, now_ms()))
+                            .call(move |s| {
+                                let completed = s.complete(&w, r.lease_id, r.shard_id, &r.outcome_json, r.wall_time_s, now_ms())?;
+                                let leases = if want > 0 { s.lease(&w, &roles, want, now_ms(), ttl) } else { Ok(Vec::new()) };
+                                Ok((completed, leases))
+                            })
                             .await
                             .map_err(|e| fail(e, &held))?;
                         if !accepted {
-                            info!(%worker, lease = r.lease_id, "late result not counted (its lease expired or moved on)");
+                            info!(%worker, lease = lease_id, "late result not counted (its lease expired or moved on)");
                         }
                         shared.publish(&changed);
-                        if tx.send(msg(Out::Ack(pb::ResultAck { lease_id: r.lease_id, accepted }))).await.is_err() {
+                        if tx.send(msg(Out::Ack(pb::ResultAck { lease_id, accepted }))).await.is_err() {
+                            return Ok(SessionEnd::Disconnected(held));
+                        }
+                        let leases = leases.map_err(|e| fail(e, &held))?;
+                        queue_empty = leases.len() < want as usize;
+                        if !assign(shared, tx, leases, &mut held).await {
                             return Ok(SessionEnd::Disconnected(held));
                         }
                     }
@@ -806,12 +844,17 @@ async fn run_session(
                     }
                 }
             }
-            _ = work => {}
-            _ = tokio::time::sleep(Duration::from_millis(500)) => {}
+            _ = &mut work => queue_empty = false,
+            _ = retry.tick() => queue_empty = false,
             _ = shutdown.changed() => {
                 let _ = tx.send(msg(Out::Goodbye(pb::Goodbye { reason: "coordinator shutting down".into() }))).await;
                 return Ok(SessionEnd::Shutdown);
             }
+        }
+        // Work queued while a message was handled (its own lease call included) is not missed.
+        let mut cx = std::task::Context::from_waker(std::task::Waker::noop());
+        if work.as_mut().poll(&mut cx).is_ready() {
+            queue_empty = false;
         }
     }
 }

@@ -285,6 +285,28 @@ impl Store {
         Ok(Self { conn })
     }
 
+    /// Opens a group: the store calls until [`Store::commit_group`] share one transaction. Each
+    /// call still runs in its own savepoint, so one that fails leaves the others' changes intact.
+    pub fn begin_group(&mut self) -> Result<(), CoordError> {
+        self.conn.execute_batch("BEGIN IMMEDIATE")?;
+        Ok(())
+    }
+
+    /// Commits the open group; on failure the whole group is rolled back.
+    pub fn commit_group(&mut self) -> Result<(), CoordError> {
+        if let Err(e) = self.conn.execute_batch("COMMIT") {
+            let _ = self.conn.execute_batch("ROLLBACK");
+            return Err(e.into());
+        }
+        Ok(())
+    }
+
+    /// The connection, for tests that need to reach under the store's API.
+    #[cfg(test)]
+    pub(crate) fn conn(&mut self) -> &mut Connection {
+        &mut self.conn
+    }
+
     /// USD the batch's judge shards have spent so far.
     fn judge_spent(conn: &Connection, batch_id: &str) -> Result<f64, CoordError> {
         Ok(conn.query_row(
@@ -295,7 +317,7 @@ impl Store {
         )?)
     }
 
-    fn next_counter(tx: &rusqlite::Transaction<'_>, key: &str, n: u64) -> Result<u64, CoordError> {
+    fn next_counter(tx: &Connection, key: &str, n: u64) -> Result<u64, CoordError> {
         let cur: Option<i64> = tx
             .prepare_cached("SELECT value FROM meta WHERE key = ?1")?
             .query_row([key], |r| r.get(0))
@@ -309,7 +331,7 @@ impl Store {
     }
 
     fn insert_tasks(
-        tx: &rusqlite::Transaction<'_>,
+        tx: &Connection,
         batch_id: &str,
         tasks: &[PlannedTask],
     ) -> Result<(), CoordError> {
@@ -344,7 +366,7 @@ impl Store {
         duplicate_of: &str,
         now_ms: i64,
     ) -> Result<String, CoordError> {
-        let tx = self.conn.transaction()?;
+        let tx = self.conn.savepoint()?;
         let seq = Self::next_counter(&tx, "batch_seq", 1)?;
         let id = format!("b{seq:05}-{:x}", now_ms & 0xff_ffff);
         tx.execute(
@@ -373,7 +395,7 @@ impl Store {
     /// Stores a batch and plans its shards: seed-major (every task's first seed runs before any
     /// task's second), then policy, then task in submission order.
     pub fn submit(&mut self, batch: &NewBatch, now_ms: i64) -> Result<(String, u32), CoordError> {
-        let tx = self.conn.transaction()?;
+        let tx = self.conn.savepoint()?;
         let seq = Self::next_counter(&tx, "batch_seq", 1)?;
         let id = format!("b{seq:05}-{:x}", now_ms & 0xff_ffff);
         tx.execute(
@@ -462,7 +484,7 @@ impl Store {
         if n == 0 || roles.is_empty() {
             return Ok(Vec::new());
         }
-        let tx = self.conn.transaction()?;
+        let tx = self.conn.savepoint()?;
         let placeholders = roles.iter().map(|_| "?").collect::<Vec<_>>().join(",");
         let sql = format!(
             "SELECT s.id, s.batch_id, s.seed, s.policy, s.role, s.attempts, COALESCE(t.spec_json, ''),
@@ -568,7 +590,7 @@ impl Store {
         now_ms: i64,
         ttl_ms: i64,
     ) -> Result<Vec<u64>, CoordError> {
-        let tx = self.conn.transaction()?;
+        let tx = self.conn.savepoint()?;
         let mut kept = Vec::new();
         for id in lease_ids {
             let n = tx.execute(
@@ -598,7 +620,7 @@ impl Store {
         wall_time_s: f64,
         now_ms: i64,
     ) -> Result<(bool, Changed), CoordError> {
-        let tx = self.conn.transaction()?;
+        let tx = self.conn.savepoint()?;
         let current: Option<(String, String, String, i64, String)> = tx
             .prepare_cached(
                 "SELECT s.role, s.batch_id, s.task_id, s.seed, s.policy FROM shards s
@@ -691,7 +713,7 @@ impl Store {
         retryable: bool,
         now_ms: i64,
     ) -> Result<Changed, CoordError> {
-        let tx = self.conn.transaction()?;
+        let tx = self.conn.savepoint()?;
         let row: Option<(String, u32, u32)> = tx
             .query_row(
                 "SELECT s.batch_id, s.attempts, b.max_attempts FROM shards s JOIN batches b ON b.id = s.batch_id
@@ -733,7 +755,7 @@ impl Store {
         worker: &str,
         lease_ids: &[u64],
     ) -> Result<Changed, CoordError> {
-        let tx = self.conn.transaction()?;
+        let tx = self.conn.savepoint()?;
         let mut changed = Changed::default();
         for id in lease_ids {
             let batch: Option<String> = tx
@@ -760,7 +782,7 @@ impl Store {
         now_ms: i64,
         worker: Option<(&str, &[u64])>,
     ) -> Result<Changed, CoordError> {
-        let tx = self.conn.transaction()?;
+        let tx = self.conn.savepoint()?;
         let sql_owned;
         let rows: Vec<(i64, String, u32, u32, Option<String>)> = {
             let (sql, args): (&str, Vec<rusqlite::types::Value>) = match worker {
@@ -847,7 +869,7 @@ impl Store {
     }
 
     pub fn cancel(&mut self, batch_id: &str, now_ms: i64) -> Result<Changed, CoordError> {
-        let tx = self.conn.transaction()?;
+        let tx = self.conn.savepoint()?;
         Self::require_batch(&tx, batch_id)?;
         tx.execute(
             "UPDATE shards SET state = 'cancelled', error = 'cancelled', lease_expires_ms = NULL

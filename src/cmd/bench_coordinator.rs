@@ -66,16 +66,8 @@ fn docs() -> Vec<pb::TaskDocument> {
     }]
 }
 
-fn store_bench(
-    dir: &std::path::Path,
-    shards: u64,
-    capacity: u32,
-) -> anyhow::Result<serde_json::Value> {
-    let path = dir.join("store-bench.db");
-    let mut store = Store::open(&path)?;
-    let (tasks, invalid) = assay_coordinator::service::plan_tasks(&docs());
-    anyhow::ensure!(invalid.is_empty(), "the bench spec is invalid: {invalid:?}");
-    let batch = NewBatch {
+fn bench_batch(tasks: Vec<assay_coordinator::store::PlannedTask>, shards: u64) -> NewBatch {
+    NewBatch {
         name: "bench".into(),
         tasks,
         policies: vec!["oracle".into()],
@@ -92,7 +84,19 @@ fn store_bench(
         dynamics: None,
         ranking: None,
         generalization: None,
-    };
+    }
+}
+
+fn store_bench(
+    dir: &std::path::Path,
+    shards: u64,
+    capacity: u32,
+) -> anyhow::Result<serde_json::Value> {
+    let path = dir.join("store-bench.db");
+    let mut store = Store::open(&path)?;
+    let (tasks, invalid) = assay_coordinator::service::plan_tasks(&docs());
+    anyhow::ensure!(invalid.is_empty(), "the bench spec is invalid: {invalid:?}");
+    let batch = bench_batch(tasks, shards);
     let t = Instant::now();
     store.submit(&batch, 0)?;
     let plan_s = t.elapsed().as_secs_f64();
@@ -129,6 +133,68 @@ fn store_bench(
         "shards_per_s": shards as f64 / wall,
         "cpu_s": cpu,
         "store_mib": bytes as f64 / 1048576.0,
+    }))
+}
+
+/// The store behind its actor, as the coordinator's sessions use it: `clients` tasks each lease
+/// `capacity` shards and complete them, concurrently, through one `StoreHandle`. Calls that wait
+/// together are committed together (the actor's group commit), which the one-thread measurement
+/// above cannot show.
+async fn actor_bench(
+    dir: &std::path::Path,
+    shards: u64,
+    clients: u32,
+    capacity: u32,
+) -> anyhow::Result<serde_json::Value> {
+    let path = dir.join("actor-bench.db");
+    let handle = assay_coordinator::actor::StoreHandle::spawn(&path)?;
+    let (tasks, _) = assay_coordinator::service::plan_tasks(&docs());
+    let batch = bench_batch(tasks, shards);
+    handle.call(move |s| s.submit(&batch, 0)).await?;
+    let outcome: Arc<str> = outcome_json().into();
+    let (t, cpu) = (Instant::now(), cpu_s());
+    let mut joins = Vec::new();
+    for i in 0..clients {
+        let (handle, outcome) = (handle.clone(), outcome.clone());
+        joins.push(tokio::spawn(async move {
+            let worker = format!("bench/worker-{i}");
+            let roles = vec!["sim".to_owned()];
+            let mut done = 0u64;
+            loop {
+                let (w, r) = (worker.clone(), roles.clone());
+                let leases = handle
+                    .call(move |s| s.lease(&w, &r, capacity, 1, 60_000))
+                    .await?;
+                if leases.is_empty() {
+                    return anyhow::Ok(done);
+                }
+                for l in leases {
+                    let (w, o) = (worker.clone(), outcome.clone());
+                    let (ok, _) = handle
+                        .call(move |s| s.complete(&w, l.lease_id, l.shard_id, &o, 0.001, 1))
+                        .await?;
+                    done += u64::from(ok);
+                }
+            }
+        }));
+    }
+    let mut done = 0;
+    for j in joins {
+        done += j.await??;
+    }
+    let wall = t.elapsed().as_secs_f64();
+    let cpu = cpu_s() - cpu;
+    anyhow::ensure!(
+        done == shards,
+        "the store completed {done} of {shards} shards"
+    );
+    Ok(json!({
+        "shards": shards,
+        "clients": clients,
+        "grant": capacity,
+        "lease_complete_s": wall,
+        "shards_per_s": shards as f64 / wall,
+        "cpu_s": cpu,
     }))
 }
 
@@ -297,12 +363,15 @@ pub fn run(workers: u32, shards: u64, capacity: u32) -> anyhow::Result<std::proc
     let result = (|| -> anyhow::Result<serde_json::Value> {
         let store = store_bench(&dir, shards, capacity.max(1))?;
         eprintln!("store: {store}");
+        let actor = super::block_on(actor_bench(&dir, shards, workers.max(1), capacity.max(1)))?;
+        eprintln!("store actor: {actor}");
         let grpc = super::block_on(grpc_bench(&dir, workers, shards, capacity.max(1)))?;
         eprintln!("grpc: {grpc}");
         Ok(json!({
             "measure": "coordinator",
             "cpus": std::thread::available_parallelism().map_or(1, |n| n.get()),
             "store": store,
+            "store_actor": actor,
             "grpc": grpc,
         }))
     })();
