@@ -307,3 +307,40 @@ fn the_coordinator_benchmark_runs_every_shard_once_at_small_scale() {
     assert_eq!(v["grpc"]["workers"], 8);
     assert!(v["grpc"]["peak_rss_mib"].as_f64().unwrap() > 0.0);
 }
+
+/// `assay bench scaling` runs its sweep of worker counts, each run completing its whole batch
+/// (the throughput figures are for the benchmark's reader, not asserted here).
+#[test]
+fn the_scaling_benchmark_runs_each_worker_count_to_the_end() {
+    let out = std::process::Command::new(bin())
+        .args([
+            "bench",
+            "scaling",
+            "--workers",
+            "6",
+            "--work-ms",
+            "5",
+            "--shards",
+            "400",
+        ])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let v: serde_json::Value =
+        serde_json::from_str(String::from_utf8(out.stdout).unwrap().trim()).unwrap();
+    let runs = v["runs"].as_array().unwrap();
+    let workers: Vec<u64> = runs
+        .iter()
+        .map(|r| r["workers"].as_u64().unwrap())
+        .collect();
+    assert_eq!(workers, [1, 4, 6], "{v:#}");
+    for r in runs {
+        assert!(r["shards"].as_u64().unwrap() >= 200, "{r:#}");
+        assert_eq!(r["work_ms"], 5.0, "{r:#}");
+        assert!(r["of_ideal"].as_f64().unwrap() > 0.0, "{r:#}");
+    }
+}

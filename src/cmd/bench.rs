@@ -14,9 +14,9 @@ use serde_json::json;
 
 #[derive(clap::Args)]
 pub struct Args {
-    /// physics | render | rollout | handoff | coordinator
+    /// physics | render | rollout | handoff | coordinator | scaling
     pub measure: String,
-    /// `coordinator`: fake workers (sessions over loopback gRPC).
+    /// `coordinator`: fake workers (sessions over loopback gRPC); `scaling`: the most of them.
     #[arg(long, default_value_t = 1000)]
     pub workers: u32,
     /// `coordinator`: shards in the batch.
@@ -25,6 +25,9 @@ pub struct Args {
     /// `coordinator`: shards each fake worker holds at once (and the store bench's lease grant).
     #[arg(long, default_value_t = 1)]
     pub capacity: u32,
+    /// `scaling`: how long each fake episode takes, in milliseconds.
+    #[arg(long, default_value_t = 20)]
+    pub work_ms: u64,
     /// The scene contract.
     #[arg(long, default_value = "bench/reference-scene.json")]
     pub scene: PathBuf,
@@ -99,6 +102,14 @@ fn time_trials(
 pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     if a.measure == "coordinator" {
         return super::bench_coordinator::run(a.workers, a.shards, a.capacity);
+    }
+    if a.measure == "scaling" {
+        return super::bench_coordinator::scaling(
+            a.workers,
+            a.shards,
+            a.capacity,
+            Duration::from_millis(a.work_ms),
+        );
     }
     let text = std::fs::read_to_string(&a.scene)
         .with_context(|| format!("reading {}", a.scene.display()))?;

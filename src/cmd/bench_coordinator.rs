@@ -206,6 +206,7 @@ async fn fake_worker(
     acked: Arc<AtomicU64>,
     first: Arc<std::sync::OnceLock<Instant>>,
     total: u64,
+    work: Duration,
 ) -> anyhow::Result<()> {
     let mut client = pb::worker_session_client::WorkerSessionClient::new(channel)
         .max_decoding_message_size(assay_proto::MAX_MESSAGE_BYTES);
@@ -227,15 +228,24 @@ async fn fake_worker(
         match m.msg {
             Some(In::Assignment(a)) => {
                 first.get_or_init(Instant::now);
-                tx.send(pb::WorkerMessage {
+                let result = pb::WorkerMessage {
                     msg: Some(Out::Result(pb::ShardResult {
                         lease_id: a.lease_id,
                         shard_id: a.shard_id,
                         outcome_json: outcome.to_string(),
-                        wall_time_s: 0.001,
+                        wall_time_s: work.as_secs_f64(),
                     })),
-                })
-                .await?;
+                };
+                if work.is_zero() {
+                    tx.send(result).await?;
+                } else {
+                    // The episode "runs" for `work`, beside the worker's other slots.
+                    let tx = tx.clone();
+                    tokio::spawn(async move {
+                        tokio::time::sleep(work).await;
+                        let _ = tx.send(result).await;
+                    });
+                }
             }
             Some(In::Ack(ack))
                 if ack.accepted && acked.fetch_add(1, Ordering::Relaxed) + 1 >= total =>
@@ -256,6 +266,7 @@ async fn grpc_bench(
     workers: u32,
     shards: u64,
     capacity: u32,
+    work: Duration,
 ) -> anyhow::Result<serde_json::Value> {
     let mut config =
         assay_coordinator::CoordinatorConfig::new(dir.join("grpc-bench.db"), dir.join("artifacts"));
@@ -310,6 +321,7 @@ async fn grpc_bench(
             acked.clone(),
             first.clone(),
             shards,
+            work,
         )));
     }
     let deadline = Instant::now() + Duration::from_secs(3600);
@@ -346,6 +358,7 @@ async fn grpc_bench(
         "workers": workers,
         "workers_connected_at_end": connected,
         "capacity_per_worker": capacity,
+        "work_ms": work.as_secs_f64() * 1000.0,
         "shards": shards,
         "submit_and_plan_s": submit_s,
         "lease_complete_s": wall,
@@ -365,7 +378,13 @@ pub fn run(workers: u32, shards: u64, capacity: u32) -> anyhow::Result<std::proc
         eprintln!("store: {store}");
         let actor = super::block_on(actor_bench(&dir, shards, workers.max(1), capacity.max(1)))?;
         eprintln!("store actor: {actor}");
-        let grpc = super::block_on(grpc_bench(&dir, workers, shards, capacity.max(1)))?;
+        let grpc = super::block_on(grpc_bench(
+            &dir,
+            workers,
+            shards,
+            capacity.max(1),
+            Duration::ZERO,
+        ))?;
         eprintln!("grpc: {grpc}");
         Ok(json!({
             "measure": "coordinator",
@@ -373,6 +392,52 @@ pub fn run(workers: u32, shards: u64, capacity: u32) -> anyhow::Result<std::proc
             "store": store,
             "store_actor": actor,
             "grpc": grpc,
+        }))
+    })();
+    let _ = std::fs::remove_dir_all(&dir);
+    println!("{}", result?);
+    Ok(std::process::ExitCode::SUCCESS)
+}
+
+/// `assay bench scaling`: does throughput follow the number of workers? Fake workers whose
+/// episodes take `work` each (a sleep: they use no CPU) join a real coordinator in growing
+/// numbers — 1, 4, 16, … up to `max_workers` — each run a batch sized for about two seconds of
+/// ideal work. Ideal throughput is workers × capacity / work; the ratio of measured to ideal shows
+/// where the coordinator stops keeping up.
+pub fn scaling(
+    max_workers: u32,
+    max_shards: u64,
+    capacity: u32,
+    work: Duration,
+) -> anyhow::Result<std::process::ExitCode> {
+    anyhow::ensure!(!work.is_zero(), "--work-ms must be at least 1");
+    let dir = std::env::temp_dir().join(format!("assay-bench-scaling-{}", std::process::id()));
+    std::fs::create_dir_all(&dir)?;
+    let capacity = capacity.max(1);
+    let mut counts: Vec<u32> = std::iter::successors(Some(1u32), |w| w.checked_mul(4))
+        .take_while(|w| *w < max_workers)
+        .collect();
+    counts.push(max_workers.max(1));
+    let result = (|| -> anyhow::Result<serde_json::Value> {
+        let mut runs = Vec::new();
+        for (i, &workers) in counts.iter().enumerate() {
+            let ideal = f64::from(workers) * f64::from(capacity) / work.as_secs_f64();
+            let shards = ((ideal * 2.0) as u64).clamp(200, max_shards.max(200));
+            let run_dir = dir.join(format!("run-{i}"));
+            std::fs::create_dir_all(&run_dir)?;
+            let mut r = super::block_on(grpc_bench(&run_dir, workers, shards, capacity, work))?;
+            let measured = r["shards_per_s"].as_f64().unwrap_or(0.0);
+            r["ideal_shards_per_s"] = json!(ideal);
+            r["of_ideal"] = json!(measured / ideal);
+            eprintln!("scaling: {r}");
+            runs.push(r);
+        }
+        Ok(json!({
+            "measure": "scaling",
+            "cpus": std::thread::available_parallelism().map_or(1, |n| n.get()),
+            "work_ms": work.as_secs_f64() * 1000.0,
+            "capacity_per_worker": capacity,
+            "runs": runs,
         }))
     })();
     let _ = std::fs::remove_dir_all(&dir);
