@@ -198,16 +198,33 @@ async fn actor_bench(
     }))
 }
 
+/// What every fake worker of one run shares.
+struct Run {
+    outcome: Arc<str>,
+    /// Results acknowledged as accepted, by all workers.
+    acked: AtomicU64,
+    /// When the first assignment arrived.
+    first: std::sync::OnceLock<Instant>,
+    /// Shards in the batch.
+    total: u64,
+    /// How long each fake episode takes.
+    work: Duration,
+}
+
 async fn fake_worker(
     channel: tonic::transport::Channel,
     id: String,
     capacity: u32,
-    outcome: Arc<str>,
-    acked: Arc<AtomicU64>,
-    first: Arc<std::sync::OnceLock<Instant>>,
-    total: u64,
-    work: Duration,
+    run: Arc<Run>,
 ) -> anyhow::Result<()> {
+    let Run {
+        outcome,
+        acked,
+        first,
+        total,
+        work,
+    } = &*run;
+    let (total, work) = (*total, *work);
     let mut client = pb::worker_session_client::WorkerSessionClient::new(channel)
         .max_decoding_message_size(assay_proto::MAX_MESSAGE_BYTES);
     let (tx, rx) = tokio::sync::mpsc::channel::<pb::WorkerMessage>(64);
@@ -298,9 +315,13 @@ async fn grpc_bench(
     let submit_s = t.elapsed().as_secs_f64();
     anyhow::ensure!(sub.shards as u64 == shards, "planned {} shards", sub.shards);
     let rss_planned = status_mib("VmRSS");
-    let outcome: Arc<str> = outcome_json().into();
-    let acked = Arc::new(AtomicU64::new(0));
-    let first = Arc::new(std::sync::OnceLock::new());
+    let run = Arc::new(Run {
+        outcome: outcome_json().into(),
+        acked: AtomicU64::new(0),
+        first: std::sync::OnceLock::new(),
+        total: shards,
+        work,
+    });
     // Workers share a few HTTP/2 connections, as many sessions over each as a node would have.
     let mut channels = Vec::new();
     for _ in 0..workers.clamp(1, 16) {
@@ -317,15 +338,11 @@ async fn grpc_bench(
             channels[i as usize % channels.len()].clone(),
             format!("bench/worker-{i}"),
             capacity,
-            outcome.clone(),
-            acked.clone(),
-            first.clone(),
-            shards,
-            work,
+            run.clone(),
         )));
     }
     let deadline = Instant::now() + Duration::from_secs(3600);
-    while acked.load(Ordering::Relaxed) < shards {
+    while run.acked.load(Ordering::Relaxed) < shards {
         anyhow::ensure!(
             Instant::now() < deadline,
             "the benchmark did not finish in an hour"
@@ -335,7 +352,7 @@ async fn grpc_bench(
     let end = Instant::now();
     let cpu = cpu_s() - cpu;
     let wall = end
-        .duration_since(*first.get().context("no assignment was made")?)
+        .duration_since(*run.first.get().context("no assignment was made")?)
         .as_secs_f64();
     let st = c
         .get_batch(pb::GetBatchRequest {
