@@ -44,8 +44,6 @@ fn without_the_cluster_token_clients_and_workers_are_refused() {
             dir.path().join("artifacts").to_str().unwrap(),
             "--addr-file",
             dir.path().join("coordinator.addr").to_str().unwrap(),
-            "--telemetry",
-            "off",
         ],
         dir.path(),
         &[("ASSAY_CLUSTER_TOKEN_FILE", token_file.to_str().unwrap())],
@@ -160,6 +158,49 @@ fn without_the_cluster_token_clients_and_workers_are_refused() {
             tokio::time::sleep(Duration::from_millis(100)).await;
         }
     });
+    // Telemetry: the coordinator's zenoh router admits only sessions with the password derived
+    // from the token. `assay top` with the token sees the member worker's statistics; without it,
+    // it cannot join.
+    let endpoint = announced
+        .lines()
+        .nth(1)
+        .expect("the telemetry endpoint on line 2")
+        .to_owned();
+    let top_args = ["top", "--telemetry", &endpoint, "--json", "--duration", "4"];
+    let mut top = Proc::spawn_env(
+        "top",
+        &top_args,
+        dir.path(),
+        &[("ASSAY_CLUSTER_TOKEN", TOKEN)],
+    );
+    assert!(
+        top.wait_exit(Duration::from_secs(60)).success(),
+        "{}",
+        top.log_text()
+    );
+    assert!(
+        top.log_text()
+            .lines()
+            .any(|l| l.starts_with("{\"key\":\"assay/local/workers/member/stats\"")),
+        "no statistics from the member worker:\n{}",
+        top.log_text()
+    );
+    let mut outsider = Proc::spawn("outsider-top", &top_args, dir.path());
+    let status = outsider.wait_exit(Duration::from_secs(60));
+    assert!(!status.success(), "{}", outsider.log_text());
+    assert!(
+        outsider
+            .log_text()
+            .contains("admits only its members: set ASSAY_CLUSTER_TOKEN"),
+        "{}",
+        outsider.log_text()
+    );
+    assert!(
+        !outsider.log_text().contains("{\"key\":"),
+        "an outsider saw the cluster's telemetry:\n{}",
+        outsider.log_text()
+    );
+
     // The token is in no log.
     coordinator.term(Duration::from_secs(5));
     for entry in std::fs::read_dir(dir.path()).unwrap() {

@@ -88,7 +88,17 @@ pub async fn serve(
 
     // Telemetry: a zenoh router for the cluster, and batch progress on every change.
     let telemetry = match shared.config.telemetry.clone() {
-        Some(endpoint) => match assay_telemetry::open_router(&endpoint).await {
+        Some(endpoint) => match assay_telemetry::open_router(
+            &endpoint,
+            shared
+                .config
+                .token
+                .as_ref()
+                .map(|t| t.derive("zenoh"))
+                .as_deref(),
+        )
+        .await
+        {
             Ok(session) => {
                 info!(%endpoint, "telemetry router listening");
                 Some((

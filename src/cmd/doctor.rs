@@ -197,8 +197,10 @@ fn zenoh() -> (Verdict, String, String) {
     let run = || -> anyhow::Result<String> {
         let endpoint = assay_telemetry::free_loopback_endpoint()?;
         super::block_on(async {
-            let router = assay_telemetry::open_router(&endpoint).await?;
-            let client = assay_telemetry::open_client(&endpoint).await?;
+            // With the user-password check zenoh runs when the cluster has a token.
+            let password = "assay-doctor-check";
+            let router = assay_telemetry::open_router(&endpoint, Some(password)).await?;
+            let client = assay_telemetry::open_client(&endpoint, Some(password)).await?;
             assay_telemetry::close(client).await;
             assay_telemetry::close(router).await;
             anyhow::Ok(())

@@ -203,7 +203,16 @@ pub fn run(mut a: Args) -> anyhow::Result<ExitCode> {
             (f64, f64),
         >::new()));
         let viewer = match &telemetry {
-            Some(endpoint) => assay_telemetry::open_client(endpoint).await.ok(),
+            Some(endpoint) => {
+                // The local cluster's processes inherit this process's token, if any.
+                let password = assay_proto::auth::Token::from_env()
+                    .ok()
+                    .flatten()
+                    .map(|t| t.derive("zenoh"));
+                assay_telemetry::open_client(endpoint, password.as_deref())
+                    .await
+                    .ok()
+            }
             None => None,
         };
         let mut listener = None;

@@ -4,6 +4,7 @@ use std::collections::BTreeMap;
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
 
+use anyhow::Context;
 use assay_telemetry::{BatchProgress, ClusterSubscriber, WorkerStats};
 
 #[derive(clap::Args)]
@@ -66,7 +67,22 @@ fn table(
 
 pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     super::block_on(async move {
-        let session = assay_telemetry::open_client(&a.telemetry).await?;
+        let password = assay_proto::auth::Token::from_env()
+            .map_err(anyhow::Error::msg)?
+            .map(|t| t.derive("zenoh"));
+        let session = assay_telemetry::open_client(&a.telemetry, password.as_deref())
+            .await
+            .with_context(|| {
+                format!(
+                    "could not join the telemetry router at {}{}",
+                    a.telemetry,
+                    if password.is_none() {
+                        " (a cluster with a token admits only its members: set ASSAY_CLUSTER_TOKEN or ASSAY_CLUSTER_TOKEN_FILE)"
+                    } else {
+                        " (is it running, and is this the cluster's token?)"
+                    }
+                )
+            })?;
         let sub = ClusterSubscriber::new(&session, &a.cluster).await?;
         let deadline = a
             .duration

@@ -760,6 +760,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     super::block_on(async move {
         let stats = tokio::spawn(publish_stats(
             announced,
+            config.token.as_ref().map(|t| t.derive("zenoh")),
             counters.clone(),
             config.worker_id.clone(),
             config.node_id.clone(),
@@ -799,6 +800,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
 /// once the coordinator has announced where its telemetry router is.
 async fn publish_stats(
     mut announced: tokio::sync::watch::Receiver<Option<(String, String)>>,
+    password: Option<String>,
     counters: Arc<Counters>,
     worker: String,
     node: String,
@@ -815,7 +817,7 @@ async fn publish_stats(
             return;
         }
     };
-    let session = match assay_telemetry::open_client(&endpoint).await {
+    let session = match assay_telemetry::open_client(&endpoint, password.as_deref()).await {
         Ok(s) => s,
         Err(e) => {
             tracing::warn!(%endpoint, error = %e, "telemetry is off for this worker");

@@ -101,22 +101,91 @@ fn base_config(mode: &str) -> Result<zenoh::Config, TelemetryError> {
     Ok(c)
 }
 
-/// The router the coordinator runs, listening on `endpoint` (e.g. `tcp/127.0.0.1:7447`).
-pub async fn open_router(endpoint: &str) -> Result<zenoh::Session, TelemetryError> {
+/// The user name every member of a cluster presents to its router.
+pub const ZENOH_USER: &str = "assay";
+
+/// The router the coordinator runs, listening on `endpoint` (e.g. `tcp/127.0.0.1:7447`). With a
+/// `password` (derived from the cluster token), the router admits only sessions that prove they
+/// know it (zenoh's user-password authentication: an HMAC of a fresh nonce, the password never
+/// sent); without one, it admits anyone who can reach it.
+pub async fn open_router(
+    endpoint: &str,
+    password: Option<&str>,
+) -> Result<zenoh::Session, TelemetryError> {
     let mut c = base_config("router")?;
     c.insert_json5("listen/endpoints", &format!("[\"{endpoint}\"]"))
         .map_err(err)?;
     c.insert_json5("connect/endpoints", "[]").map_err(err)?;
-    zenoh::open(c).await.map_err(err)
+    let Some(password) = password else {
+        return zenoh::open(c).await.map_err(err);
+    };
+    // zenoh reads the accepted users from a file, once, while the session opens: a private file
+    // that lives only that long.
+    let dict = PrivateFile::create(&format!("{ZENOH_USER}:{password}\n")).map_err(err)?;
+    c.insert_json5(
+        "transport/auth/usrpwd/dictionary_file",
+        &serde_json::to_string(&dict.path.display().to_string()).map_err(err)?,
+    )
+    .map_err(err)?;
+    let session = zenoh::open(c).await.map_err(err);
+    drop(dict);
+    session
 }
 
-/// A client session on the router at `endpoint` (workers, `assay top`, `assay eval`).
-pub async fn open_client(endpoint: &str) -> Result<zenoh::Session, TelemetryError> {
+/// A client session on the router at `endpoint` (workers, `assay top`, `assay eval`), presenting
+/// `password` when the cluster has one.
+pub async fn open_client(
+    endpoint: &str,
+    password: Option<&str>,
+) -> Result<zenoh::Session, TelemetryError> {
     let mut c = base_config("client")?;
     c.insert_json5("connect/endpoints", &format!("[\"{endpoint}\"]"))
         .map_err(err)?;
     c.insert_json5("listen/endpoints", "[]").map_err(err)?;
+    if let Some(password) = password {
+        c.insert_json5("transport/auth/usrpwd/user", &format!("\"{ZENOH_USER}\""))
+            .map_err(err)?;
+        c.insert_json5(
+            "transport/auth/usrpwd/password",
+            &serde_json::to_string(password).map_err(err)?,
+        )
+        .map_err(err)?;
+    }
     zenoh::open(c).await.map_err(err)
+}
+
+/// A file only this user can read, removed when dropped.
+struct PrivateFile {
+    path: std::path::PathBuf,
+}
+
+impl PrivateFile {
+    fn create(content: &str) -> std::io::Result<Self> {
+        use std::io::Write;
+        use std::os::unix::fs::OpenOptionsExt;
+        static NEXT: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+        let n = NEXT.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        let path = std::env::temp_dir().join(format!(
+            "assay-zenoh-users-{}-{n}-{}",
+            std::process::id(),
+            std::time::SystemTime::now()
+                .duration_since(std::time::UNIX_EPOCH)
+                .map_or(0, |d| d.subsec_nanos())
+        ));
+        let mut f = std::fs::OpenOptions::new()
+            .write(true)
+            .create_new(true)
+            .mode(0o600)
+            .open(&path)?;
+        f.write_all(content.as_bytes())?;
+        Ok(Self { path })
+    }
+}
+
+impl Drop for PrivateFile {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_file(&self.path);
+    }
 }
 
 /// Publishes JSON values on one key, blocking (not dropping) under congestion.
@@ -200,10 +269,10 @@ mod tests {
     #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
     async fn a_client_receives_what_another_client_publishes_through_the_router() {
         let endpoint = free_loopback_endpoint().unwrap();
-        let router = open_router(&endpoint).await.unwrap();
-        let viewer = open_client(&endpoint).await.unwrap();
+        let router = open_router(&endpoint, None).await.unwrap();
+        let viewer = open_client(&endpoint, None).await.unwrap();
         let sub = ClusterSubscriber::new(&viewer, "t").await.unwrap();
-        let worker = open_client(&endpoint).await.unwrap();
+        let worker = open_client(&endpoint, None).await.unwrap();
         let publisher = JsonPublisher::new(&worker, worker_key("t", "w/1"))
             .await
             .unwrap();
@@ -228,6 +297,92 @@ mod tests {
         assert_eq!(got.0, "assay/t/workers/w_1/stats");
         assert_eq!(serde_json::from_value::<WorkerStats>(got.1).unwrap(), stats);
         for s in [worker, viewer, router] {
+            close(s).await;
+        }
+    }
+
+    /// Publishes `stats` until `sub` receives a sample (true) or `within` passes (false).
+    async fn delivered(
+        publisher: &JsonPublisher,
+        sub: &ClusterSubscriber,
+        stats: &WorkerStats,
+        within: std::time::Duration,
+    ) -> bool {
+        tokio::time::timeout(within, async {
+            loop {
+                publisher.put(stats).await.unwrap();
+                if let Ok(Some(_)) =
+                    tokio::time::timeout(std::time::Duration::from_millis(200), sub.next()).await
+                {
+                    return;
+                }
+            }
+        })
+        .await
+        .is_ok()
+    }
+
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn a_router_with_a_password_admits_only_sessions_that_know_it() {
+        let endpoint = free_loopback_endpoint().unwrap();
+        let password = "5f1c0ffee-derived-from-the-cluster-token";
+        let before: Vec<_> = std::fs::read_dir(std::env::temp_dir())
+            .unwrap()
+            .filter_map(|e| e.ok())
+            .filter(|e| {
+                e.file_name()
+                    .to_string_lossy()
+                    .starts_with("assay-zenoh-users-")
+            })
+            .map(|e| e.path())
+            .collect();
+        let router = open_router(&endpoint, Some(password)).await.unwrap();
+        // The users file lived only while the router opened.
+        let after: Vec<_> = std::fs::read_dir(std::env::temp_dir())
+            .unwrap()
+            .filter_map(|e| e.ok())
+            .filter(|e| {
+                e.file_name()
+                    .to_string_lossy()
+                    .starts_with("assay-zenoh-users-")
+            })
+            .map(|e| e.path())
+            .filter(|p| !before.contains(p))
+            .collect();
+        assert!(after.is_empty(), "left behind: {after:?}");
+
+        let viewer = open_client(&endpoint, Some(password)).await.unwrap();
+        let sub = ClusterSubscriber::new(&viewer, "t").await.unwrap();
+        let member = open_client(&endpoint, Some(password)).await.unwrap();
+        let publisher = JsonPublisher::new(&member, worker_key("t", "member"))
+            .await
+            .unwrap();
+        let stats = WorkerStats {
+            worker: "member".into(),
+            ..Default::default()
+        };
+        assert!(
+            delivered(&publisher, &sub, &stats, std::time::Duration::from_secs(20)).await,
+            "a member's sample did not arrive"
+        );
+        // Without the password, or with another, a client is not let in: either opening fails, or
+        // what it publishes reaches nobody.
+        for wrong in [None, Some("not-the-password-of-this-cluster")] {
+            match open_client(&endpoint, wrong).await {
+                Err(e) => assert!(!e.to_string().contains(password), "{e}"),
+                Ok(outsider) => {
+                    let p = JsonPublisher::new(&outsider, worker_key("t", "outsider"))
+                        .await
+                        .unwrap();
+                    assert!(
+                        !delivered(&p, &sub, &stats, std::time::Duration::from_secs(3)).await,
+                        "an outsider ({wrong:?}) published into the cluster"
+                    );
+                    close(outsider).await;
+                }
+            }
+        }
+        for s in [member, viewer, router] {
             close(s).await;
         }
     }
