@@ -39,6 +39,11 @@ oracle:
 
 /// `assay policy serve` on a free port, its log in `dir`; returns the child and its URL.
 fn serve(dir: &Path, policy: &str, delay_ms: u32) -> (Child, String) {
+    serve_env(dir, policy, delay_ms, &[])
+}
+
+/// [`serve`] with extra environment variables.
+fn serve_env(dir: &Path, policy: &str, delay_ms: u32, env: &[(&str, &str)]) -> (Child, String) {
     let log = std::fs::File::create(dir.join("policy-server.log")).unwrap();
     let mut child = Command::new(bin())
         .args([
@@ -51,6 +56,7 @@ fn serve(dir: &Path, policy: &str, delay_ms: u32) -> (Child, String) {
         ])
         .args(["--delay-ms", &delay_ms.to_string()])
         .env("ASSAY_LOG", "debug")
+        .envs(env.iter().copied())
         .stdin(Stdio::null())
         .stdout(Stdio::piped())
         .stderr(log)
@@ -197,4 +203,45 @@ fn killing_the_policy_server_mid_batch_fails_its_episodes_not_the_batch() {
         t.episodes.iter().filter(|e| e.policy == "oracle").count(),
         8
     );
+}
+
+/// `assay policy serve` in a cluster with a token answers only callers with the cluster's policy
+/// token: `assay policy check` without the token is refused and told why, with it gets `Health`.
+#[test]
+fn a_policy_server_of_a_cluster_with_a_token_refuses_callers_without_it() {
+    const TOKEN: &str = "policy-test-cluster-token-0123456789";
+    let dir = tempfile::tempdir().unwrap();
+    let module = torchscript(dir.path());
+    let policy = format!("torchscript:path={}", module.display());
+    let (mut server, url) = serve_env(dir.path(), &policy, 0, &[("ASSAY_CLUSTER_TOKEN", TOKEN)]);
+    let check = |token: Option<&str>| {
+        let mut cmd = Command::new(bin());
+        cmd.args(["policy", "check", &url])
+            .env_remove("ASSAY_CLUSTER_TOKEN");
+        if let Some(t) = token {
+            cmd.env("ASSAY_CLUSTER_TOKEN", t);
+        }
+        cmd.output().unwrap()
+    };
+    let refused = check(None);
+    let text = String::from_utf8_lossy(&refused.stderr);
+    assert!(!refused.status.success(), "{text}");
+    assert!(
+        text.contains("Unauthenticated") && text.contains("cluster token"),
+        "{text}"
+    );
+    let wrong = check(Some("another-cluster-token-0123456789"));
+    assert!(!wrong.status.success());
+    let ok = check(Some(TOKEN));
+    assert!(
+        ok.status.success(),
+        "{}",
+        String::from_utf8_lossy(&ok.stderr)
+    );
+    let health: serde_json::Value = serde_json::from_slice(&ok.stdout).unwrap();
+    assert_eq!(health["name"], policy.as_str());
+    let _ = server.kill();
+    let _ = server.wait();
+    let log = std::fs::read_to_string(dir.path().join("policy-server.log")).unwrap();
+    assert!(!log.contains(TOKEN), "the policy server logged the token");
 }

@@ -92,6 +92,13 @@ impl Token {
         hex::encode(h.finalize())
     }
 
+    /// The token for another service of the cluster: [`Token::derive`] of `purpose`, as a token.
+    /// Policy servers get `for_service("policy")`: a policy server that leaks what it is sent
+    /// gives away neither the coordinator's token nor another service's.
+    pub fn for_service(&self, purpose: &str) -> Token {
+        Token(self.derive(purpose).into())
+    }
+
     fn header(&self) -> MetadataValue<Ascii> {
         format!("Bearer {}", self.0)
             .parse()
@@ -203,5 +210,12 @@ mod tests {
                 .derive("zenoh")
         );
         assert!(!z.contains("secret"));
+        // The documented recipe (docs/policies.md), computed with Python's hashlib.
+        assert_eq!(
+            t.derive("policy"),
+            "bcc6bfc2549c45f3ff6350548aa61093f4bd01d5a8c67362f2f0499f46011b7e"
+        );
+        let p = t.for_service("policy");
+        assert!(p.matches(&t.derive("policy")) && !p.matches("0123456789abcdef-secret"));
     }
 }

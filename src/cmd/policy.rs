@@ -84,7 +84,11 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
                     writeln!(out, "listening on http://{addr}")?;
                     out.flush()?;
                 }
-                assay_policy::serve(listener, factory, info, super::terminated())
+                // With the cluster token, only callers with the cluster's policy token get in.
+                let token = assay_proto::auth::Token::from_env()
+                    .map_err(anyhow::Error::msg)?
+                    .map(|t| t.for_service("policy"));
+                assay_policy::serve(listener, factory, info, token, super::terminated())
                     .await
                     .context("policy server")
             })?;

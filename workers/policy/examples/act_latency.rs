@@ -39,6 +39,7 @@ fn main() {
         listener,
         factory,
         ServerInfo::default(),
+        None,
         std::future::pending(),
     ));
     let mut policy =

@@ -18,7 +18,7 @@ use assay_core::clip::{ACTION_DIMS, PROPRIO_DIMS};
 use assay_core::policy::{Action, EpisodeContext, Policy, PolicyError, PolicyObservation};
 use assay_proto::v1 as pb;
 use tokio::runtime::Handle;
-use tonic::transport::{Channel, Endpoint};
+use tonic::transport::Endpoint;
 use tracing::debug;
 
 use crate::server::{MAX_CHUNK, MAX_MESSAGE_BYTES, ServerInfo};
@@ -40,7 +40,7 @@ pub struct RemotePolicy {
     url: String,
     timeout: Duration,
     rt: Handle,
-    client: pb::policy_client::PolicyClient<Channel>,
+    client: pb::policy_client::PolicyClient<assay_proto::auth::Channel>,
     info: ServerInfo,
     /// The episode being played, once reset.
     episode: Option<String>,
@@ -62,7 +62,24 @@ impl RemotePolicy {
     /// within `timeout`, which is also the deadline of every later call. A server that is down
     /// or silent is `Unavailable`; one whose action or proprioception dims are not Assay's (4 and
     /// 4) is `Load`. Blocks on `rt`: do not call it from inside that runtime.
+    ///
+    /// When this process has the cluster token (`ASSAY_CLUSTER_TOKEN` or
+    /// `ASSAY_CLUSTER_TOKEN_FILE`), every call carries the cluster's policy token derived from it
+    /// ([`assay_proto::auth::Token::for_service`]`("policy")`), never the token itself.
     pub fn connect(url: &str, timeout: Duration, rt: Handle) -> Result<RemotePolicy, PolicyError> {
+        let token = assay_proto::auth::Token::from_env()
+            .map_err(PolicyError::Load)?
+            .map(|t| t.for_service("policy"));
+        Self::connect_with(url, timeout, rt, token)
+    }
+
+    /// [`RemotePolicy::connect`] presenting `token` (none: no `authorization` header).
+    pub fn connect_with(
+        url: &str,
+        timeout: Duration,
+        rt: Handle,
+        token: Option<assay_proto::auth::Token>,
+    ) -> Result<RemotePolicy, PolicyError> {
         let start = Instant::now();
         let endpoint = Endpoint::from_shared(url.to_owned())
             .map_err(|e| PolicyError::Load(format!("bad policy server address '{url}': {e}")))?
@@ -87,9 +104,12 @@ impl RemotePolicy {
                         .connect()
                         .await
                         .map_err(|e| down(error_chain(&e)))?;
-                    let mut client = pb::policy_client::PolicyClient::new(channel)
-                        .max_decoding_message_size(MAX_MESSAGE_BYTES)
-                        .max_encoding_message_size(MAX_MESSAGE_BYTES);
+                    let mut client = pb::policy_client::PolicyClient::with_interceptor(
+                        channel,
+                        assay_proto::auth::AttachToken::new(token.clone()),
+                    )
+                    .max_decoding_message_size(MAX_MESSAGE_BYTES)
+                    .max_encoding_message_size(MAX_MESSAGE_BYTES);
                     let answer = client.health(health_request(timeout)).await.map_err(|s| {
                         if missed_deadline(&s, start.elapsed(), timeout) {
                             return silent();

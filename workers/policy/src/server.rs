@@ -48,13 +48,22 @@ pub struct ServerInfo {
 
 /// Serves `assay.v1.Policy` on `listener` until `shutdown` resolves, then stops accepting, lets the
 /// calls in flight finish and returns.
+///
+/// With a `token` (the cluster's policy token, [`assay_proto::auth::Token::for_service`]`("policy")`),
+/// every call must carry it (`authorization: Bearer …`); others get `UNAUTHENTICATED`.
 pub async fn serve(
     listener: tokio::net::TcpListener,
     factory: PolicyFactory,
     info: ServerInfo,
+    token: Option<assay_proto::auth::Token>,
     shutdown: impl Future<Output = ()> + Send,
 ) -> Result<(), tonic::transport::Error> {
-    info!(addr = ?listener.local_addr().ok(), policy = %info.name, "policy server listening");
+    info!(
+        addr = ?listener.local_addr().ok(),
+        policy = %info.name,
+        token = if token.is_some() { "required" } else { "not required" },
+        "policy server listening"
+    );
     let service = PolicyService {
         factory,
         info,
@@ -64,6 +73,9 @@ pub async fn serve(
     // listeners it binds itself): with it on, one answer in a hundred waits ~40 ms for a delayed ACK.
     let incoming = tonic::transport::server::TcpIncoming::from(listener).with_nodelay(Some(true));
     tonic::transport::Server::builder()
+        .layer(tonic::service::InterceptorLayer::new(
+            assay_proto::auth::RequireToken::new(token),
+        ))
         .add_service(
             pb::policy_server::PolicyServer::new(service)
                 .max_decoding_message_size(MAX_MESSAGE_BYTES)

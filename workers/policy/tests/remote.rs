@@ -88,12 +88,20 @@ struct Server {
 
 impl Server {
     fn start(rt: &Runtime, factory: PolicyFactory) -> Server {
+        Self::start_with(rt, factory, None)
+    }
+
+    fn start_with(
+        rt: &Runtime,
+        factory: PolicyFactory,
+        token: Option<assay_proto::auth::Token>,
+    ) -> Server {
         let listener = rt
             .block_on(tokio::net::TcpListener::bind("127.0.0.1:0"))
             .expect("bind");
         let addr = listener.local_addr().expect("addr");
         let (stop, stopped) = oneshot::channel();
-        let task = rt.spawn(serve(listener, factory, info(), async {
+        let task = rt.spawn(serve(listener, factory, info(), token, async {
             let _ = stopped.await;
         }));
         Server {
@@ -395,4 +403,50 @@ fn a_server_can_relay_a_remote_policy() {
     drop(policy);
     relay.stop(&rt);
     upstream.stop(&rt);
+}
+
+/// A policy server with the cluster's policy token answers only clients that present it; the
+/// refusal is a `Load` error (not retried) that says what is missing.
+#[test]
+fn a_server_with_a_token_refuses_clients_without_it() {
+    use assay_proto::auth::Token;
+    let rt = runtime();
+    let cluster = Token::new("cluster-token-for-the-policy-test").unwrap();
+    let server = Server::start_with(
+        &rt,
+        echo(Duration::ZERO, false),
+        Some(cluster.for_service("policy")),
+    );
+    let timeout = Duration::from_secs(5);
+    for (who, token) in [
+        ("no token", None),
+        ("the coordinator's token itself", Some(cluster.clone())),
+        (
+            "another cluster's",
+            Some(
+                Token::new("another-cluster-token-entirely")
+                    .unwrap()
+                    .for_service("policy"),
+            ),
+        ),
+    ] {
+        match RemotePolicy::connect_with(&server.url, timeout, rt.handle().clone(), token) {
+            Err(PolicyError::Load(m)) => {
+                assert!(m.contains("Unauthenticated"), "{who}: {m}");
+                assert!(m.contains("cluster token"), "{who}: {m}");
+            }
+            other => panic!("{who}: expected a Load error, got {other:?}"),
+        }
+    }
+    let mut policy = RemotePolicy::connect_with(
+        &server.url,
+        timeout,
+        rt.handle().clone(),
+        Some(cluster.for_service("policy")),
+    )
+    .unwrap();
+    policy.reset(&episode()).unwrap();
+    assert_eq!(policy.act(&observation(0)).unwrap().len(), 3);
+    drop(policy);
+    server.stop(&rt);
 }

@@ -146,6 +146,7 @@ fn a_torchscript_policy_served_over_grpc() {
         listener,
         Arc::clone(&factory),
         assay_policy::ServerInfo::default(),
+        None,
         async {
             let _ = stopped.await;
         },
