@@ -287,10 +287,10 @@ fn doctor_checks_the_machine_for_real_and_names_the_fix() {
     assert_eq!(verdict(&checks, "judge local-vlm")["verdict"], "ok");
 }
 
-#[test]
-fn the_coordinator_benchmark_runs_every_shard_once_at_small_scale() {
+/// Runs `assay ARGS`, which must succeed, and reads the JSON line it prints.
+fn bench_json(args: &[&str]) -> serde_json::Value {
     let out = std::process::Command::new(bin())
-        .args(["bench", "coordinator", "--workers", "8", "--shards", "300"])
+        .args(args)
         .output()
         .unwrap();
     assert!(
@@ -298,8 +298,12 @@ fn the_coordinator_benchmark_runs_every_shard_once_at_small_scale() {
         "{}",
         String::from_utf8_lossy(&out.stderr)
     );
-    let line = String::from_utf8(out.stdout).unwrap();
-    let v: serde_json::Value = serde_json::from_str(line.trim()).unwrap();
+    serde_json::from_str(String::from_utf8(out.stdout).unwrap().trim()).unwrap()
+}
+
+#[test]
+fn the_coordinator_benchmark_runs_every_shard_once_at_small_scale() {
+    let v = bench_json(&["bench", "coordinator", "--workers", "8", "--shards", "300"]);
     for part in ["store", "store_actor", "grpc"] {
         assert_eq!(v[part]["shards"], 300, "{v:#}");
         assert!(v[part]["shards_per_s"].as_f64().unwrap() > 0.0, "{v:#}");
@@ -312,26 +316,16 @@ fn the_coordinator_benchmark_runs_every_shard_once_at_small_scale() {
 /// (the throughput figures are for the benchmark's reader, not asserted here).
 #[test]
 fn the_scaling_benchmark_runs_each_worker_count_to_the_end() {
-    let out = std::process::Command::new(bin())
-        .args([
-            "bench",
-            "scaling",
-            "--workers",
-            "6",
-            "--work-ms",
-            "5",
-            "--shards",
-            "400",
-        ])
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let v: serde_json::Value =
-        serde_json::from_str(String::from_utf8(out.stdout).unwrap().trim()).unwrap();
+    let v = bench_json(&[
+        "bench",
+        "scaling",
+        "--workers",
+        "6",
+        "--work-ms",
+        "5",
+        "--shards",
+        "400",
+    ]);
     let runs = v["runs"].as_array().unwrap();
     let workers: Vec<u64> = runs
         .iter()

@@ -326,27 +326,23 @@ mod tests {
     async fn a_router_with_a_password_admits_only_sessions_that_know_it() {
         let endpoint = free_loopback_endpoint().unwrap();
         let password = "5f1c0ffee-derived-from-the-cluster-token";
-        let before: Vec<_> = std::fs::read_dir(std::env::temp_dir())
-            .unwrap()
-            .filter_map(|e| e.ok())
-            .filter(|e| {
-                e.file_name()
-                    .to_string_lossy()
-                    .starts_with("assay-zenoh-users-")
-            })
-            .map(|e| e.path())
-            .collect();
+        let users_files = || -> Vec<std::path::PathBuf> {
+            std::fs::read_dir(std::env::temp_dir())
+                .unwrap()
+                .filter_map(|e| e.ok())
+                .filter(|e| {
+                    e.file_name()
+                        .to_string_lossy()
+                        .starts_with("assay-zenoh-users-")
+                })
+                .map(|e| e.path())
+                .collect()
+        };
+        let before = users_files();
         let router = open_router(&endpoint, Some(password)).await.unwrap();
         // The users file lived only while the router opened.
-        let after: Vec<_> = std::fs::read_dir(std::env::temp_dir())
-            .unwrap()
-            .filter_map(|e| e.ok())
-            .filter(|e| {
-                e.file_name()
-                    .to_string_lossy()
-                    .starts_with("assay-zenoh-users-")
-            })
-            .map(|e| e.path())
+        let after: Vec<_> = users_files()
+            .into_iter()
             .filter(|p| !before.contains(p))
             .collect();
         assert!(after.is_empty(), "left behind: {after:?}");
