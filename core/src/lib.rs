@@ -7,6 +7,7 @@
 //! torch or networking.
 
 pub mod agreement;
+pub mod assets;
 pub mod caption;
 pub mod clip;
 pub mod diffusion;

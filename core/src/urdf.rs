@@ -663,10 +663,8 @@ pub fn load_mesh(path: &Path) -> Result<TriangleMesh, String> {
         .to_ascii_lowercase();
     let at = |e: String| format!("{}: {e}", path.display());
     match ext.as_str() {
-        "obj" => {
-            parse_obj(&std::fs::read_to_string(path).map_err(|e| at(e.to_string()))?).map_err(at)
-        }
-        "stl" => parse_stl(&std::fs::read(path).map_err(|e| at(e.to_string()))?).map_err(at),
+        "obj" => parse_obj(&crate::assets::read_to_string(path).map_err(at)?).map_err(at),
+        "stl" => parse_stl(&crate::assets::read(path).map_err(at)?).map_err(at),
         _ => Err(at(format!(
             "unsupported mesh format '{ext}' (convert to OBJ or STL)"
         ))),
@@ -802,7 +800,8 @@ pub fn assemble_posed(
     frame_at: &BTreeMap<String, f64>,
     positions: &BTreeMap<String, f64>,
 ) -> Result<Assembled, String> {
-    let text = std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;
+    let text =
+        crate::assets::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;
     let urdf = parse(&text).map_err(|e| format!("{}: {e}", path.display()))?;
     let dir = path.parent().unwrap_or(Path::new("."));
     let mut meshes: BTreeMap<String, TriangleMesh> = BTreeMap::new();

@@ -691,7 +691,7 @@ impl Renderer {
                 path: format!("scene.objects[{i}].shape.mesh.path"),
                 reason,
             };
-            let text = std::fs::read_to_string(&path)
+            let text = assay_core::assets::read_to_string(std::path::Path::new(&path))
                 .map_err(|e| fail(format!("cannot read {path}: {e}")))?;
             let m =
                 assay_core::scene::parse_obj(&text).map_err(|e| fail(format!("{path}: {e}")))?;

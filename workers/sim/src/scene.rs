@@ -681,7 +681,7 @@ fn collider_for(shape: &Shape, spec: &TaskSpec, path: &str) -> Result<BuiltShape
             let full = spec
                 .resolve_asset(file)
                 .map_err(|e| SimError::spec(format!("{path}.mesh.path"), e))?;
-            let text = std::fs::read_to_string(&full).map_err(|e| {
+            let text = assay_core::assets::read_to_string(&full).map_err(|e| {
                 SimError::spec(
                     format!("{path}.mesh.path"),
                     format!("cannot read {}: {e}", full.display()),
