@@ -19,8 +19,6 @@ use std::time::Duration;
 use assay_proto::v1 as pb;
 use tokio::net::TcpListener;
 use tokio::sync::{Notify, broadcast, watch};
-use tokio_stream::StreamExt as _;
-use tokio_stream::wrappers::TcpListenerStream;
 use tracing::{info, warn};
 
 pub use config::CoordinatorConfig;
@@ -147,13 +145,7 @@ pub async fn serve(
     // Every connection without Nagle's delay: an assignment, a result and its ack are small
     // messages, and with Nagle and delayed ACKs each waited ~40 ms (`assay bench coordinator`:
     // 1,100 shards/s with 50 workers, nearly idle).
-    let incoming = TcpListenerStream::new(listener).map(|conn| {
-        conn.inspect(|s| {
-            if let Err(e) = s.set_nodelay(true) {
-                warn!(error = %e, "TCP_NODELAY");
-            }
-        })
-    });
+    let incoming = tonic::transport::server::TcpIncoming::from(listener).with_nodelay(Some(true));
     let result = server.serve_with_incoming_shutdown(incoming, async move {
         let _ = stop_for_server.changed().await;
     });

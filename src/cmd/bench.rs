@@ -56,7 +56,8 @@ pub struct Args {
     pub seg: bool,
 }
 
-fn cpu_s() -> f64 {
+/// This process's CPU time, in seconds.
+pub(crate) fn cpu_s() -> f64 {
     let t = clock_gettime(ClockId::CLOCK_PROCESS_CPUTIME_ID).expect("process CPU clock");
     t.tv_sec() as f64 + t.tv_nsec() as f64 * 1e-9
 }

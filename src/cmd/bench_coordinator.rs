@@ -19,13 +19,9 @@ use assay_proto::v1 as pb;
 use serde_json::json;
 use tokio_stream::wrappers::ReceiverStream;
 
-const SPEC: &str = include_str!("../../tests/fixtures/small/small-stack-two-blocks.yaml");
+use super::bench::cpu_s;
 
-fn cpu_s() -> f64 {
-    let t = nix::time::clock_gettime(nix::time::ClockId::CLOCK_PROCESS_CPUTIME_ID)
-        .expect("process CPU clock");
-    t.tv_sec() as f64 + t.tv_nsec() as f64 * 1e-9
-}
+const SPEC: &str = include_str!("../../tests/fixtures/small/small-stack-two-blocks.yaml");
 
 /// A line of /proc/self/status in MiB (`VmHWM`: peak resident, `VmRSS`: resident now).
 fn status_mib(key: &str) -> f64 {
