@@ -47,7 +47,7 @@ fn walk(p: &Path, out: &mut Vec<PathBuf>) -> std::io::Result<()> {
             walk(&entry?.path(), out)?;
         }
     } else if p.is_file() {
-        if assay_core::spec::Format::from_path(&p.display().to_string()).is_some() {
+        if assay_spec::spec::Format::from_path(&p.display().to_string()).is_some() {
             out.push(p.to_path_buf());
         }
     } else {

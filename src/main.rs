@@ -115,8 +115,8 @@ fn main() -> std::process::ExitCode {
         Command::Diversity(a) => cmd::diversity::run(a),
         Command::Schema { of } => {
             let schema = match of.as_str() {
-                "report" => assay_core::report::json_schema(),
-                _ => assay_core::spec::json_schema(),
+                "report" => assay_report::report::json_schema(),
+                _ => assay_spec::spec::json_schema(),
             };
             println!("{}", serde_json::to_string_pretty(&schema).expect("schema"));
             Ok(std::process::ExitCode::SUCCESS)

@@ -6,15 +6,15 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicU32, Ordering};
 use std::time::Duration;
 
-use assay_core::diversity::task_text;
-use assay_core::dynamics::DynamicsConfig;
-use assay_core::generalization::GeneralizationPlan;
-use assay_core::policy::PolicySpec;
-use assay_core::proxy::RankingPlan;
-use assay_core::report::TaskInfo;
-use assay_core::spec::{Format, parse_task};
-use assay_core::{SpecError, SpecErrors};
+use assay_model::dynamics::DynamicsConfig;
+use assay_model::episode::TaskInfo;
+use assay_model::generalization::GeneralizationPlan;
+use assay_model::policy::PolicySpec;
+use assay_model::proxy::RankingPlan;
 use assay_proto::v1 as pb;
+use assay_spec::spec::{Format, parse_task};
+use assay_spec::{SpecError, SpecErrors};
+use assay_stats::diversity::task_text;
 use tokio::sync::{Notify, broadcast, mpsc, watch};
 use tokio_stream::Stream;
 use tokio_stream::wrappers::ReceiverStream;
@@ -191,15 +191,15 @@ fn valid_judge_name(name: &str) -> bool {
 fn content_hash(
     docs: &[pb::TaskDocument],
     tasks: &[PlannedTask],
-    invalid: &[assay_core::SpecError],
+    invalid: &[assay_spec::SpecError],
 ) -> String {
     let mut hashes: Vec<String> = tasks.iter().map(|t| t.info.spec_hash.clone()).collect();
     for d in docs {
         if invalid.iter().any(|e| e.origin == d.origin) {
-            hashes.push(assay_core::hash::sha256_hex(d.content.as_bytes()));
+            hashes.push(assay_spec::hash::sha256_hex(d.content.as_bytes()));
         }
     }
-    assay_core::report::batch_hash(hashes.iter().map(String::as_str))
+    assay_report::report::batch_hash(hashes.iter().map(String::as_str))
 }
 
 fn counts_to_pb(c: &BatchCounts, workers: u32) -> pb::BatchStatus {

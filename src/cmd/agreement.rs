@@ -6,7 +6,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use anyhow::Context;
-use assay_core::agreement::{AgreementTable, BOOTSTRAP_RESAMPLES, Estimate, parse_ratings};
+use assay_stats::agreement::{AgreementTable, BOOTSTRAP_RESAMPLES, Estimate, parse_ratings};
 
 #[derive(clap::Args)]
 pub struct Args {

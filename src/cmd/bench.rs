@@ -9,8 +9,9 @@ use anyhow::Context;
 use assay_framebus::monotonic_ns;
 use assay_render::{Outputs, Renderer};
 use assay_sim::reference::{self, Contract, Workload};
-use nix::time::{ClockId, clock_gettime};
 use serde_json::json;
+
+use super::cpu_s;
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -54,12 +55,6 @@ pub struct Args {
     /// Also read back a segmentation image per frame.
     #[arg(long)]
     pub seg: bool,
-}
-
-/// This process's CPU time, in seconds.
-pub(crate) fn cpu_s() -> f64 {
-    let t = clock_gettime(ClockId::CLOCK_PROCESS_CPUTIME_ID).expect("process CPU clock");
-    t.tv_sec() as f64 + t.tv_nsec() as f64 * 1e-9
 }
 
 fn median(v: &[f64]) -> f64 {
@@ -114,7 +109,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     }
     let text = std::fs::read_to_string(&a.scene)
         .with_context(|| format!("reading {}", a.scene.display()))?;
-    let sha = assay_core::hash::sha256_hex(text.as_bytes());
+    let sha = assay_spec::hash::sha256_hex(text.as_bytes());
     let c = Contract::parse(&text)?;
     let camera = reference::camera(
         &c,
@@ -247,7 +242,7 @@ fn pct(sorted: &[f64], p: f64) -> f64 {
 /// Frame hand-off between two processes of a node: iceoryx2 (publisher here, a spinning
 /// subscriber process reading in place) against a plain memcpy of the same frame.
 fn handoff(
-    camera: &assay_core::spec::Camera,
+    camera: &assay_spec::spec::Camera,
     frames: u32,
 ) -> anyhow::Result<(serde_json::Value, Rates)> {
     let (w, h) = (camera.width, camera.height);
@@ -374,12 +369,12 @@ impl Transport {
                     .worker_threads(1)
                     .enable_all()
                     .build()?;
-                let hub = crate::cmd::frames_grpc::FrameHub::default();
+                let hub = assay_worker::relay::FrameHub::default();
                 let tx = hub.sender(&stream);
                 let listener = rt.block_on(tokio::net::TcpListener::bind("127.0.0.1:0"))?;
                 let url = format!("http://{}", listener.local_addr()?);
                 rt.spawn(
-                    crate::cmd::frames_grpc::server_builder()
+                    assay_worker::relay::server_builder()
                         .add_service(hub.server(None))
                         .serve_with_incoming(tokio_stream::wrappers::TcpListenerStream::new(
                             listener,

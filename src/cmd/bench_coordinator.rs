@@ -19,7 +19,7 @@ use assay_proto::v1 as pb;
 use serde_json::json;
 use tokio_stream::wrappers::ReceiverStream;
 
-use super::bench::cpu_s;
+use super::cpu_s;
 
 const SPEC: &str = include_str!("../../tests/fixtures/small/small-stack-two-blocks.yaml");
 
@@ -37,12 +37,12 @@ fn status_mib(key: &str) -> f64 {
 
 /// One valid episode outcome, sent for every shard.
 fn outcome_json() -> String {
-    serde_json::to_string(&assay_core::report::EpisodeOutcome {
+    serde_json::to_string(&assay_model::episode::EpisodeOutcome {
         task_id: "small-stack-two-blocks".into(),
         seed: 0,
         policy: "oracle".into(),
         success: true,
-        label_source: assay_core::report::LabelSource::Sim,
+        label_source: assay_model::episode::LabelSource::Sim,
         predicates: Vec::new(),
         steps: 1,
         sim_time_s: 0.01,

@@ -8,6 +8,39 @@ use anyhow::Context;
 
 use crate::proc::{ChildProc, wait_for_file};
 
+/// The local cluster's options, shared by `assay eval` and `assay watch` (flattened into both,
+/// so their flags, defaults and configuration keys are the same).
+#[derive(clap::Args, Debug, Clone)]
+pub struct ClusterArgs {
+    /// Sim worker processes to start.
+    #[arg(long, default_value_t = 2)]
+    pub workers: u32,
+    /// Shards each worker runs at once.
+    #[arg(long, default_value_t = 1)]
+    pub capacity: u32,
+    /// Worker roles: sim,render (pictures of every episode, judging, dynamics diversity) or sim
+    /// (physics only, faster).
+    #[arg(long, default_value = "sim,render")]
+    pub roles: String,
+    /// Size of rendered views and keyframes, WIDTHxHEIGHT.
+    #[arg(long, default_value = "640x480")]
+    pub image_size: String,
+    /// Also a video of every episode (MP4 with ffmpeg installed, else an animated GIF).
+    #[arg(long)]
+    pub video: bool,
+    /// Configuration file (TOML) for the judge and trainer workers (`[judges.<name>]`,
+    /// `[embedders.<name>]`).
+    #[arg(long, env = "ASSAY_CONFIG")]
+    pub config: Option<PathBuf>,
+    /// Judge requests in flight at once in the judge worker (shards it runs at once).
+    #[arg(long, default_value_t = 4)]
+    pub judge_capacity: u32,
+    /// No judging (by default rendered episodes are judged by the built-in `offline` judge,
+    /// or by the judges given with --judge).
+    #[arg(long, conflicts_with = "judges")]
+    pub no_judge: bool,
+}
+
 /// What to start.
 pub struct Plan {
     /// Sim worker processes.

@@ -6,7 +6,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use anyhow::Context;
-use assay_core::diversity::{Marginal, TextDiversityTable, marginal_diversity, parse_text_groups};
+use assay_stats::diversity::{Marginal, TextDiversityTable, marginal_diversity, parse_text_groups};
 use assay_trainer::embedders::{Config, Embedders};
 use serde::Serialize;
 

@@ -274,7 +274,7 @@ fn judges(path: &std::path::Path) -> Vec<Check> {
     let mut out = Vec::new();
     for name in cfg.names() {
         let Some(j) = cfg.judge(&name) else { continue };
-        let endpoints: Vec<assay_judge::openai::EndpointConfig> = match j {
+        let endpoints: Vec<assay_openai::EndpointConfig> = match j {
             assay_judge::JudgeConfig::Offline {} => continue,
             assay_judge::JudgeConfig::OpenAi(e) => vec![e],
             assay_judge::JudgeConfig::CaptionLlm { captioner, scorer } => match captioner {
@@ -293,7 +293,7 @@ fn judges(path: &std::path::Path) -> Vec<Check> {
     out
 }
 
-fn endpoint(e: &assay_judge::openai::EndpointConfig) -> (Verdict, String, String) {
+fn endpoint(e: &assay_openai::EndpointConfig) -> (Verdict, String, String) {
     let Some((scheme, rest)) = e.base_url.split_once("://") else {
         return (
             Verdict::Fail,

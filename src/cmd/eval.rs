@@ -19,32 +19,9 @@ pub struct Args {
     /// Read PATHS as a generator's own output (gensim, robogen or bbsea): import them first,
     /// print the per-task mapping report and write it to OUT/import-report.json.
     #[arg(long, value_name = "PIPELINE")]
-    pub import: Option<assay_core::import::Pipeline>,
-    /// Sim worker processes to start.
-    #[arg(long, default_value_t = 2)]
-    pub workers: u32,
-    /// Shards each worker runs at once.
-    #[arg(long, default_value_t = 1)]
-    pub capacity: u32,
-    /// Worker roles: sim,render (pictures of every episode) or sim (physics only, faster).
-    #[arg(long, default_value = "sim,render")]
-    pub roles: String,
-    /// Size of rendered views and keyframes, WIDTHxHEIGHT.
-    #[arg(long, default_value = "640x480")]
-    pub image_size: String,
-    /// Also a video of every episode (MP4 with ffmpeg installed, else an animated GIF).
-    #[arg(long)]
-    pub video: bool,
-    /// Configuration file (TOML) with the judges the judge worker may run (`[judges.<name>]`).
-    #[arg(long, env = "ASSAY_CONFIG")]
-    pub config: Option<PathBuf>,
-    /// Judge requests in flight at once in the judge worker (shards it runs at once).
-    #[arg(long, default_value_t = 4)]
-    pub judge_capacity: u32,
-    /// No judging (by default rendered episodes are judged by the built-in `offline` judge,
-    /// or by the judges given with --judge).
-    #[arg(long, conflicts_with = "judges")]
-    pub no_judge: bool,
+    pub import: Option<assay_import::Pipeline>,
+    #[command(flatten)]
+    pub cluster: super::cluster::ClusterArgs,
     /// No diversity (by default: text diversity with minilm, and with rendering, dynamics
     /// diversity at 10, 20 and 40 episodes per group, on a trainer worker).
     #[arg(long, conflicts_with_all = ["text_models", "dynamics_budgets"])]
@@ -97,8 +74,8 @@ pub fn run(mut a: Args) -> anyhow::Result<ExitCode> {
             docs
         }
     };
-    let rendering = a.roles.split(',').any(|r| r.trim() == "render");
-    if a.no_judge || !rendering {
+    let rendering = a.cluster.roles.split(',').any(|r| r.trim() == "render");
+    if a.cluster.no_judge || !rendering {
         if !a.batch.judges.is_empty() {
             anyhow::bail!("--judge needs rendered episodes: run with --roles sim,render");
         }
@@ -110,7 +87,7 @@ pub fn run(mut a: Args) -> anyhow::Result<ExitCode> {
             a.batch.text_models.push("minilm".into());
         }
         if a.batch.dynamics_budgets.is_empty() && rendering {
-            a.batch.dynamics_budgets = assay_core::dynamics::DEFAULT_BUDGETS.to_vec();
+            a.batch.dynamics_budgets = assay_model::dynamics::DEFAULT_BUDGETS.to_vec();
         }
     }
     if !a.batch.dynamics_budgets.is_empty() && !rendering {
@@ -131,7 +108,7 @@ pub fn run(mut a: Args) -> anyhow::Result<ExitCode> {
             "this build has no trainer role (built without the `trainer` feature): run with --no-diversity"
         );
     }
-    if let Some(path) = &a.config {
+    if let Some(path) = &a.cluster.config {
         // Fail here, before anything starts, rather than in the judge worker's log.
         let cfg = assay_judge::Config::load(path).map_err(anyhow::Error::msg)?;
         for j in &a.batch.judges {
@@ -151,19 +128,19 @@ pub fn run(mut a: Args) -> anyhow::Result<ExitCode> {
     let _ = std::fs::remove_dir_all(&run_dir);
     let cluster = super::cluster::LocalCluster::start(
         &super::cluster::Plan {
-            workers: a.workers,
-            capacity: a.capacity,
-            roles: a.roles.clone(),
-            image_size: a.image_size.clone(),
-            video: a.video,
-            config: a.config.clone(),
+            workers: a.cluster.workers,
+            capacity: a.cluster.capacity,
+            roles: a.cluster.roles.clone(),
+            image_size: a.cluster.image_size.clone(),
+            video: a.cluster.video,
+            config: a.cluster.config.clone(),
             judges: a.batch.judges.clone(),
-            judge_capacity: a.judge_capacity,
+            judge_capacity: a.cluster.judge_capacity,
             training,
             trainer_capacity: a.trainer_capacity,
         },
         &run_dir,
-        &a.out.join(assay_core::report::ARTIFACTS_LINK),
+        &a.out.join(assay_report::report::ARTIFACTS_LINK),
     )?;
     let addr = cluster.addr.clone();
     let telemetry = cluster.telemetry.clone();
@@ -317,7 +294,7 @@ pub fn run(mut a: Args) -> anyhow::Result<ExitCode> {
     super::report::write(
         &a.out,
         &parsed,
-        &a.out.join(assay_core::report::ARTIFACTS_LINK),
+        &a.out.join(assay_report::report::ARTIFACTS_LINK),
         human.as_ref(),
     )?;
     for line in super::report::ranking_lines(&parsed) {

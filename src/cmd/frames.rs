@@ -147,7 +147,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
             let mut stats = Stats::default();
             match grpc {
                 Some(url) => crate::cmd::block_on(async {
-                    let mut frames = super::frames_grpc::subscribe(&url, &stream).await?;
+                    let mut frames = assay_worker::relay::subscribe(&url, &stream).await?;
                     if let Some(f) = ready_file {
                         std::fs::write(f, "ready\n")?;
                     }
@@ -290,7 +290,7 @@ fn relay(
     listen: std::net::SocketAddr,
     addr_file: Option<PathBuf>,
 ) -> anyhow::Result<ExitCode> {
-    let hub = super::frames_grpc::FrameHub::default();
+    let hub = assay_worker::relay::FrameHub::default();
     let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
     let mut threads = Vec::new();
     for (i, name) in streams.into_iter().enumerate() {
@@ -357,7 +357,7 @@ fn relay(
             std::fs::rename(&tmp, &f)?;
         }
         let token = assay_proto::auth::Token::from_env().map_err(anyhow::Error::msg)?;
-        super::frames_grpc::server_builder()
+        assay_worker::relay::server_builder()
             .add_service(hub.server(token))
             .serve_with_incoming_shutdown(
                 tokio_stream::wrappers::TcpListenerStream::new(listener),

@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 use anyhow::Context;
-use assay_core::import::{Import, ImportOptions, Pipeline, import, spec_to_yaml};
+use assay_import::{Import, ImportOptions, Pipeline, import, spec_to_yaml};
 use assay_proto::v1 as pb;
 
 #[derive(clap::Args)]

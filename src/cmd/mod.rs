@@ -10,7 +10,6 @@ pub mod diversity;
 pub mod doctor;
 pub mod eval;
 pub mod frames;
-pub mod frames_grpc;
 pub mod import;
 pub mod policy;
 pub mod rank;
@@ -18,8 +17,6 @@ pub mod report;
 pub mod status;
 pub mod submit;
 pub mod top;
-#[cfg(feature = "trainer")]
-pub mod trainer_role;
 pub mod validate;
 #[cfg(feature = "trainer")]
 pub mod watch;
@@ -104,4 +101,11 @@ pub fn print_rejected(rejected: &[pb::SpecError]) {
         };
         eprintln!("invalid task {task} ({}): {path}: {}", e.origin, e.reason);
     }
+}
+
+/// This process's CPU time, in seconds (the benchmarks' CPU-time rates).
+pub(crate) fn cpu_s() -> f64 {
+    use nix::time::{ClockId, clock_gettime};
+    let t = clock_gettime(ClockId::CLOCK_PROCESS_CPUTIME_ID).expect("process CPU clock");
+    t.tv_sec() as f64 + t.tv_nsec() as f64 * 1e-9
 }

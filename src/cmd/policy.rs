@@ -7,7 +7,7 @@ use std::process::ExitCode;
 use std::time::Duration;
 
 use anyhow::Context;
-use assay_core::policy::{
+use assay_model::policy::{
     Action, DEFAULT_REMOTE_TIMEOUT_MS, EpisodeContext, Policy, PolicyError, PolicyObservation,
     PolicySpec,
 };
@@ -65,8 +65,12 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
             artifact_root,
         } => {
             let spec = PolicySpec::parse(&policy).map_err(anyhow::Error::msg)?;
-            let factory =
-                assay_policy::factory(&spec, &artifact_root, rt.handle(), diffusion_loader())?;
+            let factory = assay_policy::factory(
+                &spec,
+                &artifact_root,
+                rt.handle(),
+                assay_worker::diffusion_loader(),
+            )?;
             let factory = delayed(factory, Duration::from_millis(delay_ms));
             let info = ServerInfo {
                 name: policy.clone(),
@@ -130,7 +134,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
                         &spec,
                         &artifact_root,
                         rt.handle(),
-                        diffusion_loader(),
+                        assay_worker::diffusion_loader(),
                     )?;
                     // f32 → JSON goes through f64: round so 0.1 prints as 0.1.
                     let chunk: Vec<Vec<f64>> = trial_act(policy.as_mut())?
@@ -146,26 +150,6 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
             println!("{}", serde_json::to_string_pretty(&report)?);
             Ok(ExitCode::SUCCESS)
         }
-    }
-}
-
-/// How this build loads diffusion checkpoints: with the trainer's libtorch model, or not at all
-/// (the hook of `assay_policy::load_with`; the sim role's and `assay policy`'s).
-pub fn diffusion_loader() -> Option<assay_policy::DiffusionLoader> {
-    #[cfg(feature = "trainer")]
-    {
-        Some(|bytes| {
-            // One libtorch thread per process: episodes run side by side on the shard threads,
-            // and libtorch's intra-op threads collapse under that load on a small node.
-            tch::set_num_threads(1);
-            assay_trainer::diffusion::DiffusionPolicy::from_bytes(bytes, tch::Device::Cpu)
-                .map(|p| Box::new(p) as Box<dyn Policy>)
-                .map_err(|e| PolicyError::Load(e.to_string()))
-        })
-    }
-    #[cfg(not(feature = "trainer"))]
-    {
-        None
     }
 }
 

@@ -7,8 +7,8 @@ use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 use anyhow::Context;
-use assay_core::agreement::BOOTSTRAP_RESAMPLES;
-use assay_core::ranking::{Ranking, RankingConfig, parse_success_table, rank};
+use assay_stats::agreement::BOOTSTRAP_RESAMPLES;
+use assay_stats::ranking::{Ranking, RankingConfig, parse_success_table, rank};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -50,7 +50,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     let ranking = rank(&cells, &cfg).map_err(|e| anyhow::anyhow!("{path}: {e}"))?;
     if let Some(plot) = &a.plot {
         for (file, i) in plot_files(plot, &ranking)? {
-            std::fs::write(&file, ranking.svg(i))
+            std::fs::write(&file, assay_report::figures::ranking(&ranking, i))
                 .with_context(|| format!("writing {}", file.display()))?;
             eprintln!("wrote {}", file.display());
         }

@@ -36,16 +36,16 @@ pub struct HumanArgs {
 
 impl HumanArgs {
     /// The agreement table of the ratings, when given.
-    pub fn table(&self) -> anyhow::Result<Option<assay_core::agreement::AgreementTable>> {
+    pub fn table(&self) -> anyhow::Result<Option<assay_stats::agreement::AgreementTable>> {
         let Some(path) = &self.human_ratings else {
             return Ok(None);
         };
         let text =
             std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
-        let ratings = assay_core::agreement::parse_ratings(&text, "human", None)
+        let ratings = assay_stats::agreement::parse_ratings(&text, "human", None)
             .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
         Ok(Some(
-            ratings.agreement(assay_core::agreement::BOOTSTRAP_RESAMPLES, 0),
+            ratings.agreement(assay_stats::agreement::BOOTSTRAP_RESAMPLES, 0),
         ))
     }
 }
@@ -54,9 +54,9 @@ impl HumanArgs {
 /// ranking) as SVG files beside them. Pictures in report.html come from `artifacts`.
 pub fn write(
     out: &Path,
-    report: &assay_core::report::Report,
+    report: &assay_report::report::Report,
     artifacts: &Path,
-    human: Option<&assay_core::agreement::AgreementTable>,
+    human: Option<&assay_stats::agreement::AgreementTable>,
 ) -> anyhow::Result<()> {
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     std::fs::write(
@@ -76,14 +76,17 @@ pub fn write(
         }
         std::fs::read(artifacts.join(rel)).ok()
     };
-    let html = assay_core::html::report_html(&assay_core::html::HtmlInputs {
+    let html = assay_report::html::report_html(&assay_report::html::HtmlInputs {
         report,
         artifact: &read,
         human,
     });
     std::fs::write(out.join("report.html"), html)?;
     if let Some(q) = &report.results.quality {
-        std::fs::write(out.join(assay_core::report::QUALITY_FIGURE), q.figure_svg())?;
+        std::fs::write(
+            out.join(assay_report::report::QUALITY_FIGURE),
+            q.figure_svg(),
+        )?;
     }
     if let Some(ranking) = report
         .results
@@ -93,8 +96,8 @@ pub fn write(
     {
         for (i, c) in ranking.comparisons.iter().enumerate() {
             std::fs::write(
-                out.join(assay_core::proxy::ranking_figure(&c.proxy)),
-                ranking.svg(i),
+                out.join(assay_report::ranking::ranking_figure(&c.proxy)),
+                assay_report::figures::ranking(ranking, i),
             )?;
         }
     }
@@ -102,12 +105,12 @@ pub fn write(
 }
 
 /// The coordinator's report, parsed.
-pub fn parse(r: &pb::GetReportResponse) -> anyhow::Result<assay_core::report::Report> {
+pub fn parse(r: &pb::GetReportResponse) -> anyhow::Result<assay_report::report::Report> {
     serde_json::from_str(&r.report_json).context("the coordinator's report")
 }
 
 /// One line per ranking comparison of `report` (for a terminal), empty without a ranking.
-pub fn ranking_lines(report: &assay_core::report::Report) -> Vec<String> {
+pub fn ranking_lines(report: &assay_report::report::Report) -> Vec<String> {
     let Some(ranking) = report
         .results
         .ranking
@@ -116,7 +119,7 @@ pub fn ranking_lines(report: &assay_core::report::Report) -> Vec<String> {
     else {
         return Vec::new();
     };
-    let est = |e: &assay_core::agreement::Estimate| match (e.value, e.ci95) {
+    let est = |e: &assay_stats::agreement::Estimate| match (e.value, e.ci95) {
         (Some(v), Some([lo, hi])) => format!("{v:.3} [{lo:.3}, {hi:.3}]"),
         (Some(v), None) => format!("{v:.3}"),
         (None, _) => "undefined".into(),
@@ -146,12 +149,12 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
             .as_deref()
             .and_then(Path::parent)
             .unwrap_or(&a.out)
-            .join(assay_core::report::ARTIFACTS_LINK)
+            .join(assay_report::report::ARTIFACTS_LINK)
     });
     if let Some(from) = &a.from {
         let text =
             std::fs::read_to_string(from).with_context(|| format!("reading {}", from.display()))?;
-        let report: assay_core::report::Report =
+        let report: assay_report::report::Report =
             serde_json::from_str(&text).with_context(|| format!("{}", from.display()))?;
         write(&a.out, &report, &artifacts, human.as_ref())?;
         eprintln!(

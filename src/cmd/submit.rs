@@ -40,7 +40,7 @@ pub struct BatchArgs {
     #[arg(long = "judge", value_delimiter = ',')]
     pub judges: Vec<String>,
     /// Times each judge item (scene alignment, completion) is asked.
-    #[arg(long, default_value_t = assay_core::quality::DEFAULT_REPEATS)]
+    #[arg(long, default_value_t = assay_model::quality::DEFAULT_REPEATS)]
     pub judge_repeats: u32,
     /// Stop making judge calls once this batch's judges have spent this many USD (0: no limit).
     #[arg(long, default_value_t = 0.0)]
@@ -57,19 +57,19 @@ pub struct BatchArgs {
     /// (e.g. 10,20,40), evaluated on the group's first max(budgets) episodes.
     #[arg(long = "dynamics-budgets", value_delimiter = ',')]
     pub dynamics_budgets: Vec<u32>,
-    /// World-model settings as JSON (fields of assay-core DynamicsConfig, e.g. '{"steps": 2000}').
+    /// World-model settings as JSON (fields of assay-model DynamicsConfig, e.g. '{"steps": 2000}').
     #[arg(long = "world-model")]
     pub world_model: Option<String>,
     /// Rank the batch's policies with a world-model proxy trained on the episodes of these
     /// policies (comma-separated; they must be among --policies and are not ranked themselves).
     #[arg(long = "rank-train-policies", value_delimiter = ',')]
     pub rank_train_policies: Vec<String>,
-    /// Proxy settings as JSON (fields of assay-core ProxyConfig, e.g.
+    /// Proxy settings as JSON (fields of assay-model ProxyConfig, e.g.
     /// '{"judge_steps": 600, "world_model": {"steps": 2000}}').
     #[arg(long = "proxy", requires = "rank_train_policies")]
     pub proxy: Option<String>,
     /// Generalization: train a diffusion policy per task group on its oracle episodes and run it
-    /// on training and held-out variations. Optional JSON settings (fields of assay-core
+    /// on training and held-out variations. Optional JSON settings (fields of assay-model
     /// GeneralizationPlan, e.g. '{"episodes": 40, "held_out_seeds": 3, "config": {"steps": 3000}}').
     #[arg(long = "generalization", num_args = 0..=1, default_missing_value = "{}")]
     pub generalization: Option<String>,

@@ -13,8 +13,8 @@ use std::process::ExitCode;
 use std::time::{Duration, Instant, SystemTime};
 
 use anyhow::Context;
-use assay_core::diversity::{Marginal, marginal_diversity, text_diversity};
 use assay_proto::v1 as pb;
+use assay_stats::diversity::{Marginal, marginal_diversity, text_diversity};
 use serde::{Deserialize, Serialize};
 
 /// The corpus report, `OUT/corpus.json`.
@@ -51,21 +51,8 @@ pub struct Args {
         default_value = "minilm"
     )]
     pub marginal_models: Vec<String>,
-    /// Sim worker processes of the local cluster.
-    #[arg(long, default_value_t = 2)]
-    pub workers: u32,
-    /// Shards each worker runs at once.
-    #[arg(long, default_value_t = 1)]
-    pub capacity: u32,
-    /// Worker roles: sim,render (pictures, judging, dynamics diversity) or sim.
-    #[arg(long, default_value = "sim,render")]
-    pub roles: String,
-    /// No judging (by default rendered episodes are judged by the offline judge).
-    #[arg(long)]
-    pub no_judge: bool,
-    /// Configuration file (TOML) for the judge and trainer workers.
-    #[arg(long, env = "ASSAY_CONFIG")]
-    pub config: Option<PathBuf>,
+    #[command(flatten)]
+    pub cluster: super::cluster::ClusterArgs,
     #[command(flatten)]
     pub batch: super::submit::BatchArgs,
 }
@@ -232,8 +219,8 @@ fn now_ms() -> i64 {
 pub fn run(mut a: Args) -> anyhow::Result<ExitCode> {
     std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
     anyhow::ensure!(a.dir.is_dir(), "{} is not a folder", a.dir.display());
-    let rendering = a.roles.split(',').any(|r| r.trim() == "render");
-    if !a.no_judge && rendering && a.batch.judges.is_empty() {
+    let rendering = a.cluster.roles.split(',').any(|r| r.trim() == "render");
+    if !a.cluster.no_judge && rendering && a.batch.judges.is_empty() {
         a.batch.judges.push(assay_judge::OFFLINE.into());
     }
     if a.batch.text_models.is_empty() {
@@ -253,19 +240,19 @@ pub fn run(mut a: Args) -> anyhow::Result<ExitCode> {
     let artifacts = a
         .artifacts
         .clone()
-        .unwrap_or_else(|| a.out.join(assay_core::report::ARTIFACTS_LINK));
+        .unwrap_or_else(|| a.out.join(assay_report::report::ARTIFACTS_LINK));
     let cluster = match &a.coordinator {
         Some(_) => None,
         None => Some(super::cluster::LocalCluster::start(
             &super::cluster::Plan {
-                workers: a.workers,
-                capacity: a.capacity,
-                roles: a.roles.clone(),
-                image_size: "640x480".into(),
-                video: false,
-                config: a.config.clone(),
+                workers: a.cluster.workers,
+                capacity: a.cluster.capacity,
+                roles: a.cluster.roles.clone(),
+                image_size: a.cluster.image_size.clone(),
+                video: a.cluster.video,
+                config: a.cluster.config.clone(),
                 judges: a.batch.judges.clone(),
-                judge_capacity: 4,
+                judge_capacity: a.cluster.judge_capacity,
                 training: true,
                 trainer_capacity: None,
             },

@@ -2,7 +2,7 @@
 
 Run (with scipy installed: pip install scipy numpy): python tests/python/agreement_reference.py examples/agreement/paper-table4-scene-alignment.csv
 Prints, per dataset and model: n, Pearson r, MAE, r/MAE, Spearman rho, Kendall tau-b (None where
-undefined). The numbers are pinned in core/src/agreement.rs's tests.
+undefined). The numbers are pinned in crates/domain/stats/src/agreement.rs's tests.
 """
 import csv
 import sys

@@ -5,7 +5,7 @@ Reads a success table (task, policy, source, and trials + successes or success_r
 and for every proxy source against `real` prints, per policy, R (real) and R_S (proxy), each the
 mean over the tasks both sources have of the success rate (exact fractions when counts are known),
 then Pearson r, Spearman rho, Kendall tau-b (scipy) and MMRV(proxy, real) as ../shared/DESIGN.md
-pins it. The numbers are pinned in core/src/ranking.rs's tests.
+pins it. The numbers are pinned in crates/domain/stats/src/ranking.rs's tests.
 """
 import csv
 import sys

@@ -1,4 +1,4 @@
-"""Reads an Assay episode file with pyarrow and prints a JSON summary (used by tests/eval.rs)."""
+"""Reads an Assay episode file with pyarrow and prints a JSON summary (used by tests/it/eval.rs)."""
 
 import json
 import sys

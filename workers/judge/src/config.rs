@@ -20,7 +20,7 @@ use std::path::Path;
 
 use serde::{Deserialize, Serialize};
 
-use crate::openai::EndpointConfig;
+use assay_openai::EndpointConfig;
 
 /// The built-in judge's name.
 pub const OFFLINE: &str = "offline";

@@ -4,15 +4,15 @@
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
 
-use assay_core::caption::{SceneCaption, offline_alignment};
-use assay_core::quality::{Item, ItemError, ItemOutcome, JudgeOutcome, Usage, parse_score};
-use assay_core::report::EpisodeOutcome;
+use assay_model::caption::{SceneCaption, offline_alignment};
+use assay_model::episode::EpisodeOutcome;
+use assay_model::quality::{Item, ItemError, ItemOutcome, JudgeOutcome, Usage, parse_score};
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 
 use crate::config::{Captioner, JudgeConfig};
-use crate::openai::{CallError, ChatRequest, Endpoint, backoff_delay};
 use crate::prompts::{self, Prompt};
+use assay_openai::{CallError, ChatRequest, Endpoint, backoff_delay};
 
 /// A judge ready to score episodes.
 pub struct Judge {
@@ -105,7 +105,7 @@ enum Asked {
 
 impl Judge {
     pub fn new(name: &str, cfg: &JudgeConfig) -> Result<Self, JudgeError> {
-        let endpoint = |e: &crate::openai::EndpointConfig| {
+        let endpoint = |e: &assay_openai::EndpointConfig| {
             Endpoint::new(e.clone())
                 .map(Arc::new)
                 .map_err(|err| JudgeError::Permanent(format!("judge '{name}': {err}")))
@@ -495,7 +495,7 @@ async fn ask(
         images: images.to_vec(),
     };
     let retries = endpoint.config().retries;
-    let mut jitter = assay_core::rng::Rng::new(
+    let mut jitter = assay_spec::rng::Rng::new(
         std::time::SystemTime::now()
             .duration_since(std::time::UNIX_EPOCH)
             .map_or(0, |d| d.as_nanos() as u64),

@@ -13,9 +13,7 @@
 //! physics, the job store.
 
 pub mod config;
-pub mod fixture;
 pub mod judge;
-pub mod openai;
 pub mod prompts;
 
 pub use config::{Config, JudgeConfig, OFFLINE};

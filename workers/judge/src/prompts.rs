@@ -3,7 +3,7 @@
 //! goes into every request (`X-Assay-Prompt-Version`), every cache key and every report; changing
 //! a template's wording means a new file and a new version, never an edit in place.
 
-use assay_core::quality::Item;
+use assay_model::quality::Item;
 
 /// One prompt template.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

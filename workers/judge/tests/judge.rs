@@ -6,11 +6,11 @@ use std::path::Path;
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
-use assay_core::quality::{Item, JudgeOutcome};
-use assay_core::report::{EpisodeImagery, EpisodeOutcome, Keyframe, LabelSource, NamedArtifact};
-use assay_judge::fixture::{Fixture, Received, Reply, Script, scoring_script};
-use assay_judge::openai::EndpointConfig;
 use assay_judge::{Judge, JudgeConfig};
+use assay_model::episode::{EpisodeImagery, EpisodeOutcome, Keyframe, LabelSource, NamedArtifact};
+use assay_model::quality::{Item, JudgeOutcome};
+use assay_openai::EndpointConfig;
+use assay_testkit::fixture::{Fixture, Received, Reply, Script, scoring_script};
 
 const DESCRIPTION: &str = "put the red cube into the white box";
 

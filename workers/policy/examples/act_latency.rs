@@ -6,7 +6,7 @@
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use assay_core::policy::{Action, EpisodeContext, Policy, PolicyError, PolicyObservation};
+use assay_model::policy::{Action, EpisodeContext, Policy, PolicyError, PolicyObservation};
 use assay_policy::{RemotePolicy, ServerInfo, serve};
 
 struct Fixed;

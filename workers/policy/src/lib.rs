@@ -14,7 +14,7 @@
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use assay_core::policy::{Policy, PolicyError, PolicySpec};
+use assay_model::policy::{Policy, PolicyError, PolicySpec};
 use tokio::runtime::Handle;
 
 pub mod remote;

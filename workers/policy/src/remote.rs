@@ -14,8 +14,8 @@ use std::future::Future;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
-use assay_core::clip::{ACTION_DIMS, PROPRIO_DIMS};
-use assay_core::policy::{Action, EpisodeContext, Policy, PolicyError, PolicyObservation};
+use assay_model::clip::{ACTION_DIMS, PROPRIO_DIMS};
+use assay_model::policy::{Action, EpisodeContext, Policy, PolicyError, PolicyObservation};
 use assay_proto::v1 as pb;
 use tokio::runtime::Handle;
 use tonic::transport::Endpoint;

@@ -11,8 +11,8 @@ use std::collections::HashMap;
 use std::future::Future;
 use std::sync::{Arc, Mutex};
 
-use assay_core::clip::{ACTION_DIMS, PROPRIO_DIMS};
-use assay_core::policy::{EpisodeContext, Policy, PolicyError, PolicyObservation};
+use assay_model::clip::{ACTION_DIMS, PROPRIO_DIMS};
+use assay_model::policy::{EpisodeContext, Policy, PolicyError, PolicyObservation};
 use assay_proto::v1 as pb;
 use tonic::{Request, Response, Status};
 use tracing::{debug, info};

@@ -1,7 +1,7 @@
 //! The one place where [`PolicyError`] and gRPC status codes meet (both directions), as the
 //! service documents them in `proto/assay/v1/policy.proto`.
 
-use assay_core::policy::PolicyError;
+use assay_model::policy::PolicyError;
 use tonic::{Code, Status};
 
 /// The status a server answers when its policy fails.

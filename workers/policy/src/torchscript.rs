@@ -23,8 +23,8 @@
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use assay_core::clip::{ACTION_DIMS, PROPRIO_DIMS};
-use assay_core::policy::{Action, EpisodeContext, Policy, PolicyError, PolicyObservation};
+use assay_model::clip::{ACTION_DIMS, PROPRIO_DIMS};
+use assay_model::policy::{Action, EpisodeContext, Policy, PolicyError, PolicyObservation};
 use tch::{CModule, Device, IValue, Kind, Tensor};
 
 /// A loaded TorchScript policy. Cloning shares the module (it is stateless), so one load serves

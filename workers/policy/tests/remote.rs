@@ -6,7 +6,7 @@ use std::net::SocketAddr;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use assay_core::policy::{Action, EpisodeContext, Policy, PolicyError, PolicyObservation};
+use assay_model::policy::{Action, EpisodeContext, Policy, PolicyError, PolicyObservation};
 use assay_policy::{PolicyFactory, RemotePolicy, ServerInfo, serve};
 use assay_proto::v1 as pb;
 use tokio::runtime::Runtime;
@@ -386,7 +386,7 @@ fn a_server_can_relay_a_remote_policy() {
     // the same runtime: what `assay policy serve --policy remote:url=…` does.
     let rt = runtime();
     let upstream = Server::start(&rt, echo(Duration::ZERO, false));
-    let spec = assay_core::policy::PolicySpec::Remote {
+    let spec = assay_model::policy::PolicySpec::Remote {
         url: upstream.url.clone(),
         timeout_ms: 5000,
     };

@@ -7,7 +7,7 @@ use std::path::Path;
 use std::sync::Arc;
 use std::time::Duration;
 
-use assay_core::policy::{EpisodeContext, Policy, PolicyError, PolicyObservation, PolicySpec};
+use assay_model::policy::{EpisodeContext, Policy, PolicyError, PolicyObservation, PolicySpec};
 use assay_policy::torchscript::TorchScriptPolicy;
 use tch::{CModule, Device, Kind, Tensor};
 

@@ -1,20 +1,20 @@
 //! Captions of the scene views: what the four views of a task's initial scene actually show,
 //! measured from their pixels, for the built-in offline judge and for two-stage caption + LLM
-//! judges ([`assay_core::caption`] owns the data, the wording and the score).
+//! judges ([`assay_model::caption`] owns the data, the wording and the score).
 //!
 //! Everything in a caption but an object's form comes from the rendered images: visibility from
 //! the segment ids, colour from the RGB of the object's pixels, size and centre from its pixels
 //! back-projected with their depth, resting or not from the same points. The snapshot only says
 //! which primitive the renderer drew for a segment and what the scene's surface is.
 
-use assay_core::caption::{
+use assay_model::caption::{
     CaptionObject, SceneCaption, form_of, name_colour, relations, supported, visible_pixels,
 };
-use assay_core::scene::{
+use assay_spec::scene::{
     EE_CAMERA, FIRST_OBJECT_SEGMENT, Observation, SEGMENT_BACKGROUND, SEGMENT_SURFACE,
     SceneSnapshot, camera_axes, scene_views,
 };
-use assay_core::spec::{Camera, Surface, TABLE_CENTER, TABLE_HALF_EXTENTS};
+use assay_spec::spec::{Camera, Surface, TABLE_CENTER, TABLE_HALF_EXTENTS};
 
 use crate::{Frame, Outputs, RenderError, Renderer};
 

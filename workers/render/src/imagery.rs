@@ -2,9 +2,9 @@
 //! over the rollout (for task completion), a contact sheet of both, optionally a video, and a
 //! dynamics clip when the batch measures dynamics diversity.
 
-use assay_core::clip::{ACTION_DIMS, Clip, PROPRIO_DIMS};
-use assay_core::scene::{SceneSnapshot, scene_views};
-use assay_core::spec::Camera;
+use assay_model::clip::{ACTION_DIMS, Clip, PROPRIO_DIMS};
+use assay_spec::scene::{SceneSnapshot, scene_views};
+use assay_spec::spec::Camera;
 
 use crate::image::{Rgb, contact_sheet};
 use crate::video::Video;
@@ -145,7 +145,7 @@ pub const MAX_CLIP_SIZE: u32 = 1024;
 
 /// A dynamics clip ([`Clip`]): `scenes` drawn from `camera` at `size` × `size` RGB (colour only,
 /// one reused render target), with `proprio` and `actions` per frame as the sim role measured
-/// them ([`assay_core::clip::PROPRIO_DIMS`] and [`assay_core::clip::ACTION_DIMS`] values per
+/// them ([`assay_model::clip::PROPRIO_DIMS`] and [`assay_model::clip::ACTION_DIMS`] values per
 /// scene) and `interval_s` between frames.
 pub fn render_clip(
     r: &mut Renderer,

@@ -15,11 +15,11 @@ use std::borrow::Cow;
 use std::collections::HashMap;
 use std::mem::size_of;
 
-use assay_core::scene::{
+use assay_spec::scene::{
     EE_CAMERA, FIRST_OBJECT_SEGMENT, SEGMENT_SURFACE, SEGMENT_TOOL, SceneSnapshot,
     TOOL_HALF_EXTENTS,
 };
-use assay_core::spec::{Camera, Shape, Surface, TABLE_CENTER, TABLE_HALF_EXTENTS};
+use assay_spec::spec::{Camera, Shape, Surface, TABLE_CENTER, TABLE_HALF_EXTENTS};
 use bytemuck::{Pod, Zeroable};
 use serde::{Deserialize, Serialize};
 use wgpu::util::DeviceExt;
@@ -94,7 +94,7 @@ pub struct Frame {
     pub rgba: Vec<u8>,
     /// Distance (m) from the camera plane along its axis; infinity where nothing was drawn.
     pub depth: Vec<f32>,
-    /// Segment ids (see `assay_core::scene`): 0 background, 1 surface, 2 tool, 3 + i object i.
+    /// Segment ids (see `assay_spec::scene`): 0 background, 1 surface, 2 tool, 3 + i object i.
     pub segments: Vec<u32>,
 }
 
@@ -174,7 +174,7 @@ struct Targets {
 #[derive(Debug, Clone)]
 struct UrdfPart {
     mesh: MeshKey,
-    pose: assay_core::urdf::Pose,
+    pose: assay_spec::urdf::Pose,
     scale: [f32; 3],
     color: Option<[f32; 3]>,
 }
@@ -490,7 +490,7 @@ impl Renderer {
         frame_at: &std::collections::BTreeMap<String, f64>,
         joints: &std::collections::BTreeMap<String, f64>,
     ) -> Result<String, RenderError> {
-        use assay_core::urdf::Geometry;
+        use assay_spec::urdf::Geometry;
         let key = format!("{path}|{frame_at:?}|{joints:?}");
         if self.urdfs.contains_key(&key) {
             return Ok(key);
@@ -501,7 +501,7 @@ impl Renderer {
             self.meshes
                 .retain(|k, _| !matches!(k, MeshKey::File(f) if f.contains('|')));
         }
-        let a = assay_core::urdf::assemble_posed(std::path::Path::new(path), frame_at, joints)
+        let a = assay_spec::urdf::assemble_posed(std::path::Path::new(path), frame_at, joints)
             .map_err(|reason| RenderError::Scene {
                 path: format!("scene.objects[{i}].shape.urdf"),
                 reason,
@@ -663,7 +663,7 @@ impl Renderer {
                     push(key, trs(p, q, [1.0; 3]), o.color, seg);
                 }
                 Shape::Urdf { .. } => {
-                    let object = assay_core::urdf::Pose {
+                    let object = assay_spec::urdf::Pose {
                         translation: p.map(f64::from),
                         rotation: q.map(f64::from),
                     };
@@ -691,10 +691,10 @@ impl Renderer {
                 path: format!("scene.objects[{i}].shape.mesh.path"),
                 reason,
             };
-            let text = assay_core::assets::read_to_string(std::path::Path::new(&path))
+            let text = assay_spec::assets::read_to_string(std::path::Path::new(&path))
                 .map_err(|e| fail(format!("cannot read {path}: {e}")))?;
             let m =
-                assay_core::scene::parse_obj(&text).map_err(|e| fail(format!("{path}: {e}")))?;
+                assay_spec::scene::parse_obj(&text).map_err(|e| fail(format!("{path}: {e}")))?;
             self.upload(key, &mesh::from_triangles(&m.vertices, &m.triangles, scale));
         }
         Ok(by_mesh)

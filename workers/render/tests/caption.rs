@@ -4,11 +4,11 @@
 
 mod common;
 
-use assay_core::caption::{CaptionObject, SceneCaption, offline_alignment};
-use assay_core::scene::{SceneSnapshot, SnapshotObject, scene_views};
-use assay_core::spec::{COLORS, Camera, Shape, Surface};
+use assay_model::caption::{CaptionObject, SceneCaption, offline_alignment};
 use assay_render::caption::{caption_frames, caption_scene};
 use assay_render::{Outputs, Renderer};
+use assay_spec::scene::{SceneSnapshot, SnapshotObject, scene_views};
+use assay_spec::spec::{COLORS, Camera, Shape, Surface};
 use common::task;
 
 fn object(id: &str, shape: Shape, color: [f64; 3], position: [f32; 3]) -> SnapshotObject {

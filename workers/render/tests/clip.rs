@@ -5,12 +5,12 @@ mod common;
 
 use std::time::Instant;
 
-use assay_core::clip::{ACTION_DIMS, CLIP_STRIDE_STEPS, Clip, PROPRIO_DIMS};
-use assay_core::scene::task_cameras;
-use assay_core::spec::TaskSpec;
+use assay_model::clip::{ACTION_DIMS, CLIP_STRIDE_STEPS, Clip, PROPRIO_DIMS};
 use assay_render::Renderer;
 use assay_render::imagery::render_clip;
 use assay_sim::{Episode, SimOptions};
+use assay_spec::scene::task_cameras;
+use assay_spec::spec::TaskSpec;
 use common::task;
 
 const SIZE: u32 = 64;

@@ -1,13 +1,13 @@
 //! Rendering on the machine's adapter (Mesa's software Vulkan in CI): a golden image, segment ids
 //! against the objects, and depth against the known geometry.
 
-use assay_core::scene::{
-    FIRST_OBJECT_SEGMENT, SEGMENT_SURFACE, SEGMENT_TOOL, SceneSnapshot, SnapshotObject,
-};
-use assay_core::spec::{Camera, Shape, Surface};
 use assay_render::image::{Rgb, compare};
 use assay_render::math::{look_at, mul, perspective, project};
 use assay_render::{Renderer, ZFAR, ZNEAR};
+use assay_spec::scene::{
+    FIRST_OBJECT_SEGMENT, SEGMENT_SURFACE, SEGMENT_TOOL, SceneSnapshot, SnapshotObject,
+};
+use assay_spec::spec::{Camera, Shape, Surface};
 
 fn object(
     id: &str,
@@ -185,7 +185,7 @@ fn any_size_and_the_end_effector_camera_render() {
     let s = scene();
     let ee = Camera {
         fovy_deg: 70.0,
-        ..camera(assay_core::scene::EE_CAMERA, [0.0; 3], [0.0; 3], 97, 61)
+        ..camera(assay_spec::scene::EE_CAMERA, [0.0; 3], [0.0; 3], 97, 61)
     };
     let f = r.render(&s, &ee).unwrap();
     assert_eq!((f.width, f.height, f.rgba.len()), (97, 61, 97 * 61 * 4));
@@ -223,7 +223,7 @@ fn finger_pads_are_drawn_as_the_tool() {
     let cam = camera("side", [0.55, -1.0, 0.2], [0.55, 0.0, 0.2], 320, 240);
     let mut s = scene();
     s.objects.clear();
-    let pad = |y: f32| assay_core::scene::SnapshotBox {
+    let pad = |y: f32| assay_spec::scene::SnapshotBox {
         position: [0.55, y, 0.2],
         rotation: [0.0, 0.0, 0.0, 1.0],
         half_extents: [0.01, 0.005, 0.025],

@@ -4,12 +4,12 @@
 
 mod common;
 
-use assay_core::policy::observation_camera;
-use assay_core::scene::{Observation, SceneSnapshot, SnapshotObject};
-use assay_core::spec::{Camera, Shape, Surface};
+use assay_model::policy::observation_camera;
 use assay_render::{Outputs, Renderer};
 use assay_sim::Observer;
 use assay_sim::perception::Tracker;
+use assay_spec::scene::{Observation, SceneSnapshot, SnapshotObject};
+use assay_spec::spec::{Camera, Shape, Surface};
 use common::task;
 use rapier3d::prelude::Vec3;
 

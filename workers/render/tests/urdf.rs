@@ -3,10 +3,10 @@
 
 use std::collections::BTreeMap;
 
-use assay_core::policy::observation_camera;
-use assay_core::scene::{FIRST_OBJECT_SEGMENT, Observation, SceneSnapshot, SnapshotObject};
-use assay_core::spec::{Camera, Shape, Surface};
+use assay_model::policy::observation_camera;
 use assay_render::{Outputs, Renderer};
+use assay_spec::scene::{FIRST_OBJECT_SEGMENT, Observation, SceneSnapshot, SnapshotObject};
+use assay_spec::spec::{Camera, Shape, Surface};
 
 fn cabinet(drawer: f64) -> (SceneSnapshot, [f64; 3]) {
     let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
@@ -14,7 +14,7 @@ fn cabinet(drawer: f64) -> (SceneSnapshot, [f64; 3]) {
         .canonicalize()
         .unwrap();
     let joints = BTreeMap::from([("drawer_slide".to_owned(), drawer)]);
-    let half = assay_core::urdf::assemble(&path, &joints).unwrap().half;
+    let half = assay_spec::urdf::assemble(&path, &joints).unwrap().half;
     let scene = SceneSnapshot {
         surface: Surface::Table,
         objects: vec![SnapshotObject {

@@ -5,10 +5,10 @@
 
 use std::collections::BTreeMap;
 
-use assay_core::urdf::{Geometry, JointKind, Pose as UPose, Urdf};
+use assay_spec::urdf::{Geometry, JointKind, Pose as UPose, Urdf};
 use rapier3d::prelude::*;
 
-use crate::scene::GRIPPER_HALF_EXTENTS;
+use crate::tabletop::{GRIPPER_HALF_EXTENTS, OBJECT_FRICTION};
 
 /// A built-in arm.
 struct Model {
@@ -112,7 +112,7 @@ impl Arm {
             .find(|a| a.name == model)
             .ok_or_else(|| format!("unknown arm '{model}' (built in: {})", models().join(", ")))?;
         let (name, text, flange_name, home) = (&m.name, m.urdf, &m.flange, m.home);
-        let urdf = assay_core::urdf::parse(text).map_err(|e| format!("arm '{name}': {e}"))?;
+        let urdf = assay_spec::urdf::parse(text).map_err(|e| format!("arm '{name}': {e}"))?;
         let flange = urdf
             .links
             .iter()
@@ -184,7 +184,7 @@ impl Arm {
                 .collect();
             let (b, c) = world.insert(
                 RigidBodyBuilder::kinematic_position_based().pose(poses[l]),
-                ColliderBuilder::compound(parts).friction(crate::scene::OBJECT_FRICTION),
+                ColliderBuilder::compound(parts).friction(OBJECT_FRICTION),
             );
             self.bodies.push((l, b));
             self.colliders.push(c);
@@ -321,13 +321,13 @@ impl Arm {
     }
 
     /// The links' boxes in the world at joint positions `q` (for drawing).
-    pub fn boxes_at(&self, q: &[f64]) -> Vec<assay_core::scene::SnapshotBox> {
+    pub fn boxes_at(&self, q: &[f64]) -> Vec<assay_spec::scene::SnapshotBox> {
         let poses = self.world_poses(q);
         self.boxes
             .iter()
             .map(|(l, p, h)| {
                 let w = poses[*l] * to_pose(p);
-                assay_core::scene::SnapshotBox {
+                assay_spec::scene::SnapshotBox {
                     position: w.translation.into(),
                     rotation: [w.rotation.x, w.rotation.y, w.rotation.z, w.rotation.w],
                     half_extents: *h,
@@ -343,7 +343,7 @@ mod tests {
 
     #[test]
     fn each_arm_reaches_the_workspace_pointing_down_and_not_beyond_its_reach() {
-        assert_eq!(models(), assay_core::spec::ARM_MODELS);
+        assert_eq!(models(), assay_spec::spec::ARM_MODELS);
         for model in models() {
             let mut arm = Arm::new(model, [0.0; 3], 0.0).unwrap();
             // Home: the tool above the table.

@@ -2,8 +2,8 @@
 //! step, locating objects at the start of each primitive — from the live state (as a scripted
 //! oracle would), or for a seeing oracle from what its camera last showed (`perception`).
 
-use assay_core::rng::Rng;
-use assay_core::spec::{EndEffector, PlaceTarget, Primitive, TaskSpec};
+use assay_spec::rng::Rng;
+use assay_spec::spec::{EndEffector, PlaceTarget, Primitive, TaskSpec};
 use rapier3d::prelude::*;
 
 use crate::perception::Tracker;

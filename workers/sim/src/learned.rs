@@ -1,4 +1,4 @@
-//! The driver of a learned or served policy ([`assay_core::policy::Policy`]): every
+//! The driver of a learned or served policy ([`assay_model::policy::Policy`]): every
 //! [`CONTROL_STRIDE_STEPS`] physics steps it shows the policy the task camera's RGB frame and the
 //! tool's proprioception, and runs the actions it answers one per control step — the tool moves
 //! at the commanded velocity, and a change of the hold command grasps the object under the tool
@@ -6,8 +6,8 @@
 
 use std::collections::VecDeque;
 
-use assay_core::policy::{Action, CONTROL_STRIDE_STEPS, Policy, PolicyError, PolicyObservation};
-use assay_core::spec::{Camera, TaskSpec};
+use assay_model::policy::{Action, CONTROL_STRIDE_STEPS, Policy, PolicyError, PolicyObservation};
+use assay_spec::spec::{Camera, TaskSpec};
 use rapier3d::prelude::*;
 
 use crate::controller::{Controller, Event, Note};
@@ -62,7 +62,7 @@ impl<'p> Learned<'p> {
     pub fn reset(&mut self, spec: &TaskSpec, seed: u64, start: u64) -> Result<(), SimError> {
         self.start = start;
         self.policy
-            .reset(&assay_core::policy::EpisodeContext {
+            .reset(&assay_model::policy::EpisodeContext {
                 task_id: spec.id.clone(),
                 seed,
                 instruction: spec.description.clone(),

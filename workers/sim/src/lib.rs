@@ -13,14 +13,15 @@ pub mod predicates;
 pub mod record;
 pub mod reference;
 pub mod scene;
+pub mod tabletop;
 
 use std::collections::{BTreeMap, HashMap};
 
-use assay_core::clip::{ACTION_DIMS, CLIP_STRIDE_STEPS, PROPRIO_DIMS};
-use assay_core::policy::{OBSERVE_EVERY_STEPS, Policy, PolicySpec, Sense};
-use assay_core::report::{EpisodeOutcome, LabelSource};
-use assay_core::scene::{Observation, SceneSnapshot};
-use assay_core::spec::{Camera, TaskSpec};
+use assay_model::clip::{ACTION_DIMS, CLIP_STRIDE_STEPS, PROPRIO_DIMS};
+use assay_model::episode::{EpisodeOutcome, LabelSource};
+use assay_model::policy::{OBSERVE_EVERY_STEPS, Policy, PolicySpec, Sense};
+use assay_spec::scene::{Observation, SceneSnapshot};
+use assay_spec::spec::{Camera, TaskSpec};
 
 use crate::controller::Controller;
 use crate::perception::Tracker;
@@ -93,7 +94,7 @@ pub struct Episode {
     pub clip: Option<ClipStates>,
 }
 
-/// What a dynamics clip is drawn from (`assay_core::clip::Clip` less its pixels): the recorded
+/// What a dynamics clip is drawn from (`assay_model::clip::Clip` less its pixels): the recorded
 /// state every [`CLIP_STRIDE_STEPS`] physics steps from the first policy step to the end of the
 /// episode (the final settle included; a last stretch shorter than the stride has no frame).
 #[derive(Debug, Clone, PartialEq)]
@@ -137,7 +138,7 @@ pub struct SimOptions<'a> {
     /// fails without one.
     pub observer: Option<&'a mut dyn Observer>,
     /// The policy object of a policy that is not the built-in oracle (TorchScript, remote,
-    /// diffusion): it acts every [`assay_core::policy::CONTROL_STRIDE_STEPS`] physics steps on
+    /// diffusion): it acts every [`assay_model::policy::CONTROL_STRIDE_STEPS`] physics steps on
     /// RGB frames that `observer` draws.
     pub policy: Option<&'a mut dyn Policy>,
     /// Side of the square RGB frames a policy object sees (0: [`DEFAULT_FRAME_SIZE`]).
@@ -181,13 +182,13 @@ fn lifts(spec: &TaskSpec, scene: &SimScene, i: usize) -> bool {
     let id = &scene.objects[i].id;
     spec.goals
         .iter()
-        .any(|g| matches!(g, assay_core::spec::Goal::Lifted { object, .. } if object == id))
+        .any(|g| matches!(g, assay_spec::spec::Goal::Lifted { object, .. } if object == id))
 }
 
 /// Joint goals and `actuate` steps name moving joints of their articulated objects: checked once
 /// the URDFs are read (the spec alone does not know their joints).
 fn check_joints(spec: &TaskSpec, scene: &SimScene) -> Result<(), SimError> {
-    use assay_core::spec::{Goal, Primitive};
+    use assay_spec::spec::{Goal, Primitive};
     let refs = spec
         .goals
         .iter()
@@ -275,7 +276,7 @@ pub fn simulate_with(
             let camera = Camera {
                 width: size,
                 height: size,
-                ..assay_core::scene::task_cameras(&spec.cameras).remove(0)
+                ..assay_spec::scene::task_cameras(&spec.cameras).remove(0)
             };
             Some(learned::Learned::new(p, camera))
         }
@@ -285,7 +286,7 @@ pub fn simulate_with(
             )));
         }
     };
-    let camera = assay_core::policy::observation_camera();
+    let camera = assay_model::policy::observation_camera();
     let mut scene = scene::build_scene(spec, seed)?;
     check_joints(spec, &scene)?;
     let start = scene.gripper_position();
@@ -392,7 +393,7 @@ pub fn simulate_with(
                     break;
                 }
                 if since > 0
-                    && since.is_multiple_of(assay_core::policy::CONTROL_STRIDE_STEPS)
+                    && since.is_multiple_of(assay_model::policy::CONTROL_STRIDE_STEPS)
                     && ctl.held.is_none_or(|h| lifts(spec, &scene, h.object))
                     && predicates::evaluate(&spec.goals, &scene)
                         .iter()

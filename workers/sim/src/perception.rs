@@ -8,7 +8,7 @@
 //! frame updates an object only if the object shows at least [`VISIBLE_SHARE`] of the largest
 //! apparent area (pixels weighted by depth², so distance does not change it) seen of it so far.
 
-use assay_core::scene::{FIRST_OBJECT_SEGMENT, Observation};
+use assay_spec::scene::{FIRST_OBJECT_SEGMENT, Observation};
 use rapier3d::prelude::Vec3;
 
 /// How far below an object's highest seen point a pixel still counts as its top surface (m).
@@ -117,7 +117,7 @@ impl Tracker {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use assay_core::spec::Camera;
+    use assay_spec::spec::Camera;
 
     /// A straight-down camera over a flat scene at `depth`, with a square of segment `seg`.
     fn square(seg: u32, half_px: u32, depth: f32) -> Observation {

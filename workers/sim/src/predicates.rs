@@ -1,7 +1,7 @@
 //! Goal predicates, evaluated on the simulator's state: the ground truth of success.
 
-use assay_core::report::PredicateValue;
-use assay_core::spec::Goal;
+use assay_model::episode::PredicateValue;
+use assay_spec::spec::Goal;
 use rapier3d::prelude::*;
 
 use crate::scene::{SimObject, SimScene};

@@ -8,8 +8,8 @@ use arrow_array::{
     ArrayRef, BooleanArray, Float32Array, Float64Array, Int16Array, RecordBatch, UInt32Array,
 };
 use arrow_schema::{DataType, Field, Schema};
-use assay_core::scene::{SceneSnapshot, SnapshotBox, SnapshotObject};
-use assay_core::spec::TaskSpec;
+use assay_spec::scene::{SceneSnapshot, SnapshotBox, SnapshotObject};
+use assay_spec::spec::TaskSpec;
 use rapier3d::prelude::*;
 
 use crate::SimError;

@@ -2,8 +2,8 @@
 //! rapier3d: ten 5 cm boxes on a plane and a kinematic 4 × 4 × 10 cm tool, dt 1/240. Used by
 //! `assay bench` to compare with MuJoCo and PyBullet running the same contract.
 
-use assay_core::scene::{SceneSnapshot, SnapshotObject};
-use assay_core::spec::{Camera, Shape, Surface};
+use assay_spec::scene::{SceneSnapshot, SnapshotObject};
+use assay_spec::spec::{Camera, Shape, Surface};
 use rapier3d::prelude::*;
 use serde::Deserialize;
 

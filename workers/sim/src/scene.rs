@@ -1,20 +1,15 @@
 //! Building a rapier3d world from a task spec and a seed.
 
-use assay_core::rng::Rng;
-use assay_core::spec::{
+use assay_spec::rng::Rng;
+use assay_spec::spec::{
     MeshCollision, Object, Shape, Surface, TABLE_CENTER, TABLE_HALF_EXTENTS, TaskSpec,
 };
-use assay_core::urdf::Geometry;
+use assay_spec::urdf::Geometry;
 use rapier3d::prelude::*;
 
 use crate::SimError;
 
-/// The kinematic tool: a 4 × 4 × 10 cm box, as in the reference scene.
-pub const GRIPPER_HALF_EXTENTS: [f32; 3] = [0.02, 0.02, 0.05];
-/// Where the tool waits when nothing else is said.
-pub const GRIPPER_PARK: [f32; 3] = [0.5, 0.0, 0.5];
-pub const OBJECT_FRICTION: f32 = 0.8;
-pub const DEFAULT_MASS: f64 = 0.1;
+pub use crate::tabletop::{DEFAULT_MASS, GRIPPER_HALF_EXTENTS, GRIPPER_PARK, OBJECT_FRICTION};
 
 /// One object of the task in the world.
 #[derive(Debug, Clone)]
@@ -355,7 +350,7 @@ impl SimScene {
     }
 }
 
-fn to_pose(p: &assay_core::urdf::Pose) -> Pose {
+fn to_pose(p: &assay_spec::urdf::Pose) -> Pose {
     let [x, y, z] = p.translation.map(|c| c as f32);
     let [qx, qy, qz, qw] = p.rotation.map(|c| c as f32);
     Pose::from_parts(Vec3::new(x, y, z), Rotation::from_xyzw(qx, qy, qz, qw))
@@ -363,8 +358,8 @@ fn to_pose(p: &assay_core::urdf::Pose) -> Pose {
 
 /// A URDF collision part as a rapier shape and its pose in the frame the part is placed in.
 fn urdf_part(
-    part: &assay_core::urdf::PlacedPart,
-    mesh: Option<&assay_core::scene::TriangleMesh>,
+    part: &assay_spec::urdf::PlacedPart,
+    mesh: Option<&assay_spec::scene::TriangleMesh>,
     k: usize,
     path: &str,
 ) -> Result<(Pose, SharedShape), SimError> {
@@ -409,14 +404,14 @@ struct LinkBody {
 /// rapier joint that has the URDF's limits and resists motion with its `<dynamics friction>`.
 fn insert_articulated(
     world: &mut PhysicsWorld,
-    a: &assay_core::urdf::Assembled,
+    a: &assay_spec::urdf::Assembled,
     root: RigidBodyHandle,
     mass: f32,
     sleeping: bool,
     joints: &std::collections::BTreeMap<String, f64>,
     path: &str,
 ) -> Result<Vec<SimJoint>, SimError> {
-    use assay_core::urdf::JointKind;
+    use assay_spec::urdf::JointKind;
     let urdf = &a.urdf;
     let pose = *world.bodies[root].position();
     let err = |reason: String| SimError::spec(format!("{path}.urdf"), reason);
@@ -474,7 +469,7 @@ fn insert_articulated(
         // The joint frame at position 0, in the parent body's frame.
         let zero = Pose::from_translation(-centre)
             * to_pose(&links[joint.parent])
-            * to_pose(&assay_core::urdf::Pose::from_origin(&joint.origin));
+            * to_pose(&assay_spec::urdf::Pose::from_origin(&joint.origin));
         let axis = v3(joint.axis).normalize();
         let align = Rotation::from_rotation_arc(Vec3::X, axis);
         let frame = bodies[pb].frame.inverse() * zero * Pose::from_rotation(align);
@@ -544,7 +539,7 @@ type BuiltShape = (
     ColliderBuilder,
     Vec3,
     Option<(Vec3, f32)>,
-    Option<assay_core::urdf::Assembled>,
+    Option<assay_spec::urdf::Assembled>,
 );
 
 /// The V-HACD decomposition of a mesh, computed once per file and scale in a process (it takes
@@ -572,11 +567,11 @@ fn decomposition(
 }
 
 /// Whether `link` is joined to `ancestor` by fixed joints only.
-fn fixed_to(urdf: &assay_core::urdf::Urdf, link: usize, ancestor: usize) -> bool {
+fn fixed_to(urdf: &assay_spec::urdf::Urdf, link: usize, ancestor: usize) -> bool {
     let mut l = link;
     while l != ancestor {
         match urdf.joints.iter().find(|j| j.child == l) {
-            Some(j) if j.kind == assay_core::urdf::JointKind::Fixed => l = j.parent,
+            Some(j) if j.kind == assay_spec::urdf::JointKind::Fixed => l = j.parent,
             _ => return false,
         }
     }
@@ -652,7 +647,7 @@ fn collider_for(shape: &Shape, spec: &TaskSpec, path: &str) -> Result<BuiltShape
             } else {
                 joints.clone()
             };
-            let a = assay_core::urdf::assemble_posed(&full, &frame_at, joints)
+            let a = assay_spec::urdf::assemble_posed(&full, &frame_at, joints)
                 .map_err(|e| SimError::spec(format!("{path}.urdf"), e))?;
             let root = a.urdf.root();
             let mut parts: Vec<(Pose, SharedShape)> = Vec::new();
@@ -681,13 +676,13 @@ fn collider_for(shape: &Shape, spec: &TaskSpec, path: &str) -> Result<BuiltShape
             let full = spec
                 .resolve_asset(file)
                 .map_err(|e| SimError::spec(format!("{path}.mesh.path"), e))?;
-            let text = assay_core::assets::read_to_string(&full).map_err(|e| {
+            let text = assay_spec::assets::read_to_string(&full).map_err(|e| {
                 SimError::spec(
                     format!("{path}.mesh.path"),
                     format!("cannot read {}: {e}", full.display()),
                 )
             })?;
-            let mesh = assay_core::scene::parse_obj(&text).map_err(|e| {
+            let mesh = assay_spec::scene::parse_obj(&text).map_err(|e| {
                 SimError::spec(
                     format!("{path}.mesh.path"),
                     format!("{}: {e}", full.display()),
@@ -847,9 +842,9 @@ pub fn build_scene(spec: &TaskSpec, seed: u64) -> Result<SimScene, SimError> {
         ColliderBuilder::cuboid(gx, gy, gz).friction(OBJECT_FRICTION),
     );
     let fingers = match spec.end_effector {
-        assay_core::spec::EndEffector::ParallelGripper {
+        assay_spec::spec::EndEffector::ParallelGripper {
             max_opening,
-            grasp: assay_core::spec::Grasp::Friction,
+            grasp: assay_spec::spec::Grasp::Friction,
         } => {
             let max = max_opening as f32;
             Some(Fingers::insert(

@@ -6,7 +6,7 @@ use common::column;
 
 use std::path::Path;
 
-use assay_core::spec::{Arm, Format, TaskSpec, parse_task};
+use assay_spec::spec::{Arm, Format, TaskSpec, parse_task};
 
 fn read(rel: &str) -> TaskSpec {
     let p = Path::new(env!("CARGO_MANIFEST_DIR"))

@@ -5,7 +5,7 @@ mod common;
 
 use common::column;
 
-use assay_core::spec::{Format, TaskSpec, parse_task};
+use assay_spec::spec::{Format, TaskSpec, parse_task};
 
 fn assets() -> String {
     std::path::Path::new(env!("CARGO_MANIFEST_DIR"))

@@ -4,9 +4,9 @@
 use std::path::Path;
 
 use arrow_array::{Array, Float32Array, Int16Array, RecordBatch, UInt32Array};
-use assay_core::clip::{ACTION_DIMS, CLIP_STRIDE_STEPS, PROPRIO_DIMS};
-use assay_core::spec::{Format, TaskSpec, parse_task};
+use assay_model::clip::{ACTION_DIMS, CLIP_STRIDE_STEPS, PROPRIO_DIMS};
 use assay_sim::{ClipStates, Episode, SimOptions, simulate, simulate_with};
+use assay_spec::spec::{Format, TaskSpec, parse_task};
 
 fn task(rel: &str) -> TaskSpec {
     let p = Path::new(env!("CARGO_MANIFEST_DIR"))

@@ -3,7 +3,7 @@
 
 use std::path::{Path, PathBuf};
 
-use assay_core::spec::{Format, TaskSpec, parse_task};
+use assay_spec::spec::{Format, TaskSpec, parse_task};
 
 const SEEDS: u64 = 20;
 const REQUIRED: f64 = 0.9;

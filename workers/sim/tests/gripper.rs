@@ -5,7 +5,7 @@ mod common;
 
 use common::column;
 
-use assay_core::spec::{Format, TaskSpec, parse_task};
+use assay_spec::spec::{Format, TaskSpec, parse_task};
 
 fn lift(grasp: &str, object: &str) -> TaskSpec {
     let text = format!(

@@ -1,29 +1,12 @@
 //! A policy object in the loop: it sees frames and proprioception every 24 physics steps and its
 //! actions (velocity, hold) move the tool, grasp and release.
 
-use assay_core::policy::{Action, EpisodeContext, Policy, PolicyError, PolicyObservation};
-use assay_core::scene::{Observation, SceneSnapshot};
-use assay_core::spec::{Camera, Format, TaskSpec, parse_task};
+use assay_model::policy::{Action, EpisodeContext, Policy, PolicyError, PolicyObservation};
 use assay_sim::{Observer, SimError, SimOptions, simulate_with};
+use assay_spec::scene::{Observation, SceneSnapshot};
+use assay_spec::spec::{Camera, Format, TaskSpec, parse_task};
 
-const TASK: &str = r#"
-spec_version: 1
-id: put-block-in-zone
-name: put-block-in-zone
-description: Put the red block in the green zone.
-group: placement
-scene:
-  objects:
-    - {id: red_block, shape: {box: {half_extents: [0.02, 0.02, 0.02]}}, color: red, pose: {position: [0.5, 0.1, 0.02]}}
-  zones:
-    - {id: goal, center: [0.5, -0.1], half_extents: [0.05, 0.05], color: green}
-end_effector: {type: suction}
-goals:
-  - in_zone: {object: red_block, zone: goal}
-oracle:
-  - pick: {object: red_block}
-  - place: {target: {zone: goal}}
-"#;
+const TASK: &str = assay_testkit::tasks::PUT_BLOCK_IN_ZONE;
 
 fn task() -> TaskSpec {
     parse_task(TASK, Format::Yaml, "t.yaml").unwrap()

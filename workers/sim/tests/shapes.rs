@@ -1,6 +1,6 @@
 //! Shapes and options the corpus does not use: meshes, the ground surface, a ranged tool start.
 
-use assay_core::spec::{Format, parse_task};
+use assay_spec::spec::{Format, parse_task};
 
 #[test]
 fn a_mesh_object_on_the_ground_rests_at_its_hull_height_and_can_be_placed() {
@@ -131,7 +131,7 @@ oracle:
         block.position
     );
     // The snapshot names the URDF by a path a renderer anywhere on the node can open.
-    let assay_core::spec::Shape::Urdf { path, .. } = &ep.keyframes[0].1.objects[0].shape else {
+    let assay_spec::spec::Shape::Urdf { path, .. } = &ep.keyframes[0].1.objects[0].shape else {
         panic!("the cabinet is drawn from its URDF");
     };
     assert!(std::path::Path::new(path).is_absolute(), "{path}");

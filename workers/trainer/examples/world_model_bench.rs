@@ -10,9 +10,9 @@
 
 use std::time::Instant;
 
-use assay_core::clip::Clip;
-use assay_core::dynamics::{DEFAULT_BUDGETS, DynamicsConfig};
-use assay_core::rng::Rng;
+use assay_model::clip::Clip;
+use assay_model::dynamics::{DEFAULT_BUDGETS, DynamicsConfig};
+use assay_spec::rng::Rng;
 use assay_trainer::world_model::{FitRequest, device_name, fit};
 use tch::Device;
 

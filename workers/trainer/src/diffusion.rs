@@ -41,7 +41,7 @@
 //! a global norm of 10; an exponential moving average of the weights (decay
 //! `min(ema_decay, 1 − (1 + step)^−0.75)`) is what the policy runs.
 //!
-//! All randomness is ours, from `assay_core::rng` streams of the config's seed, never libtorch's
+//! All randomness is ours, from `assay_spec::rng` streams of the config's seed, never libtorch's
 //! global generator: initial weights (`diffusion/init`), the samples of training step `s`
 //! (`diffusion/batch/{s}`), their diffusion steps and noise (`diffusion/noise/{s}`). The same
 //! config and clips give the same weights (on one CPU thread, to the bit).
@@ -86,10 +86,10 @@ use std::collections::VecDeque;
 use std::io::Cursor;
 use std::time::Instant;
 
-use assay_core::clip::{ACTION_DIMS, Clip, PROPRIO_DIMS};
-use assay_core::diffusion::{DiffusionConfig, DiffusionFit};
-use assay_core::policy::{Action, EpisodeContext, Policy, PolicyError, PolicyObservation};
-use assay_core::rng::Rng;
+use assay_model::clip::{ACTION_DIMS, Clip, PROPRIO_DIMS};
+use assay_model::diffusion::{DiffusionConfig, DiffusionFit};
+use assay_model::policy::{Action, EpisodeContext, Policy, PolicyError, PolicyObservation};
+use assay_spec::rng::Rng;
 use serde::{Deserialize, Serialize};
 use tch::{Device, Kind, Tensor};
 use thiserror::Error;

@@ -21,8 +21,8 @@
 use std::collections::{BTreeMap, HashMap};
 use std::path::{Path, PathBuf};
 
-use assay_core::diversity::EmbeddingModel;
-use assay_judge::openai::{Endpoint, EndpointConfig};
+use assay_openai::{Endpoint, EndpointConfig};
+use assay_stats::diversity::EmbeddingModel;
 use serde::{Deserialize, Serialize};
 
 use crate::embed::SentenceModel;

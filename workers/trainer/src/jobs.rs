@@ -4,12 +4,12 @@
 use std::path::{Path, PathBuf};
 use std::sync::Mutex;
 
-use assay_core::clip::Clip;
-use assay_core::diversity::TextDiversityTable;
-use assay_core::hash::sha256_hex;
-use assay_core::proxy::ProxyEpisode;
-use assay_core::report::Keyframe;
-use assay_core::trainer::{TrainerJob, TrainerOutcome};
+use assay_model::clip::Clip;
+use assay_model::episode::Keyframe;
+use assay_model::proxy::ProxyEpisode;
+use assay_model::trainer::{TrainerJob, TrainerOutcome};
+use assay_spec::hash::sha256_hex;
+use assay_stats::diversity::TextDiversityTable;
 
 use crate::embedders::Embedders;
 use crate::proxy::PolicyLoader;

@@ -1,4 +1,4 @@
-//! The world-model proxy of one task group (see `assay_core::proxy`): a world model fitted on
+//! The world-model proxy of one task group (see `assay_model::proxy`): a world model fitted on
 //! the training policies' clips, a frame judge that tells success from a last frame, and the
 //! ranked episodes imagined open loop from their first frame and judged.
 //!
@@ -8,7 +8,7 @@
 //! the logistic loss, positives weighted by negatives/positives (successes can be rare), Adam, on
 //! batches of 16 drawn from the training episodes' **real and imagined** last frames — so the
 //! judge has seen what the world model's blur looks like — each labelled with the episode's real
-//! outcome. Initial weights and batches come from `assay_core::rng` streams: deterministic.
+//! outcome. Initial weights and batches come from `assay_spec::rng` streams: deterministic.
 //!
 //! # What the ranked policies act on
 //! A policy object (diffusion, TorchScript, remote) acts on the imagined frames: it is built
@@ -22,12 +22,12 @@
 
 use std::time::Instant;
 
-use assay_core::clip::Clip;
-use assay_core::policy::{EpisodeContext, Policy, PolicyError, PolicySpec};
-use assay_core::proxy::{
+use assay_model::clip::Clip;
+use assay_model::policy::{EpisodeContext, Policy, PolicyError, PolicySpec};
+use assay_model::proxy::{
     IMAGINED_KEYFRAMES, ProxyConfig, ProxyEpisode, ProxyPrediction, ProxyResult,
 };
-use assay_core::rng::Rng;
+use assay_spec::rng::Rng;
 use tch::{Device, Kind, Tensor};
 
 use crate::adam::Adam;

@@ -24,7 +24,7 @@
 //! # Training
 //! Each training clip is cut into non-overlapping chunks of `chunk` frames; a shorter tail of at
 //! least 2 frames is kept (a 1-frame tail holds no transition and is dropped). The chunk order is
-//! shuffled per epoch (`assay_core::rng`, stream `world-model/epoch/{epoch}`), and each step takes
+//! shuffled per epoch (`assay_spec::rng`, stream `world-model/epoch/{epoch}`), and each step takes
 //! the next `batch` chunks (the last batch of an epoch may be smaller), padded to the longest with
 //! a mask that removes padded frames from the loss. A fit trains `steps` steps whatever its
 //! budget (epochs follow one another until then; the last may be partial), or, with `steps` 0,
@@ -56,10 +56,10 @@ use std::collections::HashMap;
 use std::io::Cursor;
 use std::time::Instant;
 
-use assay_core::clip::{ACTION_DIMS, Clip, PROPRIO_DIMS};
-use assay_core::dynamics::{DynamicsConfig, DynamicsFit};
-use assay_core::policy::{Action, EpisodeContext, Policy, PolicyError, PolicyObservation};
-use assay_core::rng::Rng;
+use assay_model::clip::{ACTION_DIMS, Clip, PROPRIO_DIMS};
+use assay_model::dynamics::{DynamicsConfig, DynamicsFit};
+use assay_model::policy::{Action, EpisodeContext, Policy, PolicyError, PolicyObservation};
+use assay_spec::rng::Rng;
 use tch::{Device, Kind, Tensor};
 use thiserror::Error;
 

@@ -2,10 +2,10 @@
 //! 64×64 frame, a small grey square where the tool is, proprioception = the tool's position, and
 //! actions = the tool's velocity toward the target (hold commanded once it is there).
 
-use assay_core::clip::Clip;
-use assay_core::diffusion::DiffusionConfig;
-use assay_core::policy::{Action, EpisodeContext, Policy, PolicyError, PolicyObservation};
-use assay_core::rng::Rng;
+use assay_model::clip::Clip;
+use assay_model::diffusion::DiffusionConfig;
+use assay_model::policy::{Action, EpisodeContext, Policy, PolicyError, PolicyObservation};
+use assay_spec::rng::Rng;
 use assay_trainer::diffusion::{DiffusionError, DiffusionPolicy, train};
 use tch::Device;
 

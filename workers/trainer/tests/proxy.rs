@@ -1,9 +1,9 @@
 //! The world-model proxy's parts: the frame judge tells frames apart, and the world model imagines
 //! whole clips from their first frame alone, deterministically.
 
-use assay_core::clip::{ACTION_DIMS, Clip, PROPRIO_DIMS};
-use assay_core::dynamics::DynamicsConfig;
-use assay_core::rng::Rng;
+use assay_model::clip::{ACTION_DIMS, Clip, PROPRIO_DIMS};
+use assay_model::dynamics::DynamicsConfig;
+use assay_spec::rng::Rng;
 use assay_trainer::proxy::train_frame_judge;
 use assay_trainer::world_model::{FitRequest, fit_model};
 use tch::Device;
@@ -130,22 +130,22 @@ fn the_world_model_imagines_every_frame_after_the_first_deterministically() {
 /// Always moves right, in chunks of 3; remembers what it saw.
 #[derive(Default)]
 struct Rightwards {
-    seen: Vec<assay_core::policy::PolicyObservation>,
+    seen: Vec<assay_model::policy::PolicyObservation>,
     resets: u32,
 }
 
-impl assay_core::policy::Policy for Rightwards {
+impl assay_model::policy::Policy for Rightwards {
     fn reset(
         &mut self,
-        _: &assay_core::policy::EpisodeContext,
-    ) -> Result<(), assay_core::policy::PolicyError> {
+        _: &assay_model::policy::EpisodeContext,
+    ) -> Result<(), assay_model::policy::PolicyError> {
         self.resets += 1;
         Ok(())
     }
     fn act(
         &mut self,
-        obs: &assay_core::policy::PolicyObservation,
-    ) -> Result<Vec<assay_core::policy::Action>, assay_core::policy::PolicyError> {
+        obs: &assay_model::policy::PolicyObservation,
+    ) -> Result<Vec<assay_model::policy::Action>, assay_model::policy::PolicyError> {
         self.seen.push(obs.clone());
         Ok(vec![[0.1, 0.0, 0.0, 0.0]; 3])
     }
@@ -174,7 +174,7 @@ fn a_policy_acts_inside_the_world_model_on_the_frames_it_imagines() {
         device: Device::Cpu,
     };
     let (model, _) = fit_model(&req, None, &mut |_, _| Ok(())).unwrap();
-    let episode = assay_core::policy::EpisodeContext {
+    let episode = assay_model::policy::EpisodeContext {
         task_id: "t".into(),
         seed: 0,
         instruction: "move right".into(),

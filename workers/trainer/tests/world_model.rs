@@ -1,9 +1,9 @@
 //! The world model on synthetic clips: a coloured square on a dark background moved by the
 //! action (its commanded velocity), with its position as the proprioception.
 
-use assay_core::clip::Clip;
-use assay_core::dynamics::{DynamicsConfig, DynamicsFit};
-use assay_core::rng::Rng;
+use assay_model::clip::Clip;
+use assay_model::dynamics::{DynamicsConfig, DynamicsFit};
+use assay_spec::rng::Rng;
 use assay_trainer::world_model::{CheckpointSink, FitRequest, WorldModelError, fit};
 use tch::Device;
 

@@ -2,7 +2,7 @@
 
 use std::path::{Path, PathBuf};
 
-use assay_core::spec::{Format, TaskSpec, parse_task};
+use assay_spec::spec::{Format, TaskSpec, parse_task};
 
 /// A task of the example corpus, by its path below `examples/tasks`.
 pub fn task(rel: &str) -> TaskSpec {

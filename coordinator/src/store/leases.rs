@@ -1,0 +1,483 @@
+//! The shard state machine: queued → leased → done | failed | cancelled, and back to queued.
+//!
+//! Owns: leasing, heartbeats, completion, failure and retries, handed-back and expired leases,
+//! reconciliation after a restart, cancellation, and finishing a batch once nothing is open.
+//! Every change is one statement guarded by the shard's state and lease id. Never decides which
+//! shards a batch has: completion and finishing call the planner inside the same savepoint.
+
+use assay_model::episode::EpisodeOutcome;
+use assay_model::quality::JudgeOutcome;
+use assay_model::trainer::TrainerOutcome;
+use rusqlite::{Connection, OptionalExtension, params};
+
+use super::{Changed, JudgeLease, Lease, Store, batch_state, role};
+use crate::error::CoordError;
+
+/// id, batch, seed, policy, role, attempts, spec JSON, judge, input JSON, repeats, budget,
+/// clip size (of the batch's dynamics or ranking world model).
+type QueuedShard = (
+    i64,
+    String,
+    i64,
+    String,
+    String,
+    u32,
+    String,
+    Option<String>,
+    Option<String>,
+    u32,
+    Option<f64>,
+    Option<i64>,
+);
+
+impl Store {
+    /// Leases up to `n` queued shards of running batches for one of `roles`.
+    pub fn lease(
+        &mut self,
+        worker: &str,
+        roles: &[String],
+        n: u32,
+        now_ms: i64,
+        ttl_ms: i64,
+    ) -> Result<Vec<Lease>, CoordError> {
+        if n == 0 || roles.is_empty() {
+            return Ok(Vec::new());
+        }
+        let tx = self.conn.savepoint()?;
+        let placeholders = roles.iter().map(|_| "?").collect::<Vec<_>>().join(",");
+        let sql = format!(
+            "SELECT s.id, s.batch_id, s.seed, s.policy, s.role, s.attempts, COALESCE(t.spec_json, ''),
+                    s.judge, s.input_json, b.judge_repeats, b.judge_budget_usd,
+                    COALESCE(json_extract(b.dynamics_json, '$.config.image_size'),
+                             json_extract(b.ranking_json, '$.config.world_model.image_size'),
+                             json_extract(b.generalization_json, '$.config.image_size'))
+             FROM shards s LEFT JOIN tasks t ON t.batch_id = s.batch_id AND t.task_id = s.task_id
+                           JOIN batches b ON b.id = s.batch_id
+             WHERE s.state = 'queued' AND s.role IN ({placeholders})
+             ORDER BY s.id LIMIT {n}"
+        );
+        let rows: Vec<QueuedShard> = {
+            let mut stmt = tx.prepare_cached(&sql)?;
+            let it = stmt.query_map(rusqlite::params_from_iter(roles.iter()), |r| {
+                Ok((
+                    r.get(0)?,
+                    r.get(1)?,
+                    r.get(2)?,
+                    r.get(3)?,
+                    r.get(4)?,
+                    r.get(5)?,
+                    r.get(6)?,
+                    r.get(7)?,
+                    r.get(8)?,
+                    r.get(9)?,
+                    r.get(10)?,
+                    r.get(11)?,
+                ))
+            })?;
+            it.collect::<Result<_, _>>()?
+        };
+        let first = Self::next_counter(&tx, "lease_seq", rows.len() as u64)?;
+        let mut out = Vec::with_capacity(rows.len());
+        for (
+            k,
+            (
+                shard_id,
+                batch_id,
+                seed,
+                policy,
+                shard_role,
+                attempts,
+                spec,
+                judge,
+                input,
+                repeats,
+                budget,
+                dynamics,
+            ),
+        ) in rows.into_iter().enumerate()
+        {
+            let trainer_job = if shard_role == role::TRAINER {
+                input.clone()
+            } else {
+                None
+            };
+            let clip_size = match (dynamics, shard_role.as_str()) {
+                (Some(size), r) if r != role::JUDGE && r != role::TRAINER => size as u32,
+                _ => 0,
+            };
+            let judge = match (judge, input) {
+                (Some(judge), Some(episode_json)) => Some(JudgeLease {
+                    judge,
+                    budget_left_usd: match budget {
+                        Some(b) => Some(b - Self::judge_spent(&tx, &batch_id)?),
+                        None => None,
+                    },
+                    episode_json,
+                    repeats,
+                }),
+                _ => None,
+            };
+            let lease_id = first + k as u64;
+            tx.prepare_cached(
+                "UPDATE shards SET state = 'leased', attempts = attempts + 1, lease_id = ?1, lease_worker = ?2,
+                 lease_expires_ms = ?3 WHERE id = ?4 AND state = 'queued'",
+            )?
+            .execute(params![lease_id as i64, worker, now_ms + ttl_ms, shard_id])?;
+            out.push(Lease {
+                lease_id,
+                shard_id: shard_id as u64,
+                batch_id,
+                task_spec_json: spec,
+                seed: seed as u64,
+                policy,
+                role: shard_role,
+                attempt: attempts + 1,
+                judge,
+                trainer_job,
+                clip_size,
+            });
+        }
+        tx.commit()?;
+        Ok(out)
+    }
+
+    /// Extends the leases `worker` still holds; returns the ids that are still valid.
+    pub fn heartbeat(
+        &mut self,
+        worker: &str,
+        lease_ids: &[u64],
+        now_ms: i64,
+        ttl_ms: i64,
+    ) -> Result<Vec<u64>, CoordError> {
+        let tx = self.conn.savepoint()?;
+        let mut kept = Vec::new();
+        for id in lease_ids {
+            let n = tx.execute(
+                "UPDATE shards SET lease_expires_ms = ?1 WHERE lease_id = ?2 AND lease_worker = ?3 AND state = 'leased'",
+                params![now_ms + ttl_ms, *id as i64, worker],
+            )?;
+            if n == 1 {
+                kept.push(*id);
+            }
+        }
+        tx.commit()?;
+        Ok(kept)
+    }
+
+    /// Records a finished shard: `outcome_json` is an `EpisodeOutcome` for a sim shard, a
+    /// `JudgeOutcome` for a judge shard. Accepted only if `lease_id` is the shard's current lease:
+    /// a result from an expired, returned or completed lease is not counted. An outcome that
+    /// does not parse counts as a failed attempt. A rendered episode of a batch with judges
+    /// queues one judge shard per judge, in the same transaction, so the batch cannot look
+    /// finished in between.
+    pub fn complete(
+        &mut self,
+        worker: &str,
+        lease_id: u64,
+        shard_id: u64,
+        outcome_json: &str,
+        wall_time_s: f64,
+        now_ms: i64,
+    ) -> Result<(bool, Changed), CoordError> {
+        let tx = self.conn.savepoint()?;
+        let current: Option<(String, String, String, i64, String)> = tx
+            .prepare_cached(
+                "SELECT s.role, s.batch_id, s.task_id, s.seed, s.policy FROM shards s
+                 WHERE s.id = ?1 AND s.lease_id = ?2 AND s.state = 'leased'",
+            )?
+            .query_row(params![shard_id as i64, lease_id as i64], |r| {
+                Ok((r.get(0)?, r.get(1)?, r.get(2)?, r.get(3)?, r.get(4)?))
+            })
+            .optional()?;
+        let Some((shard_role, batch, task, seed, policy)) = current else {
+            return Ok((false, Changed::default()));
+        };
+        // What to queue after it: judge shards for a rendered episode of a judged batch.
+        let judges: Vec<String> = match shard_role.as_str() {
+            role::JUDGE => match serde_json::from_str::<JudgeOutcome>(outcome_json) {
+                Ok(_) => Vec::new(),
+                Err(e) => {
+                    drop(tx);
+                    let err = format!("worker sent an unreadable judge outcome: {e}");
+                    return Ok((false, self.fail(lease_id, shard_id, &err, true, now_ms)?));
+                }
+            },
+            role::TRAINER => match serde_json::from_str::<TrainerOutcome>(outcome_json) {
+                Ok(_) => Vec::new(),
+                Err(e) => {
+                    drop(tx);
+                    let err = format!("worker sent an unreadable trainer outcome: {e}");
+                    return Ok((false, self.fail(lease_id, shard_id, &err, true, now_ms)?));
+                }
+            },
+            _ => match serde_json::from_str::<EpisodeOutcome>(outcome_json) {
+                Ok(o) if o.imagery.is_some() => {
+                    let judges: String = tx.query_row(
+                        "SELECT judges_json FROM batches WHERE id = ?1",
+                        [&batch],
+                        |r| r.get(0),
+                    )?;
+                    serde_json::from_str(&judges)?
+                }
+                Ok(_) => Vec::new(),
+                Err(e) => {
+                    drop(tx);
+                    let err = format!("worker sent an unreadable outcome: {e}");
+                    return Ok((false, self.fail(lease_id, shard_id, &err, true, now_ms)?));
+                }
+            },
+        };
+        tx.prepare_cached(
+            "UPDATE shards SET state = 'done', outcome_json = ?1, wall_time_s = ?2, worker = ?3, error = NULL,
+             lease_expires_ms = NULL WHERE id = ?4 AND lease_id = ?5 AND state = 'leased'",
+        )?
+        .execute(params![outcome_json, wall_time_s, worker, shard_id as i64, lease_id as i64])?;
+        let mut queued =
+            Self::queue_episode_judging(&tx, &batch, &task, seed, &policy, &judges, outcome_json)?;
+        if shard_role == role::TRAINER {
+            match serde_json::from_str::<TrainerOutcome>(outcome_json) {
+                Ok(TrainerOutcome::Diffusion { group, model, .. }) => {
+                    queued += Self::queue_generalization_episodes(&tx, &batch, &group, &model)?;
+                }
+                Ok(TrainerOutcome::Proxy { result }) => {
+                    queued += Self::queue_imagined_judging(&tx, &batch, &result)?;
+                }
+                _ => {}
+            }
+        }
+        Self::finish_if_done(&tx, &batch, now_ms)?;
+        tx.commit()?;
+        Ok((
+            true,
+            Changed {
+                batches: vec![batch],
+                requeued: queued,
+            },
+        ))
+    }
+
+    /// Records a failed attempt: re-queued while attempts remain and the error is retryable,
+    /// failed with its error otherwise.
+    pub fn fail(
+        &mut self,
+        lease_id: u64,
+        shard_id: u64,
+        error: &str,
+        retryable: bool,
+        now_ms: i64,
+    ) -> Result<Changed, CoordError> {
+        let tx = self.conn.savepoint()?;
+        let row: Option<(String, u32, u32)> = tx
+            .query_row(
+                "SELECT s.batch_id, s.attempts, b.max_attempts FROM shards s JOIN batches b ON b.id = s.batch_id
+                 WHERE s.id = ?1 AND s.lease_id = ?2 AND s.state = 'leased'",
+                params![shard_id as i64, lease_id as i64],
+                |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?)),
+            )
+            .optional()?;
+        let mut changed = Changed::default();
+        if let Some((batch, attempts, max)) = row {
+            if retryable && attempts < max {
+                tx.execute(
+                    "UPDATE shards SET state = 'queued', error = ?1, lease_worker = NULL, lease_expires_ms = NULL WHERE id = ?2",
+                    params![error, shard_id as i64],
+                )?;
+                changed.requeued = 1;
+            } else {
+                let msg = if retryable {
+                    format!("{error} (after {attempts} attempts)")
+                } else {
+                    error.to_owned()
+                };
+                tx.execute(
+                    "UPDATE shards SET state = 'failed', error = ?1, lease_expires_ms = NULL WHERE id = ?2",
+                    params![msg, shard_id as i64],
+                )?;
+                Self::finish_if_done(&tx, &batch, now_ms)?;
+            }
+            changed.batches.push(batch);
+        }
+        tx.commit()?;
+        Ok(changed)
+    }
+
+    /// A worker hands leases back (graceful shutdown): they are re-queued and the attempt is not
+    /// counted against the shard.
+    pub fn return_leases(
+        &mut self,
+        worker: &str,
+        lease_ids: &[u64],
+    ) -> Result<Changed, CoordError> {
+        let tx = self.conn.savepoint()?;
+        let mut changed = Changed::default();
+        for id in lease_ids {
+            let batch: Option<String> = tx
+                .query_row(
+                    "UPDATE shards SET state = 'queued', attempts = attempts - 1, lease_worker = NULL, lease_expires_ms = NULL
+                     WHERE lease_id = ?1 AND lease_worker = ?2 AND state = 'leased' RETURNING batch_id",
+                    params![*id as i64, worker],
+                    |r| r.get(0),
+                )
+                .optional()?;
+            if let Some(b) = batch {
+                changed.requeued += 1;
+                changed.batches.push(b);
+            }
+        }
+        tx.commit()?;
+        Ok(changed)
+    }
+
+    /// Ends every lease whose deadline passed (or, with `worker`, the given leases of that worker:
+    /// its session broke). Each counts as an attempt; a shard out of attempts fails.
+    pub fn expire(
+        &mut self,
+        now_ms: i64,
+        worker: Option<(&str, &[u64])>,
+    ) -> Result<Changed, CoordError> {
+        let tx = self.conn.savepoint()?;
+        let sql_owned;
+        let rows: Vec<(i64, String, u32, u32, Option<String>)> = {
+            let (sql, args): (&str, Vec<rusqlite::types::Value>) = match worker {
+                None => (
+                    "SELECT s.id, s.batch_id, s.attempts, b.max_attempts, s.lease_worker FROM shards s JOIN batches b ON b.id = s.batch_id
+                     WHERE s.state = 'leased' AND s.lease_expires_ms < ?1",
+                    vec![now_ms.into()],
+                ),
+                Some((w, ids)) => {
+                    let list = ids.iter().map(u64::to_string).collect::<Vec<_>>().join(",");
+                    sql_owned = format!(
+                        "SELECT s.id, s.batch_id, s.attempts, b.max_attempts, s.lease_worker FROM shards s JOIN batches b ON b.id = s.batch_id
+                         WHERE s.state = 'leased' AND s.lease_worker = ?1 AND s.lease_id IN ({list})"
+                    );
+                    (sql_owned.as_str(), vec![w.to_owned().into()])
+                }
+            };
+            let mut stmt = tx.prepare(sql)?;
+            let it = stmt.query_map(rusqlite::params_from_iter(args), |r| {
+                Ok((r.get(0)?, r.get(1)?, r.get(2)?, r.get(3)?, r.get(4)?))
+            })?;
+            it.collect::<Result<_, _>>()?
+        };
+        let mut changed = Changed::default();
+        for (id, batch, attempts, max, lease_worker) in rows {
+            let why = match worker {
+                None => format!(
+                    "lease expired: worker {} stopped heartbeating",
+                    lease_worker.unwrap_or_default()
+                ),
+                Some((w, _)) => format!("worker {w} disconnected while running the shard"),
+            };
+            if attempts < max {
+                tx.execute(
+                    "UPDATE shards SET state = 'queued', error = ?1, lease_worker = NULL, lease_expires_ms = NULL WHERE id = ?2",
+                    params![why, id],
+                )?;
+                changed.requeued += 1;
+            } else {
+                tx.execute(
+                    "UPDATE shards SET state = 'failed', error = ?1, lease_expires_ms = NULL WHERE id = ?2",
+                    params![format!("{why} (after {attempts} attempts)"), id],
+                )?;
+                Self::finish_if_done(&tx, &batch, now_ms)?;
+            }
+            if !changed.batches.contains(&batch) {
+                changed.batches.push(batch);
+            }
+        }
+        tx.commit()?;
+        Ok(changed)
+    }
+
+    /// After a restart: give every surviving lease a fresh deadline, so workers have time to
+    /// reconnect and claim them before they expire. Returns how many leases survived.
+    pub fn refresh_leases(&mut self, now_ms: i64, ttl_ms: i64) -> Result<usize, CoordError> {
+        Ok(self.conn.execute(
+            "UPDATE shards SET lease_expires_ms = ?1 WHERE state = 'leased'",
+            [now_ms + ttl_ms],
+        )?)
+    }
+
+    /// A worker (re)registers saying which leases it still runs. Those it still holds are kept;
+    /// any other lease recorded for it (assigned while the coordinator went down, never
+    /// received) goes back to the queue without counting an attempt.
+    pub fn reconcile(
+        &mut self,
+        worker: &str,
+        running: &[u64],
+    ) -> Result<(Vec<u64>, Changed), CoordError> {
+        let recorded: Vec<u64> = {
+            let mut stmt = self.conn.prepare(
+                "SELECT lease_id FROM shards WHERE lease_worker = ?1 AND state = 'leased'",
+            )?;
+            let ids = stmt
+                .query_map([worker], |r| r.get::<_, i64>(0))?
+                .collect::<Result<Vec<_>, _>>()?;
+            ids.into_iter().map(|i| i as u64).collect()
+        };
+        let (kept, unknown): (Vec<u64>, Vec<u64>) =
+            recorded.into_iter().partition(|id| running.contains(id));
+        let changed = self.return_leases(worker, &unknown)?;
+        Ok((kept, changed))
+    }
+
+    pub fn cancel(&mut self, batch_id: &str, now_ms: i64) -> Result<Changed, CoordError> {
+        let tx = self.conn.savepoint()?;
+        Self::require_batch(&tx, batch_id)?;
+        tx.execute(
+            "UPDATE shards SET state = 'cancelled', error = 'cancelled', lease_expires_ms = NULL
+             WHERE batch_id = ?1 AND state IN ('queued', 'leased')",
+            [batch_id],
+        )?;
+        tx.execute(
+            "UPDATE batches SET state = ?1, finished_ms = COALESCE(finished_ms, ?2) WHERE id = ?3 AND state = ?4",
+            params![batch_state::CANCELLED, now_ms, batch_id, batch_state::RUNNING],
+        )?;
+        tx.commit()?;
+        Ok(Changed {
+            batches: vec![batch_id.to_owned()],
+            requeued: 0,
+        })
+    }
+
+    /// A batch with no shards (every task invalid) is complete as soon as it is stored.
+    pub fn finish_if_empty(&mut self, batch_id: &str, now_ms: i64) -> Result<(), CoordError> {
+        Self::finish_if_done(&self.conn, batch_id, now_ms)
+    }
+
+    fn require_batch(conn: &Connection, batch_id: &str) -> Result<(), CoordError> {
+        let exists = conn
+            .prepare("SELECT 1 FROM batches WHERE id = ?1")?
+            .exists([batch_id])?;
+        if exists {
+            Ok(())
+        } else {
+            Err(CoordError::NotFound(format!("batch '{batch_id}'")))
+        }
+    }
+
+    fn finish_if_done(conn: &Connection, batch_id: &str, now_ms: i64) -> Result<(), CoordError> {
+        Self::queue_dynamics(conn, batch_id)?;
+        Self::queue_proxy(conn, batch_id)?;
+        Self::queue_diffusion(conn, batch_id)?;
+        // EXISTS, not COUNT: this runs on every completion, and counting the open shards made
+        // each one O(open shards) — quadratic over a batch (`assay bench coordinator` found it).
+        let open: bool = conn
+            .prepare_cached(
+                "SELECT EXISTS (SELECT 1 FROM shards WHERE batch_id = ?1 AND state IN ('queued', 'leased'))",
+            )?
+            .query_row([batch_id], |r| r.get(0))?;
+        if !open {
+            conn.execute(
+                "UPDATE batches SET state = ?1, finished_ms = ?2 WHERE id = ?3 AND state = ?4",
+                params![
+                    batch_state::COMPLETED,
+                    now_ms,
+                    batch_id,
+                    batch_state::RUNNING
+                ],
+            )?;
+        }
+        Ok(())
+    }
+}

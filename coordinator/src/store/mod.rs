@@ -1,0 +1,237 @@
+//! The job store: batches, tasks and shards in one SQLite file.
+//!
+//! Every state change of a shard is one SQL statement guarded by its current state and lease id,
+//! so a late or duplicate message can never count a shard twice. Time is passed in (`now_ms`), so
+//! lease logic is tested without sleeping.
+//!
+//! Owns: the [`Store`] and its one connection, the types its callers exchange with it, opening,
+//! group commit, and the helpers several concerns share. The rest is split by concern, each file
+//! adding its own `impl Store` block: `schema` (tables and migrations), `planner` (which shards a
+//! batch has, at submission and as its groups finish), `leases` (the shard state machine),
+//! `read_model` (counts, batch lists, reports) and `metrics` (the figures `/metrics` shows).
+//! Never: gRPC, scheduling or threads (the service and the store actor), nor formatting text.
+
+use std::path::Path;
+
+use assay_model::dynamics::DynamicsConfig;
+use assay_model::episode::TaskInfo;
+use assay_model::generalization::GeneralizationPlan;
+use assay_model::proxy::RankingPlan;
+use assay_spec::SpecError;
+use rusqlite::{Connection, OptionalExtension, params};
+
+use crate::error::CoordError;
+
+mod leases;
+mod metrics;
+pub use metrics::{SHARD_SECONDS_BUCKETS, Snapshot};
+mod planner;
+mod read_model;
+mod schema;
+#[cfg(test)]
+mod tests;
+
+/// States a shard moves through: queued → leased → done | failed | cancelled; an expired or
+/// returned lease goes back to queued.
+pub mod shard_state {
+    pub const QUEUED: &str = "queued";
+    pub const LEASED: &str = "leased";
+    pub const DONE: &str = "done";
+    pub const FAILED: &str = "failed";
+    pub const CANCELLED: &str = "cancelled";
+}
+
+pub mod batch_state {
+    pub const RUNNING: &str = "running";
+    pub const COMPLETED: &str = "completed";
+    pub const CANCELLED: &str = "cancelled";
+    /// Not run: the same tasks were evaluated before (`duplicate_of`).
+    pub const SKIPPED: &str = "skipped";
+}
+
+/// Shard roles.
+pub mod role {
+    pub const SIM: &str = "sim";
+    pub const JUDGE: &str = "judge";
+    pub const TRAINER: &str = "trainer";
+}
+
+/// The dynamics part of a batch: episode budgets and world-model settings.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct DynamicsPlan {
+    pub budgets: Vec<u32>,
+    pub config: DynamicsConfig,
+}
+
+/// A task accepted by the planner.
+#[derive(Debug, Clone)]
+pub struct PlannedTask {
+    pub info: TaskInfo,
+    pub spec_json: String,
+}
+
+/// A batch ready to be stored.
+#[derive(Debug, Clone)]
+pub struct NewBatch {
+    pub name: String,
+    pub tasks: Vec<PlannedTask>,
+    pub policies: Vec<String>,
+    pub seeds: Vec<u64>,
+    pub max_attempts: u32,
+    pub invalid: Vec<SpecError>,
+    pub role: String,
+    /// Judges that score every rendered episode (empty: none).
+    pub judges: Vec<String>,
+    /// Times each judge item is asked (0: the default, 5).
+    pub judge_repeats: u32,
+    /// USD the batch's judges may spend; None: no limit.
+    pub judge_budget_usd: Option<f64>,
+    /// SHA-256 of the batch's tasks (see `SubmitBatchResponse.content_hash`).
+    pub content_hash: String,
+    /// Embedding models for text diversity (empty: none) and the texts per group ("All" last).
+    pub text_models: Vec<String>,
+    pub text_groups: Vec<(String, Vec<String>)>,
+    /// Dynamics diversity (None: none): every episode renders a clip, and each group's world
+    /// models are queued once its episodes are finished.
+    pub dynamics: Option<DynamicsPlan>,
+    /// Policy ranking by the world-model proxy (None: none): every episode renders a clip, and
+    /// each group's proxy is queued once its episodes are finished.
+    pub ranking: Option<RankingPlan>,
+    /// Generalization (None: none): every episode renders a clip; each group's diffusion policy
+    /// is trained once its episodes are finished, then run on training and held-out variations.
+    pub generalization: Option<GeneralizationPlan>,
+}
+
+/// A shard handed to a worker.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Lease {
+    pub lease_id: u64,
+    pub shard_id: u64,
+    pub batch_id: String,
+    pub task_spec_json: String,
+    pub seed: u64,
+    pub policy: String,
+    pub role: String,
+    pub attempt: u32,
+    /// For a judge shard: the judge, the episode outcome JSON it judges, repeats per item and
+    /// what is left of the batch's budget (None: no limit).
+    pub judge: Option<JudgeLease>,
+    /// For a trainer shard: its job (JSON `assay_model::trainer::TrainerJob`).
+    pub trainer_job: Option<String>,
+    /// For an episode of a batch that measures dynamics diversity: the clip's frame size.
+    pub clip_size: u32,
+}
+
+#[derive(Debug, Clone, PartialEq)]
+pub struct JudgeLease {
+    pub judge: String,
+    pub episode_json: String,
+    pub repeats: u32,
+    pub budget_left_usd: Option<f64>,
+}
+
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct BatchCounts {
+    pub id: String,
+    pub name: String,
+    pub state: String,
+    pub total: u32,
+    pub queued: u32,
+    pub leased: u32,
+    pub done: u32,
+    pub failed: u32,
+    pub cancelled: u32,
+    pub successes: u32,
+    pub invalid_tasks: u32,
+    pub submitted_ms: i64,
+    pub finished_ms: Option<i64>,
+    /// Judge shards (the counts above are episodes).
+    pub judge_total: u32,
+    pub judge_done: u32,
+    pub judge_failed: u32,
+    pub judge_cost_usd: f64,
+    /// Trainer shards (text diversity, world models).
+    pub trainer_total: u32,
+    pub trainer_done: u32,
+    pub trainer_failed: u32,
+    pub content_hash: String,
+    /// A skipped batch: the batch it repeats.
+    pub duplicate_of: Option<String>,
+}
+
+/// What a state change did, so the caller knows whom to wake.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Changed {
+    /// Batches whose counts changed.
+    pub batches: Vec<String>,
+    /// Shards that went back to the queue.
+    pub requeued: u32,
+}
+
+pub struct Store {
+    conn: Connection,
+}
+
+impl Store {
+    pub fn open(path: &Path) -> Result<Self, CoordError> {
+        let conn = Connection::open(path)?;
+        conn.busy_timeout(std::time::Duration::from_secs(5))?;
+        Self::init(conn)
+    }
+
+    pub fn open_in_memory() -> Result<Self, CoordError> {
+        Self::init(Connection::open_in_memory()?)
+    }
+
+    fn init(conn: Connection) -> Result<Self, CoordError> {
+        schema::migrate(&conn)?;
+        Ok(Self { conn })
+    }
+
+    /// Opens a group: the store calls until [`Store::commit_group`] share one transaction. Each
+    /// call still runs in its own savepoint, so one that fails leaves the others' changes intact.
+    pub fn begin_group(&mut self) -> Result<(), CoordError> {
+        self.conn.execute_batch("BEGIN IMMEDIATE")?;
+        Ok(())
+    }
+
+    /// Commits the open group; on failure the whole group is rolled back.
+    pub fn commit_group(&mut self) -> Result<(), CoordError> {
+        if let Err(e) = self.conn.execute_batch("COMMIT") {
+            let _ = self.conn.execute_batch("ROLLBACK");
+            return Err(e.into());
+        }
+        Ok(())
+    }
+
+    /// The connection, for tests that need to reach under the store's API.
+    #[cfg(test)]
+    pub(crate) fn conn(&mut self) -> &mut Connection {
+        &mut self.conn
+    }
+
+    /// USD the batch's judge shards have spent so far.
+    fn judge_spent(conn: &Connection, batch_id: &str) -> Result<f64, CoordError> {
+        Ok(conn.query_row(
+            "SELECT COALESCE(SUM(json_extract(outcome_json, '$.usage.cost_usd')), 0.0) FROM shards
+             WHERE batch_id = ?1 AND role = 'judge' AND state = 'done'",
+            [batch_id],
+            |r| r.get(0),
+        )?)
+    }
+
+    /// Takes the next `n` values of the counter `key` (batch numbers, lease ids); returns the
+    /// first.
+    fn next_counter(tx: &Connection, key: &str, n: u64) -> Result<u64, CoordError> {
+        let cur: Option<i64> = tx
+            .prepare_cached("SELECT value FROM meta WHERE key = ?1")?
+            .query_row([key], |r| r.get(0))
+            .optional()?;
+        let first = cur.unwrap_or(1) as u64;
+        tx.prepare_cached(
+            "INSERT INTO meta (key, value) VALUES (?1, ?2) ON CONFLICT(key) DO UPDATE SET value = excluded.value",
+        )?
+        .execute(params![key, (first + n) as i64])?;
+        Ok(first)
+    }
+}

@@ -1,0 +1,609 @@
+//! The planner: which shards a batch has.
+//!
+//! Owns: storing a submitted batch and its episodes (seed-major), the repeat of an evaluated
+//! batch, and the shards queued as a batch's work finishes: judge shards for a rendered episode,
+//! per group the world models (dynamics), the proxy and its imagined-rollout judging, the
+//! diffusion policy and its evaluation episodes. Each runs on the caller's transaction or
+//! savepoint, so a batch never looks finished between one shard and those it queues.
+//! Never changes a shard's state once queued (that is `leases`).
+
+use assay_model::episode::{EpisodeImagery, EpisodeOutcome};
+use assay_model::generalization::{GeneralizationPlan, HELD_OUT_VARIATIONS, TRAIN_VARIATIONS};
+use assay_model::proxy::{IMAGINED_JUDGING, ProxyEpisode, ProxyResult, RankingPlan};
+use assay_model::quality::DEFAULT_REPEATS;
+use assay_model::trainer::TrainerJob;
+use rusqlite::{Connection, OptionalExtension, params};
+
+use super::shard_state::QUEUED;
+use super::{DynamicsPlan, NewBatch, PlannedTask, Store, batch_state, role};
+use crate::error::CoordError;
+
+impl Store {
+    fn insert_tasks(
+        tx: &Connection,
+        batch_id: &str,
+        tasks: &[PlannedTask],
+    ) -> Result<(), CoordError> {
+        for t in tasks {
+            tx.execute(
+                "INSERT INTO tasks (batch_id, task_id, name, grp, pipeline, origin, spec_hash, spec_json)
+                 VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8)",
+                params![batch_id, t.info.id, t.info.name, t.info.group, t.info.pipeline, t.info.origin, t.info.spec_hash, t.spec_json],
+            )?;
+        }
+        Ok(())
+    }
+
+    /// The first batch evaluated (running or completed, not itself skipped) with this content
+    /// hash, if any.
+    pub fn evaluated_with(&self, content_hash: &str) -> Result<Option<String>, CoordError> {
+        Ok(self
+            .conn
+            .query_row(
+                "SELECT id FROM batches WHERE content_hash = ?1 AND state IN ('running', 'completed')
+                 ORDER BY seq LIMIT 1",
+                [content_hash],
+                |r| r.get(0),
+            )
+            .optional()?)
+    }
+
+    /// Records `batch` as skipped, a repeat of `duplicate_of`: in the history, with no shards.
+    pub fn record_skipped(
+        &mut self,
+        batch: &NewBatch,
+        duplicate_of: &str,
+        now_ms: i64,
+    ) -> Result<String, CoordError> {
+        let tx = self.conn.savepoint()?;
+        let seq = Self::next_counter(&tx, "batch_seq", 1)?;
+        let id = format!("b{seq:05}-{:x}", now_ms & 0xff_ffff);
+        tx.execute(
+            "INSERT INTO batches (id, seq, name, state, policies_json, seeds_json, max_attempts, invalid_json, submitted_ms,
+             finished_ms, content_hash, duplicate_of)
+             VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?9, ?10, ?11)",
+            params![
+                id,
+                seq as i64,
+                batch.name,
+                batch_state::SKIPPED,
+                serde_json::to_string(&batch.policies)?,
+                serde_json::to_string(&batch.seeds)?,
+                batch.max_attempts,
+                serde_json::to_string(&batch.invalid)?,
+                now_ms,
+                batch.content_hash,
+                duplicate_of,
+            ],
+        )?;
+        Self::insert_tasks(&tx, &id, &batch.tasks)?;
+        tx.commit()?;
+        Ok(id)
+    }
+
+    /// Stores a batch and plans its shards: seed-major (every task's first seed runs before any
+    /// task's second), then policy, then task in submission order.
+    pub fn submit(&mut self, batch: &NewBatch, now_ms: i64) -> Result<(String, u32), CoordError> {
+        let tx = self.conn.savepoint()?;
+        let seq = Self::next_counter(&tx, "batch_seq", 1)?;
+        let id = format!("b{seq:05}-{:x}", now_ms & 0xff_ffff);
+        tx.execute(
+            "INSERT INTO batches (id, seq, name, state, policies_json, seeds_json, max_attempts, invalid_json, submitted_ms,
+             judges_json, judge_repeats, judge_budget_usd, text_models_json, dynamics_json)
+             VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12, ?13, ?14)",
+            params![
+                id,
+                seq as i64,
+                batch.name,
+                batch_state::RUNNING,
+                serde_json::to_string(&batch.policies)?,
+                serde_json::to_string(&batch.seeds)?,
+                batch.max_attempts,
+                serde_json::to_string(&batch.invalid)?,
+                now_ms,
+                serde_json::to_string(&batch.judges)?,
+                if batch.judge_repeats == 0 { DEFAULT_REPEATS } else { batch.judge_repeats },
+                batch.judge_budget_usd,
+                serde_json::to_string(&batch.text_models)?,
+                batch.dynamics.as_ref().map(serde_json::to_string).transpose()?,
+            ],
+        )?;
+        Self::insert_tasks(&tx, &id, &batch.tasks)?;
+        let mut n = 0u32;
+        {
+            let mut ins = tx.prepare(
+                "INSERT INTO shards (batch_id, task_id, seed, policy, role, state) VALUES (?1, ?2, ?3, ?4, ?5, ?6)",
+            )?;
+            for seed in &batch.seeds {
+                for policy in &batch.policies {
+                    for t in &batch.tasks {
+                        ins.execute(params![
+                            id,
+                            t.info.id,
+                            *seed as i64,
+                            policy,
+                            batch.role,
+                            QUEUED
+                        ])?;
+                        n += 1;
+                    }
+                }
+            }
+        }
+        tx.execute(
+            "UPDATE batches SET content_hash = ?1 WHERE id = ?2",
+            params![batch.content_hash, id],
+        )?;
+        if let Some(plan) = &batch.ranking {
+            tx.execute(
+                "UPDATE batches SET ranking_json = ?1 WHERE id = ?2",
+                params![serde_json::to_string(plan)?, id],
+            )?;
+        }
+        if let Some(plan) = &batch.generalization {
+            tx.execute(
+                "UPDATE batches SET generalization_json = ?1 WHERE id = ?2",
+                params![serde_json::to_string(plan)?, id],
+            )?;
+        }
+        if !batch.text_models.is_empty() && !batch.tasks.is_empty() {
+            let job = TrainerJob::Text {
+                models: batch.text_models.clone(),
+                groups: batch.text_groups.clone(),
+            };
+            tx.execute(
+                "INSERT INTO shards (batch_id, task_id, seed, policy, role, state, job, input_json)
+                 VALUES (?1, '', 0, '', ?2, ?3, 'text', ?4)",
+                params![id, role::TRAINER, QUEUED, serde_json::to_string(&job)?],
+            )?;
+        }
+        tx.commit()?;
+        Ok((id, n))
+    }
+
+    /// Queues one judge shard per judge for a rendered episode, carrying its outcome. Returns
+    /// how many.
+    pub(super) fn queue_episode_judging(
+        conn: &Connection,
+        batch_id: &str,
+        task_id: &str,
+        seed: i64,
+        policy: &str,
+        judges: &[String],
+        outcome_json: &str,
+    ) -> Result<u32, CoordError> {
+        for judge in judges {
+            conn.execute(
+                "INSERT INTO shards (batch_id, task_id, seed, policy, role, state, judge, input_json)
+                 VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8)",
+                params![batch_id, task_id, seed, policy, role::JUDGE, QUEUED, judge, outcome_json],
+            )?;
+        }
+        Ok(judges.len() as u32)
+    }
+
+    /// The plan in `column` of a running batch (None: the batch is not running or has none).
+    fn running_plan<T: serde::de::DeserializeOwned>(
+        conn: &Connection,
+        batch_id: &str,
+        column: &str,
+    ) -> Result<Option<T>, CoordError> {
+        let row: Option<(String, Option<String>)> = conn
+            .prepare_cached(&format!(
+                "SELECT state, {column} FROM batches WHERE id = ?1"
+            ))?
+            .query_row([batch_id], |r| Ok((r.get(0)?, r.get(1)?)))
+            .optional()?;
+        match row {
+            Some((state, Some(plan))) if state == batch_state::RUNNING => {
+                Ok(Some(serde_json::from_str(&plan)?))
+            }
+            _ => Ok(None),
+        }
+    }
+
+    /// The batch's task groups in task order.
+    fn groups(conn: &Connection, batch_id: &str) -> Result<Vec<String>, CoordError> {
+        let mut stmt = conn.prepare(
+            "SELECT grp FROM tasks WHERE batch_id = ?1 GROUP BY grp ORDER BY MIN(rowid)",
+        )?;
+        let groups = stmt
+            .query_map([batch_id], |r| r.get(0))?
+            .collect::<Result<_, _>>()?;
+        Ok(groups)
+    }
+
+    /// Whether `group`'s episodes are all finished and it has no trainer shard whose job starts
+    /// with `job` yet: the moment to queue one.
+    fn group_ready(
+        conn: &Connection,
+        batch_id: &str,
+        group: &str,
+        job: &str,
+    ) -> Result<bool, CoordError> {
+        let (started, open): (i64, i64) = conn.query_row(
+            "SELECT
+               (SELECT COUNT(*) FROM shards WHERE batch_id = ?1 AND role = 'trainer' AND grp = ?2
+                  AND job LIKE ?3 || '%'),
+               (SELECT COUNT(*) FROM shards s JOIN tasks t ON t.batch_id = s.batch_id AND t.task_id = s.task_id
+                WHERE s.batch_id = ?1 AND t.grp = ?2 AND s.role NOT IN ('judge', 'trainer')
+                  AND s.state IN ('queued', 'leased'))",
+            params![batch_id, group, job],
+            |r| Ok((r.get(0)?, r.get(1)?)),
+        )?;
+        Ok(started == 0 && open == 0)
+    }
+
+    /// Records a trainer shard of `group` that cannot run, with the reason.
+    fn insert_failed_trainer_shard(
+        conn: &Connection,
+        batch_id: &str,
+        job: &str,
+        group: &str,
+        error: &str,
+    ) -> Result<(), CoordError> {
+        conn.execute(
+            "INSERT INTO shards (batch_id, task_id, seed, policy, role, state, job, grp, error)
+             VALUES (?1, '', 0, '', 'trainer', 'failed', ?2, ?3, ?4)",
+            params![batch_id, job, group, error],
+        )?;
+        Ok(())
+    }
+
+    /// Queues a trainer shard of `group` running `job`.
+    fn insert_trainer_shard(
+        conn: &Connection,
+        batch_id: &str,
+        name: &str,
+        group: &str,
+        job: &TrainerJob,
+    ) -> Result<(), CoordError> {
+        conn.execute(
+            "INSERT INTO shards (batch_id, task_id, seed, policy, role, state, job, grp, input_json)
+             VALUES (?1, '', 0, '', 'trainer', 'queued', ?2, ?3, ?4)",
+            params![batch_id, name, group, serde_json::to_string(job)?],
+        )?;
+        Ok(())
+    }
+
+    /// Queues the world models of every group of a running batch whose episodes are all finished
+    /// (none queued or leased) and that has none yet: one trainer shard per budget, on the
+    /// group's first `max(budgets)` clips in planning order (seed-major, so the first budget
+    /// holds one episode per task before any task's second). A group with fewer than 2 clips gets
+    /// one failed shard saying so.
+    pub(super) fn queue_dynamics(conn: &Connection, batch_id: &str) -> Result<(), CoordError> {
+        let Some(plan) = Self::running_plan::<DynamicsPlan>(conn, batch_id, "dynamics_json")?
+        else {
+            return Ok(());
+        };
+        let groups = Self::groups(conn, batch_id)?;
+        let eval = plan.budgets.iter().copied().max().unwrap_or(0) as usize;
+        for group in groups {
+            if !Self::group_ready(conn, batch_id, &group, "dynamics")? {
+                continue;
+            }
+            let clips: Vec<String> = {
+                let mut stmt = conn.prepare(
+                    "SELECT json_extract(s.outcome_json, '$.imagery.clip') AS clip
+                     FROM shards s JOIN tasks t ON t.batch_id = s.batch_id AND t.task_id = s.task_id
+                     WHERE s.batch_id = ?1 AND t.grp = ?2 AND s.role NOT IN ('judge', 'trainer')
+                       AND s.job IS NULL AND s.state = 'done' AND clip IS NOT NULL ORDER BY s.id",
+                )?;
+                stmt.query_map(params![batch_id, group], |r| r.get(0))?
+                    .take(eval)
+                    .collect::<Result<_, _>>()?
+            };
+            if clips.len() < 2 {
+                Self::insert_failed_trainer_shard(
+                    conn,
+                    batch_id,
+                    &format!("dynamics {group}"),
+                    &group,
+                    &format!(
+                        "group {group:?} has {} episode(s) with a dynamics clip; a world model needs at least 2 \
+                             (clips are rendered by workers with the render role)",
+                        clips.len()
+                    ),
+                )?;
+                continue;
+            }
+            // A group with fewer clips than a budget trains that budget on all of them; larger
+            // budgets would repeat the same fit, so they are left out (the report shows the
+            // number trained). Budgets are sorted and distinct since submission.
+            let mut budgets = plan.budgets.clone();
+            if let Some(covering) = budgets.iter().position(|b| *b as usize >= clips.len()) {
+                budgets.truncate(covering + 1);
+            }
+            for budget in &budgets {
+                let job = TrainerJob::Dynamics {
+                    group: group.clone(),
+                    budget: *budget,
+                    clips: clips.clone(),
+                    config: plan.config.clone(),
+                };
+                Self::insert_trainer_shard(
+                    conn,
+                    batch_id,
+                    &format!("dynamics {group} @ {budget}"),
+                    &group,
+                    &job,
+                )?;
+            }
+        }
+        Ok(())
+    }
+
+    /// Queues the world-model proxy of every group of a running ranking batch whose episodes are
+    /// all finished and that has none yet: one trainer shard per group, trained on the clips of
+    /// the training policies' episodes (with their outcomes) and imagining those of the ranked
+    /// policies (without). A group with fewer than 2 training clips or no ranked clip gets one
+    /// failed shard saying so.
+    pub(super) fn queue_proxy(conn: &Connection, batch_id: &str) -> Result<(), CoordError> {
+        let Some(plan) = Self::running_plan::<RankingPlan>(conn, batch_id, "ranking_json")? else {
+            return Ok(());
+        };
+        let groups = Self::groups(conn, batch_id)?;
+        for group in groups {
+            if !Self::group_ready(conn, batch_id, &group, "proxy")? {
+                continue;
+            }
+            let (mut train, mut eval) = (Vec::new(), Vec::new());
+            {
+                let mut stmt = conn.prepare(
+                    "SELECT s.task_id, s.policy, s.seed,
+                            json_extract(s.outcome_json, '$.imagery.clip') AS clip,
+                            json_extract(s.outcome_json, '$.success'),
+                            COALESCE(json_extract(t.spec_json, '$.description'), '')
+                     FROM shards s JOIN tasks t ON t.batch_id = s.batch_id AND t.task_id = s.task_id
+                     WHERE s.batch_id = ?1 AND t.grp = ?2 AND s.role NOT IN ('judge', 'trainer')
+                       AND s.job IS NULL AND s.state = 'done' AND clip IS NOT NULL ORDER BY s.id",
+                )?;
+                let mut rows = stmt.query(params![batch_id, group])?;
+                while let Some(r) = rows.next()? {
+                    let policy: String = r.get(1)?;
+                    let training = plan.train_policies.contains(&policy);
+                    let ep = ProxyEpisode {
+                        task_id: r.get(0)?,
+                        policy,
+                        seed: r.get::<_, i64>(2)? as u64,
+                        clip: r.get(3)?,
+                        instruction: r.get(5)?,
+                        success: training.then(|| r.get::<_, i64>(4).unwrap_or(0) != 0),
+                    };
+                    if training {
+                        train.push(ep);
+                    } else {
+                        eval.push(ep);
+                    }
+                }
+            }
+            let job_name = format!("proxy {group}");
+            if train.len() < 2 || eval.is_empty() {
+                Self::insert_failed_trainer_shard(
+                    conn,
+                    batch_id,
+                    &job_name,
+                    &group,
+                    &format!(
+                        "group {group:?} has {} training episode(s) and {} ranked episode(s) with a clip; \
+                             the proxy needs at least 2 and 1 (clips are rendered by workers with the render role)",
+                        train.len(),
+                        eval.len()
+                    ),
+                )?;
+                continue;
+            }
+            let job = TrainerJob::Proxy {
+                group: group.clone(),
+                train,
+                eval,
+                config: plan.config.clone(),
+            };
+            Self::insert_trainer_shard(conn, batch_id, &job_name, &group, &job)?;
+        }
+        Ok(())
+    }
+
+    /// Queues the diffusion policy of every group of a running generalization batch whose
+    /// episodes are all finished and that has none yet: one trainer shard per group on the
+    /// group's first `episodes` clips of the training policy (planning order). A group with fewer
+    /// than 2 such clips gets one failed shard saying so.
+    pub(super) fn queue_diffusion(conn: &Connection, batch_id: &str) -> Result<(), CoordError> {
+        let Some(plan) =
+            Self::running_plan::<GeneralizationPlan>(conn, batch_id, "generalization_json")?
+        else {
+            return Ok(());
+        };
+        let groups = Self::groups(conn, batch_id)?;
+        for group in groups {
+            if !Self::group_ready(conn, batch_id, &group, "diffusion")? {
+                continue;
+            }
+            let clips: Vec<String> = {
+                let mut stmt = conn.prepare(
+                    "SELECT json_extract(s.outcome_json, '$.imagery.clip') AS clip
+                     FROM shards s JOIN tasks t ON t.batch_id = s.batch_id AND t.task_id = s.task_id
+                     WHERE s.batch_id = ?1 AND t.grp = ?2 AND s.role NOT IN ('judge', 'trainer')
+                       AND s.policy = ?3 AND s.job IS NULL
+                       AND s.state = 'done' AND clip IS NOT NULL ORDER BY s.id",
+                )?;
+                stmt.query_map(params![batch_id, group, plan.train_policy], |r| r.get(0))?
+                    .take(plan.episodes as usize)
+                    .collect::<Result<_, _>>()?
+            };
+            let job_name = format!("diffusion {group}");
+            if clips.len() < 2 {
+                Self::insert_failed_trainer_shard(
+                    conn,
+                    batch_id,
+                    &job_name,
+                    &group,
+                    &format!(
+                        "group {group:?} has {} episode(s) of {} with a clip; a diffusion policy needs at least 2 \
+                             (clips are rendered by workers with the render role)",
+                        clips.len(),
+                        plan.train_policy
+                    ),
+                )?;
+                continue;
+            }
+            let job = TrainerJob::Diffusion {
+                group: group.clone(),
+                clips,
+                config: plan.config.clone(),
+            };
+            Self::insert_trainer_shard(conn, batch_id, &job_name, &group, &job)?;
+        }
+        Ok(())
+    }
+
+    /// Queues, for every judge of the batch that looks at images (every one but the built-in
+    /// `offline`, whose completion is the simulator's), one judge shard per imagined rollout of
+    /// a finished proxy: the ranked episode's outcome with the imagined keyframes as its imagery
+    /// and no scene views, so the judge is asked about completion only. Returns how many.
+    pub(super) fn queue_imagined_judging(
+        conn: &Connection,
+        batch_id: &str,
+        result: &ProxyResult,
+    ) -> Result<u32, CoordError> {
+        let judges: String = conn.query_row(
+            "SELECT judges_json FROM batches WHERE id = ?1",
+            [batch_id],
+            |r| r.get(0),
+        )?;
+        let judges: Vec<String> = serde_json::from_str(&judges)?;
+        let judges: Vec<&String> = judges.iter().filter(|j| *j != "offline").collect();
+        if judges.is_empty() {
+            return Ok(0);
+        }
+        let mut real = conn.prepare(
+            "SELECT outcome_json FROM shards WHERE batch_id = ?1 AND task_id = ?2 AND seed = ?3
+               AND policy = ?4 AND role NOT IN ('judge', 'trainer') AND job IS NULL AND state = 'done'",
+        )?;
+        let mut ins = conn.prepare(
+            "INSERT INTO shards (batch_id, task_id, seed, policy, role, state, judge, input_json, job, grp)
+             VALUES (?1, ?2, ?3, ?4, ?5, 'queued', ?6, ?7, ?8, ?9)",
+        )?;
+        let mut n = 0;
+        for p in result
+            .predictions
+            .iter()
+            .filter(|p| !p.imagined_keyframes.is_empty())
+        {
+            let Some(json) = real
+                .query_row(params![batch_id, p.task_id, p.seed as i64, p.policy], |r| {
+                    r.get::<_, String>(0)
+                })
+                .optional()?
+            else {
+                continue;
+            };
+            let mut episode: EpisodeOutcome = serde_json::from_str(&json)?;
+            episode.imagery = Some(EpisodeImagery {
+                adapter: "world model (imagined)".into(),
+                views: Vec::new(),
+                keyframes: p.imagined_keyframes.clone(),
+                contact_sheet: String::new(),
+                video: None,
+                caption: None,
+                clip: None,
+            });
+            let input = serde_json::to_string(&episode)?;
+            for judge in &judges {
+                ins.execute(params![
+                    batch_id,
+                    p.task_id,
+                    p.seed as i64,
+                    p.policy,
+                    role::JUDGE,
+                    judge,
+                    input,
+                    IMAGINED_JUDGING,
+                    result.group,
+                ])?;
+                n += 1;
+            }
+        }
+        Ok(n)
+    }
+
+    /// Queues the evaluation episodes of `group`'s trained diffusion policy `model`: every
+    /// (task, seed) it was trained on, and every task of the group under the plan's held-out
+    /// seeds. Returns how many.
+    pub(super) fn queue_generalization_episodes(
+        conn: &Connection,
+        batch_id: &str,
+        group: &str,
+        model: &str,
+    ) -> Result<u32, CoordError> {
+        let plan: Option<String> = conn.query_row(
+            "SELECT generalization_json FROM batches WHERE id = ?1",
+            [batch_id],
+            |r| r.get(0),
+        )?;
+        let Some(plan) = plan else {
+            return Ok(0);
+        };
+        let plan: GeneralizationPlan = serde_json::from_str(&plan)?;
+        let policy = plan.policy_name(model);
+        let trained: Vec<(String, i64)> = {
+            let mut stmt = conn.prepare(
+                "SELECT s.task_id, s.seed, json_extract(s.outcome_json, '$.imagery.clip') AS clip
+                 FROM shards s JOIN tasks t ON t.batch_id = s.batch_id AND t.task_id = s.task_id
+                 WHERE s.batch_id = ?1 AND t.grp = ?2 AND s.role NOT IN ('judge', 'trainer')
+                   AND s.policy = ?3 AND s.job IS NULL
+                   AND s.state = 'done' AND clip IS NOT NULL ORDER BY s.id",
+            )?;
+            stmt.query_map(params![batch_id, group, plan.train_policy], |r| {
+                Ok((r.get(0)?, r.get(1)?))
+            })?
+            .take(plan.episodes as usize)
+            .collect::<Result<_, _>>()?
+        };
+        let tasks: Vec<String> = {
+            let mut stmt = conn.prepare(
+                "SELECT task_id FROM tasks WHERE batch_id = ?1 AND grp = ?2 ORDER BY rowid",
+            )?;
+            stmt.query_map(params![batch_id, group], |r| r.get(0))?
+                .collect::<Result<_, _>>()?
+        };
+        let role: String = conn.query_row(
+            "SELECT role FROM shards WHERE batch_id = ?1 AND job IS NULL AND role NOT IN ('judge', 'trainer') LIMIT 1",
+            [batch_id],
+            |r| r.get(0),
+        )?;
+        let mut ins = conn.prepare(
+            "INSERT INTO shards (batch_id, task_id, seed, policy, role, state, job, grp)
+             VALUES (?1, ?2, ?3, ?4, ?5, 'queued', ?6, ?7)",
+        )?;
+        let mut n = 0;
+        for (task, seed) in &trained {
+            ins.execute(params![
+                batch_id,
+                task,
+                seed,
+                policy,
+                role,
+                TRAIN_VARIATIONS,
+                group
+            ])?;
+            n += 1;
+        }
+        for k in 0..u64::from(plan.held_out_seeds) {
+            for task in &tasks {
+                let seed = (plan.held_out_seed_base + k) as i64;
+                ins.execute(params![
+                    batch_id,
+                    task,
+                    seed,
+                    policy,
+                    role,
+                    HELD_OUT_VARIATIONS,
+                    group
+                ])?;
+                n += 1;
+            }
+        }
+        Ok(n)
+    }
+}

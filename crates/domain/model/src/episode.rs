@@ -1,0 +1,117 @@
+//! Episode outcomes as every role and the coordinator exchange them: the predicates an episode
+//! met, its imagery and keyframes in the artifact store, the state of a shard, and the task as the
+//! planner accepted it.
+//!
+//! Owns: the records. Never aggregates them (that is `assay-report`).
+
+use std::collections::BTreeMap;
+
+use serde::{Deserialize, Serialize};
+
+/// Where a success label came from.
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Serialize, Deserialize, schemars::JsonSchema,
+)]
+#[serde(rename_all = "snake_case")]
+pub enum LabelSource {
+    Sim,
+    Llm,
+    Vlm,
+    Human,
+}
+
+/// The value of one goal predicate at the end of an episode.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+pub struct PredicateValue {
+    pub label: String,
+    pub holds: bool,
+    /// What was measured (`distance 0.012 m`), for people reading a failure.
+    pub detail: String,
+}
+
+/// What a sim worker reports for one finished episode (everything here is deterministic).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+pub struct EpisodeOutcome {
+    pub task_id: String,
+    pub seed: u64,
+    pub policy: String,
+    pub success: bool,
+    pub label_source: LabelSource,
+    pub predicates: Vec<PredicateValue>,
+    /// Physics steps simulated, settle included.
+    pub steps: u64,
+    pub sim_time_s: f64,
+    /// Content address of the episode file in the artifact store.
+    pub artifact: String,
+    pub spec_hash: String,
+    /// Versions of the code that produced the episode (`assay-sim`, `rapier3d`, ...).
+    pub versions: BTreeMap<String, String>,
+    /// Rendered pictures of the episode, when a render role ran with the sim role.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub imagery: Option<EpisodeImagery>,
+}
+
+/// Pictures of one episode, as artifact keys.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+pub struct EpisodeImagery {
+    /// The graphics adapter that drew them (a GPU, or a software rasteriser).
+    pub adapter: String,
+    /// Views of the initial scene (top, front, two obliques), for scene alignment.
+    pub views: Vec<NamedArtifact>,
+    /// Frames evenly spaced over the rollout, for task completion.
+    pub keyframes: Vec<Keyframe>,
+    /// One PNG with the views on the first row and the keyframes below.
+    pub contact_sheet: String,
+    /// A video of the rollout (MP4, or an animated GIF where ffmpeg is not installed), when the
+    /// worker was asked for videos.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub video: Option<String>,
+    /// Content address of the scene caption (JSON `assay_model::caption::SceneCaption`): what
+    /// the scene views show, measured from their segments and depth.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub caption: Option<String>,
+    /// Content address of the episode's dynamics clip (`assay_model::clip::Clip`), when the batch
+    /// measures dynamics diversity.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub clip: Option<String>,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+pub struct NamedArtifact {
+    pub name: String,
+    pub artifact: String,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+pub struct Keyframe {
+    pub step: u64,
+    pub camera: String,
+    pub artifact: String,
+    /// Goal predicates that held in this state (ground truth, for the offline judge).
+    #[serde(default)]
+    pub goals_met: u32,
+}
+
+/// The state of one shard when the report is built.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+pub struct ShardRecord {
+    pub task_id: String,
+    pub seed: u64,
+    pub policy: String,
+    pub attempts: u32,
+    pub outcome: Option<EpisodeOutcome>,
+    /// Last error, for shards that failed (or were cancelled).
+    pub error: Option<String>,
+    pub cancelled: bool,
+}
+
+/// A task as the planner accepted it.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+pub struct TaskInfo {
+    pub id: String,
+    pub name: String,
+    pub group: String,
+    pub pipeline: String,
+    pub origin: String,
+    pub spec_hash: String,
+}

@@ -1,0 +1,67 @@
+//! Generalization (the generative-simulation paper's §3.5 and §4.3, Table 3): per task group, a
+//! diffusion policy trained on the group's episodes of one policy (the oracle's: 40 trajectories
+//! by default, as the paper), then run on **held-out variations** — the same tasks under seeds
+//! never trained on, which redraw whatever the task's `variations` declare (object poses, the
+//! tool's start, the colours of the objects it recolours) — and on the variations it was
+//! trained on. A policy that fails even on its training variations
+//! did not learn the group; its held-out rate says nothing about generalization, and the report
+//! says so. Plain data: training lives in `assay-trainer`, the episodes in the sim role.
+
+use serde::{Deserialize, Serialize};
+
+use crate::diffusion::DiffusionConfig;
+
+/// The generalization part of a batch.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+#[serde(default, deny_unknown_fields)]
+pub struct GeneralizationPlan {
+    /// Whose episodes the policy imitates.
+    pub train_policy: String,
+    /// Training episodes per group: the group's first ones in planning order (seed-major, so
+    /// every task contributes before any contributes twice).
+    pub episodes: u32,
+    /// Held-out seeds per task, numbered from `held_out_seed_base` (far from the batch's seeds).
+    pub held_out_seeds: u32,
+    pub held_out_seed_base: u64,
+    /// Horizon of the policy's episodes, physics steps (the oracle's plans take 1000–3700 on the
+    /// example corpus); the task's own `physics.max_steps` when smaller.
+    pub max_steps: u32,
+    pub config: DiffusionConfig,
+}
+
+impl Default for GeneralizationPlan {
+    fn default() -> Self {
+        Self {
+            train_policy: "oracle".into(),
+            episodes: 40,
+            held_out_seeds: 3,
+            held_out_seed_base: 1_000_000,
+            max_steps: 6000,
+            config: DiffusionConfig::default(),
+        }
+    }
+}
+
+impl GeneralizationPlan {
+    pub fn validate(&self) -> Result<(), String> {
+        if self.episodes < 2 {
+            return Err("episodes: at least 2 training episodes per group".into());
+        }
+        if self.held_out_seeds == 0 {
+            return Err("held_out_seeds: at least 1 held-out seed per task".into());
+        }
+        if self.max_steps == 0 {
+            return Err("max_steps: must be at least 1".into());
+        }
+        self.config.validate().map_err(|e| format!("config.{e}"))
+    }
+
+    /// The policy name of a trained model's episodes.
+    pub fn policy_name(&self, model: &str) -> String {
+        format!("diffusion:model={model},max_steps={}", self.max_steps)
+    }
+}
+
+/// Which variations an evaluation episode of a trained policy runs on.
+pub const TRAIN_VARIATIONS: &str = "generalization train";
+pub const HELD_OUT_VARIATIONS: &str = "generalization held-out";

@@ -1,0 +1,67 @@
+//! The jobs of the trainer role and what they report: plain data, so the coordinator queues them
+//! and builds reports without linking torch.
+
+use serde::{Deserialize, Serialize};
+
+use assay_stats::diversity::TextDiversityTable;
+
+use crate::diffusion::{DiffusionConfig, DiffusionFit};
+use crate::dynamics::{DynamicsConfig, DynamicsFit};
+use crate::proxy::{ProxyConfig, ProxyEpisode, ProxyResult};
+
+/// One trainer shard's job (the assignment's `input_json`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum TrainerJob {
+    /// Text diversity of the batch's task texts per group and for all of them, with each model.
+    Text {
+        models: Vec<String>,
+        /// (group, texts) in report order; the last is every task ("All").
+        groups: Vec<(String, Vec<String>)>,
+    },
+    /// One world-model fit: trained on the first `budget` clips, evaluated on all of `clips`.
+    Dynamics {
+        group: String,
+        budget: u32,
+        /// Content addresses of the group's dynamics clips, in planning order.
+        clips: Vec<String>,
+        config: DynamicsConfig,
+    },
+    /// A diffusion policy for one group, imitating the given clips (see
+    /// [`crate::generalization`]).
+    Diffusion {
+        group: String,
+        clips: Vec<String>,
+        config: DiffusionConfig,
+    },
+    /// The world-model proxy of one group's ranked episodes (see [`crate::proxy`]).
+    Proxy {
+        group: String,
+        /// Episodes of the training policies, with their real outcomes.
+        train: Vec<ProxyEpisode>,
+        /// Episodes of the ranked policies, without them.
+        eval: Vec<ProxyEpisode>,
+        config: ProxyConfig,
+    },
+}
+
+/// What a trainer shard reports (the result's `outcome_json`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum TrainerOutcome {
+    Text {
+        table: TextDiversityTable,
+    },
+    Dynamics {
+        fit: Box<DynamicsFit>,
+    },
+    Proxy {
+        result: Box<ProxyResult>,
+    },
+    /// A trained diffusion policy: its checkpoint's key in the artifact store and its fit.
+    Diffusion {
+        group: String,
+        model: String,
+        fit: Box<DiffusionFit>,
+    },
+}

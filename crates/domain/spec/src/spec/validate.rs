@@ -1,0 +1,629 @@
+//! Validation of task spec v1: the semantic checks that parsing cannot make — finite numbers
+//! within bounds, positive sizes, references that resolve, unique ids, a plan the controller can
+//! execute. Every problem names the task, the field path and the reason.
+//!
+//! Owns: the checks. Never reads a file (asset paths are checked as text here, and against the
+//! asset root where they are opened).
+
+use std::collections::BTreeSet;
+
+use super::*;
+use crate::error::SpecError;
+
+/// Semantic checks that parsing cannot make: finite numbers, positive sizes, references that
+/// resolve, unique ids, a plan the controller can execute.
+pub fn validate(spec: &TaskSpec, origin: &str) -> Vec<SpecError> {
+    let mut v = Validator {
+        task: Some(spec.id.clone()),
+        origin,
+        errors: Vec::new(),
+    };
+    if spec.spec_version != SPEC_VERSION {
+        v.err(
+            "spec_version",
+            format!(
+                "unsupported version {}; this build reads {SPEC_VERSION}",
+                spec.spec_version
+            ),
+        );
+    }
+    let id_ok = !spec.id.is_empty()
+        && spec
+            .id
+            .chars()
+            .all(|c| c.is_ascii_lowercase() || c.is_ascii_digit() || c == '-' || c == '_');
+    if !id_ok {
+        v.err(
+            "id",
+            "must be non-empty: lowercase letters, digits, '-' and '_'".into(),
+        );
+    }
+    if spec.name.trim().is_empty() {
+        v.err("name", "must not be empty".into());
+    }
+    if spec.description.trim().is_empty() {
+        v.err("description", "must not be empty".into());
+    }
+    if spec.group.trim().is_empty() {
+        v.err("group", "must not be empty".into());
+    }
+
+    let mut object_ids = BTreeSet::new();
+    if spec.scene.objects.is_empty() && spec.scene.piles.is_empty() {
+        v.err("scene.objects", "a task needs at least one object".into());
+    }
+    for (i, o) in spec.scene.objects.iter().enumerate() {
+        let p = format!("scene.objects[{i}]");
+        if o.id.is_empty() {
+            v.err(&format!("{p}.id"), "must not be empty".into());
+        } else if !object_ids.insert(o.id.as_str()) {
+            v.err(
+                &format!("{p}.id"),
+                format!("duplicate object id '{}'", o.id),
+            );
+        }
+        v.shape(&format!("{p}.shape"), &o.shape);
+        if let Some(m) = o.mass {
+            v.positive(&format!("{p}.mass"), m);
+        }
+        v.color(&format!("{p}.color"), &o.color);
+        match (&o.pose, &o.pose_range) {
+            (Some(pose), None) => {
+                v.finite3(&format!("{p}.pose.position"), &pose.position);
+                v.finite(&format!("{p}.pose.yaw_deg"), pose.yaw_deg);
+            }
+            (None, Some(r)) => v.range(&format!("{p}.pose_range"), r),
+            (Some(_), Some(_)) => v.err(&p, "give either pose or pose_range, not both".into()),
+            (None, None) => v.err(&p, "missing pose (or pose_range)".into()),
+        }
+    }
+    let mut pile_ids = BTreeSet::new();
+    for (i, pile) in spec.scene.piles.iter().enumerate() {
+        let p = format!("scene.piles[{i}]");
+        if pile.id.is_empty() {
+            v.err(&format!("{p}.id"), "must not be empty".into());
+        } else if object_ids.contains(pile.id.as_str()) || !pile_ids.insert(pile.id.as_str()) {
+            v.err(&format!("{p}.id"), format!("duplicate id '{}'", pile.id));
+        }
+        if !(1..=MAX_PILE).contains(&pile.count) {
+            v.err(
+                &format!("{p}.count"),
+                format!("must lie in 1..={MAX_PILE}, got {}", pile.count),
+            );
+        }
+        if !matches!(
+            pile.shape,
+            Shape::Box { .. } | Shape::Sphere { .. } | Shape::Cylinder { .. }
+        ) {
+            v.err(
+                &format!("{p}.shape"),
+                "a pile is made of boxes, spheres or cylinders".into(),
+            );
+        }
+        v.shape(&format!("{p}.shape"), &pile.shape);
+        v.color(&format!("{p}.color"), &pile.color);
+        if let Some(m) = pile.mass {
+            v.positive(&format!("{p}.mass"), m);
+        }
+        v.finite2(&format!("{p}.region.min"), &pile.region.min);
+        v.finite2(&format!("{p}.region.max"), &pile.region.max);
+        for k in 0..2 {
+            if pile.region.min[k] >= pile.region.max[k] {
+                v.err(
+                    &format!("{p}.region"),
+                    format!(
+                        "min {} is not below max {}",
+                        pile.region.min[k], pile.region.max[k]
+                    ),
+                );
+            }
+        }
+        for k in 0..pile.count {
+            let copy = format!("{}_{k}", pile.id);
+            if object_ids.contains(copy.as_str()) {
+                v.err(
+                    &format!("{p}.id"),
+                    format!("copy '{copy}' has the id of an object"),
+                );
+            }
+        }
+    }
+    let mut zone_ids = BTreeSet::new();
+    for (i, z) in spec.scene.zones.iter().enumerate() {
+        let p = format!("scene.zones[{i}]");
+        if !zone_ids.insert(z.id.as_str()) || object_ids.contains(z.id.as_str()) {
+            v.err(&format!("{p}.id"), format!("duplicate id '{}'", z.id));
+        }
+        v.finite2(&format!("{p}.center"), &z.center);
+        for (k, h) in z.half_extents.iter().enumerate() {
+            v.positive(&format!("{p}.half_extents[{k}]"), *h);
+        }
+    }
+
+    if let Some(arm) = &spec.arm {
+        if !ARM_MODELS.contains(&arm.model.as_str()) {
+            v.err(
+                "arm.model",
+                format!(
+                    "unknown arm '{}' (built in: {})",
+                    arm.model,
+                    ARM_MODELS.join(", ")
+                ),
+            );
+        }
+        v.finite3("arm.base", &arm.base);
+        v.finite("arm.base_yaw_deg", arm.base_yaw_deg);
+    }
+    match spec.end_effector {
+        EndEffector::Suction => {}
+        EndEffector::ParallelGripper { max_opening, .. } => {
+            v.positive("end_effector.max_opening", max_opening)
+        }
+    }
+
+    let is_container = |id: &str| {
+        spec.scene
+            .objects
+            .iter()
+            .any(|o| o.id == id && matches!(o.shape, Shape::Container { .. }))
+    };
+    let obj = |v: &mut Validator<'_>, path: &str, id: &str| {
+        if !object_ids.contains(id) {
+            v.err(path, format!("refers to unknown object '{id}'"));
+        }
+    };
+    // Joint goals and `actuate` need an articulated URDF object (its joint names are checked
+    // when the URDF is read).
+    let articulated = |v: &mut Validator<'_>, path: &str, id: &str| match spec.object(id) {
+        None => v.err(path, format!("refers to unknown object '{id}'")),
+        Some(o)
+            if !matches!(
+                o.shape,
+                Shape::Urdf {
+                    articulated: true,
+                    ..
+                }
+            ) =>
+        {
+            v.err(
+                path,
+                format!("'{id}' is not an articulated URDF object (urdf with articulated: true)"),
+            )
+        }
+        Some(_) => {}
+    };
+    if spec.goals.is_empty() {
+        v.err("goals", "a task needs at least one goal predicate".into());
+    }
+    for (i, g) in spec.goals.iter().enumerate() {
+        let p = format!("goals[{i}]");
+        match g {
+            Goal::InZone { object, zone } => {
+                obj(&mut v, &format!("{p}.in_zone.object"), object);
+                if !zone_ids.contains(zone.as_str()) {
+                    v.err(
+                        &format!("{p}.in_zone.zone"),
+                        format!("refers to unknown zone '{zone}'"),
+                    );
+                }
+            }
+            Goal::InContainer { object, container } => {
+                obj(&mut v, &format!("{p}.in_container.object"), object);
+                obj(&mut v, &format!("{p}.in_container.container"), container);
+                if object_ids.contains(container.as_str()) && !is_container(container) {
+                    v.err(
+                        &format!("{p}.in_container.container"),
+                        format!("'{container}' is not a container"),
+                    );
+                }
+            }
+            Goal::OnTopOf { object, support } => {
+                obj(&mut v, &format!("{p}.on_top_of.object"), object);
+                obj(&mut v, &format!("{p}.on_top_of.support"), support);
+                if object == support {
+                    v.err(
+                        &format!("{p}.on_top_of"),
+                        "an object cannot rest on itself".into(),
+                    );
+                }
+            }
+            Goal::Stacked { order } => {
+                if order.len() < 2 {
+                    v.err(
+                        &format!("{p}.stacked.order"),
+                        "needs at least two objects".into(),
+                    );
+                }
+                let mut seen = BTreeSet::new();
+                for (k, o) in order.iter().enumerate() {
+                    obj(&mut v, &format!("{p}.stacked.order[{k}]"), o);
+                    if !seen.insert(o) {
+                        v.err(
+                            &format!("{p}.stacked.order[{k}]"),
+                            format!("'{o}' appears twice"),
+                        );
+                    }
+                }
+            }
+            Goal::WithinDistance {
+                object,
+                target,
+                point,
+                distance,
+            } => {
+                obj(&mut v, &format!("{p}.within_distance.object"), object);
+                match (target, point) {
+                    (Some(t), None) => obj(&mut v, &format!("{p}.within_distance.target"), t),
+                    (None, Some(pt)) => v.finite3(&format!("{p}.within_distance.point"), pt),
+                    _ => v.err(
+                        &format!("{p}.within_distance"),
+                        "give exactly one of target and point".into(),
+                    ),
+                }
+                v.positive(&format!("{p}.within_distance.distance"), *distance);
+            }
+            Goal::PoseWithin {
+                object,
+                position,
+                tolerance,
+                yaw_deg,
+                yaw_tolerance_deg,
+            } => {
+                obj(&mut v, &format!("{p}.pose_within.object"), object);
+                v.finite3(&format!("{p}.pose_within.position"), position);
+                v.positive(&format!("{p}.pose_within.tolerance"), *tolerance);
+                if yaw_deg.is_some() != yaw_tolerance_deg.is_some() {
+                    v.err(
+                        &format!("{p}.pose_within"),
+                        "yaw_deg and yaw_tolerance_deg go together".into(),
+                    );
+                }
+            }
+            Goal::JointPosition {
+                object,
+                joint,
+                min,
+                max,
+            } => {
+                let path = format!("{p}.joint_position");
+                articulated(&mut v, &format!("{path}.object"), object);
+                if joint.is_empty() {
+                    v.err(&format!("{path}.joint"), "must not be empty".into());
+                }
+                match (min, max) {
+                    (None, None) => v.err(&path, "give min, max or both".into()),
+                    (Some(lo), Some(hi)) if lo > hi => {
+                        v.err(&path, format!("min {lo} exceeds max {hi}"))
+                    }
+                    _ => {}
+                }
+                for (k, x) in [("min", min), ("max", max)] {
+                    if let Some(x) = x {
+                        v.finite(&format!("{path}.{k}"), *x);
+                    }
+                }
+            }
+            Goal::Lifted { object, height } => {
+                obj(&mut v, &format!("{p}.lifted.object"), object);
+                v.positive(&format!("{p}.lifted.height"), *height);
+            }
+            Goal::PileInZone {
+                pile,
+                zone,
+                fraction,
+            } => {
+                if !pile_ids.contains(pile.as_str()) {
+                    v.err(
+                        &format!("{p}.pile_in_zone.pile"),
+                        format!("refers to unknown pile '{pile}'"),
+                    );
+                }
+                if !zone_ids.contains(zone.as_str()) {
+                    v.err(
+                        &format!("{p}.pile_in_zone.zone"),
+                        format!("refers to unknown zone '{zone}'"),
+                    );
+                }
+                if !(fraction.is_finite() && *fraction > 0.0 && *fraction <= 1.0) {
+                    v.err(
+                        &format!("{p}.pile_in_zone.fraction"),
+                        format!("must lie in (0, 1], got {fraction}"),
+                    );
+                }
+            }
+        }
+    }
+
+    v.nonneg(
+        "variations.position_jitter",
+        spec.variations.position_jitter,
+    );
+    v.nonneg("variations.yaw_jitter_deg", spec.variations.yaw_jitter_deg);
+    if let Some(r) = &spec.variations.ee_start {
+        v.range("variations.ee_start", r);
+    }
+    for (i, c) in spec.variations.colors.iter().enumerate() {
+        v.color(&format!("variations.colors[{i}]"), c);
+    }
+    match (
+        spec.variations.colors.is_empty(),
+        spec.variations.recolor.is_empty(),
+    ) {
+        (false, true) => v.err(
+            "variations.colors",
+            "no object is recoloured: name the objects that draw from this palette in variations.recolor".into(),
+        ),
+        (true, false) => v.err(
+            "variations.recolor",
+            "needs a palette to draw from in variations.colors".into(),
+        ),
+        _ => {}
+    }
+    for (i, id) in spec.variations.recolor.iter().enumerate() {
+        obj(&mut v, &format!("variations.recolor[{i}]"), id);
+    }
+
+    // The plan must be executable: pick before place, one object held at a time.
+    let mut held: Option<&str> = None;
+    for (i, step) in spec.oracle.iter().enumerate() {
+        let p = format!("oracle[{i}]");
+        match step {
+            Primitive::Pick { object } => {
+                obj(&mut v, &format!("{p}.pick.object"), object);
+                if held.is_some() {
+                    v.err(
+                        &format!("{p}.pick"),
+                        "already holding an object; place it first".into(),
+                    );
+                }
+                if spec
+                    .scene
+                    .objects
+                    .iter()
+                    .any(|o| &o.id == object && o.is_fixed)
+                {
+                    v.err(
+                        &format!("{p}.pick.object"),
+                        format!("'{object}' is fixed and cannot be picked"),
+                    );
+                }
+                held = Some(object);
+            }
+            Primitive::Place { target } => {
+                let Some(h) = held.take() else {
+                    v.err(
+                        &format!("{p}.place"),
+                        "nothing is held: pick an object first".into(),
+                    );
+                    continue;
+                };
+                match target {
+                    PlaceTarget::On(o) => {
+                        obj(&mut v, &format!("{p}.place.target.on"), o);
+                        if o == h {
+                            v.err(
+                                &format!("{p}.place.target.on"),
+                                "cannot place an object on itself".into(),
+                            );
+                        }
+                    }
+                    PlaceTarget::Into(o) => {
+                        obj(&mut v, &format!("{p}.place.target.into"), o);
+                        if object_ids.contains(o.as_str()) && !is_container(o) {
+                            v.err(
+                                &format!("{p}.place.target.into"),
+                                format!("'{o}' is not a container"),
+                            );
+                        }
+                    }
+                    PlaceTarget::Zone(z) => {
+                        if !zone_ids.contains(z.as_str()) {
+                            v.err(
+                                &format!("{p}.place.target.zone"),
+                                format!("refers to unknown zone '{z}'"),
+                            );
+                        }
+                    }
+                    PlaceTarget::At(xy) => v.finite2(&format!("{p}.place.target.at"), xy),
+                    PlaceTarget::AtPoint(xyz) => {
+                        v.finite3(&format!("{p}.place.target.at_point"), xyz)
+                    }
+                }
+            }
+            Primitive::Push { object, to } => {
+                obj(&mut v, &format!("{p}.push.object"), object);
+                v.finite2(&format!("{p}.push.to"), to);
+                if held.is_some() {
+                    v.err(
+                        &format!("{p}.push"),
+                        "cannot push while holding an object".into(),
+                    );
+                }
+            }
+            Primitive::Sweep { pile, zone } => {
+                if !pile_ids.contains(pile.as_str()) {
+                    v.err(
+                        &format!("{p}.sweep.pile"),
+                        format!("refers to unknown pile '{pile}'"),
+                    );
+                }
+                if !zone_ids.contains(zone.as_str()) {
+                    v.err(
+                        &format!("{p}.sweep.zone"),
+                        format!("refers to unknown zone '{zone}'"),
+                    );
+                }
+                if held.is_some() {
+                    v.err(
+                        &format!("{p}.sweep"),
+                        "cannot sweep while holding an object".into(),
+                    );
+                }
+            }
+            Primitive::Actuate { object, joint, to } => {
+                articulated(&mut v, &format!("{p}.actuate.object"), object);
+                if joint.is_empty() {
+                    v.err(&format!("{p}.actuate.joint"), "must not be empty".into());
+                }
+                v.finite(&format!("{p}.actuate.to"), *to);
+                if held.is_some() {
+                    v.err(
+                        &format!("{p}.actuate"),
+                        "cannot actuate a joint while holding an object".into(),
+                    );
+                }
+            }
+        }
+    }
+    // A plan may end holding what a `lifted` goal wants held up; nothing else.
+    if let Some(h) = held
+        && !spec
+            .goals
+            .iter()
+            .any(|g| matches!(g, Goal::Lifted { object, .. } if object == h))
+    {
+        v.err(
+            "oracle",
+            "the plan ends holding an object: add a place (or a lifted goal on it)".into(),
+        );
+    }
+
+    for (i, c) in spec.cameras.iter().enumerate() {
+        let p = format!("cameras[{i}]");
+        v.finite3(&format!("{p}.eye"), &c.eye);
+        v.finite3(&format!("{p}.target"), &c.target);
+        if !(c.fovy_deg > 1.0 && c.fovy_deg < 179.0) {
+            v.err(
+                &format!("{p}.fovy_deg"),
+                "must lie between 1 and 179 degrees".into(),
+            );
+        }
+        if c.width == 0 || c.height == 0 {
+            v.err(&p, "width and height must be positive".into());
+        }
+    }
+    let ph = &spec.physics;
+    if !(ph.dt.is_finite() && ph.dt > 0.0 && ph.dt <= 0.05) {
+        v.err(
+            "physics.dt",
+            format!("must lie in (0, 0.05] s, got {}", ph.dt),
+        );
+    }
+    v.errors
+}
+
+struct Validator<'a> {
+    task: Option<String>,
+    origin: &'a str,
+    errors: Vec<SpecError>,
+}
+
+impl Validator<'_> {
+    fn err(&mut self, path: &str, reason: String) {
+        self.errors.push(SpecError {
+            task: self.task.clone(),
+            origin: self.origin.to_owned(),
+            path: path.to_owned(),
+            reason,
+        });
+    }
+    fn finite(&mut self, path: &str, x: f64) {
+        if !x.is_finite() {
+            self.err(path, format!("must be a finite number, got {x}"));
+        }
+    }
+    fn finite2(&mut self, path: &str, x: &[f64; 2]) {
+        for (k, c) in x.iter().enumerate() {
+            self.finite(&format!("{path}[{k}]"), *c);
+        }
+    }
+    fn finite3(&mut self, path: &str, x: &[f64; 3]) {
+        for (k, c) in x.iter().enumerate() {
+            self.finite(&format!("{path}[{k}]"), *c);
+        }
+    }
+    fn positive(&mut self, path: &str, x: f64) {
+        if !(x.is_finite() && x > 0.0) {
+            self.err(path, format!("must be a positive number, got {x}"));
+        }
+    }
+    fn nonneg(&mut self, path: &str, x: f64) {
+        if !(x.is_finite() && x >= 0.0) {
+            self.err(path, format!("must be zero or positive, got {x}"));
+        }
+    }
+    /// A colour name Assay knows, or RGB components in 0..1.
+    fn color(&mut self, path: &str, c: &Color) {
+        match c.rgb() {
+            None => self.err(path, format!("unknown colour {c:?}")),
+            Some(rgb) if rgb.iter().any(|x| !(0.0..=1.0).contains(x)) => {
+                self.err(path, "rgb components must lie in 0..1".into())
+            }
+            Some(_) => {}
+        }
+    }
+
+    /// An asset path: relative, and staying inside the asset root as written.
+    fn asset(&mut self, path: &str, file: &str) {
+        if let Err(reason) = check_asset_path(file) {
+            self.err(path, reason);
+        }
+    }
+
+    fn range(&mut self, path: &str, r: &PoseRange) {
+        self.finite3(&format!("{path}.min"), &r.min);
+        self.finite3(&format!("{path}.max"), &r.max);
+        self.finite2(&format!("{path}.yaw_deg"), &r.yaw_deg);
+        for k in 0..3 {
+            if r.min[k] > r.max[k] {
+                self.err(
+                    &format!("{path}.min[{k}]"),
+                    format!("min {} exceeds max {}", r.min[k], r.max[k]),
+                );
+            }
+        }
+        if r.yaw_deg[0] > r.yaw_deg[1] {
+            self.err(&format!("{path}.yaw_deg"), "min exceeds max".into());
+        }
+    }
+    fn shape(&mut self, path: &str, s: &Shape) {
+        match s {
+            Shape::Box { half_extents } => {
+                for (k, h) in half_extents.iter().enumerate() {
+                    self.positive(&format!("{path}.box.half_extents[{k}]"), *h);
+                }
+            }
+            Shape::Sphere { radius } => self.positive(&format!("{path}.sphere.radius"), *radius),
+            Shape::Cylinder {
+                radius,
+                half_height,
+            } => {
+                self.positive(&format!("{path}.cylinder.radius"), *radius);
+                self.positive(&format!("{path}.cylinder.half_height"), *half_height);
+            }
+            Shape::Container {
+                inner_half_extents,
+                wall,
+            } => {
+                for (k, h) in inner_half_extents.iter().enumerate() {
+                    self.positive(&format!("{path}.container.inner_half_extents[{k}]"), *h);
+                }
+                self.positive(&format!("{path}.container.wall"), *wall);
+            }
+            Shape::Mesh {
+                path: file, scale, ..
+            } => {
+                self.asset(&format!("{path}.mesh.path"), file);
+                self.positive(&format!("{path}.mesh.scale"), *scale);
+            }
+            Shape::Urdf {
+                path: file, joints, ..
+            } => {
+                self.asset(&format!("{path}.urdf.path"), file);
+                for (name, q) in joints {
+                    self.finite(&format!("{path}.urdf.joints.{name}"), *q);
+                }
+            }
+        }
+    }
+}

@@ -1,0 +1,779 @@
+//! `report.html`: one self-contained page with the paper's views of a batch — per-group success,
+//! scene alignment against completion (figure 4), judge agreement (figure 3), text and dynamics
+//! diversity (Tables 1 and 2), generalization (Table 3), policy ranking, invalid tasks, and one
+//! page per task with its scene views, keyframes and scores.
+//!
+//! Owns: the page. Never fetches anything and never makes the browser fetch anything: figures are
+//! inline SVG ([`crate::figures`]), pictures are `data:` URIs of downscaled thumbnails, there is no
+//! script and no external font or style; the per-task "pages" are sections shown by CSS
+//! `:target`. Never does IO itself: artifacts come through [`HtmlInputs::artifact`]. Every text
+//! from the report is HTML-escaped. Deterministic: the same inputs give the same bytes.
+
+use std::fmt::Write as _;
+
+use base64::Engine as _;
+
+use crate::figures::{self, BarChart, Bars, Line};
+use crate::quality::{QualityResults, TaskQuality};
+use crate::report::{Report, RunInfo, TaskResult};
+use assay_model::episode::EpisodeImagery;
+use assay_model::quality::ScoreStats;
+use assay_stats::agreement::{Agreement, AgreementTable, Estimate};
+use assay_stats::stats::Proportion;
+
+mod overview;
+mod sections;
+mod tasks;
+
+pub use overview::provenance_section;
+use overview::{header, invalid, overview};
+use sections::{figure_3, figure_4, ranking, table_1, table_2, table_3};
+pub use tasks::thumbnail;
+use tasks::{task_index, task_page};
+
+/// What the page is made from.
+pub struct HtmlInputs<'a> {
+    pub report: &'a Report,
+    /// Bytes of an artifact by its key (`imagery/<sha>.png`), None when missing (the page then
+    /// says so, no broken `<img>`).
+    pub artifact: &'a dyn Fn(&str) -> Option<Vec<u8>>,
+    /// Human ratings agreement (figure 3), when the user gave ratings.
+    pub human: Option<&'a AgreementTable>,
+}
+
+/// Width of the thumbnails, pixels.
+pub const THUMB_WIDTH: u32 = 192;
+
+/// Keyframes shown per task (of the 8 a render role draws), evenly spaced, the last included.
+pub const KEYFRAMES_SHOWN: usize = 8;
+
+const STYLE: &str = "\
+body{font-family:system-ui,-apple-system,'Segoe UI',sans-serif;margin:0 auto;max-width:1200px;\
+padding:0 16px 48px;color:#1a1a1a;background:#fff;line-height:1.4}\
+header{border-bottom:1px solid #ccc;padding:8px 0}\
+nav{position:sticky;top:0;background:#f6f6f6;border-bottom:1px solid #ccc;padding:6px 8px;\
+z-index:1}nav a{margin-right:14px}\
+table{border-collapse:collapse;margin:8px 0 16px}\
+th,td{border:1px solid #ddd;padding:3px 8px;text-align:left;vertical-align:top}\
+td.n{text-align:right;font-variant-numeric:tabular-nums}th{background:#f2f2f2}\
+.fig{margin:8px 0}.fig svg{max-width:100%}.row{display:flex;flex-wrap:wrap;gap:16px;\
+align-items:flex-start}\
+.absent,.missing{color:#8a5a00;font-style:italic}.undefined{color:#8a5a00}\
+figure.thumb{display:inline-block;margin:4px;text-align:center;font-size:12px}\
+figure.thumb img{display:block;border:1px solid #ccc}\
+section.task{display:none;border-top:2px solid #888;margin-top:24px}\
+section.task:target{display:block}\
+.ok{color:#1a7f37}.fail{color:#b3261e}caption,.caption{font-size:13px;color:#444;\
+text-align:left;max-width:680px}";
+
+/// The page.
+pub fn report_html(inputs: &HtmlInputs<'_>) -> String {
+    let r = &inputs.report.results;
+    let mut out = String::new();
+    let _ = write!(
+        out,
+        "<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n\
+         <meta name=\"viewport\" content=\"width=device-width, initial-scale=1\">\n\
+         <title>Assay report: {}</title>\n<link rel=\"icon\" href=\"data:,\">\n\
+         <style>{STYLE}</style>\n</head>\n<body>\n",
+        esc(&r.batch_name)
+    );
+    out.push_str(&header(inputs.report));
+    out.push_str(
+        "<nav><a href=\"#overview\">Overview</a><a href=\"#figure-4\">Figure 4</a>\
+         <a href=\"#figure-3\">Figure 3</a><a href=\"#table-1\">Table 1</a>\
+         <a href=\"#table-2\">Table 2</a><a href=\"#table-3\">Table 3</a>\
+         <a href=\"#ranking\">Ranking</a><a href=\"#invalid\">Invalid tasks</a>\
+         <a href=\"#tasks\">Tasks</a></nav>\n<main>\n",
+    );
+    out.push_str(&overview(inputs.report));
+    out.push_str(&figure_4(r.quality.as_ref()));
+    out.push_str(&figure_3(r.quality.as_ref(), inputs.human));
+    out.push_str(&table_1(r.diversity.as_ref()));
+    out.push_str(&table_2(r.diversity.as_ref()));
+    out.push_str(&table_3(r.generalization.as_ref()));
+    out.push_str(&ranking(r.ranking.as_ref()));
+    out.push_str(&invalid(inputs.report));
+    out.push_str(&task_index(inputs.report));
+    for t in &r.tasks {
+        out.push_str(&task_page(inputs, t));
+    }
+    out.push_str("</main>\n</body>\n</html>\n");
+    out
+}
+
+/// Text for HTML content and attribute values.
+fn esc(s: &str) -> String {
+    let mut out = String::with_capacity(s.len());
+    for c in s.chars() {
+        match c {
+            '&' => out.push_str("&amp;"),
+            '<' => out.push_str("&lt;"),
+            '>' => out.push_str("&gt;"),
+            '"' => out.push_str("&quot;"),
+            '\'' => out.push_str("&#39;"),
+            c => out.push(c),
+        }
+    }
+    out
+}
+
+/// The id of a task's section: `task-` and the task id with every character other than ASCII
+/// letters, digits, `-` and `.` written `_xx` (hex), so any id gives a distinct fragment that
+/// needs no escaping.
+fn task_anchor(id: &str) -> String {
+    let mut out = String::from("task-");
+    for c in id.chars() {
+        if c.is_ascii_alphanumeric() || c == '-' || c == '.' {
+            out.push(c);
+        } else {
+            let mut buf = [0u8; 4];
+            for b in c.encode_utf8(&mut buf).bytes() {
+                let _ = write!(out, "_{b:02x}");
+            }
+        }
+    }
+    out
+}
+
+fn absent(what: &str) -> String {
+    format!(
+        "<p class=\"absent\">Not in this batch ({}).</p>\n",
+        esc(what)
+    )
+}
+
+fn num(v: Option<f64>, digits: usize) -> String {
+    match v {
+        Some(v) if v.is_finite() => format!("{v:.digits$}"),
+        _ => "–".into(),
+    }
+}
+
+/// `80 % (4/5), 95 % CI 38–96 %`, or `–` without trials.
+fn prop(p: &Proportion) -> String {
+    match (p.rate, p.ci95) {
+        (Some(r), Some([lo, hi])) => format!(
+            "{:.0} % ({}/{}), 95 % CI {:.0}–{:.0} %",
+            r * 100.0,
+            p.successes,
+            p.trials,
+            lo * 100.0,
+            hi * 100.0
+        ),
+        (Some(r), None) => format!("{:.0} % ({}/{})", r * 100.0, p.successes, p.trials),
+        _ => "–".into(),
+    }
+}
+
+/// An estimate with its interval; an undefined one as `undefined — reason`, never 0 or NaN.
+fn estimate(e: &Estimate) -> String {
+    match e.value {
+        Some(v) if v.is_finite() => {
+            let mut s = format!("{v:.3}");
+            match (e.ci95, &e.no_interval) {
+                (Some([lo, hi]), _) => {
+                    let _ = write!(s, " [{lo:.3}, {hi:.3}]");
+                }
+                (None, Some(why)) => {
+                    let _ = write!(s, " (no interval: {})", esc(why));
+                }
+                (None, None) => {}
+            }
+            s
+        }
+        _ => format!(
+            "<span class=\"undefined\">undefined — {}</span>",
+            esc(e.undefined.as_deref().unwrap_or("no value"))
+        ),
+    }
+}
+
+fn defined(e: &Estimate) -> Option<f64> {
+    e.value.filter(|v| v.is_finite())
+}
+
+fn score(s: &ScoreStats) -> String {
+    match s.mean {
+        Some(m) => format!("{m:.2} (var {}, n {})", num(s.variance, 2), s.n),
+        None => "–".into(),
+    }
+}
+
+/// An SVG string placed in the page (without an XML prolog, if the drawer wrote one).
+fn inline_svg(svg: &str) -> String {
+    let body = match svg.trim_start().strip_prefix("<?xml") {
+        Some(rest) => rest.split_once("?>").map_or("", |(_, b)| b),
+        None => svg,
+    };
+    format!("<div class=\"fig\">{}</div>\n", body.trim())
+}
+
+/// Formats unix milliseconds as UTC `YYYY-MM-DD hh:mm:ss`.
+fn utc(ms: i64) -> String {
+    let secs = ms.div_euclid(1000);
+    let (days, rem) = (secs.div_euclid(86_400), secs.rem_euclid(86_400));
+    // Howard Hinnant's civil_from_days.
+    let z = days + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z - era * 146_097;
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let d = doy - (153 * mp + 2) / 5 + 1;
+    let m = if mp < 10 { mp + 3 } else { mp - 9 };
+    let y = yoe + era * 400 + i64::from(m <= 2);
+    format!(
+        "{y:04}-{m:02}-{d:02} {:02}:{:02}:{:02} UTC",
+        rem / 3600,
+        rem % 3600 / 60,
+        rem % 60
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use std::collections::BTreeMap;
+
+    use super::*;
+    use crate::diversity::DiversityResults;
+    use crate::generalization::{EvalEpisode, GeneralizationResults, GroupGeneralization};
+    use crate::quality::build_quality;
+    use crate::ranking::RankingResults;
+    use crate::report::build_results;
+    use crate::testing::judged;
+    use assay_model::dynamics::{DynamicsConfig, DynamicsFit};
+    use assay_model::episode::{
+        EpisodeOutcome, Keyframe, LabelSource, NamedArtifact, PredicateValue, ShardRecord, TaskInfo,
+    };
+    use assay_stats::agreement::{AgreementRow, agreement};
+    use assay_stats::diversity::{EmbeddingModel, TextDiversityRow, TextDiversityTable};
+    use assay_stats::ranking::{Cell, RankingConfig, rank};
+
+    const EVIL: &str = "<script>alert(1)</script>";
+
+    fn tiny_png(w: u32, h: u32, colour: png::ColorType, depth: png::BitDepth) -> Vec<u8> {
+        let channels = match colour {
+            png::ColorType::Grayscale => 1,
+            png::ColorType::GrayscaleAlpha => 2,
+            png::ColorType::Rgb => 3,
+            _ => 4,
+        };
+        let bytes_per = if depth == png::BitDepth::Sixteen {
+            2
+        } else {
+            1
+        };
+        let data: Vec<u8> = (0..w * h * channels * bytes_per)
+            .map(|i| (i * 7) as u8)
+            .collect();
+        let mut out = Vec::new();
+        let mut enc = png::Encoder::new(&mut out, w, h);
+        enc.set_color(colour);
+        enc.set_depth(depth);
+        let mut writer = enc.write_header().unwrap();
+        writer.write_image_data(&data).unwrap();
+        writer.finish().unwrap();
+        out
+    }
+
+    fn artifact(key: &str) -> Option<Vec<u8>> {
+        match key {
+            "imagery/ok.png" => Some(tiny_png(4, 3, png::ColorType::Rgb, png::BitDepth::Eight)),
+            "imagery/big.png" => Some(tiny_png(
+                640,
+                480,
+                png::ColorType::Rgba,
+                png::BitDepth::Eight,
+            )),
+            "imagery/grey.png" => Some(tiny_png(
+                5,
+                5,
+                png::ColorType::Grayscale,
+                png::BitDepth::Eight,
+            )),
+            "imagery/deep.png" => Some(tiny_png(2, 2, png::ColorType::Rgb, png::BitDepth::Sixteen)),
+            "imagery/junk.png" => Some(b"not a png".to_vec()),
+            _ => None,
+        }
+    }
+
+    fn info(id: &str, name: &str, group: &str) -> TaskInfo {
+        TaskInfo {
+            id: id.into(),
+            name: name.into(),
+            group: group.into(),
+            pipeline: "assay".into(),
+            origin: format!("tasks/{id}.yaml"),
+            spec_hash: "h".into(),
+        }
+    }
+
+    fn imagery() -> EpisodeImagery {
+        let views = ["ok", "missing", "grey", "deep"];
+        let frames = ["big", "ok", "junk", "ok"];
+        EpisodeImagery {
+            adapter: "test".into(),
+            views: views
+                .iter()
+                .map(|v| NamedArtifact {
+                    name: format!("view {v}"),
+                    artifact: format!("imagery/{v}.png"),
+                })
+                .collect(),
+            keyframes: frames
+                .iter()
+                .enumerate()
+                .map(|(i, f)| Keyframe {
+                    step: i as u64 * 10,
+                    camera: "front".into(),
+                    artifact: format!("imagery/{f}.png"),
+                    goals_met: 0,
+                })
+                .collect(),
+            contact_sheet: "imagery/sheet.png".into(),
+            video: None,
+            caption: None,
+            clip: None,
+        }
+    }
+
+    fn outcome(task: &str, seed: u64, success: bool, pictures: bool) -> EpisodeOutcome {
+        EpisodeOutcome {
+            task_id: task.into(),
+            seed,
+            policy: "oracle".into(),
+            success,
+            label_source: LabelSource::Sim,
+            predicates: vec![PredicateValue {
+                label: "on(cube, plate)".into(),
+                holds: success,
+                detail: format!("distance {} m", if success { 0.01 } else { 0.3 }),
+            }],
+            steps: 100,
+            sim_time_s: 1.0,
+            artifact: format!("episodes/{task}-{seed}"),
+            spec_hash: "h".into(),
+            versions: BTreeMap::new(),
+            imagery: pictures.then(imagery),
+        }
+    }
+
+    fn fit(group: &str, budget: u32, trained: u32, mse: f64) -> DynamicsFit {
+        DynamicsFit {
+            group: group.into(),
+            budget,
+            train_episodes: trained,
+            eval_episodes: 6,
+            eval_image_mse: mse,
+            eval_proprio_mse: 0.0,
+            per_episode: Vec::new(),
+            episodes: Vec::new(),
+            final_train_loss: 0.1,
+            steps: 10,
+            epochs: 1.0,
+            resumed_from_step: None,
+            steps_per_s: 1.0,
+            libtorch: String::new(),
+            device: "cpu".into(),
+            config: DynamicsConfig::default(),
+        }
+    }
+
+    fn generalization() -> GeneralizationResults {
+        let fit: assay_model::diffusion::DiffusionFit = serde_json::from_value(serde_json::json!({
+            "steps": 10, "final_loss": 0.1, "mean_last_100_loss": 0.1,
+            "parameters": 5, "clips": 4, "samples": 40, "device": "cpu", "config": {}
+        }))
+        .unwrap();
+        let ep = |group: &str, held_out: bool, ok: bool| EvalEpisode {
+            group: group.into(),
+            task_id: "a".into(),
+            held_out,
+            success: Some(Ok(ok)),
+        };
+        let eps = [
+            ep("g1", false, true),
+            ep("g1", false, true),
+            ep("g1", true, false),
+            ep("g2", false, false),
+        ];
+        GeneralizationResults {
+            groups: vec![
+                GroupGeneralization::build("g1", "policies/g1", fit.clone(), &eps),
+                GroupGeneralization::build("g2", "policies/g2", fit, &eps),
+            ],
+            errors: vec![("g3".into(), "out of <memory>".into())],
+        }
+    }
+
+    fn ranking() -> RankingResults {
+        let mut cells = Vec::new();
+        for (p, real, proxy) in [("good", 0.9, 0.8), ("fair", 0.5, 0.6), ("poor", 0.1, 0.2)] {
+            for (source, rate) in [("real", real), ("world-model", proxy)] {
+                cells.push(Cell {
+                    task: "a".into(),
+                    policy: p.into(),
+                    source: source.into(),
+                    trials: None,
+                    successes: None,
+                    rate,
+                });
+            }
+        }
+        let cfg = RankingConfig {
+            resamples: 50,
+            ..RankingConfig::default()
+        };
+        RankingResults {
+            train_policies: vec!["oracle".into()],
+            ranked_policies: vec!["good".into(), "fair".into(), "poor".into()],
+            rows: Vec::new(),
+            groups: Vec::new(),
+            ranking: Some(rank(&cells, &cfg).unwrap()),
+            ranking_missing: None,
+            proxy_agreement: Some(Proportion::new(5, 6)),
+            judge_agreement_real_frames: None,
+            errors: Vec::new(),
+            judging_errors: Vec::new(),
+        }
+    }
+
+    /// Two groups, three tasks (one named like a script), two judges, every section.
+    fn report() -> Report {
+        let tasks = vec![
+            info("a", EVIL, "g1"),
+            info("b c/é", "b", "g1"),
+            info("c", "c", "g2"),
+        ];
+        let outcomes = vec![
+            outcome("a", 0, true, true),
+            outcome("a", 1, false, true),
+            outcome("b c/é", 0, true, false),
+            outcome("c", 0, false, false),
+        ];
+        let mut shards: Vec<ShardRecord> = outcomes
+            .iter()
+            .map(|o| ShardRecord {
+                task_id: o.task_id.clone(),
+                seed: o.seed,
+                policy: o.policy.clone(),
+                attempts: 1,
+                outcome: Some(o.clone()),
+                error: None,
+                cancelled: false,
+            })
+            .collect();
+        shards.push(ShardRecord {
+            task_id: "c".into(),
+            seed: 1,
+            policy: "oracle".into(),
+            attempts: 3,
+            outcome: None,
+            error: Some("worker <lost>".into()),
+            cancelled: false,
+        });
+        let invalid = vec![assay_spec::SpecError {
+            task: Some("bad".into()),
+            origin: "tasks/bad.yaml".into(),
+            path: "scene.objects[0]".into(),
+            reason: "unknown shape <blob>".into(),
+        }];
+        let mut results = build_results(
+            "demo & test",
+            &["oracle".into()],
+            &[0, 1],
+            &tasks,
+            &shards,
+            &invalid,
+        );
+        let records = vec![
+            judged("offline", "a", 0, &[4.0, 4.0], &[10.0, 9.0]),
+            judged("offline", "a", 1, &[2.0, 3.0], &[1.0, 0.0]),
+            judged("offline", "b c/é", 0, &[5.0, 5.0], &[8.0, 8.0]),
+            judged("offline", "c", 0, &[1.0, 1.0], &[2.0, 2.0]),
+            judged("vlm", "a", 0, &[3.0, 3.0], &[5.0, 5.0]),
+            judged("vlm", "c", 0, &[3.0, 3.0], &[5.0, 5.0]),
+        ];
+        results.quality = build_quality(&tasks, &outcomes, &records);
+        let model = |name: &str| EmbeddingModel {
+            name: name.into(),
+            model: format!("{name}-model"),
+            dimensions: 384,
+        };
+        results.diversity = Some(DiversityResults {
+            text: Some(TextDiversityTable {
+                models: vec![model("minilm"), model("mpnet")],
+                rows: vec![
+                    TextDiversityRow {
+                        group: "g1".into(),
+                        n: 2,
+                        div: vec![Some(0.4), None],
+                        errors: vec![None, Some("endpoint down".into())],
+                    },
+                    TextDiversityRow {
+                        group: "All".into(),
+                        n: 3,
+                        div: vec![Some(0.5), Some(0.45)],
+                        errors: Vec::new(),
+                    },
+                ],
+            }),
+            dynamics: vec![
+                fit("g1", 10, 10, 0.002),
+                fit("g1", 20, 12, 0.0015),
+                fit("g2", 10, 4, 0.003),
+            ],
+            errors: vec![("dynamics g2 @ 20".into(), "trainer crashed".into())],
+        });
+        results.generalization = Some(generalization());
+        results.ranking = Some(ranking());
+        Report {
+            report_version: crate::report::REPORT_VERSION,
+            provenance: Default::default(),
+            results,
+            run: RunInfo {
+                batch_id: "b00001".into(),
+                state: "completed".into(),
+                submitted_at_unix_ms: 1_700_000_000_000,
+                finished_at_unix_ms: Some(1_700_000_060_000),
+                wall_time_s: Some(60.0),
+                episodes_per_s: Some(0.1),
+                sim_steps_per_s: Some(10.0),
+                extra_attempts: 0,
+                workers: vec!["local/worker-0".into()],
+            },
+        }
+    }
+
+    fn human() -> AgreementTable {
+        AgreementTable {
+            reference: "human".into(),
+            group_column: None,
+            resamples: 50,
+            rows: vec![
+                AgreementRow {
+                    group: None,
+                    judge: "offline".into(),
+                    agreement: agreement(&[1.0, 5.0, 7.0, 9.0], &[2.0, 4.0, 8.0, 9.0], 50, 0),
+                },
+                AgreementRow {
+                    group: None,
+                    judge: "vlm".into(),
+                    agreement: agreement(&[3.0, 3.0, 3.0], &[2.0, 4.0, 8.0], 50, 0),
+                },
+            ],
+        }
+    }
+
+    fn render(report: &Report, human: Option<&AgreementTable>) -> String {
+        report_html(&HtmlInputs {
+            report,
+            artifact: &artifact,
+            human,
+        })
+    }
+
+    /// Every `data:image/png;base64,` payload of `html`.
+    fn data_pngs(html: &str) -> Vec<Vec<u8>> {
+        let prefix = "data:image/png;base64,";
+        html.match_indices(prefix)
+            .map(|(i, _)| {
+                let rest = &html[i + prefix.len()..];
+                let end = rest.find('"').unwrap();
+                base64::engine::general_purpose::STANDARD
+                    .decode(&rest[..end])
+                    .unwrap()
+            })
+            .collect()
+    }
+
+    #[test]
+    fn the_page_is_self_contained_and_valid_enough() {
+        let report = report();
+        let human = human();
+        let html = render(&report, Some(&human));
+        assert!(html.starts_with("<!DOCTYPE html>\n<html lang=\"en\">"));
+        assert!(html.contains("<meta charset=\"utf-8\">"));
+        assert!(html.contains("<title>Assay report: demo &amp; test</title>"));
+        assert!(html.contains("<link rel=\"icon\" href=\"data:,\">"));
+        let lower = html.to_lowercase();
+        for bad in [
+            "src=\"http",
+            "href=\"http",
+            "url(http",
+            "<script",
+            "@import",
+            "<?xml",
+        ] {
+            assert!(!lower.contains(bad), "found {bad}");
+        }
+        // Every reference points into the page or is inline data.
+        for attr in ["src=\"", "href=\""] {
+            for (i, _) in html.match_indices(attr) {
+                let target = &html[i + attr.len()..];
+                assert!(
+                    target.starts_with('#') || target.starts_with("data:"),
+                    "{}",
+                    &target[..target.len().min(60)]
+                );
+            }
+        }
+        assert!(!html.contains("NaN"));
+        assert_eq!(html.matches("<svg").count(), html.matches("</svg>").count());
+        for id in [
+            "overview", "figure-4", "figure-3", "table-1", "table-2", "table-3", "ranking",
+            "invalid", "tasks",
+        ] {
+            assert!(html.contains(&format!("id=\"{id}\"")), "{id}");
+            assert!(html.contains(&format!("href=\"#{id}\"")), "{id}");
+        }
+        assert!(
+            !lower.contains("not in this batch"),
+            "every section is present"
+        );
+    }
+
+    #[test]
+    fn every_task_has_a_page_linked_from_the_index() {
+        let report = report();
+        let html = render(&report, None);
+        assert_eq!(report.results.tasks.len(), 3);
+        for t in &report.results.tasks {
+            let anchor = task_anchor(&t.id);
+            assert!(anchor.starts_with("task-"));
+            assert!(
+                anchor
+                    .chars()
+                    .all(|c| c.is_ascii_alphanumeric() || "-._".contains(c)),
+                "{anchor}"
+            );
+            assert!(html.contains(&format!("<section class=\"task\" id=\"{anchor}\">")));
+            assert!(html.contains(&format!("href=\"#{anchor}\"")));
+        }
+        assert_ne!(task_anchor("a b"), task_anchor("a_20b"));
+        assert!(html.contains("section.task:target{display:block}"));
+        // The failed shard and the unmet predicate are on their task's page.
+        assert!(html.contains("worker &lt;lost&gt;"));
+        assert!(html.contains("distance 0.3 m"));
+    }
+
+    #[test]
+    fn pictures_are_inline_thumbnails_or_say_why_not() {
+        let html = render(&report(), None);
+        let pngs = data_pngs(&html);
+        // Task a's first episode: views ok + grey, keyframes big + ok + ok.
+        assert_eq!(pngs.len(), 5);
+        assert_eq!(html.matches("<img ").count(), 5);
+        for bytes in &pngs {
+            let reader = png::Decoder::new(std::io::Cursor::new(bytes))
+                .read_info()
+                .unwrap();
+            assert!(reader.info().width <= THUMB_WIDTH);
+        }
+        assert!(html.contains("width=\"192\" height=\"144\""));
+        assert!(html.contains("(artifact missing: imagery/missing.png)"));
+        assert_eq!(html.matches("(image format not shown").count(), 2);
+        assert!(html.contains("No pictures"));
+    }
+
+    #[test]
+    fn thumbnails_keep_the_colour_type_and_refuse_other_formats() {
+        let big = tiny_png(640, 480, png::ColorType::Rgba, png::BitDepth::Eight);
+        let (png_bytes, w, h) = thumbnail(&big, 192).unwrap();
+        assert_eq!((w, h), (192, 144));
+        let reader = png::Decoder::new(std::io::Cursor::new(png_bytes))
+            .read_info()
+            .unwrap();
+        assert_eq!(reader.info().color_type, png::ColorType::Rgba);
+        let grey = tiny_png(1, 1, png::ColorType::GrayscaleAlpha, png::BitDepth::Eight);
+        assert_eq!(thumbnail(&grey, 192).unwrap().1, 1);
+        let deep = tiny_png(2, 2, png::ColorType::Rgb, png::BitDepth::Sixteen);
+        assert!(thumbnail(&deep, 192).is_err());
+        assert!(thumbnail(b"junk", 192).is_err());
+    }
+
+    #[test]
+    fn report_text_is_escaped() {
+        let html = render(&report(), None);
+        assert!(!html.contains(EVIL));
+        assert!(html.contains("&lt;script&gt;alert(1)&lt;/script&gt;"));
+        assert!(html.contains("unknown shape &lt;blob&gt;"));
+        assert!(html.contains("out of &lt;memory&gt;"));
+    }
+
+    #[test]
+    fn undefined_agreement_is_shown_with_its_reason() {
+        let human = human();
+        assert!(human.rows[1].agreement.pearson.value.is_none());
+        let html = render(&report(), Some(&human));
+        assert!(html.contains("undefined — the reference scores are constant"));
+        assert!(html.contains("humans (human)"));
+        let e = Estimate {
+            value: None,
+            ci95: None,
+            undefined: Some("needs 2".into()),
+            no_interval: None,
+        };
+        assert!(estimate(&e).contains("undefined — needs 2"));
+    }
+
+    #[test]
+    fn absent_sections_say_how_to_get_them() {
+        let mut report = report();
+        report.results.quality = None;
+        report.results.diversity = None;
+        report.results.ranking = None;
+        report.results.generalization = None;
+        let html = render(&report, None);
+        for flag in ["--rank-train-policies", "--generalization"] {
+            assert!(
+                html.contains(&format!("Not in this batch (run with {flag})")),
+                "{flag}"
+            );
+        }
+        assert!(html.contains("Not in this batch (no judge ran: run with --judge)"));
+        assert_eq!(html.matches("<svg").count(), 0);
+        let with_quality = render(&self::report(), None);
+        assert!(
+            with_quality.contains("Not in this batch (human ratings: run with --human-ratings)")
+        );
+    }
+
+    #[test]
+    fn the_same_inputs_give_the_same_page() {
+        let (a, b) = (report(), report());
+        let human = human();
+        assert_eq!(render(&a, Some(&human)), render(&b, Some(&human)));
+    }
+
+    #[test]
+    fn utc_dates() {
+        assert_eq!(utc(0), "1970-01-01 00:00:00 UTC");
+        assert_eq!(utc(1_700_000_000_000), "2023-11-14 22:13:20 UTC");
+    }
+
+    /// The demo batch's page, for looking at by hand: writes /tmp/report.html.
+    /// `ASSAY_DEMO_DIR` (default /work/main/out/demo) holds report.json and artifacts/.
+    #[test]
+    #[ignore = "needs a demo run's report and artifacts"]
+    fn demo_report_html() {
+        let dir = std::path::PathBuf::from(
+            std::env::var("ASSAY_DEMO_DIR").unwrap_or_else(|_| "/work/main/out/demo".into()),
+        );
+        let report: Report =
+            serde_json::from_slice(&std::fs::read(dir.join("report.json")).unwrap()).unwrap();
+        let artifacts = dir.join("artifacts");
+        let html = report_html(&HtmlInputs {
+            report: &report,
+            artifact: &|key: &str| std::fs::read(artifacts.join(key)).ok(),
+            human: None,
+        });
+        std::fs::write("/tmp/report.html", &html).unwrap();
+        println!(
+            "/tmp/report.html: {} bytes, {} images",
+            html.len(),
+            html.matches("<img ").count()
+        );
+    }
+}

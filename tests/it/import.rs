@@ -1,0 +1,188 @@
+//! `assay import` and `assay eval --import` on batches in GenSim's, RoboGen's and BBSEA's own
+//! formats (the fixtures under tests/fixtures/import, described in its README): the mapping
+//! report, the spec files, the errors of malformed tasks, and evaluation of the imported tasks
+//! on a local cluster of real processes.
+
+use std::process::Command;
+
+use crate::common::*;
+use assay_report::report::Report;
+use assay_spec::spec::{Format, parse_task};
+
+fn assay(args: &[&str]) -> (bool, String, String) {
+    let out = Command::new(bin())
+        .args(args)
+        .current_dir(repo())
+        .output()
+        .unwrap();
+    (
+        out.status.success(),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+#[test]
+fn import_writes_valid_specs_and_the_per_task_mapping_report() {
+    for (pipeline, ids, refused) in [
+        (
+            "gensim",
+            &[
+                "place-blocks-in-green-zone",
+                "place-red-block-in-green-bowl",
+                "stack-blocks-in-color-order",
+            ][..],
+            &["connect-blocks-with-rope"][..],
+        ),
+        (
+            "robogen",
+            &[
+                "close-storage-box-lid",
+                "open-the-laptops-lid",
+                "put-toy-car-into-storage-box",
+            ][..],
+            &[][..],
+        ),
+        (
+            "bbsea",
+            &[
+                "put-the-red-cube-into-the-gray-bin",
+                "stack-green-cube-on-red-cube",
+            ][..],
+            &["push-the-blue-cube-to-the-left-of-the-gray-bin"][..],
+        ),
+    ] {
+        let dir = tempfile::tempdir().unwrap();
+        let src = format!("tests/fixtures/import/{pipeline}");
+        let (ok, stdout, stderr) = assay(&[
+            "import",
+            pipeline,
+            &src,
+            "--out",
+            dir.path().to_str().unwrap(),
+        ]);
+        assert!(ok, "{pipeline}: {stdout}\n{stderr}");
+        for id in ids {
+            assert!(
+                stdout.contains(&format!("\n{id} (")),
+                "{pipeline}: {id} in\n{stdout}"
+            );
+            let file = dir.path().join(format!("{id}.yaml"));
+            let text = std::fs::read_to_string(&file).unwrap();
+            let spec = parse_task(&text, Format::Yaml, &file.display().to_string())
+                .unwrap_or_else(|e| panic!("{pipeline}: {e}"));
+            assert_eq!(spec.source.pipeline, pipeline);
+            assert_eq!(spec.source.content_hash.as_ref().map(String::len), Some(64));
+            assert!(spec.source.origin.is_some());
+        }
+        // Every inferred or dropped field is listed; nothing is left out silently.
+        assert!(stdout.contains("  inferred: "), "{stdout}");
+        assert!(stdout.contains("  not mapped: "), "{stdout}");
+        for id in refused {
+            assert!(
+                stdout.contains(&format!("\n{id} (")) && stdout.contains("NOT imported"),
+                "{pipeline}: {id} is reported as not imported\n{stdout}"
+            );
+            assert!(!dir.path().join(format!("{id}.yaml")).exists());
+        }
+        let report: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(dir.path().join("import-report.json")).unwrap())
+                .unwrap();
+        assert_eq!(
+            report["tasks"].as_array().unwrap().len(),
+            ids.len() + refused.len()
+        );
+    }
+}
+
+#[test]
+fn a_malformed_batch_names_each_task_field_and_reason_and_keeps_the_rest() {
+    let dir = tempfile::tempdir().unwrap();
+    let (ok, stdout, _) = assay(&[
+        "import",
+        "robogen",
+        "tests/fixtures/import/robogen/malformed",
+        "--asset-root",
+        "tests/fixtures/import/robogen/assets",
+        "--out",
+        dir.path().to_str().unwrap(),
+    ]);
+    // None of the three can be imported: the command fails, and says why for each.
+    assert!(!ok, "{stdout}");
+    for needle in [
+        "task place-toy-car-on-laptop: [2].center: \"(0.3, zero, 0.1)\"",
+        "task open-kettle-lid: [1].path:",
+        "kettle.urdf",
+        "task open-storage-box-lid: [1].path:",
+        "leaves the asset root",
+    ] {
+        assert!(stdout.contains(needle), "{needle:?} in\n{stdout}");
+    }
+
+    // GenSim: one good task beside the malformed ones is still imported.
+    let (ok, stdout, _) = assay(&[
+        "import",
+        "gensim",
+        "tests/fixtures/import/gensim/malformed",
+        "--asset-root",
+        "tests/fixtures/import/gensim/assets",
+    ]);
+    for needle in [
+        "task align-block-in-zone: add_goal[0].metric:",
+        "'distance'",
+        "task place-sphere-in-bowl: assets-used[0]:",
+        "task build-block-arch: <document>:",
+    ] {
+        assert!(stdout.contains(needle), "{needle:?} in\n{stdout}");
+    }
+    let imported = stdout.matches("\n  imported\n").count();
+    assert_eq!(ok, imported > 0, "{stdout}");
+}
+
+/// `assay eval --import`: the imported batch runs on a local cluster (coordinator and two sim
+/// workers), the mapping report is in the output and beside the report, and every imported
+/// task's oracle (inferred from the generator's plan) succeeds.
+#[test]
+fn eval_runs_imported_gensim_and_robogen_batches() {
+    for (pipeline, tasks) in [("gensim", 3), ("robogen", 3)] {
+        let dir = tempfile::tempdir().unwrap();
+        let src = format!("tests/fixtures/import/{pipeline}");
+        let (ok, stdout, stderr) = assay(&[
+            "eval",
+            "--import",
+            pipeline,
+            &src,
+            "--seeds",
+            "2",
+            "--workers",
+            "2",
+            "--roles",
+            "sim",
+            "--no-judge",
+            "--no-diversity",
+            "--quiet",
+            "--out",
+            dir.path().to_str().unwrap(),
+        ]);
+        assert!(ok, "{pipeline}: {stdout}\n{stderr}");
+        assert!(
+            stdout.contains(&format!("import {pipeline} from ")),
+            "{stdout}"
+        );
+        assert!(stdout.contains("  inferred: goals: ") || stdout.contains("  not mapped: "));
+        assert!(dir.path().join("import-report.json").exists());
+        let r: Report =
+            serde_json::from_str(&std::fs::read_to_string(dir.path().join("report.json")).unwrap())
+                .unwrap();
+        assert_eq!(r.results.tasks.len(), tasks, "{pipeline}");
+        assert_each_episode_once(&r, tasks, 2);
+        for t in &r.results.tasks {
+            assert_eq!(t.pipeline, pipeline);
+            assert_eq!(
+                t.success.successes, 2,
+                "{pipeline}: {} {:?}",
+                t.id, t.failures
+            );
+        }
+    }
+}
