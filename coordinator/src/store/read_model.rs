@@ -3,14 +3,13 @@
 //! Owns: a batch's counts, the lists of batches, and the report built from the store (partial
 //! while the batch runs), with the hash of the batch's settings. Never writes.
 
-use assay_model::episode::{EpisodeOutcome, ShardRecord, TaskInfo};
+use assay_model::episode::{EpisodeOutcome, JudgeRecord, ShardRecord, TaskInfo};
 use assay_model::generalization::HELD_OUT_VARIATIONS;
 use assay_model::proxy::{IMAGINED_JUDGING, ImaginedJudgement, RankingPlan};
 use assay_model::quality::{Item, JudgeOutcome};
 use assay_model::trainer::TrainerOutcome;
 use assay_report::diversity::DiversityResults;
 use assay_report::generalization::{EvalEpisode, GeneralizationResults, GroupGeneralization};
-use assay_report::quality::JudgeRecord;
 use assay_report::ranking::{RealEpisode, ranking_results};
 use assay_report::report::{self, Report, RunInfo};
 use assay_spec::SpecError;
@@ -324,6 +323,7 @@ impl Store {
                     task_id: r.get(0)?,
                     seed: r.get::<_, i64>(1)? as u64,
                     policy: r.get(2)?,
+                    judge: String::new(),
                     attempts,
                     outcome,
                     error: if open {

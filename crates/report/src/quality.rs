@@ -14,8 +14,8 @@ use std::fmt::Write as _;
 use serde::{Deserialize, Serialize};
 
 use crate::markdown::cell;
-use assay_model::episode::{EpisodeOutcome, TaskInfo};
-use assay_model::quality::{Item, ItemOutcome, JudgeOutcome, ScoreStats, Usage};
+use assay_model::episode::{EpisodeOutcome, JudgeRecord, TaskInfo};
+use assay_model::quality::{Item, ItemOutcome, ScoreStats, Usage};
 use assay_stats::agreement::{Agreement, BOOTSTRAP_RESAMPLES, Estimate, agreement};
 
 /// Seed of the bootstrap behind the judge-vs-simulator intervals (fixed, so reports repeat).
@@ -29,20 +29,6 @@ const RAW_SHOWN: usize = 200;
 
 /// The group of a judged task that the batch's task list does not know.
 pub const NO_GROUP: &str = "(no group)";
-
-/// One judge shard as the job store has it.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
-pub struct JudgeRecord {
-    pub task_id: String,
-    pub seed: u64,
-    pub policy: String,
-    pub judge: String,
-    pub attempts: u32,
-    pub outcome: Option<JudgeOutcome>,
-    /// Last error, for a shard that failed.
-    pub error: Option<String>,
-    pub cancelled: bool,
-}
 
 /// Quality of every judged task, per judge.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]

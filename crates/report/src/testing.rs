@@ -1,10 +1,8 @@
 //! Builders of the records the report crate's tests aggregate (shared by `report`, `quality`
 //! and `html`'s tests).
 
-use assay_model::episode::TaskInfo;
+use assay_model::episode::{JudgeRecord, TaskInfo};
 use assay_model::quality::{Item, ItemOutcome, JudgeOutcome, Usage};
-
-use crate::quality::JudgeRecord;
 
 /// A task of pipeline `assay` whose name is its id.
 pub(crate) fn info(id: &str, group: &str) -> TaskInfo {

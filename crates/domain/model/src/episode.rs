@@ -92,18 +92,25 @@ pub struct Keyframe {
     pub goals_met: u32,
 }
 
-/// The state of one shard when the report is built.
+/// The state of one shard when the report is built: an episode's (`O` = [`EpisodeOutcome`]) or a
+/// judge shard's ([`JudgeRecord`]).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
-pub struct ShardRecord {
+pub struct ShardRecord<O = EpisodeOutcome> {
     pub task_id: String,
     pub seed: u64,
     pub policy: String,
+    /// The judge of a judge shard; empty for an episode.
+    #[serde(default, skip_serializing_if = "String::is_empty")]
+    pub judge: String,
     pub attempts: u32,
-    pub outcome: Option<EpisodeOutcome>,
+    pub outcome: Option<O>,
     /// Last error, for shards that failed (or were cancelled).
     pub error: Option<String>,
     pub cancelled: bool,
 }
+
+/// One judge shard as the job store has it.
+pub type JudgeRecord = ShardRecord<crate::quality::JudgeOutcome>;
 
 /// A task as the planner accepted it.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]

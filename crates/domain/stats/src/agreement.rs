@@ -278,6 +278,8 @@ fn score(cell: &str) -> Result<Option<f64>, String> {
 /// `dataset` or `group` if there is one; the item column is `task` or `item`, else the first
 /// other column; every remaining column is a judge.
 pub fn parse_ratings(text: &str, reference: &str, group: Option<&str>) -> Result<Ratings, String> {
+    // Spreadsheets save CSV with a byte-order mark; it is not part of the first column's name.
+    let text = text.strip_prefix('\u{feff}').unwrap_or(text);
     let mut lines = text
         .lines()
         .enumerate()
@@ -679,6 +681,16 @@ mod tests {
         // Argument order matters: a tie in the first argument is a violation, in the second not.
         assert_eq!(mmrv(&[0.3, 0.3], &[0.1, 0.9]), Some(0.4));
         assert_eq!(mmrv(&[0.1, 0.9], &[0.3, 0.3]), Some(0.0));
+    }
+
+    #[test]
+    fn a_byte_order_mark_is_not_part_of_the_first_column() {
+        // The reference column first, so a mark left in its name would lose it.
+        let table = "human,task,gpt\r\n3,a,4\r\n2,b,2\r\n";
+        let plain = parse_ratings(table, "human", None).unwrap();
+        let marked = parse_ratings(&format!("\u{feff}{table}"), "human", None).unwrap();
+        assert_eq!(plain, marked);
+        assert_eq!(marked.reference, "human");
     }
 
     #[test]

@@ -172,6 +172,8 @@ const RATE_TOLERANCE: f64 = 0.005;
 /// A row may give counts, a rate, or both (they must agree to within 0.005). Errors name the line,
 /// the column and the reason.
 pub fn parse_success_table(text: &str) -> Result<Vec<Cell>, String> {
+    // Spreadsheets save CSV with a byte-order mark; it is not part of the first column's name.
+    let text = text.strip_prefix('\u{feff}').unwrap_or(text);
     let mut lines = text
         .lines()
         .enumerate()
@@ -1445,6 +1447,15 @@ mod tests {
         );
         assert_eq!((cells[1].trials, cells[1].rate), (None, 0.7));
         assert_eq!(cells[2].rate, 0.25);
+    }
+
+    #[test]
+    fn a_byte_order_mark_is_not_part_of_the_first_column() {
+        let table = "task,policy,source,success_rate\r\nlift,pi,real,0.5\r\n";
+        let plain = parse_success_table(table).unwrap();
+        let marked = parse_success_table(&format!("\u{feff}{table}")).unwrap();
+        assert_eq!(plain, marked);
+        assert_eq!(marked[0].task, "lift");
     }
 
     #[test]
