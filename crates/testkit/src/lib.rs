@@ -1,9 +1,10 @@
 //! `assay-testkit`: what Assay's tests share — a local OpenAI-compatible server that speaks the
 //! real protocol over real HTTP (`fixture`), standing in for a hosted vision-language model or
-//! embedding endpoint that cannot run in a test.
+//! embedding endpoint that cannot run in a test; and task documents several crates' tests share
+//! (`tasks`).
 //!
-//! Owns: fixtures. Never a normal dependency of a crate that ships (`tests/forbidden_dependencies.rs`
-//! checks the trainer and the judge; every user names it under `[dev-dependencies]`).
+//! Owns: fixtures and shared test tasks. Never a normal dependency of a crate that ships: every
+//! user names it under `[dev-dependencies]`.
 
 pub mod fixture;
 pub mod tasks;
