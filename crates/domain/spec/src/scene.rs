@@ -201,56 +201,46 @@ impl Unprojection {
     }
 }
 
-/// A triangle mesh read from Wavefront OBJ text: `v` lines and `f` lines (polygons are fanned;
-/// `v/vt/vn` indices and negative indices are accepted).
+/// A triangle mesh: vertex positions and triangles indexing them.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct TriangleMesh {
     pub vertices: Vec<[f32; 3]>,
     pub triangles: Vec<[u32; 3]>,
 }
 
+/// Reads Wavefront OBJ text with `tobj`: every object and group in one mesh, polygons fanned
+/// from their first corner, `v/vt/vn` and negative indices resolved, points and lines skipped.
+/// A `mtllib` is never opened (a mesh reaches no file but itself). Refuses a mesh without
+/// triangles and non-finite coordinates.
 pub fn parse_obj(text: &str) -> Result<TriangleMesh, String> {
+    let options = tobj::LoadOptions {
+        triangulate: true,
+        ignore_points: true,
+        ignore_lines: true,
+        ..Default::default()
+    };
+    let (models, _materials) = tobj::load_obj_buf(&mut text.as_bytes(), &options, |_| {
+        Err(tobj::LoadError::OpenFileFailed)
+    })
+    .map_err(|e| format!("OBJ: {e}"))?;
     let mut mesh = TriangleMesh::default();
-    for (n, line) in text.lines().enumerate() {
-        let mut it = line.split_whitespace();
-        match it.next() {
-            Some("v") => {
-                let c: Vec<f32> = it
-                    .take(3)
-                    .map(str::parse)
-                    .collect::<Result<_, _>>()
-                    .map_err(|e| format!("line {}: {e}", n + 1))?;
-                if c.len() != 3 {
-                    return Err(format!("line {}: a vertex needs 3 coordinates", n + 1));
-                }
-                mesh.vertices.push([c[0], c[1], c[2]]);
-            }
-            Some("f") => {
-                let count = mesh.vertices.len() as i64;
-                let idx: Vec<u32> = it
-                    .map(|t| {
-                        let i: i64 = t
-                            .split('/')
-                            .next()
-                            .unwrap_or("")
-                            .parse()
-                            .map_err(|e| format!("line {}: {e}", n + 1))?;
-                        let i = if i < 0 { count + i } else { i - 1 };
-                        if i < 0 || i >= count {
-                            return Err(format!("line {}: vertex index out of range", n + 1));
-                        }
-                        Ok(i as u32)
-                    })
-                    .collect::<Result<_, String>>()?;
-                for k in 1..idx.len().saturating_sub(1) {
-                    mesh.triangles.push([idx[0], idx[k], idx[k + 1]]);
-                }
-            }
-            _ => {}
-        }
+    for m in models {
+        let base = u32::try_from(mesh.vertices.len()).map_err(|_| "OBJ: too many vertices")?;
+        let positions = &m.mesh.positions;
+        mesh.vertices
+            .extend(positions.chunks_exact(3).map(|c| [c[0], c[1], c[2]]));
+        mesh.triangles.extend(
+            m.mesh
+                .indices
+                .chunks_exact(3)
+                .map(|t| [base + t[0], base + t[1], base + t[2]]),
+        );
     }
-    if mesh.vertices.is_empty() {
-        return Err("no vertices".into());
+    if mesh.triangles.is_empty() {
+        return Err("OBJ: no faces".into());
+    }
+    if mesh.vertices.iter().flatten().any(|c| !c.is_finite()) {
+        return Err("OBJ: non-finite vertex coordinates".into());
     }
     Ok(mesh)
 }
@@ -271,7 +261,25 @@ mod tests {
         assert!(
             parse_obj("v 0 0 0\nf 1 2 3\n")
                 .unwrap_err()
-                .contains("out of range")
+                .contains("out of bounds")
         );
+        assert!(
+            parse_obj("v 0 0 0\nv 1 0 0\n")
+                .unwrap_err()
+                .contains("no faces")
+        );
+        assert!(
+            parse_obj("v 0 0 nan\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+                .unwrap_err()
+                .contains("non-finite")
+        );
+        // Objects and groups join one mesh; a material library is not opened.
+        let two = parse_obj(
+            "mtllib /etc/passwd\no a\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n\
+             o b\nv 0 0 1\nv 1 0 1\nv 0 1 1\nf 4 5 6\n",
+        )
+        .unwrap();
+        assert_eq!(two.triangles, vec![[0, 1, 2], [3, 4, 5]]);
+        assert_eq!(two.vertices[3], [0.0, 0.0, 1.0]);
     }
 }

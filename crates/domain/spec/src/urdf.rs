@@ -671,70 +671,54 @@ pub fn load_mesh(path: &Path) -> Result<TriangleMesh, String> {
     }
 }
 
-/// Reads binary or ASCII STL; every triangle gets its own three vertices. A file is binary when
-/// its length is exactly 84 + 50 × the triangle count in its header (binary files may start
-/// with "solid" too).
+/// Reads binary or ASCII STL with `stl_io`; every triangle gets its own three vertices.
+///
+/// Whether a file is binary is decided here, not by `stl_io` (which calls anything starting
+/// with `solid ` ASCII): a file is binary when its length is exactly 84 + 50 × the triangle
+/// count in its header, as exporters that start binary headers with "solid" are common. Such a
+/// header is blanked before reading (it carries no geometry), and an ASCII file's unnamed
+/// `solid` line is given a name, so `stl_io` reads each as what it is.
 pub fn parse_stl(bytes: &[u8]) -> Result<TriangleMesh, String> {
-    let le = |c: &[u8]| [c[0], c[1], c[2], c[3]];
-    let binary = bytes
-        .get(80..84)
-        .is_some_and(|c| 84 + 50 * u64::from(u32::from_le_bytes(le(c))) == bytes.len() as u64);
-    let mut corners: Vec<[f32; 3]> = Vec::new();
-    if binary {
-        for facet in bytes[84..].chunks_exact(50) {
-            let c: Vec<f32> = facet[12..48]
-                .chunks_exact(4)
-                .map(|b| f32::from_le_bytes(le(b)))
-                .collect();
-            corners.extend(c.chunks_exact(3).map(|v| [v[0], v[1], v[2]]));
-        }
+    let binary = bytes.get(80..84).is_some_and(|c| {
+        84 + 50 * u64::from(u32::from_le_bytes([c[0], c[1], c[2], c[3]])) == bytes.len() as u64
+    });
+    let input: Vec<u8> = if binary {
+        let mut b = bytes.to_vec();
+        b[..80].fill(0);
+        b
     } else {
         let not_stl =
             "neither binary STL (its length does not match its triangle count) nor ASCII STL";
-        let text = std::str::from_utf8(bytes).map_err(|_| not_stl)?;
-        if !text.trim_start().starts_with("solid") {
+        let text = std::str::from_utf8(bytes)
+            .map_err(|_| not_stl)?
+            .trim_start();
+        let Some(rest) = text.strip_prefix("solid") else {
             return Err(not_stl.into());
+        };
+        match rest.chars().next() {
+            Some(' ') => text.as_bytes().to_vec(),
+            Some('\r' | '\n') | None => format!("solid unnamed{rest}").into_bytes(),
+            Some(_) => return Err(not_stl.into()),
         }
-        let mut in_facet = 0;
-        for (n, line) in text.lines().enumerate() {
-            let mut it = line.split_whitespace();
-            match it.next() {
-                Some("vertex") => {
-                    let v: Vec<f32> = it
-                        .map(str::parse)
-                        .collect::<Result<_, _>>()
-                        .map_err(|e| format!("line {}: {e}", n + 1))?;
-                    let v = v
-                        .try_into()
-                        .map_err(|_| format!("line {}: a vertex needs 3 coordinates", n + 1))?;
-                    corners.push(v);
-                    in_facet += 1;
-                }
-                Some("endfacet") if in_facet != 3 => {
-                    return Err(format!(
-                        "line {}: a facet needs 3 vertices, not {in_facet}",
-                        n + 1
-                    ));
-                }
-                Some("endfacet") => in_facet = 0,
-                _ => {}
-            }
-        }
-        if in_facet != 0 {
-            return Err("unterminated facet".into());
-        }
+    };
+    let mut cursor = std::io::Cursor::new(input);
+    let reader = stl_io::create_stl_reader(&mut cursor).map_err(|e| format!("STL: {e}"))?;
+    let mut vertices: Vec<[f32; 3]> = Vec::new();
+    for triangle in reader {
+        let triangle = triangle.map_err(|e| format!("STL: {e}"))?;
+        vertices.extend(triangle.vertices.map(|v| v.0));
     }
-    if corners.is_empty() {
+    if vertices.is_empty() {
         return Err("no triangles".into());
     }
-    if corners.iter().flatten().any(|c| !c.is_finite()) {
+    if vertices.iter().flatten().any(|c| !c.is_finite()) {
         return Err("non-finite vertex coordinates".into());
     }
-    let triangles = (0..corners.len() as u32 / 3)
+    let triangles = (0..vertices.len() as u32 / 3)
         .map(|t| [3 * t, 3 * t + 1, 3 * t + 2])
         .collect();
     Ok(TriangleMesh {
-        vertices: corners,
+        vertices,
         triangles,
     })
 }
@@ -1290,9 +1274,15 @@ mod tests {
         fails(parse_stl(&binary[..binary.len() - 1]), "neither binary");
         fails(
             parse_stl(b"solid x\nfacet\nouter loop\nvertex 0 0 0\nendloop\nendfacet\n"),
-            "3 vertices",
+            "invalid facet header",
         );
         fails(parse_stl(b"solid x\nendsolid x\n"), "no triangles");
+        // An unnamed solid, CRLF line ends and leading blanks are ASCII STL too.
+        let unnamed = ascii
+            .replacen("solid cube", "  solid", 1)
+            .replace('\n', "\r\n");
+        assert_eq!(parse_stl(unnamed.as_bytes()).unwrap().triangles.len(), 12);
+        fails(parse_stl(b"solidly not stl"), "neither binary");
     }
 
     #[test]
