@@ -104,7 +104,10 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     if a.json {
         println!("{}", serde_json::to_string_pretty(&out)?);
     } else {
-        println!("{}", out.table.markdown());
+        print!(
+            "{}",
+            assay_report::tables::text_diversity(&out.table).markdown()
+        );
         if base.is_some() {
             println!(
                 "\nMarginal diversity against {}:\n",

@@ -58,7 +58,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     if a.json {
         println!("{}", serde_json::to_string_pretty(&ranking)?);
     } else {
-        print!("{}", ranking.markdown());
+        print!("{}", assay_report::markdown::ranking(&ranking));
     }
     Ok(ExitCode::SUCCESS)
 }

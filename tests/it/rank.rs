@@ -84,7 +84,7 @@ fn rank_json_is_what_the_library_computes() {
         md.contains("## Policy ranking: world-model against real"),
         "{md}"
     );
-    assert!(md.contains("| Pearson r | 0.865 |"), "{md}");
+    assert!(md.contains("| Pearson r | 0.865 ["), "{md}");
 }
 
 #[test]

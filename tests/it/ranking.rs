@@ -167,7 +167,7 @@ fn eval_ranks_a_ladder_by_the_world_model_proxy() {
     assert!(dir.path().join("ranking-vlm.svg").is_file());
     let md = std::fs::read_to_string(dir.path().join("report.md")).unwrap();
     assert!(
-        md.contains("| put-block-in-bowl | oracle:noise=0.05 |"),
+        md.contains("| `put-block-in-bowl` | oracle:noise=0.05 |"),
         "{md}"
     );
     let svg = std::fs::read_to_string(dir.path().join("ranking.svg")).unwrap();

@@ -22,49 +22,22 @@ pub struct DiversityResults {
     pub errors: Vec<(String, String)>,
 }
 
-impl DiversityResults {
-    /// The dynamics table: one row per group, one column per budget, the evaluation image MSE
-    /// (×10³) with the episodes actually trained on when fewer than asked.
-    pub fn dynamics_markdown(&self) -> String {
-        let mut budgets: Vec<u32> = self.dynamics.iter().map(|f| f.budget).collect();
-        budgets.sort_unstable();
-        budgets.dedup();
-        let mut groups: Vec<&str> = Vec::new();
-        for f in &self.dynamics {
-            if !groups.contains(&f.group.as_str()) {
-                groups.push(&f.group);
-            }
-        }
-        let mut out = String::from("| group | evaluated on |");
-        for b in &budgets {
-            out.push_str(&format!(" {b} episodes |"));
-        }
-        out.push_str("\n|---|---:|");
-        out.push_str(&"---:|".repeat(budgets.len()));
-        out.push('\n');
-        for g in groups {
-            let fits: Vec<&DynamicsFit> = self.dynamics.iter().filter(|f| f.group == g).collect();
-            let eval = fits.iter().map(|f| f.eval_episodes).max().unwrap_or(0);
-            out.push_str(&format!("| {} | {eval} |", g.replace('|', "\\|")));
-            for b in &budgets {
-                match fits.iter().find(|f| f.budget == *b) {
-                    Some(f) if f.train_episodes < f.budget => out.push_str(&format!(
-                        " {:.3} ({} trained) |",
-                        f.eval_image_mse * 1e3,
-                        f.train_episodes
-                    )),
-                    Some(f) => out.push_str(&format!(" {:.3} |", f.eval_image_mse * 1e3)),
-                    None => out.push_str(" – |"),
-                }
-            }
-            out.push('\n');
-        }
-        if self.dynamics.iter().any(|f| f.train_episodes < f.budget) {
-            out.push_str(
-                "\nA group with fewer episodes than a budget is fitted once on all of them \
-                 (\"n trained\"); the larger budgets would repeat that fit and are left empty.\n",
-            );
-        }
-        out
+/// Said under the dynamics table when a group had fewer episodes than a budget.
+pub const FEWER_THAN_BUDGET: &str = "\nA group with fewer episodes than a budget is fitted once \
+on all of them (\"n trained\"); the larger budgets would repeat that fit and are left empty.";
+
+/// How long the fits of a dynamics table trained, said so the budget curve can be read.
+pub fn training_length(c: &assay_model::dynamics::DynamicsConfig) -> String {
+    if c.steps > 0 {
+        format!(
+            "Every fit trains {} steps of {} chunks of {} frames, whatever its budget.",
+            c.steps, c.batch, c.chunk
+        )
+    } else {
+        format!(
+            "Every fit trains {} epochs of batches of {} chunks of {} frames (the paper's \
+             protocol), so a larger budget also trains longer.",
+            c.epochs, c.batch, c.chunk
+        )
     }
 }

@@ -10,9 +10,11 @@ pub mod diversity;
 pub mod figures;
 pub mod generalization;
 pub mod html;
-mod markdown;
+pub mod markdown;
 pub mod quality;
 pub mod ranking;
 pub mod report;
+pub mod tables;
 #[cfg(test)]
 mod testing;
+pub mod view;

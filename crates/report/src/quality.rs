@@ -9,20 +9,25 @@
 //! shards in any order give the same results, Markdown and SVG, byte for byte.
 
 use std::collections::{BTreeMap, BTreeSet};
-use std::fmt::Write as _;
 
 use serde::{Deserialize, Serialize};
 
-use crate::markdown::cell;
 use assay_model::episode::{EpisodeOutcome, JudgeRecord, TaskInfo};
 use assay_model::quality::{Item, ItemOutcome, ScoreStats, Usage};
-use assay_stats::agreement::{Agreement, BOOTSTRAP_RESAMPLES, Estimate, agreement};
+use assay_stats::agreement::{Agreement, BOOTSTRAP_RESAMPLES, agreement};
 
 /// Seed of the bootstrap behind the judge-vs-simulator intervals (fixed, so reports repeat).
 pub const VS_SIM_SEED: u64 = 0;
 
 /// Item errors and shard failures listed in report.md; the rest are counted (all are in the JSON).
 pub const ERRORS_SHOWN: usize = 50;
+
+/// What the offline judge is, said after its name wherever its scores are shown.
+pub const OFFLINE_JUDGE_NOTE: &str = "is Assay's built-in offline judge, not a vision-language \
+model: it scores scene alignment by comparing a structured caption of the render (segmentation, \
+measured colours, sizes, positions, relations) with the task description, and completion from \
+the simulator's goal predicates at the 8 keyframes, so its completion agreement with the \
+simulator is high by construction.";
 
 /// Characters of a judge's raw answer kept in an error line.
 const RAW_SHOWN: usize = 200;
@@ -316,277 +321,7 @@ pub fn build_quality(
     })
 }
 
-/// Two decimals, never `-0.00`.
-fn num(v: f64) -> String {
-    let s = format!("{v:.2}");
-    if s == "-0.00" { "0.00".into() } else { s }
-}
-
-/// `mean (variance)`, `—` where absent.
-fn mean_var(s: &ScoreStats) -> String {
-    match s.mean {
-        Some(m) => format!("{} ({})", num(m), s.variance.map_or("—".into(), num)),
-        None => "—".into(),
-    }
-}
-
-fn cost(usd: f64) -> String {
-    if usd > 0.0 && usd < 0.01 {
-        format!("{usd:.4}")
-    } else {
-        num(usd)
-    }
-}
-
-/// `value [lo, hi]`, the value alone without an interval, or `undefined: <reason>`.
-fn estimate(e: &Estimate) -> String {
-    match (e.value, e.ci95) {
-        (Some(v), Some([lo, hi])) => format!("{} [{}, {}]", num(v), num(lo), num(hi)),
-        (Some(v), None) => num(v),
-        (None, _) => format!(
-            "undefined: {}",
-            cell(e.undefined.as_deref().unwrap_or("no value"))
-        ),
-    }
-}
-
 impl QualityResults {
-    /// The "## Quality" section of report.md. `figure`: relative path of the SVG to link as an
-    /// image, if one was written.
-    pub fn markdown(&self, figure: Option<&str>) -> String {
-        let mut md = String::new();
-        let _ = writeln!(md, "## Quality\n");
-        let _ = writeln!(
-            md,
-            "Each episode is judged on two items, as in the generative-simulation evaluation paper: \
-             scene alignment (1–5, from the 4 views of the initial scene) and task completion \
-             (0–10, from 8 keyframes of the rollout), each asked `repeats` times. Values are means \
-             with the sample variance (n − 1) in parentheses; a group's or a judge's values are \
-             over its task means.\n"
-        );
-        let _ = writeln!(md, "### Judges\n");
-        let _ = writeln!(
-            md,
-            "| judge | backend | model | prompt versions | repeats | episodes judged | failed | pending | cancelled | item errors | unjudged items | calls | cached | tokens in | tokens out | cost USD |\n\
-             |---|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"
-        );
-        for j in &self.judges {
-            let or_dash = |s: &str| if s.is_empty() { "—".into() } else { cell(s) };
-            let _ = writeln!(
-                md,
-                "| `{}` | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
-                cell(&j.judge),
-                or_dash(&j.backend),
-                or_dash(&j.model),
-                or_dash(&j.prompts.join(", ")),
-                j.repeats,
-                j.episodes_judged,
-                j.episodes_failed,
-                j.episodes_pending,
-                j.episodes_cancelled,
-                j.item_errors,
-                j.items_unjudged,
-                j.usage.calls,
-                j.usage.cached,
-                j.usage.tokens_in,
-                j.usage.tokens_out,
-                cost(j.usage.cost_usd)
-            );
-        }
-        for j in self.judges.iter().filter(|j| j.offline) {
-            let _ = writeln!(
-                md,
-                "\n`{}` is Assay's built-in offline judge, not a vision-language model: it scores scene \
-                 alignment by comparing a structured caption of the render (segmentation, measured \
-                 colours, sizes, positions, relations) with the task description, and completion \
-                 from the simulator's goal predicates at the 8 keyframes, so its completion \
-                 agreement with the simulator is high by construction.",
-                cell(&j.judge)
-            );
-        }
-
-        let _ = writeln!(md, "\n### Quality per group\n");
-        for j in &self.judges {
-            let _ = writeln!(md, "#### `{}`\n", cell(&j.judge));
-            let _ = writeln!(
-                md,
-                "| group | tasks | scene alignment (1–5) | completion (0–10) |\n|---|---:|---|---|"
-            );
-            for g in &j.groups {
-                let _ = writeln!(
-                    md,
-                    "| {} | {} | {} | {} |",
-                    cell(&g.group),
-                    g.tasks,
-                    mean_var(&g.scene_alignment),
-                    mean_var(&g.completion)
-                );
-            }
-            let tasks: u64 = j.groups.iter().map(|g| g.tasks).sum();
-            let _ = writeln!(
-                md,
-                "| **all** | {tasks} | {} | {} |\n",
-                mean_var(&j.scene_alignment),
-                mean_var(&j.completion)
-            );
-        }
-
-        let _ = writeln!(md, "### Judge against simulator\n");
-        let _ = writeln!(
-            md,
-            "Completion (an episode's mean over its repeats, 0–10) against the simulator's \
-             ground-truth success × 10, over the judged episodes; 95 % percentile bootstrap \
-             intervals over {BOOTSTRAP_RESAMPLES} resamples of the episodes.\n"
-        );
-        let _ = writeln!(
-            md,
-            "| judge | episodes | Pearson r | MAE | Spearman ρ | Kendall τ |\n|---|---:|---|---|---|---|"
-        );
-        let mut notes = Vec::new();
-        for j in &self.judges {
-            let name = cell(&j.judge);
-            match &j.vs_sim {
-                Some(a) => {
-                    let _ = writeln!(
-                        md,
-                        "| `{name}` | {} | {} | {} | {} | {} |",
-                        a.n,
-                        estimate(&a.pearson),
-                        estimate(&a.mae),
-                        estimate(&a.spearman),
-                        estimate(&a.kendall)
-                    );
-                    // Statistics without an interval, grouped by reason.
-                    let mut missing: BTreeMap<&str, Vec<&str>> = BTreeMap::new();
-                    for (what, e) in [
-                        ("r", &a.pearson),
-                        ("MAE", &a.mae),
-                        ("ρ", &a.spearman),
-                        ("τ", &a.kendall),
-                    ] {
-                        if let Some(why) = &e.no_interval {
-                            missing.entry(why.as_str()).or_default().push(what);
-                        }
-                    }
-                    for (why, what) in missing {
-                        notes.push(format!(
-                            "`{name}`: no interval for {}: {}",
-                            what.join(", "),
-                            cell(why)
-                        ));
-                    }
-                }
-                None => {
-                    let _ = writeln!(md, "| `{name}` | 0 | — | — | — | — |");
-                    notes.push(format!(
-                        "`{name}`: no judged episode has a completion score and a simulator outcome"
-                    ));
-                }
-            }
-        }
-        if !notes.is_empty() {
-            let _ = writeln!(md);
-            for n in notes {
-                let _ = writeln!(md, "- {n}");
-            }
-        }
-
-        if let Some(path) = figure {
-            let _ = writeln!(md, "\n### Scene alignment against completion\n");
-            let _ = writeln!(
-                md,
-                "As the paper's figure 4: one marker per task and judge at the judge's mean scores, \
-                 coloured by group, its area growing with the variance of the scores (the first judge \
-                 filled, others as outlines).\n"
-            );
-            let _ = writeln!(
-                md,
-                "![Scene alignment against task completion per group]({path})"
-            );
-        }
-
-        let _ = writeln!(md, "\n### Quality per task\n");
-        let _ = writeln!(
-            md,
-            "Over every valid answer to every repeat of every episode of the task.\n"
-        );
-        let _ = writeln!(
-            md,
-            "| task | group | judge | scene alignment (1–5) | n | completion (0–10) | n |\n\
-             |---|---|---|---|---:|---|---:|"
-        );
-        for t in &self.tasks {
-            let _ = writeln!(
-                md,
-                "| `{}` | {} | `{}` | {} | {} | {} | {} |",
-                cell(&t.task_id),
-                cell(&t.group),
-                cell(&t.judge),
-                mean_var(&t.scene_alignment),
-                t.scene_alignment.n,
-                mean_var(&t.completion),
-                t.completion.n
-            );
-        }
-
-        let errors: Vec<(&TaskQuality, &String)> = self
-            .tasks
-            .iter()
-            .flat_map(|t| t.errors.iter().map(move |e| (t, e)))
-            .collect();
-        if !errors.is_empty() {
-            let _ = writeln!(md, "\n### Item errors\n");
-            let _ = writeln!(
-                md,
-                "Repeats that gave no valid score, and judge shards that failed ({} in all).\n",
-                errors.len()
-            );
-            for (t, e) in errors.iter().take(ERRORS_SHOWN) {
-                let _ = writeln!(
-                    md,
-                    "- `{}` · `{}` · {}",
-                    cell(&t.task_id),
-                    cell(&t.judge),
-                    cell(e)
-                );
-            }
-            if errors.len() > ERRORS_SHOWN {
-                let _ = writeln!(
-                    md,
-                    "- … and {} more (all in report.json)",
-                    errors.len() - ERRORS_SHOWN
-                );
-            }
-        }
-        let unjudged: Vec<&TaskQuality> = self.tasks.iter().filter(|t| t.unjudged > 0).collect();
-        if !unjudged.is_empty() {
-            let _ = writeln!(md, "\n### Unjudged items\n");
-            let _ = writeln!(
-                md,
-                "Items with repeats left unasked because the judge budget was spent: {}.\n",
-                self.judges
-                    .iter()
-                    .map(|j| format!("`{}` {}", cell(&j.judge), j.items_unjudged))
-                    .collect::<Vec<_>>()
-                    .join(", ")
-            );
-            for t in unjudged.iter().take(ERRORS_SHOWN) {
-                let _ = writeln!(
-                    md,
-                    "- `{}` · `{}`: {} item{}",
-                    cell(&t.task_id),
-                    cell(&t.judge),
-                    t.unjudged,
-                    if t.unjudged == 1 { "" } else { "s" }
-                );
-            }
-            if unjudged.len() > ERRORS_SHOWN {
-                let _ = writeln!(md, "- … and {} more tasks", unjudged.len() - ERRORS_SHOWN);
-            }
-        }
-        md
-    }
-
     /// One marker per (task, judge) with both means: the points of the paper's figure 4,
     /// coloured by group, sized by the scores' spread ([`crate::figures::SPREAD_RULE`]).
     pub fn scene_points(&self) -> Vec<crate::figures::ScenePoint> {
@@ -960,14 +695,14 @@ mod tests {
             "`offline` is Assay's built-in offline judge, not a vision-language model",
             "high by construction",
             "#### `offline`\n",
-            "| g1 | 2 | 3.50 (0.50) | 6.00 (2.00) |",
-            "| g2 | 1 | 1.00 (—) | 2.00 (—) |",
-            "| **all** | 3 | 2.67 (2.33) | 4.67 (6.33) |",
+            "| g1 | 2 | 3.50 (var 0.50, n 2) | 6.00 (var 2.00, n 2) |",
+            "| g2 | 1 | 1.00 (var –, n 1) | 2.00 (var –, n 1) |",
+            "| **all** | **3** | **2.67 (var 2.33, n 3)** | **4.67 (var 6.33, n 3)** |",
             "### Judge against simulator\n",
-            "| judge | episodes | Pearson r | MAE | Spearman ρ | Kendall τ |",
+            "| judge | against | group | n | Pearson r | MAE | Spearman ρ | Kendall τ |",
             "![Scene alignment against task completion per group](quality.svg)",
             "### Quality per task\n",
-            "| `a` | g1 | `offline` | 3.00 (1.33) | 4 | 5.00 (33.33) | 4 |",
+            "| `a` | g1 | `offline` | 3.00 (var 1.33, n 4) | 5.00 (var 33.33, n 4) | 0 |",
         ] {
             assert!(md.contains(line), "missing {line:?} in\n{md}");
         }
@@ -975,8 +710,8 @@ mod tests {
         let off = q.judges[1].vs_sim.as_ref().unwrap();
         assert_eq!(off.n, 4);
         assert!(md.contains(&format!(
-            "| `offline` | 4 | {}",
-            num(off.pearson.value.unwrap())
+            "| `offline` | simulator | all | 4 | {:.3}",
+            off.pearson.value.unwrap()
         )));
         assert!(!md.contains("-0.00"));
         assert!(!q.markdown(None).contains("quality.svg"));

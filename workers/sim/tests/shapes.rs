@@ -14,6 +14,12 @@ fn a_mesh_object_on_the_ground_rests_at_its_hull_height_and_can_be_placed() {
             }
         }
     }
+    // Its six faces (vertex k is 1 + 4·[x > 0] + 2·[y > 0] + [z > 0]).
+    for f in [
+        "1 2 4 3", "5 7 8 6", "1 5 6 2", "3 4 8 7", "1 3 7 5", "2 6 8 4",
+    ] {
+        text.push_str(&format!("f {f}\n"));
+    }
     std::fs::write(&obj, text).unwrap();
     let spec = format!(
         r#"

@@ -166,36 +166,6 @@ impl TextDiversityTable {
             .collect();
         Self { models, rows }
     }
-
-    /// A Markdown table: one row per group with N and each model's diversity (3 decimals), as
-    /// the paper's Table 1; errors follow as a list.
-    pub fn markdown(&self) -> String {
-        let mut out = String::from("| group | N |");
-        for m in &self.models {
-            out.push_str(&format!(" {} |", m.name));
-        }
-        out.push_str("\n|---|---:|");
-        out.push_str(&"---:|".repeat(self.models.len()));
-        out.push('\n');
-        for r in &self.rows {
-            out.push_str(&format!("| {} | {} |", r.group.replace('|', "\\|"), r.n));
-            for d in &r.div {
-                match d {
-                    Some(v) => out.push_str(&format!(" {v:.3} |")),
-                    None => out.push_str(" error |"),
-                }
-            }
-            out.push('\n');
-        }
-        for r in &self.rows {
-            for (m, e) in self.models.iter().zip(&r.errors) {
-                if let Some(e) = e {
-                    out.push_str(&format!("\n- {} / {}: {e}", r.group, m.name));
-                }
-            }
-        }
-        out
-    }
 }
 
 /// Parses a YAML or JSON document mapping group names to lists of texts, keeping the file's
@@ -342,9 +312,6 @@ mod tests {
                 .unwrap()
                 .contains("at least 2")
         );
-        let md = t.markdown();
-        assert!(md.contains("| a | 2 |"), "{md}");
-        assert!(md.contains("| b | 1 | error |"), "{md}");
     }
 
     fn at(deg: f64) -> Vec<f32> {

@@ -821,30 +821,6 @@ fn compare(cells: &[Cell], real: &str, proxy: &str, resamples: usize, seed: u64)
     }
 }
 
-/// A Markdown table cell: pipes escaped, one line.
-fn md(s: &str) -> String {
-    s.replace('|', "\\|").replace('\n', " ")
-}
-
-fn with_trials(rate: f64, trials: Option<u64>) -> String {
-    match trials {
-        Some(n) => format!("{rate:.3} ({n} trials)"),
-        None => format!("{rate:.3}"),
-    }
-}
-
-fn interval(e: &Estimate) -> String {
-    match e.ci95 {
-        Some([lo, hi]) => format!("[{lo:.3}, {hi:.3}]"),
-        None => "—".into(),
-    }
-}
-
-fn short(e: &Estimate) -> String {
-    e.value
-        .map_or_else(|| "undefined".to_owned(), |v| format!("{v:.3}"))
-}
-
 impl Comparison {
     /// The four statistics with their names as tables print them.
     pub fn statistics(&self) -> [(&'static str, &Estimate); 4] {
@@ -854,100 +830,6 @@ impl Comparison {
             ("Spearman ρ", &self.spearman),
             ("Kendall τ-b", &self.kendall),
         ]
-    }
-}
-
-impl Ranking {
-    /// For people: per comparison, the policies by real success with R and R_S, then the four
-    /// statistics with their intervals, the reasons for anything undefined and what was left out.
-    pub fn markdown(&self) -> String {
-        let mut out = String::new();
-        for c in &self.comparisons {
-            let _ = writeln!(
-                out,
-                "## Policy ranking: {} against {}\n",
-                md(&c.proxy),
-                md(&c.real)
-            );
-            let _ = writeln!(
-                out,
-                "{} policies, {} tasks. R: a policy's mean over tasks of its success rate in \
-                 '{}'; R_S: the same in '{}'.\n",
-                c.policies.len(),
-                c.tasks.len(),
-                md(&c.real),
-                md(&c.proxy)
-            );
-            if !c.policies.is_empty() {
-                let _ = writeln!(
-                    out,
-                    "| policy | tasks | R ({}) | R_S ({}) |\n|---|---:|---:|---:|",
-                    md(&c.real),
-                    md(&c.proxy)
-                );
-                let mut order: Vec<&PolicyPoint> = c.policies.iter().collect();
-                order.sort_by(|a, b| {
-                    b.real
-                        .total_cmp(&a.real)
-                        .then(b.proxy.total_cmp(&a.proxy))
-                        .then(a.policy.cmp(&b.policy))
-                });
-                for p in order {
-                    let _ = writeln!(
-                        out,
-                        "| {} | {} | {} | {} |",
-                        md(&p.policy),
-                        p.tasks,
-                        with_trials(p.real, p.real_trials),
-                        with_trials(p.proxy, p.proxy_trials)
-                    );
-                }
-                out.push('\n');
-            }
-            let _ = writeln!(out, "| statistic | value | 95 % interval |\n|---|---:|---|");
-            for (name, e) in c.statistics() {
-                let _ = writeln!(out, "| {name} | {} | {} |", short(e), interval(e));
-            }
-            let _ = writeln!(
-                out,
-                "\nIntervals: 95 % percentile bootstrap, {} resamples, seed {}: {}.",
-                self.resamples,
-                self.seed,
-                c.bootstrap.describe()
-            );
-            for (name, e) in c.statistics() {
-                if let Some(why) = &e.undefined {
-                    let _ = writeln!(out, "- {name} undefined: {}", md(why));
-                } else if let Some(why) = &e.no_interval {
-                    let _ = writeln!(out, "- {name}, no interval: {}", md(why));
-                }
-            }
-            for n in &c.notes {
-                let _ = writeln!(out, "- {}", md(n));
-            }
-            if !c.excluded.is_empty() {
-                let _ = writeln!(out, "\nLeft out:\n");
-                for x in &c.excluded {
-                    match &x.task {
-                        Some(t) => {
-                            let _ = writeln!(
-                                out,
-                                "- task `{}`, policy `{}`: {}",
-                                md(t),
-                                md(&x.policy),
-                                md(&x.reason)
-                            );
-                        }
-                        None => {
-                            let _ =
-                                writeln!(out, "- policy `{}`: {}", md(&x.policy), md(&x.reason));
-                        }
-                    }
-                }
-            }
-            out.push('\n');
-        }
-        out
     }
 }
 
@@ -1301,9 +1183,23 @@ mod tests {
         );
         assert_eq!(c.policies[0].real_trials, Some(10));
         assert_eq!(c.notes.len(), 1);
-        let md = rank(&cells, &cfg(50, 0)).unwrap().markdown();
-        assert!(md.contains("- task `b`, policy `p1`: no 'sim' row"), "{md}");
-        assert!(md.contains("- policy `p3`: no task with both"), "{md}");
+        let left_out: Vec<(Option<&str>, &str, &str)> = c
+            .excluded
+            .iter()
+            .map(|x| (x.task.as_deref(), x.policy.as_str(), x.reason.as_str()))
+            .collect();
+        assert!(
+            left_out
+                .iter()
+                .any(|x| x.0 == Some("b") && x.1 == "p1" && x.2.contains("no 'sim' row")),
+            "{left_out:?}"
+        );
+        assert!(
+            left_out
+                .iter()
+                .any(|x| x.0.is_none() && x.1 == "p3" && x.2.contains("no task with both")),
+            "{left_out:?}"
+        );
     }
 
     #[test]
@@ -1487,28 +1383,5 @@ mod tests {
             c.mmrv.no_interval.as_deref(),
             Some("no bootstrap resamples were drawn")
         );
-    }
-
-    #[test]
-    fn markdown_shows_the_comparison() {
-        let r = rank(&ladder(), &cfg(200, 0)).unwrap();
-        let md = r.markdown();
-        assert!(
-            md.contains("## Policy ranking: world-model against real"),
-            "{md}"
-        );
-        assert!(
-            md.contains("| policy | tasks | R (real) | R_S (world-model) |"),
-            "{md}"
-        );
-        // Sorted by real success, best first.
-        let at = |p: &str| md.find(&format!("| {p} |")).unwrap();
-        assert!(at("diffusion-400") < at("diffusion-100") && at("diffusion-100") < at("act"));
-        assert!(at("act") < at("bc-rnn") && at("bc-rnn") < at("bc-mlp"));
-        assert!(md.contains("| diffusion-400 | 3 | 0.827 (150 trials) | 0.783 (60 trials) |"));
-        assert!(md.contains("| Pearson r | 0.865 | ["), "{md}");
-        assert!(md.contains("| MMRV (lower is better) | 0.047 | ["), "{md}");
-        assert!(md.contains("Spearman ρ") && md.contains("Kendall τ-b"));
-        assert!(md.contains("200 resamples, seed 0"));
     }
 }

@@ -3,29 +3,24 @@
 //! diversity (Tables 1 and 2), generalization (Table 3), policy ranking, invalid tasks, and one
 //! page per task with its scene views, keyframes and scores.
 //!
-//! Owns: the page. Never fetches anything and never makes the browser fetch anything: figures are
-//! inline SVG ([`crate::figures`]), pictures are `data:` URIs of downscaled thumbnails, there is no
-//! script and no external font or style; the per-task "pages" are sections shown by CSS
-//! `:target`. Never does IO itself: artifacts come through [`HtmlInputs::artifact`]. Every text
-//! from the report is HTML-escaped. Deterministic: the same inputs give the same bytes.
+//! Owns: the page, written with `maud` templates (every text escaped unless marked otherwise;
+//! only the SVG figures are inserted as they are). Its tables are [`crate::tables`], the same
+//! that report.md shows. Never fetches anything and never makes the browser fetch anything:
+//! figures are inline SVG ([`crate::figures`]), pictures are `data:` URIs of downscaled
+//! thumbnails, there is no script and no external font or style; the per-task "pages" are
+//! sections shown by CSS `:target`. Never does IO itself: artifacts come through
+//! [`HtmlInputs::artifact`]. Deterministic: the same inputs give the same bytes.
 
-use std::fmt::Write as _;
+use maud::{DOCTYPE, Markup, PreEscaped, html};
 
-use base64::Engine as _;
-
-use crate::figures::{self, BarChart, Bars, Line};
-use crate::quality::{QualityResults, TaskQuality};
-use crate::report::{Report, RunInfo, TaskResult};
-use assay_model::episode::EpisodeImagery;
-use assay_model::quality::ScoreStats;
-use assay_stats::agreement::{Agreement, AgreementTable, Estimate};
-use assay_stats::stats::Proportion;
+use crate::report::Report;
+use crate::view::{Cell, Span, Table};
+use assay_stats::agreement::AgreementTable;
 
 mod overview;
 mod sections;
 mod tasks;
 
-pub use overview::provenance_section;
 use overview::{header, invalid, overview};
 use sections::{figure_3, figure_4, ranking, table_1, table_2, table_3};
 pub use tasks::thumbnail;
@@ -55,7 +50,7 @@ nav{position:sticky;top:0;background:#f6f6f6;border-bottom:1px solid #ccc;paddin
 z-index:1}nav a{margin-right:14px}\
 table{border-collapse:collapse;margin:8px 0 16px}\
 th,td{border:1px solid #ddd;padding:3px 8px;text-align:left;vertical-align:top}\
-td.n{text-align:right;font-variant-numeric:tabular-nums}th{background:#f2f2f2}\
+td.n,th.n{text-align:right;font-variant-numeric:tabular-nums}th{background:#f2f2f2}\
 .fig{margin:8px 0}.fig svg{max-width:100%}.row{display:flex;flex-wrap:wrap;gap:16px;\
 align-items:flex-start}\
 .absent,.missing{color:#8a5a00;font-style:italic}.undefined{color:#8a5a00}\
@@ -66,55 +61,52 @@ section.task:target{display:block}\
 .ok{color:#1a7f37}.fail{color:#b3261e}caption,.caption{font-size:13px;color:#444;\
 text-align:left;max-width:680px}";
 
+/// The sections and their titles in the navigation bar.
+const NAV: [(&str, &str); 9] = [
+    ("overview", "Overview"),
+    ("figure-4", "Figure 4"),
+    ("figure-3", "Figure 3"),
+    ("table-1", "Table 1"),
+    ("table-2", "Table 2"),
+    ("table-3", "Table 3"),
+    ("ranking", "Ranking"),
+    ("invalid", "Invalid tasks"),
+    ("tasks", "Tasks"),
+];
+
 /// The page.
 pub fn report_html(inputs: &HtmlInputs<'_>) -> String {
     let r = &inputs.report.results;
-    let mut out = String::new();
-    let _ = write!(
-        out,
-        "<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n\
-         <meta name=\"viewport\" content=\"width=device-width, initial-scale=1\">\n\
-         <title>Assay report: {}</title>\n<link rel=\"icon\" href=\"data:,\">\n\
-         <style>{STYLE}</style>\n</head>\n<body>\n",
-        esc(&r.batch_name)
-    );
-    out.push_str(&header(inputs.report));
-    out.push_str(
-        "<nav><a href=\"#overview\">Overview</a><a href=\"#figure-4\">Figure 4</a>\
-         <a href=\"#figure-3\">Figure 3</a><a href=\"#table-1\">Table 1</a>\
-         <a href=\"#table-2\">Table 2</a><a href=\"#table-3\">Table 3</a>\
-         <a href=\"#ranking\">Ranking</a><a href=\"#invalid\">Invalid tasks</a>\
-         <a href=\"#tasks\">Tasks</a></nav>\n<main>\n",
-    );
-    out.push_str(&overview(inputs.report));
-    out.push_str(&figure_4(r.quality.as_ref()));
-    out.push_str(&figure_3(r.quality.as_ref(), inputs.human));
-    out.push_str(&table_1(r.diversity.as_ref()));
-    out.push_str(&table_2(r.diversity.as_ref()));
-    out.push_str(&table_3(r.generalization.as_ref()));
-    out.push_str(&ranking(r.ranking.as_ref()));
-    out.push_str(&invalid(inputs.report));
-    out.push_str(&task_index(inputs.report));
-    for t in &r.tasks {
-        out.push_str(&task_page(inputs, t));
-    }
-    out.push_str("</main>\n</body>\n</html>\n");
-    out
-}
-
-/// Text for HTML content and attribute values.
-fn esc(s: &str) -> String {
-    let mut out = String::with_capacity(s.len());
-    for c in s.chars() {
-        match c {
-            '&' => out.push_str("&amp;"),
-            '<' => out.push_str("&lt;"),
-            '>' => out.push_str("&gt;"),
-            '"' => out.push_str("&quot;"),
-            '\'' => out.push_str("&#39;"),
-            c => out.push(c),
+    let page = html! {
+        (DOCTYPE)
+        html lang="en" {
+            head {
+                meta charset="utf-8";
+                meta name="viewport" content="width=device-width, initial-scale=1";
+                title { "Assay report: " (r.batch_name) }
+                link rel="icon" href="data:,";
+                style { (PreEscaped(STYLE)) }
+            }
+            body {
+                (header(inputs.report))
+                nav { @for (id, title) in NAV { a href={ "#" (id) } { (title) } } }
+                main {
+                    (overview(inputs.report))
+                    (figure_4(r.quality.as_ref()))
+                    (figure_3(r.quality.as_ref(), inputs.human))
+                    (table_1(r.diversity.as_ref()))
+                    (table_2(r.diversity.as_ref()))
+                    (table_3(r.generalization.as_ref()))
+                    (ranking(r.ranking.as_ref()))
+                    (invalid(inputs.report))
+                    (task_index(inputs.report))
+                    @for t in &r.tasks { (task_page(inputs, t)) }
+                }
+            }
         }
-    }
+    };
+    let mut out = page.into_string();
+    out.push('\n');
     out
 }
 
@@ -122,6 +114,7 @@ fn esc(s: &str) -> String {
 /// letters, digits, `-` and `.` written `_xx` (hex), so any id gives a distinct fragment that
 /// needs no escaping.
 fn task_anchor(id: &str) -> String {
+    use std::fmt::Write as _;
     let mut out = String::from("task-");
     for c in id.chars() {
         if c.is_ascii_alphanumeric() || c == '-' || c == '.' {
@@ -136,119 +129,88 @@ fn task_anchor(id: &str) -> String {
     out
 }
 
-fn absent(what: &str) -> String {
-    format!(
-        "<p class=\"absent\">Not in this batch ({}).</p>\n",
-        esc(what)
-    )
-}
-
-fn num(v: Option<f64>, digits: usize) -> String {
-    match v {
-        Some(v) if v.is_finite() => format!("{v:.digits$}"),
-        _ => "–".into(),
-    }
-}
-
-/// `80 % (4/5), 95 % CI 38–96 %`, or `–` without trials.
-fn prop(p: &Proportion) -> String {
-    match (p.rate, p.ci95) {
-        (Some(r), Some([lo, hi])) => format!(
-            "{:.0} % ({}/{}), 95 % CI {:.0}–{:.0} %",
-            r * 100.0,
-            p.successes,
-            p.trials,
-            lo * 100.0,
-            hi * 100.0
-        ),
-        (Some(r), None) => format!("{:.0} % ({}/{})", r * 100.0, p.successes, p.trials),
-        _ => "–".into(),
-    }
-}
-
-/// An estimate with its interval; an undefined one as `undefined — reason`, never 0 or NaN.
-fn estimate(e: &Estimate) -> String {
-    match e.value {
-        Some(v) if v.is_finite() => {
-            let mut s = format!("{v:.3}");
-            match (e.ci95, &e.no_interval) {
-                (Some([lo, hi]), _) => {
-                    let _ = write!(s, " [{lo:.3}, {hi:.3}]");
+/// A table of the report ([`crate::tables`]) as HTML: numeric columns right-aligned, a total
+/// row in header cells.
+fn table(t: &Table) -> Markup {
+    let class = |numeric: bool| numeric.then_some("n");
+    html! {
+        table {
+            tr { @for c in &t.columns { th { (c.title) } } }
+            @for r in &t.rows {
+                tr {
+                    @for (c, col) in r.cells.iter().zip(&t.columns) {
+                        @if r.total {
+                            th class=[class(col.numeric)] { (cell(c)) }
+                        } @else {
+                            td class=[class(col.numeric)] { (cell(c)) }
+                        }
+                    }
                 }
-                (None, Some(why)) => {
-                    let _ = write!(s, " (no interval: {})", esc(why));
-                }
-                (None, None) => {}
             }
-            s
         }
-        _ => format!(
-            "<span class=\"undefined\">undefined — {}</span>",
-            esc(e.undefined.as_deref().unwrap_or("no value"))
-        ),
     }
 }
 
-fn defined(e: &Estimate) -> Option<f64> {
-    e.value.filter(|v| v.is_finite())
+/// A cell's spans as HTML.
+fn cell(c: &Cell) -> Markup {
+    html! {
+        @for s in &c.0 {
+            @match s {
+                Span::Text(t) => (t),
+                Span::Code(t) => code { (t) },
+                Span::Strong(t) => strong { (t) },
+                Span::Undefined(why) => span.undefined { "undefined — " (why) },
+                Span::Missing => "–",
+                Span::Break => br;,
+                Span::TaskLink(id) => a href={ "#" (task_anchor(id)) } { (id) },
+            }
+        }
+    }
 }
 
-fn score(s: &ScoreStats) -> String {
-    match s.mean {
-        Some(m) => format!("{m:.2} (var {}, n {})", num(s.variance, 2), s.n),
-        None => "–".into(),
-    }
+/// A table, or nothing when it has no rows.
+fn table_if_any(t: &Table) -> Markup {
+    html! { @if !t.rows.is_empty() { (table(t)) } }
+}
+
+/// Says a section is not in this batch, and how to get it.
+fn absent(what: &str) -> Markup {
+    html! { p.absent { "Not in this batch (" (what) ")." } }
 }
 
 /// An SVG string placed in the page (without an XML prolog, if the drawer wrote one).
-fn inline_svg(svg: &str) -> String {
+fn inline_svg(svg: &str) -> Markup {
     let body = match svg.trim_start().strip_prefix("<?xml") {
         Some(rest) => rest.split_once("?>").map_or("", |(_, b)| b),
         None => svg,
     };
-    format!("<div class=\"fig\">{}</div>\n", body.trim())
-}
-
-/// Formats unix milliseconds as UTC `YYYY-MM-DD hh:mm:ss`.
-fn utc(ms: i64) -> String {
-    let secs = ms.div_euclid(1000);
-    let (days, rem) = (secs.div_euclid(86_400), secs.rem_euclid(86_400));
-    // Howard Hinnant's civil_from_days.
-    let z = days + 719_468;
-    let era = z.div_euclid(146_097);
-    let doe = z - era * 146_097;
-    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
-    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
-    let mp = (5 * doy + 2) / 153;
-    let d = doy - (153 * mp + 2) / 5 + 1;
-    let m = if mp < 10 { mp + 3 } else { mp - 9 };
-    let y = yoe + era * 400 + i64::from(m <= 2);
-    format!(
-        "{y:04}-{m:02}-{d:02} {:02}:{:02}:{:02} UTC",
-        rem / 3600,
-        rem % 3600 / 60,
-        rem % 60
-    )
+    html! { div.fig { (PreEscaped(body.trim())) } }
 }
 
 #[cfg(test)]
 mod tests {
     use std::collections::BTreeMap;
 
+    use base64::Engine as _;
+
     use super::*;
     use crate::diversity::DiversityResults;
     use crate::generalization::{EvalEpisode, GeneralizationResults, GroupGeneralization};
     use crate::quality::build_quality;
     use crate::ranking::RankingResults;
+    use crate::report::RunInfo;
     use crate::report::build_results;
     use crate::testing::judged;
     use assay_model::dynamics::{DynamicsConfig, DynamicsFit};
+    use assay_model::episode::EpisodeImagery;
     use assay_model::episode::{
         EpisodeOutcome, Keyframe, LabelSource, NamedArtifact, PredicateValue, ShardRecord, TaskInfo,
     };
+    use assay_stats::agreement::Estimate;
     use assay_stats::agreement::{AgreementRow, agreement};
     use assay_stats::diversity::{EmbeddingModel, TextDiversityRow, TextDiversityTable};
     use assay_stats::ranking::{Cell, RankingConfig, rank};
+    use assay_stats::stats::Proportion;
 
     const EVIL: &str = "<script>alert(1)</script>";
 
@@ -595,7 +557,7 @@ mod tests {
         let report = report();
         let human = human();
         let html = render(&report, Some(&human));
-        assert!(html.starts_with("<!DOCTYPE html>\n<html lang=\"en\">"));
+        assert!(html.starts_with("<!DOCTYPE html><html lang=\"en\">"));
         assert!(html.contains("<meta charset=\"utf-8\">"));
         assert!(html.contains("<title>Assay report: demo &amp; test</title>"));
         assert!(html.contains("<link rel=\"icon\" href=\"data:,\">"));
@@ -717,7 +679,11 @@ mod tests {
             undefined: Some("needs 2".into()),
             no_interval: None,
         };
-        assert!(estimate(&e).contains("undefined — needs 2"));
+        let shown = cell(&crate::view::estimate(&e)).into_string();
+        assert_eq!(
+            shown,
+            "<span class=\"undefined\">undefined — needs 2</span>"
+        );
     }
 
     #[test]
@@ -743,16 +709,54 @@ mod tests {
     }
 
     #[test]
+    fn markdown_and_html_show_the_same_tables() {
+        use crate::tables;
+        let report = report();
+        let html = render(&report, None);
+        let md = report.to_markdown();
+        let r = &report.results;
+        let q = r.quality.as_ref().unwrap();
+        let d = r.diversity.as_ref().unwrap();
+        let k = r.ranking.as_ref().unwrap();
+        let c = &k.ranking.as_ref().unwrap().comparisons[0];
+        let mut shared = vec![
+            tables::summary(r),
+            tables::success_per_group(r),
+            tables::success_per_task(r),
+            tables::invalid_tasks(r),
+            tables::run(&report.run),
+            tables::provenance(&report.provenance),
+            tables::judges(q),
+            tables::agreement(&tables::against_simulator(q)),
+            tables::quality_per_task(q),
+            tables::text_diversity(d.text.as_ref().unwrap()),
+            tables::dynamics_diversity(d),
+            tables::diversity_errors(d, ""),
+            tables::generalization(r.generalization.as_ref().unwrap()),
+            tables::ranking_statistics(c),
+            tables::ranking_policies(c),
+        ];
+        shared.extend(q.judges.iter().map(tables::quality_per_group));
+        for t in &shared {
+            assert!(!t.rows.is_empty(), "{}", t.markdown());
+            assert!(
+                md.contains(&t.markdown()),
+                "not in report.md:\n{}",
+                t.markdown()
+            );
+            assert!(
+                html.contains(&table(t).into_string()),
+                "not in report.html:\n{}",
+                t.markdown()
+            );
+        }
+    }
+
+    #[test]
     fn the_same_inputs_give_the_same_page() {
         let (a, b) = (report(), report());
         let human = human();
         assert_eq!(render(&a, Some(&human)), render(&b, Some(&human)));
-    }
-
-    #[test]
-    fn utc_dates() {
-        assert_eq!(utc(0), "1970-01-01 00:00:00 UTC");
-        assert_eq!(utc(1_700_000_000_000), "2023-11-14 22:13:20 UTC");
     }
 
     /// The demo batch's page, for looking at by hand: writes /tmp/report.html.

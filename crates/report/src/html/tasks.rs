@@ -2,20 +2,16 @@
 //! keyframes, scores and episodes, with downscaled thumbnails as `data:` URIs; and the index of
 //! tasks.
 
-use std::fmt::Write as _;
+use base64::Engine as _;
 
 use super::*;
+use crate::quality::TaskQuality;
+use crate::report::TaskResult;
+use crate::tables;
+use crate::view::{proportion, score};
+use assay_model::episode::EpisodeImagery;
 
-pub(super) fn judges_of(report: &Report) -> Vec<&str> {
-    report
-        .results
-        .quality
-        .as_ref()
-        .map(|q| q.judges.iter().map(|j| j.judge.as_str()).collect())
-        .unwrap_or_default()
-}
-
-pub(super) fn task_quality<'a>(report: &'a Report, task: &str) -> Vec<&'a TaskQuality> {
+fn task_quality<'a>(report: &'a Report, task: &str) -> Vec<&'a TaskQuality> {
     report
         .results
         .quality
@@ -24,175 +20,127 @@ pub(super) fn task_quality<'a>(report: &'a Report, task: &str) -> Vec<&'a TaskQu
         .unwrap_or_default()
 }
 
-pub(super) fn task_index(report: &Report) -> String {
-    let judges = judges_of(report);
-    let mut out = String::from(
-        "<section id=\"tasks\">\n<h2>Tasks</h2>\n<p class=\"caption\">Open a task for its scene \
-         views, keyframes and scores. Judge columns: mean scene alignment (1–5) / mean \
-         completion (0–10).</p>\n<table>\n<tr><th>task</th><th>group</th><th>success</th>",
-    );
-    for j in &judges {
-        let _ = write!(out, "<th>{}</th>", esc(j));
-    }
-    out.push_str("</tr>\n");
-    for t in &report.results.tasks {
-        let _ = write!(
-            out,
-            "<tr><td><a href=\"#{}\">{}</a></td><td>{}</td><td class=\"n\">{}</td>",
-            task_anchor(&t.id),
-            esc(&t.id),
-            esc(&t.group),
-            prop(&t.success)
-        );
-        let tq = task_quality(report, &t.id);
-        for j in &judges {
-            let cell = tq.iter().find(|q| q.judge == *j).map_or("–".into(), |q| {
-                format!(
-                    "{} / {}",
-                    num(q.scene_alignment.mean, 1),
-                    num(q.completion.mean, 1)
-                )
-            });
-            let _ = write!(out, "<td class=\"n\">{cell}</td>");
+pub(super) fn task_index(report: &Report) -> Markup {
+    html! {
+        section id="tasks" {
+            h2 { "Tasks" }
+            p.caption {
+                "Open a task for its scene views, keyframes and scores; its judges' scores are \
+                 also in the table below it."
+            }
+            (table(&tables::success_per_task(&report.results)))
+            @if let Some(q) = &report.results.quality {
+                h3 { "Quality per task" }
+                (table(&tables::quality_per_task(q)))
+            }
         }
-        out.push_str("</tr>\n");
     }
-    out.push_str("</table>\n</section>\n");
-    out
 }
 
-pub(super) fn task_page(inputs: &HtmlInputs<'_>, t: &TaskResult) -> String {
-    let mut out = format!(
-        "<section class=\"task\" id=\"{}\">\n<h2>Task {}</h2>\n<p><a href=\"#tasks\">← all \
-         tasks</a></p>\n<table>\n",
-        task_anchor(&t.id),
-        esc(&t.name)
-    );
-    for (k, v) in [
-        ("id", &t.id),
-        ("name", &t.name),
-        ("group", &t.group),
-        ("pipeline", &t.pipeline),
-        ("origin", &t.origin),
-        ("spec hash", &t.spec_hash),
-    ] {
-        let _ = writeln!(out, "<tr><th>{k}</th><td>{}</td></tr>", esc(v));
-    }
-    let _ = writeln!(
-        out,
-        "<tr><th>success</th><td>{}</td></tr>\n</table>",
-        prop(&t.success)
-    );
-    if t.by_policy.len() > 1 {
-        out.push_str("<h3>Success by policy</h3>\n<table>\n");
-        for p in &t.by_policy {
-            let _ = writeln!(
-                out,
-                "<tr><td>{}</td><td class=\"n\">{}</td></tr>",
-                esc(&p.policy),
-                prop(&p.success)
-            );
-        }
-        out.push_str("</table>\n");
-    }
-    if !t.predicates.is_empty() {
-        out.push_str(
-            "<h3>Goal predicates</h3>\n<table>\n<tr><th>predicate</th><th>held</th></tr>\n",
-        );
-        for p in &t.predicates {
-            let _ = writeln!(
-                out,
-                "<tr><td><code>{}</code></td><td class=\"n\">{} / {}</td></tr>",
-                esc(&p.label),
-                p.holds,
-                p.of
-            );
-        }
-        out.push_str("</table>\n");
-    }
-    match t
+pub(super) fn task_page(inputs: &HtmlInputs<'_>, t: &TaskResult) -> Markup {
+    let pictured = t
         .episodes
         .iter()
-        .find_map(|e| e.imagery.as_ref().map(|i| (e, i)))
-    {
-        Some((e, imagery)) => {
-            let _ = writeln!(
-                out,
-                "<h3>Pictures of episode seed {}, policy {}</h3>",
-                e.seed,
-                esc(&e.policy)
-            );
-            out.push_str(&pictures(inputs, imagery));
-        }
-        None => out
-            .push_str("<p class=\"absent\">No pictures: the batch did not render this task.</p>\n"),
-    }
-    let tq = task_quality(inputs.report, &t.id);
-    if !tq.is_empty() {
-        out.push_str(
-            "<h3>Judges</h3>\n<table>\n<tr><th>judge</th><th>scene alignment (1–5)</th>\
-                      <th>completion (0–10)</th><th>unjudged</th><th>errors</th></tr>\n",
-        );
-        for q in &tq {
-            let _ = writeln!(
-                out,
-                "<tr><td>{}</td><td class=\"n\">{}</td><td class=\"n\">{}</td>\
-                 <td class=\"n\">{}</td><td>{}</td></tr>",
-                esc(&q.judge),
-                score(&q.scene_alignment),
-                score(&q.completion),
-                q.unjudged,
-                esc(&q.errors.join("; "))
-            );
-        }
-        out.push_str("</table>\n");
-    }
+        .find_map(|e| e.imagery.as_ref().map(|i| (e, i)));
+    let judged = task_quality(inputs.report, &t.id);
     let failed: Vec<_> = t.episodes.iter().filter(|e| !e.success).collect();
-    if !failed.is_empty() {
-        out.push_str(
-            "<h3>Unsuccessful episodes</h3>\n<table>\n<tr><th>seed</th><th>policy</th>\
-                      <th>unmet predicates</th></tr>\n",
-        );
-        for e in failed {
-            let unmet: Vec<String> = e
-                .unmet
-                .iter()
-                .map(|p| format!("<code>{}</code>: {}", esc(&p.label), esc(&p.detail)))
-                .collect();
-            let _ = writeln!(
-                out,
-                "<tr><td class=\"n\">{}</td><td>{}</td><td>{}</td></tr>",
-                e.seed,
-                esc(&e.policy),
-                unmet.join("<br>")
-            );
+    html! {
+        section class="task" id=(task_anchor(&t.id)) {
+            h2 { "Task " (t.name) }
+            p { a href="#tasks" { "← all tasks" } }
+            table {
+                @for (k, v) in [
+                    ("id", &t.id),
+                    ("name", &t.name),
+                    ("group", &t.group),
+                    ("pipeline", &t.pipeline),
+                    ("origin", &t.origin),
+                    ("spec hash", &t.spec_hash),
+                ] {
+                    tr { th { (k) } td { (v) } }
+                }
+                tr { th { "success" } td { (cell(&proportion(&t.success))) } }
+            }
+            @if t.by_policy.len() > 1 {
+                h3 { "Success by policy" }
+                table {
+                    @for p in &t.by_policy {
+                        tr { td { (p.policy) } td.n { (cell(&proportion(&p.success))) } }
+                    }
+                }
+            }
+            @if !t.predicates.is_empty() {
+                h3 { "Goal predicates" }
+                table {
+                    tr { th { "predicate" } th { "held" } }
+                    @for p in &t.predicates {
+                        tr { td { code { (p.label) } } td.n { (p.holds) " / " (p.of) } }
+                    }
+                }
+            }
+            @match pictured {
+                Some((e, imagery)) => {
+                    h3 { "Pictures of episode seed " (e.seed) ", policy " (e.policy) }
+                    (pictures(inputs, imagery))
+                },
+                None => p.absent { "No pictures: the batch did not render this task." },
+            }
+            @if !judged.is_empty() {
+                h3 { "Judges" }
+                table {
+                    tr {
+                        th { "judge" } th { "scene alignment (1–5)" } th { "completion (0–10)" }
+                        th { "unjudged" } th { "errors" }
+                    }
+                    @for q in &judged {
+                        tr {
+                            td { (q.judge) }
+                            td.n { (cell(&score(q.scene_alignment.mean, q.scene_alignment.variance, q.scene_alignment.n))) }
+                            td.n { (cell(&score(q.completion.mean, q.completion.variance, q.completion.n))) }
+                            td.n { (q.unjudged) }
+                            td { (q.errors.join("; ")) }
+                        }
+                    }
+                }
+            }
+            @if !failed.is_empty() {
+                h3 { "Unsuccessful episodes" }
+                table {
+                    tr { th { "seed" } th { "policy" } th { "unmet predicates" } }
+                    @for e in failed {
+                        tr {
+                            td.n { (e.seed) }
+                            td { (e.policy) }
+                            td {
+                                @for (i, p) in e.unmet.iter().enumerate() {
+                                    @if i > 0 { br; }
+                                    code { (p.label) } ": " (p.detail)
+                                }
+                            }
+                        }
+                    }
+                }
+            }
+            @if !t.failures.is_empty() {
+                h3 { "Episodes that did not finish" }
+                table {
+                    tr { th { "seed" } th { "policy" } th { "attempts" } th { "error" } }
+                    @for f in &t.failures {
+                        tr {
+                            td.n { (f.seed) }
+                            td { (f.policy) }
+                            td.n { (f.attempts) }
+                            td { @if f.cancelled { "(cancelled) " } (f.error) }
+                        }
+                    }
+                }
+            }
         }
-        out.push_str("</table>\n");
     }
-    if !t.failures.is_empty() {
-        out.push_str(
-            "<h3>Episodes that did not finish</h3>\n<table>\n<tr><th>seed</th>\
-                      <th>policy</th><th>attempts</th><th>error</th></tr>\n",
-        );
-        for f in &t.failures {
-            let _ = writeln!(
-                out,
-                "<tr><td class=\"n\">{}</td><td>{}</td><td class=\"n\">{}</td><td>{}{}</td></tr>",
-                f.seed,
-                esc(&f.policy),
-                f.attempts,
-                if f.cancelled { "(cancelled) " } else { "" },
-                esc(&f.error)
-            );
-        }
-        out.push_str("</table>\n");
-    }
-    out.push_str("</section>\n");
-    out
 }
 
 /// Indices of `shown` of `n` items, evenly spaced, first and last included.
-pub(super) fn spaced(n: usize, shown: usize) -> Vec<usize> {
+fn spaced(n: usize, shown: usize) -> Vec<usize> {
     if n <= shown {
         return (0..n).collect();
     }
@@ -202,50 +150,40 @@ pub(super) fn spaced(n: usize, shown: usize) -> Vec<usize> {
     (0..shown).map(|i| i * (n - 1) / (shown - 1)).collect()
 }
 
-pub(super) fn pictures(inputs: &HtmlInputs<'_>, imagery: &EpisodeImagery) -> String {
-    let mut out = String::from("<h4>Initial scene</h4>\n<div>\n");
-    for v in &imagery.views {
-        out.push_str(&thumb_figure(inputs, &v.artifact, &v.name));
+fn pictures(inputs: &HtmlInputs<'_>, imagery: &EpisodeImagery) -> Markup {
+    html! {
+        h4 { "Initial scene" }
+        div { @for v in &imagery.views { (thumb_figure(inputs, &v.artifact, &v.name)) } }
+        h4 { "Keyframes" }
+        div {
+            @for i in spaced(imagery.keyframes.len(), KEYFRAMES_SHOWN) {
+                @let k = &imagery.keyframes[i];
+                (thumb_figure(
+                    inputs,
+                    &k.artifact,
+                    &format!("step {} ({}), goals met {}", k.step, k.camera, k.goals_met),
+                ))
+            }
+        }
+        @if imagery.keyframes.len() > KEYFRAMES_SHOWN {
+            p.caption { (KEYFRAMES_SHOWN) " of " (imagery.keyframes.len()) " keyframes shown." }
+        }
     }
-    out.push_str("</div>\n<h4>Keyframes</h4>\n<div>\n");
-    for i in spaced(imagery.keyframes.len(), KEYFRAMES_SHOWN) {
-        let k = &imagery.keyframes[i];
-        let caption = format!("step {} ({}), goals met {}", k.step, k.camera, k.goals_met);
-        out.push_str(&thumb_figure(inputs, &k.artifact, &caption));
-    }
-    out.push_str("</div>\n");
-    if imagery.keyframes.len() > KEYFRAMES_SHOWN {
-        let _ = writeln!(
-            out,
-            "<p class=\"caption\">{KEYFRAMES_SHOWN} of {} keyframes shown.</p>",
-            imagery.keyframes.len()
-        );
-    }
-    out
 }
 
-pub(super) fn thumb_figure(inputs: &HtmlInputs<'_>, key: &str, caption: &str) -> String {
-    let body = match (inputs.artifact)(key) {
-        None => format!(
-            "<span class=\"missing\">(artifact missing: {})</span>",
-            esc(key)
-        ),
-        Some(bytes) => match thumbnail(&bytes, THUMB_WIDTH) {
-            Ok((png, w, h)) => format!(
-                "<img src=\"data:image/png;base64,{}\" width=\"{w}\" height=\"{h}\" alt=\"{}\">",
-                base64::engine::general_purpose::STANDARD.encode(png),
-                esc(caption)
-            ),
-            Err(why) => format!(
-                "<span class=\"missing\">(image format not shown: {})</span>",
-                esc(&why)
-            ),
-        },
-    };
-    format!(
-        "<figure class=\"thumb\">{body}<figcaption>{}</figcaption></figure>\n",
-        esc(caption)
-    )
+fn thumb_figure(inputs: &HtmlInputs<'_>, key: &str, caption: &str) -> Markup {
+    html! {
+        figure.thumb {
+            @match (inputs.artifact)(key).map(|bytes| thumbnail(&bytes, THUMB_WIDTH)) {
+                None => span.missing { "(artifact missing: " (key) ")" },
+                Some(Ok((png, w, h))) => img
+                    src={ "data:image/png;base64," (base64::engine::general_purpose::STANDARD.encode(png)) }
+                    width=(w) height=(h) alt=(caption);,
+                Some(Err(why)) => span.missing { "(image format not shown: " (why) ")" },
+            }
+            figcaption { (caption) }
+        }
+    }
 }
 
 /// A PNG downscaled (box filter) to at most `width` pixels wide, re-encoded as PNG, with its

@@ -1,0 +1,653 @@
+//! Every table of the report, built once from the results: `report.md` writes them as Markdown
+//! and `report.html` as HTML, so the two show the same columns, rows and numbers.
+//!
+//! Owns: which rows and columns a table has and how each value reads. Never formats for a
+//! medium (see [`crate::view`]) and never aggregates (the sections did).
+
+use assay_stats::ranking::{Comparison, PolicyPoint};
+
+use crate::diversity::DiversityResults;
+use crate::generalization::{GeneralizationResults, LEARNT_THRESHOLD};
+use crate::quality::{JudgeSummary, QualityResults};
+use crate::ranking::RankingResults;
+use crate::report::{PolicySuccess, Provenance, Results, RunInfo};
+use crate::view::{Cell, Span, Table, estimate, num2, proportion, score};
+use assay_model::quality::ScoreStats;
+use assay_stats::agreement::Agreement;
+use assay_stats::diversity::TextDiversityTable;
+
+fn n(v: impl ToString) -> Cell {
+    Cell::text(v.to_string())
+}
+
+fn stats(s: &ScoreStats) -> Cell {
+    score(s.mean, s.variance, s.n)
+}
+
+/// The batch in numbers.
+pub fn summary(r: &Results) -> Table {
+    let t = &r.totals;
+    let mut table = Table::new(["measure", "value"]);
+    let mut row = |k: &str, v: Cell| table.row(vec![k.into(), v]);
+    row("tasks (valid)", n(t.tasks));
+    row("tasks rejected as invalid", n(t.invalid_tasks));
+    row("episodes planned", n(t.episodes_planned));
+    row("episodes completed", n(t.episodes_completed));
+    row("episodes failed (errors)", n(t.episodes_failed));
+    if t.episodes_cancelled > 0 {
+        row("episodes cancelled", n(t.episodes_cancelled));
+    }
+    row(
+        "ground-truth success, all policies (Wilson 95 %)",
+        proportion(&t.success),
+    );
+    row(
+        "simulated steps",
+        Cell::text(format!(
+            "{} ({:.0} s of sim time)",
+            t.sim_steps, t.sim_time_s
+        )),
+    );
+    table
+}
+
+/// Ground-truth success of each policy over every task.
+pub fn success_per_policy(r: &Results) -> Table {
+    let mut table = Table::new(["policy", "#episodes", "#success (Wilson 95 %)"]);
+    for p in &r.by_policy {
+        table.row(vec![
+            p.policy.as_str().into(),
+            n(p.success.trials),
+            proportion(&p.success),
+        ]);
+    }
+    table
+}
+
+/// With several policies, a column per policy (pooling them would mislead); with one, its
+/// success.
+fn policy_columns(r: &Results) -> Vec<String> {
+    if r.policies.len() > 1 {
+        r.policies.iter().map(|p| format!("#{p}")).collect()
+    } else {
+        vec!["#success (Wilson 95 %)".into()]
+    }
+}
+
+fn policy_cells(r: &Results, all: &crate::view::Cell, by: &[PolicySuccess]) -> Vec<Cell> {
+    if r.policies.len() > 1 {
+        r.policies
+            .iter()
+            .map(|p| {
+                by.iter()
+                    .find(|x| &x.policy == p)
+                    .map_or_else(Cell::missing, |x| proportion(&x.success))
+            })
+            .collect()
+    } else {
+        vec![all.clone()]
+    }
+}
+
+/// Success per group, with a total row.
+pub fn success_per_group(r: &Results) -> Table {
+    let mut columns: Vec<String> = vec!["group".into(), "#tasks".into(), "#episodes".into()];
+    columns.extend(policy_columns(r));
+    let mut table = Table::new(columns);
+    for g in &r.groups {
+        let mut cells = vec![g.group.as_str().into(), n(g.tasks), n(g.success.trials)];
+        cells.extend(policy_cells(r, &proportion(&g.success), &g.by_policy));
+        table.row(cells);
+    }
+    let mut cells = vec!["all".into(), n(r.totals.tasks), n(r.totals.success.trials)];
+    cells.extend(policy_cells(
+        r,
+        &proportion(&r.totals.success),
+        &r.by_policy,
+    ));
+    table.total(cells);
+    table
+}
+
+/// Success per task, each linked to its page, with the predicate most often unmet.
+pub fn success_per_task(r: &Results) -> Table {
+    let mut columns: Vec<String> = vec![
+        "group".into(),
+        "task".into(),
+        "source".into(),
+        "#episodes".into(),
+    ];
+    columns.extend(policy_columns(r));
+    columns.push("most often unmet".into());
+    let mut table = Table::new(columns);
+    for task in &r.tasks {
+        let unmet = task
+            .predicates
+            .iter()
+            .filter(|p| p.holds < p.of)
+            .max_by_key(|p| p.of - p.holds)
+            .map_or_else(Cell::default, |p| {
+                Cell::code(&p.label).and(Span::Text(format!(" ({}/{})", p.of - p.holds, p.of)))
+            });
+        let mut cells = vec![
+            task.group.as_str().into(),
+            Cell(vec![Span::TaskLink(task.id.clone())]).and(Span::Text(format!(" {}", task.name))),
+            task.pipeline.as_str().into(),
+            n(task.success.trials),
+        ];
+        cells.extend(policy_cells(r, &proportion(&task.success), &task.by_policy));
+        cells.push(unmet);
+        table.row(cells);
+    }
+    table
+}
+
+/// Episodes that ran out of attempts or were cancelled.
+pub fn failures(r: &Results) -> Table {
+    let mut table = Table::new(["task", "#seed", "policy", "#attempts", "error"]);
+    for t in &r.tasks {
+        for f in &t.failures {
+            let mut error = Cell::default();
+            if f.cancelled {
+                error = error.and(Span::Text("(cancelled) ".into()));
+            }
+            table.row(vec![
+                Cell::code(&t.id),
+                n(f.seed),
+                f.policy.as_str().into(),
+                n(f.attempts),
+                error.and(Span::Text(f.error.clone())),
+            ]);
+        }
+    }
+    table
+}
+
+/// Task specs refused, each problem with its field.
+pub fn invalid_tasks(r: &Results) -> Table {
+    let mut table = Table::new(["task", "file", "field", "reason"]);
+    for e in &r.invalid_tasks {
+        table.row(vec![
+            e.task
+                .as_deref()
+                .map_or_else(|| Cell::text("(no id)"), Cell::from),
+            e.origin.as_str().into(),
+            Cell::code(&e.path),
+            e.reason.as_str().into(),
+        ]);
+    }
+    table
+}
+
+/// What depends on the machine and the moment.
+pub fn run(run: &RunInfo) -> Table {
+    let mut table = Table::new(["measure", "value"]);
+    let mut row = |k: &str, v: Cell| table.row(vec![k.into(), v]);
+    row(
+        "batch",
+        Cell::code(&run.batch_id).and(Span::Text(format!(" ({})", run.state))),
+    );
+    row("submitted", Cell::text(utc(run.submitted_at_unix_ms)));
+    row(
+        "finished",
+        run.finished_at_unix_ms
+            .map_or_else(Cell::missing, |ms| Cell::text(utc(ms))),
+    );
+    row(
+        "wall time",
+        run.wall_time_s
+            .map_or_else(Cell::missing, |s| Cell::text(format!("{s:.1} s"))),
+    );
+    row(
+        "throughput",
+        match run.episodes_per_s {
+            Some(e) => Cell::text(format!(
+                "{e:.2} episodes/s, {:.0} steps/s",
+                run.sim_steps_per_s.unwrap_or(0.0)
+            )),
+            None => Cell::missing(),
+        },
+    );
+    row("attempts beyond the first", n(run.extra_attempts));
+    row(
+        "workers",
+        Cell::text(format!(
+            "{} ({})",
+            run.workers.len(),
+            run.workers.join(", ")
+        )),
+    );
+    table
+}
+
+/// What produced the figures.
+pub fn provenance(p: &Provenance) -> Table {
+    let mut table = Table::new(["what", "value"]);
+    for (what, values) in p.rows() {
+        let value = match values.as_slice() {
+            [] => Cell::missing(),
+            [hash] if what.contains("SHA-256") => Cell::code(hash),
+            v => {
+                let mut c = Cell::default();
+                for (i, x) in v.iter().enumerate() {
+                    if i > 0 {
+                        c = c.and(Span::Break);
+                    }
+                    c = c.and(Span::Text(x.clone()));
+                }
+                c
+            }
+        };
+        table.row(vec![what.into(), value]);
+    }
+    table
+}
+
+/// The judges: what they are, what they judged and what it cost.
+pub fn judges(q: &QualityResults) -> Table {
+    let mut table = Table::new([
+        "judge",
+        "backend",
+        "model",
+        "prompt versions",
+        "#repeats",
+        "#episodes judged",
+        "#failed",
+        "#pending",
+        "#cancelled",
+        "#item errors",
+        "#unjudged items",
+        "#calls",
+        "#cached",
+        "#tokens in",
+        "#tokens out",
+        "#cost USD",
+    ]);
+    for j in &q.judges {
+        table.row(vec![
+            Cell::code(&j.judge),
+            Cell::or_missing(&j.backend),
+            Cell::or_missing(&j.model),
+            Cell::or_missing(&j.prompts.join(", ")),
+            n(j.repeats),
+            n(j.episodes_judged),
+            n(j.episodes_failed),
+            n(j.episodes_pending),
+            n(j.episodes_cancelled),
+            n(j.item_errors),
+            n(j.items_unjudged),
+            n(j.usage.calls),
+            n(j.usage.cached),
+            n(j.usage.tokens_in),
+            n(j.usage.tokens_out),
+            Cell::text(cost(j.usage.cost_usd)),
+        ]);
+    }
+    table
+}
+
+fn cost(usd: f64) -> String {
+    if usd > 0.0 && usd < 0.01 {
+        format!("{usd:.4}")
+    } else {
+        num2(usd)
+    }
+}
+
+/// One judge's scores per group, with the judge's own over all its tasks.
+pub fn quality_per_group(j: &JudgeSummary) -> Table {
+    let mut table = Table::new([
+        "group",
+        "#tasks",
+        "#scene alignment (1–5)",
+        "#completion (0–10)",
+    ]);
+    for g in &j.groups {
+        table.row(vec![
+            g.group.as_str().into(),
+            n(g.tasks),
+            stats(&g.scene_alignment),
+            stats(&g.completion),
+        ]);
+    }
+    let tasks: u64 = j.groups.iter().map(|g| g.tasks).sum();
+    table.total(vec![
+        "all".into(),
+        n(tasks),
+        stats(&j.scene_alignment),
+        stats(&j.completion),
+    ]);
+    table
+}
+
+/// Scores per task and judge.
+pub fn quality_per_task(q: &QualityResults) -> Table {
+    let mut table = Table::new([
+        "task",
+        "group",
+        "judge",
+        "#scene alignment (1–5)",
+        "#completion (0–10)",
+        "#unjudged",
+    ]);
+    for t in &q.tasks {
+        table.row(vec![
+            Cell(vec![Span::TaskLink(t.task_id.clone())]),
+            t.group.as_str().into(),
+            Cell::code(&t.judge),
+            stats(&t.scene_alignment),
+            stats(&t.completion),
+            n(t.unjudged),
+        ]);
+    }
+    table
+}
+
+/// One judge's agreement with one reference (the simulator, or human ratings).
+pub struct AgreementLine<'a> {
+    pub judge: &'a str,
+    pub reference: String,
+    pub group: Option<&'a str>,
+    /// None: nothing to compare (no judged episode with a reference score).
+    pub agreement: Option<&'a Agreement>,
+}
+
+/// The judges against the simulator (every judge, also one with nothing to compare).
+pub fn against_simulator(q: &QualityResults) -> Vec<AgreementLine<'_>> {
+    q.judges
+        .iter()
+        .map(|j| AgreementLine {
+            judge: &j.judge,
+            reference: "simulator".into(),
+            group: None,
+            agreement: j.vs_sim.as_ref(),
+        })
+        .collect()
+}
+
+/// Agreement statistics with their 95 % bootstrap intervals.
+pub fn agreement(lines: &[AgreementLine<'_>]) -> Table {
+    let mut table = Table::new([
+        "judge",
+        "against",
+        "group",
+        "#n",
+        "#Pearson r",
+        "#MAE",
+        "#Spearman ρ",
+        "#Kendall τ",
+    ]);
+    for l in lines {
+        let mut cells = vec![
+            Cell::code(l.judge),
+            l.reference.as_str().into(),
+            l.group.unwrap_or("all").into(),
+        ];
+        match l.agreement {
+            Some(a) => cells.extend([
+                n(a.n),
+                estimate(&a.pearson),
+                estimate(&a.mae),
+                estimate(&a.spearman),
+                estimate(&a.kendall),
+            ]),
+            None => {
+                cells.push(n(0));
+                cells.extend((0..4).map(|_| Cell::missing()));
+            }
+        }
+        table.row(cells);
+    }
+    table
+}
+
+/// Table 1: text diversity per group and embedding model.
+pub fn text_diversity(t: &TextDiversityTable) -> Table {
+    let mut columns = vec!["group".to_owned(), "#N".to_owned()];
+    columns.extend(
+        t.models
+            .iter()
+            .map(|m| format!("#{} ({}, {} d)", m.name, m.model, m.dimensions)),
+    );
+    let mut table = Table::new(columns);
+    for r in &t.rows {
+        let mut cells = vec![r.group.as_str().into(), n(r.n)];
+        for m in 0..t.models.len() {
+            cells.push(
+                match (
+                    r.div.get(m).copied().flatten(),
+                    r.errors.get(m).cloned().flatten(),
+                ) {
+                    (Some(v), _) => Cell::text(format!("{v:.3}")),
+                    (None, Some(e)) => Cell(vec![Span::Undefined(e)]),
+                    (None, None) => Cell::missing(),
+                },
+            );
+        }
+        table.row(cells);
+    }
+    table
+}
+
+/// Table 2: world-model evaluation image MSE ×10³ per group and training budget.
+pub fn dynamics_diversity(d: &DiversityResults) -> Table {
+    let mut budgets: Vec<u32> = d.dynamics.iter().map(|f| f.budget).collect();
+    budgets.sort_unstable();
+    budgets.dedup();
+    let mut groups: Vec<&str> = Vec::new();
+    for f in &d.dynamics {
+        if !groups.contains(&f.group.as_str()) {
+            groups.push(&f.group);
+        }
+    }
+    let mut columns = vec!["group".to_owned(), "#evaluated on".to_owned()];
+    columns.extend(budgets.iter().map(|b| format!("#{b} episodes")));
+    let mut table = Table::new(columns);
+    for g in groups {
+        let fits: Vec<_> = d.dynamics.iter().filter(|f| f.group == g).collect();
+        let eval = fits.iter().map(|f| f.eval_episodes).max().unwrap_or(0);
+        let mut cells = vec![g.into(), n(eval)];
+        for b in &budgets {
+            cells.push(match fits.iter().find(|f| f.budget == *b) {
+                Some(f) if f.train_episodes < f.budget => Cell::text(format!(
+                    "{:.3} ({} trained)",
+                    f.eval_image_mse * 1e3,
+                    f.train_episodes
+                )),
+                Some(f) => Cell::text(format!("{:.3}", f.eval_image_mse * 1e3)),
+                None => Cell::missing(),
+            });
+        }
+        table.row(cells);
+    }
+    table
+}
+
+/// Diversity jobs that failed, those whose name starts with `prefix`.
+pub fn diversity_errors(d: &DiversityResults, prefix: &str) -> Table {
+    let mut table = Table::new(["diversity job", "error"]);
+    for (job, e) in d.errors.iter().filter(|(j, _)| j.starts_with(prefix)) {
+        table.row(vec![job.as_str().into(), e.as_str().into()]);
+    }
+    table
+}
+
+/// Table 3: each group's trained policy on its training and held-out variations.
+pub fn generalization(g: &GeneralizationResults) -> Table {
+    let mut table = Table::new([
+        "group",
+        "model",
+        "trained on",
+        "#training variations",
+        "#held-out variations",
+        "notes",
+    ]);
+    for x in &g.groups {
+        let mut notes = Vec::new();
+        if x.did_not_learn() {
+            notes.push(format!(
+                "fails on its own training variations (< {:.0} %): it did not learn the group, \
+                 so the held-out rate says nothing about generalization",
+                LEARNT_THRESHOLD * 100.0
+            ));
+        }
+        if x.pending > 0 {
+            notes.push(format!("{} episodes still running", x.pending));
+        }
+        if !x.errors.is_empty() {
+            notes.push(format!("{} episodes failed to run", x.errors.len()));
+        }
+        table.row(vec![
+            x.group.as_str().into(),
+            x.model.as_str().into(),
+            Cell::text(format!("{} episodes, {} steps", x.fit.clips, x.fit.steps)),
+            proportion(&x.train),
+            proportion(&x.held_out),
+            notes.join("; ").into(),
+        ]);
+    }
+    table
+}
+
+/// Per task and policy: real success, the proxy's verdicts and the judges' view.
+pub fn ranking_rows(r: &RankingResults) -> Table {
+    let rate = |p: &assay_stats::stats::Proportion| match p.rate {
+        Some(x) => Cell::text(format!("{:.0} % ({}/{})", x * 100.0, p.successes, p.trials)),
+        None => Cell::missing(),
+    };
+    let mut table = Table::new([
+        "task",
+        "policy",
+        "#real (sim)",
+        "#world-model proxy",
+        "#proxy mean p",
+        "imagined, judged (mean completion)",
+        "#judged completion",
+    ]);
+    for row in &r.rows {
+        let mut judged = Cell::default();
+        for (i, j) in row.judged_proxy.iter().enumerate() {
+            if i > 0 {
+                judged = judged.and(Span::Break);
+            }
+            judged = judged.and(Span::Text(format!(
+                "{}: {} ({})",
+                j.judge,
+                rate(&j.success).plain(),
+                j.mean_completion.map_or("–".into(), |c| format!("{c:.1}"))
+            )));
+        }
+        if judged.0.is_empty() {
+            judged = Cell::missing();
+        }
+        table.row(vec![
+            Cell(vec![Span::TaskLink(row.task_id.clone())]),
+            row.policy.as_str().into(),
+            rate(&row.real),
+            row.proxy.as_ref().map_or_else(Cell::missing, rate),
+            row.proxy_mean_p
+                .map_or_else(Cell::missing, |p| Cell::text(format!("{p:.2}"))),
+            judged,
+            row.judged_completion
+                .map_or_else(Cell::missing, |c| Cell::text(format!("{c:.1}"))),
+        ]);
+    }
+    table
+}
+
+/// Per group: the world model and the frame judge the proxy used.
+pub fn proxy_models(r: &RankingResults) -> Table {
+    let mut table = Table::new([
+        "group",
+        "#world-model steps",
+        "#one-step image MSE ×10³",
+        "#judge examples (successes)",
+        "#judge train accuracy",
+        "#mean last-frame MSE ×10³",
+    ]);
+    for g in &r.groups {
+        let mse = g.predictions.iter().map(|p| p.last_frame_mse).sum::<f64>()
+            / g.predictions.len().max(1) as f64;
+        table.row(vec![
+            g.group.as_str().into(),
+            n(g.world_model.steps),
+            Cell::text(format!("{:.3}", g.world_model.eval_image_mse * 1e3)),
+            Cell::text(format!("{} ({})", g.judge_examples, g.judge_positives)),
+            Cell::text(format!("{:.2}", g.judge_train_accuracy)),
+            Cell::text(format!("{:.3}", mse * 1e3)),
+        ]);
+    }
+    table
+}
+
+/// One comparison's policies, by real success: R and R_S.
+pub fn ranking_policies(c: &Comparison) -> Table {
+    let mut table = Table::new([
+        "policy".to_owned(),
+        "#tasks".to_owned(),
+        format!("#R ({})", c.real),
+        format!("#R_S ({})", c.proxy),
+    ]);
+    let with_trials = |rate: f64, trials: Option<u64>| match trials {
+        Some(t) => Cell::text(format!("{rate:.3} ({t} trials)")),
+        None => Cell::text(format!("{rate:.3}")),
+    };
+    let mut order: Vec<&PolicyPoint> = c.policies.iter().collect();
+    order.sort_by(|a, b| {
+        b.real
+            .total_cmp(&a.real)
+            .then(b.proxy.total_cmp(&a.proxy))
+            .then(a.policy.cmp(&b.policy))
+    });
+    for p in order {
+        table.row(vec![
+            p.policy.as_str().into(),
+            n(p.tasks),
+            with_trials(p.real, p.real_trials),
+            with_trials(p.proxy, p.proxy_trials),
+        ]);
+    }
+    table
+}
+
+/// One comparison's four statistics with their intervals.
+pub fn ranking_statistics(c: &Comparison) -> Table {
+    let mut table = Table::new(["statistic", "#value [95 % interval]"]);
+    for (name, e) in c.statistics() {
+        table.row(vec![name.into(), estimate(e)]);
+    }
+    table
+}
+
+/// Formats unix milliseconds as UTC `YYYY-MM-DD hh:mm:ss UTC`.
+pub fn utc(ms: i64) -> String {
+    let secs = ms.div_euclid(1000);
+    let (days, rem) = (secs.div_euclid(86_400), secs.rem_euclid(86_400));
+    // Howard Hinnant's civil_from_days.
+    let z = days + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z - era * 146_097;
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let d = doy - (153 * mp + 2) / 5 + 1;
+    let m = if mp < 10 { mp + 3 } else { mp - 9 };
+    let y = yoe + era * 400 + i64::from(m <= 2);
+    format!(
+        "{y:04}-{m:02}-{d:02} {:02}:{:02}:{:02} UTC",
+        rem / 3600,
+        rem % 3600 / 60,
+        rem % 60
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn utc_dates() {
+        assert_eq!(utc(0), "1970-01-01 00:00:00 UTC");
+        assert_eq!(utc(1_700_000_000_000), "2023-11-14 22:13:20 UTC");
+    }
+}

@@ -1,0 +1,286 @@
+//! The report's presentation model: the tables both `report.md` and `report.html` show, built
+//! once from the results ([`crate::tables`]) and written by two small renderers
+//! ([`Table::markdown`] here, `html::table` for the page). A cell is a list of spans, so what a
+//! cell means (code, a strong total, an undefined statistic and its reason) is decided once and
+//! each format only decides how it looks.
+//!
+//! Owns: the model and the number formats every table shares. Never escapes for a format
+//! (each renderer does), never aggregates.
+
+use assay_stats::agreement::Estimate;
+use assay_stats::stats::Proportion;
+
+/// One piece of a cell.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Span {
+    Text(String),
+    /// An identifier: a task id, a judge name, a predicate, a hash.
+    Code(String),
+    /// Emphasised (totals).
+    Strong(String),
+    /// A statistic with no value, with the reason.
+    Undefined(String),
+    /// A value that does not exist here (no trials, no fit): `–`.
+    Missing,
+    /// A line break inside the cell (HTML `<br>`, Markdown `; `).
+    Break,
+    /// A link to a task's own section in the page (HTML); its text elsewhere.
+    TaskLink(String),
+}
+
+/// A table cell: spans shown one after another.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Cell(pub Vec<Span>);
+
+impl Cell {
+    pub fn text(s: impl Into<String>) -> Self {
+        Self(vec![Span::Text(s.into())])
+    }
+    pub fn code(s: impl Into<String>) -> Self {
+        Self(vec![Span::Code(s.into())])
+    }
+    pub fn strong(s: impl Into<String>) -> Self {
+        Self(vec![Span::Strong(s.into())])
+    }
+    pub fn missing() -> Self {
+        Self(vec![Span::Missing])
+    }
+    /// `–` for an empty text.
+    pub fn or_missing(s: &str) -> Self {
+        if s.is_empty() {
+            Self::missing()
+        } else {
+            Self::text(s)
+        }
+    }
+    /// Adds a span.
+    pub fn and(mut self, span: Span) -> Self {
+        self.0.push(span);
+        self
+    }
+    /// The cell's text without any format (for tests and plain output).
+    pub fn plain(&self) -> String {
+        let mut out = String::new();
+        for s in &self.0 {
+            match s {
+                Span::Text(t) | Span::Code(t) | Span::Strong(t) | Span::TaskLink(t) => {
+                    out.push_str(t)
+                }
+                Span::Undefined(why) => {
+                    out.push_str("undefined: ");
+                    out.push_str(why);
+                }
+                Span::Missing => out.push('–'),
+                Span::Break => out.push_str("; "),
+            }
+        }
+        out
+    }
+}
+
+impl From<String> for Cell {
+    fn from(s: String) -> Self {
+        Self::text(s)
+    }
+}
+
+impl From<&str> for Cell {
+    fn from(s: &str) -> Self {
+        Self::text(s)
+    }
+}
+
+/// A column: its title and whether its cells are numbers (right-aligned).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Column {
+    pub title: String,
+    pub numeric: bool,
+}
+
+/// A row; a `total` row is shown emphasised (a table's last line over all groups).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Row {
+    pub cells: Vec<Cell>,
+    pub total: bool,
+}
+
+/// A table of the report.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Table {
+    pub columns: Vec<Column>,
+    pub rows: Vec<Row>,
+}
+
+impl Table {
+    /// A table with these columns; a title starting with `#` is numeric (the `#` is dropped).
+    pub fn new<S: AsRef<str>>(columns: impl IntoIterator<Item = S>) -> Self {
+        Self {
+            columns: columns
+                .into_iter()
+                .map(|c| {
+                    let c = c.as_ref();
+                    match c.strip_prefix('#') {
+                        Some(title) => Column {
+                            title: title.to_owned(),
+                            numeric: true,
+                        },
+                        None => Column {
+                            title: c.to_owned(),
+                            numeric: false,
+                        },
+                    }
+                })
+                .collect(),
+            rows: Vec::new(),
+        }
+    }
+
+    pub fn row(&mut self, cells: Vec<Cell>) {
+        debug_assert_eq!(cells.len(), self.columns.len(), "a row per column");
+        self.rows.push(Row {
+            cells,
+            total: false,
+        });
+    }
+
+    pub fn total(&mut self, cells: Vec<Cell>) {
+        debug_assert_eq!(cells.len(), self.columns.len(), "a row per column");
+        self.rows.push(Row { cells, total: true });
+    }
+
+    /// As a GitHub-flavoured Markdown table, ending with a newline.
+    pub fn markdown(&self) -> String {
+        let mut out = String::from("|");
+        for c in &self.columns {
+            out.push(' ');
+            out.push_str(&md_text(&c.title));
+            out.push_str(" |");
+        }
+        out.push_str("\n|");
+        for c in &self.columns {
+            out.push_str(if c.numeric { "---:|" } else { "---|" });
+        }
+        out.push('\n');
+        for r in &self.rows {
+            out.push('|');
+            for c in &r.cells {
+                out.push(' ');
+                out.push_str(&md_cell(c, r.total));
+                out.push_str(" |");
+            }
+            out.push('\n');
+        }
+        out
+    }
+}
+
+/// Markdown text in a table: pipes escaped, one line.
+pub fn md_text(s: &str) -> String {
+    s.replace('|', "\\|").replace(['\n', '\r'], " ")
+}
+
+/// A cell as Markdown; the spans of a total row are emphasised.
+pub fn md_cell(c: &Cell, total: bool) -> String {
+    let mut out = String::new();
+    for s in &c.0 {
+        match s {
+            Span::Text(t) if total && !t.trim().is_empty() => {
+                out.push_str(&format!("**{}**", md_text(t)))
+            }
+            Span::Text(t) => out.push_str(&md_text(t)),
+            Span::Code(t) | Span::TaskLink(t) => {
+                out.push_str(&format!("`{}`", md_text(t).replace('`', "'")))
+            }
+            Span::Strong(t) => out.push_str(&format!("**{}**", md_text(t))),
+            Span::Undefined(why) => out.push_str(&format!("undefined: {}", md_text(why))),
+            Span::Missing => out.push('–'),
+            Span::Break => out.push_str("; "),
+        }
+    }
+    out
+}
+
+/// Two decimals, never `-0.00`.
+pub fn num2(v: f64) -> String {
+    let s = format!("{v:.2}");
+    if s == "-0.00" { "0.00".into() } else { s }
+}
+
+/// A success rate with its count and Wilson interval: `80 % (4/5) [38, 96]`; `–` without
+/// trials.
+pub fn proportion(p: &Proportion) -> Cell {
+    match (p.rate, p.ci95) {
+        (Some(r), Some([lo, hi])) => Cell::text(format!(
+            "{:.0} % ({}/{}) [{:.0}, {:.0}]",
+            r * 100.0,
+            p.successes,
+            p.trials,
+            lo * 100.0,
+            hi * 100.0
+        )),
+        (Some(r), None) => Cell::text(format!("{:.0} % ({}/{})", r * 100.0, p.successes, p.trials)),
+        _ => Cell::missing(),
+    }
+}
+
+/// An estimate with its 95 % interval (`0.812 [0.501, 0.934]`), the value alone with why it has
+/// no interval, or undefined with the reason — never 0 or NaN.
+pub fn estimate(e: &Estimate) -> Cell {
+    match e.value {
+        Some(v) if v.is_finite() => match (e.ci95, &e.no_interval) {
+            (Some([lo, hi]), _) => Cell::text(format!("{v:.3} [{lo:.3}, {hi:.3}]")),
+            (None, Some(why)) => Cell::text(format!("{v:.3} (no interval: {why})")),
+            (None, None) => Cell::text(format!("{v:.3}")),
+        },
+        _ => Cell(vec![Span::Undefined(
+            e.undefined.clone().unwrap_or_else(|| "no value".into()),
+        )]),
+    }
+}
+
+/// `3.50 (var 0.25, n 4)`, `–` where absent.
+pub fn score(mean: Option<f64>, variance: Option<f64>, n: u64) -> Cell {
+    match mean {
+        Some(m) => Cell::text(format!(
+            "{} (var {}, n {n})",
+            num2(m),
+            variance.map_or("–".into(), num2)
+        )),
+        None => Cell::missing(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn markdown_tables_escape_and_align() {
+        let mut t = Table::new(["name", "#n"]);
+        t.row(vec![
+            Cell::code("a|b").and(Span::Text(" x\ny".into())),
+            "1".into(),
+        ]);
+        t.total(vec![Cell::text("all"), Cell::missing()]);
+        assert_eq!(
+            t.markdown(),
+            "| name | n |\n|---|---:|\n| `a\\|b` x y | 1 |\n| **all** | – |\n"
+        );
+    }
+
+    #[test]
+    fn numbers_have_one_format() {
+        assert_eq!(num2(-0.001), "0.00");
+        let p = Proportion::new(4, 5);
+        assert!(proportion(&p).plain().starts_with("80 % (4/5) ["));
+        assert_eq!(proportion(&Proportion::new(0, 0)).plain(), "–");
+        let e = Estimate {
+            value: None,
+            ci95: None,
+            undefined: Some("needs 2".into()),
+            no_interval: None,
+        };
+        assert_eq!(estimate(&e).plain(), "undefined: needs 2");
+        assert_eq!(score(Some(3.5), None, 2).plain(), "3.50 (var –, n 2)");
+    }
+}
