@@ -6,10 +6,18 @@ use anyhow::{Context, bail};
 use assay_proto::v1 as pb;
 
 /// Every `.yaml`, `.yml` and `.json` file under `paths` (folders are walked, sorted by path).
+///
+/// Each path given is a root the walk stays in: a symbolic link is followed only when what it
+/// points to is inside that root (a link out of it is refused, naming both), and Assay output
+/// folders (those holding [`crate::outdir::MARKER`]) are skipped, so a run never reads its own
+/// report as a task.
 pub fn collect(paths: &[PathBuf]) -> anyhow::Result<Vec<pb::TaskDocument>> {
     let mut files = Vec::new();
     for p in paths {
-        walk(p, &mut files).with_context(|| format!("reading {}", p.display()))?;
+        let root = p
+            .canonicalize()
+            .with_context(|| format!("reading {}", p.display()))?;
+        walk(p, &root, &mut files).with_context(|| format!("reading {}", p.display()))?;
     }
     if files.is_empty() {
         bail!(
@@ -41,10 +49,28 @@ pub fn collect(paths: &[PathBuf]) -> anyhow::Result<Vec<pb::TaskDocument>> {
         .collect()
 }
 
-fn walk(p: &Path, out: &mut Vec<PathBuf>) -> std::io::Result<()> {
+fn walk(p: &Path, root: &Path, out: &mut Vec<PathBuf>) -> std::io::Result<()> {
+    let meta = std::fs::symlink_metadata(p)?;
+    if meta.file_type().is_symlink() {
+        let target = p.canonicalize()?;
+        if !target.starts_with(root) {
+            return Err(std::io::Error::new(
+                std::io::ErrorKind::PermissionDenied,
+                format!(
+                    "{} links to {}, outside the task folder {}: refusing to follow it",
+                    p.display(),
+                    target.display(),
+                    root.display()
+                ),
+            ));
+        }
+    }
     if p.is_dir() {
+        if crate::outdir::is_output_folder(p) {
+            return Ok(());
+        }
         for entry in std::fs::read_dir(p)? {
-            walk(&entry?.path(), out)?;
+            walk(&entry?.path(), root, out)?;
         }
     } else if p.is_file() {
         if assay_spec::spec::Format::from_path(&p.display().to_string()).is_some() {
@@ -57,4 +83,52 @@ fn walk(p: &Path, out: &mut Vec<PathBuf>) -> std::io::Result<()> {
         ));
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const TASK: &str = "id: t\n";
+
+    fn origins(docs: &[pb::TaskDocument]) -> Vec<String> {
+        docs.iter().map(|d| d.origin.clone()).collect()
+    }
+
+    #[test]
+    fn output_folders_are_skipped() {
+        let dir = tempfile::tempdir().unwrap();
+        let tasks = dir.path().join("tasks");
+        std::fs::create_dir_all(tasks.join("out")).unwrap();
+        std::fs::write(tasks.join("a.yaml"), TASK).unwrap();
+        std::fs::write(tasks.join("out/report.json"), "{}").unwrap();
+        std::fs::write(tasks.join("out").join(crate::outdir::MARKER), "{}").unwrap();
+        let docs = collect(std::slice::from_ref(&tasks)).unwrap();
+        assert_eq!(origins(&docs), [tasks.join("a.yaml").display().to_string()]);
+    }
+
+    #[cfg(unix)]
+    #[test]
+    fn links_out_of_the_task_folder_are_refused_and_links_inside_followed() {
+        let dir = tempfile::tempdir().unwrap();
+        let outside = dir.path().join("outside");
+        let tasks = dir.path().join("tasks");
+        std::fs::create_dir_all(&outside).unwrap();
+        std::fs::create_dir_all(tasks.join("real")).unwrap();
+        std::fs::write(outside.join("secret.yaml"), TASK).unwrap();
+        std::fs::write(tasks.join("real/a.yaml"), TASK).unwrap();
+        std::os::unix::fs::symlink(tasks.join("real"), tasks.join("alias")).unwrap();
+        let docs = collect(std::slice::from_ref(&tasks)).unwrap();
+        assert_eq!(docs.len(), 2, "{:?}", origins(&docs));
+
+        std::os::unix::fs::symlink(&outside, tasks.join("escape")).unwrap();
+        let e = format!("{:#}", collect(std::slice::from_ref(&tasks)).unwrap_err());
+        assert!(e.contains("outside the task folder"), "{e}");
+        std::fs::remove_file(tasks.join("escape")).unwrap();
+        std::os::unix::fs::symlink(outside.join("secret.yaml"), tasks.join("b.yaml")).unwrap();
+        let e = format!("{:#}", collect(std::slice::from_ref(&tasks)).unwrap_err());
+        assert!(e.contains("secret.yaml"), "{e}");
+        // The operator may name the outside folder itself: it is then the root.
+        assert_eq!(collect(std::slice::from_ref(&outside)).unwrap().len(), 1);
+    }
 }

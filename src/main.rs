@@ -5,6 +5,7 @@ mod cmd;
 mod config;
 mod docs;
 mod logging;
+mod outdir;
 mod proc;
 
 use clap::{CommandFactory, FromArgMatches, Parser, Subcommand};
@@ -95,6 +96,7 @@ fn main() -> std::process::ExitCode {
         Err(e) => e.exit(),
     };
     logging::init(&cli.log_format);
+    proc::die_with_parent();
     let result = match cli.command {
         Command::Eval(a) => cmd::eval::run(a),
         #[cfg(feature = "trainer")]

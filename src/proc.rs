@@ -9,6 +9,28 @@ use anyhow::Context;
 use nix::sys::signal::{Signal, kill};
 use nix::unistd::Pid;
 
+/// Set on every child of a local cluster to its parent's pid: the child dies with its parent
+/// ([`die_with_parent`]), so a killed `assay eval` leaves no process holding its job store.
+pub const PARENT_VAR: &str = "ASSAY_LOCAL_PARENT";
+
+/// In a child of a local cluster, asks the kernel for SIGKILL when the parent dies, and exits
+/// at once if it already has (the parent's pid no longer ours). Elsewhere does nothing.
+pub fn die_with_parent() {
+    let Some(parent) = std::env::var(PARENT_VAR)
+        .ok()
+        .and_then(|v| v.parse::<i32>().ok())
+    else {
+        return;
+    };
+    #[cfg(target_os = "linux")]
+    {
+        let _ = nix::sys::prctl::set_pdeathsig(Signal::SIGKILL);
+        if nix::unistd::getppid() != Pid::from_raw(parent) {
+            std::process::exit(1);
+        }
+    }
+}
+
 pub struct ChildProc {
     pub name: String,
     pub child: Child,
@@ -21,6 +43,7 @@ impl ChildProc {
             std::fs::File::create(log).with_context(|| format!("creating {}", log.display()))?;
         let child = Command::new(exe)
             .args(args)
+            .env(PARENT_VAR, std::process::id().to_string())
             .stdin(Stdio::null())
             .stdout(log_file.try_clone()?)
             .stderr(log_file)

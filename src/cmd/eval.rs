@@ -31,8 +31,14 @@ pub struct Args {
     #[arg(long)]
     pub trainer_capacity: Option<u32>,
     /// Output folder: report.json, report.md, artifacts/, and run/ (job store and process logs).
+    /// Run the same command again to continue an interrupted run from its job store; a folder
+    /// holding another batch, or one Assay did not make, is refused.
     #[arg(long, default_value = "assay-out")]
     pub out: PathBuf,
+    /// Start this batch in --out even if it holds another batch's run (its run/ is replaced) or
+    /// was not made by Assay (nothing but what a run writes is touched).
+    #[arg(long)]
+    pub force: bool,
     #[command(flatten)]
     pub batch: super::submit::BatchArgs,
     #[command(flatten)]
@@ -48,32 +54,23 @@ pub struct Args {
 pub fn run(mut a: Args) -> anyhow::Result<ExitCode> {
     // Read before anything starts: a bad ratings file fails now, not after the batch.
     let human = a.human.table()?;
+    // Read (and import) everything first: the output folder is claimed before anything is
+    // written into it.
+    let mut imported = Vec::new();
     let docs = match a.import {
         None => crate::docs::collect(&a.paths)?,
         Some(pipeline) => {
             let mut docs = Vec::new();
-            for (k, path) in a.paths.iter().enumerate() {
+            for path in &a.paths {
                 let batch = super::import::read(pipeline, path, None)?;
-                print!("{}", batch.report());
-                let dir = match k {
-                    0 => a.out.clone(),
-                    _ => a.out.join(format!("import-{k}")),
-                };
-                super::import::write(&batch, &dir)?;
-                println!(
-                    "imported {} of {} {pipeline} task(s) from {} ({} not imported; mapping in {})",
-                    batch.specs().len(),
-                    batch.tasks.len(),
-                    path.display(),
-                    super::import::failed(&batch),
-                    dir.join("import-report.json").display()
-                );
                 docs.extend(super::import::documents(&batch));
+                imported.push((path.clone(), batch));
             }
             anyhow::ensure!(!docs.is_empty(), "no task could be imported");
             docs
         }
     };
+    crate::outdir::check_apart(&a.out, &a.paths)?;
     let rendering = a.cluster.roles.split(',').any(|r| r.trim() == "render");
     if a.cluster.no_judge || !rendering {
         if !a.batch.judges.is_empty() {
@@ -123,9 +120,28 @@ pub fn run(mut a: Args) -> anyhow::Result<ExitCode> {
     } else if let Some(j) = a.batch.judges.iter().find(|j| *j != assay_judge::OFFLINE) {
         anyhow::bail!("judge '{j}' needs a configuration file (--config) that defines it");
     }
+    let req = a
+        .batch
+        .request(docs, &super::submit::default_name(&a.paths));
+    let claim = crate::outdir::claim(&a.out, &crate::outdir::batch_key(&req), a.force)?;
+    for (k, (path, batch)) in imported.iter().enumerate() {
+        let pipeline = a.import.expect("imported with a pipeline");
+        print!("{}", batch.report());
+        let dir = match k {
+            0 => a.out.clone(),
+            _ => a.out.join(format!("import-{k}")),
+        };
+        super::import::write(batch, &dir)?;
+        println!(
+            "imported {} of {} {pipeline} task(s) from {} ({} not imported; mapping in {})",
+            batch.specs().len(),
+            batch.tasks.len(),
+            path.display(),
+            super::import::failed(batch),
+            dir.join("import-report.json").display()
+        );
+    }
     let run_dir = a.out.join("run");
-    // Each eval starts from an empty job store: the report covers this run only.
-    let _ = std::fs::remove_dir_all(&run_dir);
     let cluster = super::cluster::LocalCluster::start(
         &super::cluster::Plan {
             workers: a.cluster.workers,
@@ -145,28 +161,40 @@ pub fn run(mut a: Args) -> anyhow::Result<ExitCode> {
     let addr = cluster.addr.clone();
     let telemetry = cluster.telemetry.clone();
 
-    let req = a
-        .batch
-        .request(docs, &super::submit::default_name(&a.paths));
     let quiet = a.quiet;
+    let out = a.out.clone();
     // A local process that dies (a crash, the OOM killer) would leave the batch waiting for it
-    // forever: the watch below stops with the process's name and log instead.
+    // forever: the watch below stops, and the report of what finished is still written.
     let watched = cluster.watched();
     let outcome = super::block_on(async {
         let mut c = super::client(&addr).await?;
-        let r = c.submit_batch(req).await?.into_inner();
-        super::print_rejected(&r.rejected);
-        eprintln!(
-            "batch {}: {} tasks accepted, {} rejected, {} episodes",
-            r.batch_id,
-            r.accepted_tasks,
-            r.rejected.len(),
-            r.shards
-        );
+        let (batch_id, rejected) = match &claim {
+            crate::outdir::Claim::Resume { batch_id } => {
+                eprintln!(
+                    "batch {batch_id}: going on from the job store in {} (finished episodes are \
+                     kept)",
+                    run_dir.display()
+                );
+                (batch_id.clone(), None)
+            }
+            crate::outdir::Claim::Fresh => {
+                let r = c.submit_batch(req).await?.into_inner();
+                crate::outdir::submitted(&out, &r.batch_id)?;
+                super::print_rejected(&r.rejected);
+                eprintln!(
+                    "batch {}: {} tasks accepted, {} rejected, {} episodes",
+                    r.batch_id,
+                    r.accepted_tasks,
+                    r.rejected.len(),
+                    r.shards
+                );
+                (r.batch_id, Some(r.rejected.len()))
+            }
+        };
         let bar = if quiet {
             ProgressBar::hidden()
         } else {
-            ProgressBar::new(u64::from(r.shards))
+            ProgressBar::new(0)
         };
         bar.set_style(
             ProgressStyle::with_template(
@@ -212,11 +240,12 @@ pub fn run(mut a: Args) -> anyhow::Result<ExitCode> {
         }
         let mut stream = c
             .watch_batch(pb::GetBatchRequest {
-                batch_id: r.batch_id.clone(),
+                batch_id: batch_id.clone(),
             })
             .await?
             .into_inner();
         let mut last = None;
+        let mut exited = None;
         let mut check = tokio::time::interval(Duration::from_secs(1));
         loop {
             let next = tokio::select! {
@@ -228,15 +257,14 @@ pub fn run(mut a: Args) -> anyhow::Result<ExitCode> {
                 Some(None) => break,
                 None => {
                     if let Some(name) = crate::proc::first_exited(&watched) {
-                        anyhow::bail!(
-                            "the local {name} process exited while the batch ran; its log is in {}",
-                            run_dir.display()
-                        );
+                        exited = Some(name);
+                        break;
                     }
                     continue;
                 }
             };
             let finished = st.shards_done + st.shards_failed + st.shards_cancelled;
+            bar.set_length(u64::from(st.shards_total));
             bar.set_position(u64::from(finished));
             let (steps, frames) = rates
                 .lock()
@@ -282,14 +310,23 @@ pub fn run(mut a: Args) -> anyhow::Result<ExitCode> {
         }
         let report = c
             .get_report(pb::GetReportRequest {
-                batch_id: r.batch_id.clone(),
+                batch_id: batch_id.clone(),
             })
-            .await?
-            .into_inner();
-        anyhow::Ok((last, report, r.rejected.len()))
+            .await;
+        let report = match (report, &exited) {
+            (Ok(r), _) => r.into_inner(),
+            (Err(e), Some(name)) => anyhow::bail!(
+                "the local {name} process exited while the batch ran and no report could be \
+                 fetched ({e}); its log is in {}. Run the same command again to go on from the \
+                 job store",
+                run_dir.display()
+            ),
+            (Err(e), None) => return Err(e.into()),
+        };
+        anyhow::Ok((last, report, rejected, exited))
     });
     cluster.stop();
-    let (last, report, rejected) = outcome?;
+    let (last, report, rejected, exited) = outcome?;
     let parsed = super::report::parse(&report)?;
     super::report::write(
         &a.out,
@@ -310,7 +347,16 @@ pub fn run(mut a: Args) -> anyhow::Result<ExitCode> {
         last.shards_failed,
         a.out.join("report.html").display()
     );
+    if let Some(name) = exited {
+        eprintln!(
+            "the local {name} process exited while the batch ran (its log is in {}): the report \
+             holds what finished; run the same command again to go on from the job store",
+            a.out.join("run").display()
+        );
+        return Ok(ExitCode::FAILURE);
+    }
     let completed = last.state == pb::BatchState::Completed as i32;
+    let rejected = rejected.unwrap_or(parsed.results.invalid_tasks.len());
     let clean = rejected == 0 && last.shards_failed == 0;
     Ok(if completed && (clean || !a.strict) {
         ExitCode::SUCCESS

@@ -14,9 +14,14 @@ pub struct Args {
     /// Write report.md and report.html again from this report.json, without a coordinator.
     #[arg(long, value_name = "REPORT_JSON")]
     pub from: Option<PathBuf>,
-    /// Folder for report.json, report.md, report.html and the figures.
-    #[arg(long, default_value = ".")]
-    pub out: PathBuf,
+    /// Folder for report.json, report.md, report.html and the figures (default: beside the
+    /// report.json of --from, or `report-BATCH` for a coordinator's batch). A folder holding
+    /// another batch's report is refused unless --force.
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// Write into --out even when it holds the report of another batch.
+    #[arg(long)]
+    pub force: bool,
     /// The artifact store, for the scene views and keyframes in report.html (default: the
     /// `artifacts` folder beside the report, where `assay eval` puts it).
     #[arg(long, env = "ASSAY_ARTIFACTS")]
@@ -142,38 +147,72 @@ pub fn ranking_lines(report: &assay_report::report::Report) -> Vec<String> {
         .collect()
 }
 
+/// Refuses to write `report` into `out` when `out` holds the report of another batch.
+fn check_out(out: &Path, report: &assay_report::report::Report, force: bool) -> anyhow::Result<()> {
+    let existing = out.join("report.json");
+    let Ok(text) = std::fs::read_to_string(&existing) else {
+        return Ok(());
+    };
+    let theirs = serde_json::from_str::<assay_report::report::Report>(&text)
+        .map(|r| r.run.batch_id)
+        .unwrap_or_else(|_| "(unreadable)".into());
+    if theirs != report.run.batch_id && !force {
+        anyhow::bail!(
+            "{} is the report of batch {theirs}, not {}: refusing to replace it; choose another \
+             --out, or pass --force",
+            existing.display(),
+            report.run.batch_id
+        );
+    }
+    Ok(())
+}
+
 pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     let human = a.human.table()?;
-    let artifacts = a.artifacts.clone().unwrap_or_else(|| {
-        a.from
-            .as_deref()
-            .and_then(Path::parent)
-            .unwrap_or(&a.out)
-            .join(assay_report::report::ARTIFACTS_LINK)
-    });
     if let Some(from) = &a.from {
         let text =
             std::fs::read_to_string(from).with_context(|| format!("reading {}", from.display()))?;
         let report: assay_report::report::Report =
             serde_json::from_str(&text).with_context(|| format!("{}", from.display()))?;
-        write(&a.out, &report, &artifacts, human.as_ref())?;
+        let beside = from
+            .parent()
+            .filter(|p| !p.as_os_str().is_empty())
+            .unwrap_or(Path::new("."))
+            .to_path_buf();
+        let out = a.out.clone().unwrap_or_else(|| beside.clone());
+        let artifacts = a
+            .artifacts
+            .clone()
+            .unwrap_or_else(|| beside.join(assay_report::report::ARTIFACTS_LINK));
+        check_out(&out, &report, a.force)?;
+        write(&out, &report, &artifacts, human.as_ref())?;
         eprintln!(
             "wrote report.json, report.md and report.html in {}",
-            a.out.display()
+            out.display()
         );
         return Ok(ExitCode::SUCCESS);
     }
     let batch = a.batch.clone().unwrap_or_default();
+    let out = a
+        .out
+        .clone()
+        .unwrap_or_else(|| PathBuf::from(format!("report-{batch}")));
+    let artifacts = a
+        .artifacts
+        .clone()
+        .unwrap_or_else(|| out.join(assay_report::report::ARTIFACTS_LINK));
     super::block_on(async move {
         let mut c = super::client(&a.coordinator).await?;
         let r = c
             .get_report(pb::GetReportRequest { batch_id: batch })
             .await?
             .into_inner();
-        write(&a.out, &parse(&r)?, &artifacts, human.as_ref())?;
+        let report = parse(&r)?;
+        check_out(&out, &report, a.force)?;
+        write(&out, &report, &artifacts, human.as_ref())?;
         eprintln!(
             "wrote report.json, report.md and report.html in {}{}",
-            a.out.display(),
+            out.display(),
             if r.r#final {
                 ""
             } else {

@@ -391,3 +391,132 @@ fn articulated_objects_arms_pads_and_piles_are_rendered_and_judged() {
         }
     }
 }
+
+/// Files under `dir`, at any depth.
+fn files_under(dir: &std::path::Path) -> usize {
+    std::fs::read_dir(dir).map_or(0, |entries| {
+        entries
+            .flatten()
+            .map(|e| {
+                let p = e.path();
+                if p.is_dir() { files_under(&p) } else { 1 }
+            })
+            .sum()
+    })
+}
+
+/// SIGKILL of the whole `assay eval` mid-batch (its local coordinator and workers die with it),
+/// then the same command again: it goes on with the same batch from its job store, finishes, and
+/// its results equal a clean run's. An output folder holding another batch is refused, with
+/// nothing of it removed.
+#[test]
+fn an_eval_killed_mid_batch_goes_on_from_its_job_store() {
+    let dir = tempfile::tempdir().unwrap();
+    let (out, clean) = (dir.path().join("out"), dir.path().join("clean"));
+    let args = |out: &std::path::Path| -> Vec<String> {
+        [
+            "eval",
+            "tests/fixtures/small",
+            "--seeds",
+            "6",
+            "--workers",
+            "1",
+            "--roles",
+            "sim",
+            "--no-diversity",
+            "--quiet",
+            "--out",
+        ]
+        .iter()
+        .map(|s| s.to_string())
+        .chain([out.display().to_string()])
+        .collect()
+    };
+    let mut run = Command::new(bin())
+        .args(args(&out))
+        .current_dir(repo())
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    // Kill it once the batch is submitted and some, not all, of its 24 episodes are stored.
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(300);
+    let batch_id = loop {
+        assert!(std::time::Instant::now() < deadline, "no episode finished");
+        let marker: Option<serde_json::Value> = std::fs::read_to_string(out.join("assay-run.json"))
+            .ok()
+            .and_then(|t| serde_json::from_str(&t).ok());
+        let id = marker.and_then(|m| m["batch_id"].as_str().map(str::to_owned));
+        if let Some(id) = id
+            && files_under(&out.join("artifacts")) >= 2
+        {
+            break id;
+        }
+        assert!(
+            run.try_wait().unwrap().is_none(),
+            "eval ended before it was killed"
+        );
+        std::thread::sleep(std::time::Duration::from_millis(100));
+    };
+    run.kill().unwrap();
+    run.wait().unwrap();
+    // The local processes follow their parent (the kernel's parent-death signal).
+    std::thread::sleep(std::time::Duration::from_secs(1));
+    assert!(
+        !out.join("report.json").exists(),
+        "killed before it finished"
+    );
+
+    let again = Command::new(bin())
+        .args(args(&out))
+        .current_dir(repo())
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&again.stderr);
+    assert!(again.status.success(), "{stderr}");
+    assert!(stderr.contains("going on from the job store"), "{stderr}");
+    let resumed = read_report(&out);
+    assert_eq!(resumed.run.batch_id, batch_id, "the same batch went on");
+    assert_eq!(resumed.results.totals.episodes_completed, 24);
+
+    let fresh = Command::new(bin())
+        .args(args(&clean))
+        .current_dir(repo())
+        .output()
+        .unwrap();
+    assert!(fresh.status.success());
+    assert_eq!(
+        serde_json::to_value(&resumed.results).unwrap(),
+        serde_json::to_value(&read_report(&clean).results).unwrap(),
+        "a resumed run gives the clean run's results"
+    );
+
+    // Another batch into the same folder is refused, and nothing of the first is removed.
+    let mut other = args(&out);
+    other[3] = "2".into();
+    let refused = Command::new(bin())
+        .args(&other)
+        .current_dir(repo())
+        .output()
+        .unwrap();
+    assert!(!refused.status.success());
+    let stderr = String::from_utf8_lossy(&refused.stderr);
+    assert!(
+        stderr.contains("holds an Assay run of another batch"),
+        "{stderr}"
+    );
+    assert!(out.join("run/jobs.db").is_file() && out.join("report.json").is_file());
+    // A task folder is never an output folder.
+    let mut into_tasks = args(&out);
+    *into_tasks.last_mut().unwrap() = "tests/fixtures/small".into();
+    let refused = Command::new(bin())
+        .args(&into_tasks)
+        .current_dir(repo())
+        .output()
+        .unwrap();
+    assert!(
+        String::from_utf8_lossy(&refused.stderr).contains("among its tasks"),
+        "{}",
+        String::from_utf8_lossy(&refused.stderr)
+    );
+}

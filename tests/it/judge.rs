@@ -159,7 +159,9 @@ price_output_per_mtok = 10.0
     assert_eq!(transcripts, 4);
 
     // The same batch again (a fresh job store over the same artifact store): no new request,
-    // the same scores and the same item errors.
+    // the same scores and the same item errors. Without its job store the run starts anew
+    // (with it, it would go on from it: nothing left to do).
+    std::fs::remove_dir_all(out.join("run")).unwrap();
     let o = eval(&out, &config, "offline,vlm");
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     assert_eq!(f.count(), got.len(), "the rerun made new requests");
