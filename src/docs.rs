@@ -49,6 +49,46 @@ pub fn collect(paths: &[PathBuf]) -> anyhow::Result<Vec<pb::TaskDocument>> {
         .collect()
 }
 
+/// The folders a batch's tasks may read asset files from: each task path given (a folder, or a
+/// file's folder), and each `--asset-root` — or, when none is given, the working folder (so a
+/// project's tasks reach its shared assets folder, and nothing above the project). Canonical.
+/// The operator sets them; nothing in a task widens them (`TaskSpec::check_asset_roots`).
+pub fn asset_roots(paths: &[PathBuf], extra: &[PathBuf]) -> anyhow::Result<Vec<PathBuf>> {
+    let mut roots = Vec::new();
+    if extra.is_empty() {
+        roots.push(
+            std::env::current_dir()
+                .and_then(|d| d.canonicalize())
+                .context("the working folder")?,
+        );
+    }
+    for p in paths {
+        let c = p
+            .canonicalize()
+            .with_context(|| format!("reading {}", p.display()))?;
+        let dir = if c.is_dir() {
+            c
+        } else {
+            c.parent().map(Path::to_path_buf).unwrap_or(c)
+        };
+        roots.push(dir);
+    }
+    for p in extra {
+        roots.push(
+            p.canonicalize()
+                .with_context(|| format!("--asset-root {}", p.display()))?,
+        );
+    }
+    roots.sort();
+    roots.dedup();
+    Ok(roots)
+}
+
+/// As strings, for a batch request.
+pub fn root_strings(roots: &[PathBuf]) -> Vec<String> {
+    roots.iter().map(|r| r.display().to_string()).collect()
+}
+
 fn walk(p: &Path, root: &Path, out: &mut Vec<PathBuf>) -> std::io::Result<()> {
     let meta = std::fs::symlink_metadata(p)?;
     if meta.file_type().is_symlink() {

@@ -38,9 +38,28 @@ pub struct ChildProc {
 
 impl ChildProc {
     pub fn spawn(name: &str, args: &[String], log: &Path) -> anyhow::Result<Self> {
+        Self::spawn_logging(name, args, log, false)
+    }
+
+    /// Starts the process again after it exited: its log is appended to, not replaced.
+    pub fn respawn(name: &str, args: &[String], log: &Path) -> anyhow::Result<Self> {
+        Self::spawn_logging(name, args, log, true)
+    }
+
+    fn spawn_logging(
+        name: &str,
+        args: &[String],
+        log: &Path,
+        append: bool,
+    ) -> anyhow::Result<Self> {
         let exe = std::env::current_exe().context("locating the assay binary")?;
-        let log_file =
-            std::fs::File::create(log).with_context(|| format!("creating {}", log.display()))?;
+        let log_file = std::fs::OpenOptions::new()
+            .create(true)
+            .write(true)
+            .append(append)
+            .truncate(!append)
+            .open(log)
+            .with_context(|| format!("creating {}", log.display()))?;
         let child = Command::new(exe)
             .args(args)
             .env(PARENT_VAR, std::process::id().to_string())

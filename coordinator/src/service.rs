@@ -70,7 +70,10 @@ fn spec_error_to_pb(e: &SpecError) -> pb::SpecError {
 }
 
 /// Parses and validates every document; returns the accepted tasks and every problem found.
-pub fn plan_tasks(docs: &[pb::TaskDocument]) -> (Vec<PlannedTask>, Vec<SpecError>) {
+pub fn plan_tasks(
+    docs: &[pb::TaskDocument],
+    asset_roots: &[std::path::PathBuf],
+) -> (Vec<PlannedTask>, Vec<SpecError>) {
     let mut planned: Vec<PlannedTask> = Vec::new();
     let mut errors = Vec::new();
     let mut seen: BTreeMap<String, String> = BTreeMap::new();
@@ -102,6 +105,15 @@ pub fn plan_tasks(docs: &[pb::TaskDocument]) -> (Vec<PlannedTask>, Vec<SpecError
         };
         match parse_task(&doc.content, format, &doc.origin) {
             Ok(spec) => {
+                if let Err((path, reason)) = spec.check_asset_roots(asset_roots) {
+                    errors.push(SpecError {
+                        task: Some(spec.id.clone()),
+                        origin: doc.origin.clone(),
+                        path,
+                        reason,
+                    });
+                    continue;
+                }
                 if let Some(first) = seen.get(&spec.id) {
                     errors.push(SpecError {
                         task: Some(spec.id.clone()),
@@ -277,7 +289,15 @@ impl pb::coordinator_server::Coordinator for CoordinatorService {
         for p in &policies {
             PolicySpec::parse(p).map_err(Status::invalid_argument)?;
         }
-        let (tasks, invalid) = plan_tasks(&req.tasks);
+        let roots: Vec<std::path::PathBuf> = req
+            .asset_roots
+            .iter()
+            .map(|r| {
+                let p = std::path::PathBuf::from(r);
+                p.canonicalize().unwrap_or(p)
+            })
+            .collect();
+        let (tasks, invalid) = plan_tasks(&req.tasks, &roots);
         let mut judges = req.judges.clone();
         judges.sort();
         judges.dedup();

@@ -90,7 +90,7 @@ fn store_bench(
 ) -> anyhow::Result<serde_json::Value> {
     let path = dir.join("store-bench.db");
     let mut store = Store::open(&path)?;
-    let (tasks, invalid) = assay_coordinator::service::plan_tasks(&docs());
+    let (tasks, invalid) = assay_coordinator::service::plan_tasks(&docs(), &[]);
     anyhow::ensure!(invalid.is_empty(), "the bench spec is invalid: {invalid:?}");
     let batch = bench_batch(tasks, shards);
     let t = Instant::now();
@@ -144,7 +144,7 @@ async fn actor_bench(
 ) -> anyhow::Result<serde_json::Value> {
     let path = dir.join("actor-bench.db");
     let handle = assay_coordinator::actor::StoreHandle::spawn(&path)?;
-    let (tasks, _) = assay_coordinator::service::plan_tasks(&docs());
+    let (tasks, _) = assay_coordinator::service::plan_tasks(&docs(), &[]);
     let batch = bench_batch(tasks, shards);
     handle.call(move |s| s.submit(&batch, 0)).await?;
     let outcome: Arc<str> = outcome_json().into();

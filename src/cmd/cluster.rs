@@ -2,7 +2,7 @@
 //! trainer worker when the batch needs them (`assay eval`, `assay watch`).
 
 use std::path::{Path, PathBuf};
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use anyhow::Context;
 
@@ -59,16 +59,45 @@ pub struct Plan {
     /// Start a trainer worker.
     pub training: bool,
     pub trainer_capacity: Option<u32>,
+    /// The folders the sim workers may read asset files from (their `--asset-root`).
+    pub asset_roots: Vec<PathBuf>,
+}
+
+/// Times a local process is started again after it exits before the run gives up on it.
+pub const MAX_RESTARTS: u32 = 3;
+
+/// A process of the cluster with what it takes to start it again.
+struct Supervised {
+    proc: ChildProc,
+    args: Vec<String>,
+    log: PathBuf,
+    restarts: u32,
+    /// When an exited process is due to start again (backoff: 0.5 s, 1 s, 2 s).
+    due: Option<Instant>,
+}
+
+impl Supervised {
+    fn new(proc: ChildProc, args: Vec<String>, log: PathBuf) -> Self {
+        Self {
+            proc,
+            args,
+            log,
+            restarts: 0,
+            due: None,
+        }
+    }
 }
 
 /// The running processes; stopped (SIGTERM, then SIGKILL) on [`LocalCluster::stop`] or drop.
+/// [`LocalCluster::supervise`] starts again one that exited.
 pub struct LocalCluster {
-    /// The coordinator's gRPC address (`http://127.0.0.1:PORT`).
+    /// The coordinator's gRPC address (`http://127.0.0.1:PORT`); the same after a restart.
     pub addr: String,
     /// The telemetry endpoint, when on.
     pub telemetry: Option<String>,
-    coordinator: ChildProc,
-    workers: Vec<ChildProc>,
+    coordinator: Supervised,
+    workers: Vec<Supervised>,
+    addr_file: PathBuf,
 }
 
 impl LocalCluster {
@@ -80,26 +109,27 @@ impl LocalCluster {
         let addr_file = run_dir.join("coordinator.addr");
         let _ = std::fs::remove_file(&addr_file);
         let s = |p: PathBuf| p.display().to_string();
-        let mut coordinator = ChildProc::spawn(
-            "coordinator",
-            &[
-                "coordinator".into(),
-                "--listen".into(),
-                "127.0.0.1:0".into(),
-                "--store".into(),
-                s(run_dir.join("jobs.db")),
-                "--artifacts".into(),
-                s(artifacts.to_path_buf()),
-                "--addr-file".into(),
-                s(addr_file.clone()),
-                "--metrics-listen".into(),
-                "127.0.0.1:0".into(),
-            ],
-            &run_dir.join("coordinator.log"),
-        )?;
+        let mut coordinator_args: Vec<String> = vec![
+            "coordinator".into(),
+            "--listen".into(),
+            "127.0.0.1:0".into(),
+            "--store".into(),
+            s(run_dir.join("jobs.db")),
+            "--artifacts".into(),
+            s(artifacts.to_path_buf()),
+            "--addr-file".into(),
+            s(addr_file.clone()),
+            "--metrics-listen".into(),
+            "127.0.0.1:0".into(),
+        ];
+        let coordinator_log = run_dir.join("coordinator.log");
+        let mut coordinator = ChildProc::spawn("coordinator", &coordinator_args, &coordinator_log)?;
         let announced = wait_for_file(&addr_file, Duration::from_secs(30), &mut coordinator)?;
         let mut lines = announced.lines().map(str::trim);
-        let addr = format!("http://{}", lines.next().unwrap_or_default());
+        let bound = lines.next().unwrap_or_default().to_owned();
+        let addr = format!("http://{bound}");
+        // A restarted coordinator listens where the workers and this process look for it.
+        coordinator_args[2] = bound;
         let on = |l: Option<&str>| {
             l.filter(|l| !l.is_empty() && *l != "off")
                 .map(str::to_owned)
@@ -126,11 +156,13 @@ impl LocalCluster {
             if plan.video {
                 args.push("--video".into());
             }
-            workers.push(ChildProc::spawn(
-                &format!("worker {i}"),
-                &args,
-                &run_dir.join(format!("worker-{i}.log")),
-            )?);
+            for r in &plan.asset_roots {
+                args.push("--asset-root".into());
+                args.push(s(r.clone()));
+            }
+            let log = run_dir.join(format!("worker-{i}.log"));
+            let proc = ChildProc::spawn(&format!("worker {i}"), &args, &log)?;
+            workers.push(Supervised::new(proc, args, log));
         }
         let sim_workers = workers.len();
         if !plan.judges.is_empty() {
@@ -151,11 +183,9 @@ impl LocalCluster {
                 args.push("--config".into());
                 args.push(s(path.clone()));
             }
-            workers.push(ChildProc::spawn(
-                "judge worker",
-                &args,
-                &run_dir.join("judge-0.log"),
-            )?);
+            let log = run_dir.join("judge-0.log");
+            let proc = ChildProc::spawn("judge worker", &args, &log)?;
+            workers.push(Supervised::new(proc, args, log));
         }
         if plan.training {
             let mut args: Vec<String> = vec![
@@ -180,11 +210,9 @@ impl LocalCluster {
                 args.push("--config".into());
                 args.push(s(path.clone()));
             }
-            workers.push(ChildProc::spawn(
-                "trainer worker",
-                &args,
-                &run_dir.join("trainer-0.log"),
-            )?);
+            let log = run_dir.join("trainer-0.log");
+            let proc = ChildProc::spawn("trainer worker", &args, &log)?;
+            workers.push(Supervised::new(proc, args, log));
         }
         eprintln!(
             "local cluster: coordinator at {addr}, {sim_workers} sim workers{}{}; metrics at {}; logs in {}",
@@ -206,9 +234,60 @@ impl LocalCluster {
         Ok(Self {
             addr,
             telemetry,
-            coordinator,
+            coordinator: Supervised::new(coordinator, coordinator_args, coordinator_log),
             workers,
+            addr_file,
         })
+    }
+
+    /// Starts again every process that exited, after a backoff, at most [`MAX_RESTARTS`] times
+    /// each: a worker's leases then expire and its shards run again elsewhere or on its
+    /// successor; a coordinator comes back on the same address and job store, where the workers
+    /// find it again. Returns a line per event (an exit seen, a restart); an error when a
+    /// process exited more often than it may restart.
+    pub fn supervise(&mut self) -> anyhow::Result<Vec<String>> {
+        let mut events = Vec::new();
+        let addr_file = self.addr_file.clone();
+        for (is_coordinator, p) in std::iter::once((true, &mut self.coordinator))
+            .chain(self.workers.iter_mut().map(|w| (false, w)))
+        {
+            if p.due.is_none() {
+                let Ok(Some(status)) = p.proc.child.try_wait() else {
+                    continue;
+                };
+                if p.restarts >= MAX_RESTARTS {
+                    anyhow::bail!(
+                        "the local {} process exited ({status}) after {} restarts; its log is {}",
+                        p.proc.name,
+                        p.restarts,
+                        p.log.display()
+                    );
+                }
+                let wait = Duration::from_millis(500 << p.restarts);
+                events.push(format!(
+                    "the local {} process exited ({status}); starting it again in {:.1} s \
+                     ({} of {MAX_RESTARTS})",
+                    p.proc.name,
+                    wait.as_secs_f64(),
+                    p.restarts + 1
+                ));
+                p.due = Some(Instant::now() + wait);
+            }
+            if p.due.is_some_and(|due| Instant::now() >= due) {
+                p.due = None;
+                p.restarts += 1;
+                if is_coordinator {
+                    let _ = std::fs::remove_file(&addr_file);
+                }
+                let mut proc = ChildProc::respawn(&p.proc.name, &p.args, &p.log)?;
+                if is_coordinator {
+                    wait_for_file(&addr_file, Duration::from_secs(30), &mut proc)?;
+                }
+                events.push(format!("the local {} process is running again", proc.name));
+                p.proc = proc;
+            }
+        }
+        Ok(events)
     }
 
     /// (name, pid) of every process, for `crate::proc::first_exited`: a local process that dies
@@ -217,15 +296,15 @@ impl LocalCluster {
         self.workers
             .iter()
             .chain(std::iter::once(&self.coordinator))
-            .map(|p| (p.name.clone(), p.child.id()))
+            .map(|p| (p.proc.name.clone(), p.proc.child.id()))
             .collect()
     }
 
     /// Workers first (they hand their leases back), then the coordinator.
     pub fn stop(mut self) {
         for w in &mut self.workers {
-            w.stop(Duration::from_secs(5));
+            w.proc.stop(Duration::from_secs(5));
         }
-        self.coordinator.stop(Duration::from_secs(5));
+        self.coordinator.proc.stop(Duration::from_secs(5));
     }
 }

@@ -62,6 +62,15 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
             .await
             .with_context(|| format!("binding {}", a.listen))?;
         let addr = listener.local_addr()?;
+        if !addr.ip().is_loopback() && config.token.is_none() {
+            let warning = format!(
+                "WARNING: listening on {addr}, beyond loopback, without a cluster token: anyone \
+                 who can reach this address can submit batches and lease work. Set \
+                 ASSAY_CLUSTER_TOKEN (or ASSAY_CLUSTER_TOKEN_FILE) on every process of the cluster."
+            );
+            eprintln!("{warning}");
+            tracing::warn!("{warning}");
+        }
         let metrics = match a.metrics_listen.as_str() {
             "off" => None,
             at => Some(

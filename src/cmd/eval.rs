@@ -120,9 +120,11 @@ pub fn run(mut a: Args) -> anyhow::Result<ExitCode> {
     } else if let Some(j) = a.batch.judges.iter().find(|j| *j != assay_judge::OFFLINE) {
         anyhow::bail!("judge '{j}' needs a configuration file (--config) that defines it");
     }
-    let req = a
+    let roots = crate::docs::asset_roots(&a.paths, &a.batch.asset_roots)?;
+    let mut req = a
         .batch
         .request(docs, &super::submit::default_name(&a.paths));
+    req.asset_roots = crate::docs::root_strings(&roots);
     let claim = crate::outdir::claim(&a.out, &crate::outdir::batch_key(&req), a.force)?;
     for (k, (path, batch)) in imported.iter().enumerate() {
         let pipeline = a.import.expect("imported with a pipeline");
@@ -142,7 +144,7 @@ pub fn run(mut a: Args) -> anyhow::Result<ExitCode> {
         );
     }
     let run_dir = a.out.join("run");
-    let cluster = super::cluster::LocalCluster::start(
+    let mut cluster = super::cluster::LocalCluster::start(
         &super::cluster::Plan {
             workers: a.cluster.workers,
             capacity: a.cluster.capacity,
@@ -154,6 +156,7 @@ pub fn run(mut a: Args) -> anyhow::Result<ExitCode> {
             judge_capacity: a.cluster.judge_capacity,
             training,
             trainer_capacity: a.trainer_capacity,
+            asset_roots: roots.clone(),
         },
         &run_dir,
         &a.out.join(assay_report::report::ARTIFACTS_LINK),
@@ -163,9 +166,10 @@ pub fn run(mut a: Args) -> anyhow::Result<ExitCode> {
 
     let quiet = a.quiet;
     let out = a.out.clone();
-    // A local process that dies (a crash, the OOM killer) would leave the batch waiting for it
-    // forever: the watch below stops, and the report of what finished is still written.
-    let watched = cluster.watched();
+    // A local process that dies (a crash, the OOM killer) is started again (a few times, with
+    // backoff); one that keeps dying stops the watch, and the report of what finished is still
+    // written.
+    let mut events: Vec<String> = Vec::new();
     let outcome = super::block_on(async {
         let mut c = super::client(&addr).await?;
         let (batch_id, rejected) = match &claim {
@@ -246,19 +250,65 @@ pub fn run(mut a: Args) -> anyhow::Result<ExitCode> {
             .into_inner();
         let mut last = None;
         let mut exited = None;
+        // Set while the coordinator is unreachable (it died and is being started again).
+        let mut lost: Option<tonic::Status> = None;
+        let mut lost_since = std::time::Instant::now();
         let mut check = tokio::time::interval(Duration::from_secs(1));
         loop {
-            let next = tokio::select! {
-                st = stream.message() => Some(st?),
-                _ = check.tick() => None,
+            let next = if lost.is_none() {
+                tokio::select! {
+                    st = stream.message() => Some(st),
+                    _ = check.tick() => None,
+                }
+            } else {
+                check.tick().await;
+                None
             };
+            match cluster.supervise() {
+                Ok(lines) => {
+                    for l in lines {
+                        bar.suspend(|| eprintln!("{l}"));
+                        events.push(l);
+                    }
+                }
+                Err(e) => {
+                    exited = Some(e.to_string());
+                    break;
+                }
+            }
             let st = match next {
-                Some(Some(st)) => st,
-                Some(None) => break,
+                Some(Ok(Some(st))) => st,
+                Some(Ok(None)) => break,
+                Some(Err(e)) => {
+                    lost = Some(e);
+                    lost_since = std::time::Instant::now();
+                    continue;
+                }
                 None => {
-                    if let Some(name) = crate::proc::first_exited(&watched) {
-                        exited = Some(name);
-                        break;
+                    if let Some(e) = &lost {
+                        // Back on the same address: watch the batch again.
+                        let again = async {
+                            let mut c2 = super::client(&addr).await?;
+                            let s2 = c2
+                                .watch_batch(pb::GetBatchRequest {
+                                    batch_id: batch_id.clone(),
+                                })
+                                .await?
+                                .into_inner();
+                            anyhow::Ok((c2, s2))
+                        };
+                        match again.await {
+                            Ok((c2, s2)) => {
+                                (c, stream) = (c2, s2);
+                                lost = None;
+                            }
+                            Err(_) if lost_since.elapsed() < Duration::from_secs(120) => {}
+                            Err(e2) => anyhow::bail!(
+                                "lost the local coordinator ({}) and could not reach it again \
+                                 ({e2}); run the same command again to go on from the job store",
+                                e.message()
+                            ),
+                        }
                     }
                     continue;
                 }
@@ -315,11 +365,9 @@ pub fn run(mut a: Args) -> anyhow::Result<ExitCode> {
             .await;
         let report = match (report, &exited) {
             (Ok(r), _) => r.into_inner(),
-            (Err(e), Some(name)) => anyhow::bail!(
-                "the local {name} process exited while the batch ran and no report could be \
-                 fetched ({e}); its log is in {}. Run the same command again to go on from the \
-                 job store",
-                run_dir.display()
+            (Err(e), Some(why)) => anyhow::bail!(
+                "{why}, and no report could be fetched ({e}); run the same command again to go \
+                 on from the job store"
             ),
             (Err(e), None) => return Err(e.into()),
         };
@@ -327,7 +375,13 @@ pub fn run(mut a: Args) -> anyhow::Result<ExitCode> {
     });
     cluster.stop();
     let (last, report, rejected, exited) = outcome?;
-    let parsed = super::report::parse(&report)?;
+    let mut parsed = super::report::parse(&report)?;
+    if let crate::outdir::Claim::Resume { batch_id } = &claim {
+        parsed.run.events.push(format!(
+            "went on with batch {batch_id} from the job store of an earlier run"
+        ));
+    }
+    parsed.run.events.extend(events);
     super::report::write(
         &a.out,
         &parsed,
@@ -347,11 +401,10 @@ pub fn run(mut a: Args) -> anyhow::Result<ExitCode> {
         last.shards_failed,
         a.out.join("report.html").display()
     );
-    if let Some(name) = exited {
+    if let Some(why) = exited {
         eprintln!(
-            "the local {name} process exited while the batch ran (its log is in {}): the report \
-             holds what finished; run the same command again to go on from the job store",
-            a.out.join("run").display()
+            "{why}: the report holds what finished; run the same command again to go on from \
+             the job store"
         );
         return Ok(ExitCode::FAILURE);
     }

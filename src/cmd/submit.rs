@@ -20,6 +20,11 @@ pub struct Args {
 
 #[derive(clap::Args, Clone)]
 pub struct BatchArgs {
+    /// A folder the tasks may read asset files (URDF, meshes) from, besides the task paths
+    /// themselves (repeatable; default: the working folder). A task whose asset root lies
+    /// outside them is rejected.
+    #[arg(long = "asset-root", value_name = "DIR")]
+    pub asset_roots: Vec<std::path::PathBuf>,
     /// Seeds 0..N per task and policy.
     #[arg(long, default_value_t = 5)]
     pub seeds: u64,
@@ -130,6 +135,7 @@ impl BatchArgs {
             ranking_json: self.ranking_json(),
             generalization_json: self.generalization.clone().unwrap_or_default(),
             skip_if_evaluated: false,
+            asset_roots: Vec::new(),
         }
     }
 }
@@ -144,7 +150,9 @@ pub fn default_name(paths: &[PathBuf]) -> String {
 
 pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     let docs = crate::docs::collect(&a.paths)?;
+    let roots = crate::docs::asset_roots(&a.paths, &a.batch.asset_roots)?;
     let mut req = a.batch.request(docs, &default_name(&a.paths));
+    req.asset_roots = crate::docs::root_strings(&roots);
     req.skip_if_evaluated = a.skip_if_evaluated;
     super::block_on(async move {
         let mut c = super::client(&a.coordinator).await?;

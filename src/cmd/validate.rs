@@ -6,12 +6,17 @@ pub struct Args {
     /// Task spec files or folders.
     #[arg(required = true)]
     pub paths: Vec<PathBuf>,
+    /// A folder the tasks may read asset files from, besides the task paths (repeatable;
+    /// default: the working folder).
+    #[arg(long = "asset-root", value_name = "DIR")]
+    pub asset_roots: Vec<PathBuf>,
 }
 
 /// Checks documents exactly as the coordinator's planner does (duplicate ids included).
 pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     let docs = crate::docs::collect(&a.paths)?;
-    let (planned, errors) = assay_coordinator::service::plan_tasks(&docs);
+    let roots = crate::docs::asset_roots(&a.paths, &a.asset_roots)?;
+    let (planned, errors) = assay_coordinator::service::plan_tasks(&docs, &roots);
     for e in &errors {
         eprintln!("{e}");
     }

@@ -255,6 +255,10 @@ pub fn run(mut a: Args) -> anyhow::Result<ExitCode> {
                 judge_capacity: a.cluster.judge_capacity,
                 training: true,
                 trainer_capacity: None,
+                asset_roots: crate::docs::asset_roots(
+                    std::slice::from_ref(&a.dir),
+                    &a.batch.asset_roots,
+                )?,
             },
             &a.out.join("run"),
             &artifacts,
@@ -456,7 +460,8 @@ fn evaluate(
     entry: &mut Entry,
 ) -> anyhow::Result<()> {
     let docs = crate::docs::collect(&[folder.to_path_buf()])?;
-    let (planned, _) = assay_coordinator::service::plan_tasks(&docs);
+    let roots = crate::docs::asset_roots(std::slice::from_ref(&a.dir), &a.batch.asset_roots)?;
+    let (planned, _) = assay_coordinator::service::plan_tasks(&docs, &roots);
     let templates = a.batch.text_templates.iter().cloned().collect();
     let texts = assay_coordinator::service::text_groups(&planned, &templates)
         .map_err(|s| anyhow::anyhow!("{}", s.message()))?
@@ -464,6 +469,7 @@ fn evaluate(
         .map(|(_, all)| all)
         .unwrap_or_default();
     let mut req = a.batch.request(docs, name);
+    req.asset_roots = crate::docs::root_strings(&roots);
     req.skip_if_evaluated = true;
     let (response, status) = rt.block_on(async {
         let mut c = super::client(addr).await?;

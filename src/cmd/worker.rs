@@ -32,6 +32,11 @@ pub struct Args {
     /// Worker id (defaults to <node>/<pid>).
     #[arg(long)]
     pub worker_id: Option<String>,
+    /// A folder tasks may read asset files (URDF, meshes) from (repeatable): this worker
+    /// opens no asset file outside them, whatever a task says. None: each task's own asset
+    /// root confines it.
+    #[arg(long = "asset-root", value_name = "DIR")]
+    pub asset_roots: Vec<std::path::PathBuf>,
 }
 
 pub fn parse_size(s: &str) -> Result<(u32, u32), String> {
@@ -49,6 +54,9 @@ pub fn parse_size(s: &str) -> Result<(u32, u32), String> {
 }
 
 pub fn run(a: Args) -> anyhow::Result<ExitCode> {
+    if !a.asset_roots.is_empty() {
+        assay_spec::assets::set_roots(&a.asset_roots).map_err(anyhow::Error::msg)?;
+    }
     let worker = assay_worker::Worker::new(assay_worker::Options {
         coordinator: a.coordinator,
         roles: a.roles,

@@ -520,3 +520,102 @@ fn an_eval_killed_mid_batch_goes_on_from_its_job_store() {
         String::from_utf8_lossy(&refused.stderr)
     );
 }
+
+/// The child processes of `pid` whose second argument (the subcommand) is `role`.
+fn children(pid: u32, role: &str) -> Vec<i32> {
+    let mut out = Vec::new();
+    for entry in std::fs::read_dir("/proc").unwrap().flatten() {
+        let Ok(child) = entry.file_name().to_string_lossy().parse::<i32>() else {
+            continue;
+        };
+        let Ok(stat) = std::fs::read_to_string(format!("/proc/{child}/stat")) else {
+            continue;
+        };
+        let ppid = stat
+            .rsplit_once(')')
+            .and_then(|(_, rest)| rest.split_whitespace().nth(1))
+            .and_then(|p| p.parse::<u32>().ok());
+        let cmdline = std::fs::read(format!("/proc/{child}/cmdline")).unwrap_or_default();
+        let args: Vec<&[u8]> = cmdline.split(|b| *b == 0).collect();
+        if ppid == Some(pid) && args.get(1) == Some(&role.as_bytes()) {
+            out.push(child);
+        }
+    }
+    out
+}
+
+/// SIGKILL of a local worker, then of the local coordinator, mid-`eval`: each is started again,
+/// the command ends 0 with every episode in the report, the report says what happened, and its
+/// results equal a clean run's on the same seeds.
+#[test]
+fn local_processes_killed_mid_batch_are_started_again_and_the_batch_finishes() {
+    let dir = tempfile::tempdir().unwrap();
+    let args = |out: &std::path::Path| -> Vec<String> {
+        [
+            "eval",
+            "tests/fixtures/small",
+            "--seeds",
+            "8",
+            "--workers",
+            "2",
+            "--roles",
+            "sim",
+            "--no-diversity",
+            "--quiet",
+            "--out",
+        ]
+        .iter()
+        .map(|s| s.to_string())
+        .chain([out.display().to_string()])
+        .collect()
+    };
+    let clean = dir.path().join("clean");
+    let fresh = Command::new(bin())
+        .args(args(&clean))
+        .current_dir(repo())
+        .output()
+        .unwrap();
+    assert!(fresh.status.success());
+    let clean = read_report(&clean);
+    for victim in ["worker", "coordinator"] {
+        let out = dir.path().join(victim);
+        let run = Command::new(bin())
+            .args(args(&out))
+            .current_dir(repo())
+            .stdout(std::process::Stdio::piped())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap();
+        let deadline = std::time::Instant::now() + std::time::Duration::from_secs(300);
+        while files_under(&out.join("artifacts")) < 3 {
+            assert!(std::time::Instant::now() < deadline, "no episode finished");
+            std::thread::sleep(std::time::Duration::from_millis(50));
+        }
+        let pids = children(run.id(), victim);
+        assert!(!pids.is_empty(), "no local {victim} process");
+        nix::sys::signal::kill(
+            nix::unistd::Pid::from_raw(pids[0]),
+            nix::sys::signal::Signal::SIGKILL,
+        )
+        .unwrap();
+        let o = run.wait_with_output().unwrap();
+        let stderr = String::from_utf8_lossy(&o.stderr);
+        assert!(o.status.success(), "{victim}: {stderr}");
+        assert!(stderr.contains("starting it again"), "{victim}: {stderr}");
+        let r = read_report(&out);
+        assert_eq!(r.results.totals.episodes_completed, 32, "{victim}");
+        assert!(
+            r.run
+                .events
+                .iter()
+                .any(|e| e.contains(victim) && e.contains("exited")),
+            "{victim}: {:?}",
+            r.run.events
+        );
+        assert_eq!(
+            serde_json::to_value(&r.results).unwrap(),
+            serde_json::to_value(&clean.results).unwrap(),
+            "{victim}: the same results as a clean run"
+        );
+    }
+}

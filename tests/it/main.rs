@@ -5,6 +5,7 @@
 mod common;
 
 mod agreement;
+mod boundary;
 mod cluster;
 mod deploy;
 mod diversity;

@@ -426,6 +426,7 @@ impl Store {
             sim_steps_per_s: rate(results.totals.sim_steps as f64),
             extra_attempts,
             workers: workers.into_iter().collect(),
+            events: Vec::new(),
         };
         let provenance = report::Provenance::of(
             &results,

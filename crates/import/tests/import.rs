@@ -279,6 +279,27 @@ fn gensim_malformed() {
     assert!(e.to_string().contains("<document>"));
 }
 
+/// A task name is a name, not a path: `../../secret` never reads `secret.py` beside the library.
+#[test]
+fn gensim_task_names_that_are_paths_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let lib = dir.path().join("lib");
+    std::fs::create_dir_all(lib.join("generated_tasks")).unwrap();
+    std::fs::write(dir.path().join("secret.py"), "class Secret: pass\n").unwrap();
+    std::fs::write(
+        lib.join("generated_tasks.json"),
+        r#"{"x": {"task-name": "../../secret", "task-description": "d", "assets-used": []}}"#,
+    )
+    .unwrap();
+    let imp = run(Pipeline::Gensim, &lib, Some(lib.clone()));
+    let t = &imp.tasks[0];
+    assert!(t.spec.is_none());
+    let e = &t.errors[0];
+    assert_eq!(e.path, "task-name");
+    assert!(e.reason.contains("not a plain task name"), "{e}");
+    assert!(!t.source.ends_with("secret.py"), "{:?}", t.source);
+}
+
 #[test]
 fn robogen_malformed() {
     let imp = malformed(Pipeline::Robogen);

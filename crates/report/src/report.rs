@@ -346,6 +346,10 @@ pub struct RunInfo {
     /// Attempts beyond the first, summed over shards (lease expiries, retries, hand-backs).
     pub extra_attempts: u64,
     pub workers: Vec<String>,
+    /// What happened to the run beyond its shards, in order: local processes that exited and
+    /// were started again, a run that went on from its job store.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub events: Vec<String>,
 }
 
 /// `(policy, success)` of every completed episode, of one group or of all.

@@ -217,6 +217,16 @@ pub fn run(run: &RunInfo) -> Table {
             run.workers.join(", ")
         )),
     );
+    if !run.events.is_empty() {
+        let mut c = Cell::default();
+        for (i, e) in run.events.iter().enumerate() {
+            if i > 0 {
+                c = c.and(Span::Break);
+            }
+            c = c.and(Span::Text(e.clone()));
+        }
+        row("events", c);
+    }
     table
 }
 

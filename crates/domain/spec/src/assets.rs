@@ -2,7 +2,54 @@
 //! read an unbounded file into memory, whether by naming a huge file or a device that never ends.
 
 use std::io::Read;
-use std::path::Path;
+use std::path::{Path, PathBuf};
+use std::sync::OnceLock;
+
+/// The folders this process may read asset files from, set once by the operator (a worker's
+/// `--asset-root`); unset, asset files are confined only by each task's own asset root.
+static ROOTS: OnceLock<Vec<PathBuf>> = OnceLock::new();
+
+/// Confines every asset read of this process to `roots` (canonicalised here). Set once, at
+/// start; a second call is an error.
+pub fn set_roots(roots: &[PathBuf]) -> Result<(), String> {
+    let canonical = roots
+        .iter()
+        .map(|r| {
+            r.canonicalize()
+                .map_err(|e| format!("asset root {}: {e}", r.display()))
+        })
+        .collect::<Result<Vec<_>, _>>()?;
+    ROOTS
+        .set(canonical)
+        .map_err(|_| "the asset roots are already set".to_owned())
+}
+
+/// Refuses `path` unless, symbolic links followed, it lies inside one of `roots` (canonical).
+/// No roots: anything.
+pub fn check_within(path: &Path, roots: &[PathBuf]) -> Result<(), String> {
+    if roots.is_empty() {
+        return Ok(());
+    }
+    let canonical = path.canonicalize().map_err(|e| e.to_string())?;
+    if roots.iter().any(|r| canonical.starts_with(r)) {
+        Ok(())
+    } else {
+        Err(format!(
+            "{} is outside the asset roots the operator allowed ({})",
+            canonical.display(),
+            roots
+                .iter()
+                .map(|r| r.display().to_string())
+                .collect::<Vec<_>>()
+                .join(", ")
+        ))
+    }
+}
+
+/// [`check_within`] the roots set by [`set_roots`].
+pub fn check_allowed(path: &Path) -> Result<(), String> {
+    check_within(path, ROOTS.get().map_or(&[], Vec::as_slice))
+}
 
 /// The largest asset file a worker reads.
 pub const MAX_ASSET_BYTES: u64 = 256 * 1024 * 1024;
@@ -26,6 +73,7 @@ fn too_large(max: u64) -> String {
 }
 
 fn read_bounded(path: &Path, max: u64) -> Result<Vec<u8>, String> {
+    check_allowed(path)?;
     let file = std::fs::File::open(path).map_err(|e| e.to_string())?;
     let len = file.metadata().map_err(|e| e.to_string())?.len();
     if len > max {
@@ -48,6 +96,27 @@ fn read_bounded(path: &Path, max: u64) -> Result<Vec<u8>, String> {
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn reads_are_confined_to_the_roots_links_followed() {
+        let dir = tempfile::tempdir().unwrap();
+        let (inside, outside) = (dir.path().join("in"), dir.path().join("out"));
+        std::fs::create_dir_all(&inside).unwrap();
+        std::fs::create_dir_all(&outside).unwrap();
+        std::fs::write(inside.join("a.obj"), "v 0 0 0").unwrap();
+        std::fs::write(outside.join("b.obj"), "v 0 0 0").unwrap();
+        let roots = [inside.canonicalize().unwrap()];
+        super::check_within(&inside.join("a.obj"), &roots).unwrap();
+        let e = super::check_within(&outside.join("b.obj"), &roots).unwrap_err();
+        assert!(e.contains("outside the asset roots"), "{e}");
+        assert!(super::check_within(&inside.join("../out/b.obj"), &roots).is_err());
+        #[cfg(unix)]
+        {
+            std::os::unix::fs::symlink(outside.join("b.obj"), inside.join("link.obj")).unwrap();
+            assert!(super::check_within(&inside.join("link.obj"), &roots).is_err());
+        }
+        super::check_within(&outside.join("b.obj"), &[]).unwrap();
+    }
+
     use super::*;
 
     #[test]

@@ -61,6 +61,16 @@ pub(crate) fn import(root: &Path, asset_root: &Path) -> (Vec<ImportedTask>, Vec<
     (tasks, Vec::new())
 }
 
+/// A task name that is safe as a file name: letters, digits, `-`, `_` and `.`, not starting
+/// with `.` (so never `..`, a hidden file or a path).
+fn is_plain_name(name: &str) -> bool {
+    !name.is_empty()
+        && !name.starts_with('.')
+        && name
+            .chars()
+            .all(|c| c.is_alphanumeric() || matches!(c, '-' | '_' | '.'))
+}
+
 fn import_one(
     root: &Path,
     asset_root: &Path,
@@ -85,6 +95,27 @@ fn import_one(
             super::slug(&name, '-')
         }
     };
+    // The name becomes a file name: it must be one, not a path out of the library.
+    if !is_plain_name(&name) {
+        let mut notes = Notes::new(&id, &lib_path.display().to_string());
+        notes.error(
+            "task-name",
+            format!(
+                "'{name}' is not a plain task name (it would name a file outside \
+                 generated_tasks/): only letters, digits, '-', '_' and '.', not starting with '.'"
+            ),
+        );
+        return ImportedTask {
+            id,
+            name,
+            source: lib_path.to_path_buf(),
+            content_hash: hash_parts(&[("entry", entry.to_string().as_bytes())]),
+            spec: None,
+            mapping: Vec::new(),
+            errors: notes.errors,
+            episodes: Vec::new(),
+        };
+    }
     let code_rel = format!("generated_tasks/{}.py", name.replace('-', "_"));
     let code_path = root.join(&code_rel);
     let entry_json = serde_json::to_string(entry).unwrap_or_default();

@@ -506,6 +506,7 @@ mod tests {
                 sim_steps_per_s: Some(10.0),
                 extra_attempts: 0,
                 workers: vec!["local/worker-0".into()],
+                events: vec!["the local worker 0 process exited; started again".into()],
             },
         }
     }

@@ -653,6 +653,21 @@ pub fn parse_task(text: &str, format: Format, origin: &str) -> Result<TaskSpec, 
     }
 }
 
+/// `a/./b/../c` as `a/c`, without the file system (for a path that does not exist).
+fn lexical(p: &std::path::Path) -> std::path::PathBuf {
+    let mut out = std::path::PathBuf::new();
+    for c in p.components() {
+        match c {
+            std::path::Component::CurDir => {}
+            std::path::Component::ParentDir => {
+                out.pop();
+            }
+            c => out.push(c),
+        }
+    }
+    out
+}
+
 /// serde_yaml_ng prefixes its messages with the path; the error carries the path on its own.
 fn strip_path(message: &str, path: &str) -> String {
     match message.split_once(": ") {
@@ -778,7 +793,49 @@ impl TaskSpec {
                 canonical.display()
             ));
         }
+        crate::assets::check_allowed(&canonical)?;
         Ok(canonical)
+    }
+
+    /// Whether the task reads asset files (a mesh or URDF object).
+    pub fn uses_asset_files(&self) -> bool {
+        self.scene
+            .objects
+            .iter()
+            .any(|o| matches!(o.shape, Shape::Mesh { .. } | Shape::Urdf { .. }))
+    }
+
+    /// Refuses a task that reads asset files from outside every one of `roots` (canonical
+    /// folders the operator allowed): its asset root, however `source.asset_root` and
+    /// `source.origin` make it, must lie inside one. What the spec's text says cannot widen
+    /// the operator's boundary. The error names the field that set the root.
+    pub fn check_asset_roots(&self, roots: &[std::path::PathBuf]) -> Result<(), (String, String)> {
+        if roots.is_empty() || !self.uses_asset_files() {
+            return Ok(());
+        }
+        let root = std::path::absolute(self.asset_root()).unwrap_or_else(|_| self.asset_root());
+        let resolved = root.canonicalize().unwrap_or_else(|_| lexical(&root));
+        if roots.iter().any(|r| resolved.starts_with(r)) {
+            return Ok(());
+        }
+        let field = if self.source.asset_root.is_some() {
+            "source.asset_root"
+        } else {
+            "source.origin"
+        };
+        Err((
+            field.to_owned(),
+            format!(
+                "the asset root {} is outside the folders the operator allowed ({}): a task \
+                 cannot widen them; pass --asset-root to allow a folder",
+                resolved.display(),
+                roots
+                    .iter()
+                    .map(|r| r.display().to_string())
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            ),
+        ))
     }
 
     /// `shape` with its file path made to point where [`TaskSpec::asset_path`] says, so that a

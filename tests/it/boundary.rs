@@ -1,0 +1,160 @@
+//! One trust boundary, set by the operator: a task spec cannot make Assay read asset files from
+//! outside the folders the command line allows, neither at validation (the coordinator's
+//! planner, `assay validate`) nor at a worker started with `--asset-root`.
+
+use std::path::Path;
+use std::process::Command;
+use std::time::Duration;
+
+use crate::common::*;
+use assay_proto::v1 as pb;
+
+const URDF: &str = r#"<robot name="thing"><link name="base"><visual><geometry><box size="0.05 0.05 0.05"/></geometry></visual></link></robot>"#;
+
+fn spec(id: &str, source: &str) -> String {
+    format!(
+        r#"spec_version: 1
+id: {id}
+name: {id}
+description: Move the thing onto the target point.
+source: {source}
+group: boundary
+scene:
+  objects:
+    - {{id: thing, shape: {{urdf: {{path: thing.urdf}}}}, pose: {{position: [0.5, 0.1, 0.05]}}}}
+end_effector: {{type: suction}}
+goals:
+  - pose_within: {{object: thing, position: [0.5, -0.1, 0.05], tolerance: 0.01}}
+oracle:
+  - pick: {{object: thing}}
+  - place: {{target: {{at: [0.5, -0.1]}}}}
+"#
+    )
+}
+
+/// `project/tasks/` holds three specs that each point their asset root at `outside/` (absolute,
+/// by their own origin, and by climbing), where a URDF waits; a fourth reads its URDF beside
+/// itself.
+fn layout(dir: &Path) -> (std::path::PathBuf, std::path::PathBuf) {
+    let project = dir.join("project");
+    let tasks = project.join("tasks");
+    let outside = dir.join("outside");
+    std::fs::create_dir_all(&tasks).unwrap();
+    std::fs::create_dir_all(&outside).unwrap();
+    std::fs::write(outside.join("thing.urdf"), URDF).unwrap();
+    std::fs::write(tasks.join("thing.urdf"), URDF).unwrap();
+    let o = outside.display();
+    for (id, source) in [
+        ("by-asset-root", format!("{{asset_root: \"{o}\"}}")),
+        ("by-origin", format!("{{origin: \"{o}/x.yaml\"}}")),
+        ("by-climbing", "{asset_root: ../../outside}".to_owned()),
+        ("inside", "{}".to_owned()),
+    ] {
+        std::fs::write(tasks.join(format!("{id}.yaml")), spec(id, &source)).unwrap();
+    }
+    (project, outside)
+}
+
+#[test]
+fn a_spec_cannot_widen_the_operators_asset_roots() {
+    let dir = tempfile::tempdir().unwrap();
+    let (project, outside) = layout(dir.path());
+    let validate = |extra: &[&str]| {
+        Command::new(bin())
+            .args(["validate", "tasks"])
+            .args(extra)
+            .current_dir(&project)
+            .output()
+            .unwrap()
+    };
+    let o = validate(&[]);
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success(), "{stderr}");
+    for (id, field) in [
+        ("by-asset-root", "source.asset_root"),
+        ("by-origin", "source.origin"),
+        ("by-climbing", "source.asset_root"),
+    ] {
+        let line = stderr
+            .lines()
+            .find(|l| l.contains(&format!("task {id}:")))
+            .unwrap_or_else(|| panic!("{id} not refused:\n{stderr}"));
+        assert!(
+            line.contains(field) && line.contains("outside the folders the operator allowed"),
+            "{line}"
+        );
+    }
+    assert!(!stderr.contains("task inside:"), "{stderr}");
+    assert!(stderr.contains("1 valid, 3 invalid"), "{stderr}");
+    // The operator may allow the folder; then the same specs are valid.
+    let o = validate(&["--asset-root", outside.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+}
+
+/// A client that sends no roots (an older one, or a hostile one) gets past the planner; a worker
+/// started with `--asset-root` still opens nothing outside it: the episode fails, naming why.
+#[test]
+fn a_worker_with_asset_roots_opens_nothing_outside_them() {
+    let dir = tempfile::tempdir().unwrap();
+    let (project, _outside) = layout(dir.path());
+    let tasks = project.join("tasks");
+    let (_coordinator, addr) = coordinator(dir.path(), "127.0.0.1:0", &[]);
+    let _worker = Proc::spawn(
+        "worker",
+        &[
+            "worker",
+            "--coordinator",
+            &addr,
+            "--roles",
+            "sim",
+            "--asset-root",
+            tasks.to_str().unwrap(),
+        ],
+        dir.path(),
+    );
+    let rt = runtime();
+    let doc = |id: &str| {
+        let f = tasks.join(format!("{id}.yaml"));
+        pb::TaskDocument {
+            origin: f.display().to_string(),
+            format: String::new(),
+            content: std::fs::read_to_string(&f).unwrap(),
+        }
+    };
+    let report = rt.block_on(async {
+        let mut c = client(&addr).await;
+        let r = c
+            .submit_batch(pb::SubmitBatchRequest {
+                name: "boundary".into(),
+                tasks: vec![doc("by-asset-root"), doc("inside")],
+                policies: vec![pb::PolicyRef {
+                    name: "oracle".into(),
+                }],
+                seeds: vec![0],
+                max_attempts: 1,
+                ..Default::default()
+            })
+            .await
+            .unwrap()
+            .into_inner();
+        assert!(r.rejected.is_empty(), "{:?}", r.rejected);
+        wait_for(&addr, &r.batch_id, Duration::from_secs(120), finished).await;
+        report(&addr, &r.batch_id).await
+    });
+    let task = |id: &str| {
+        report
+            .results
+            .tasks
+            .iter()
+            .find(|t| t.id == id)
+            .unwrap_or_else(|| panic!("{id}"))
+    };
+    let escaped = task("by-asset-root");
+    assert!(escaped.episodes.is_empty(), "{:?}", escaped.episodes);
+    let error = &escaped.failures[0].error;
+    assert!(
+        error.contains("outside the asset roots the operator allowed"),
+        "{error}"
+    );
+    assert_eq!(task("inside").episodes.len(), 1, "a task inside runs");
+}
