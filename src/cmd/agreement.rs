@@ -20,8 +20,8 @@ pub struct Args {
     /// The grouping column (default: `dataset` or `group` when present).
     #[arg(long)]
     pub by: Option<String>,
-    /// Bootstrap resamples for the 95 % intervals.
-    #[arg(long, default_value_t = BOOTSTRAP_RESAMPLES)]
+    /// Bootstrap resamples for the 95 % intervals (at least 40; 0 for none).
+    #[arg(long, default_value_t = BOOTSTRAP_RESAMPLES, value_parser = super::resamples)]
     pub resamples: usize,
     /// Seed of the bootstrap.
     #[arg(long, default_value_t = 0)]

@@ -50,6 +50,7 @@ fn outcome_json() -> String {
         spec_hash: String::new(),
         versions: Default::default(),
         imagery: None,
+        cutoff: None,
     })
     .expect("outcome serialises")
 }

@@ -31,6 +31,12 @@ use assay_proto::v1 as pb;
 pub const DEFAULT_COORDINATOR: &str = "http://127.0.0.1:7878";
 
 /// A multi-threaded runtime for commands that talk to the network.
+/// `--resamples`: a count that can make a 95 % interval (or 0 for none).
+pub fn resamples(s: &str) -> Result<usize, String> {
+    let n: usize = s.parse().map_err(|e| format!("{e}"))?;
+    assay_stats::agreement::check_resamples(n)
+}
+
 pub fn block_on<F: Future>(f: F) -> F::Output {
     tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)

@@ -29,8 +29,8 @@ pub struct Args {
     /// it), or into a folder as rank-<proxy>.svg.
     #[arg(long, value_name = "DIR_OR_FILE.svg")]
     pub plot: Option<PathBuf>,
-    /// Bootstrap resamples for the 95 % intervals.
-    #[arg(long, default_value_t = BOOTSTRAP_RESAMPLES)]
+    /// Bootstrap resamples for the 95 % intervals (at least 40; 0 for none).
+    #[arg(long, default_value_t = BOOTSTRAP_RESAMPLES, value_parser = super::resamples)]
     pub resamples: usize,
     /// Seed of the bootstrap.
     #[arg(long, default_value_t = 0)]

@@ -88,6 +88,24 @@ fn rank_json_is_what_the_library_computes() {
 }
 
 #[test]
+fn too_few_resamples_for_an_interval_are_refused() {
+    for cmd in [
+        vec!["rank", LADDER, "--resamples", "1"],
+        vec![
+            "agreement",
+            "examples/agreement/paper-table5-completion.csv",
+            "--resamples",
+            "1",
+        ],
+    ] {
+        let out = assay(&cmd);
+        assert!(!out.status.success(), "{cmd:?}");
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(err.contains("at least 40"), "{cmd:?}: {err}");
+    }
+}
+
+#[test]
 fn a_malformed_table_fails_naming_file_line_and_column() {
     let dir = tempfile::tempdir().unwrap();
     let bad = dir.path().join("bad.csv");

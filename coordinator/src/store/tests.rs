@@ -65,6 +65,7 @@ fn episode(l: &Lease) -> EpisodeOutcome {
         spec_hash: String::new(),
         versions: BTreeMap::new(),
         imagery: None,
+        cutoff: None,
     }
 }
 

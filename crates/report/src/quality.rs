@@ -396,6 +396,7 @@ mod tests {
             spec_hash: "h".into(),
             versions: BTreeMap::new(),
             imagery: None,
+            cutoff: None,
         }
     }
 

@@ -322,6 +322,9 @@ pub struct EpisodeRow {
     pub unmet: Vec<PredicateValue>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub imagery: Option<EpisodeImagery>,
+    /// Why it stopped early (the step limit), when it did.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cutoff: Option<String>,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
@@ -416,6 +419,7 @@ pub fn build_results(
                         artifact: o.artifact.clone(),
                         unmet: o.predicates.iter().filter(|p| !p.holds).cloned().collect(),
                         imagery: o.imagery.clone(),
+                        cutoff: o.cutoff.clone(),
                     });
                 }
                 None => failures.push(FailureRow {
@@ -535,6 +539,7 @@ mod tests {
             spec_hash: "h".into(),
             versions: BTreeMap::new(),
             imagery: None,
+            cutoff: None,
         }
     }
 

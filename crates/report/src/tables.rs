@@ -129,6 +129,16 @@ pub fn success_per_task(r: &Results) -> Table {
             .map_or_else(Cell::default, |p| {
                 Cell::code(&p.label).and(Span::Text(format!(" ({}/{})", p.of - p.holds, p.of)))
             });
+        // Episodes stopped by the step limit fail whatever their predicates say: said so.
+        let cut = task.episodes.iter().filter(|e| e.cutoff.is_some()).count();
+        let unmet = match (unmet.0.is_empty(), cut) {
+            (_, 0) => unmet,
+            (true, n) => Cell::text(format!("step limit ({n}/{})", task.episodes.len())),
+            (false, n) => unmet.and(Span::Break).and(Span::Text(format!(
+                "step limit ({n}/{})",
+                task.episodes.len()
+            ))),
+        };
         let mut cells = vec![
             task.group.as_str().into(),
             Cell(vec![Span::TaskLink(task.id.clone())]).and(Span::Text(format!(" {}", task.name))),

@@ -56,6 +56,7 @@ fn episode(root: &Path) -> EpisodeOutcome {
             caption: None,
             clip: None,
         }),
+        cutoff: None,
     }
 }
 

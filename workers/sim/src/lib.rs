@@ -178,6 +178,21 @@ pub const KEYFRAMES: usize = 8;
 pub const VIDEO_FRAMES: usize = 48;
 
 /// Whether a `lifted` goal names object `i` (the episode may end holding it up).
+/// The first object whose position is not finite or is more than a kilometre away: physics that
+/// blew up.
+pub fn blown_up(scene: &SimScene) -> Option<&str> {
+    scene
+        .objects
+        .iter()
+        .find(|o| {
+            let p = scene.pose(o).translation;
+            [p.x, p.y, p.z]
+                .iter()
+                .any(|c| !c.is_finite() || c.abs() > 1e3)
+        })
+        .map(|o| o.id.as_str())
+}
+
 fn lifts(spec: &TaskSpec, scene: &SimScene, i: usize) -> bool {
     let id = &scene.objects[i].id;
     spec.goals
@@ -372,6 +387,8 @@ pub fn simulate_with(
         l.reset(spec, seed, step)?;
     }
     let dt32 = dt as f32;
+    // A policy object that used up `physics.max_steps` before its goals held.
+    let mut ran_out = false;
     loop {
         let act = match learned.as_mut() {
             None => {
@@ -390,6 +407,7 @@ pub fn simulate_with(
                 // failure, not a truncated plan.
                 let since = step - settle;
                 if step >= settle + max_steps {
+                    ran_out = true;
                     break;
                 }
                 if since > 0
@@ -442,8 +460,32 @@ pub fn simulate_with(
         met.push(goals_met(&scene));
     }
 
+    // Numbers a spec may still combine badly (a heavy body on a tiny one, a stiff joint) can
+    // blow the physics up: that episode measured nothing, so it is an error of the shard, never
+    // a policy's failure.
+    if let Some(id) = blown_up(&scene) {
+        return Err(SimError::spec(
+            "scene",
+            format!(
+                "the physics state of object '{id}' became non-finite or left the world (beyond \
+                 1 km) by step {step}: the episode measured nothing and is not scored"
+            ),
+        ));
+    }
     let predicates = predicates::evaluate(&spec.goals, &scene);
     let success = !truncated && predicates.iter().all(|p| p.holds);
+    let cutoff = if truncated {
+        Some(format!(
+            "step limit: the plan was cut off at physics.max_steps = {max_steps}"
+        ))
+    } else if ran_out {
+        Some(format!(
+            "step limit: the policy used all physics.max_steps = {max_steps} steps before its \
+             goals held"
+        ))
+    } else {
+        None
+    };
     let mut notes: Vec<String> = ctl
         .notes
         .iter()
@@ -502,6 +544,7 @@ pub fn simulate_with(
             spec_hash,
             versions,
             imagery: None,
+            cutoff,
         },
         file,
         notes,

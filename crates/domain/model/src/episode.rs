@@ -49,6 +49,10 @@ pub struct EpisodeOutcome {
     /// Rendered pictures of the episode, when a render role ran with the sim role.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub imagery: Option<EpisodeImagery>,
+    /// Why the episode stopped before its plan or policy finished: the step limit
+    /// (`physics.max_steps`). Such an episode is unsuccessful whatever its predicates say.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cutoff: Option<String>,
 }
 
 /// Pictures of one episode, as artifact keys.

@@ -139,6 +139,22 @@ fn why_undefined(reference: &[f64], judge: &[f64]) -> String {
     }
 }
 
+/// Fewest bootstrap resamples a 95 % percentile interval is drawn from: each 2.5 % tail then
+/// holds at least one resample. Fewer gives an "interval" that can exclude its own estimate.
+pub const MIN_RESAMPLES: usize = 40;
+
+/// Refuses a resample count that cannot make a 95 % interval (0 means: no intervals).
+pub fn check_resamples(n: usize) -> Result<usize, String> {
+    if n == 0 || n >= MIN_RESAMPLES {
+        Ok(n)
+    } else {
+        Err(format!(
+            "{n} bootstrap resamples cannot make a 95 % interval: use at least {MIN_RESAMPLES} \
+             (each 2.5 % tail then holds a resample), or 0 for no intervals"
+        ))
+    }
+}
+
 /// Agreement of `judge` with `reference` (paired by index), with percentile bootstrap intervals
 /// over `resamples` resamples of the pairs drawn from a stream seeded by `seed`.
 pub fn agreement(reference: &[f64], judge: &[f64], resamples: usize, seed: u64) -> Agreement {

@@ -375,6 +375,7 @@ fn check(cells: &[Cell]) -> Result<(), String> {
 /// Compares every proxy source with the real one (see the module documentation). Errors when the
 /// real source or a named proxy has no rows, or when there is nothing to compare with.
 pub fn rank(cells: &[Cell], cfg: &RankingConfig) -> Result<Ranking, String> {
+    crate::agreement::check_resamples(cfg.resamples)?;
     check(cells)?;
     let mut sources: Vec<&str> = Vec::new();
     for c in cells {
@@ -1214,17 +1215,17 @@ mod tests {
                     ..c
                 }),
         );
-        let all = rank(&cells, &cfg(10, 0)).unwrap();
+        let all = rank(&cells, &cfg(40, 0)).unwrap();
         let names: Vec<&str> = all.comparisons.iter().map(|c| c.proxy.as_str()).collect();
         assert_eq!(names, ["world-model", "simpler"]);
         let one = RankingConfig {
             proxies: vec!["simpler".into()],
-            ..cfg(10, 0)
+            ..cfg(40, 0)
         };
         assert_eq!(rank(&cells, &one).unwrap().comparisons.len(), 1);
         let missing = RankingConfig {
             proxies: vec!["cosmos".into()],
-            ..cfg(10, 0)
+            ..cfg(40, 0)
         };
         let e = rank(&cells, &missing).unwrap_err();
         assert!(e.contains("'cosmos'") && e.contains("world-model"), "{e}");
@@ -1232,14 +1233,14 @@ mod tests {
             &cells,
             &RankingConfig {
                 real: "truth".into(),
-                ..cfg(10, 0)
+                ..cfg(40, 0)
             },
         )
         .unwrap_err();
         assert!(e.contains("no rows with source 'truth'"), "{e}");
         let only_real: Vec<Cell> = cells.into_iter().filter(|c| c.source == "real").collect();
         assert!(
-            rank(&only_real, &cfg(10, 0))
+            rank(&only_real, &cfg(40, 0))
                 .unwrap_err()
                 .contains("no source to compare")
         );
@@ -1383,5 +1384,16 @@ mod tests {
             c.mmrv.no_interval.as_deref(),
             Some("no bootstrap resamples were drawn")
         );
+    }
+
+    #[test]
+    fn too_few_resamples_for_an_interval_are_refused() {
+        let cells = ladder();
+        for n in [1, 2, 39] {
+            let e = rank(&cells, &cfg(n, 0)).unwrap_err();
+            assert!(e.contains("at least 40"), "{n}: {e}");
+        }
+        assert!(rank(&cells, &cfg(0, 0)).is_ok(), "0: no intervals");
+        assert!(rank(&cells, &cfg(40, 0)).is_ok());
     }
 }

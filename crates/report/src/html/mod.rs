@@ -318,6 +318,7 @@ mod tests {
             spec_hash: "h".into(),
             versions: BTreeMap::new(),
             imagery: pictures.then(imagery),
+            cutoff: None,
         }
     }
 

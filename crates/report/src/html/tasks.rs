@@ -116,6 +116,10 @@ pub(super) fn task_page(inputs: &HtmlInputs<'_>, t: &TaskResult) -> Markup {
                                     @if i > 0 { br; }
                                     code { (p.label) } ": " (p.detail)
                                 }
+                                @if let Some(why) = &e.cutoff {
+                                    @if !e.unmet.is_empty() { br; }
+                                    (why)
+                                }
                             }
                         }
                     }

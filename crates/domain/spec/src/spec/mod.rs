@@ -959,6 +959,52 @@ mod tests {
         assert_eq!(spec.spec_hash(), again.spec_hash());
     }
 
+    /// Finite but absurd numbers that used to validate and give plausible wrong statistics.
+    #[test]
+    fn absurd_but_finite_numbers_are_refused_with_the_field_and_the_bound() {
+        let obj = "scene.objects[0]";
+        for (from, to, path, bound) in [
+            (
+                "position: [0.5, 0.1, 0.02]",
+                "position: [1e308, 0.1, 0.02]",
+                format!("{obj}.pose.position[0]"),
+                "within ±10 m of the origin, got 1e308",
+            ),
+            (
+                "[0.02, 0.02, 0.02]",
+                "[1e308, 0.02, 0.02]",
+                format!("{obj}.shape.box.half_extents[0]"),
+                "between 0.001 and 5 m",
+            ),
+            (
+                "[0.02, 0.02, 0.02]",
+                "[1e-308, 0.02, 0.02]",
+                format!("{obj}.shape.box.half_extents[0]"),
+                "between 0.001 and 5 m, got 1e-308",
+            ),
+            (
+                "color: red,",
+                "color: red, mass: 1e9,",
+                format!("{obj}.mass"),
+                "between 0.001 and 1000 kg",
+            ),
+            (
+                "goals:\n",
+                "variations: {position_jitter: 3}\ngoals:\n",
+                "variations.position_jitter".to_owned(),
+                "between 0 and 0.5 m",
+            ),
+        ] {
+            let errors = errors(&MINIMAL.replacen(from, to, 1));
+            assert!(
+                errors
+                    .iter()
+                    .any(|e| e.path == path && e.reason.contains(bound)),
+                "{path}: {errors:?}"
+            );
+        }
+    }
+
     #[test]
     fn problems_name_the_task_the_field_and_the_reason() {
         let e = &errors(&MINIMAL.replace("[0.02, 0.02, 0.02]", "[0.02, -0.02, 0.02]"))[0];
@@ -969,7 +1015,7 @@ mod tests {
                 "scene.objects[0].shape.box.half_extents[1]"
             )
         );
-        assert!(e.reason.contains("positive"), "{e}");
+        assert!(e.reason.contains("between 0.001 and 5 m, got -0.02"), "{e}");
 
         let e = &errors(&MINIMAL.replace("color: red,", "colour: red,"))[0];
         assert!(
@@ -1146,10 +1192,23 @@ mod tests {
             "  zones:",
             "  piles:\n    - {id: bean, count: 30, shape: {box: {half_extents: [0.006, 0.006, 0.006]}}, color: brown, region: {min: [-1e308, -1e308], max: [1e308, 1e308]}}\n  zones:",
         );
-        match parse_task(&text, Format::Yaml, "t.yaml") {
-            Ok(spec) => assert_eq!(spec.for_seed(1).scene.objects.len(), 31),
-            Err(e) => panic!("{e}"),
-        }
+        // Validation refuses the region, naming the field and the bound...
+        let e = parse_task(&text, Format::Yaml, "t.yaml").unwrap_err();
+        assert!(
+            e.0.iter()
+                .any(|e| e.path == "scene.piles[0].region.min[0]"
+                    && e.reason.contains("within ±10 m")),
+            "{e}"
+        );
+        // ...and the layout itself still does not overflow on one.
+        let small = text
+            .replace("-1e308, -1e308", "0.3, -0.05")
+            .replace("1e308, 1e308", "0.4, 0.05");
+        let mut spec = parse_task(&small, Format::Yaml, "t.yaml").unwrap_or_else(|e| panic!("{e}"));
+        let pile = spec.scene.piles.first_mut().expect("a pile");
+        pile.region.min = [-1e308, -1e308];
+        pile.region.max = [1e308, 1e308];
+        assert_eq!(spec.for_seed(1).scene.objects.len(), 31);
     }
 
     #[test]

@@ -64,7 +64,7 @@ pub fn validate(spec: &TaskSpec, origin: &str) -> Vec<SpecError> {
         }
         v.shape(&format!("{p}.shape"), &o.shape);
         if let Some(m) = o.mass {
-            v.positive(&format!("{p}.mass"), m);
+            v.mass(&format!("{p}.mass"), m);
         }
         v.color(&format!("{p}.color"), &o.color);
         match (&o.pose, &o.pose_range) {
@@ -103,7 +103,7 @@ pub fn validate(spec: &TaskSpec, origin: &str) -> Vec<SpecError> {
         v.shape(&format!("{p}.shape"), &pile.shape);
         v.color(&format!("{p}.color"), &pile.color);
         if let Some(m) = pile.mass {
-            v.positive(&format!("{p}.mass"), m);
+            v.mass(&format!("{p}.mass"), m);
         }
         v.finite2(&format!("{p}.region.min"), &pile.region.min);
         v.finite2(&format!("{p}.region.max"), &pile.region.max);
@@ -334,11 +334,20 @@ pub fn validate(spec: &TaskSpec, origin: &str) -> Vec<SpecError> {
         }
     }
 
-    v.nonneg(
+    v.within(
         "variations.position_jitter",
         spec.variations.position_jitter,
+        0.0,
+        MAX_JITTER_M,
+        "m",
     );
-    v.nonneg("variations.yaw_jitter_deg", spec.variations.yaw_jitter_deg);
+    v.within(
+        "variations.yaw_jitter_deg",
+        spec.variations.yaw_jitter_deg,
+        0.0,
+        180.0,
+        "degrees",
+    );
     if let Some(r) = &spec.variations.ee_start {
         v.range("variations.ee_start", r);
     }
@@ -512,6 +521,30 @@ pub fn validate(spec: &TaskSpec, origin: &str) -> Vec<SpecError> {
     v.errors
 }
 
+/// Positions (m) lie within this distance of the table's origin on every axis: the robot's
+/// workspace is a metre across, so a larger number is a mistake that physics would turn into NaN.
+pub const MAX_POSITION_M: f64 = 10.0;
+/// Smallest object size (half extent, radius, wall), 1 mm: smaller bodies fall through contacts
+/// and make success trivially true or false.
+pub const MIN_SIZE_M: f64 = 0.001;
+/// Largest object size, tolerance or distance.
+pub const MAX_SIZE_M: f64 = 5.0;
+/// Masses between 1 g and 1 t.
+pub const MIN_MASS_KG: f64 = 0.001;
+pub const MAX_MASS_KG: f64 = 1000.0;
+/// Position jitter at most 0.5 m.
+pub const MAX_JITTER_M: f64 = 0.5;
+
+/// A number as people read it: `0.02`, and `1e308` rather than 309 digits.
+fn show(x: f64) -> String {
+    let plain = format!("{x}");
+    if plain.len() > 12 {
+        format!("{x:e}")
+    } else {
+        plain
+    }
+}
+
 struct Validator<'a> {
     task: Option<String>,
     origin: &'a str,
@@ -532,24 +565,59 @@ impl Validator<'_> {
             self.err(path, format!("must be a finite number, got {x}"));
         }
     }
+    /// A position (m): finite and within ±[`MAX_POSITION_M`] of the table's origin.
+    fn coordinate(&mut self, path: &str, x: f64) {
+        if !x.is_finite() {
+            self.err(path, format!("must be a finite number, got {}", show(x)));
+        } else if x.abs() > MAX_POSITION_M {
+            self.err(
+                path,
+                format!(
+                    "must lie within ±{MAX_POSITION_M} m of the origin, got {}",
+                    show(x)
+                ),
+            );
+        }
+    }
     fn finite2(&mut self, path: &str, x: &[f64; 2]) {
         for (k, c) in x.iter().enumerate() {
-            self.finite(&format!("{path}[{k}]"), *c);
+            self.coordinate(&format!("{path}[{k}]"), *c);
         }
     }
     fn finite3(&mut self, path: &str, x: &[f64; 3]) {
         for (k, c) in x.iter().enumerate() {
-            self.finite(&format!("{path}[{k}]"), *c);
+            self.coordinate(&format!("{path}[{k}]"), *c);
         }
     }
+    /// A positive length, a tolerance or a distance (m), at most [`MAX_SIZE_M`].
     fn positive(&mut self, path: &str, x: f64) {
         if !(x.is_finite() && x > 0.0) {
-            self.err(path, format!("must be a positive number, got {x}"));
+            self.err(path, format!("must be a positive number, got {}", show(x)));
+        } else if x > MAX_SIZE_M {
+            self.err(
+                path,
+                format!("must be at most {MAX_SIZE_M} m, got {}", show(x)),
+            );
         }
     }
-    fn nonneg(&mut self, path: &str, x: f64) {
-        if !(x.is_finite() && x >= 0.0) {
-            self.err(path, format!("must be zero or positive, got {x}"));
+    /// An object's size (half extent, radius, wall): between [`MIN_SIZE_M`] and [`MAX_SIZE_M`],
+    /// what the simulator resolves and the table holds.
+    fn size(&mut self, path: &str, x: f64) {
+        self.within(path, x, MIN_SIZE_M, MAX_SIZE_M, "m");
+    }
+    /// A mass (kg), between [`MIN_MASS_KG`] and [`MAX_MASS_KG`].
+    fn mass(&mut self, path: &str, x: f64) {
+        self.within(path, x, MIN_MASS_KG, MAX_MASS_KG, "kg");
+    }
+    /// A finite number in `[lo, hi]`; the error says the bound and the unit.
+    fn within(&mut self, path: &str, x: f64, lo: f64, hi: f64, unit: &str) {
+        if !x.is_finite() {
+            self.err(path, format!("must be a finite number, got {}", show(x)));
+        } else if x < lo || x > hi {
+            self.err(
+                path,
+                format!("must lie between {lo} and {hi} {unit}, got {}", show(x)),
+            );
         }
     }
     /// A colour name Assay knows, or RGB components in 0..1.
@@ -573,7 +641,9 @@ impl Validator<'_> {
     fn range(&mut self, path: &str, r: &PoseRange) {
         self.finite3(&format!("{path}.min"), &r.min);
         self.finite3(&format!("{path}.max"), &r.max);
-        self.finite2(&format!("{path}.yaw_deg"), &r.yaw_deg);
+        for (k, y) in r.yaw_deg.iter().enumerate() {
+            self.finite(&format!("{path}.yaw_deg[{k}]"), *y);
+        }
         for k in 0..3 {
             if r.min[k] > r.max[k] {
                 self.err(
@@ -590,31 +660,31 @@ impl Validator<'_> {
         match s {
             Shape::Box { half_extents } => {
                 for (k, h) in half_extents.iter().enumerate() {
-                    self.positive(&format!("{path}.box.half_extents[{k}]"), *h);
+                    self.size(&format!("{path}.box.half_extents[{k}]"), *h);
                 }
             }
-            Shape::Sphere { radius } => self.positive(&format!("{path}.sphere.radius"), *radius),
+            Shape::Sphere { radius } => self.size(&format!("{path}.sphere.radius"), *radius),
             Shape::Cylinder {
                 radius,
                 half_height,
             } => {
-                self.positive(&format!("{path}.cylinder.radius"), *radius);
-                self.positive(&format!("{path}.cylinder.half_height"), *half_height);
+                self.size(&format!("{path}.cylinder.radius"), *radius);
+                self.size(&format!("{path}.cylinder.half_height"), *half_height);
             }
             Shape::Container {
                 inner_half_extents,
                 wall,
             } => {
                 for (k, h) in inner_half_extents.iter().enumerate() {
-                    self.positive(&format!("{path}.container.inner_half_extents[{k}]"), *h);
+                    self.size(&format!("{path}.container.inner_half_extents[{k}]"), *h);
                 }
-                self.positive(&format!("{path}.container.wall"), *wall);
+                self.size(&format!("{path}.container.wall"), *wall);
             }
             Shape::Mesh {
                 path: file, scale, ..
             } => {
                 self.asset(&format!("{path}.mesh.path"), file);
-                self.positive(&format!("{path}.mesh.scale"), *scale);
+                self.within(&format!("{path}.mesh.scale"), *scale, 1e-6, 1e3, "×");
             }
             Shape::Urdf {
                 path: file, joints, ..
