@@ -84,14 +84,30 @@ enum Command {
 fn main() -> std::process::ExitCode {
     // Layered configuration: the TOML file < ASSAY_* variables < flags (src/config.rs).
     let args: Vec<std::ffi::OsString> = std::env::args_os().collect();
-    let command = match config::layer(Cli::command(), config::file(&args).as_deref()) {
+    let running = config::subcommand(&args);
+    let command = match config::layer(
+        Cli::command(),
+        config::file(&args).as_deref(),
+        running.as_deref(),
+    ) {
         Ok(c) => c,
         Err(e) => {
             eprintln!("error: {e}");
             return std::process::ExitCode::FAILURE;
         }
     };
-    let cli = match Cli::from_arg_matches(&command.get_matches_from(args)) {
+    let matches = match command.try_get_matches_from(&args) {
+        Ok(m) => m,
+        Err(e) => {
+            if let Some(blame) =
+                config::blame(config::file(&args).as_deref(), running.as_deref(), &e)
+            {
+                eprintln!("error: {blame}");
+            }
+            e.exit()
+        }
+    };
+    let cli = match Cli::from_arg_matches(&matches) {
         Ok(cli) => cli,
         Err(e) => e.exit(),
     };

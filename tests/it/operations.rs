@@ -336,3 +336,66 @@ fn the_scaling_benchmark_runs_each_worker_count_to_the_end() {
         assert!(r["of_ideal"].as_f64().unwrap() > 0.0, "{r:#}");
     }
 }
+
+/// The configuration traps of issue 24: a typo in `./assay.toml` breaks neither `--version` nor
+/// another command's run, and a variable set for one command does not change another.
+#[test]
+fn configuration_and_environment_stay_where_they_belong() {
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::write(
+        dir.path().join("assay.toml"),
+        "[worker]\ncapcity = 2\n[rank]\nresamples = 500\n",
+    )
+    .unwrap();
+    let run = |args: &[&str], env: &[(&str, &str)]| {
+        let mut c = std::process::Command::new(bin());
+        c.args(args).current_dir(dir.path());
+        for (k, v) in env {
+            c.env(k, v);
+        }
+        c.output().unwrap()
+    };
+    let ladder = repo().join("examples/rank/ladder.csv");
+    let ladder = ladder.to_str().unwrap();
+    assert!(run(&["--version"], &[]).status.success());
+    assert!(run(&["worker", "--help"], &[]).status.success());
+    // `rank` reads [rank] (resamples 500) and is not stopped by [worker]'s typo...
+    let base = run(&["rank", ladder, "--json"], &[]);
+    assert!(
+        base.status.success(),
+        "{}",
+        String::from_utf8_lossy(&base.stderr)
+    );
+    let v: serde_json::Value = serde_json::from_slice(&base.stdout).unwrap();
+    assert_eq!(v["resamples"], 500);
+    // ...nor changed by variables meant for other commands.
+    let noisy = run(
+        &["rank", ladder, "--json"],
+        &[
+            ("ASSAY_SEED", "7"),
+            ("ASSAY_REAL", "world-model"),
+            ("ASSAY_RESAMPLES", "1"),
+        ],
+    );
+    assert_eq!(noisy.stdout, base.stdout);
+    // `worker` itself refuses its section's typo, naming the file and the key.
+    let o = run(&["worker", "--coordinator", "http://127.0.0.1:9"], &[]);
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("assay.toml") && err.contains("[worker] has no option 'capcity'"),
+        "{err}"
+    );
+    // A value the option refuses names the file and the key.
+    std::fs::write(
+        dir.path().join("assay.toml"),
+        "[rank]\nresamples = \"many\"\n",
+    )
+    .unwrap();
+    let o = run(&["rank", ladder], &[]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success() && err.contains("assay.toml: [rank] resamples = \"many\""),
+        "{err}"
+    );
+}
