@@ -171,4 +171,95 @@ mod tests {
         // The operator may name the outside folder itself: it is then the root.
         assert_eq!(collect(std::slice::from_ref(&outside)).unwrap().len(), 1);
     }
+
+    /// Property: on random trees of task files, folders and links that point in or out, the
+    /// walk either refuses (a link out) or returns only files inside the root; and a tree with
+    /// no link out is always read.
+    #[cfg(unix)]
+    mod walk_property {
+        use super::*;
+        use proptest::prelude::*;
+
+        #[derive(Debug, Clone)]
+        enum Entry {
+            File,
+            Dir,
+            LinkOut,
+            LinkOutFile,
+            LinkIn,
+            Marker,
+        }
+
+        fn entry() -> impl Strategy<Value = (Vec<u8>, Entry)> {
+            (
+                prop::collection::vec(0u8..3, 1..4),
+                prop_oneof![
+                    Just(Entry::File),
+                    Just(Entry::Dir),
+                    Just(Entry::LinkOut),
+                    Just(Entry::LinkOutFile),
+                    Just(Entry::LinkIn),
+                    Just(Entry::Marker),
+                ],
+            )
+        }
+
+        proptest! {
+            #![proptest_config(ProptestConfig::with_cases(
+                std::env::var("ASSAY_FUZZ_CASES").ok().and_then(|v| v.parse().ok()).unwrap_or(256)
+            ))]
+
+            #[test]
+            fn the_walk_reads_nothing_outside_its_root(entries in prop::collection::vec(entry(), 0..12)) {
+                let dir = tempfile::tempdir().unwrap();
+                let root = dir.path().join("tasks");
+                let outside = dir.path().join("outside");
+                std::fs::create_dir_all(&root).unwrap();
+                std::fs::create_dir_all(&outside).unwrap();
+                std::fs::write(outside.join("secret.yaml"), TASK).unwrap();
+                std::fs::write(root.join("seed.yaml"), TASK).unwrap();
+                let mut outward = false;
+                for (k, (names, kind)) in entries.iter().enumerate() {
+                    let mut at = root.clone();
+                    for n in &names[..names.len() - 1] {
+                        at.push(format!("d{n}"));
+                    }
+                    if std::fs::create_dir_all(&at).is_err() {
+                        continue;
+                    }
+                    let leaf = at.join(format!("e{k}-{}", names[names.len() - 1]));
+                    let made = match kind {
+                        Entry::File => std::fs::write(leaf.with_extension("yaml"), TASK),
+                        Entry::Dir => std::fs::create_dir_all(&leaf),
+                        Entry::LinkOut => std::os::unix::fs::symlink(&outside, &leaf),
+                        Entry::LinkOutFile => std::os::unix::fs::symlink(
+                            outside.join("secret.yaml"),
+                            leaf.with_extension("yaml"),
+                        ),
+                        Entry::LinkIn => std::os::unix::fs::symlink(root.join("seed.yaml"), leaf.with_extension("yaml")),
+                        Entry::Marker => std::fs::write(at.join(crate::outdir::MARKER), "{}"),
+                    };
+                    if made.is_ok() && matches!(kind, Entry::LinkOut | Entry::LinkOutFile) {
+                        outward = true;
+                    }
+                }
+                let root_c = root.canonicalize().unwrap();
+                match collect(std::slice::from_ref(&root)) {
+                    Ok(docs) => {
+                        for d in &docs {
+                            let c = Path::new(&d.origin).canonicalize().unwrap();
+                            prop_assert!(c.starts_with(&root_c), "{} -> {}", d.origin, c.display());
+                        }
+                    }
+                    Err(e) => {
+                        let e = format!("{e:#}");
+                        prop_assert!(
+                            outward || e.contains("no task files"),
+                            "a tree without a link out was refused: {e}"
+                        );
+                    }
+                }
+            }
+        }
+    }
 }

@@ -131,3 +131,53 @@ fn a_tiny_batch_gives_a_report_json_that_matches_its_schema_and_the_golden_repor
          ASSAY_UPDATE_GOLDEN=1 and review the diff):\n--- got ---\n{fixed}"
     );
 }
+
+/// `assay report --from B/report.json` writes beside its input (never into the working folder),
+/// an `ASSAY_OUT` meant for another command changes nothing, and a folder holding another
+/// batch's report is refused unless `--force`.
+#[test]
+fn report_from_a_file_writes_beside_it_and_replaces_no_other_batch() {
+    let dir = tempfile::tempdir().unwrap();
+    let report = |batch: &str| {
+        let results = assay_report::report::build_results("b", &[], &[0], &[], &[], &[]);
+        Report {
+            report_version: assay_report::report::REPORT_VERSION,
+            results,
+            run: assay_report::report::RunInfo {
+                batch_id: batch.into(),
+                ..Default::default()
+            },
+            provenance: Default::default(),
+        }
+    };
+    let (a, b) = (dir.path().join("A"), dir.path().join("B"));
+    for (d, id) in [(&a, "b00001"), (&b, "b00002")] {
+        std::fs::create_dir_all(d).unwrap();
+        std::fs::write(
+            d.join("report.json"),
+            serde_json::to_string(&report(id)).unwrap(),
+        )
+        .unwrap();
+    }
+    let a_before = std::fs::read(a.join("report.json")).unwrap();
+    let run = |args: &[&str]| {
+        Command::new(bin())
+            .args(args)
+            .env("ASSAY_OUT", &a)
+            .current_dir(dir.path())
+            .output()
+            .unwrap()
+    };
+    let o = run(&["report", "--from", "B/report.json"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(b.join("report.md").is_file() && b.join("report.html").is_file());
+    assert!(!dir.path().join("report.md").exists(), "nothing in the working folder");
+    assert!(!a.join("report.md").exists(), "ASSAY_OUT is not report's");
+    let o = run(&["report", "--from", "B/report.json", "--out", "A"]);
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("report of batch b00001, not b00002"), "{err}");
+    assert_eq!(std::fs::read(a.join("report.json")).unwrap(), a_before);
+    let o = run(&["report", "--from", "B/report.json", "--out", "A", "--force"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+}
