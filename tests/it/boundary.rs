@@ -126,7 +126,12 @@ fn a_worker_with_asset_roots_opens_nothing_outside_them() {
         let r = c
             .submit_batch(pb::SubmitBatchRequest {
                 name: "boundary".into(),
-                tasks: vec![doc("by-asset-root"), doc("inside")],
+                tasks: vec![
+                    doc("by-asset-root"),
+                    doc("by-origin"),
+                    doc("by-climbing"),
+                    doc("inside"),
+                ],
                 policies: vec![pb::PolicyRef {
                     name: "oracle".into(),
                 }],
@@ -149,12 +154,32 @@ fn a_worker_with_asset_roots_opens_nothing_outside_them() {
             .find(|t| t.id == id)
             .unwrap_or_else(|| panic!("{id}"))
     };
-    let escaped = task("by-asset-root");
-    assert!(escaped.episodes.is_empty(), "{:?}", escaped.episodes);
-    let error = &escaped.failures[0].error;
-    assert!(
-        error.contains("outside the asset roots the operator allowed"),
-        "{error}"
-    );
+    for id in ["by-asset-root", "by-origin", "by-climbing"] {
+        let escaped = task(id);
+        assert!(escaped.episodes.is_empty(), "{id}: {:?}", escaped.episodes);
+        let error = &escaped.failures[0].error;
+        assert!(
+            error.contains("outside the asset roots the operator allowed"),
+            "{id}: {error}"
+        );
+    }
     assert_eq!(task("inside").episodes.len(), 1, "a task inside runs");
+}
+
+/// A coordinator that anyone on the network can reach without a token says so at start.
+#[test]
+fn a_coordinator_beyond_loopback_without_a_token_warns() {
+    let dir = tempfile::tempdir().unwrap();
+    let (mut open, _) = coordinator(dir.path(), "0.0.0.0:0", &[]);
+    let log = open.log_text();
+    open.kill9();
+    assert!(
+        log.contains("beyond loopback, without a cluster token"),
+        "{log}"
+    );
+    let quiet = tempfile::tempdir().unwrap();
+    let (mut local, _) = coordinator(quiet.path(), "127.0.0.1:0", &[]);
+    let log = local.log_text();
+    local.kill9();
+    assert!(!log.contains("without a cluster token"), "{log}");
 }

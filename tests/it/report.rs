@@ -171,7 +171,10 @@ fn report_from_a_file_writes_beside_it_and_replaces_no_other_batch() {
     let o = run(&["report", "--from", "B/report.json"]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     assert!(b.join("report.md").is_file() && b.join("report.html").is_file());
-    assert!(!dir.path().join("report.md").exists(), "nothing in the working folder");
+    assert!(
+        !dir.path().join("report.md").exists(),
+        "nothing in the working folder"
+    );
     assert!(!a.join("report.md").exists(), "ASSAY_OUT is not report's");
     let o = run(&["report", "--from", "B/report.json", "--out", "A"]);
     assert!(!o.status.success());
