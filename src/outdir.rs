@@ -7,6 +7,7 @@
 //! - an Assay run of the same batch: the run goes on from its job store (finished episodes are
 //!   not run again; a finished batch only gets its report written again); `--force` starts it
 //!   anew instead;
+//! - an Assay run that never submitted its batch (refused before it ran): a new run;
 //! - an Assay run of another batch, or a folder Assay did not make: refused, naming the folder
 //!   and why, unless `--force`, which starts a new run there and replaces only what a run
 //!   writes (`run/`, `artifacts/`, the report files), never anything else.
@@ -97,7 +98,8 @@ pub fn claim(out: &Path, batch: &str, force: bool) -> anyhow::Result<Claim> {
             // Assay wrote it and never submitted: nothing of value in its job store.
             remove_run(&run)?;
         }
-        (Ok(Some(_)), _) if force => remove_run(&run)?,
+        // Assay made it but nothing was ever submitted (a refused batch): nothing to keep.
+        (Ok(Some(m)), _) if force || m.batch_id.is_none() => remove_run(&run)?,
         (Ok(Some(m)), _) => bail!(
             "--out {} holds an Assay run of another batch (tasks or settings differ{}); choose \
              another --out, or pass --force to start this batch there (its run/ job store is \
@@ -232,6 +234,13 @@ mod tests {
         // --force starts the same batch anew.
         assert_eq!(claim(out, "k", true).unwrap(), Claim::Fresh);
         assert!(!out.join("run").exists());
+    }
+
+    #[test]
+    fn a_run_that_never_submitted_leaves_nothing_to_keep() {
+        let dir = tempfile::tempdir().unwrap();
+        claim(dir.path(), "refused", false).unwrap();
+        assert_eq!(claim(dir.path(), "other", false).unwrap(), Claim::Fresh);
     }
 
     #[test]

@@ -62,21 +62,68 @@ fn the_mounted_configuration_is_accepted_by_every_role() {
     let file = dir.path().join("assay.toml");
     for (text, ok) in [
         (toml.clone(), true),
-        (toml.replace("heartbeat-ms", "heartbeat-msec"), false),
+        (
+            toml.replace("heartbeat-ms", "heartbeat-msec")
+                .replace("\ncoordinator = \"http", "\ncoordinatr = \"http"),
+            false,
+        ),
     ] {
         std::fs::write(&file, &text).unwrap();
-        for sub in ["coordinator", "worker"] {
-            let out = Command::new(bin())
-                .args([sub, "--help"])
+        // Each role reads its own section when it starts: a bad key stops it at once, naming
+        // the file; a good file lets it run (stopped after a moment).
+        let store = dir.path().join("jobs.db");
+        let artifacts = dir.path().join("artifacts");
+        let coordinator: Vec<&str> = vec![
+            "coordinator",
+            "--listen",
+            "127.0.0.1:0",
+            "--metrics-listen",
+            "off",
+            "--telemetry",
+            "off",
+            "--store",
+            store.to_str().unwrap(),
+            "--artifacts",
+            artifacts.to_str().unwrap(),
+        ];
+        let worker: Vec<&str> = vec!["worker", "--coordinator", "http://127.0.0.1:9"];
+        for args in [coordinator, worker] {
+            let mut child = Command::new(bin())
+                .args(&args)
                 .env("ASSAY_CONFIG", &file)
-                .output()
+                .stdout(std::process::Stdio::null())
+                .stderr(std::process::Stdio::piped())
+                .spawn()
                 .unwrap();
-            assert_eq!(
-                out.status.success(),
-                ok,
-                "{sub}: {}",
-                String::from_utf8_lossy(&out.stderr)
-            );
+            let deadline = std::time::Instant::now() + std::time::Duration::from_secs(3);
+            let exited = loop {
+                if let Some(st) = child.try_wait().unwrap() {
+                    break Some(st);
+                }
+                if std::time::Instant::now() > deadline {
+                    break None;
+                }
+                std::thread::sleep(std::time::Duration::from_millis(50));
+            };
+            let _ = child.kill();
+            let out = child.wait_with_output().unwrap();
+            let stderr = String::from_utf8_lossy(&out.stderr);
+            match (ok, exited) {
+                (true, None) => {}
+                (false, Some(st)) => {
+                    assert!(!st.success());
+                    let key = match args[0] {
+                        "coordinator" => "heartbeat-msec",
+                        _ => "coordinatr",
+                    };
+                    assert!(
+                        stderr.contains(&format!("has no option '{key}'")),
+                        "{}: {stderr}",
+                        args[0]
+                    );
+                }
+                other => panic!("{}: {other:?}: {stderr}", args[0]),
+            }
         }
     }
 }

@@ -286,7 +286,11 @@ fn invalid_specs_are_reported_by_task_field_and_reason_and_the_rest_runs() {
     };
     let e = find("invalid-negative-size");
     assert_eq!(e.path, "scene.objects[0].shape.box.half_extents[1]");
-    assert!(e.reason.contains("positive") && e.origin.ends_with("negative-size.yaml"));
+    assert!(
+        e.reason.contains("between 0.001 and 5 m, got -")
+            && e.origin.ends_with("negative-size.yaml"),
+        "{e:?}"
+    );
     let e = find("invalid-nan-pose");
     assert!(
         e.path.starts_with("scene.objects[0].pose.position[") && e.reason.contains("finite"),

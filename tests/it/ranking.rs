@@ -79,8 +79,10 @@ fn eval_ranks_a_ladder_by_the_world_model_proxy() {
     .unwrap();
     let module = torchscript(dir.path());
     let learned = format!("torchscript:path={},max_steps=480", module.display());
+    // The report goes to its own folder: `dir` holds the configuration and the module.
+    let out_dir = dir.path().join("out");
     let out = eval(
-        dir.path(),
+        &out_dir,
         &[
             "--judge",
             "vlm",
@@ -105,7 +107,7 @@ fn eval_ranks_a_ladder_by_the_world_model_proxy() {
         "{stdout}"
     );
     let report: Report =
-        serde_json::from_str(&std::fs::read_to_string(dir.path().join("report.json")).unwrap())
+        serde_json::from_str(&std::fs::read_to_string(out_dir.join("report.json")).unwrap())
             .unwrap();
     let k = report.results.ranking.expect("a ranking section");
     assert_eq!(
@@ -164,13 +166,13 @@ fn eval_ranks_a_ladder_by_the_world_model_proxy() {
     assert!(judged.policies.iter().all(|p| p.proxy == 0.5));
     assert!(judged.pearson.undefined.is_some(), "{:?}", judged.pearson);
     assert!(stdout.contains("world-model+vlm against sim"), "{stdout}");
-    assert!(dir.path().join("ranking-vlm.svg").is_file());
-    let md = std::fs::read_to_string(dir.path().join("report.md")).unwrap();
+    assert!(out_dir.join("ranking-vlm.svg").is_file());
+    let md = std::fs::read_to_string(out_dir.join("report.md")).unwrap();
     assert!(
         md.contains("| `put-block-in-bowl` | oracle:noise=0.05 |"),
         "{md}"
     );
-    let svg = std::fs::read_to_string(dir.path().join("ranking.svg")).unwrap();
+    let svg = std::fs::read_to_string(out_dir.join("ranking.svg")).unwrap();
     assert!(svg.contains("<svg"));
 }
 
