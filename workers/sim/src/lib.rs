@@ -177,22 +177,24 @@ pub const KEYFRAMES: usize = 8;
 /// Frames of an episode video (4 s at 12 frames/s, whatever the episode's length).
 pub const VIDEO_FRAMES: usize = 48;
 
-/// Whether a `lifted` goal names object `i` (the episode may end holding it up).
-/// The first object whose position is not finite or is more than a kilometre away: physics that
-/// blew up.
+/// The first object whose pose is not finite: physics that blew up. (Distance is no sign: an
+/// object that falls off the table keeps falling, kilometres in a long episode, and that is an
+/// outcome the goals judge.)
 pub fn blown_up(scene: &SimScene) -> Option<&str> {
     scene
         .objects
         .iter()
         .find(|o| {
-            let p = scene.pose(o).translation;
-            [p.x, p.y, p.z]
+            let pose = scene.pose(o);
+            let (p, q) = (pose.translation, pose.rotation);
+            ![p.x, p.y, p.z, q.x, q.y, q.z, q.w]
                 .iter()
-                .any(|c| !c.is_finite() || c.abs() > 1e3)
+                .all(|c| c.is_finite())
         })
         .map(|o| o.id.as_str())
 }
 
+/// Whether a `lifted` goal names object `i` (the episode may end holding it up).
 fn lifts(spec: &TaskSpec, scene: &SimScene, i: usize) -> bool {
     let id = &scene.objects[i].id;
     spec.goals
@@ -467,8 +469,8 @@ pub fn simulate_with(
         return Err(SimError::spec(
             "scene",
             format!(
-                "the physics state of object '{id}' became non-finite or left the world (beyond \
-                 1 km) by step {step}: the episode measured nothing and is not scored"
+                "the physics state of object '{id}' became non-finite (NaN or infinite) by step \
+                 {step}: the episode measured nothing and is not scored"
             ),
         ));
     }

@@ -40,7 +40,9 @@ fn a_non_finite_physics_state_is_seen() {
     at.x = f32::NAN;
     scene.world.bodies[body].set_translation(at, true);
     assert_eq!(assay_sim::blown_up(&scene), Some("red_block"));
-    at.x = 5e3;
+    // Far is not broken: an object off the table falls as far as the episode lasts.
+    at.x = 0.5;
+    at.z = -5e3;
     scene.world.bodies[body].set_translation(at, true);
-    assert_eq!(assay_sim::blown_up(&scene), Some("red_block"));
+    assert_eq!(assay_sim::blown_up(&scene), None);
 }
