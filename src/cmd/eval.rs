@@ -391,6 +391,13 @@ pub fn run(mut a: Args) -> anyhow::Result<ExitCode> {
     for line in super::report::ranking_lines(&parsed) {
         println!("{line}");
     }
+    if let (Some(why), None) = (&exited, &last) {
+        eprintln!(
+            "{why}: the report holds what finished; run the same command again to go on from \
+             the job store"
+        );
+        return Ok(ExitCode::FAILURE);
+    }
     let last = last.context("no status from the coordinator")?;
     eprintln!(
         "{}: {}/{} episodes completed, {} succeeded, {} failed; report in {} (and report.md, report.json)",
