@@ -99,17 +99,6 @@ impl Drop for ChildProc {
     }
 }
 
-/// The name of the first of `children` (name, pid) that has exited and not been reaped yet (a
-/// zombie in `/proc`), if any. Reads only: the `ChildProc` still reaps it when stopped.
-pub fn first_exited(children: &[(String, u32)]) -> Option<String> {
-    children.iter().find_map(|(name, pid)| {
-        let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).ok()?;
-        // `pid (comm) S …`: the state follows the last ')'.
-        let state = stat.rsplit_once(')')?.1.trim_start().chars().next()?;
-        (state == 'Z' || state == 'X').then(|| name.clone())
-    })
-}
-
 /// Waits for a file a child writes (its bound address), up to `timeout`.
 pub fn wait_for_file(
     path: &Path,
@@ -130,30 +119,5 @@ pub fn wait_for_file(
             anyhow::bail!("{} did not start within {timeout:?}", child.name);
         }
         std::thread::sleep(Duration::from_millis(20));
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn an_exited_child_is_seen_before_it_is_reaped_and_a_running_one_is_not() {
-        let mut done = Command::new("true").spawn().unwrap();
-        let mut running = Command::new("sleep").arg("30").spawn().unwrap();
-        let children = [
-            ("running".to_owned(), running.id()),
-            ("done".to_owned(), done.id()),
-        ];
-        let deadline = Instant::now() + Duration::from_secs(10);
-        while first_exited(&children).is_none() && Instant::now() < deadline {
-            std::thread::sleep(Duration::from_millis(20));
-        }
-        assert_eq!(first_exited(&children).as_deref(), Some("done"));
-        assert_eq!(first_exited(&children[..1]), None);
-        // Reading /proc did not reap it: its exit status is still there.
-        assert!(done.wait().unwrap().success());
-        running.kill().unwrap();
-        running.wait().unwrap();
     }
 }

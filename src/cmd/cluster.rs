@@ -290,16 +290,6 @@ impl LocalCluster {
         Ok(events)
     }
 
-    /// (name, pid) of every process, for `crate::proc::first_exited`: a local process that dies
-    /// (a crash, the OOM killer) would leave a batch waiting for it forever.
-    pub fn watched(&self) -> Vec<(String, u32)> {
-        self.workers
-            .iter()
-            .chain(std::iter::once(&self.coordinator))
-            .map(|p| (p.proc.name.clone(), p.proc.child.id()))
-            .collect()
-    }
-
     /// Workers first (they hand their leases back), then the coordinator.
     pub fn stop(mut self) {
         for w in &mut self.workers {

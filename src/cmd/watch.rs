@@ -269,7 +269,16 @@ pub fn run(mut a: Args) -> anyhow::Result<ExitCode> {
         (None, Some(c)) => c.addr.clone(),
         (None, None) => unreachable!("a local cluster starts without --coordinator"),
     };
-    let watched = cluster.as_ref().map(|c| c.watched()).unwrap_or_default();
+    // The local cluster's processes are started again when they die, as `assay eval` does.
+    let mut cluster = cluster;
+    let mut supervise = || -> anyhow::Result<()> {
+        if let Some(c) = cluster.as_mut() {
+            for line in c.supervise()? {
+                eprintln!("{line}");
+            }
+        }
+        Ok(())
+    };
     let rt = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
         .enable_all()
@@ -301,12 +310,7 @@ pub fn run(mut a: Args) -> anyhow::Result<ExitCode> {
             {
                 return Ok(());
             }
-            if let Some(name) = crate::proc::first_exited(&watched) {
-                anyhow::bail!(
-                    "the local {name} process exited; its log is in {}",
-                    a.out.join("run").display()
-                );
-            }
+            supervise()?;
             for folder in batch_folders(&a.dir)? {
                 let name = folder
                     .file_name()
@@ -338,7 +342,7 @@ pub fn run(mut a: Args) -> anyhow::Result<ExitCode> {
                     &artifacts,
                     &corpus,
                     &mut embedders,
-                    &watched,
+                    &mut supervise,
                     &stop,
                 );
                 eprintln!("{}", summary(&entry, &corpus.models));
@@ -414,7 +418,7 @@ fn handle(
     artifacts: &Path,
     corpus: &Corpus,
     embedders: &mut assay_trainer::embedders::Embedders,
-    watched: &[(String, u32)],
+    supervise: &mut dyn FnMut() -> anyhow::Result<()>,
     stop: &std::sync::atomic::AtomicBool,
 ) -> Entry {
     let mut entry = Entry {
@@ -436,7 +440,7 @@ fn handle(
         finished_at_unix_ms: 0,
     };
     if let Err(e) = evaluate(
-        a, rt, addr, folder, name, artifacts, corpus, embedders, watched, stop, &mut entry,
+        a, rt, addr, folder, name, artifacts, corpus, embedders, supervise, stop, &mut entry,
     ) {
         entry.outcome = "failed".into();
         entry.error = Some(format!("{e:#}"));
@@ -455,7 +459,7 @@ fn evaluate(
     artifacts: &Path,
     corpus: &Corpus,
     embedders: &mut assay_trainer::embedders::Embedders,
-    watched: &[(String, u32)],
+    supervise: &mut dyn FnMut() -> anyhow::Result<()>,
     stop: &std::sync::atomic::AtomicBool,
     entry: &mut Entry,
 ) -> anyhow::Result<()> {
@@ -479,21 +483,38 @@ fn evaluate(
             return anyhow::Ok((r, None));
         }
         let started = Instant::now();
+        // Set while the coordinator cannot be reached (a local one is started again).
+        let mut lost_since: Option<Instant> = None;
         loop {
-            let st = c
+            supervise()?;
+            let st = match c
                 .get_batch(pb::GetBatchRequest {
                     batch_id: r.batch_id.clone(),
                 })
-                .await?
-                .into_inner();
+                .await
+            {
+                Ok(st) => {
+                    lost_since = None;
+                    st.into_inner()
+                }
+                Err(e) => {
+                    let since = *lost_since.get_or_insert_with(Instant::now);
+                    if since.elapsed() > Duration::from_secs(120) {
+                        anyhow::bail!(
+                            "lost the coordinator while batch {} ran: {}",
+                            r.batch_id,
+                            e.message()
+                        );
+                    }
+                    tokio::time::sleep(Duration::from_millis(500)).await;
+                    if let Ok(again) = super::client(addr).await {
+                        c = again;
+                    }
+                    continue;
+                }
+            };
             if st.state != pb::BatchState::Running as i32 {
                 return Ok((r, Some(st)));
-            }
-            if let Some(p) = crate::proc::first_exited(watched) {
-                anyhow::bail!(
-                    "the local {p} process exited while batch {} ran",
-                    r.batch_id
-                );
             }
             if stop.load(std::sync::atomic::Ordering::Relaxed) {
                 anyhow::bail!(

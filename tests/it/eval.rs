@@ -525,29 +525,6 @@ fn an_eval_killed_mid_batch_goes_on_from_its_job_store() {
     );
 }
 
-/// The child processes of `pid` whose second argument (the subcommand) is `role`.
-fn children(pid: u32, role: &str) -> Vec<i32> {
-    let mut out = Vec::new();
-    for entry in std::fs::read_dir("/proc").unwrap().flatten() {
-        let Ok(child) = entry.file_name().to_string_lossy().parse::<i32>() else {
-            continue;
-        };
-        let Ok(stat) = std::fs::read_to_string(format!("/proc/{child}/stat")) else {
-            continue;
-        };
-        let ppid = stat
-            .rsplit_once(')')
-            .and_then(|(_, rest)| rest.split_whitespace().nth(1))
-            .and_then(|p| p.parse::<u32>().ok());
-        let cmdline = std::fs::read(format!("/proc/{child}/cmdline")).unwrap_or_default();
-        let args: Vec<&[u8]> = cmdline.split(|b| *b == 0).collect();
-        if ppid == Some(pid) && args.get(1) == Some(&role.as_bytes()) {
-            out.push(child);
-        }
-    }
-    out
-}
-
 /// SIGKILL of a local worker, then of the local coordinator, mid-`eval`: each is started again,
 /// the command ends 0 with every episode in the report, the report says what happened, and its
 /// results equal a clean run's on the same seeds.

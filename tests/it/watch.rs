@@ -187,3 +187,76 @@ fn watch_evaluates_new_batches_skips_repeats_and_reports_marginal_diversity() {
         assert_eq!(list[1].shards_total, 0);
     });
 }
+
+/// A local worker killed while `assay watch` evaluates a batch is started again and the batch is
+/// evaluated, as in `assay eval`.
+#[test]
+fn watch_starts_a_killed_local_worker_again_and_the_batch_is_evaluated() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (dir, staging, out) = (
+        tmp.path().join("incoming"),
+        tmp.path().join("staging"),
+        tmp.path().join("out"),
+    );
+    std::fs::create_dir_all(&dir).unwrap();
+    let mut watch = Proc::spawn(
+        "watch",
+        &[
+            "watch",
+            dir.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+            "--roles",
+            "sim",
+            "--no-judge",
+            "--seeds",
+            "8",
+            "--workers",
+            "1",
+            "--poll-ms",
+            "200",
+            "--exit-after",
+            "1",
+        ],
+        tmp.path(),
+    );
+    drop_batch(
+        &dir,
+        &staging,
+        "batch-1",
+        &[
+            "tests/fixtures/small/small-put-block-in-bowl.yaml",
+            "tests/fixtures/small/small-stack-two-blocks.yaml",
+        ],
+        "",
+    );
+    let deadline = Instant::now() + Duration::from_secs(300);
+    let episodes = out.join("artifacts");
+    loop {
+        let stored = std::fs::read_dir(episodes.join("episodes")).map_or(0, |d| d.count());
+        if stored >= 2 {
+            break;
+        }
+        assert!(
+            Instant::now() < deadline,
+            "no episode:\n{}",
+            watch.log_text()
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let workers = children(watch.child.id(), "worker");
+    assert!(!workers.is_empty(), "no local worker");
+    nix::sys::signal::kill(
+        nix::unistd::Pid::from_raw(workers[0]),
+        nix::sys::signal::Signal::SIGKILL,
+    )
+    .unwrap();
+    let status = watch.wait_exit(Duration::from_secs(300));
+    let log = watch.log_text();
+    assert!(status.success(), "{log}");
+    assert!(log.contains("starting it again"), "{log}");
+    let c = corpus(&out);
+    let b = &c["batches"][0];
+    assert_eq!(b["outcome"], "evaluated", "{c:#}");
+    assert_eq!(b["episodes"], 16, "{c:#}");
+}

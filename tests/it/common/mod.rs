@@ -375,3 +375,26 @@ pub fn chromium_check(html: &Path, screenshot: &str) -> Option<assay_browser_che
     eprintln!("screenshot of {}: {}", html.display(), shot.display());
     Some(page)
 }
+
+/// The child processes of `pid` whose second argument (the subcommand) is `role`.
+pub fn children(pid: u32, role: &str) -> Vec<i32> {
+    let mut out = Vec::new();
+    for entry in std::fs::read_dir("/proc").unwrap().flatten() {
+        let Ok(child) = entry.file_name().to_string_lossy().parse::<i32>() else {
+            continue;
+        };
+        let Ok(stat) = std::fs::read_to_string(format!("/proc/{child}/stat")) else {
+            continue;
+        };
+        let ppid = stat
+            .rsplit_once(')')
+            .and_then(|(_, rest)| rest.split_whitespace().nth(1))
+            .and_then(|p| p.parse::<u32>().ok());
+        let cmdline = std::fs::read(format!("/proc/{child}/cmdline")).unwrap_or_default();
+        let args: Vec<&[u8]> = cmdline.split(|b| *b == 0).collect();
+        if ppid == Some(pid) && args.get(1) == Some(&role.as_bytes()) {
+            out.push(child);
+        }
+    }
+    out
+}
