@@ -15,6 +15,10 @@ pub const PARENT_VAR: &str = "ASSAY_LOCAL_PARENT";
 
 /// In a child of a local cluster, asks the kernel for SIGKILL when the parent dies, and exits
 /// at once if it already has (the parent's pid no longer ours). Elsewhere does nothing.
+///
+/// The kernel's "parent" is the thread that spawned the child: local clusters start and restart
+/// their processes from the command's main thread (`block_on` drives its future there), never
+/// from a runtime worker thread that could end first.
 pub fn die_with_parent() {
     let Some(parent) = std::env::var(PARENT_VAR)
         .ok()
