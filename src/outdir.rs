@@ -166,7 +166,8 @@ pub fn check_apart(out: &Path, tasks: &[PathBuf]) -> anyhow::Result<()> {
             std::env::current_dir().unwrap_or_default().join(p)
         };
         // Resolve what exists (symlinks, ..); keep the rest as written.
-        p.canonicalize().unwrap_or_else(|_| normalise(&p))
+        p.canonicalize()
+            .unwrap_or_else(|_| assay_spec::assets::lexical(&p))
     };
     let o = abs(out);
     for t in tasks {
@@ -181,21 +182,6 @@ pub fn check_apart(out: &Path, tasks: &[PathBuf]) -> anyhow::Result<()> {
         }
     }
     Ok(())
-}
-
-/// `a/./b/../c` as `a/c`, without touching the file system.
-fn normalise(p: &Path) -> PathBuf {
-    let mut out = PathBuf::new();
-    for c in p.components() {
-        match c {
-            std::path::Component::CurDir => {}
-            std::path::Component::ParentDir => {
-                out.pop();
-            }
-            c => out.push(c),
-        }
-    }
-    out
 }
 
 #[cfg(test)]

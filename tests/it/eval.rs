@@ -396,6 +396,28 @@ fn articulated_objects_arms_pads_and_piles_are_rendered_and_judged() {
     }
 }
 
+/// `assay eval` of `tests/fixtures/small` (4 tasks) with physics only, into `out`.
+fn small_sim_eval(seeds: u32, workers: u32, out: &std::path::Path) -> Vec<String> {
+    let (seeds, workers) = (seeds.to_string(), workers.to_string());
+    [
+        "eval",
+        "tests/fixtures/small",
+        "--seeds",
+        &seeds,
+        "--workers",
+        &workers,
+        "--roles",
+        "sim",
+        "--no-diversity",
+        "--quiet",
+        "--out",
+    ]
+    .iter()
+    .map(|s| s.to_string())
+    .chain([out.display().to_string()])
+    .collect()
+}
+
 /// Files under `dir`, at any depth.
 fn files_under(dir: &std::path::Path) -> usize {
     std::fs::read_dir(dir).map_or(0, |entries| {
@@ -417,25 +439,7 @@ fn files_under(dir: &std::path::Path) -> usize {
 fn an_eval_killed_mid_batch_goes_on_from_its_job_store() {
     let dir = tempfile::tempdir().unwrap();
     let (out, clean) = (dir.path().join("out"), dir.path().join("clean"));
-    let args = |out: &std::path::Path| -> Vec<String> {
-        [
-            "eval",
-            "tests/fixtures/small",
-            "--seeds",
-            "6",
-            "--workers",
-            "1",
-            "--roles",
-            "sim",
-            "--no-diversity",
-            "--quiet",
-            "--out",
-        ]
-        .iter()
-        .map(|s| s.to_string())
-        .chain([out.display().to_string()])
-        .collect()
-    };
+    let args = |out: &std::path::Path| small_sim_eval(6, 1, out);
     let mut run = Command::new(bin())
         .args(args(&out))
         .current_dir(repo())
@@ -531,25 +535,7 @@ fn an_eval_killed_mid_batch_goes_on_from_its_job_store() {
 #[test]
 fn local_processes_killed_mid_batch_are_started_again_and_the_batch_finishes() {
     let dir = tempfile::tempdir().unwrap();
-    let args = |out: &std::path::Path| -> Vec<String> {
-        [
-            "eval",
-            "tests/fixtures/small",
-            "--seeds",
-            "8",
-            "--workers",
-            "2",
-            "--roles",
-            "sim",
-            "--no-diversity",
-            "--quiet",
-            "--out",
-        ]
-        .iter()
-        .map(|s| s.to_string())
-        .chain([out.display().to_string()])
-        .collect()
-    };
+    let args = |out: &std::path::Path| small_sim_eval(8, 2, out);
     let clean = dir.path().join("clean");
     let fresh = Command::new(bin())
         .args(args(&clean))

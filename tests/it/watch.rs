@@ -20,6 +20,33 @@ fn drop_batch(dir: &Path, staging: &Path, name: &str, files: &[&str], prefix: &s
     std::fs::rename(&stage, dir.join(name)).unwrap();
 }
 
+/// `assay watch DIR` with one physics-only worker, polling every 200 ms, until `exit_after`
+/// batches are handled.
+fn spawn_watch(tmp: &Path, dir: &Path, out: &Path, seeds: u32, exit_after: u32) -> Proc {
+    let (seeds, exit_after) = (seeds.to_string(), exit_after.to_string());
+    Proc::spawn(
+        "watch",
+        &[
+            "watch",
+            dir.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+            "--roles",
+            "sim",
+            "--no-judge",
+            "--seeds",
+            &seeds,
+            "--workers",
+            "1",
+            "--poll-ms",
+            "200",
+            "--exit-after",
+            &exit_after,
+        ],
+        tmp,
+    )
+}
+
 fn corpus(out: &Path) -> serde_json::Value {
     std::fs::read_to_string(out.join("corpus.json"))
         .ok()
@@ -63,27 +90,7 @@ fn watch_evaluates_new_batches_skips_repeats_and_reports_marginal_diversity() {
         "tests/fixtures/small/small-insert-block-into-fixture.yaml",
         "tests/fixtures/small/small-move-two-small-blocks-into-zone.yaml",
     ];
-    let mut watch = Proc::spawn(
-        "watch",
-        &[
-            "watch",
-            dir.to_str().unwrap(),
-            "--out",
-            out.to_str().unwrap(),
-            "--roles",
-            "sim",
-            "--no-judge",
-            "--seeds",
-            "2",
-            "--workers",
-            "1",
-            "--poll-ms",
-            "200",
-            "--exit-after",
-            "3",
-        ],
-        tmp.path(),
-    );
+    let mut watch = spawn_watch(tmp.path(), &dir, &out, 2, 3);
     drop_batch(&dir, &staging, "batch-1", &first, "");
     wait_for_batches(&mut watch, &out, 1);
     // The same tasks under other file names: the content hash is of the specs, not the files.
@@ -199,27 +206,7 @@ fn watch_starts_a_killed_local_worker_again_and_the_batch_is_evaluated() {
         tmp.path().join("out"),
     );
     std::fs::create_dir_all(&dir).unwrap();
-    let mut watch = Proc::spawn(
-        "watch",
-        &[
-            "watch",
-            dir.to_str().unwrap(),
-            "--out",
-            out.to_str().unwrap(),
-            "--roles",
-            "sim",
-            "--no-judge",
-            "--seeds",
-            "8",
-            "--workers",
-            "1",
-            "--poll-ms",
-            "200",
-            "--exit-after",
-            "1",
-        ],
-        tmp.path(),
-    );
+    let mut watch = spawn_watch(tmp.path(), &dir, &out, 8, 1);
     drop_batch(
         &dir,
         &staging,

@@ -46,6 +46,22 @@ pub fn check_within(path: &Path, roots: &[PathBuf]) -> Result<(), String> {
     }
 }
 
+/// `a/./b/../c` as `a/c`, without the file system: for a path that may not exist (where
+/// `canonicalize` cannot help).
+pub fn lexical(p: &Path) -> PathBuf {
+    let mut out = PathBuf::new();
+    for c in p.components() {
+        match c {
+            std::path::Component::CurDir => {}
+            std::path::Component::ParentDir => {
+                out.pop();
+            }
+            c => out.push(c),
+        }
+    }
+    out
+}
+
 /// [`check_within`] the roots set by [`set_roots`].
 pub fn check_allowed(path: &Path) -> Result<(), String> {
     check_within(path, ROOTS.get().map_or(&[], Vec::as_slice))

@@ -58,6 +58,28 @@ fn joined(base: &Path, absolute: bool, parts: &[usize]) -> String {
     }
 }
 
+/// The property below would hold vacuously if nothing resolved: assets inside do, links out do
+/// not.
+#[test]
+fn the_tree_resolves_inside_and_refuses_outside() {
+    let (_dir, root, _outside) = tree();
+    let mut spec = parse_task(
+        assay_testkit::tasks::PUT_BLOCK_IN_ZONE,
+        Format::Yaml,
+        "t.yaml",
+    )
+    .unwrap();
+    spec.source.asset_root = Some(root.display().to_string());
+    assert!(spec.resolve_asset("f1").is_ok());
+    assert!(spec.resolve_asset("a/f2").is_ok());
+    #[cfg(unix)]
+    {
+        assert!(spec.resolve_asset("l_in/f2").is_ok());
+        assert!(spec.resolve_asset("l_out/secret").is_err());
+        assert!(spec.resolve_asset("a/l_file").is_err());
+    }
+}
+
 proptest! {
     #![proptest_config(ProptestConfig::with_cases(cases()))]
 

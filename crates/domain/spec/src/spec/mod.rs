@@ -653,21 +653,6 @@ pub fn parse_task(text: &str, format: Format, origin: &str) -> Result<TaskSpec, 
     }
 }
 
-/// `a/./b/../c` as `a/c`, without the file system (for a path that does not exist).
-fn lexical(p: &std::path::Path) -> std::path::PathBuf {
-    let mut out = std::path::PathBuf::new();
-    for c in p.components() {
-        match c {
-            std::path::Component::CurDir => {}
-            std::path::Component::ParentDir => {
-                out.pop();
-            }
-            c => out.push(c),
-        }
-    }
-    out
-}
-
 /// serde_yaml_ng prefixes its messages with the path; the error carries the path on its own.
 fn strip_path(message: &str, path: &str) -> String {
     match message.split_once(": ") {
@@ -814,7 +799,9 @@ impl TaskSpec {
             return Ok(());
         }
         let root = std::path::absolute(self.asset_root()).unwrap_or_else(|_| self.asset_root());
-        let resolved = root.canonicalize().unwrap_or_else(|_| lexical(&root));
+        let resolved = root
+            .canonicalize()
+            .unwrap_or_else(|_| crate::assets::lexical(&root));
         if roots.iter().any(|r| resolved.starts_with(r)) {
             return Ok(());
         }
