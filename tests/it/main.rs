@@ -13,6 +13,7 @@ mod eval;
 mod forbidden_dependencies;
 mod framebus;
 mod generalization;
+mod gensim;
 mod import;
 mod judge;
 mod layout;

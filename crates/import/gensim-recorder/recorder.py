@@ -1,27 +1,85 @@
-"""PROTOTYPE, not wired into `assay import gensim` yet (issue 25 groundwork).
+"""Runs one GenSim task's reset() against a recording stand-in of the Ravens API and prints what it
+built, as JSON on standard output, for `assay import gensim` (crates/import/src/gensim/).
 
-Runs a GenSim task's reset() against a recording stand-in of the Ravens API (Task, env,
-utils, pybullet) and prints what it built as JSON: objects with URDF, pose, colour and category,
-filled templates with their replacement dicts, and goals with matches, target poses and metric.
-No simulator, no pybullet, nothing written. Measured on ../shared/corpora/gensim-library (numpy
-2.4 from PyPI): reset() runs for 93 of the 96 task files on each of seeds 0-4; the other 3 build
-ropes, refused as deformable.
+    python -I recorder.py ASSETS LIBRARY TASK_FILE SEED [SEED ...]   (run by the importer, sandboxed)
 
-Not done here, and needed before the importer may call it: the sandbox (rlimits on CPU time
-and address space, a wall-clock timeout, an audit hook refusing os/subprocess/socket and file
-writes, a read-only view of the library), the translation of its records into spec v1, and
-tests. Usage: python recorder.py TASK.py SEED"""
-import json, math, random, sys, types, importlib.util
-from collections import defaultdict
-import numpy as np
+Nothing of the task is trusted. The importer starts this script with limits on CPU time, address
+space, file size and processes, an empty environment and a wall-clock timeout; here, before the
+task's code is compiled:
+  - the task module gets its own builtins: no open, exec, eval, compile, input or breakpoint, and
+    an __import__ that gives numpy, the standard modules a task computes with, the Ravens stand-ins
+    (cliport, pybullet) and a stand-in `os` that has only `os.path`; any other import is refused;
+  - an audit hook (it cannot be removed) stops the process on any file write, any read outside the
+    library and Python's own files, any process, socket, signal or ctypes call, and any import of a
+    module that could reach them, whatever path the code found to it;
+  - what the task prints is kept apart (bounded), so that only this script writes the answer.
+
+The stand-in follows GenSim's own `cliport/tasks/task.py`, `environments/environment.py` and
+`utils/utils.py` (the library's `reference/`): templates are filled as `fill_template` and
+`fill_dummy_template` fill them (the values are recorded, not written to a file), random poses are
+drawn collision-free in the same workspace, goals are recorded with their matches, targets,
+symmetries and metric. The answer is one JSON object: {"seeds": [...]} or {"refused": {field,
+reason}}; the importer translates it into a task spec."""
+
+import sys, os as _os
+
+_REAL_STDOUT = _os.dup(1)
 
 
-class Unsupported(Exception):
-    pass
+def _answer(obj, code=0):
+    import json as _json
+    data = (_json.dumps(obj) + "\n").encode()
+    view = memoryview(data)
+    while view:
+        n = _os.write(_REAL_STDOUT, view)
+        view = view[n:]
+    _os._exit(code)
 
+
+class _Bounded:
+    """What the task prints: kept, up to 64 KiB, never on the answer's stream."""
+
+    def __init__(self):
+        self.n = 0
+
+    def write(self, s):
+        self.n += len(s)
+        return len(s)
+
+    def flush(self):
+        pass
+
+
+sys.stdout = _Bounded()
+sys.stderr = _Bounded()
+
+import json, math, random, types, copy, itertools, functools, collections, string, re
+try:
+    import numpy as np
+except ImportError:
+    _answer({'error': f"numpy is not installed for {sys.executable} (GenSim task code needs it: "
+                      "pip install numpy, or point ASSAY_PYTHON at a Python that has it)"}, 2)
+
+ASSETS = _os.path.realpath(sys.argv[1])
+LIBRARY = _os.path.realpath(sys.argv[2])
+TASK_FILE = _os.path.realpath(sys.argv[3])
+SEEDS = [int(s) for s in sys.argv[4:]]
+# What task code sees as self.assets_root: paths built from it are recorded relative to the assets.
+ASSETS_TOKEN = "assets"
+
+
+class Refused(Exception):
+    """The task does something a recording cannot follow, or must not do."""
+
+    def __init__(self, field, reason):
+        super().__init__(reason)
+        self.field, self.reason = field, reason
+
+
+# ---------------------------------------------------------------------------------------------
+# Geometry (utils.py).
 
 def quat_from_euler(r):
-    # xyz euler (roll, pitch, yaw) -> xyzw, fixed axes (pybullet's convention)
     cx, sx = math.cos(r[0] / 2), math.sin(r[0] / 2)
     cy, sy = math.cos(r[1] / 2), math.sin(r[1] / 2)
     cz, sz = math.cos(r[2] / 2), math.sin(r[2] / 2)
@@ -30,55 +88,223 @@ def quat_from_euler(r):
 
 
 def euler_from_quat(q):
-    x, y, z, w = q
+    x, y, z, w = [float(v) for v in q]
     roll = math.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
-    pitch = math.asin(max(-1, min(1, 2 * (w * y - z * x))))
+    pitch = math.asin(max(-1.0, min(1.0, 2 * (w * y - z * x))))
     yaw = math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
     return (roll, pitch, yaw)
 
 
 def rot_matrix(q):
-    x, y, z, w = q
+    x, y, z, w = [float(v) for v in q]
     return np.array([
         [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
         [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
         [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
 
 
+def quat_mul(a, b):
+    x1, y1, z1, w1 = a
+    x2, y2, z2, w2 = b
+    return (w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2, w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
+            w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2, w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2)
+
+
+def as_pose(pose, field):
+    """A pose as GenSim accepts it: (position, quaternion), or a bare position."""
+    try:
+        if len(pose) == 3 and not hasattr(pose[0], "__len__"):
+            pose = (pose, (0, 0, 0, 1))
+        pos = [float(v) for v in pose[0]]
+        rot = [float(v) for v in pose[1]]
+    except Exception:
+        raise Refused(field, f"not a pose: {pose!r}"[:200])
+    if len(pos) != 3 or len(rot) != 4 or not all(math.isfinite(v) for v in pos + rot):
+        raise Refused(field, f"not a finite (position, quaternion) pose: {pose!r}"[:200])
+    return pos, rot
+
+
+COLORS_DICT = {
+    'blue': [78.0 / 255.0, 121.0 / 255.0, 167.0 / 255.0],
+    'red': [255.0 / 255.0, 87.0 / 255.0, 89.0 / 255.0],
+    'green': [89.0 / 255.0, 169.0 / 255.0, 78.0 / 255.0],
+    'orange': [242.0 / 255.0, 142.0 / 255.0, 43.0 / 255.0],
+    'yellow': [237.0 / 255.0, 201.0 / 255.0, 72.0 / 255.0],
+    'purple': [176.0 / 255.0, 122.0 / 255.0, 161.0 / 255.0],
+    'pink': [255.0 / 255.0, 157.0 / 255.0, 167.0 / 255.0],
+    'cyan': [118.0 / 255.0, 183.0 / 255.0, 178.0 / 255.0],
+    'brown': [156.0 / 255.0, 117.0 / 255.0, 95.0 / 255.0],
+    'white': [255.0 / 255.0, 255.0 / 255.0, 255.0 / 255.0],
+    'gray': [186.0 / 255.0, 176.0 / 255.0, 172.0 / 255.0],
+    'indigo': [75.0 / 255.0, 0.0 / 255.0, 130.0 / 255.0],
+    'violet': [143.0 / 255.0, 0.0 / 255.0, 255.0 / 255.0],
+    'black': [0.0, 0.0, 0.0],
+    'silver': [192.0 / 255.0, 192.0 / 255.0, 192.0 / 255.0],
+    'gold': [255.0 / 255.0, 215.0 / 255.0, 0.0 / 255.0],
+}
+
+
+def color_record(color):
+    """(rgb, name): a colour name where the rgb is one of utils.COLORS."""
+    if color is None:
+        return None, None
+    if isinstance(color, str):
+        color = COLORS_DICT.get(color, [1.0, 0.0, 0.0])
+    try:
+        rgb = [float(c) for c in list(color)[:3]]
+    except Exception:
+        raise Refused("color", f"not a colour: {color!r}"[:200])
+    if len(rgb) != 3 or not all(math.isfinite(c) for c in rgb):
+        raise Refused("color", f"not a colour: {color!r}"[:200])
+    for name, value in COLORS_DICT.items():
+        if all(abs(a - b) < 1e-6 for a, b in zip(rgb, value)):
+            return rgb, name
+    return rgb, None
+
+
+# ---------------------------------------------------------------------------------------------
+# The recording environment.
+
 class Env:
     def __init__(self):
         self.objects = []
         self.obj_ids = {'fixed': [], 'rigid': [], 'deformable': []}
+        self.footprints = []  # (x, y, radius) of what was placed or drawn
+        self.task = None
 
-    def add_object(self, urdf, pose, category='rigid', color=None, **kw):
+    def add_object(self, urdf, pose, category='rigid', color=None, **kwargs):
+        field = f"env.add_object[{len(self.objects)}]"
+        pos, rot = as_pose(pose, field)
+        if not isinstance(urdf, str):
+            raise Refused(field, f"the URDF argument is not a path: {urdf!r}"[:200])
+        if category not in ('fixed', 'rigid', 'deformable'):
+            raise Refused(field, f"unknown category {category!r}")
+        record = TEMPLATES.get(urdf)
+        if record is not None:
+            path, fill = record['template'], dict(record['fill'])
+            if color is None and record.get('color') is not None:
+                color = record['color']
+        else:
+            path, fill = assets_relative(urdf, field), {}
+        if 'template' in path:
+            if not _os.path.exists(_os.path.join(ASSETS, path)):
+                path = path.replace('-template', '')
+            fill_dummy(path, fill)
+        if not _os.path.exists(_os.path.join(ASSETS, path)):
+            raise Refused(field, f"URDF '{path}' does not exist under the assets (GenSim would "
+                                 "silently load a substitute block; the importer does not)")
+        rgb, name = color_record(color)
+        if path.endswith('.urdf') and 'COLOR0' in template_text(path) and 'COLOR0' not in fill:
+            # GenSim writes the colour into the template's rgba (white where none is given).
+            for i in range(3):
+                fill[f'COLOR{i}'] = rgb[i] if rgb is not None else 1.0
         oid = len(self.objects) + 1
-        pos = [float(v) for v in pose[0]]
-        rot = [float(v) for v in pose[1]]
-        if color is not None and not isinstance(color, str):
-            color = [float(c) for c in list(color)[:3]]
-        self.objects.append({'id': oid, 'urdf': urdf, 'pose': [pos, rot],
-                             'category': category, 'color': color})
+        self.objects.append({'id': oid, 'urdf': path, 'fill': fill, 'pose': [pos, rot],
+                             'category': category, 'color': rgb, 'color_name': name,
+                             'pile': False})
         self.obj_ids.setdefault(category, []).append(oid)
+        if not any(abs(f[0] - pos[0]) < 1e-9 and abs(f[1] - pos[1]) < 1e-9 for f in self.footprints):
+            self.footprints.append((pos[0], pos[1], 0.03))
         return oid
 
     def __getattr__(self, name):
-        raise Unsupported(f'env.{name}')
+        raise Refused(f"env.{name}", "not part of the Ravens environment a task may use "
+                                     "(the importer records add_object and obj_ids)")
 
 
-ENV = None
-TEMPLATES = []
+def assets_relative(path, field):
+    """A path task code built from self.assets_root (or a bare asset path), relative to the
+    assets; refused when it leaves them."""
+    p = path
+    if p.startswith(ASSETS_TOKEN + "/"):
+        p = p[len(ASSETS_TOKEN) + 1:]
+    full = _os.path.realpath(_os.path.join(ASSETS, p))
+    if not (full == ASSETS or full.startswith(ASSETS + _os.sep)):
+        raise Refused(field, f"'{path}' leaves the library's assets")
+    return _os.path.relpath(full, ASSETS)
 
+
+TEMPLATES = {}
+
+
+def template_text(path):
+    with open(_os.path.join(ASSETS, path)) as f:
+        return f.read()
+
+
+def fill_dummy(path, fill):
+    """environment.py's fill_dummy_template: placeholders no one filled get random values."""
+    text = template_text(path) if _os.path.exists(_os.path.join(ASSETS, path)) else ''
+    for k, v in fill.items():
+        text = text.replace(k, str(v))
+    for fields, lo, hi in ((['DIMH', 'DIMR', 'DIMX', 'DIMY', 'DIMZ', 'DIM'], 0.03, 0.05),
+                           (['HALF'], 0.01, 0.03)):
+        for field in fields:
+            if field in text:
+                vals = np.random.uniform(lo, hi, size=(3,)).tolist()
+                for i, v in enumerate(vals):
+                    key = f'{field}{i}'
+                    if key in text:
+                        fill[key] = float(v)
+                        text = text.replace(key, str(v))
+
+
+def fill_template(self, template, replace):
+    field = f"fill_template({template!r})"[:120]
+    if not isinstance(replace, dict):
+        raise Refused(field, "the replacement is not a dict")
+    base = TEMPLATES.get(template)
+    if base is not None:
+        path, fill, color = base['template'], dict(base['fill']), base.get('color')
+    else:
+        path, fill, color = assets_relative(template, field), {}, None
+        if not _os.path.exists(_os.path.join(ASSETS, path)):
+            return template
+    text = template_text(path)
+    for key, values in replace.items():
+        if not isinstance(key, str) or not re.fullmatch(r'[A-Z][A-Z_]*', key):
+            raise Refused(field, f"replacement key {key!r} is not a template placeholder")
+        if key == 'COLOR':
+            color = values
+            continue
+        if isinstance(values, str):
+            values = (values,)
+        for i, v in enumerate(list(values)):
+            name = f'{key}{i}'
+            # Only what the template has: GenSim's replace of a missing key does nothing.
+            if name in fill or name not in text:
+                continue
+            if isinstance(v, str):
+                rel = assets_relative(v, f"{field}.{name}")
+                rel = _os.path.relpath(rel, _os.path.dirname(path) or '.')
+                if rel.startswith('..'):
+                    raise Refused(f"{field}.{name}", f"'{v}' is not in the template's folder")
+                fill[name] = rel
+            else:
+                try:
+                    fill[name] = float(v)
+                except Exception:
+                    raise Refused(field, f"{name}: not a number or a file name: {v!r}"[:200])
+    token = f'assay-template:{len(TEMPLATES)}'
+    TEMPLATES[token] = {'template': path, 'fill': fill, 'color': color}
+    return token
+
+
+# ---------------------------------------------------------------------------------------------
+# Stand-in modules.
 
 def make_pybullet():
     p = types.ModuleType('pybullet')
 
     def get_pose(oid):
-        o = ENV.objects[oid - 1]
+        o = ENV.objects[int(oid) - 1]
         return tuple(o['pose'][0]), tuple(o['pose'][1])
 
     def change_visual(oid, link=-1, rgbaColor=None, **kw):
         if rgbaColor is not None:
-            ENV.objects[oid - 1]['color'] = [float(c) for c in list(rgbaColor)[:3]]
+            rgb, name = color_record(rgbaColor)
+            ENV.objects[int(oid) - 1]['color'] = rgb
+            ENV.objects[int(oid) - 1]['color_name'] = name
 
     p.getBasePositionAndOrientation = get_pose
     p.changeVisualShape = change_visual
@@ -88,31 +314,25 @@ def make_pybullet():
     p.getMatrixFromQuaternion = lambda q: tuple(rot_matrix(q).flatten())
 
     def missing(name):
-        raise Unsupported(f'pybullet.{name}')
+        raise Refused(f"pybullet.{name}", "a simulator call the recording cannot answer")
     p.__getattr__ = missing
     return p
 
 
 def make_utils():
     u = types.ModuleType('cliport.utils.utils')
-    colors = {
-        'blue': [78 / 255, 121 / 255, 167 / 255], 'red': [255 / 255, 87 / 255, 89 / 255],
-        'green': [89 / 255, 169 / 255, 78 / 255], 'orange': [242 / 255, 142 / 255, 43 / 255],
-        'yellow': [237 / 255, 201 / 255, 72 / 255], 'purple': [176 / 255, 122 / 255, 161 / 255],
-        'pink': [255 / 255, 157 / 255, 167 / 255], 'cyan': [118 / 255, 183 / 255, 178 / 255],
-        'brown': [156 / 255, 117 / 255, 95 / 255], 'white': [1.0, 1.0, 1.0],
-        'gray': [186 / 255, 176 / 255, 172 / 255], 'indigo': [75 / 255, 0, 130 / 255],
-        'violet': [143 / 255, 0, 1.0], 'black': [0.0, 0.0, 0.0],
-        'silver': [192 / 255, 192 / 255, 192 / 255], 'gold': [1.0, 215 / 255, 0.0]}
-    u.COLORS = defaultdict(lambda: [1.0, 0.0, 0.0], colors)
-    u.COLORS_NAMES = list(colors)
+    u.COLORS = collections.defaultdict(lambda: [255.0 / 255.0, 0.0, 0.], COLORS_DICT)
+    u.COLORS_NAMES = list(COLORS_DICT)
     u.TRAIN_COLORS = ['blue', 'red', 'green', 'yellow', 'brown', 'gray', 'cyan']
     u.EVAL_COLORS = ['blue', 'red', 'green', 'orange', 'purple', 'pink', 'white']
 
     def get_colors(mode, n_colors=-1, **kw):
-        names = u.TRAIN_COLORS if n_colors == -1 else random.sample(u.TRAIN_COLORS, n_colors)
+        names = u.TRAIN_COLORS
+        if n_colors != -1:
+            names = random.sample(names, n_colors)
         return [u.COLORS[c] for c in names], names
     u.get_colors = get_colors
+    u.get_colors_names = lambda mode: u.TRAIN_COLORS
     u.get_random_color = lambda: get_colors('train', 1)
     u.eulerXYZ_to_quatXYZW = quat_from_euler
     u.quatXYZW_to_eulerXYZ = euler_from_quat
@@ -121,20 +341,22 @@ def make_utils():
         position = np.float32(position)
         shape = position.shape
         position = position.reshape(3, -1)
-        out = rot_matrix(pose[1]).astype(np.float32) @ position + np.float32(pose[0]).reshape(3, 1)
+        out = rot_matrix(pose[1]).astype(np.float32) @ position
+        out = out + np.float32(pose[0]).reshape(3, 1)
         return tuple(out.reshape(shape))
     u.apply = apply
 
     def multiply(a, b):
-        r = rot_matrix(a[1])
-        t = tuple(r @ np.array(b[0]) + np.array(a[0]))
-        # quaternion product a*b (xyzw)
-        x1, y1, z1, w1 = a[1]
-        x2, y2, z2, w2 = b[1]
-        q = (w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2, w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
-             w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2, w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2)
-        return t, q
+        t = tuple(rot_matrix(a[1]) @ np.array(b[0], dtype=float) + np.array(a[0], dtype=float))
+        return t, quat_mul([float(v) for v in a[1]], [float(v) for v in b[1]])
     u.multiply = multiply
+
+    def invert(pose):
+        x, y, z, w = [float(v) for v in pose[1]]
+        qi = (-x, -y, -z, w)
+        t = -(rot_matrix(qi) @ np.array(pose[0], dtype=float))
+        return tuple(t), qi
+    u.invert = invert
     u.map_kit_scale = lambda s: (s[0] / 10, s[1] / 10, s[2] / 10)
     u.assembling_kit_shapes = {i: n for i, n in enumerate([
         "letter R shape", "letter A shape", "triangle", "square", "plus", "letter T shape",
@@ -143,9 +365,24 @@ def make_utils():
         "letter M shape"])}
 
     def missing(name):
-        raise Unsupported(f'utils.{name}')
+        raise Refused(f"utils.{name}", "a helper the recording does not provide")
     u.__getattr__ = missing
     return u
+
+
+def make_os():
+    """`os` as task code may see it: paths only."""
+    o = types.ModuleType('os')
+    o.path = types.ModuleType('os.path')
+    for name in ('join', 'basename', 'dirname', 'splitext', 'split', 'normpath'):
+        setattr(o.path, name, getattr(_os.path, name))
+    o.path.exists = lambda p: _os.path.exists(_os.path.join(ASSETS, assets_relative(p, 'os.path.exists')))
+    o.sep = _os.sep
+
+    def missing(name):
+        raise Refused(f"os.{name}", "task code may use os.path only")
+    o.__getattr__ = missing
+    return o
 
 
 class Task:
@@ -153,7 +390,7 @@ class Task:
         self.ee = 'suction'
         self.mode = 'train'
         self.sixdof = False
-        self.primitive = None
+        self.primitive = 'pick-place'
         self.pos_eps = 0.01
         self.rot_eps = np.deg2rad(15)
         self.num_blocks = 50
@@ -163,73 +400,130 @@ class Task:
         self.goals = []
         self.lang_goals = []
         self.task_completed_desc = 'task completed.'
-        self.assets_root = None
+        self.progress = 0
+        self._rewards = 0
+        self.train_set = np.arange(0, 14)
+        self.test_set = np.arange(14, 20)
+        self.assets_root = ASSETS_TOKEN
         self.homogeneous = False
         self.lang_template = ''
+        self.obj_points_cache = {}
 
     def reset(self, env):
         self.goals = []
         self.lang_goals = []
+        self.progress = 0
+        self._rewards = 0
 
     def additional_reset(self):
-        pass
+        if 'bowl' in self.lang_template:
+            self.pos_eps = 0.05
+        if 'piles' in self.lang_template:
+            self.ee = 'spatula'
+            self.primitive = 'push'
+        if 'rope' in self.lang_template:
+            self.pos_eps = 0.02
 
     def get_random_pose(self, env, obj_size=0.1, **kw):
         if np.isscalar(obj_size):
             obj_size = (obj_size, obj_size, obj_size)
-        radius = math.sqrt(obj_size[0] ** 2 + obj_size[1] ** 2) / 2
-        placed = [(o['pose'][0], o.get('radius', 0.03)) for o in env.objects]
-        for _ in range(200):
-            x = np.random.uniform(self.bounds[0, 0] + radius, self.bounds[0, 1] - radius)
-            y = np.random.uniform(self.bounds[1, 0] + radius, self.bounds[1, 1] - radius)
-            if all(math.hypot(x - q[0], y - q[1]) > radius + r for q, r in placed):
+        obj_size = [float(s) for s in obj_size]
+        max_size = math.sqrt(obj_size[0] ** 2 + obj_size[1] ** 2)
+        r = max_size / 2
+        lo_x, hi_x = float(self.bounds[0, 0]) + r, float(self.bounds[0, 1]) - r
+        lo_y, hi_y = float(self.bounds[1, 0]) + r, float(self.bounds[1, 1]) - r
+        x, y = float(np.mean(self.bounds[0, :2])), float(np.mean(self.bounds[1, :2]))
+        for _ in range(1000):
+            cx = float(np.random.uniform(lo_x, max(hi_x, lo_x)))
+            cy = float(np.random.uniform(lo_y, max(hi_y, lo_y)))
+            if all(math.hypot(cx - fx, cy - fy) > r + fr + 0.01 for fx, fy, fr in env.footprints):
+                x, y = cx, cy
                 break
-        z = obj_size[2] / 2 if len(obj_size) > 2 else 0.05
+        env.footprints.append((x, y, r))
+        z = 0.05 if len(obj_size) == 2 else obj_size[2] / 2
         theta = np.random.rand() * 2 * np.pi
-        return [float(x), float(y), float(z)], quat_from_euler((0, 0, theta))
+        return [x, y, z], quat_from_euler((0, 0, theta))
 
-    def fill_template(self, template, replace):
-        TEMPLATES.append({'template': template,
-                          'replace': {k: (v if isinstance(v, str) else
-                                          [x if isinstance(x, str) else float(x) for x in v])
-                                      for k, v in replace.items()}})
-        return f'assay-template:{len(TEMPLATES) - 1}'
+    fill_template = fill_template
 
     def get_random_size(self, min_x, max_x, min_y, max_y, min_z, max_z):
-        s = np.random.rand(3)
-        return (s[0] * (max_x - min_x) + min_x, s[1] * (max_y - min_y) + min_y,
-                s[2] * (max_z - min_z) + min_z)
+        size = np.random.rand(3)
+        size[0] = size[0] * (max_x - min_x) + min_x
+        size[1] = size[1] * (max_y - min_y) + min_y
+        size[2] = size[2] * (max_z - min_z) + min_z
+        return tuple(size)
 
     def add_goal(self, objs, matches, targ_poses, replace, rotations, metric, params,
                  step_max_reward, symmetries=None, language_goal=None, **kw):
-        def oid(o):
-            return int(o[0]) if isinstance(o, (tuple, list)) else int(o)
-        poses = []
-        for t in targ_poses:
-            poses.append([[float(v) for v in t[0]], [float(v) for v in t[1]]]
-                         if isinstance(t, (tuple, list)) and len(t) == 2 else repr(t))
-        self.goals.append({'objs': [oid(o) for o in objs],
-                           'matches': np.asarray(matches).astype(float).tolist(),
-                           'targ_poses': poses, 'replace': bool(replace),
-                           'rotations': bool(rotations), 'metric': metric,
-                           'params': repr(params), 'symmetries': symmetries})
+        field = f"add_goal[{len(self.goals)}]"
+        ids, syms = [], []
+        for k, o in enumerate(list(objs)):
+            if isinstance(o, (tuple, list)):
+                oid, sym = o[0], (o[1][0] if isinstance(o[1], (tuple, list)) else 0.0)
+            else:
+                oid, sym = o, None
+            try:
+                oid = int(oid)
+            except Exception:
+                raise Refused(f"{field}.objs[{k}]", f"not an object id: {o!r}"[:200])
+            if not 1 <= oid <= len(ENV.objects):
+                raise Refused(f"{field}.objs[{k}]", f"not an object id: {o!r}"[:200])
+            ids.append(oid)
+            syms.append(sym)
+        if symmetries is not None:
+            syms = [float(s) for s in list(symmetries)] + [0.0] * max(0, len(ids) - len(symmetries))
+        syms = [0.0 if s is None else float(s) for s in syms][:len(ids)]
+        targets = [as_pose(t, f"{field}.targ_poses[{k}]") for k, t in enumerate(list(targ_poses))]
+        try:
+            m = np.asarray(matches, dtype=float)
+        except Exception:
+            raise Refused(f"{field}.matches", "not a matrix of numbers")
+        if m.ndim != 2:
+            raise Refused(f"{field}.matches", f"not a matrix: {m.ndim} dimensions")
+        shape = list(m.shape)
+        if m.shape != (len(ids), len(targets)):
+            # GenSim reads matches[i, j] for the objects i and targets j there are, and fails
+            # only when it reaches a row or column that is not there: what is there is kept.
+            fitted = np.zeros((len(ids), len(targets)))
+            r, c = min(m.shape[0], len(ids)), min(m.shape[1], len(targets))
+            fitted[:r, :c] = m[:r, :c]
+            m = fitted
+        else:
+            shape = None
+        zones = []
+        if metric == 'zone':
+            for k, z in enumerate(list(params)):
+                zp = as_pose(z[0], f"{field}.params[{k}]")
+                size = [float(s) for s in list(z[1])]
+                zones.append([zp, size])
+        elif metric != 'pose':
+            raise Refused(f"{field}.metric", f"unknown metric {metric!r} (GenSim has 'pose' and 'zone')")
         if isinstance(language_goal, str):
             self.lang_goals.append(language_goal)
         elif isinstance(language_goal, list):
-            self.lang_goals.extend(language_goal)
+            self.lang_goals.extend(str(s) for s in language_goal)
+        self.goals.append({'objs': ids, 'symmetries': syms, 'matches': m.tolist(),
+                           'targets': targets, 'replace': bool(replace),
+                           'rotations': bool(rotations), 'metric': metric, 'zones': zones,
+                           'matches_shape': shape,
+                           'step_max_reward': float(step_max_reward)})
 
     def make_piles(self, env, block_color=None, *a, **kw):
         ids = []
-        for _ in range(self.num_blocks):
+        for _ in range(int(self.num_blocks)):
             rx = self.bounds[0, 0] + 0.15 + np.random.rand() * 0.2
             ry = self.bounds[1, 0] + 0.4 + np.random.rand() * 0.2
-            ids.append(env.add_object('block/small.urdf',
-                                      ((rx, ry, 0.01), quat_from_euler((0, 0, 0))),
-                                      color=block_color))
+            theta = np.random.rand() * 2 * np.pi
+            oid = env.add_object('block/small.urdf', ((rx, ry, 0.01), quat_from_euler((0, 0, theta))))
+            if block_color is not None:
+                rgb, name = color_record(block_color)
+                ENV.objects[oid - 1]['color'], ENV.objects[oid - 1]['color_name'] = rgb, name
+            ENV.objects[oid - 1]['pile'] = True
+            ids.append(oid)
         return ids
 
     def make_ropes(self, *a, **kw):
-        raise Unsupported('ropes are deformable')
+        raise Refused("make_ropes", "ropes are deformable: Assay simulates rigid bodies only")
 
     make_rope = make_ropes
 
@@ -240,11 +534,24 @@ class Task:
         env.add_object(urdf, pose, 'fixed')
 
     def get_kitting_shapes(self, n_objects):
-        shapes = list(range(20)) if self.mode == 'train' else [0] * 20
-        return np.random.choice(shapes, n_objects, replace=False)
+        if self.mode == 'train':
+            return np.random.choice(self.train_set, n_objects)
+        if self.homogeneous:
+            return [np.random.choice(self.test_set)] * n_objects
+        return np.random.choice(self.test_set, n_objects)
+
+    def zip_obj_ids(self, obj_ids, symmetries):
+        if isinstance(obj_ids[0], tuple):
+            return obj_ids
+        if symmetries is None:
+            symmetries = [0.] * len(obj_ids)
+        return [(o, (s, None)) for o, s in zip(obj_ids, symmetries)]
+
+    def is_match(self, *a, **k):
+        raise Refused("is_match", "evaluates a simulated state; reset() must not need it")
 
     def __getattr__(self, name):
-        raise Unsupported(f'Task.{name}')
+        raise Refused(f"Task.{name}", "not part of the Ravens task API the recording provides")
 
 
 def install():
@@ -262,38 +569,183 @@ def install():
     utils_pkg.utils = u
     cl.tasks, cl.utils = tasks, utils_pkg
     tasks.task, tasks.primitives, tasks.grippers = task_mod, prim, grip
-    for name, m in [('cliport', cl), ('cliport.tasks', tasks), ('cliport.tasks.task', task_mod),
-                    ('cliport.tasks.primitives', prim), ('cliport.tasks.grippers', grip),
-                    ('cliport.utils', utils_pkg), ('cliport.utils.utils', u),
-                    ('pybullet', make_pybullet())]:
-        sys.modules[name] = m
+    return {'cliport': cl, 'cliport.tasks': tasks, 'cliport.tasks.task': task_mod,
+            'cliport.tasks.primitives': prim, 'cliport.tasks.grippers': grip,
+            'cliport.utils': utils_pkg, 'cliport.utils.utils': u, 'pybullet': make_pybullet(),
+            'os': make_os()}
 
 
-def run(path, seed):
+# ---------------------------------------------------------------------------------------------
+# The sandbox.
+
+# Modules task code may import: what GenSim tasks compute with. Anything else is refused.
+ALLOWED = {'numpy', 'random', 'math', 'copy', 'itertools', 'functools', 'collections', 'typing',
+           'string', 'dataclasses', 'enum', 'abc', 'operator', 'numbers', 'statistics', 'cmath',
+           'decimal', 'fractions', 'heapq', 'bisect'}
+# Modules that reach the world: importing one stops the process, whoever asks.
+FORBIDDEN = {'subprocess', '_posixsubprocess', 'socket', '_socket', 'ssl', 'ctypes', '_ctypes',
+             'multiprocessing', 'pty', 'webbrowser', 'ftplib', 'smtplib', 'sqlite3', 'mmap'}
+STOP_EVENTS = ('os.system', 'os.exec', 'os.posix_spawn', 'os.spawn', 'os.fork', 'os.forkpty',
+               'os.kill', 'os.killpg', 'os.remove', 'os.unlink', 'os.rename', 'os.rmdir',
+               'os.mkdir', 'os.chmod', 'os.chown', 'os.truncate', 'os.symlink', 'os.link',
+               'os.utime', 'os.putenv', 'os.unsetenv', 'os.chdir', 'subprocess.', 'socket.',
+               'ctypes.', 'shutil.', 'signal.', 'sys.setrecursionlimit', 'pty.', 'fcntl.',
+               'resource.', 'mmap.', 'sqlite3.', 'webbrowser.', 'sys.addaudithook',
+               'sys.settrace', 'sys.setprofile', 'pickle.')
+READ_ROOTS = []
+
+
+def audit(event, args):
+    if event == 'open':
+        path, mode, flags = args[0], args[1], args[2]
+        if isinstance(path, int):
+            return
+        writing = (mode is not None and any(c in str(mode) for c in 'wax+')) or \
+                  (flags is not None and flags & (_os.O_WRONLY | _os.O_RDWR | _os.O_CREAT | _os.O_TRUNC))
+        real = _os.path.realpath(_os.fsdecode(path)) if path is not None else ''
+        if writing:
+            _answer({'refused': {'field': 'open', 'reason': f"writes a file ({real}): task code "
+                                 "may not write files"}}, 3)
+        if not any(real == r or real.startswith(r + _os.sep) for r in READ_ROOTS):
+            _answer({'refused': {'field': 'open', 'reason': f"reads {real}, outside the library "
+                                 "(task code may read the library only)"}}, 3)
+    elif event == 'import':
+        top = str(args[0]).split('.')[0]
+        if top in FORBIDDEN:
+            _answer({'refused': {'field': 'import', 'reason': f"imports '{args[0]}': task code may "
+                                 "not reach processes, sockets, signals, files or native code"}}, 3)
+    elif event.startswith(STOP_EVENTS):
+        _answer({'refused': {'field': event, 'reason': f"calls {event}: task code may not reach "
+                             "processes, sockets, signals, files or the interpreter"}}, 3)
+
+
+def guarded_import(stand_ins):
+    real_import = __import__
+
+    def imp(name, globals=None, locals=None, fromlist=(), level=0):
+        if level != 0:
+            raise Refused('import', f"relative import of '{name}'")
+        if name in stand_ins or name.split('.')[0] in ('cliport',):
+            if name not in stand_ins:
+                raise Refused('import', f"'{name}' is not part of the Ravens API the recording provides")
+            mod = stand_ins[name]
+            if fromlist:
+                return mod
+            return stand_ins[name.split('.')[0]]
+        top = name.split('.')[0]
+        if top not in ALLOWED:
+            raise Refused('import', f"imports '{name}': task code may import only "
+                                    f"{', '.join(sorted(ALLOWED | {'os (os.path)', 'pybullet', 'cliport'}))}")
+        return real_import(name, globals, locals, fromlist, level)
+    return imp
+
+
+def safe_builtins(stand_ins):
+    import builtins
+    b = dict(vars(builtins))
+    for name in ('open', 'exec', 'eval', 'compile', 'input', 'breakpoint', '__loader__', 'exit',
+                 'quit', 'help', 'copyright', 'credits', 'license', 'memoryview', 'globals',
+                 'locals', 'vars'):
+        b.pop(name, None)
+    b['__import__'] = guarded_import(stand_ins)
+
+    def no_open(*a, **k):
+        raise Refused('open', "task code may not open files (the recording reads the assets itself)")
+    b['open'] = no_open
+    return b
+
+
+def jsonable(x):
+    if isinstance(x, dict):
+        return {str(k): jsonable(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [jsonable(v) for v in x]
+    if isinstance(x, (np.floating, float)):
+        v = float(x)
+        return v if math.isfinite(v) else None
+    if isinstance(x, (np.integer, int, bool)):
+        return x if isinstance(x, bool) else int(x)
+    return x if isinstance(x, (str, type(None))) else repr(x)[:200]
+
+
+ENV = None
+
+
+def limit():
+    """Hard limits, set before the task's code is read: they cannot be raised again."""
+    import resource
+    cpu = int(_os.environ.get('ASSAY_RECORDER_CPU_SECONDS', '20'))
+    mem = int(_os.environ.get('ASSAY_RECORDER_MEMORY_BYTES', str(1 << 30)))
+    # CPU: SIGXCPU at the soft limit ends the process; the hard one, a second later, is SIGKILL.
+    resource.setrlimit(resource.RLIMIT_CPU, (cpu, cpu + 1))
+    for res, value in ((resource.RLIMIT_AS, mem), (resource.RLIMIT_FSIZE, 0),
+                       (resource.RLIMIT_CORE, 0), (resource.RLIMIT_NPROC, 0)):
+        resource.setrlimit(res, (value, value))
+
+
+def main():
     global ENV
-    install()
-    spec = importlib.util.spec_from_file_location('gensim_task', path)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    classes = [c for c in vars(mod).values()
-               if isinstance(c, type) and issubclass(c, Task) and c is not Task]
-    if not classes:
-        raise Unsupported('no Task subclass')
-    random.seed(seed)
-    np.random.seed(seed)
-    ENV = Env()
-    TEMPLATES.clear()
-    task = classes[-1]()
-    task.assets_root = 'assets'
-    task.reset(ENV)
-    return {'class': classes[-1].__name__, 'objects': ENV.objects, 'templates': list(TEMPLATES),
-            'goals': task.goals, 'lang_goals': task.lang_goals}
+    limit()
+    with open(TASK_FILE, 'rb') as f:
+        source = f.read()
+    stand_ins = install()
+    READ_ROOTS.extend(sorted({_os.path.realpath(p) for p in
+                              (LIBRARY, ASSETS, sys.prefix, sys.base_prefix, sys.exec_prefix,
+                               _os.path.dirname(np.__file__), _os.path.dirname(_os.__file__))}))
+    for p in sys.path:
+        if p:
+            READ_ROOTS.append(_os.path.realpath(p))
+    try:
+        code = compile(source, TASK_FILE, 'exec')
+    except SyntaxError as e:
+        _answer({'refused': {'field': 'code', 'reason': f"not Python: {e.msg} (line {e.lineno})"}})
+    sys.addaudithook(audit)
+    module = {'__name__': 'gensim_task', '__file__': _os.path.basename(TASK_FILE),
+              '__builtins__': safe_builtins(stand_ins)}
+    seeds = []
+    try:
+        exec(code, module)
+        classes = [c for c in module.values()
+                   if isinstance(c, type) and issubclass(c, Task) and c is not Task]
+        if not classes:
+            raise Refused('code', 'no subclass of cliport.tasks.task.Task')
+        cls = classes[-1]
+        for seed in SEEDS:
+            random.seed(seed)
+            np.random.seed(seed)
+            ENV = Env()
+            TEMPLATES.clear()
+            task = cls()
+            ENV.task = task
+            task.reset(ENV)
+            seeds.append({
+                'seed': seed, 'class': cls.__name__, 'objects': ENV.objects, 'goals': task.goals,
+                'lang_goals': [str(s) for s in task.lang_goals],
+                'lang_template': str(getattr(task, 'lang_template', '') or ''),
+                'pos_eps': float(task.pos_eps), 'rot_eps': float(task.rot_eps),
+                'ee': str(task.ee), 'primitive': str(task.primitive),
+                'max_steps': jsonable(vars(task).get('max_steps')),
+            })
+    except Refused as e:
+        _answer({'refused': {'field': e.field, 'reason': e.reason}})
+    except MemoryError:
+        _answer({'refused': {'field': 'reset', 'reason': 'allocates beyond the memory limit'}})
+    except RecursionError:
+        _answer({'refused': {'field': 'reset', 'reason': 'recursion too deep'}})
+    except BaseException as e:
+        tb = e.__traceback__
+        line = None
+        while tb is not None:
+            if tb.tb_frame.f_code.co_filename == TASK_FILE:
+                line = tb.tb_lineno
+            tb = tb.tb_next
+        where = f" (line {line})" if line else ''
+        _answer({'refused': {'field': 'reset', 'reason': f"raised {type(e).__name__}: {e}"[:300] + where}})
+    _answer({'seeds': jsonable(seeds)})
 
 
 if __name__ == '__main__':
     try:
-        print(json.dumps({'ok': run(sys.argv[1], int(sys.argv[2]))}))
-    except Unsupported as e:
-        print(json.dumps({'unsupported': str(e)}))
-    except Exception as e:
-        print(json.dumps({'error': f'{type(e).__name__}: {e}'}))
+        main()
+    except BaseException as e:  # the recorder's own failure, before the task ran
+        _answer({'error': f"{type(e).__name__}: {e}"[:300]}, 2)

@@ -62,6 +62,29 @@ pub struct ImportOptions {
     /// The folder asset paths are relative to. Default: `ROOT/assets` for GenSim and RoboGen,
     /// `ROOT` for BBSEA (its `model_path`s are relative to the repository root).
     pub asset_root: Option<PathBuf>,
+    /// What generated task code may use when it runs (GenSim's `reset()`).
+    pub limits: CodeLimits,
+}
+
+/// Bounds on one task's generated code, run in a sandboxed subprocess for all its seeds.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct CodeLimits {
+    /// CPU seconds.
+    pub cpu_seconds: u64,
+    /// Wall-clock seconds before the process is killed.
+    pub wall_seconds: u64,
+    /// Address space (bytes).
+    pub memory_bytes: u64,
+}
+
+impl Default for CodeLimits {
+    fn default() -> Self {
+        CodeLimits {
+            cpu_seconds: 20,
+            wall_seconds: 30,
+            memory_bytes: 1 << 30,
+        }
+    }
 }
 
 /// One batch.
@@ -154,7 +177,7 @@ pub fn import(pipeline: Pipeline, root: &Path, options: &ImportOptions) -> Impor
         }
     };
     let (tasks, errors) = match pipeline {
-        Pipeline::Gensim => gensim::import(root, &asset_root),
+        Pipeline::Gensim => gensim::import(root, &asset_root, options.limits),
         Pipeline::Robogen => robogen::import(root, &asset_root),
         Pipeline::Bbsea => bbsea::import(root, &asset_root),
     };

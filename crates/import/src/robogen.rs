@@ -305,6 +305,7 @@ fn import_one(root: &Path, asset_root: &Path, file: &Path) -> Option<ImportedTas
                     path: path.clone(),
                     joints,
                     articulated: false,
+                    fill: BTreeMap::new(),
                 },
                 a.half.map(r6),
                 Some((full.clone(), u)),
@@ -645,6 +646,9 @@ fn import_one(root: &Path, asset_root: &Path, file: &Path) -> Option<ImportedTas
                                 tolerance: 0.14,
                                 yaw_deg: None,
                                 yaw_tolerance_deg: None,
+                                relative_to: None,
+                                planar: false,
+                                yaw_symmetry_deg: None,
                             });
                             oracle.push(Primitive::Pick {
                                 object: ida.clone(),

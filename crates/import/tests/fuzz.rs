@@ -603,6 +603,7 @@ fn import_mutated(p: Pipeline, file: usize, ops: &[TextOp]) {
         &root.join("malformed"),
         &ImportOptions {
             asset_root: Some(assets),
+            ..ImportOptions::default()
         },
     );
     check_import(&malformed);

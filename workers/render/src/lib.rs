@@ -487,11 +487,12 @@ impl Renderer {
         &mut self,
         i: usize,
         path: &str,
+        fill: &std::collections::BTreeMap<String, String>,
         frame_at: &std::collections::BTreeMap<String, f64>,
         joints: &std::collections::BTreeMap<String, f64>,
     ) -> Result<String, RenderError> {
         use assay_spec::urdf::Geometry;
-        let key = format!("{path}|{frame_at:?}|{joints:?}");
+        let key = format!("{path}|{fill:?}|{frame_at:?}|{joints:?}");
         if self.urdfs.contains_key(&key) {
             return Ok(key);
         }
@@ -501,8 +502,9 @@ impl Renderer {
             self.meshes
                 .retain(|k, _| !matches!(k, MeshKey::File(f) if f.contains('|')));
         }
-        let a = assay_spec::urdf::assemble_posed(std::path::Path::new(path), frame_at, joints)
-            .map_err(|reason| RenderError::Scene {
+        let a =
+            assay_spec::urdf::assemble_filled(std::path::Path::new(path), fill, frame_at, joints)
+                .map_err(|reason| RenderError::Scene {
                 path: format!("scene.objects[{i}].shape.urdf"),
                 reason,
             })?;
@@ -548,6 +550,7 @@ impl Renderer {
                 path,
                 joints,
                 articulated,
+                fill,
             } = &o.shape
             {
                 // A snapshot of an articulated object carries its joints at that moment.
@@ -559,7 +562,7 @@ impl Renderer {
                 // Its frame is fixed by its links at their default positions.
                 let none = std::collections::BTreeMap::new();
                 let frame_at = if *articulated { &none } else { joints };
-                urdf_keys.insert(i, self.load_urdf(i, path, frame_at, posed)?);
+                urdf_keys.insert(i, self.load_urdf(i, path, fill, frame_at, posed)?);
             }
         }
         let mut by_mesh: Vec<(MeshKey, Vec<Instance>)> = Vec::new();

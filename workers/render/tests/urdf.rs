@@ -23,6 +23,7 @@ fn cabinet(drawer: f64) -> (SceneSnapshot, [f64; 3]) {
                 path: path.display().to_string(),
                 joints,
                 articulated: false,
+                fill: Default::default(),
             },
             color: [1.0, 0.0, 1.0],
             position: [0.5, 0.0, half[2] as f32],

@@ -77,6 +77,53 @@ fn grip(scene: &SimScene, i: usize, at: Vec3) -> (f32, f32) {
     (yaw, width.unwrap_or(boxed))
 }
 
+/// The height at which held object `held`, carried as it is and lowered straight down with its
+/// centre over (`x`, `y`), first touches what lies below (another object, or the table at
+/// z = 0): on a grid over its footprint, a ray up from under it finds its own bottom there and a
+/// ray down finds the top of what is under that point; the highest meeting wins. A hollow, a
+/// hole or a slot between two blocks is found as it is, whatever the shapes.
+fn resting_height(scene: &SimScene, held: usize, x: f32, y: f32) -> f32 {
+    const GRID: usize = 9;
+    const ABOVE: f32 = 3.0;
+    let o = &scene.objects[held];
+    let c = scene.pose(o).translation;
+    let reach = o.half.x.max(o.half.y) * std::f32::consts::SQRT_2;
+    let cast = |colliders: &[ColliderHandle], from: Vec3, dir: Vec3| {
+        colliders
+            .iter()
+            .filter_map(|h| {
+                let col = &scene.world.colliders[*h];
+                col.shape()
+                    .cast_ray(col.position(), &Ray::new(from, dir), 2.0 * ABOVE, true)
+            })
+            .reduce(f32::min)
+    };
+    let own = scene.world.bodies[o.body].colliders();
+    let others: Vec<ColliderHandle> = scene
+        .objects
+        .iter()
+        .enumerate()
+        .filter(|(k, _)| *k != held)
+        .flat_map(|(_, other)| scene.world.bodies[other.body].colliders().iter().copied())
+        .collect();
+    let mut centre = o.half.z;
+    for a in 0..GRID {
+        for b in 0..GRID {
+            let along = |k: usize| reach * (2.0 * k as f32 / (GRID - 1) as f32 - 1.0);
+            let (dx, dy) = (along(a), along(b));
+            let below = Vec3::new(c.x + dx, c.y + dy, c.z - ABOVE);
+            let Some(up) = cast(own, below, Vec3::Z) else {
+                continue;
+            };
+            let bottom = below.z + up - c.z;
+            let top = cast(&others, Vec3::new(x + dx, y + dy, ABOVE), -Vec3::Z)
+                .map_or(0.0, |down| (ABOVE - down).max(0.0));
+            centre = centre.max(top - bottom);
+        }
+    }
+    centre
+}
+
 /// Steps to wait for the pads of a friction gripper to travel `gap` (m) and settle.
 fn finger_steps(gap: f32, dt: f32) -> u32 {
     (gap.abs() / (crate::scene::FINGER_SPEED * dt)).ceil() as u32 + 24
@@ -444,6 +491,23 @@ impl Controller {
                     PlaceTarget::At(xy) => Some(Vec3::new(xy[0] as f32, xy[1] as f32, held_half.z)),
                     PlaceTarget::AtPoint(p) => {
                         Some(Vec3::new(p[0] as f32, p[1] as f32, p[2] as f32))
+                    }
+                    PlaceTarget::Spot { xy, relative_to } => {
+                        let origin = match relative_to {
+                            None => Some(Vec3::ZERO),
+                            Some(id) => match believed(id) {
+                                None => None,
+                                Some((_, None)) => {
+                                    self.unseen(scene, step, id);
+                                    return;
+                                }
+                                Some((_, Some(b))) => Some(b.centre),
+                            },
+                        };
+                        origin.map(|o| {
+                            let (x, y) = (o.x + xy[0] as f32, o.y + xy[1] as f32);
+                            Vec3::new(x, y, resting_height(scene, h.object, x, y))
+                        })
                     }
                 };
                 let Some(centre) = centre else { return };

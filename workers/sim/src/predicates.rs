@@ -143,20 +143,45 @@ fn holds(goal: &Goal, scene: &SimScene) -> (bool, String) {
             tolerance,
             yaw_deg,
             yaw_tolerance_deg,
+            relative_to,
+            planar,
+            yaw_symmetry_deg,
         } => {
             let pose = scene.pose(obj(scene, object));
-            let target = Vec3::new(position[0] as f32, position[1] as f32, position[2] as f32);
-            let d = pose.translation.distance(target);
+            let origin = match relative_to {
+                Some(anchor) => scene.pose(obj(scene, anchor)).translation,
+                None => Vec3::ZERO,
+            };
+            let target =
+                origin + Vec3::new(position[0] as f32, position[1] as f32, position[2] as f32);
+            let mut err = pose.translation - target;
+            if *planar {
+                err.z = 0.0;
+            }
+            let d = err.length();
             let mut ok = d <= *tolerance as f32;
             let mut detail = format!("position error {d:.3} m (tolerance {tolerance})");
             if let (Some(want), Some(tol)) = (yaw_deg, yaw_tolerance_deg) {
                 let fwd = pose.rotation * Vec3::X;
                 let yaw = fwd.y.atan2(fwd.x).to_degrees() as f64;
-                let err = ((yaw - want + 540.0).rem_euclid(360.0) - 180.0).abs();
+                let period = yaw_symmetry_deg.unwrap_or(360.0);
+                let e = (yaw - want).rem_euclid(period);
+                let err = e.min(period - e);
                 ok &= err <= *tol;
                 detail.push_str(&format!("; yaw error {err:.1}° (tolerance {tol}°)"));
             }
             (ok, detail)
+        }
+        Goal::AnyOf { any } => {
+            let mut details = Vec::new();
+            for g in any {
+                let (ok, d) = holds(g, scene);
+                if ok {
+                    return (true, format!("{}: {d}", g.label()));
+                }
+                details.push(format!("{}: {d}", g.label()));
+            }
+            (false, format!("none holds ({})", details.join("; ")))
         }
         Goal::JointPosition {
             object,

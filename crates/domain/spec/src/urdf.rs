@@ -784,8 +784,34 @@ pub fn assemble_posed(
     frame_at: &BTreeMap<String, f64>,
     positions: &BTreeMap<String, f64>,
 ) -> Result<Assembled, String> {
+    assemble_filled(path, &BTreeMap::new(), frame_at, positions)
+}
+
+/// A template's text with its placeholders filled, longest key first (so `DIM10` is not read
+/// as `DIM1` followed by `0`).
+pub fn fill_template(text: &str, fill: &BTreeMap<String, String>) -> Result<String, String> {
+    let mut keys: Vec<(&String, &String)> = fill.iter().collect();
+    for (k, v) in &keys {
+        crate::spec::check_fill(k, v)?;
+    }
+    keys.sort_by_key(|(k, _)| std::cmp::Reverse(k.len()));
+    let mut out = text.to_owned();
+    for (k, v) in keys {
+        out = out.replace(k.as_str(), v);
+    }
+    Ok(out)
+}
+
+/// [`assemble_posed`] of a template URDF filled with `fill` first (`Shape::Urdf::fill`).
+pub fn assemble_filled(
+    path: &Path,
+    fill: &BTreeMap<String, String>,
+    frame_at: &BTreeMap<String, f64>,
+    positions: &BTreeMap<String, f64>,
+) -> Result<Assembled, String> {
     let text =
         crate::assets::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;
+    let text = fill_template(&text, fill).map_err(|e| format!("{}: {e}", path.display()))?;
     let urdf = parse(&text).map_err(|e| format!("{}: {e}", path.display()))?;
     let dir = path.parent().unwrap_or(Path::new("."));
     let mut meshes: BTreeMap<String, TriangleMesh> = BTreeMap::new();
@@ -845,6 +871,42 @@ pub fn assemble_posed(
 mod tests {
     use super::*;
     use std::f64::consts::FRAC_PI_2;
+
+    #[test]
+    fn templates_are_filled_with_numbers_and_file_names_only() {
+        let fill = |pairs: &[(&str, &str)]| -> BTreeMap<String, String> {
+            pairs
+                .iter()
+                .map(|(k, v)| (k.to_string(), v.to_string()))
+                .collect()
+        };
+        let text = r#"<box size="DIM0 DIM1 DIM10"/><mesh filename="FNAME0"/>"#;
+        let out = fill_template(
+            text,
+            &fill(&[
+                ("DIM0", "0.04"),
+                ("DIM1", "0.05"),
+                ("DIM10", "0.06"),
+                ("FNAME0", "03.obj"),
+            ]),
+        )
+        .unwrap();
+        assert_eq!(
+            out,
+            r#"<box size="0.04 0.05 0.06"/><mesh filename="03.obj"/>"#
+        );
+        for (k, v) in [
+            ("DIM0", r#"0.04"/><include href="/etc/passwd"#),
+            ("DIM0", "../secret.obj"),
+            ("DIM0", "/abs.obj"),
+            ("DIM0", "inf"),
+            ("dim0", "0.04"),
+            ("DIM", "0.04"),
+            ("0", "0.04"),
+        ] {
+            assert!(fill_template(text, &fill(&[(k, v)])).is_err(), "{k} → {v}");
+        }
+    }
 
     const CABINET: &str = include_str!("../../../../examples/assets/cabinet/cabinet.urdf");
 

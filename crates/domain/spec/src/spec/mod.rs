@@ -204,6 +204,12 @@ pub enum Shape {
         joints: BTreeMap<String, f64>,
         #[serde(default, skip_serializing_if = "is_false")]
         articulated: bool,
+        /// A template URDF's placeholders and what replaces them (Ravens' `fill_template`:
+        /// `DIM0` → `0.04`, `FNAME0` → `03.obj`): each key, `A-Z` and `_` then digits, is
+        /// replaced in the file's text by its value, a number or a file name inside the URDF's
+        /// folder, before the URDF is read.
+        #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+        fill: BTreeMap<String, String>,
     },
 }
 
@@ -374,13 +380,28 @@ pub enum Goal {
     /// The object's position (and optionally yaw) is within tolerance of a target pose.
     PoseWithin {
         object: String,
+        /// The target position: in the world, or, with `relative_to`, from that object's centre
+        /// (world axes), so that the target moves with it from seed to seed.
         position: [f64; 3],
         tolerance: f64,
         #[serde(default, skip_serializing_if = "Option::is_none")]
         yaw_deg: Option<f64>,
         #[serde(default, skip_serializing_if = "Option::is_none")]
         yaw_tolerance_deg: Option<f64>,
+        /// The object `position` is measured from.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        relative_to: Option<String>,
+        /// Compare x and y only (GenSim's and Ravens' pose match ignores height).
+        #[serde(default, skip_serializing_if = "is_false")]
+        planar: bool,
+        /// The object looks the same turned by this angle (degrees; 90 for a square block):
+        /// the yaw error is taken modulo it.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        yaw_symmetry_deg: Option<f64>,
     },
+    /// At least one of these goals holds (GenSim's `matches`: an object may go to any of
+    /// several targets). They may not hold `any_of` themselves.
+    AnyOf { any: Vec<Goal> },
     /// A joint of an articulated URDF object lies within [`min`, `max`] (rad or m; either may be
     /// left out): "opened beyond" is a `min`, "closed" a `max`.
     JointPosition {
@@ -422,7 +443,29 @@ impl Goal {
                 (None, Some(p)) => format!("within_distance({object}, {p:?}, {distance})"),
                 (None, None) => format!("within_distance({object}, ?, {distance})"),
             },
+            Goal::PoseWithin {
+                object,
+                position,
+                relative_to: Some(anchor),
+                ..
+            } => format!(
+                "pose_within({object}, ({}, {}) from {anchor})",
+                position[0], position[1]
+            ),
+            Goal::PoseWithin {
+                object,
+                position,
+                planar: true,
+                ..
+            } => format!(
+                "pose_within({object}, at ({}, {}))",
+                position[0], position[1]
+            ),
             Goal::PoseWithin { object, .. } => format!("pose_within({object})"),
+            Goal::AnyOf { any } => format!(
+                "any_of({})",
+                any.iter().map(Goal::label).collect::<Vec<_>>().join(" | ")
+            ),
             Goal::JointPosition {
                 object,
                 joint,
@@ -505,6 +548,14 @@ pub enum PlaceTarget {
     /// With the object's centre at a point (x, y, z) in the air, over a hook or a peg: the
     /// object is lowered there and let go.
     AtPoint([f64; 3]),
+    /// At (x, y), in the world or, with `relative_to`, from that object's centre (world axes),
+    /// lowered onto whatever lies under that spot (the table where nothing does): a place
+    /// beside, on or across other objects.
+    Spot {
+        xy: [f64; 2],
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        relative_to: Option<String>,
+    },
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
@@ -688,6 +739,43 @@ pub(crate) fn pile_half_extents(shape: &Shape) -> [f64; 3] {
     }
 }
 
+/// Whether `key` → `value` may fill a template (`Shape::Urdf::fill`; `urdf::fill_template` applies it): a placeholder of capitals
+/// and `_` followed by digits, replaced by a finite number or by a file name that stays in the
+/// URDF's folder (letters, digits, `_`, `-`, `.` and `/`, no `..`), so that a fill can change
+/// sizes and name a mesh but never write markup.
+pub fn check_fill(key: &str, value: &str) -> Result<(), String> {
+    let letters = key.trim_end_matches(|c: char| c.is_ascii_digit());
+    if letters.is_empty()
+        || letters.len() == key.len()
+        || !letters.starts_with(|c: char| c.is_ascii_uppercase())
+        || !letters.chars().all(|c| c.is_ascii_uppercase() || c == '_')
+        || key.len() > 32
+    {
+        return Err(format!(
+            "'{key}' is not a template placeholder (capitals and '_', then digits)"
+        ));
+    }
+    match value.parse::<f64>() {
+        Ok(x) if x.is_finite() => return Ok(()),
+        Ok(_) => return Err(format!("'{value}' is not a finite number")),
+        Err(_) => {}
+    }
+    let plain = !value.is_empty()
+        && value.len() <= 256
+        && value
+            .chars()
+            .all(|c| c.is_ascii_alphanumeric() || matches!(c, '_' | '-' | '.' | '/'))
+        && !value.starts_with('/')
+        && !value.split('/').any(|part| part == ".." || part.is_empty());
+    if plain {
+        Ok(())
+    } else {
+        Err(format!(
+            "'{value}' is neither a finite number nor a plain file name inside the URDF's folder"
+        ))
+    }
+}
+
 /// Checks an asset path from its text alone (before touching the file system): not empty, not
 /// absolute, and no `..` that climbs above the asset root.
 pub fn check_asset_path(file: &str) -> Result<(), String> {
@@ -842,10 +930,12 @@ impl TaskSpec {
                 path,
                 joints,
                 articulated,
+                fill,
             } => Shape::Urdf {
                 path: self.asset_path(path).display().to_string(),
                 joints: joints.clone(),
                 articulated: *articulated,
+                fill: fill.clone(),
             },
             other => other.clone(),
         }

@@ -195,9 +195,30 @@ pub fn validate(spec: &TaskSpec, origin: &str) -> Vec<SpecError> {
     if spec.goals.is_empty() {
         v.err("goals", "a task needs at least one goal predicate".into());
     }
+    // `any_of` holds goals checked like the others, one level deep.
+    let mut flat: Vec<(String, &Goal)> = Vec::new();
     for (i, g) in spec.goals.iter().enumerate() {
-        let p = format!("goals[{i}]");
         match g {
+            Goal::AnyOf { any } => {
+                if any.is_empty() {
+                    v.err(
+                        &format!("goals[{i}].any_of.any"),
+                        "needs at least one goal".into(),
+                    );
+                }
+                for (k, inner) in any.iter().enumerate() {
+                    flat.push((format!("goals[{i}].any_of.any[{k}]"), inner));
+                }
+            }
+            g => flat.push((format!("goals[{i}]"), g)),
+        }
+    }
+    for (p, g) in &flat {
+        match g {
+            Goal::AnyOf { .. } => v.err(
+                &format!("{p}.any_of"),
+                "an any_of goal cannot hold another any_of".into(),
+            ),
             Goal::InZone { object, zone } => {
                 obj(&mut v, &format!("{p}.in_zone.object"), object);
                 if !zone_ids.contains(zone.as_str()) {
@@ -268,8 +289,29 @@ pub fn validate(spec: &TaskSpec, origin: &str) -> Vec<SpecError> {
                 tolerance,
                 yaw_deg,
                 yaw_tolerance_deg,
+                relative_to,
+                planar: _,
+                yaw_symmetry_deg,
             } => {
                 obj(&mut v, &format!("{p}.pose_within.object"), object);
+                if let Some(anchor) = relative_to {
+                    obj(&mut v, &format!("{p}.pose_within.relative_to"), anchor);
+                    if anchor == object {
+                        v.err(
+                            &format!("{p}.pose_within.relative_to"),
+                            "a target cannot be measured from the object itself".into(),
+                        );
+                    }
+                }
+                if let Some(s) = yaw_symmetry_deg {
+                    v.within(
+                        &format!("{p}.pose_within.yaw_symmetry_deg"),
+                        *s,
+                        1.0,
+                        360.0,
+                        "°",
+                    );
+                }
                 v.finite3(&format!("{p}.pose_within.position"), position);
                 v.positive(&format!("{p}.pose_within.tolerance"), *tolerance);
                 if yaw_deg.is_some() != yaw_tolerance_deg.is_some() {
@@ -436,6 +478,18 @@ pub fn validate(spec: &TaskSpec, origin: &str) -> Vec<SpecError> {
                     PlaceTarget::At(xy) => v.finite2(&format!("{p}.place.target.at"), xy),
                     PlaceTarget::AtPoint(xyz) => {
                         v.finite3(&format!("{p}.place.target.at_point"), xyz)
+                    }
+                    PlaceTarget::Spot { xy, relative_to } => {
+                        v.finite2(&format!("{p}.place.target.spot.xy"), xy);
+                        if let Some(o) = relative_to {
+                            obj(&mut v, &format!("{p}.place.target.spot.relative_to"), o);
+                            if o == h {
+                                v.err(
+                                    &format!("{p}.place.target.spot.relative_to"),
+                                    "cannot place an object beside itself".into(),
+                                );
+                            }
+                        }
                     }
                 }
             }
@@ -687,11 +741,19 @@ impl Validator<'_> {
                 self.within(&format!("{path}.mesh.scale"), *scale, 1e-6, 1e3, "×");
             }
             Shape::Urdf {
-                path: file, joints, ..
+                path: file,
+                joints,
+                fill,
+                ..
             } => {
                 self.asset(&format!("{path}.urdf.path"), file);
                 for (name, q) in joints {
                     self.finite(&format!("{path}.urdf.joints.{name}"), *q);
+                }
+                for (key, value) in fill {
+                    if let Err(reason) = super::check_fill(key, value) {
+                        self.err(&format!("{path}.urdf.fill.{key}"), reason);
+                    }
                 }
             }
         }

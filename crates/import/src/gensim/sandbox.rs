@@ -1,0 +1,220 @@
+//! Runs a GenSim task's `reset()` in a sandboxed Python subprocess (`gensim-recorder/recorder.py`,
+//! built into the binary) and reads back what it recorded. Nothing of the task's output is
+//! trusted: the answer is parsed as data with bounds, and the process runs
+//!
+//! - with an empty environment, standard input closed, its working directory the library;
+//! - under limits the recorder sets on itself (hard limits, so they cannot be raised again)
+//!   before the task's code is read: CPU time and address space ([`crate::CodeLimits`]), file
+//!   size 0 (no byte can be written to a file), no new processes, no core file;
+//! - killed after the limits' wall-clock time, its answer read up to [`MAX_ANSWER`] bytes;
+//! - and, inside, behind the recorder's own guards (builtins without `open`/`exec`/`eval`, an
+//!   import allow-list, an audit hook that stops the process on any write, process, socket or
+//!   native call): see the recorder's docstring.
+
+use std::collections::BTreeMap;
+use std::io::Read;
+use std::path::Path;
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+use serde::Deserialize;
+
+/// The recorder, built in: nothing is written to disk to run it.
+const RECORDER: &str = include_str!("../../gensim-recorder/recorder.py");
+/// The largest answer read back.
+const MAX_ANSWER: u64 = 16 << 20;
+
+/// What `reset()` built for one seed.
+#[derive(Debug, Clone, Deserialize)]
+pub(crate) struct SeedRecord {
+    pub class: String,
+    pub objects: Vec<ObjectRecord>,
+    pub goals: Vec<GoalRecord>,
+    #[serde(default)]
+    pub lang_goals: Vec<String>,
+    pub pos_eps: f64,
+    pub rot_eps: f64,
+    pub ee: String,
+    #[serde(default)]
+    pub max_steps: Option<serde_json::Value>,
+}
+
+pub(crate) type RecordedPose = ([f64; 3], [f64; 4]);
+
+#[derive(Debug, Clone, Deserialize)]
+pub(crate) struct ObjectRecord {
+    pub urdf: String,
+    #[serde(default)]
+    pub fill: BTreeMap<String, serde_json::Value>,
+    pub pose: RecordedPose,
+    pub category: String,
+    pub color: Option<[f64; 3]>,
+    pub color_name: Option<String>,
+    #[serde(default)]
+    pub pile: bool,
+}
+
+#[derive(Debug, Clone, Deserialize)]
+pub(crate) struct GoalRecord {
+    pub objs: Vec<usize>,
+    pub symmetries: Vec<f64>,
+    pub matches: Vec<Vec<f64>>,
+    pub targets: Vec<RecordedPose>,
+    pub replace: bool,
+    pub rotations: bool,
+    pub metric: String,
+    #[serde(default)]
+    pub zones: Vec<(RecordedPose, Vec<f64>)>,
+    #[serde(default)]
+    pub matches_shape: Option<Vec<usize>>,
+}
+
+#[derive(Debug, Deserialize)]
+struct Answer {
+    seeds: Option<Vec<SeedRecord>>,
+    refused: Option<Refusal>,
+    error: Option<String>,
+}
+
+#[derive(Debug, Deserialize)]
+struct Refusal {
+    field: String,
+    reason: String,
+}
+
+/// Why a task's code could not be recorded: the field (a call, `import`, `open`, `reset`) and
+/// the reason.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub(crate) struct Refused {
+    pub field: String,
+    pub reason: String,
+}
+
+impl Refused {
+    fn new(field: &str, reason: impl Into<String>) -> Self {
+        Refused {
+            field: field.into(),
+            reason: reason.into(),
+        }
+    }
+}
+
+/// The Python that runs task code: `ASSAY_PYTHON`, else `python3` on the `PATH`.
+pub(crate) fn python() -> String {
+    std::env::var("ASSAY_PYTHON")
+        .ok()
+        .filter(|p| !p.is_empty())
+        .unwrap_or_else(|| "python3".into())
+}
+
+/// Records `reset()` of the task in `task_file` for each of `seeds`.
+pub(crate) fn record(
+    assets: &Path,
+    library: &Path,
+    task_file: &Path,
+    seeds: &[u64],
+    limits: crate::CodeLimits,
+) -> Result<Vec<SeedRecord>, Refused> {
+    let crate::CodeLimits {
+        cpu_seconds,
+        wall_seconds,
+        memory_bytes,
+    } = limits;
+    // Absolute paths: the recorder runs in the library, not where Assay was started.
+    let canonical = |p: &Path| {
+        p.canonicalize()
+            .map_err(|e| Refused::new("code", format!("{}: {e}", p.display())))
+    };
+    let (assets, library, task_file) = (
+        canonical(assets)?,
+        canonical(library)?,
+        canonical(task_file)?,
+    );
+    if !task_file.starts_with(&library) {
+        return Err(Refused::new(
+            "code",
+            format!("{} leads out of the library", task_file.display()),
+        ));
+    }
+    let python = python();
+    let mut cmd = Command::new(&python);
+    cmd.arg("-I")
+        .arg("-c")
+        .arg(RECORDER)
+        .arg(&assets)
+        .arg(&library)
+        .arg(&task_file)
+        .args(seeds.iter().map(u64::to_string))
+        .env_clear()
+        .env("OPENBLAS_NUM_THREADS", "1")
+        .env("OMP_NUM_THREADS", "1")
+        .env("MKL_NUM_THREADS", "1")
+        .env("LC_ALL", "C.UTF-8")
+        .env("ASSAY_RECORDER_CPU_SECONDS", cpu_seconds.to_string())
+        .env("ASSAY_RECORDER_MEMORY_BYTES", memory_bytes.to_string())
+        .current_dir(&library)
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null());
+    let mut child = cmd.spawn().map_err(|e| {
+        Refused::new(
+            "python",
+            format!(
+                "cannot start '{python}' ({e}): GenSim task code runs in a sandboxed Python 3 \
+                 with numpy; install one or set ASSAY_PYTHON"
+            ),
+        )
+    })?;
+    let mut stdout = child.stdout.take().expect("piped");
+    let reader = std::thread::spawn(move || {
+        let mut buf = Vec::new();
+        let _ = (&mut stdout).take(MAX_ANSWER).read_to_end(&mut buf);
+        buf
+    });
+    let start = Instant::now();
+    let status = loop {
+        match child.try_wait() {
+            Ok(Some(status)) => break Some(status),
+            Ok(None) if start.elapsed() >= Duration::from_secs(wall_seconds) => {
+                let _ = child.kill();
+                let _ = child.wait();
+                break None;
+            }
+            Ok(None) => std::thread::sleep(Duration::from_millis(10)),
+            Err(e) => return Err(Refused::new("reset", format!("waiting for Python: {e}"))),
+        }
+    };
+    let out = reader.join().unwrap_or_default();
+    let Some(status) = status else {
+        return Err(Refused::new(
+            "reset",
+            format!("did not finish within {wall_seconds} s of wall-clock time (stopped)"),
+        ));
+    };
+    let answer: Option<Answer> = serde_json::from_slice(&out).ok();
+    match answer {
+        Some(Answer {
+            refused: Some(r), ..
+        }) => Err(Refused::new(&r.field, r.reason)),
+        Some(Answer { error: Some(e), .. }) => Err(Refused::new("python", e)),
+        Some(Answer {
+            seeds: Some(seeds), ..
+        }) if status.success() => Ok(seeds),
+        _ => {
+            use std::os::unix::process::ExitStatusExt;
+            let why = match status.signal() {
+                Some(24) => format!("used more than {cpu_seconds} s of CPU time (stopped)"),
+                Some(9) => "was killed (out of memory or time)".to_string(),
+                Some(s) => format!("died of signal {s}"),
+                None if out.len() as u64 >= MAX_ANSWER => {
+                    format!("answered more than {MAX_ANSWER} bytes")
+                }
+                None => format!(
+                    "exited with {status} without an answer the importer can read \
+                     (is '{python}' a Python 3 with numpy?)"
+                ),
+            };
+            Err(Refused::new("reset", why))
+        }
+    }
+}

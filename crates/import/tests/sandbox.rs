@@ -1,0 +1,172 @@
+//! Generated task code is untrusted: a GenSim task that loops forever, allocates without bound,
+//! reaches for processes, sockets or files, or writes one, is stopped or refused with the task,
+//! the field and the reason, while the real tasks beside it in the same library import as they
+//! do alone. The real tasks are entries of GenSim's own library (`../shared/corpora`), copied at
+//! run time into a temporary library with the hostile ones.
+
+use std::path::{Path, PathBuf};
+
+use assay_import::{CodeLimits, ImportOptions, Pipeline, import};
+
+fn corpus() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/corpora/gensim-library")
+}
+
+const HEADER: &str = "import numpy as np\nimport os\nfrom cliport.tasks.task import Task\nfrom cliport.utils import utils\n\n\nclass Hostile(Task):\n    def __init__(self):\n        super().__init__()\n\n    def reset(self, env):\n        super().reset(env)\n";
+
+/// Hostile task bodies (inside `reset`), by name, with the words their refusal must contain.
+fn hostile(out: &Path) -> Vec<(&'static str, String, &'static str)> {
+    let file = out.display();
+    vec![
+        (
+            "loop-forever",
+            "        while True:\n            pass\n".into(),
+            "CPU time",
+        ),
+        (
+            "allocate-forever",
+            "        keep = []\n        while True:\n            keep.append(np.ones(10**7))\n"
+                .into(),
+            "memory",
+        ),
+        (
+            "os-system",
+            format!("        os.system('touch {file}/os-system')\n"),
+            "os.path only",
+        ),
+        (
+            "import-subprocess",
+            format!(
+                "        import subprocess\n        subprocess.run(['touch', '{file}/subprocess'])\n"
+            ),
+            "imports 'subprocess'",
+        ),
+        (
+            "import-socket",
+            "        import socket\n        socket.create_connection(('127.0.0.1', 9))\n".into(),
+            "imports 'socket'",
+        ),
+        (
+            "open-for-writing",
+            format!("        open('{file}/open', 'w').write('x')\n"),
+            "may not open files",
+        ),
+        (
+            "numpy-writes-a-file",
+            format!("        np.save('{file}/numpy.npy', np.ones(3))\n"),
+            "writes a file",
+        ),
+        (
+            "escape-through-random",
+            format!("        import random\n        random._os.system('touch {file}/escape')\n"),
+            "os.system",
+        ),
+        (
+            "escape-through-subclasses",
+            format!(
+                "        for c in ().__class__.__base__.__subclasses__():\n            if c.__name__ == '_wrap_close':\n                c.__init__.__globals__['system']('touch {file}/subclasses')\n"
+            ),
+            "os.system",
+        ),
+        (
+            "reads-outside",
+            "        np.loadtxt('/etc/hostname')\n".into(),
+            "outside the library",
+        ),
+    ]
+}
+
+fn write_library(root: &Path, entries: &[(String, String)]) {
+    std::fs::create_dir_all(root.join("generated_tasks")).unwrap();
+    let mut lib = serde_json::Map::new();
+    for (name, code) in entries {
+        lib.insert(
+            name.clone(),
+            serde_json::json!({"task-name": name, "task-description": "d", "assets-used": []}),
+        );
+        std::fs::write(
+            root.join("generated_tasks")
+                .join(format!("{}.py", name.replace('-', "_"))),
+            code,
+        )
+        .unwrap();
+    }
+    std::fs::write(
+        root.join("generated_tasks.json"),
+        serde_json::to_string_pretty(&lib).unwrap(),
+    )
+    .unwrap();
+}
+
+#[test]
+fn hostile_task_code_is_stopped_and_the_rest_imports() {
+    let corpus = corpus();
+    let library: serde_json::Map<String, serde_json::Value> = serde_json::from_str(
+        &std::fs::read_to_string(corpus.join("generated_tasks.json")).unwrap(),
+    )
+    .unwrap();
+    // The first four entries of the real library that have task code.
+    let real: Vec<(String, String)> = library
+        .keys()
+        .filter_map(|name| {
+            let code = corpus
+                .join("generated_tasks")
+                .join(format!("{}.py", name.replace('-', "_")));
+            std::fs::read_to_string(code)
+                .ok()
+                .map(|c| (name.clone(), c))
+        })
+        .take(4)
+        .collect();
+    assert_eq!(real.len(), 4);
+    let options = ImportOptions {
+        asset_root: Some(corpus.join("assets")),
+        limits: CodeLimits {
+            cpu_seconds: 2,
+            wall_seconds: 10,
+            memory_bytes: 1 << 30,
+        },
+    };
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("written");
+    std::fs::create_dir_all(&out).unwrap();
+
+    let alone = tmp.path().join("alone");
+    write_library(&alone, &real);
+    let alone = import(Pipeline::Gensim, &alone, &options);
+    let imported_alone: Vec<&str> = alone.specs().iter().map(|s| s.name.as_str()).collect();
+    assert!(!imported_alone.is_empty(), "{:?}", alone.tasks[0].errors);
+
+    let hostile = hostile(&out);
+    let mut entries = real.clone();
+    for (name, body, _) in &hostile {
+        entries.push((name.to_string(), format!("{HEADER}{body}")));
+    }
+    let mixed = tmp.path().join("mixed");
+    write_library(&mixed, &entries);
+    let mixed = import(Pipeline::Gensim, &mixed, &options);
+    let imported_mixed: Vec<&str> = mixed.specs().iter().map(|s| s.name.as_str()).collect();
+    assert_eq!(
+        imported_mixed, imported_alone,
+        "the real tasks import as they do alone"
+    );
+    for (name, _, why) in &hostile {
+        let t = mixed.tasks.iter().find(|t| t.name == *name).unwrap();
+        assert!(t.spec.is_none(), "{name} was imported");
+        let e = &t.errors[0];
+        assert_eq!(e.task.as_deref(), Some(*name));
+        assert!(!e.path.is_empty(), "{name}: no field");
+        assert!(
+            e.reason.contains(why),
+            "{name}: refused as '{}: {}', wanted '{why}'",
+            e.path,
+            e.reason
+        );
+    }
+    for (name, _, _) in &hostile {
+        let t = mixed.tasks.iter().find(|t| t.name == *name).unwrap();
+        println!("{name}: {}: {}", t.errors[0].path, t.errors[0].reason);
+    }
+    let written: Vec<_> = std::fs::read_dir(&out).unwrap().collect();
+    assert!(written.is_empty(), "task code wrote {written:?}");
+}
