@@ -366,6 +366,40 @@ fn ffmpeg() -> (Verdict, String, String) {
     }
 }
 
+/// GenSim's task code runs in a Python 3 with numpy (`assay import gensim`).
+fn python_numpy() -> (Verdict, String, String) {
+    let python = assay_import::gensim::python();
+    let out = std::process::Command::new(&python)
+        .args([
+            "-I",
+            "-c",
+            "import sys, numpy; print(sys.version.split()[0], numpy.__version__)",
+        ])
+        .output();
+    match out {
+        Ok(o) if o.status.success() => {
+            let v = String::from_utf8_lossy(&o.stdout);
+            let mut parts = v.split_whitespace();
+            let (py, np) = (parts.next().unwrap_or("?"), parts.next().unwrap_or("?"));
+            (
+                Verdict::Ok,
+                format!("{python}: Python {py}, numpy {np}"),
+                String::new(),
+            )
+        }
+        Ok(_) => (
+            Verdict::Warn,
+            format!("{python} has no numpy: GenSim task code cannot run"),
+            format!("{python} -m pip install numpy, or set ASSAY_PYTHON to a Python that has it"),
+        ),
+        Err(e) => (
+            Verdict::Warn,
+            format!("{python}: {e}"),
+            "install Python 3 with numpy, or set ASSAY_PYTHON".into(),
+        ),
+    }
+}
+
 pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     let mut checks = vec![
         check("Vulkan adapter", "render", vulkan),
@@ -376,6 +410,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         check("zenoh telemetry", "all", zenoh),
         check("shared memory (iceoryx2)", "sim, render", shared_memory),
         check("ffmpeg", "render (videos)", ffmpeg),
+        check("Python with numpy", "import gensim", python_numpy),
     ];
     if let Some(path) = &a.config {
         checks.extend(judges(path));

@@ -382,6 +382,17 @@ pub fn run(mut a: Args) -> anyhow::Result<ExitCode> {
         ));
     }
     parsed.run.events.extend(events);
+    parsed.imports = imported
+        .iter()
+        .enumerate()
+        .map(|(k, (path, batch))| {
+            let file = match k {
+                0 => "import-report.json".to_string(),
+                _ => format!("import-{k}/import-report.json"),
+            };
+            super::import::summary(batch, path, &file)
+        })
+        .collect();
     super::report::write(
         &a.out,
         &parsed,

@@ -26,10 +26,18 @@ pub struct Args {
     /// Exit non-zero if any task could not be imported.
     #[arg(long)]
     pub strict: bool,
+    /// Run each imported task's inferred oracle on seeds 0..N in the simulator (here, on this
+    /// machine's cores) and say in its mapping report on how many it succeeds, and why it fails
+    /// where it does.
+    #[arg(long, value_name = "N", default_value_t = 0)]
+    pub check_oracle: u64,
 }
 
 pub fn run(a: Args) -> anyhow::Result<ExitCode> {
-    let batch = read(a.pipeline, &a.path, a.asset_root.clone())?;
+    let mut batch = read(a.pipeline, &a.path, a.asset_root.clone())?;
+    if a.check_oracle > 0 {
+        check_oracles(&mut batch, a.check_oracle);
+    }
     print!("{}", batch.report());
     if let Some(out) = &a.out {
         let written = write(&batch, out)?;
@@ -46,6 +54,71 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     })
 }
 
+/// Runs every imported task's oracle on seeds `0..seeds` and adds what happened to its mapping
+/// report: a plan that fails on some seed is reported, not hidden.
+pub fn check_oracles(batch: &mut Import, seeds: u64) {
+    use assay_import::{Mapping, MappingStatus};
+    let specs: Vec<(usize, assay_spec::spec::TaskSpec)> = batch
+        .tasks
+        .iter()
+        .enumerate()
+        .filter_map(|(i, t)| t.spec.clone().map(|s| (i, s)))
+        .collect();
+    let jobs: Vec<(usize, u64)> = (0..specs.len())
+        .flat_map(|k| (0..seeds).map(move |s| (k, s)))
+        .collect();
+    let next = std::sync::atomic::AtomicUsize::new(0);
+    let results = std::sync::Mutex::new(vec![Vec::new(); specs.len()]);
+    let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
+    std::thread::scope(|scope| {
+        for _ in 0..threads {
+            scope.spawn(|| {
+                loop {
+                    let j = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                    let Some(&(k, seed)) = jobs.get(j) else {
+                        return;
+                    };
+                    let why = match assay_sim::simulate(&specs[k].1, seed, "oracle") {
+                        Ok(ep) if ep.outcome.success => None,
+                        Ok(ep) => Some(
+                            ep.outcome
+                                .predicates
+                                .iter()
+                                .find(|p| !p.holds)
+                                .map(|p| format!("{}: {}", p.label, p.detail))
+                                .unwrap_or_else(|| "the plan did not finish".into()),
+                        ),
+                        Err(e) => Some(format!("cannot simulate: {e}")),
+                    };
+                    results.lock().expect("not poisoned")[k].push((seed, why));
+                }
+            });
+        }
+    });
+    let results = results.into_inner().expect("not poisoned");
+    for ((i, _), mut rs) in specs.into_iter().zip(results) {
+        rs.sort_by_key(|r| r.0);
+        let solved = rs.iter().filter(|r| r.1.is_none()).count();
+        let failed: Vec<String> = rs
+            .iter()
+            .filter(|r| r.1.is_some())
+            .map(|r| r.0.to_string())
+            .collect();
+        let note = match rs.iter().find_map(|r| r.1.as_ref().map(|w| (r.0, w))) {
+            None => format!("checked in the simulator: solves {solved} of {seeds} seeds"),
+            Some((seed, why)) => format!(
+                "checked in the simulator: solves {solved} of {seeds} seeds; fails on seed(s) {}; seed {seed}: {why}",
+                failed.join(", ")
+            ),
+        };
+        batch.tasks[i].mapping.push(Mapping {
+            field: "oracle (checked)".into(),
+            status: MappingStatus::Inferred,
+            note,
+        });
+    }
+}
+
 /// Imports a batch, failing only when nothing under `path` can be read at all.
 pub fn read(
     pipeline: Pipeline,
@@ -53,7 +126,14 @@ pub fn read(
     asset_root: Option<PathBuf>,
 ) -> anyhow::Result<Import> {
     anyhow::ensure!(path.exists(), "{}: no such file or folder", path.display());
-    let batch = import(pipeline, path, &ImportOptions { asset_root });
+    let batch = import(
+        pipeline,
+        path,
+        &ImportOptions {
+            asset_root,
+            ..ImportOptions::default()
+        },
+    );
     anyhow::ensure!(
         !batch.tasks.is_empty() || !batch.errors.is_empty(),
         "no {pipeline} tasks found under {}",
@@ -80,6 +160,45 @@ pub fn write(batch: &Import, out: &Path) -> anyhow::Result<usize> {
     std::fs::write(&report, serde_json::to_vec_pretty(batch)?)
         .with_context(|| format!("writing {}", report.display()))?;
     Ok(specs.len())
+}
+
+/// What the report says of an imported tree (`mapping_file`: its mapping, relative to the
+/// report).
+pub fn summary(
+    batch: &Import,
+    path: &Path,
+    mapping_file: &str,
+) -> assay_report::report::ImportSummary {
+    use assay_import::MappingStatus;
+    let lines = |t: &assay_import::ImportedTask, status: MappingStatus| -> Vec<String> {
+        t.mapping
+            .iter()
+            .filter(|m| m.status == status)
+            .map(|m| format!("{}: {}", m.field, m.note))
+            .collect()
+    };
+    assay_report::report::ImportSummary {
+        pipeline: batch.pipeline.name().into(),
+        root: path.display().to_string(),
+        mapping_file: mapping_file.into(),
+        tasks: batch
+            .tasks
+            .iter()
+            .map(|t| assay_report::report::ImportedTaskSummary {
+                id: t.id.clone(),
+                name: t.name.clone(),
+                source: t.source.display().to_string(),
+                imported: t.spec.is_some(),
+                errors: t
+                    .errors
+                    .iter()
+                    .map(|e| format!("{}: {}", e.path, e.reason))
+                    .collect(),
+                inferred: lines(t, MappingStatus::Inferred),
+                not_mapped: lines(t, MappingStatus::NotMapped),
+            })
+            .collect(),
+    }
 }
 
 /// The imported specs as task documents for a batch (origin: the source file).

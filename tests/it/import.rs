@@ -175,6 +175,21 @@ fn eval_runs_imported_gensim_and_robogen_batches() {
             serde_json::from_str(&std::fs::read_to_string(dir.path().join("report.json")).unwrap())
                 .unwrap();
         assert_eq!(r.results.tasks.len(), tasks, "{pipeline}");
+        // The mapping report is in the report: every task of the tree, imported or not.
+        assert_eq!(r.imports.len(), 1);
+        assert_eq!(r.imports[0].pipeline, pipeline);
+        assert_eq!(
+            r.imports[0].tasks.iter().filter(|t| t.imported).count(),
+            tasks
+        );
+        assert!(
+            r.imports[0]
+                .tasks
+                .iter()
+                .all(|t| t.imported || !t.errors.is_empty())
+        );
+        let md = std::fs::read_to_string(dir.path().join("report.md")).unwrap();
+        assert!(md.contains(&format!("## Import ({pipeline})")), "{md}");
         assert_each_episode_once(&r, tasks, 2);
         for t in &r.results.tasks {
             assert_eq!(t.pipeline, pipeline);
@@ -183,6 +198,90 @@ fn eval_runs_imported_gensim_and_robogen_batches() {
                 "{pipeline}: {} {:?}",
                 t.id, t.failures
             );
+        }
+    }
+}
+
+/// `assay import --check-oracle N` runs every imported task's oracle and says in the mapping
+/// report how many seeds it solves; a plan that fails is reported with why, not hidden.
+#[test]
+fn import_checks_the_oracles_it_infers() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("specs");
+    let (ok, stdout, stderr) = assay(&[
+        "import",
+        "gensim",
+        "tests/fixtures/import/gensim",
+        "--check-oracle",
+        "2",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(ok, "{stdout}\n{stderr}");
+    let report: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("import-report.json")).unwrap()).unwrap();
+    let mut checked = 0;
+    for t in report["tasks"].as_array().unwrap() {
+        let lines: Vec<&str> = t["mapping"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .filter(|m| m["field"] == "oracle (checked)")
+            .map(|m| m["note"].as_str().unwrap())
+            .collect();
+        if t["spec"].is_null() {
+            assert!(lines.is_empty());
+            continue;
+        }
+        assert_eq!(lines.len(), 1, "{t:#}");
+        assert!(
+            lines[0].starts_with("checked in the simulator: solves ")
+                && lines[0].contains(" of 2 seeds"),
+            "{}",
+            lines[0]
+        );
+        assert!(stdout.contains(lines[0]), "the printed report has it too");
+        checked += 1;
+    }
+    assert_eq!(checked, 3);
+    // A plan that cannot succeed is reported as failing, with the unmet goal.
+    let tmp = tempfile::tempdir().unwrap();
+    let lib = tmp.path().join("gensim");
+    copy_tree(&repo().join("tests/fixtures/import/gensim"), &lib);
+    let spec = out.join("place-red-block-in-green-bowl.yaml");
+    assert!(spec.exists());
+    let code = lib.join("generated_tasks/place_red_block_in_green_bowl.py");
+    let text = std::fs::read_to_string(&code).unwrap();
+    // The goal asks for the block 3 m away, beyond the table: no plan reaches it.
+    let unreachable = text.replace(
+        "targ_poses=[bowl_pose]",
+        "targ_poses=[((3.0, 0.0, 0.02), (0, 0, 0, 1))]",
+    );
+    assert_ne!(unreachable, text);
+    std::fs::write(&code, unreachable).unwrap();
+    let (ok, stdout, stderr) = assay(&[
+        "import",
+        "gensim",
+        lib.to_str().unwrap(),
+        "--check-oracle",
+        "1",
+    ]);
+    assert!(ok, "{stdout}\n{stderr}");
+    assert!(
+        stdout.contains("checked in the simulator: solves 0 of 1 seeds; fails on seed(s) 0; seed 0: pose_within(red_block"),
+        "{stdout}"
+    );
+}
+
+fn copy_tree(from: &std::path::Path, to: &std::path::Path) {
+    std::fs::create_dir_all(to).unwrap();
+    for e in std::fs::read_dir(from).unwrap() {
+        let e = e.unwrap();
+        let dest = to.join(e.file_name());
+        if e.file_type().unwrap().is_dir() {
+            copy_tree(&e.path(), &dest);
+        } else {
+            std::fs::copy(e.path(), dest).unwrap();
         }
     }
 }

@@ -227,6 +227,16 @@ fn doctor_checks_the_machine_for_real_and_names_the_fix() {
     ] {
         assert_ne!(verdict(&checks, name)["verdict"], "fail", "{checks:#?}");
     }
+    // GenSim's task code needs numpy: scripts/test's Python has it, a bare one says how to get it.
+    assert_eq!(
+        verdict(&checks, "Python with numpy")["verdict"],
+        "ok",
+        "{checks:#?}"
+    );
+    let (_, bare) = doctor(&[], &[("ASSAY_PYTHON", "/nonexistent/python3")]);
+    let p = verdict(&bare, "Python with numpy");
+    assert_eq!(p["verdict"], "warn");
+    assert!(p["fix"].as_str().unwrap().contains("ASSAY_PYTHON"), "{p:#}");
     assert!(
         verdict(&checks, "embedding model minilm")["detail"]
             .as_str()

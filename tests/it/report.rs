@@ -148,6 +148,7 @@ fn report_from_a_file_writes_beside_it_and_replaces_no_other_batch() {
                 ..Default::default()
             },
             provenance: Default::default(),
+            imports: Vec::new(),
         }
     };
     let (a, b) = (dir.path().join("A"), dir.path().join("B"));

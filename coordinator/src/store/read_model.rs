@@ -439,6 +439,7 @@ impl Store {
             results,
             run,
             provenance,
+            imports: Vec::new(),
         })
     }
 }

@@ -34,6 +34,38 @@ pub struct Report {
     /// What produced the figures: code and model versions, settings, inputs, devices.
     #[serde(default)]
     pub provenance: Provenance,
+    /// What `assay eval --import` read: each generator tree and what became of its tasks.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub imports: Vec<ImportSummary>,
+}
+
+/// A generator's tree as `assay eval --import` read it (`import-report.json`, beside the report,
+/// has every mapping line).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+pub struct ImportSummary {
+    /// `gensim`, `robogen` or `bbsea`.
+    pub pipeline: String,
+    /// The tree that was read.
+    pub root: String,
+    /// Its mapping file, relative to the report.
+    pub mapping_file: String,
+    pub tasks: Vec<ImportedTaskSummary>,
+}
+
+/// One task of an imported tree.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+pub struct ImportedTaskSummary {
+    pub id: String,
+    pub name: String,
+    /// The file it was read from.
+    pub source: String,
+    pub imported: bool,
+    /// Why it was not imported: `field: reason` per error.
+    pub errors: Vec<String>,
+    /// What was inferred (a guess), `field: note` per line.
+    pub inferred: Vec<String>,
+    /// What was left out, with the reason, `field: note` per line.
+    pub not_mapped: Vec<String>,
 }
 
 /// What produced a report's figures, so two reports can be told apart or trusted to compare.
@@ -642,6 +674,7 @@ mod tests {
             results: r,
             run: RunInfo::default(),
             provenance: Provenance::default(),
+            imports: Vec::new(),
         };
         let md = report.to_markdown();
         assert!(md.contains("## Success per policy"), "{md}");

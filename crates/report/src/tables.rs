@@ -189,6 +189,26 @@ pub fn invalid_tasks(r: &Results) -> Table {
     table
 }
 
+/// An imported generator tree: each task, whether it was imported, why not, and how many
+/// fields were inferred or left out.
+pub fn imports(i: &crate::report::ImportSummary) -> Table {
+    let mut table = Table::new(["task", "imported", "#inferred", "#not mapped", "why not"]);
+    for t in &i.tasks {
+        table.row(vec![
+            Cell::code(&t.id),
+            Cell::text(if t.imported { "yes" } else { "no" }),
+            n(t.inferred.len()),
+            n(t.not_mapped.len()),
+            if t.errors.is_empty() {
+                Cell::default()
+            } else {
+                Cell::text(t.errors.join("; "))
+            },
+        ]);
+    }
+    table
+}
+
 /// What depends on the machine and the moment.
 pub fn run(run: &RunInfo) -> Table {
     let mut table = Table::new(["measure", "value"]);

@@ -21,7 +21,7 @@ mod overview;
 mod sections;
 mod tasks;
 
-use overview::{header, invalid, overview};
+use overview::{header, imports, invalid, overview};
 use sections::{figure_3, figure_4, ranking, table_1, table_2, table_3};
 pub use tasks::thumbnail;
 use tasks::{task_index, task_page};
@@ -62,7 +62,7 @@ section.task:target{display:block}\
 text-align:left;max-width:680px}";
 
 /// The sections and their titles in the navigation bar.
-const NAV: [(&str, &str); 9] = [
+const NAV: [(&str, &str); 10] = [
     ("overview", "Overview"),
     ("figure-4", "Figure 4"),
     ("figure-3", "Figure 3"),
@@ -71,6 +71,7 @@ const NAV: [(&str, &str); 9] = [
     ("table-3", "Table 3"),
     ("ranking", "Ranking"),
     ("invalid", "Invalid tasks"),
+    ("imports", "Import"),
     ("tasks", "Tasks"),
 ];
 
@@ -99,6 +100,7 @@ pub fn report_html(inputs: &HtmlInputs<'_>) -> String {
                     (table_3(r.generalization.as_ref()))
                     (ranking(r.ranking.as_ref()))
                     (invalid(inputs.report))
+                    (imports(inputs.report))
                     (task_index(inputs.report))
                     @for t in &r.tasks { (task_page(inputs, t)) }
                 }
@@ -496,6 +498,31 @@ mod tests {
         Report {
             report_version: crate::report::REPORT_VERSION,
             provenance: Default::default(),
+            imports: vec![crate::report::ImportSummary {
+                pipeline: "gensim".into(),
+                root: "lib".into(),
+                mapping_file: "import-report.json".into(),
+                tasks: vec![
+                    crate::report::ImportedTaskSummary {
+                        id: "t1".into(),
+                        name: "t1".into(),
+                        source: "lib/generated_tasks/t1.py".into(),
+                        imported: true,
+                        errors: vec![],
+                        inferred: vec!["oracle: per goal".into()],
+                        not_mapped: vec!["max_steps: actions".into()],
+                    },
+                    crate::report::ImportedTaskSummary {
+                        id: "rope".into(),
+                        name: "rope".into(),
+                        source: "lib/generated_tasks/rope.py".into(),
+                        imported: false,
+                        errors: vec!["make_ropes: ropes are deformable".into()],
+                        inferred: vec![],
+                        not_mapped: vec![],
+                    },
+                ],
+            }],
             results,
             run: RunInfo {
                 batch_id: "b00001".into(),
@@ -726,6 +753,7 @@ mod tests {
             tables::success_per_group(r),
             tables::success_per_task(r),
             tables::invalid_tasks(r),
+            tables::imports(&report.imports[0]),
             tables::run(&report.run),
             tables::provenance(&report.provenance),
             tables::judges(q),

@@ -47,3 +47,23 @@ pub(super) fn invalid(report: &Report) -> Markup {
         }
     }
 }
+
+pub(super) fn imports(report: &Report) -> Markup {
+    html! {
+        section id="imports" {
+            h2 { "Import" }
+            @if report.imports.is_empty() {
+                p { "The tasks were task specs: nothing was imported." }
+            }
+            @for i in &report.imports {
+                p {
+                    "From " code { (i.pipeline) } " output at " code { (i.root) } ": "
+                    (i.tasks.iter().filter(|t| t.imported).count()) " of " (i.tasks.len())
+                    " tasks imported; every mapping line is in "
+                    a href=(i.mapping_file) { (i.mapping_file) } "."
+                }
+                (table(&tables::imports(i)))
+            }
+        }
+    }
+}

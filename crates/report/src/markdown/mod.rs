@@ -69,6 +69,19 @@ impl Report {
             let _ = writeln!(md, "\n## Invalid task specs (not run)\n");
             md.push_str(&tables::invalid_tasks(r).markdown());
         }
+        for i in &self.imports {
+            let _ = writeln!(
+                md,
+                "\n## Import ({})\n\nFrom `{}`: {} of {} tasks imported; every mapping line is in [{}]({}).\n",
+                i.pipeline,
+                i.root,
+                i.tasks.iter().filter(|t| t.imported).count(),
+                i.tasks.len(),
+                i.mapping_file,
+                i.mapping_file
+            );
+            md.push_str(&tables::imports(i).markdown());
+        }
         md.push_str(&imagery(&r.tasks));
         let _ = writeln!(md, "\n## Run\n");
         md.push_str(&tables::run(&self.run).markdown());
