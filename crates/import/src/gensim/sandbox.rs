@@ -91,10 +91,18 @@ pub(crate) struct Refused {
 }
 
 impl Refused {
+    /// The field and reason, cut to a readable length (they may come from the task's code).
     fn new(field: &str, reason: impl Into<String>) -> Self {
+        let cut = |s: &str, n: usize| -> String {
+            if s.chars().count() <= n {
+                s.to_owned()
+            } else {
+                format!("{}…", s.chars().take(n).collect::<String>())
+            }
+        };
         Refused {
-            field: field.into(),
-            reason: reason.into(),
+            field: cut(field, 120),
+            reason: cut(&reason.into(), 600),
         }
     }
 }

@@ -18,6 +18,9 @@ use assay_spec::spec::{
 const TIED: f64 = 1e-4;
 /// An offset shorter than this (m, in x and y) puts the target on the object's spot.
 const ON_SPOT: f64 = 0.005;
+/// The most objects, goals, and targets of one goal a recording may hold (GenSim tasks place a
+/// few dozen; a pile is 50).
+const MAX_RECORDED: usize = 500;
 
 pub(crate) struct Translated {
     pub objects: Vec<Object>,
@@ -162,6 +165,27 @@ pub(crate) fn translate(
     notes: &mut Notes,
 ) -> Option<Translated> {
     let s0 = &seeds[0];
+    for s in seeds {
+        let most = s
+            .goals
+            .iter()
+            .map(|g| g.targets.len().max(g.objs.len()))
+            .max();
+        if s.objects.len() > MAX_RECORDED
+            || s.goals.len() > MAX_RECORDED
+            || most.is_some_and(|n| n > MAX_RECORDED)
+        {
+            notes.error(
+                "reset",
+                format!(
+                    "builds {} objects and {} goals: more than the {MAX_RECORDED} a task may have",
+                    s.objects.len(),
+                    s.goals.len()
+                ),
+            );
+            return None;
+        }
+    }
     // Seeds that built the same scene as seed 0 (same objects, same goals) tell ties apart.
     let same: Vec<SeedRecord> = seeds
         .iter()

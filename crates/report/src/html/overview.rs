@@ -60,7 +60,7 @@ pub(super) fn imports(report: &Report) -> Markup {
                     "From " code { (i.pipeline) } " output at " code { (i.root) } ": "
                     (i.tasks.iter().filter(|t| t.imported).count()) " of " (i.tasks.len())
                     " tasks imported; every mapping line is in "
-                    a href=(i.mapping_file) { (i.mapping_file) } "."
+                    code { (i.mapping_file) } " beside this report."
                 }
                 (table(&tables::imports(i)))
             }
