@@ -81,7 +81,9 @@ fn grip(scene: &SimScene, i: usize, at: Vec3) -> (f32, f32) {
 /// centre over (`x`, `y`), first touches what lies below (another object, or the table at
 /// z = 0): on a grid over its footprint, a ray up from under it finds its own bottom there and a
 /// ray down finds the top of what is under that point; the highest meeting wins. A hollow, a
-/// hole or a slot between two blocks is found as it is, whatever the shapes.
+/// hole or a slot between two blocks is found as it is, whatever the shapes. The shapes are the
+/// simulator's (a seeing oracle finds `relative_to` where its camera saw it, then lowers what
+/// it carries onto what is there): `spot` is an oracle's place, not a policy's observation.
 fn resting_height(scene: &SimScene, held: usize, x: f32, y: f32) -> f32 {
     const GRID: usize = 9;
     const ABOVE: f32 = 3.0;
