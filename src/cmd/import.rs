@@ -192,7 +192,10 @@ pub fn summary(
                 errors: t
                     .errors
                     .iter()
-                    .map(|e| format!("{}: {}", e.path, e.reason))
+                    .map(|e| match e.path.as_str() {
+                        "" => e.reason.clone(),
+                        field => format!("{field}: {}", e.reason),
+                    })
                     .collect(),
                 inferred: lines(t, MappingStatus::Inferred),
                 not_mapped: lines(t, MappingStatus::NotMapped),

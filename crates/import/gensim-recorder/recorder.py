@@ -3,16 +3,17 @@ built, as JSON on standard output, for `assay import gensim` (crates/import/src/
 
     python -I recorder.py ASSETS LIBRARY TASK_FILE SEED [SEED ...]   (run by the importer, sandboxed)
 
-Nothing of the task is trusted. The importer starts this script with limits on CPU time, address
-space, file size and processes, an empty environment and a wall-clock timeout; here, before the
-task's code is compiled:
+Nothing of the task is trusted. The importer starts this script with an empty environment and
+kills it after a wall-clock timeout; here, before the task's code is read:
+  - hard limits on CPU time and address space (from the importer), file size 0, no processes and
+    no core file (`limit()`: hard, so that nothing can raise them again);
   - the task module gets its own builtins: no open, exec, eval, compile, input or breakpoint, and
     an __import__ that gives numpy, the standard modules a task computes with, the Ravens stand-ins
     (cliport, pybullet) and a stand-in `os` that has only `os.path`; any other import is refused;
   - an audit hook (it cannot be removed) stops the process on any file write, any read outside the
     library and Python's own files, any process, socket, signal or ctypes call, and any import of a
     module that could reach them, whatever path the code found to it;
-  - what the task prints is kept apart (bounded), so that only this script writes the answer.
+  - what the task prints is dropped, so that only this script writes the answer.
 
 The stand-in follows GenSim's own `cliport/tasks/task.py`, `environments/environment.py` and
 `utils/utils.py` (the library's `reference/`): templates are filled as `fill_template` and
@@ -37,7 +38,7 @@ def _answer(obj, code=0):
 
 
 class _Bounded:
-    """What the task prints: kept, up to 64 KiB, never on the answer's stream."""
+    """What the task prints: counted and dropped, never on the answer's stream."""
 
     def __init__(self):
         self.n = 0

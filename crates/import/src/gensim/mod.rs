@@ -8,16 +8,16 @@ use std::path::Path;
 mod sandbox;
 mod translate;
 
-/// The Python that runs GenSim task code: `ASSAY_PYTHON`, else `python3` on the `PATH`.
-pub fn python() -> String {
-    sandbox::python()
-}
-
 use super::{ImportedTask, Notes, Pipeline, check_asset, group_for, hash_parts};
 use assay_spec::error::SpecError;
 use assay_spec::spec::{
     EndEffector, PhysicsSettings, SPEC_VERSION, Scene, Source, Surface, TaskSpec, Variations,
 };
+
+/// The Python that runs GenSim task code: `ASSAY_PYTHON`, else `python3` on the `PATH`.
+pub fn python() -> String {
+    sandbox::python()
+}
 
 /// GenSim colours missing from Assay's named palette (`utils.COLORS`, 0..1).
 pub(crate) const EXTRA_COLORS: &[(&str, [f64; 3])] = &[
@@ -267,16 +267,15 @@ fn build(
         "oracle",
         "per goal, lowest target first: pick, then place at the target (on what lies under it), into the bowl, or in the zone; a pile is swept",
     );
-    let end_effector = if s0.ee == "spatula" && !t.piles.is_empty() {
+    if s0.ee == "spatula" {
         notes.not_mapped(
             "ee",
-            "GenSim's spatula: Assay's suction tool sweeps piles the same way",
+            "GenSim's spatula: Assay's suction tool picks, and sweeps piles, instead",
         );
-        EndEffector::Suction
     } else {
         notes.mapped("ee", "suction (Ravens' default self.ee = Suction)");
-        EndEffector::Suction
-    };
+    }
+    let end_effector = EndEffector::Suction;
     notes.mapped(
         "arm",
         "ur5 at the origin (Ravens' UR5 stands at (0, 0, 0) facing +x; its workspace x 0.25-0.75 m)",
