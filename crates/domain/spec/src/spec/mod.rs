@@ -739,10 +739,10 @@ pub(crate) fn pile_half_extents(shape: &Shape) -> [f64; 3] {
     }
 }
 
-/// Whether `key` → `value` may fill a template (`Shape::Urdf::fill`; `urdf::fill_template` applies it): a placeholder of capitals
-/// and `_` followed by digits, replaced by a finite number or by a file name that stays in the
-/// URDF's folder (letters, digits, `_`, `-`, `.` and `/`, no `..`), so that a fill can change
-/// sizes and name a mesh but never write markup.
+/// Whether `key` → `value` may fill a template (`Shape::Urdf::fill`, applied by
+/// `urdf::fill_template`): a placeholder of capitals and `_` followed by digits, replaced by a
+/// finite number or by a file name that stays in the URDF's folder (letters, digits, `_`, `-`,
+/// `.` and `/`, no `..`), so that a fill can change sizes and name a mesh but never write markup.
 pub fn check_fill(key: &str, value: &str) -> Result<(), String> {
     let letters = key.trim_end_matches(|c: char| c.is_ascii_digit());
     if letters.is_empty()
