@@ -58,7 +58,7 @@ import json, math, random, types, copy, itertools, functools, collections, strin
 try:
     import numpy as np
 except ImportError:
-    _answer({'error': f"numpy is not installed for {sys.executable} (GenSim task code needs it: "
+    _answer({'error': f"numpy is not installed for {sys.executable or _os.environ.get('ASSAY_RECORDER_PYTHON', 'python')} (GenSim task code needs it: "
                       "pip install numpy, or point ASSAY_PYTHON at a Python that has it)"}, 2)
 
 ASSETS = _os.path.realpath(sys.argv[1])

@@ -126,6 +126,66 @@ fn resting_height(scene: &SimScene, held: usize, x: f32, y: f32) -> f32 {
     centre
 }
 
+/// Gap (m) a `spot` place keeps from what stands beside the spot at the height it lands.
+const SIDE_CLEARANCE: f32 = 0.002;
+/// The most (m) a `spot` place is shifted to keep that gap: well inside GenSim's 1 cm pose
+/// tolerance.
+const MAX_SIDE_SHIFT: f32 = 0.004;
+
+/// Where, near `at` (held object `held`'s centre where [`resting_height`] lands it), to lower it
+/// so that it keeps [`SIDE_CLEARANCE`] from the objects beside it. Generated layouts put blocks
+/// side by side with no gap (two 4 cm blocks 4 cm apart); lowered exactly there, the carried
+/// block's bottom edge catches its neighbour's top edge and tips or shoves it out of tolerance.
+/// Contacts whose normal is mostly vertical (what it lands on) do not move it; the shift is at
+/// most [`MAX_SIDE_SHIFT`].
+fn clear_of_neighbours(scene: &SimScene, held: usize, at: Vec3) -> Vec3 {
+    use rapier3d::parry::query::contact;
+    const LIFT: f32 = 0.001;
+    let o = &scene.objects[held];
+    let c = scene.pose(o).translation;
+    let own = scene.world.bodies[o.body].colliders();
+    let others: Vec<ColliderHandle> = scene
+        .objects
+        .iter()
+        .enumerate()
+        .filter(|(k, _)| *k != held)
+        .flat_map(|(_, other)| scene.world.bodies[other.body].colliders().iter().copied())
+        .collect();
+    let mut shift = Vec3::ZERO;
+    for _ in 0..4 {
+        let delta = at + shift + Vec3::Z * LIFT - c;
+        let mut push = Vec3::ZERO;
+        for h1 in own {
+            let c1 = &scene.world.colliders[*h1];
+            let mut p1 = *c1.position();
+            p1.translation += delta;
+            for h2 in &others {
+                let c2 = &scene.world.colliders[*h2];
+                let Ok(Some(k)) =
+                    contact(&p1, c1.shape(), c2.position(), c2.shape(), SIDE_CLEARANCE)
+                else {
+                    continue;
+                };
+                let n = k.normal1;
+                let side = Vec3::new(n.x, n.y, 0.0);
+                if n.z.abs() > 0.7 || side.length() < 1e-6 {
+                    continue;
+                }
+                push -= side.normalize() * (SIDE_CLEARANCE - k.dist).min(MAX_SIDE_SHIFT);
+            }
+        }
+        if push.length() < 1e-5 {
+            break;
+        }
+        shift += push;
+        if shift.length() > MAX_SIDE_SHIFT {
+            shift = shift.normalize() * MAX_SIDE_SHIFT;
+            break;
+        }
+    }
+    at + shift
+}
+
 /// Steps to wait for the pads of a friction gripper to travel `gap` (m) and settle.
 fn finger_steps(gap: f32, dt: f32) -> u32 {
     (gap.abs() / (crate::scene::FINGER_SPEED * dt)).ceil() as u32 + 24
@@ -508,7 +568,8 @@ impl Controller {
                         };
                         origin.map(|o| {
                             let (x, y) = (o.x + xy[0] as f32, o.y + xy[1] as f32);
-                            Vec3::new(x, y, resting_height(scene, h.object, x, y))
+                            let z = resting_height(scene, h.object, x, y);
+                            clear_of_neighbours(scene, h.object, Vec3::new(x, y, z))
                         })
                     }
                 };

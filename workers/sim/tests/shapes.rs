@@ -309,3 +309,50 @@ goals:
     let (inside, z) = rest("hull");
     assert!(!inside && z > 0.07, "hull: the cube rests at z {z}");
 }
+
+/// GenSim's layouts put blocks side by side with no gap (4 cm blocks 4 cm apart, turned as the
+/// pallet under them). A `spot` place keeps a hair's gap from what stands beside its spot, so
+/// that the block it lowers does not catch its neighbour's edge and shove it off its own spot.
+#[test]
+fn a_spot_place_beside_a_block_leaves_the_block_where_it_stands() {
+    let yaw: f64 = -143.0;
+    let (s, c) = yaw.to_radians().sin_cos();
+    // The neighbour's spot: 4 cm from the first along the blocks' own y axis.
+    let (dx, dy) = (-0.04 * s, 0.04 * c);
+    for seed in 0..4 {
+        let spec = format!(
+            r#"
+spec_version: 1
+id: side-by-side
+name: side-by-side
+description: Put the blue block beside the red one, touching it.
+group: placement
+scene:
+  objects:
+    - {{id: red, shape: {{box: {{half_extents: [0.02, 0.02, 0.02]}}}}, color: red, pose: {{position: [0.5, 0.1, 0.02], yaw_deg: {yaw}}}}}
+    - {{id: blue, shape: {{box: {{half_extents: [0.02, 0.02, 0.02]}}}}, color: blue, pose: {{position: [0.45, -0.2, 0.02], yaw_deg: {yaw}}}}}
+end_effector: {{type: suction}}
+goals:
+  - pose_within: {{object: red, position: [0.5, 0.1, 0.0], tolerance: 0.003, planar: true}}
+  - pose_within: {{object: blue, position: [{x}, {y}, 0.0], tolerance: 0.01, planar: true}}
+oracle:
+  - pick: {{object: blue}}
+  - place: {{target: {{spot: {{xy: [{x}, {y}]}}}}}}
+"#,
+            x = 0.5 + dx,
+            y = 0.1 + dy,
+        );
+        let spec = parse_task(&spec, Format::Yaml, "side-by-side.yaml").unwrap();
+        let ep = assay_sim::simulate(&spec, seed, "oracle").unwrap();
+        assert!(
+            ep.outcome.success,
+            "seed {seed}: {:?}",
+            ep.outcome
+                .predicates
+                .iter()
+                .filter(|p| !p.holds)
+                .map(|p| &p.detail)
+                .collect::<Vec<_>>()
+        );
+    }
+}

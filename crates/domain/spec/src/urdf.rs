@@ -741,6 +741,23 @@ pub struct Assembled {
     pub urdf: Urdf,
 }
 
+impl Assembled {
+    /// Half extents, about the object's frame, of the box that holds its collision parts. They
+    /// may reach past the visual box `half` (Ravens' cylinder template swaps radius and length
+    /// between its visual and its collision).
+    pub fn collision_half(&self) -> [f64; 3] {
+        let mut h = [0.0f64; 3];
+        for (p, m) in &self.collisions {
+            for c in part_corners(p, m.as_ref()) {
+                for k in 0..3 {
+                    h[k] = h[k].max(c[k].abs());
+                }
+            }
+        }
+        h
+    }
+}
+
 /// Points bounding a part placed by `pose` (corners of its box, or its mesh's vertices).
 fn part_corners(part: &PlacedPart, mesh: Option<&TriangleMesh>) -> Vec<[f64; 3]> {
     let boxed = |h: [f64; 3]| -> Vec<[f64; 3]> {

@@ -158,6 +158,7 @@ pub(crate) fn record(
         .env("OMP_NUM_THREADS", "1")
         .env("MKL_NUM_THREADS", "1")
         .env("LC_ALL", "C.UTF-8")
+        .env("ASSAY_RECORDER_PYTHON", &python)
         .env("ASSAY_RECORDER_CPU_SECONDS", cpu_seconds.to_string())
         .env("ASSAY_RECORDER_MEMORY_BYTES", memory_bytes.to_string())
         .current_dir(&library)

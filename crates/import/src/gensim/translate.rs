@@ -4,7 +4,7 @@
 //! seed): such targets become goals measured from that object, so the relation survives
 //! Assay's own per-seed variation. A target tied to nothing is a place on the table.
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;
 
 use super::sandbox::{GoalRecord, ObjectRecord, RecordedPose, SeedRecord};
@@ -227,6 +227,8 @@ pub(crate) fn translate(
     let mut zones = Vec::new();
     let mut piles: Vec<Pile> = Vec::new();
     let mut counts: BTreeMap<String, usize> = BTreeMap::new();
+    // Each object's half extents (its asset's, not the size the code declared).
+    let mut halves: BTreeMap<String, [f64; 3]> = BTreeMap::new();
     let mut fatal = false;
     for (k, o) in s0.objects.iter().enumerate() {
         let field = format!("env.add_object[{k}]");
@@ -383,6 +385,12 @@ pub(crate) fn translate(
                 )
             },
         );
+        // What it occupies: its visual box, or its collision shapes where they reach further.
+        let reach = assembled.collision_half();
+        halves.insert(
+            id.clone(),
+            [half[0].max(reach[0]), half[1].max(reach[1]), half_z],
+        );
         objects.push(Object {
             id: id.clone(),
             shape,
@@ -414,6 +422,7 @@ pub(crate) fn translate(
     // Objects placed from another's pose (a part on a base, a block in a bowl) keep their
     // relation only when nothing moves them apart.
     let mut jitter = JITTER;
+    let mut tied_pairs: BTreeSet<(String, String)> = BTreeSet::new();
     for (k, m) in made.iter().enumerate() {
         let Some(m) = m else { continue };
         if !matches!(m.kind, Kind::Object { .. }) || same.len() < 2 {
@@ -434,6 +443,9 @@ pub(crate) fn translate(
             let tied = d
                 .windows(2)
                 .all(|w| (0..3).all(|a| (w[0][a] - w[1][a]).abs() <= TIED));
+            if tied {
+                tied_pairs.insert((m.id.clone(), other.id.clone()));
+            }
             if tied && d[0][0].hypot(d[0][1]) < 0.2 && jitter > 0.0 {
                 jitter = 0.0;
                 notes.inferred(
@@ -468,6 +480,9 @@ pub(crate) fn translate(
     let pos_eps = s0.pos_eps;
     let rot_eps = s0.rot_eps.to_degrees();
     let mut start_yaw: BTreeMap<String, f64> = BTreeMap::new();
+    let mut pose_goals: Vec<PoseGoal> = Vec::new();
+    // (index of the pick in `oracle`, object, add_goal) of each pick-and-place of a pose goal.
+    let mut pose_steps: Vec<(usize, String, usize)> = Vec::new();
     for (gi, g) in s0.goals.iter().enumerate() {
         let field = format!("add_goal[{gi}]");
         if let Some(shape) = &g.matches_shape {
@@ -591,6 +606,15 @@ pub(crate) fn translate(
             }
             plan.push((pick.3, distance(i, pick.0), m.id.clone(), pick.2.clone()));
             let mut any: Vec<Goal> = options.iter().map(|(_, goal, ..)| goal.clone()).collect();
+            pose_goals.push(PoseGoal {
+                object: m.id.clone(),
+                add_goal: gi,
+                goal: goals.len(),
+                targets: options
+                    .iter()
+                    .map(|(j, ..)| [g.targets[*j].0[0], g.targets[*j].0[1]])
+                    .collect(),
+            });
             goals.push(if any.len() == 1 {
                 any.remove(0)
             } else {
@@ -599,6 +623,7 @@ pub(crate) fn translate(
         }
         plan.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.total_cmp(&b.1)));
         for (_, _, object, target) in plan {
+            pose_steps.push((oracle.len(), object.clone(), gi));
             oracle.push(Primitive::Pick { object });
             oracle.push(Primitive::Place { target });
         }
@@ -621,12 +646,21 @@ pub(crate) fn translate(
             );
         }
     }
+    supersede(
+        &pose_goals,
+        &pose_steps,
+        pos_eps,
+        &mut goals,
+        &mut oracle,
+        notes,
+    );
     // Objects with a yaw to match start at it (mod nothing: the same yaw).
     for o in &mut objects {
         if let (Some(y), Some(p)) = (start_yaw.get(&o.id), o.pose.as_mut()) {
             p.yaw_deg = r6(*y);
         }
     }
+    declutter(&mut objects, &zones, &halves, &tied_pairs, jitter, notes);
     if goals.is_empty() {
         notes.error("add_goal", "the task adds no goal");
         return None;
@@ -854,4 +888,222 @@ fn zone_goal(
         "'zone' → in_zone for each object (its centre over the zone; GenSim counts the share of its points inside)",
     );
     true
+}
+
+/// GenSim's workspace (`Task.bounds`, x and y), where `get_random_pose` draws.
+const WORKSPACE: [[f64; 2]; 2] = [[0.25, 0.75], [-0.5, 0.5]];
+/// Step (m) of the search for a free spot.
+const FREE_STEP: f64 = 0.005;
+
+/// An object's footprint on the table: centre, yaw (rad), half extents in x and y.
+#[derive(Clone, Copy)]
+struct Footprint {
+    c: [f64; 2],
+    yaw: f64,
+    half: [f64; 2],
+}
+
+impl Footprint {
+    /// Whether the two rectangles, each grown by `margin` on every side, overlap (separating
+    /// axes: the four edge normals).
+    fn overlaps(&self, other: &Footprint, margin: f64) -> bool {
+        let d = [other.c[0] - self.c[0], other.c[1] - self.c[1]];
+        let axes = |f: &Footprint| {
+            let (s, c) = f.yaw.sin_cos();
+            [[c, s], [-s, c]]
+        };
+        let reach = |f: &Footprint, a: [f64; 2]| {
+            let [u, v] = axes(f);
+            (f.half[0] + margin) * (u[0] * a[0] + u[1] * a[1]).abs()
+                + (f.half[1] + margin) * (v[0] * a[0] + v[1] * a[1]).abs()
+        };
+        axes(self)
+            .into_iter()
+            .chain(axes(other))
+            .all(|a| (d[0] * a[0] + d[1] * a[1]).abs() < reach(self, a) + reach(other, a) - 1e-4)
+    }
+}
+
+/// Moves each movable object standing on the table that overlaps another one's footprint — its
+/// asset's footprint, grown by the seeds' position jitter — to the nearest free spot in GenSim's
+/// workspace. Generated code often declares a size smaller than the asset it loads (a pallet
+/// "0.15 × 0.15" whose mesh is 0.30 × 0.25), and the recorder, like GenSim's sampler, keeps
+/// later objects clear of that declared size only; GenSim's own sampler masks the rendered
+/// asset instead. An object above the table (on another), or placed from another's pose by the
+/// code (in a container it was drawn in), is left where the code put it.
+fn declutter(
+    objects: &mut [Object],
+    zones: &[Zone],
+    halves: &BTreeMap<String, [f64; 3]>,
+    tied: &BTreeSet<(String, String)>,
+    jitter: f64,
+    notes: &mut Notes,
+) {
+    let footprint = |o: &Object| {
+        let p = o.pose.as_ref()?;
+        let h = halves.get(&o.id)?;
+        Some((
+            Footprint {
+                c: [p.position[0], p.position[1]],
+                yaw: p.yaw_deg.to_radians(),
+                half: [h[0], h[1]],
+            },
+            p.position[2] - h[2],
+        ))
+    };
+    let zone_prints: Vec<Footprint> = zones
+        .iter()
+        .map(|z| Footprint {
+            c: z.center,
+            yaw: 0.0,
+            half: z.half_extents,
+        })
+        .collect();
+    for k in 0..objects.len() {
+        let o = &objects[k];
+        if o.is_fixed {
+            continue;
+        }
+        let Some((mine, bottom)) = footprint(o) else {
+            continue;
+        };
+        if bottom > 0.005 {
+            continue;
+        }
+        // What it must keep clear of: every fixed object, and the movable ones before it. Each
+        // seed moves a movable object by up to `jitter` along x and y: a gap of √2 `jitter`
+        // keeps it off a fixed one, twice that off another movable one.
+        let others: Vec<(String, Footprint, f64)> = objects
+            .iter()
+            .enumerate()
+            .filter(|(q, other)| *q != k && (other.is_fixed || *q < k))
+            .filter_map(|(_, other)| {
+                let margin = if other.is_fixed {
+                    jitter / std::f64::consts::SQRT_2
+                } else {
+                    jitter * std::f64::consts::SQRT_2
+                };
+                footprint(other).map(|(f, ..)| (other.id.clone(), f, margin))
+            })
+            .collect();
+        let clash = others.iter().find(|(id, f, margin)| {
+            !tied.contains(&(o.id.clone(), id.clone())) && mine.overlaps(f, *margin)
+        });
+        let Some((with, ..)) = clash else { continue };
+        let free = |c: [f64; 2]| {
+            let f = Footprint { c, ..mine };
+            c[0] - mine.half[0].max(mine.half[1]) >= WORKSPACE[0][0]
+                && c[0] + mine.half[0].max(mine.half[1]) <= WORKSPACE[0][1]
+                && c[1] - mine.half[0].max(mine.half[1]) >= WORKSPACE[1][0]
+                && c[1] + mine.half[0].max(mine.half[1]) <= WORKSPACE[1][1]
+                && others
+                    .iter()
+                    .all(|(_, g, margin)| !f.overlaps(g, margin + 0.0025))
+                && zone_prints
+                    .iter()
+                    .all(|g| !f.overlaps(g, jitter / std::f64::consts::SQRT_2 + 0.0025))
+        };
+        // Rings of growing radius around where the code put it: the nearest free spot.
+        let mut spot = None;
+        'search: for ring in 1..200 {
+            let r = ring as f64 * FREE_STEP;
+            let n = (2.0 * std::f64::consts::PI * r / FREE_STEP).ceil().max(8.0) as usize;
+            for a in 0..n {
+                let t = 2.0 * std::f64::consts::PI * a as f64 / n as f64;
+                let c = [mine.c[0] + r * t.cos(), mine.c[1] + r * t.sin()];
+                if free(c) {
+                    spot = Some(c);
+                    break 'search;
+                }
+            }
+        }
+        let id = objects[k].id.clone();
+        let Some(c) = spot else {
+            notes.not_mapped(
+                &format!("scene.objects.{id}"),
+                format!("overlaps '{with}' (the asset is larger than the size its code declared), and no free spot was found: it starts there"),
+            );
+            continue;
+        };
+        let p = objects[k].pose.as_mut().expect("has a footprint");
+        let moved = (c[0] - p.position[0]).hypot(c[1] - p.position[1]);
+        p.position[0] = r6(c[0]);
+        p.position[1] = r6(c[1]);
+        notes.inferred(
+            &format!("scene.objects.{id}"),
+            format!(
+                "moved {:.0} mm to the nearest free spot: it overlapped '{with}' (the asset is larger than the size its code declared; GenSim's sampler keeps clear of what is drawn, the recorder of the declared size)",
+                moved * 1000.0
+            ),
+        );
+    }
+}
+
+/// One object's pose goal of one `add_goal`: where it went in the spec's goals, and GenSim's
+/// target positions (x, y) it may meet it at.
+struct PoseGoal {
+    object: String,
+    add_goal: usize,
+    goal: usize,
+    targets: Vec<[f64; 2]>,
+}
+
+/// Drops an object's pose goal that a later `add_goal` of the same object supersedes: none of
+/// its targets lies within `pos_eps` of any of the later one's. GenSim checks its goals one
+/// after another, and a goal met once stays counted ("sort the blocks into the zones, then
+/// stack them"); spec v1 checks every goal in the final state, where no state meets both. The
+/// final state GenSim's oracle leaves is the later goal's, so that one is kept. The oracle
+/// carries an object with several pose goals once, to its last goal's target.
+fn supersede(
+    pose_goals: &[PoseGoal],
+    pose_steps: &[(usize, String, usize)],
+    pos_eps: f64,
+    goals: &mut Vec<Goal>,
+    oracle: &mut Vec<Primitive>,
+    notes: &mut Notes,
+) {
+    let disjoint = |a: &PoseGoal, b: &PoseGoal| {
+        a.targets.iter().all(|p| {
+            b.targets
+                .iter()
+                .all(|q| (p[0] - q[0]).hypot(p[1] - q[1]) > pos_eps)
+        })
+    };
+    let mut dropped: BTreeSet<usize> = BTreeSet::new();
+    for a in pose_goals {
+        let later = pose_goals
+            .iter()
+            .find(|b| b.object == a.object && b.add_goal > a.add_goal && disjoint(a, b));
+        if let Some(b) = later {
+            dropped.insert(a.goal);
+            notes.inferred(
+                &format!("add_goal[{}].objs", a.add_goal),
+                format!(
+                    "'{}': superseded by add_goal[{}], which puts it elsewhere (no target of the two within pos_eps): GenSim counts a goal met once, spec v1 checks the final state, so the later goal is kept",
+                    a.object, b.add_goal
+                ),
+            );
+        }
+    }
+    let mut k = 0;
+    goals.retain(|_| {
+        k += 1;
+        !dropped.contains(&(k - 1))
+    });
+    // The oracle carries each object once, to its last goal's target: an earlier placement of
+    // it would only stand in the way of what is built later.
+    let skip: BTreeSet<usize> = pose_steps
+        .iter()
+        .filter(|(_, object, gi)| {
+            pose_steps
+                .iter()
+                .any(|(_, other, later)| other == object && later > gi)
+        })
+        .flat_map(|(at, ..)| [*at, *at + 1])
+        .collect();
+    let mut k = 0;
+    oracle.retain(|_| {
+        k += 1;
+        !skip.contains(&(k - 1))
+    });
 }
