@@ -5,6 +5,7 @@
 
 use std::path::Path;
 
+mod repair;
 mod sandbox;
 mod translate;
 
