@@ -45,9 +45,8 @@ impl Footprint {
 /// Moves each movable object standing on the table that overlaps another one's footprint — its
 /// asset's footprint, grown by the seeds' position jitter — to the nearest free spot in GenSim's
 /// workspace. Generated code often declares a size smaller than the asset it loads (a pallet
-/// "0.15 × 0.15" whose mesh is 0.30 × 0.25), and the recorder, like GenSim's sampler, keeps
-/// later objects clear of that declared size only; GenSim's own sampler masks the rendered
-/// asset instead. An object above the table (on another), or placed from another's pose by the
+/// "0.15 × 0.15" whose mesh is 0.30 × 0.25); the recorder keeps later objects clear of that
+/// declared size only, where GenSim's own sampler masks the rendered asset. An object above the table (on another), or placed from another's pose by the
 /// code (in a container it was drawn in), is left where the code put it.
 pub(super) fn declutter(
     objects: &mut [Object],
