@@ -12,6 +12,9 @@ use assay_spec::spec::{Goal, Object, Primitive, Zone};
 const WORKSPACE: [[f64; 2]; 2] = [[0.25, 0.75], [-0.5, 0.5]];
 /// Step (m) of the search for a free spot.
 const FREE_STEP: f64 = 0.005;
+/// Footprint tests one task's search for free spots may make in all (well under a second): a
+/// task of 500 objects drawn on top of each other is not searched without end.
+const MAX_FOOTPRINT_TESTS: usize = 5_000_000;
 
 /// An object's footprint on the table: centre, yaw (rad), half extents in x and y.
 #[derive(Clone, Copy)]
@@ -76,6 +79,7 @@ pub(super) fn declutter(
             half: z.half_extents,
         })
         .collect();
+    let mut tests = 0usize;
     for k in 0..objects.len() {
         let o = &objects[k];
         if o.is_fixed {
@@ -123,11 +127,15 @@ pub(super) fn declutter(
         // Rings of growing radius around where the code put it: the nearest free spot.
         let mut spot = None;
         'search: for ring in 1..200 {
+            if tests > MAX_FOOTPRINT_TESTS {
+                break;
+            }
             let r = ring as f64 * FREE_STEP;
             let n = (2.0 * std::f64::consts::PI * r / FREE_STEP).ceil().max(8.0) as usize;
             for a in 0..n {
                 let t = 2.0 * std::f64::consts::PI * a as f64 / n as f64;
                 let c = [mine.c[0] + r * t.cos(), mine.c[1] + r * t.sin()];
+                tests += others.len() + zone_prints.len() + 1;
                 if free(c) {
                     spot = Some(c);
                     break 'search;
