@@ -77,6 +77,17 @@ fn grip(scene: &SimScene, i: usize, at: Vec3) -> (f32, f32) {
     (yaw, width.unwrap_or(boxed))
 }
 
+/// The colliders of every scene object but `held`.
+fn colliders_besides(scene: &SimScene, held: usize) -> Vec<ColliderHandle> {
+    scene
+        .objects
+        .iter()
+        .enumerate()
+        .filter(|(k, _)| *k != held)
+        .flat_map(|(_, other)| scene.world.bodies[other.body].colliders().iter().copied())
+        .collect()
+}
+
 /// The height at which held object `held`, carried as it is and lowered straight down with its
 /// centre over (`x`, `y`), first touches what lies below (another object, or the table at
 /// z = 0): on a grid over its footprint, a ray up from under it finds its own bottom there and a
@@ -101,13 +112,7 @@ fn resting_height(scene: &SimScene, held: usize, x: f32, y: f32) -> f32 {
             .reduce(f32::min)
     };
     let own = scene.world.bodies[o.body].colliders();
-    let others: Vec<ColliderHandle> = scene
-        .objects
-        .iter()
-        .enumerate()
-        .filter(|(k, _)| *k != held)
-        .flat_map(|(_, other)| scene.world.bodies[other.body].colliders().iter().copied())
-        .collect();
+    let others = colliders_besides(scene, held);
     let mut centre = o.half.z;
     for a in 0..GRID {
         for b in 0..GRID {
@@ -144,13 +149,7 @@ fn clear_of_neighbours(scene: &SimScene, held: usize, at: Vec3) -> Vec3 {
     let o = &scene.objects[held];
     let c = scene.pose(o).translation;
     let own = scene.world.bodies[o.body].colliders();
-    let others: Vec<ColliderHandle> = scene
-        .objects
-        .iter()
-        .enumerate()
-        .filter(|(k, _)| *k != held)
-        .flat_map(|(_, other)| scene.world.bodies[other.body].colliders().iter().copied())
-        .collect();
+    let others = colliders_besides(scene, held);
     let mut shift = Vec3::ZERO;
     for _ in 0..4 {
         let delta = at + shift + Vec3::Z * LIFT - c;
