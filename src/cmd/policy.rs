@@ -107,12 +107,15 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
                 PolicySpec::Remote {
                     url: name.clone(),
                     timeout_ms: DEFAULT_REMOTE_TIMEOUT_MS,
+                    interface: None,
                 }
             } else {
                 PolicySpec::parse(&name).map_err(anyhow::Error::msg)?
             };
             let report = match &spec {
-                PolicySpec::Remote { url, timeout_ms } => {
+                PolicySpec::Remote {
+                    url, timeout_ms, ..
+                } => {
                     let remote = RemotePolicy::connect(
                         url,
                         Duration::from_millis(*timeout_ms),
@@ -127,6 +130,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
                         "image_height": h.info.image_height,
                         "chunk_size": h.info.chunk_size,
                         "live_episodes": h.live_episodes,
+                        "interface": interface_json(&h.info.interface),
                     })
                 }
                 _ => {
@@ -153,20 +157,37 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     }
 }
 
+/// A policy interface as `assay policy check` prints it.
+fn interface_json(i: &assay_model::policy::Interface) -> serde_json::Value {
+    json!({
+        "action_space": i.action.name(),
+        "cameras": i.cameras.iter().map(|c| json!({
+            "name": c.name,
+            "source": c.source.name(),
+            "width": c.width,
+            "height": c.height,
+            "depth": c.depth,
+        })).collect::<Vec<_>>(),
+        "state": i.state.iter().map(|s| s.name()).collect::<Vec<_>>(),
+        "execute_horizon": i.execute,
+    })
+}
+
 /// One episode step on a blank 64×64 frame with the tool at the origin.
 fn trial_act(policy: &mut dyn Policy) -> Result<Vec<Action>, PolicyError> {
     policy.reset(&EpisodeContext {
         task_id: "check".into(),
         seed: 0,
         instruction: "check the policy".into(),
+        arm: None,
     })?;
-    policy.act(&PolicyObservation {
-        step: 0,
-        width: 64,
-        height: 64,
-        rgb: vec![0; 64 * 64 * 3],
-        proprio: [0.0; 4],
-    })
+    policy.act(&PolicyObservation::legacy(
+        0,
+        64,
+        64,
+        vec![0; 64 * 64 * 3],
+        [0.0; 4],
+    ))
 }
 
 /// Makes every policy of `factory` answer `delay` late (a slow server, for tests of clients).

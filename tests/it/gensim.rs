@@ -99,7 +99,7 @@ fn gensim_library_tasks_start_at_rest() {
             let before: Vec<_> = scene.objects.iter().map(|o| scene.pose(o)).collect();
             for _ in 0..spec.physics.settle_steps {
                 let at = scene.drive_arm(scene.gripper_position());
-                scene.world.bodies[scene.gripper].set_next_kinematic_translation(at);
+                scene.world.bodies[scene.gripper].set_next_kinematic_position(at);
                 scene.hold_joints();
                 scene.drive_fingers();
                 scene.world.step();

@@ -49,15 +49,11 @@ fn main() {
             task_id: "latency".into(),
             seed: 0,
             instruction: String::new(),
+            arm: None,
         })
         .expect("reset");
-    let mut obs = PolicyObservation {
-        step: 0,
-        width: 64,
-        height: 64,
-        rgb: vec![100; 64 * 64 * 3],
-        proprio: [0.0, 0.0, 0.2, 0.0],
-    };
+    let mut obs =
+        PolicyObservation::legacy(0, 64, 64, vec![100; 64 * 64 * 3], [0.0, 0.0, 0.2, 0.0]);
     let mut times = Vec::with_capacity(calls);
     for i in 0..20 + calls {
         obs.step = i as u32;

@@ -1,6 +1,6 @@
 //! `assay-policy`: the policies a simulator shard calls through [`Policy`] — remote policy servers
 //! over the `assay.v1.Policy` gRPC service ([`remote`]), the reference server for that service
-//! ([`server`]), TorchScript modules on libtorch ([`torchscript`], feature `torch`) — and
+//! ([`server`]), openpi policy servers over websocket + msgpack-numpy ([`openpi`]), TorchScript modules on libtorch ([`torchscript`], feature `torch`) — and
 //! [`load`], which turns a [`PolicySpec`] into one of them.
 //!
 //! Owns: the policy client and server, the TorchScript calling convention (`docs/policies.md`),
@@ -17,11 +17,13 @@ use std::sync::Arc;
 use assay_model::policy::{Policy, PolicyError, PolicySpec};
 use tokio::runtime::Handle;
 
+pub mod openpi;
 pub mod remote;
 pub mod server;
 mod status;
 #[cfg(feature = "torch")]
 pub mod torchscript;
+pub mod wire;
 
 pub use remote::{Health, RemotePolicy};
 pub use server::{PolicyFactory, ServerInfo, serve};
@@ -62,11 +64,34 @@ pub fn load_with(
         PolicySpec::Oracle { .. } => Err(PolicyError::Load(
             "the oracle is not a learned policy: it runs inside the simulator".into(),
         )),
-        PolicySpec::TorchScript { path } => load_torchscript(Path::new(path)),
-        PolicySpec::Remote { url, timeout_ms } => Ok(Box::new(RemotePolicy::connect(
+        PolicySpec::TorchScript { path, interface } => {
+            load_torchscript(Path::new(path), interface.clone())
+        }
+        PolicySpec::Remote {
+            url,
+            timeout_ms,
+            interface,
+        } => {
+            let mut remote = RemotePolicy::connect(
+                url,
+                std::time::Duration::from_millis(*timeout_ms),
+                rt.clone(),
+            )?;
+            if let Some(i) = interface {
+                remote = remote.with_interface(i.clone())?;
+            }
+            Ok(Box::new(remote))
+        }
+        PolicySpec::OpenPi {
+            url,
+            timeout_ms,
+            api_key_env,
+            interface,
+        } => Ok(Box::new(openpi::OpenPiPolicy::new(
             url,
             std::time::Duration::from_millis(*timeout_ms),
-            rt.clone(),
+            api_key_env.as_deref(),
+            interface.clone(),
         )?)),
         PolicySpec::Diffusion { model } => match diffusion {
             Some(loader) => {
@@ -96,8 +121,12 @@ pub fn factory(
     diffusion: Option<DiffusionLoader>,
 ) -> Result<PolicyFactory, PolicyError> {
     #[cfg(feature = "torch")]
-    if let PolicySpec::TorchScript { path } = spec {
-        let module = torchscript::TorchScriptPolicy::load(path, tch::Device::cuda_if_available())?;
+    if let PolicySpec::TorchScript { path, interface } = spec {
+        let mut module =
+            torchscript::TorchScriptPolicy::load(path, tch::Device::cuda_if_available())?;
+        if let Some(i) = interface {
+            module = module.with_interface(i.clone())?;
+        }
         return Ok(Arc::new(move || {
             Ok(Box::new(module.clone()) as Box<dyn Policy>)
         }));
@@ -119,15 +148,22 @@ fn artifact_path(artifact_root: &Path, key: &str) -> PathBuf {
 }
 
 #[cfg(feature = "torch")]
-fn load_torchscript(path: &Path) -> Result<Box<dyn Policy>, PolicyError> {
-    Ok(Box::new(torchscript::TorchScriptPolicy::load(
-        path,
-        tch::Device::cuda_if_available(),
-    )?))
+fn load_torchscript(
+    path: &Path,
+    interface: Option<assay_model::policy::Interface>,
+) -> Result<Box<dyn Policy>, PolicyError> {
+    let module = torchscript::TorchScriptPolicy::load(path, tch::Device::cuda_if_available())?;
+    Ok(Box::new(match interface {
+        Some(i) => module.with_interface(i)?,
+        None => module,
+    }))
 }
 
 #[cfg(not(feature = "torch"))]
-fn load_torchscript(path: &Path) -> Result<Box<dyn Policy>, PolicyError> {
+fn load_torchscript(
+    path: &Path,
+    _: Option<assay_model::policy::Interface>,
+) -> Result<Box<dyn Policy>, PolicyError> {
     Err(PolicyError::Load(format!(
         "TorchScript policy {}: this binary was built without libtorch (assay-policy feature `torch`, \
          the assay binary's `trainer` feature)",

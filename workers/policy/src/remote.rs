@@ -15,7 +15,9 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
 use assay_model::clip::{ACTION_DIMS, PROPRIO_DIMS};
-use assay_model::policy::{Action, EpisodeContext, Policy, PolicyError, PolicyObservation};
+use assay_model::policy::{
+    Action, EpisodeContext, Interface, Policy, PolicyError, PolicyObservation,
+};
 use assay_proto::v1 as pb;
 use tokio::runtime::Handle;
 use tonic::transport::Endpoint;
@@ -44,6 +46,8 @@ pub struct RemotePolicy {
     info: ServerInfo,
     /// The episode being played, once reset.
     episode: Option<String>,
+    /// Its instruction, sent again with every observation.
+    instruction: String,
 }
 
 impl std::fmt::Debug for RemotePolicy {
@@ -134,7 +138,18 @@ impl RemotePolicy {
             client,
             info: health.info,
             episode: None,
+            instruction: String::new(),
         })
+    }
+
+    /// Feeds the server through `interface` (declared in the policy's spec) instead of the one
+    /// its `Health` declared.
+    pub fn with_interface(mut self, interface: Interface) -> Result<Self, PolicyError> {
+        interface
+            .validate()
+            .map_err(|e| PolicyError::Load(format!("policy server at {}: {e}", self.url)))?;
+        self.info.interface = interface;
+        Ok(self)
     }
 
     /// What the server said about its policy when this client connected.
@@ -229,13 +244,44 @@ fn missed_deadline(s: &tonic::Status, elapsed: Duration, timeout: Duration) -> b
     }
 }
 
-/// Checks a `Health` answer: a server whose dims are not Assay's cannot be evaluated.
+/// Checks a `Health` answer: the interface the server declares, and dims that agree with it (a
+/// server of the original interface acts with 4 floats and sees 4).
 fn health_from(url: &str, h: pb::PolicyHealthResponse) -> Result<Health, PolicyError> {
-    if h.action_dims as usize != ACTION_DIMS || h.proprio_dims as usize != PROPRIO_DIMS {
+    let declared = h.interface.is_some();
+    let interface = crate::wire::interface_from_pb(h.interface).map_err(|e| {
+        PolicyError::Load(format!(
+            "policy server at {url} ({} {}) declares a bad interface: {e}",
+            h.name, h.version
+        ))
+    })?;
+    // Dims that depend on the task's arm are checked by the simulator.
+    let (actions, state) = if declared {
+        (
+            interface.action.dims(None).ok(),
+            interface.state_dims(None).ok(),
+        )
+    } else {
+        (Some(ACTION_DIMS), Some(PROPRIO_DIMS))
+    };
+    if actions.is_some_and(|d| d != h.action_dims as usize)
+        || state.is_some_and(|d| d != h.proprio_dims as usize)
+    {
         return Err(PolicyError::Load(format!(
-            "policy server at {url} ({} {}) has action_dims {} and proprio_dims {}; Assay's policies \
-             act with {ACTION_DIMS} and see {PROPRIO_DIMS}",
-            h.name, h.version, h.action_dims, h.proprio_dims
+            "policy server at {url} ({} {}) has action_dims {} and proprio_dims {}; its interface \
+             ({} actions, state {}) acts with {} and sees {}",
+            h.name,
+            h.version,
+            h.action_dims,
+            h.proprio_dims,
+            interface.action,
+            interface
+                .state
+                .iter()
+                .map(|s| s.name())
+                .collect::<Vec<_>>()
+                .join("+"),
+            actions.map_or("?".into(), |d| d.to_string()),
+            state.map_or("?".into(), |d| d.to_string()),
         )));
     }
     Ok(Health {
@@ -245,6 +291,7 @@ fn health_from(url: &str, h: pb::PolicyHealthResponse) -> Result<Health, PolicyE
             image_width: h.image_width,
             image_height: h.image_height,
             chunk_size: h.chunk_size,
+            interface,
         },
         live_episodes: h.live_episodes,
     })
@@ -269,29 +316,12 @@ fn new_episode_id() -> String {
     format!("{prefix:016x}-{}", NEXT.fetch_add(1, Ordering::Relaxed))
 }
 
-/// Checks an `Act` answer: 1..=MAX_CHUNK actions of [`ACTION_DIMS`] finite floats.
+/// Checks an `Act` answer of the original interface: 1..=MAX_CHUNK actions of [`ACTION_DIMS`]
+/// finite floats.
+#[cfg(test)]
 fn chunk(r: pb::PolicyActResponse) -> Result<Vec<Action>, String> {
-    if r.action_dims as usize != ACTION_DIMS {
-        return Err(format!(
-            "action_dims is {}, expected {ACTION_DIMS}",
-            r.action_dims
-        ));
-    }
-    let n = r.actions.len();
-    if n == 0 || !n.is_multiple_of(ACTION_DIMS) || n / ACTION_DIMS > MAX_CHUNK {
-        return Err(format!(
-            "{n} floats is not a chunk of 1 to {MAX_CHUNK} actions of {ACTION_DIMS}"
-        ));
-    }
-    if let Some(i) = r.actions.iter().position(|x| !x.is_finite()) {
-        return Err(format!(
-            "action {} has the non-finite value {}",
-            i / ACTION_DIMS,
-            r.actions[i]
-        ));
-    }
-    Ok(r.actions
-        .chunks_exact(ACTION_DIMS)
+    Ok(crate::wire::chunk(r, Some(ACTION_DIMS), MAX_CHUNK)?
+        .into_iter()
         .map(|a| a.try_into().expect("chunks of ACTION_DIMS"))
         .collect())
 }
@@ -301,6 +331,21 @@ impl Policy for RemotePolicy {
     fn frame_size(&self) -> Option<u32> {
         let info = &self.info;
         (info.image_width != 0 && info.image_width == info.image_height).then_some(info.image_width)
+    }
+
+    fn interface(&self) -> Interface {
+        let mut i = self.info.interface.clone();
+        // The original interface's camera takes the size the server asked for.
+        if let Some(c) = i.cameras.first_mut()
+            && c.width == 0
+        {
+            c.width = self.info.image_width;
+            c.height = self.info.image_height;
+            if c.width == 0 || c.height == 0 {
+                (c.width, c.height) = (0, 0);
+            }
+        }
+        i
     }
 
     /// Ends the previous episode (best effort) and starts a new one under a fresh episode id.
@@ -320,11 +365,26 @@ impl Policy for RemotePolicy {
             async move { client.reset(request).await },
         )?;
         self.episode = Some(episode_id);
+        self.instruction = episode.instruction.clone();
         Ok(())
     }
 
-    /// One `Act` call: blocks the calling thread for at most the deadline.
     fn act(&mut self, obs: &PolicyObservation) -> Result<Vec<Action>, PolicyError> {
+        self.act_any(obs)?
+            .into_iter()
+            .map(|a| {
+                a.try_into().map_err(|_| {
+                    PolicyError::BadAnswer(format!(
+                        "policy server at {}: actions are not {ACTION_DIMS} floats",
+                        self.url
+                    ))
+                })
+            })
+            .collect()
+    }
+
+    /// One `Act` call: blocks the calling thread for at most the deadline.
+    fn act_any(&mut self, obs: &PolicyObservation) -> Result<Vec<Vec<f32>>, PolicyError> {
         let Some(episode_id) = self.episode.clone() else {
             return Err(PolicyError::Load(format!(
                 "remote policy at {}: act before reset (no episode)",
@@ -347,13 +407,22 @@ impl Policy for RemotePolicy {
             height: obs.height,
             rgb: obs.rgb.clone(),
             proprio: obs.proprio.to_vec(),
+            images: crate::wire::images_to_pb(&obs.images),
+            state: obs.state.clone(),
+            instruction: self.instruction.clone(),
         });
         request.set_timeout(self.timeout);
         let mut client = self.client.clone();
         let answer = self.call(&format!("Act at step {}", obs.step), async move {
             client.act(request).await
         })?;
-        chunk(answer).map_err(|reason| {
+        let dims = self
+            .info
+            .interface
+            .is_legacy()
+            .then_some(ACTION_DIMS)
+            .or_else(|| self.info.interface.action.dims(None).ok());
+        crate::wire::chunk(answer, dims, MAX_CHUNK).map_err(|reason| {
             PolicyError::BadAnswer(format!(
                 "policy server at {} at step {}: {reason}",
                 self.url, obs.step

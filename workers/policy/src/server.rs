@@ -44,6 +44,8 @@ pub struct ServerInfo {
     pub image_height: u32,
     /// Actions per answer (0: it varies).
     pub chunk_size: u32,
+    /// What the policy sees and how it acts.
+    pub interface: assay_model::policy::Interface,
 }
 
 /// Serves `assay.v1.Policy` on `listener` until `shutdown` resolves, then stops accepting, lets the
@@ -194,13 +196,39 @@ fn observation(info: &ServerInfo, r: pb::PolicyActRequest) -> Result<PolicyObser
             r.proprio.len()
         ))
     })?;
-    Ok(PolicyObservation {
-        step: r.step,
-        width: w,
-        height: h,
-        rgb: r.rgb,
-        proprio,
-    })
+    let mut images = Vec::with_capacity(r.images.len());
+    for (i, im) in r.images.into_iter().enumerate() {
+        let (iw, ih) = (im.width, im.height);
+        let pixels = iw as usize * ih as usize;
+        if !(1..=MAX_FRAME_SIDE).contains(&iw)
+            || !(1..=MAX_FRAME_SIDE).contains(&ih)
+            || im.rgb.len() != pixels * 3
+            || !(im.depth.is_empty() || im.depth.len() == pixels)
+        {
+            return Err(Status::invalid_argument(format!(
+                "images[{i}] ('{}'): {iw}×{ih} with {} bytes of RGB and {} of depth (each side \
+                 1..={MAX_FRAME_SIDE}, 3 bytes and 0 or 1 float a pixel)",
+                im.name,
+                im.rgb.len(),
+                im.depth.len()
+            )));
+        }
+        images.push(assay_model::policy::NamedImage {
+            name: im.name,
+            width: iw,
+            height: ih,
+            rgb: im.rgb,
+            depth: im.depth,
+        });
+    }
+    let mut obs = PolicyObservation::legacy(r.step, w, h, r.rgb, proprio);
+    if !images.is_empty() {
+        obs.images = images;
+    }
+    if !r.state.is_empty() {
+        obs.state = r.state;
+    }
+    Ok(obs)
 }
 
 /// Runs a policy call on the blocking pool.
@@ -220,15 +248,25 @@ impl pb::policy_server::Policy for PolicyService {
         _: Request<pb::PolicyHealthRequest>,
     ) -> Result<Response<pb::PolicyHealthResponse>, Status> {
         let info = &self.info;
+        let legacy = info.interface.is_legacy();
         Ok(Response::new(pb::PolicyHealthResponse {
             name: info.name.clone(),
             version: info.version.clone(),
             image_width: info.image_width,
             image_height: info.image_height,
-            action_dims: ACTION_DIMS as u32,
-            proprio_dims: PROPRIO_DIMS as u32,
+            action_dims: if legacy {
+                ACTION_DIMS as u32
+            } else {
+                info.interface.action.dims(None).unwrap_or(0) as u32
+            },
+            proprio_dims: if legacy {
+                PROPRIO_DIMS as u32
+            } else {
+                info.interface.state_dims(None).unwrap_or(0) as u32
+            },
             chunk_size: info.chunk_size,
             live_episodes: self.episodes().live.len() as u32,
+            interface: (!legacy).then(|| crate::wire::interface_to_pb(&info.interface)),
         }))
     }
 
@@ -242,6 +280,7 @@ impl pb::policy_server::Policy for PolicyService {
             task_id: r.task_id,
             seed: r.seed,
             instruction: r.instruction,
+            arm: None,
         };
         let factory = self.factory.clone();
         let policy = blocking(move || {
@@ -275,9 +314,15 @@ impl pb::policy_server::Policy for PolicyService {
             let mut policy = policy.lock().map_err(|_| {
                 PolicyError::BadAnswer("the policy panicked earlier in this episode".into())
             })?;
-            policy.act(&obs)
+            policy.act_any(&obs)
         })
         .await?;
+        let dims = chunk.first().map_or(0, Vec::len);
+        if dims == 0 || chunk.iter().any(|a| a.len() != dims) {
+            return Err(Status::internal(
+                "the policy returned actions of different lengths (or empty ones)",
+            ));
+        }
         if chunk.is_empty() || chunk.len() > MAX_CHUNK {
             return Err(Status::internal(format!(
                 "the policy returned {} actions (1..={MAX_CHUNK} allowed)",
@@ -291,7 +336,7 @@ impl pb::policy_server::Policy for PolicyService {
         }
         Ok(Response::new(pb::PolicyActResponse {
             actions: chunk.into_iter().flatten().collect(),
-            action_dims: ACTION_DIMS as u32,
+            action_dims: dims as u32,
         }))
     }
 
@@ -351,6 +396,7 @@ mod tests {
             height: h,
             rgb: vec![0; bytes],
             proprio: vec![0.0; proprio],
+            ..Default::default()
         };
         assert!(observation(&info, request(2, 2, 12, 4)).is_ok());
         for (r, field) in [

@@ -4,27 +4,32 @@
 //! Calling convention (also in `docs/policies.md`):
 //!
 //! ```text
-//! forward(image: float32 [1, 3, H, W], proprio: float32 [1, 4]) -> float32 [1, K, 4]  (K ≥ 1)
-//!                                                                 or       [1, 4]     (one action)
+//! forward(image: float32 [1, 3·N, H, W], state: float32 [1, S]) -> float32 [1, K, D]  (K ≥ 1)
+//!                                                                or       [1, D]     (one action)
 //! ```
 //!
-//! - `image`: the task camera's RGB frame (the batch's clip size, 64 × 64 by default), channels
-//!   R, G, B, top row first, values in [0, 1] (the RGB8 bytes divided by 255).
-//! - `proprio`: the tool's position x, y, z (m) and 1.0 while it holds an object, else 0.0.
-//! - the answer: a chunk of K actions, each the tool's velocity x, y, z (m/s) until the next
-//!   control step (10 Hz) and the hold command (≥ 0.5: hold). The simulator runs all K before it
-//!   calls `forward` again.
+//! - `image`: the N cameras of the policy's interface, stacked along channels in its order (each
+//!   R, G, B, top row first, values in [0, 1]: the RGB8 bytes divided by 255); all the same size.
+//!   The original interface has one: the task camera at the batch's clip size (64 × 64 by default).
+//! - `state`: the interface's state vector; the original one is the tool's position x, y, z (m)
+//!   and 1.0 while it holds an object, else 0.0.
+//! - the answer: a chunk of K actions of the interface's action space (D floats each; the
+//!   original: the tool's velocity x, y, z in m/s and the hold command). The simulator runs them
+//!   (or the first `horizon`) before it calls `forward` again.
 //!
 //! The module is called in eval mode without gradients and must be stateless between calls
 //! (`reset` is a no-op): keep any history in the inputs. Inputs are on the module's device; the
 //! answer may be on any device and of any floating kind. An answer of another shape, or with
-//! non-finite values, is [`PolicyError::BadAnswer`] naming it.
+//! non-finite values, is [`PolicyError::BadAnswer`] naming it. The interface comes from the
+//! policy's spec (`torchscript:path=…,space=ee_delta,cameras=…`); depth is not passed to modules.
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use assay_model::clip::{ACTION_DIMS, PROPRIO_DIMS};
-use assay_model::policy::{Action, EpisodeContext, Policy, PolicyError, PolicyObservation};
+use assay_model::clip::ACTION_DIMS;
+use assay_model::policy::{
+    Action, EpisodeContext, Interface, Policy, PolicyError, PolicyObservation,
+};
 use tch::{CModule, Device, IValue, Kind, Tensor};
 
 /// A loaded TorchScript policy. Cloning shares the module (it is stateless), so one load serves
@@ -34,6 +39,7 @@ pub struct TorchScriptPolicy {
     module: Arc<CModule>,
     device: Device,
     path: PathBuf,
+    interface: Interface,
 }
 
 impl TorchScriptPolicy {
@@ -61,7 +67,35 @@ impl TorchScriptPolicy {
             module: Arc::new(module),
             device,
             path: path.to_owned(),
+            interface: Interface::default(),
         })
+    }
+
+    /// The module fed through `interface` (its cameras all of one size, no depth).
+    pub fn with_interface(mut self, interface: Interface) -> Result<Self, PolicyError> {
+        let bad = |e: String| {
+            PolicyError::Load(format!("TorchScript policy {}: {e}", self.path.display()))
+        };
+        interface.validate().map_err(bad)?;
+        let first = &interface.cameras[0];
+        if let Some((i, _)) = interface
+            .cameras
+            .iter()
+            .enumerate()
+            .find(|(_, c)| (c.width, c.height) != (first.width, first.height))
+        {
+            return Err(bad(format!(
+                "interface.cameras[{i}]: every camera of a module has the first one's size (they \
+                 are stacked along channels)"
+            )));
+        }
+        if let Some(i) = interface.cameras.iter().position(|c| c.depth) {
+            return Err(bad(format!(
+                "interface.cameras[{i}].depth: modules get RGB only"
+            )));
+        }
+        self.interface = interface;
+        Ok(self)
     }
 
     pub fn path(&self) -> &Path {
@@ -69,15 +103,6 @@ impl TorchScriptPolicy {
     }
 
     fn forward(&self, obs: &PolicyObservation) -> Result<Tensor, PolicyError> {
-        let (w, h) = (obs.width as i64, obs.height as i64);
-        if obs.rgb.len() as i64 != w * h * 3 {
-            return Err(PolicyError::Load(format!(
-                "TorchScript policy {}: the observation has {} bytes of RGB, a {w}×{h} frame has {}",
-                self.path.display(),
-                obs.rgb.len(),
-                w * h * 3
-            )));
-        }
         let failed = |e: tch::TchError| {
             PolicyError::BadAnswer(format!(
                 "TorchScript policy {} failed at step {}: {}",
@@ -86,24 +111,61 @@ impl TorchScriptPolicy {
                 first_line(&e.to_string())
             ))
         };
-        let image = Tensor::from_slice(&obs.rgb)
-            .view([1, h, w, 3])
-            .permute([0, 3, 1, 2])
-            .to_kind(Kind::Float)
-            .divide_scalar(255.0)
-            .to_device(self.device);
-        let proprio = Tensor::from_slice(&obs.proprio)
-            .view([1, PROPRIO_DIMS as i64])
+        let mut planes = Vec::with_capacity(obs.images.len().max(1));
+        let legacy;
+        let images = if obs.images.is_empty() {
+            legacy = [assay_model::policy::NamedImage {
+                name: "image".into(),
+                width: obs.width,
+                height: obs.height,
+                rgb: obs.rgb.clone(),
+                depth: Vec::new(),
+            }];
+            &legacy[..]
+        } else {
+            &obs.images[..]
+        };
+        for im in images {
+            let (w, h) = (im.width as i64, im.height as i64);
+            if im.rgb.len() as i64 != w * h * 3
+                || (im.width, im.height) != (images[0].width, images[0].height)
+            {
+                return Err(PolicyError::BadAnswer(format!(
+                    "TorchScript policy {}: camera '{}' is {w}×{h} with {} bytes of RGB (the \
+                     cameras of a module are all {}×{}, 3 bytes a pixel)",
+                    self.path.display(),
+                    im.name,
+                    im.rgb.len(),
+                    images[0].width,
+                    images[0].height
+                )));
+            }
+            planes.push(
+                Tensor::from_slice(&im.rgb)
+                    .view([1, h, w, 3])
+                    .permute([0, 3, 1, 2])
+                    .to_kind(Kind::Float)
+                    .divide_scalar(255.0),
+            );
+        }
+        let image = Tensor::cat(&planes, 1).to_device(self.device);
+        let state = if obs.state.is_empty() {
+            &obs.proprio[..]
+        } else {
+            &obs.state[..]
+        };
+        let state = Tensor::from_slice(state)
+            .view([1, state.len() as i64])
             .to_device(self.device);
         let out = tch::no_grad(|| {
             self.module
-                .forward_is(&[IValue::Tensor(image), IValue::Tensor(proprio)])
+                .forward_is(&[IValue::Tensor(image), IValue::Tensor(state)])
         })
         .map_err(failed)?;
         match out {
             IValue::Tensor(t) => Ok(t),
             other => Err(PolicyError::BadAnswer(format!(
-                "TorchScript policy {}: forward returned {}, expected a float32 tensor [1, K, {ACTION_DIMS}]",
+                "TorchScript policy {}: forward returned {}, expected a float32 tensor [1, K, D]",
                 self.path.display(),
                 ivalue_kind(&other)
             ))),
@@ -117,15 +179,35 @@ impl Policy for TorchScriptPolicy {
     }
 
     fn act(&mut self, obs: &PolicyObservation) -> Result<Vec<Action>, PolicyError> {
+        self.act_any(obs)?
+            .into_iter()
+            .map(|a| {
+                a.try_into().map_err(|a: Vec<f32>| {
+                    PolicyError::BadAnswer(format!(
+                        "TorchScript policy {}: actions of {} floats, expected {ACTION_DIMS}",
+                        self.path.display(),
+                        a.len()
+                    ))
+                })
+            })
+            .collect()
+    }
+
+    fn act_any(&mut self, obs: &PolicyObservation) -> Result<Vec<Vec<f32>>, PolicyError> {
         let out = self.forward(obs)?;
         let shape = out.size();
-        let k = match shape.as_slice() {
-            [1, k, a] if *k >= 1 && *a == ACTION_DIMS as i64 => *k as usize,
-            [1, a] if *a == ACTION_DIMS as i64 => 1,
+        // The original interface's answers are checked here; others by the simulator, which
+        // knows the task's arm.
+        let want = self.interface.is_legacy().then_some(ACTION_DIMS as i64);
+        let fits = |a: i64| a >= 1 && want.is_none_or(|d| d == a);
+        let (k, d) = match shape.as_slice() {
+            [1, k, a] if *k >= 1 && fits(*a) => (*k as usize, *a as usize),
+            [1, a] if fits(*a) => (1, *a as usize),
             _ => {
+                let d = want.map_or("D".to_string(), |d| d.to_string());
                 return Err(PolicyError::BadAnswer(format!(
                     "TorchScript policy {}: forward returned a tensor of shape {shape:?}, expected \
-                     [1, K, {ACTION_DIMS}] or [1, {ACTION_DIMS}]",
+                     [1, K, {d}] or [1, {d}]",
                     self.path.display()
                 )));
             }
@@ -150,20 +232,21 @@ impl Policy for TorchScriptPolicy {
                     first_line(&e.to_string())
                 ))
             })?;
-        debug_assert_eq!(values.len(), k * ACTION_DIMS);
+        debug_assert_eq!(values.len(), k * d);
         if let Some(i) = values.iter().position(|x| !x.is_finite()) {
             return Err(PolicyError::BadAnswer(format!(
                 "TorchScript policy {}: action {} at step {} has the non-finite value {}",
                 self.path.display(),
-                i / ACTION_DIMS,
+                i / d,
                 obs.step,
                 values[i]
             )));
         }
-        Ok(values
-            .chunks_exact(ACTION_DIMS)
-            .map(|a| a.try_into().expect("chunks of ACTION_DIMS"))
-            .collect())
+        Ok(values.chunks_exact(d).map(<[f32]>::to_vec).collect())
+    }
+
+    fn interface(&self) -> Interface {
+        self.interface.clone()
     }
 }
 

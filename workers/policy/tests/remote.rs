@@ -77,6 +77,7 @@ fn info() -> ServerInfo {
         image_width: 64,
         image_height: 64,
         chunk_size: 3,
+        ..ServerInfo::default()
     }
 }
 
@@ -125,6 +126,7 @@ fn episode() -> EpisodeContext {
         task_id: "pick-red-cube".into(),
         seed: 7,
         instruction: "pick up the red cube".into(),
+        arm: None,
     }
 }
 
@@ -132,13 +134,7 @@ fn observation(step: u32) -> PolicyObservation {
     let mut rgb = vec![128u8; 64 * 64 * 3];
     rgb[0] = 200;
     *rgb.last_mut().unwrap() = 9;
-    PolicyObservation {
-        step,
-        width: 64,
-        height: 64,
-        rgb,
-        proprio: [0.1, -0.2, 0.3, 1.0],
-    }
+    PolicyObservation::legacy(step, 64, 64, rgb, [0.1, -0.2, 0.3, 1.0])
 }
 
 fn unavailable(e: PolicyError) -> String {
@@ -389,6 +385,7 @@ fn a_server_can_relay_a_remote_policy() {
     let spec = assay_model::policy::PolicySpec::Remote {
         url: upstream.url.clone(),
         timeout_ms: 5000,
+        interface: None,
     };
     let factory =
         assay_policy::factory(&spec, std::path::Path::new("."), rt.handle(), None).unwrap();

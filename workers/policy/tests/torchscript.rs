@@ -35,13 +35,7 @@ fn save_traced(dir: &Path, name: &str, f: fn(&Tensor, &Tensor) -> Tensor) -> std
 fn observation() -> PolicyObservation {
     let (w, h) = (8u32, 8u32);
     let rgb = (0..w * h * 3).map(|i| (i * 7 % 256) as u8).collect();
-    PolicyObservation {
-        step: 5,
-        width: w,
-        height: h,
-        rgb,
-        proprio: [0.25, -0.5, 0.125, 1.0],
-    }
+    PolicyObservation::legacy(5, w, h, rgb, [0.25, -0.5, 0.125, 1.0])
 }
 
 /// What the traced function gives for `obs`, computed directly.
@@ -66,6 +60,7 @@ fn a_traced_module_acts_as_the_function_it_traced() {
             task_id: "t".into(),
             seed: 1,
             instruction: String::new(),
+            arm: None,
         })
         .unwrap();
     let obs = observation();
@@ -135,6 +130,7 @@ fn a_torchscript_policy_served_over_grpc() {
         .unwrap();
     let spec = PolicySpec::TorchScript {
         path: path.display().to_string(),
+        interface: None,
     };
     let factory = assay_policy::factory(&spec, dir.path(), rt.handle(), None).unwrap();
     let listener = rt
@@ -159,6 +155,7 @@ fn a_torchscript_policy_served_over_grpc() {
             task_id: "t".into(),
             seed: 1,
             instruction: String::new(),
+            arm: None,
         })
         .unwrap();
     let obs = observation();

@@ -69,6 +69,17 @@ pub struct Arm {
     pub colliders: Vec<ColliderHandle>,
     /// Each link's boxes: (link, pose in the link's frame, half extents).
     boxes: Vec<(usize, UPose, [f32; 3])>,
+    /// The wrist's heading where the episode's tool started: the tool's yaw 0.
+    yaw0: f32,
+}
+
+/// Fastest a joint follows a joint-position target (rad/s).
+pub const MAX_JOINT_SPEED: f64 = 2.0;
+
+/// `a` in (−π, π].
+fn wrap(a: f32) -> f32 {
+    let t = std::f32::consts::TAU;
+    a - t * ((a + std::f32::consts::PI) / t).floor()
 }
 
 /// Solves `a x = b` for a 6 × 6 system by Gaussian elimination with partial pivoting.
@@ -167,6 +178,7 @@ impl Arm {
             bodies: Vec::new(),
             colliders: Vec::new(),
             boxes,
+            yaw0: 0.0,
         })
     }
 
@@ -202,7 +214,44 @@ impl Arm {
         for _ in 0..20 {
             self.reach(target);
         }
+        self.yaw0 = self.heading(&self.link_poses());
         self.tool_position()
+    }
+
+    /// The heading (rad) of the wrist's x axis, which is across the tool's axis.
+    fn heading(&self, poses: &[Pose]) -> f32 {
+        crate::scene::yaw_of(&poses[self.wrist].rotation)
+    }
+
+    /// The tool's turn about z from where the episode's tool started (rad, in (−π, π]).
+    pub fn tool_yaw(&self) -> f32 {
+        wrap(self.heading(&self.link_poses()) - self.yaw0)
+    }
+
+    /// Moves every joint towards `goal` (rad, along the chain; clamped to its limits) by at most
+    /// [`MAX_JOINT_SPEED`] · `dt`; returns the tool's centre there.
+    pub fn follow_joints(&mut self, goal: &[f64], dt: f64) -> Vec3 {
+        let step = MAX_JOINT_SPEED * dt;
+        for (k, &j) in self.chain.iter().enumerate() {
+            let Some(&g) = goal.get(k) else { break };
+            let (lo, hi) = self.urdf.joints[j]
+                .limit
+                .map_or((f64::MIN, f64::MAX), |l| (l[0], l[1]));
+            let g = g.clamp(lo, hi);
+            self.q[k] += (g - self.q[k]).clamp(-step, step);
+        }
+        self.tool_position()
+    }
+
+    /// The joint positions, along the chain (rad).
+    pub fn joints(&self) -> &[f64] {
+        &self.q
+    }
+
+    /// [`Arm::reach`], also turning the tool to `yaw` (rad from where it started) about its
+    /// axis when given.
+    pub fn reach_turned(&mut self, target: Vec3, yaw: Option<f32>) -> Vec3 {
+        self.solve(target, yaw)
     }
 
     fn positions(&self, q: &[f64]) -> BTreeMap<String, f64> {
@@ -238,6 +287,10 @@ impl Arm {
     /// Solves for joint positions that put the tool's centre at `target`, pointing down, from the
     /// current ones; keeps the best it finds within the limits. Returns the tool's centre there.
     pub fn reach(&mut self, target: Vec3) -> Vec3 {
+        self.solve(target, None)
+    }
+
+    fn solve(&mut self, target: Vec3, yaw: Option<f32>) -> Vec3 {
         let flange_target = target + Vec3::Z * GRIPPER_HALF_EXTENTS[2];
         let t = [flange_target.x, flange_target.y, flange_target.z].map(f64::from);
         let n = self.chain.len();
@@ -252,7 +305,11 @@ impl Arm {
                 t[1] - f64::from(p.y),
                 t[2] - f64::from(p.z),
             ];
-            let er = a.cross(-Vec3::Z);
+            let mut er = a.cross(-Vec3::Z);
+            // Its z part is 0 (the axis error is horizontal): the turn about z goes there.
+            if let Some(yaw) = yaw {
+                er.z = wrap(yaw + self.yaw0 - self.heading(&poses));
+            }
             let e = [
                 ep[0],
                 ep[1],

@@ -912,7 +912,12 @@ impl Controller {
             offset: believed - tool,
             joint: None,
         });
-        // A policy that grasps without turning the pads first: turn them (they are open).
+        // A policy that grasps without turning the pads first: turn them (they are open). The
+        // pads' yaw is on the tool, which a policy may have turned.
+        let yaw = {
+            let r = yaw - scene.tool_yaw();
+            r - std::f32::consts::PI * (r / std::f32::consts::PI).round()
+        };
         if scene
             .fingers
             .as_ref()

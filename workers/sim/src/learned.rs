@@ -1,12 +1,17 @@
 //! The driver of a learned or served policy ([`assay_model::policy::Policy`]): every
-//! [`CONTROL_STRIDE_STEPS`] physics steps it shows the policy the task camera's RGB frame and the
-//! tool's proprioception, and runs the actions it answers one per control step — the tool moves
-//! at the commanded velocity, and a change of the hold command grasps the object under the tool
-//! (by the same rule as the oracle's grasps) or releases the one held.
+//! [`CONTROL_STRIDE_STEPS`] physics steps it shows the policy what its [`Interface`] asks for
+//! (named cameras, a state vector) and runs the actions it answers, one per control step, in the
+//! policy's action space: the tool's velocity (the original space), an end-effector delta or
+//! pose (the tool moves there and turns about z), or the arm's joint targets. A change of the
+//! gripper command grasps the object under the tool (by the same rule as the oracle's grasps)
+//! or releases the one held.
 
 use std::collections::VecDeque;
 
-use assay_model::policy::{Action, CONTROL_STRIDE_STEPS, Policy, PolicyError, PolicyObservation};
+use assay_model::policy::{
+    ActionSpace, CONTROL_STRIDE_STEPS, CameraSource, Interface, NamedImage, Policy, PolicyError,
+    PolicyObservation, StatePart,
+};
 use assay_spec::spec::{Camera, TaskSpec};
 use rapier3d::prelude::*;
 
@@ -18,12 +23,31 @@ use crate::{Observer, SimError};
 pub const MAX_CHUNK: usize = 256;
 /// Commanded tool speeds are clipped to this (m/s), as a real arm's controller would.
 pub const MAX_SPEED: f32 = 2.0;
+/// Commanded turns of the tool are clipped to this (rad/s).
+pub const MAX_TURN_RATE: f32 = 2.0 * std::f32::consts::PI;
+/// The wrist camera: this far below the tool's centre (m), looking straight down.
+pub const WRIST_CAMERA_DROP: f32 = 0.06;
+
+/// A policy camera, resolved against the task.
+struct PolicyCamera {
+    name: String,
+    camera: Camera,
+    wrist: bool,
+    depth: bool,
+}
 
 pub struct Learned<'p> {
     policy: &'p mut dyn Policy,
-    camera: Camera,
-    chunk: VecDeque<Action>,
+    name: String,
+    interface: Interface,
+    cameras: Vec<PolicyCamera>,
+    arm: Option<String>,
+    action_dims: usize,
+    chunk: VecDeque<Vec<f32>>,
     velocity: Vec3,
+    turn_rate: f32,
+    /// Whether a roll or pitch the tool cannot follow has been noted.
+    noted_tilt: bool,
     /// Control steps taken.
     pub control: u32,
     /// The physics step of the first action.
@@ -43,39 +67,131 @@ fn policy_error(step: u64, e: PolicyError) -> SimError {
     }
 }
 
+/// The orientation of the tool pointing down, turned by `yaw` about z: x, y, z, w.
+pub fn tool_quaternion(yaw: f32) -> [f32; 4] {
+    let q = Rotation::from_rotation_z(yaw) * Rotation::from_rotation_x(std::f32::consts::PI);
+    [q.x, q.y, q.z, q.w]
+}
+
 impl<'p> Learned<'p> {
-    /// A driver for `policy`, showing it frames of `camera` (already at the policy's frame size).
-    pub fn new(policy: &'p mut dyn Policy, camera: Camera) -> Self {
-        Learned {
+    /// A driver for `policy` (named `name` in errors) on `spec`, its cameras without a size at
+    /// `frame` pixels. An interface the task cannot fill (a camera it does not have, joints
+    /// without an arm) is an error naming the policy and the field.
+    pub fn new(
+        policy: &'p mut dyn Policy,
+        name: &str,
+        spec: &TaskSpec,
+        frame: u32,
+    ) -> Result<Self, SimError> {
+        let interface = policy.interface();
+        let arm = spec.arm.as_ref().map(|a| a.model.clone());
+        let refuse = |e: String| {
+            SimError::Policy(format!(
+                "policy '{name}' does not fit task '{}': {e}",
+                spec.id
+            ))
+        };
+        interface.validate().map_err(refuse)?;
+        interface.fits_task(arm.as_deref()).map_err(refuse)?;
+        let action_dims = interface
+            .action
+            .dims(arm.as_deref())
+            .map_err(|e| refuse(format!("action_space: {e}")))?;
+        let task_cameras = assay_spec::scene::task_cameras(&spec.cameras);
+        let mut cameras = Vec::new();
+        for (i, c) in interface.cameras.iter().enumerate() {
+            let (w, h) = if c.width == 0 {
+                (frame, frame)
+            } else {
+                (c.width, c.height)
+            };
+            let (base, wrist) = match &c.source {
+                CameraSource::Scene => (task_cameras[0].clone(), false),
+                CameraSource::Wrist => (
+                    Camera {
+                        name: format!("{}-wrist", c.name),
+                        eye: [0.0; 3],
+                        target: [0.0; 3],
+                        fovy_deg: 70.0,
+                        width: w,
+                        height: h,
+                    },
+                    true,
+                ),
+                CameraSource::Named(n) => match task_cameras.iter().find(|t| &t.name == n) {
+                    Some(t) => (t.clone(), false),
+                    None => {
+                        let known: Vec<&str> =
+                            task_cameras.iter().map(|t| t.name.as_str()).collect();
+                        return Err(refuse(format!(
+                            "interface.cameras[{i}].source: the task has no camera '{n}' (its \
+                             cameras: {}; or scene, wrist)",
+                            known.join(", ")
+                        )));
+                    }
+                },
+            };
+            cameras.push(PolicyCamera {
+                name: c.name.clone(),
+                camera: Camera {
+                    width: w,
+                    height: h,
+                    ..base
+                },
+                wrist,
+                depth: c.depth,
+            });
+        }
+        Ok(Learned {
             policy,
-            camera,
+            name: name.to_owned(),
+            interface,
+            cameras,
+            arm,
+            action_dims,
             chunk: VecDeque::new(),
             velocity: Vec3::ZERO,
+            turn_rate: 0.0,
+            noted_tilt: false,
             control: 0,
             start: 0,
             frames: 0,
             calls: 0,
-        }
+        })
     }
 
     /// Starts an episode whose first action is taken at physics step `start`.
-    pub fn reset(&mut self, spec: &TaskSpec, seed: u64, start: u64) -> Result<(), SimError> {
+    pub fn reset(
+        &mut self,
+        scene: &mut SimScene,
+        spec: &TaskSpec,
+        seed: u64,
+        start: u64,
+    ) -> Result<(), SimError> {
         self.start = start;
+        match self.interface.action {
+            ActionSpace::EeDelta | ActionSpace::EePose => scene.yaw_goal = Some(scene.tool_yaw()),
+            ActionSpace::JointPosition => {
+                scene.joint_goal = scene.arm.as_ref().map(|a| a.joints().to_vec())
+            }
+            ActionSpace::ToolVelocity => {}
+        }
         self.policy
             .reset(&assay_model::policy::EpisodeContext {
                 task_id: spec.id.clone(),
                 seed,
                 instruction: spec.description.clone(),
+                arm: self.arm.clone(),
             })
             .map_err(|e| policy_error(0, e))
     }
 
     /// The command of one physics step. At a control step it first takes the next action, asking
-    /// the policy (with a fresh frame from `observer`) when its last chunk is used up, and
-    /// returns the grasp or release that a change of the hold command asks for.
+    /// the policy (with fresh observations from `observer`) when its last chunk is used up, and
+    /// returns the grasp or release that a change of the gripper command asks for.
     pub fn step(
         &mut self,
-        scene: &SimScene,
+        scene: &mut SimScene,
         spec: &TaskSpec,
         ctl: &mut Controller,
         observer: &mut dyn Observer,
@@ -88,13 +204,7 @@ impl<'p> Learned<'p> {
                 self.ask(scene, spec, ctl, observer, step)?;
             }
             let a = self.chunk.pop_front().expect("a non-empty chunk");
-            let v = Vec3::new(a[0], a[1], a[2]);
-            self.velocity = if v.length() > MAX_SPEED {
-                v * (MAX_SPEED / v.length())
-            } else {
-                v
-            };
-            let hold = a[3] >= 0.5;
+            let hold = self.take(&a, scene, ctl, step, dt)?;
             ev = match (hold, ctl.held.is_some()) {
                 (true, false) => match grasp_candidate(scene) {
                     Some(i) => Event::Grasp(i),
@@ -111,6 +221,14 @@ impl<'p> Learned<'p> {
             };
             self.control += 1;
         }
+        if scene.joint_goal.is_some() {
+            // The arm follows its joint targets; the command is where the tool is.
+            ctl.command = scene.gripper_position();
+            return Ok((ctl.command, ev));
+        }
+        if let Some(yaw) = scene.yaw_goal.as_mut() {
+            *yaw += self.turn_rate * dt;
+        }
         let mut cmd = ctl.command + self.velocity * dt;
         // The tool stays above the surface and over the table's reach.
         cmd.z = cmd.z.clamp(GRIPPER_HALF_EXTENTS[2], 1.5);
@@ -118,6 +236,99 @@ impl<'p> Learned<'p> {
         cmd.y = cmd.y.clamp(-1.5, 1.5);
         ctl.command = cmd;
         Ok((cmd, ev))
+    }
+
+    /// Starts running action `a` for the next control step; returns its gripper command.
+    fn take(
+        &mut self,
+        a: &[f32],
+        scene: &mut SimScene,
+        ctl: &mut Controller,
+        step: u64,
+        dt: f32,
+    ) -> Result<bool, SimError> {
+        let period = CONTROL_STRIDE_STEPS as f32 * dt;
+        let cap = |v: Vec3| {
+            if v.length() > MAX_SPEED {
+                v * (MAX_SPEED / v.length())
+            } else {
+                v
+            }
+        };
+        let turn = |rate: f32| rate.clamp(-MAX_TURN_RATE, MAX_TURN_RATE);
+        match self.interface.action {
+            ActionSpace::ToolVelocity => {
+                self.velocity = cap(Vec3::new(a[0], a[1], a[2]));
+            }
+            ActionSpace::EeDelta => {
+                self.velocity = cap(Vec3::new(a[0], a[1], a[2]) / period);
+                self.turn_rate = turn(a[5] / period);
+                if !self.noted_tilt && (a[3].abs() > 1e-3 || a[4].abs() > 1e-3) {
+                    self.noted_tilt = true;
+                    ctl.notes.push(Note {
+                        step,
+                        text: format!(
+                            "the policy commanded roll {:.3} / pitch {:.3} rad: the tool points \
+                             down and follows only the turn about z",
+                            a[3], a[4]
+                        ),
+                    });
+                }
+            }
+            ActionSpace::EePose => {
+                let q = Vec4::new(a[3], a[4], a[5], a[6]);
+                if q.length() < 1e-6 {
+                    return Err(policy_error(
+                        step,
+                        PolicyError::BadAnswer(format!(
+                            "action of policy '{}': ee_pose quaternion {:?} has no direction",
+                            self.name,
+                            &a[3..7]
+                        )),
+                    ));
+                }
+                let q = q.normalize();
+                let r = Rotation::from_xyzw(q.x, q.y, q.z, q.w);
+                let target_yaw = crate::scene::yaw_of(&r);
+                self.velocity = cap((Vec3::new(a[0], a[1], a[2]) - ctl.command) / period);
+                let now = scene.yaw_goal.unwrap_or(0.0);
+                let d = target_yaw - now;
+                let d = d - std::f32::consts::TAU
+                    * ((d + std::f32::consts::PI) / std::f32::consts::TAU).floor();
+                self.turn_rate = turn(d / period);
+            }
+            ActionSpace::JointPosition => {
+                let n = self.action_dims - 1;
+                scene.joint_goal = Some(a[..n].iter().map(|&x| f64::from(x)).collect());
+            }
+        }
+        Ok(a[self.action_dims - 1] >= 0.5)
+    }
+
+    /// The state vector the interface asks for.
+    fn state(&self, scene: &SimScene, ctl: &Controller) -> Vec<f32> {
+        let tool = scene.gripper_position();
+        let yaw = scene.tool_yaw();
+        let holding = f32::from(u8::from(ctl.held.is_some()));
+        let mut state = Vec::new();
+        for part in &self.interface.state {
+            match part {
+                StatePart::EePos => state.extend([tool.x, tool.y, tool.z]),
+                StatePart::EeQuat => state.extend(tool_quaternion(yaw)),
+                StatePart::EeYaw => state.push(yaw),
+                StatePart::Gripper => state.push(match &scene.fingers {
+                    Some(f) => (f.opening(&scene.world) / f.max_opening).clamp(0.0, 1.0),
+                    None => 1.0 - holding,
+                }),
+                StatePart::Joints => {
+                    if let Some(arm) = &scene.arm {
+                        state.extend(arm.joints().iter().map(|&q| q as f32));
+                    }
+                }
+                StatePart::Holding => state.push(holding),
+            }
+        }
+        state
     }
 
     fn ask(
@@ -128,44 +339,93 @@ impl<'p> Learned<'p> {
         observer: &mut dyn Observer,
         step: u64,
     ) -> Result<(), SimError> {
-        let rgb = observer
-            .frame(
-                crate::record::live_snapshot(scene, spec),
-                step,
-                &self.camera,
-            )
-            .map_err(|e| SimError::internal(format!("policy camera at step {step}: {e}")))?;
-        self.frames += 1;
+        let snapshot = crate::record::live_snapshot(scene, spec);
         let tool = scene.gripper_position();
+        let heading = scene.tool_yaw();
+        let mut images = Vec::with_capacity(self.cameras.len());
+        for c in &self.cameras {
+            let mut camera = c.camera.clone();
+            if c.wrist {
+                // Straight down from below the tool, the image's top towards the tool's heading
+                // (a tilt of 1 mrad gives the view its turn).
+                let eye = [tool.x, tool.y, tool.z - WRIST_CAMERA_DROP];
+                camera.eye = eye.map(f64::from);
+                camera.target = [
+                    f64::from(eye[0] + 1e-3 * heading.cos()),
+                    f64::from(eye[1] + 1e-3 * heading.sin()),
+                    f64::from(eye[2] - 1.0),
+                ];
+            }
+            let camera_error = |e: String| {
+                SimError::internal(format!("policy camera '{}' at step {step}: {e}", c.name))
+            };
+            let rgb = observer
+                .frame(snapshot.clone(), step, &camera)
+                .map_err(camera_error)?;
+            let depth = if c.depth {
+                observer
+                    .observe(snapshot.clone(), step, &camera)
+                    .map_err(camera_error)?
+                    .depth
+            } else {
+                Vec::new()
+            };
+            images.push(NamedImage {
+                name: c.name.clone(),
+                width: camera.width,
+                height: camera.height,
+                rgb,
+                depth,
+            });
+        }
+        self.frames += 1;
+        let first = &images[0];
         let obs = PolicyObservation {
             step: self.control,
-            width: self.camera.width,
-            height: self.camera.height,
-            rgb,
+            width: first.width,
+            height: first.height,
+            rgb: first.rgb.clone(),
             proprio: [
                 tool.x,
                 tool.y,
                 tool.z,
                 f32::from(u8::from(ctl.held.is_some())),
             ],
+            state: self.state(scene, ctl),
+            images,
         };
         self.calls += 1;
-        let mut chunk = self.policy.act(&obs).map_err(|e| policy_error(step, e))?;
+        let mut chunk = self
+            .policy
+            .act_any(&obs)
+            .map_err(|e| policy_error(step, e))?;
+        let bad = |msg: String| policy_error(step, PolicyError::BadAnswer(msg));
         if chunk.is_empty() {
-            return Err(policy_error(
-                step,
-                PolicyError::BadAnswer("an empty chunk of actions".into()),
-            ));
+            return Err(bad(format!(
+                "policy '{}' answered an empty chunk of actions",
+                self.name
+            )));
+        }
+        if let Some(k) = chunk.iter().position(|a| a.len() != self.action_dims) {
+            return Err(bad(format!(
+                "policy '{}': action {k} of the chunk has {} floats; its action space {} takes {} \
+                 on this task",
+                self.name,
+                chunk[k].len(),
+                self.interface.action,
+                self.action_dims
+            )));
         }
         if let Some(k) = chunk.iter().position(|a| a.iter().any(|x| !x.is_finite())) {
-            return Err(policy_error(
-                step,
-                PolicyError::BadAnswer(format!(
-                    "action {k} of the chunk is not finite: {:?}",
-                    chunk[k]
-                )),
-            ));
+            return Err(bad(format!(
+                "policy '{}': action {k} of the chunk is not finite: {:?}",
+                self.name, chunk[k]
+            )));
         }
+        let run = self
+            .interface
+            .execute
+            .map_or(MAX_CHUNK, |h| (h as usize).min(MAX_CHUNK));
         if chunk.len() > MAX_CHUNK {
             ctl.notes.push(Note {
                 step,
@@ -174,8 +434,8 @@ impl<'p> Learned<'p> {
                     chunk.len()
                 ),
             });
-            chunk.truncate(MAX_CHUNK);
         }
+        chunk.truncate(run);
         self.chunk = chunk.into();
         Ok(())
     }

@@ -290,12 +290,7 @@ pub fn simulate_with(
             } else {
                 frame_size
             };
-            let camera = Camera {
-                width: size,
-                height: size,
-                ..assay_spec::scene::task_cameras(&spec.cameras).remove(0)
-            };
-            Some(learned::Learned::new(p, camera))
+            Some(learned::Learned::new(p, policy, spec, size)?)
         }
         (false, None) => {
             return Err(SimError::Policy(format!(
@@ -352,12 +347,12 @@ pub fn simulate_with(
         let ev = match act {
             Some((cmd, ev)) => {
                 let at = scene.drive_arm(cmd);
-                scene.world.bodies[scene.gripper].set_next_kinematic_translation(at);
+                scene.world.bodies[scene.gripper].set_next_kinematic_position(at);
                 ev
             }
             None => {
                 let at = scene.drive_arm(ctl.command);
-                scene.world.bodies[scene.gripper].set_next_kinematic_translation(at);
+                scene.world.bodies[scene.gripper].set_next_kinematic_position(at);
                 controller::Event::None
             }
         };
@@ -386,7 +381,7 @@ pub fn simulate_with(
     let mut truncated = false;
     look(&mut observer, &scene, &mut ctl, step)?;
     if let Some(l) = learned.as_mut() {
-        l.reset(spec, seed, step)?;
+        l.reset(&mut scene, spec, seed, step)?;
     }
     let dt32 = dt as f32;
     // A policy object that used up `physics.max_steps` before its goals held.
@@ -422,7 +417,7 @@ pub fn simulate_with(
                     break;
                 }
                 let obs = observer.as_deref_mut().expect("checked above");
-                l.step(&scene, spec, &mut ctl, obs, step, dt32)?
+                l.step(&mut scene, spec, &mut ctl, obs, step, dt32)?
             }
         };
         advance(

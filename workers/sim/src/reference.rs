@@ -151,6 +151,8 @@ impl Contract {
             fingers: None,
             arm: None,
             zones: Vec::new(),
+            yaw_goal: None,
+            joint_goal: None,
         }
     }
 

@@ -134,14 +134,21 @@ impl Fingers {
         })
     }
 
-    /// The gap between the pads' inner faces, measured.
+    /// The gap between the pads' inner faces, measured (along the first pad's closing axis,
+    /// wherever the tool has turned them).
     pub fn opening(&self, world: &PhysicsWorld) -> f32 {
         let [a, b] = self.bodies.map(|h| world.bodies[h].translation());
-        let axis = Rotation::from_rotation_z(self.yaw) * Vec3::Y;
+        let axis = world.bodies[self.bodies[0]].rotation() * Vec3::Y;
         (b - a).dot(axis) - 2.0 * FINGER_HALF_EXTENTS[1]
     }
 
-    /// Pads and joints for the tool `gripper` where it is, turned by `yaw`, `opening` apart.
+    /// The pads' turn about z in the world: the tool's turn plus theirs on it.
+    pub fn world_yaw(&self, world: &PhysicsWorld, gripper: RigidBodyHandle) -> f32 {
+        yaw_of(world.bodies[gripper].rotation()) + self.yaw
+    }
+
+    /// Pads and joints for the tool `gripper` where it is, turned by `yaw` on it, `opening`
+    /// apart.
     fn insert(
         world: &mut PhysicsWorld,
         gripper: RigidBodyHandle,
@@ -153,7 +160,11 @@ impl Fingers {
     ) -> Self {
         let [fx, fy, fz] = FINGER_HALF_EXTENTS;
         let tool = world.bodies[gripper].translation();
-        let poses = Self::poses(tool, opening, yaw);
+        let poses = Self::poses(
+            tool,
+            opening,
+            yaw_of(world.bodies[gripper].rotation()) + yaw,
+        );
         let mut bodies = Vec::new();
         let mut cols = Vec::new();
         let mut joints = Vec::new();
@@ -225,6 +236,12 @@ pub struct SimScene {
     pub fingers: Option<Fingers>,
     /// The arm that carries the tool, if the task has one.
     pub arm: Option<crate::arm::Arm>,
+    /// The tool's commanded turn about z (rad), for a policy that turns it; None: the tool
+    /// keeps its orientation (the oracle, and policies of the original action space).
+    pub yaw_goal: Option<f32>,
+    /// Joint targets of the arm (rad), for a policy that acts in joint space: the arm follows
+    /// them instead of inverse kinematics.
+    pub joint_goal: Option<Vec<f64>>,
     /// Zones: id, centre (z = 0), half extents (z = 0).
     pub zones: Vec<(String, Vec3, Vec3)>,
 }
@@ -276,17 +293,31 @@ impl SimScene {
         }
     }
 
-    /// Where the tool goes for the command `cmd`: with an arm, where inverse kinematics puts it
-    /// (the links follow at the next step); without, `cmd`.
-    pub fn drive_arm(&mut self, cmd: Vec3) -> Vec3 {
-        match &mut self.arm {
+    /// The tool's turn about z now (rad).
+    pub fn tool_yaw(&self) -> f32 {
+        yaw_of(self.world.bodies[self.gripper].rotation())
+    }
+
+    /// Where the tool goes for the command `cmd` (and [`SimScene::yaw_goal`],
+    /// [`SimScene::joint_goal`]): with an arm, where inverse kinematics (or the joint targets)
+    /// put it, the links following at the next step; without, `cmd`. Returns its pose.
+    pub fn drive_arm(&mut self, cmd: Vec3) -> Pose {
+        let dt = self.world.integration_parameters.dt;
+        let (at, yaw) = match &mut self.arm {
             Some(arm) => {
-                let at = arm.reach(cmd);
+                let at = match &self.joint_goal {
+                    Some(goal) => arm.follow_joints(goal, f64::from(dt)),
+                    None => arm.reach_turned(cmd, self.yaw_goal),
+                };
                 arm.move_links(&mut self.world);
-                at
+                // The tool turns with the arm's wrist only for a policy that turns it.
+                let yaw =
+                    (self.yaw_goal.is_some() || self.joint_goal.is_some()).then(|| arm.tool_yaw());
+                (at, yaw)
             }
-            None => cmd,
-        }
+            None => (cmd, self.yaw_goal),
+        };
+        Pose::from_parts(at, Rotation::from_rotation_z(yaw.unwrap_or(0.0)))
     }
 
     /// Drives the finger pads towards a gap of `goal` (m); they stop against what lies
@@ -348,6 +379,12 @@ impl SimScene {
             .map(|j| (j.name.clone(), j.position(&self.world)))
             .collect()
     }
+}
+
+/// The turn about z of a rotation that keeps z up (or down): the heading of its x axis.
+pub fn yaw_of(r: &Rotation) -> f32 {
+    let x = *r * Vec3::X;
+    x.y.atan2(x.x)
 }
 
 fn to_pose(p: &assay_spec::urdf::Pose) -> Pose {
@@ -904,6 +941,8 @@ pub fn build_scene(spec: &TaskSpec, seed: u64) -> Result<SimScene, SimError> {
         fingers,
         arm,
         zones,
+        yaw_goal: None,
+        joint_goal: None,
     })
 }
 

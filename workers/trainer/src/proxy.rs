@@ -255,6 +255,7 @@ pub fn run_proxy(
             task_id: e.task_id.clone(),
             seed: e.seed,
             instruction: e.instruction.clone(),
+            arm: None,
         };
         let im = model
             .imagine_policy(

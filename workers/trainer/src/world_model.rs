@@ -321,13 +321,13 @@ impl WorldModel {
             let mut frames = Vec::with_capacity(steps.saturating_sub(1));
             for t in 0..steps.saturating_sub(1) {
                 if chunk.is_empty() {
-                    let obs = PolicyObservation {
-                        step: t as u32,
-                        width: size as u32,
-                        height: size as u32,
-                        rgb: seen.0.clone(),
-                        proprio: seen.1,
-                    };
+                    let obs = PolicyObservation::legacy(
+                        t as u32,
+                        size as u32,
+                        size as u32,
+                        seen.0.clone(),
+                        seen.1,
+                    );
                     let answer = policy.act(&obs).map_err(|e| policy_error(t, e))?;
                     if answer.is_empty() || answer.iter().flatten().any(|x| !x.is_finite()) {
                         return Err(policy_error(

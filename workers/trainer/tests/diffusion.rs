@@ -145,13 +145,13 @@ fn clips(n: usize, len: usize, seed: u64) -> Vec<Clip> {
 }
 
 fn observation(step: u32, s: &Start) -> PolicyObservation {
-    PolicyObservation {
+    PolicyObservation::legacy(
         step,
-        width: SIZE as u32,
-        height: SIZE as u32,
-        rgb: frame(s.target, s.color, s.tool),
-        proprio: [s.tool.0, s.tool.1, 0.1, 0.0],
-    }
+        SIZE as u32,
+        SIZE as u32,
+        frame(s.target, s.color, s.tool),
+        [s.tool.0, s.tool.1, 0.1, 0.0],
+    )
 }
 
 /// Small and quick: for the tests that do not need a good policy.
@@ -182,6 +182,7 @@ fn episode_context(seed: u64) -> EpisodeContext {
         task_id: "reach-square".into(),
         seed,
         instruction: "move to the square".into(),
+        arm: None,
     }
 }
 

@@ -178,6 +178,7 @@ fn a_policy_acts_inside_the_world_model_on_the_frames_it_imagines() {
         task_id: "t".into(),
         seed: 0,
         instruction: "move right".into(),
+        arm: None,
     };
     let mut policy = Rightwards::default();
     let im = model

@@ -14,6 +14,7 @@ pub mod diffusion;
 pub mod dynamics;
 pub mod episode;
 pub mod generalization;
+pub mod interface;
 pub mod policy;
 pub mod proxy;
 pub mod quality;

@@ -10,6 +10,9 @@
 //! in the clips' action space, so a policy trained on clips acts in the same units it learned.
 
 use crate::clip::{ACTION_DIMS, CLIP_STRIDE_STEPS, PROPRIO_DIMS};
+pub use crate::interface::{
+    ActionSpace, CameraRequest, CameraSource, Interface, NamedImage, StatePart,
+};
 
 /// A policy the cluster knows how to run.
 #[derive(Debug, Clone, PartialEq)]
@@ -18,13 +21,29 @@ pub enum PolicySpec {
     /// locating objects either from the simulator's state or from what a camera sees.
     Oracle { noise: f64, sense: Sense },
     /// A TorchScript module (`torch.jit.save`) at `path` on the worker, run with libtorch; its
-    /// calling convention is documented in `docs/policies.md`.
-    TorchScript { path: String },
+    /// calling convention is documented in `docs/policies.md`. `interface`: the one its spec's
+    /// arguments declare (None: the original one).
+    TorchScript {
+        path: String,
+        interface: Option<Interface>,
+    },
     /// A policy served elsewhere over the `assay.v1.Policy` gRPC service (`proto/assay/v1/policy.proto`).
     Remote {
         url: String,
         /// Deadline of one `Act` call; a slower answer fails the episode.
         timeout_ms: u64,
+        /// The interface the spec declares; None: the one the server's `Health` declares.
+        interface: Option<Interface>,
+    },
+    /// A policy served over openpi's websocket + msgpack-numpy protocol (`ws://HOST:PORT`), as
+    /// openpi's `serve_policy.py` and RoboArena servers speak it.
+    OpenPi {
+        url: String,
+        timeout_ms: u64,
+        /// The environment variable on the worker that holds the server's API key (sent as
+        /// `Authorization: Api-Key …`); the key itself never appears in a policy name.
+        api_key_env: Option<String>,
+        interface: Interface,
     },
     /// A diffusion policy trained by the cluster's trainer role: its checkpoint's key in the
     /// artifact store (or a path on the worker).
@@ -52,6 +71,31 @@ pub struct PolicyObservation {
     pub rgb: Vec<u8>,
     /// Tool position x, y, z (m) and 1 while it holds an object, else 0.
     pub proprio: [f32; PROPRIO_DIMS],
+    /// Every camera of the policy's [`Interface`], in its order (the first is also `rgb`).
+    pub images: Vec<NamedImage>,
+    /// The state vector of the policy's interface (for the original one: `proprio`).
+    pub state: Vec<f32>,
+}
+
+impl PolicyObservation {
+    /// An observation of the original interface: one frame and the 4 floats of proprio.
+    pub fn legacy(step: u32, width: u32, height: u32, rgb: Vec<u8>, proprio: [f32; 4]) -> Self {
+        PolicyObservation {
+            step,
+            width,
+            height,
+            images: vec![NamedImage {
+                name: "image".into(),
+                width,
+                height,
+                rgb: rgb.clone(),
+                depth: Vec::new(),
+            }],
+            rgb,
+            state: proprio.to_vec(),
+            proprio,
+        }
+    }
 }
 
 /// The episode a policy is about to act in.
@@ -61,6 +105,8 @@ pub struct EpisodeContext {
     pub seed: u64,
     /// The task's instruction (its description).
     pub instruction: String,
+    /// The task's arm model, if it has one (`ur5`, `panda`).
+    pub arm: Option<String>,
 }
 
 /// Why a policy could not act. Every variant fails the episode with its message; whether running
@@ -90,12 +136,27 @@ impl PolicyError {
 pub trait Policy: Send {
     /// Called before the first observation of every episode.
     fn reset(&mut self, episode: &EpisodeContext) -> Result<(), PolicyError>;
-    /// The actions to take from `obs` on.
-    fn act(&mut self, obs: &PolicyObservation) -> Result<Vec<Action>, PolicyError>;
+    /// The actions to take from `obs` on, in the original 4-float space.
+    fn act(&mut self, obs: &PolicyObservation) -> Result<Vec<Action>, PolicyError> {
+        let _ = obs;
+        Err(PolicyError::BadAnswer(
+            "this policy answers only in its own action space (act_any)".into(),
+        ))
+    }
+    /// The actions to take from `obs` on, each `self.interface().action`'s floats. The default
+    /// is [`Policy::act`] for a policy of the original interface.
+    fn act_any(&mut self, obs: &PolicyObservation) -> Result<Vec<Vec<f32>>, PolicyError> {
+        Ok(self.act(obs)?.into_iter().map(|a| a.to_vec()).collect())
+    }
     /// The side of the square frames the policy wants (None: any; the simulator then draws the
     /// clips' 64).
     fn frame_size(&self) -> Option<u32> {
         None
+    }
+    /// What the policy sees and how it acts; the default is the original interface at
+    /// [`Policy::frame_size`].
+    fn interface(&self) -> Interface {
+        Interface::legacy(self.frame_size().unwrap_or(0))
     }
 }
 
@@ -126,7 +187,7 @@ pub fn observation_camera() -> assay_spec::spec::Camera {
 }
 
 /// Kinds of policy this release runs.
-pub const KNOWN_POLICIES: &[&str] = &["oracle", "torchscript", "remote", "diffusion"];
+pub const KNOWN_POLICIES: &[&str] = &["oracle", "torchscript", "remote", "openpi", "diffusion"];
 
 /// Default deadline of a remote policy's `Act` call.
 pub const DEFAULT_REMOTE_TIMEOUT_MS: u64 = 5000;
@@ -185,6 +246,19 @@ impl PolicySpec {
         let required = |value: Option<String>, key: &str| {
             value.ok_or_else(|| format!("policy '{name}': missing {key}=..."))
         };
+        // The interface arguments of a policy that declares its own.
+        let interface = if matches!(kind, "torchscript" | "remote" | "openpi") {
+            Interface::from_args(&args).map_err(|e| format!("policy '{name}': {e}"))?
+        } else {
+            None
+        };
+        let args: Vec<(&str, &str)> = if interface.is_some() || kind == "openpi" {
+            args.into_iter()
+                .filter(|(k, _)| !Interface::ARGS.contains(k))
+                .collect()
+        } else {
+            args
+        };
         let spec = match kind {
             "oracle" => {
                 let mut noise = 0.0;
@@ -218,6 +292,42 @@ impl PolicySpec {
                 }
                 PolicySpec::TorchScript {
                     path: required(path, "path")?,
+                    interface,
+                }
+            }
+            "openpi" => {
+                let mut url = None;
+                let mut timeout_ms = DEFAULT_REMOTE_TIMEOUT_MS;
+                let mut api_key_env = None;
+                for arg in &args {
+                    match *arg {
+                        ("url", v) if v.starts_with("ws://") || v.starts_with("wss://") => {
+                            url = Some(v.to_owned())
+                        }
+                        ("timeout_ms", v) => match v.parse::<u64>() {
+                            Ok(v) if v > 0 => timeout_ms = v,
+                            _ => return Err(bad(arg, "timeout_ms=<milliseconds, > 0>")),
+                        },
+                        ("api_key_env", v)
+                            if !v.is_empty()
+                                && v.chars().all(|c| c.is_ascii_alphanumeric() || c == '_') =>
+                        {
+                            api_key_env = Some(v.to_owned())
+                        }
+                        _ => {
+                            return Err(bad(
+                                arg,
+                                "url=ws://host:port, timeout_ms=<ms>, api_key_env=<VARIABLE>, \
+                                 space=, cameras=, state=, depth= or horizon=",
+                            ));
+                        }
+                    }
+                }
+                PolicySpec::OpenPi {
+                    url: required(url, "url")?,
+                    timeout_ms,
+                    api_key_env,
+                    interface: interface.unwrap_or_default(),
                 }
             }
             "remote" => {
@@ -238,6 +348,7 @@ impl PolicySpec {
                 PolicySpec::Remote {
                     url: required(url, "url")?,
                     timeout_ms,
+                    interface,
                 }
             }
             _ => {
@@ -316,14 +427,51 @@ mod tests {
         assert_eq!(
             PolicySpec::parse("torchscript:path=/m/bc.pt"),
             Ok(PolicySpec::TorchScript {
-                path: "/m/bc.pt".into()
+                path: "/m/bc.pt".into(),
+                interface: None
             })
         );
         assert_eq!(
             PolicySpec::parse("remote:url=http://127.0.0.1:50070,timeout_ms=250"),
             Ok(PolicySpec::Remote {
                 url: "http://127.0.0.1:50070".into(),
-                timeout_ms: 250
+                timeout_ms: 250,
+                interface: None
+            })
+        );
+        // openpi servers, with the interface they are fed in.
+        let PolicySpec::OpenPi {
+            url,
+            api_key_env,
+            interface,
+            ..
+        } = PolicySpec::parse(
+            "openpi:url=ws://10.0.0.7:8000,api_key_env=PI_KEY,space=ee_delta,cameras=image@224+wrist_image:wrist@224,horizon=5",
+        )
+        .unwrap()
+        else {
+            panic!("not openpi")
+        };
+        assert_eq!(url, "ws://10.0.0.7:8000");
+        assert_eq!(api_key_env.as_deref(), Some("PI_KEY"));
+        assert_eq!(interface.action, ActionSpace::EeDelta);
+        assert_eq!(interface.cameras.len(), 2);
+        assert_eq!(interface.execute, Some(5));
+        assert!(PolicySpec::parse("openpi:url=http://h:1").is_err());
+        assert!(PolicySpec::parse("openpi:url=ws://h:1,api_key=secret").is_err());
+        assert!(
+            PolicySpec::parse("openpi:url=ws://h:1,space=joints")
+                .unwrap_err()
+                .contains("unknown action space")
+        );
+        // The original interface when none is declared.
+        assert_eq!(
+            PolicySpec::parse("openpi:url=ws://h:1"),
+            Ok(PolicySpec::OpenPi {
+                url: "ws://h:1".into(),
+                timeout_ms: DEFAULT_REMOTE_TIMEOUT_MS,
+                api_key_env: None,
+                interface: Interface::default()
             })
         );
         assert!(PolicySpec::parse("remote:url=127.0.0.1:1").is_err());
