@@ -22,6 +22,7 @@ mod operations;
 mod policies;
 mod rank;
 mod ranking;
+mod real_policies;
 mod report;
 mod security;
 mod telemetry;

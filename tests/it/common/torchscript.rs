@@ -34,3 +34,50 @@ pub fn torchscript(dir: &Path) -> PathBuf {
     module.save(&path).expect("save");
     path
 }
+
+/// The scripted policy of `tests/python/policies/scripted.py`, the same float32 arithmetic as
+/// tensor operations (every constant a power of two or exactly representable, no reductions, so
+/// the two agree bit for bit): image [1, 3, 32, 32] in [0, 1] and state [1, 5] (x, y, z, yaw,
+/// holding) → [1, 2, 7] end-effector deltas.
+pub fn scripted_twin(image: &Tensor, state: &Tensor) -> Tensor {
+    let p = image.select(0, 0).select(1, 8).select(1, 24);
+    let s = state.select(0, 0);
+    let zero = s.select(0, 0).zeros_like();
+    let target = [
+        p.select(0, 0) * 0.125 + 0.5,
+        p.select(0, 1) * 0.25 + -0.125,
+        &zero + 0.125,
+    ];
+    let d: Vec<Tensor> = target
+        .iter()
+        .enumerate()
+        .map(|(i, t)| ((t - s.select(0, i as i64)) * 0.25).clamp(-0.03125, 0.03125))
+        .collect();
+    let grip = s.select(0, 2).lt(0.0625).to_kind(Kind::Float);
+    let action = Tensor::stack(
+        &[
+            d[0].shallow_clone(),
+            d[1].shallow_clone(),
+            d[2].shallow_clone(),
+            zero.shallow_clone(),
+            zero.shallow_clone(),
+            &zero + 0.0625,
+            grip,
+        ],
+        0,
+    );
+    action.view([1, 1, 7]).repeat([1, 2, 1])
+}
+
+/// [`scripted_twin`] traced and saved in `dir`.
+pub fn scripted_torchscript(dir: &Path) -> PathBuf {
+    let image = Tensor::rand([1, 3, 32, 32], (Kind::Float, Device::Cpu));
+    let state = Tensor::rand([1, 5], (Kind::Float, Device::Cpu));
+    let module = CModule::create_by_tracing("Policy", "forward", &[image, state], &mut |xs| {
+        vec![scripted_twin(&xs[0], &xs[1])]
+    })
+    .expect("trace");
+    let path = dir.join("scripted.pt");
+    module.save(&path).expect("save");
+    path
+}

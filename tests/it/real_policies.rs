@@ -1,0 +1,304 @@
+//! Policies as labs serve them, through the real cluster on GenSim's own library (imported where
+//! it lies): one scripted policy written once in Python (`tests/python/policies/scripted.py`)
+//! acts through an openpi websocket server built on the real `openpi-client` package's
+//! msgpack-numpy, through the Python policy kit over gRPC, and as a TorchScript module with the
+//! same arithmetic, and the three give identical episodes; servers that answer malformed actions,
+//! fail, or whose space does not fit fail their episodes with a clear error while the batch goes
+//! on; a LeRobot-style policy runs through the kit's adapter.
+#![cfg(feature = "trainer")]
+
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use crate::common::torchscript::scripted_torchscript;
+use crate::common::{bin, repo};
+use assay_report::report::Report;
+
+/// The Python with the kit's dependencies (scripts/test's venv).
+pub fn python() -> String {
+    std::env::var("ASSAY_TEST_PYTHON").unwrap_or_else(|_| "python3".into())
+}
+
+/// A Python test server kills itself with the test.
+pub struct Served {
+    child: Child,
+    pub url: String,
+}
+
+impl Drop for Served {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+/// `tests/python/serve_policy.py --protocol P --policy NAME` on a free port.
+pub fn serve_python(dir: &Path, protocol: &str, policy: &str) -> Served {
+    let log = std::fs::File::create(dir.join(format!("{protocol}-{policy}.log"))).unwrap();
+    let mut child = Command::new(python())
+        .arg(repo().join("tests/python/serve_policy.py"))
+        .args(["--protocol", protocol, "--policy", policy, "--port", "0"])
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(log)
+        .spawn()
+        .unwrap();
+    let mut first = String::new();
+    BufReader::new(child.stdout.take().unwrap())
+        .read_line(&mut first)
+        .unwrap();
+    let url = match first.trim().strip_prefix("listening on ") {
+        Some(url) => url.to_owned(),
+        None => {
+            let _ = child.kill();
+            let log = std::fs::read_to_string(dir.join(format!("{protocol}-{policy}.log")));
+            panic!(
+                "serve_policy.py {protocol} {policy}: {first:?}\n{}\n(scripts/test installs the \
+                 kit's dependencies; or set ASSAY_TEST_PYTHON)",
+                log.unwrap_or_default()
+            );
+        }
+    };
+    Served { child, url }
+}
+
+/// GenSim's library imported into `dir/specs`; the first `n` specs in name order.
+pub fn corpus_tasks(dir: &Path, n: usize) -> Vec<PathBuf> {
+    let root = repo().join("../shared/corpora/gensim-library");
+    let out = dir.join("specs");
+    let run = Command::new(bin())
+        .args(["import", "gensim"])
+        .arg(&root)
+        .arg("--out")
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let mut specs: Vec<PathBuf> = std::fs::read_dir(&out)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|e| e == "yaml"))
+        .collect();
+    specs.sort();
+    specs.truncate(n);
+    specs
+}
+
+/// `assay eval` of `tasks` with `policies` on `seeds` seeds, no judge or diversity.
+pub fn eval(dir: &Path, tasks: &[PathBuf], policies: &[&str], seeds: u32) -> Report {
+    let log_path = dir.join("eval.log");
+    let log = std::fs::File::create(&log_path).unwrap();
+    let mut cmd = Command::new(bin());
+    cmd.arg("eval")
+        .args(tasks)
+        .args(["--seeds", &seeds.to_string()]);
+    for p in policies {
+        cmd.args(["--policy", p]);
+    }
+    let corpus = repo().join("../shared/corpora/gensim-library");
+    let mut child = cmd
+        .arg("--asset-root")
+        .arg(corpus.join("assets"))
+        .args([
+            "--no-judge",
+            "--no-diversity",
+            "--image-size",
+            "160x120",
+            "--quiet",
+        ])
+        .arg("--out")
+        .arg(dir.join("out"))
+        .stdin(Stdio::null())
+        .stdout(log.try_clone().unwrap())
+        .stderr(log)
+        .spawn()
+        .unwrap();
+    let start = Instant::now();
+    loop {
+        if let Some(status) = child.try_wait().unwrap() {
+            let text = std::fs::read_to_string(&log_path).unwrap_or_default();
+            assert!(status.success(), "assay eval failed: {status}\n{text}");
+            break;
+        }
+        if start.elapsed() > Duration::from_secs(900) {
+            let _ = child.kill();
+            panic!(
+                "assay eval still running after 900 s\n{}",
+                std::fs::read_to_string(&log_path).unwrap_or_default()
+            );
+        }
+        std::thread::sleep(Duration::from_millis(200));
+    }
+    serde_json::from_str(&std::fs::read_to_string(dir.join("out/report.json")).unwrap()).unwrap()
+}
+
+/// The columns of an episode file (its metadata, which names the policy, left out).
+fn columns(dir: &Path, artifact: &str) -> Vec<arrow_ipc::reader::FileReader<std::fs::File>> {
+    let file = std::fs::File::open(dir.join("out/artifacts").join(artifact)).unwrap();
+    vec![arrow_ipc::reader::FileReader::try_new(file, None).unwrap()]
+}
+
+/// The scripted policy's interface, as a spec declares it (the gRPC server declares it in Health).
+const SCRIPTED: &str = "space=ee_delta,cameras=image:scene@32,state=ee_pos+ee_yaw+holding";
+/// 50 control steps an episode.
+const STEPS: &str = "max_steps=1200";
+
+#[test]
+fn one_python_policy_acts_alike_over_openpi_the_grpc_kit_and_torchscript() {
+    let dir = tempfile::tempdir().unwrap();
+    let tasks = corpus_tasks(dir.path(), 3);
+    let openpi = serve_python(dir.path(), "openpi", "scripted");
+    let grpc = serve_python(dir.path(), "grpc", "scripted");
+    let module = scripted_torchscript(dir.path());
+    let a = format!("openpi:url={},{SCRIPTED},{STEPS}", openpi.url);
+    let b = format!("remote:url={},{STEPS}", grpc.url);
+    let c = format!("torchscript:path={},{SCRIPTED},{STEPS}", module.display());
+    let report = eval(dir.path(), &tasks, &[&a, &b, &c], 2);
+    assert_eq!(report.results.tasks.len(), 3);
+    let mut moved = 0;
+    for t in &report.results.tasks {
+        assert!(t.failures.is_empty(), "{}: {:#?}", t.id, t.failures);
+        for seed in 0..2 {
+            let of = |p: &str| {
+                t.episodes
+                    .iter()
+                    .find(|e| e.policy == p && e.seed == seed)
+                    .unwrap_or_else(|| panic!("{}: no episode of {p} seed {seed}", t.id))
+            };
+            let (ea, eb, ec) = (of(&a), of(&b), of(&c));
+            assert_eq!((ea.steps, ea.success), (eb.steps, eb.success));
+            assert_eq!((ea.steps, ea.success), (ec.steps, ec.success));
+            // The episode files agree column by column: every pose of every step.
+            let batches = |e: &assay_report::report::EpisodeRow| -> Vec<Vec<_>> {
+                columns(dir.path(), &e.artifact)
+                    .into_iter()
+                    .flat_map(|r| r.map(|b| b.unwrap().columns().to_vec()))
+                    .collect()
+            };
+            let (ca, cb, cc) = (batches(ea), batches(eb), batches(ec));
+            assert!(
+                ca == cb,
+                "{} seed {seed}: openpi and gRPC episodes differ",
+                t.id
+            );
+            assert!(
+                ca == cc,
+                "{} seed {seed}: openpi and TorchScript episodes differ",
+                t.id
+            );
+            // The policy moved the tool (columns 2 to 4 are its centre x, y, z).
+            let travel: f32 = (2..5)
+                .map(|k| {
+                    let v: Vec<f32> = ca
+                        .iter()
+                        .flat_map(|b| {
+                            b[k].as_any()
+                                .downcast_ref::<arrow_array::Float32Array>()
+                                .unwrap()
+                                .values()
+                                .to_vec()
+                        })
+                        .collect();
+                    (v[v.len() - 1] - v[0]).powi(2)
+                })
+                .sum::<f32>()
+                .sqrt();
+            moved += usize::from(travel > 0.02);
+        }
+    }
+    assert!(moved >= 4, "the tool moved in {moved} of 6 episodes");
+}
+
+#[test]
+fn malformed_failing_or_misfit_policies_fail_their_episodes_and_the_batch_goes_on() {
+    let dir = tempfile::tempdir().unwrap();
+    let tasks = corpus_tasks(dir.path(), 1);
+    let shape = serve_python(dir.path(), "openpi", "wrong_shape");
+    let nan = serve_python(dir.path(), "grpc", "nan");
+    let raises = serve_python(dir.path(), "openpi", "raises");
+    let scripted = serve_python(dir.path(), "openpi", "scripted");
+    let policies = [
+        format!("openpi:url={},{SCRIPTED},{STEPS}", shape.url),
+        format!("remote:url={},{STEPS}", nan.url),
+        format!("openpi:url={},{SCRIPTED},{STEPS}", raises.url),
+        // The server answers 7 floats; this spec says its space is ee_pose (8).
+        format!(
+            "openpi:url={},space=ee_pose,cameras=image:scene@32,state=ee_pos+ee_yaw+holding,{STEPS}",
+            scripted.url
+        ),
+        "oracle".to_string(),
+    ];
+    let names: Vec<&str> = policies.iter().map(String::as_str).collect();
+    let report = eval(dir.path(), &tasks, &names, 2);
+    assert_eq!(report.run.state, "completed");
+    let t = &report.results.tasks[0];
+    let expect = [
+        (0, "has 5 floats; its action space ee_delta takes 7"),
+        (1, "non-finite"),
+        (2, "policy exploded"),
+        (3, "has 7 floats; its action space ee_pose takes 8"),
+    ];
+    for (i, needle) in expect {
+        let failed: Vec<_> = t
+            .failures
+            .iter()
+            .filter(|f| f.policy == policies[i])
+            .collect();
+        assert_eq!(failed.len(), 2, "{}: {:#?}", policies[i], t.failures);
+        for f in failed {
+            assert!(
+                f.error.contains(needle) && f.error.contains("bad answer"),
+                "{}: {}",
+                policies[i],
+                f.error
+            );
+            // Not retried: a bad answer is the policy's, not the cluster's.
+            assert_eq!(f.attempts, 1, "{}", f.error);
+        }
+    }
+    // The oracle's episodes are all there.
+    assert_eq!(
+        t.episodes.iter().filter(|e| e.policy == "oracle").count(),
+        2
+    );
+}
+
+#[test]
+fn a_lerobot_style_policy_acts_through_the_kits_adapter_with_scene_and_wrist_cameras() {
+    let dir = tempfile::tempdir().unwrap();
+    let tasks = corpus_tasks(dir.path(), 1);
+    let server = serve_python(dir.path(), "grpc", "lerobot_standin");
+    let policy = format!("remote:url={},{STEPS}", server.url);
+    let report = eval(dir.path(), &tasks, &[&policy], 2);
+    let t = &report.results.tasks[0];
+    // The stand-in refuses a batch without LeRobot's keys, shapes and task string: episodes
+    // that ran prove the adapter built them from both cameras and the state.
+    assert!(t.failures.is_empty(), "{:#?}", t.failures);
+    assert_eq!(t.episodes.len(), 2);
+    assert!(t.episodes.iter().all(|e| e.steps >= 1200));
+}
+
+/// The kit's own checks (`tests/python/kit_selftest.py`): its stubs are what `generate_stubs.sh`
+/// makes from `proto/assay/v1/policy.proto` today, both servers answer the real clients (gRPC
+/// stubs, openpi-client's `WebsocketClientPolicy`) as the policy would, refuse what they should
+/// (bad requests, missing tokens and API keys), and the LeRobot adapter builds LeRobot's batch.
+#[test]
+fn the_python_policy_kit_passes_its_self_test_against_the_real_clients() {
+    let out = Command::new(python())
+        .arg(repo().join("tests/python/kit_selftest.py"))
+        .output()
+        .unwrap();
+    let text = format!(
+        "{}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(out.status.success(), "{text}");
+    assert!(text.contains("8/8 checks passed"), "{text}");
+}
