@@ -302,3 +302,83 @@ fn the_python_policy_kit_passes_its_self_test_against_the_real_clients() {
     assert!(out.status.success(), "{text}");
     assert!(text.contains("8/8 checks passed"), "{text}");
 }
+
+/// `examples/tasks/<path>` carried by the Panda.
+fn on_the_panda(dir: &Path, path: &str, edit: impl Fn(String) -> String) -> PathBuf {
+    let text = std::fs::read_to_string(repo().join("examples/tasks").join(path)).unwrap();
+    let text = edit(text);
+    assert!(!text.contains("\narm:"), "{path} has an arm already");
+    let out = dir.join(Path::new(path).file_name().unwrap());
+    std::fs::write(
+        &out,
+        format!("{}\narm: {{model: panda}}\n", text.trim_end()),
+    )
+    .unwrap();
+    out
+}
+
+/// A 7-D end-effector-delta policy written in Python (`tests/python/policies/vision.py`), served
+/// by the kit over gRPC, that finds everything through the top view and the wrist camera it asks
+/// for (with depth) and reads its task from the instruction, solves a placement, a stacking and
+/// a fixture task carried by the Panda. The fixture task is the example turned: its block starts
+/// 40° off a fixture that fits it only square, so the policy must turn what it carries; the
+/// same policy that never turns fails it.
+#[test]
+fn a_seeing_ee_delta_policy_places_stacks_and_turns_blocks_with_the_panda() {
+    let dir = tempfile::tempdir().unwrap();
+    let tasks = [
+        on_the_panda(dir.path(), "placement/put-block-in-bowl.yaml", |t| t),
+        on_the_panda(
+            dir.path(),
+            "stacking/bbsea-stack-green-cube-on-red-cube.yaml",
+            |t| t,
+        ),
+        on_the_panda(
+            dir.path(),
+            "assembling/insert-block-into-fixture.yaml",
+            |t| {
+                let turned = t
+                    .replace(
+                        "pose: {position: [0.42, -0.1, 0.02]}",
+                        "pose: {position: [0.42, -0.1, 0.02], yaw_deg: 40}",
+                    )
+                    .replace(
+                        "inner_half_extents: [0.028, 0.028, 0.025]",
+                        "inner_half_extents: [0.0235, 0.0235, 0.025]",
+                    );
+                assert_ne!(turned, t, "the fixture example changed");
+                turned
+            },
+        ),
+    ];
+    let seeing = serve_python(dir.path(), "grpc", "vision");
+    let stiff = serve_python(dir.path(), "openpi", "vision_no_turn");
+    let a = format!("remote:url={},max_steps=4000", seeing.url);
+    let b = format!(
+        "openpi:url={},space=ee_delta,cameras=scene:top@128+wrist:wrist@64,depth=scene+wrist,\
+         state=ee_pos+ee_yaw+holding,max_steps=4000",
+        stiff.url
+    );
+    let report = eval(dir.path(), &tasks, &[&a, &b], 3);
+    let mut table = Vec::new();
+    for t in &report.results.tasks {
+        assert!(t.failures.is_empty(), "{}: {:#?}", t.id, t.failures);
+        let wins = |p: &str| {
+            t.episodes
+                .iter()
+                .filter(|e| e.policy == p && e.success)
+                .count()
+        };
+        table.push((t.id.clone(), wins(&a), wins(&b)));
+    }
+    println!("| task (Panda) | seeing ee_delta policy | the same, never turning |");
+    for (id, a, b) in &table {
+        println!("| {id} | {a}/3 | {b}/3 |");
+    }
+    for (id, won, stiff_won) in &table {
+        assert_eq!(*won, 3, "{id}: the seeing policy solved {won} of 3");
+        if id.contains("fixture") {
+            assert_eq!(*stiff_won, 0, "{id}: solved without turning");
+        }
+    }
+}

@@ -2,13 +2,15 @@
 """Serves a test policy of tests/python/policies/scripted.py with the Assay policy kit.
 
     python tests/python/serve_policy.py --protocol grpc|openpi \
-        --policy scripted|wrong_shape|nan|raises|lerobot_standin|zeros [--port 0] [--api-key K]
+        --policy scripted|vision|vision_no_turn|wrong_shape|nan|raises|lerobot_standin|zeros [--port 0] [--api-key K]
 
 Prints `listening on http://HOST:PORT` (grpc) or `listening on ws://HOST:PORT` (openpi) once
 ready, then serves until killed. The kit is imported from python/assay-policy-kit/src (no pip
 install needed); gRPC honours $ASSAY_CLUSTER_TOKEN / $ASSAY_CLUSTER_TOKEN_FILE.
 
-Interfaces: scripted, wrong_shape, nan, raises: camera image (scene, 32x32), state
+Interfaces: vision (tests/python/policies/vision.py): cameras scene (the standard top view,
+128x128, depth) and wrist (64x64, depth), state ee_pos+ee_yaw+holding, ee_delta, chunk 1, one
+VisionPolicy per episode (vision_no_turn: one that never turns the tool). scripted, wrong_shape, nan, raises: camera image (scene, 32x32), state
 ee_pos+ee_yaw+holding, ee_delta, chunk 2. lerobot_standin: cameras image (scene, 32x32) and
 wrist (wrist, 32x32), same state, ee_delta, chunk 1, one LeRobotAdapter per episode. zeros:
 cameras image and wrist_image (224x224), state ee_pos+ee_quat+holding (8 floats), ee_delta,
@@ -25,6 +27,7 @@ sys.path.insert(0, os.path.join(HERE, "..", "..", "python", "assay-policy-kit", 
 sys.path.insert(0, os.path.join(HERE, "policies"))
 
 import scripted  # noqa: E402
+import vision  # noqa: E402
 from assay_policy_kit import Camera, Interface  # noqa: E402
 
 SCRIPTED_INTERFACE = Interface(
@@ -58,6 +61,26 @@ POLICIES = {
         ),
         1,
         {"factory": lerobot_standin},
+    ),
+    "vision": (
+        Interface(
+            cameras=[Camera("scene", "top", 128, 128, depth=True),
+                     Camera("wrist", "wrist", 64, 64, depth=True)],
+            state=list(vision.STATE),
+            action_space="ee_delta",
+        ),
+        1,
+        {"factory": vision.VisionPolicy},
+    ),
+    "vision_no_turn": (
+        Interface(
+            cameras=[Camera("scene", "top", 128, 128, depth=True),
+                     Camera("wrist", "wrist", 64, 64, depth=True)],
+            state=list(vision.STATE),
+            action_space="ee_delta",
+        ),
+        1,
+        {"factory": lambda: vision.VisionPolicy(turn=False)},
     ),
     "zeros": (
         Interface(

@@ -98,6 +98,7 @@ impl<'p> Learned<'p> {
             .dims(arm.as_deref())
             .map_err(|e| refuse(format!("action_space: {e}")))?;
         let task_cameras = assay_spec::scene::task_cameras(&spec.cameras);
+        let standard = assay_spec::scene::scene_views();
         let mut cameras = Vec::new();
         for (i, c) in interface.cameras.iter().enumerate() {
             let (w, h) = if c.width == 0 {
@@ -118,18 +119,25 @@ impl<'p> Learned<'p> {
                     },
                     true,
                 ),
-                CameraSource::Named(n) => match task_cameras.iter().find(|t| &t.name == n) {
-                    Some(t) => (t.clone(), false),
-                    None => {
-                        let known: Vec<&str> =
-                            task_cameras.iter().map(|t| t.name.as_str()).collect();
-                        return Err(refuse(format!(
-                            "interface.cameras[{i}].source: the task has no camera '{n}' (its \
-                             cameras: {}; or scene, wrist)",
-                            known.join(", ")
-                        )));
+                // A camera of the task, else one of Assay's standard views (a policy calibrated
+                // for the top view finds it on every task).
+                CameraSource::Named(n) => {
+                    match task_cameras.iter().chain(&standard).find(|t| &t.name == n) {
+                        Some(t) => (t.clone(), false),
+                        None => {
+                            let known: Vec<&str> = task_cameras
+                                .iter()
+                                .chain(&standard)
+                                .map(|t| t.name.as_str())
+                                .collect();
+                            return Err(refuse(format!(
+                                "interface.cameras[{i}].source: the task has no camera '{n}' (its \
+                             cameras and the standard views: {}; or scene, wrist)",
+                                known.join(", ")
+                            )));
+                        }
                     }
-                },
+                }
             };
             cameras.push(PolicyCamera {
                 name: c.name.clone(),
