@@ -8,7 +8,7 @@ use std::time::Duration;
 
 use anyhow::Context;
 use assay_model::policy::{
-    Action, DEFAULT_REMOTE_TIMEOUT_MS, EpisodeContext, Policy, PolicyError, PolicyObservation,
+    DEFAULT_REMOTE_TIMEOUT_MS, EpisodeContext, NamedImage, Policy, PolicyError, PolicyObservation,
     PolicySpec,
 };
 use assay_policy::{PolicyFactory, RemotePolicy, ServerInfo};
@@ -72,11 +72,15 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
                 assay_worker::diffusion_loader(),
             )?;
             let factory = delayed(factory, Duration::from_millis(delay_ms));
+            // The served policy's interface, declared in Health (one instance, made and dropped).
+            let sample = factory()?;
             let info = ServerInfo {
                 name: policy.clone(),
                 version: env!("CARGO_PKG_VERSION").into(),
+                interface: sample.interface(),
                 ..ServerInfo::default()
             };
+            drop(sample);
             rt.block_on(async {
                 let listener = tokio::net::TcpListener::bind(listen)
                     .await
@@ -174,20 +178,44 @@ fn interface_json(i: &assay_model::policy::Interface) -> serde_json::Value {
 }
 
 /// One episode step on a blank 64×64 frame with the tool at the origin.
-fn trial_act(policy: &mut dyn Policy) -> Result<Vec<Action>, PolicyError> {
+fn trial_act(policy: &mut dyn Policy) -> Result<Vec<Vec<f32>>, PolicyError> {
+    let interface = policy.interface();
     policy.reset(&EpisodeContext {
         task_id: "check".into(),
         seed: 0,
         instruction: "check the policy".into(),
         arm: None,
     })?;
-    policy.act(&PolicyObservation::legacy(
-        0,
-        64,
-        64,
-        vec![0; 64 * 64 * 3],
-        [0.0; 4],
-    ))
+    // Blank frames of the sizes the policy asked for (64 where it left it to the batch), a state
+    // of zeros (`joints` as the Panda's 7).
+    let images: Vec<NamedImage> = interface
+        .cameras
+        .iter()
+        .map(|c| {
+            let (w, h) = if c.width == 0 {
+                (64, 64)
+            } else {
+                (c.width, c.height)
+            };
+            NamedImage {
+                name: c.name.clone(),
+                width: w,
+                height: h,
+                rgb: vec![0; (w * h * 3) as usize],
+                depth: if c.depth {
+                    vec![1.0; (w * h) as usize]
+                } else {
+                    Vec::new()
+                },
+            }
+        })
+        .collect();
+    let first = &images[0];
+    let mut obs =
+        PolicyObservation::legacy(0, first.width, first.height, first.rgb.clone(), [0.0; 4]);
+    obs.state = vec![0.0; interface.state_dims(Some("panda")).unwrap_or(4)];
+    obs.images = images;
+    policy.act_any(&obs)
 }
 
 /// Makes every policy of `factory` answer `delay` late (a slow server, for tests of clients).
@@ -213,9 +241,17 @@ impl Policy for Delayed {
         self.inner.reset(episode)
     }
 
-    fn act(&mut self, obs: &PolicyObservation) -> Result<Vec<Action>, PolicyError> {
+    fn act_any(&mut self, obs: &PolicyObservation) -> Result<Vec<Vec<f32>>, PolicyError> {
         // Runs on the server's blocking pool: sleeping here holds no executor thread.
         std::thread::sleep(self.delay);
-        self.inner.act(obs)
+        self.inner.act_any(obs)
+    }
+
+    fn frame_size(&self) -> Option<u32> {
+        self.inner.frame_size()
+    }
+
+    fn interface(&self) -> assay_model::policy::Interface {
+        self.inner.interface()
     }
 }

@@ -9,8 +9,8 @@
 use std::time::{Duration, Instant};
 
 use assay_model::policy::{
-    CameraRequest, CameraSource, EpisodeContext, Interface, NamedImage, Policy,
-    PolicyObservation, StatePart,
+    CameraRequest, CameraSource, EpisodeContext, Interface, NamedImage, Policy, PolicyObservation,
+    StatePart,
 };
 use assay_policy::openpi::OpenPiPolicy;
 
@@ -18,7 +18,9 @@ const WARMUP: usize = 20;
 
 fn main() {
     let mut args = std::env::args().skip(1);
-    let url = args.next().expect("usage: openpi_roundtrip ws://HOST:PORT [N] [SIZE]");
+    let url = args
+        .next()
+        .expect("usage: openpi_roundtrip ws://HOST:PORT [N] [SIZE]");
     let n: usize = args.next().map_or(200, |a| a.parse().expect("N"));
     let size: u32 = args.next().map_or(224, |a| a.parse().expect("SIZE"));
     let camera = |name: &str, source| CameraRequest {

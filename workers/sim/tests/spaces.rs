@@ -39,10 +39,13 @@ oracle:
     parse_task(&yaml, Format::Yaml, "t.yaml").unwrap()
 }
 
+/// A camera drawn: its name, eye, target and size.
+type Drawn = (String, [f64; 3], [f64; 3], u32, u32);
+
 /// Records what it was asked to draw.
 #[derive(Default)]
 struct Cameras {
-    drawn: Vec<(String, [f64; 3], [f64; 3], u32, u32)>,
+    drawn: Vec<Drawn>,
     depths: u32,
 }
 

@@ -22,7 +22,8 @@ class Camera:
     """One camera a policy asks for (`assay.v1.CameraRequest`).
 
     name:   the name the policy knows it by; the observation holds `observation/<name>`.
-    source: a camera of the task by name, "scene" (the task's first camera) or "wrist".
+    source: a camera of the task by name, one of Assay's standard views ("top", "front",
+            "oblique_left", "oblique_right"), "scene" (the task's first camera) or "wrist".
     width, height: pixels, 1 to 4096 each; 0 means the batch's frame size.
     depth:  also send depth (`observation/<name>_depth`, float32 metres [H, W]).
     """
