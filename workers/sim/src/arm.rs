@@ -220,7 +220,7 @@ impl Arm {
 
     /// The heading (rad) of the wrist's x axis, which is across the tool's axis.
     fn heading(&self, poses: &[Pose]) -> f32 {
-        crate::scene::yaw_of(&poses[self.wrist].rotation)
+        crate::tabletop::yaw_of(&poses[self.wrist].rotation)
     }
 
     /// The tool's turn about z from where the episode's tool started (rad, in (−π, π]).

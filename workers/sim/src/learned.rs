@@ -297,7 +297,7 @@ impl<'p> Learned<'p> {
                 }
                 let q = q.normalize();
                 let r = Rotation::from_xyzw(q.x, q.y, q.z, q.w);
-                let target_yaw = crate::scene::yaw_of(&r);
+                let target_yaw = crate::tabletop::yaw_of(&r);
                 self.velocity = cap((Vec3::new(a[0], a[1], a[2]) - ctl.command) / period);
                 let now = scene.yaw_goal.unwrap_or(0.0);
                 let d = target_yaw - now;

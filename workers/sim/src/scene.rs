@@ -9,7 +9,9 @@ use rapier3d::prelude::*;
 
 use crate::SimError;
 
-pub use crate::tabletop::{DEFAULT_MASS, GRIPPER_HALF_EXTENTS, GRIPPER_PARK, OBJECT_FRICTION};
+pub use crate::tabletop::{
+    DEFAULT_MASS, GRIPPER_HALF_EXTENTS, GRIPPER_PARK, OBJECT_FRICTION, yaw_of,
+};
 
 /// One object of the task in the world.
 #[derive(Debug, Clone)]
@@ -379,12 +381,6 @@ impl SimScene {
             .map(|j| (j.name.clone(), j.position(&self.world)))
             .collect()
     }
-}
-
-/// The turn about z of a rotation that keeps z up (or down): the heading of its x axis.
-pub fn yaw_of(r: &Rotation) -> f32 {
-    let x = *r * Vec3::X;
-    x.y.atan2(x.x)
 }
 
 fn to_pose(p: &assay_spec::urdf::Pose) -> Pose {
