@@ -146,7 +146,7 @@ impl Recorder {
         }
         if let Some(f) = &scene.fingers {
             self.fingers[0].push(f.opening(&scene.world));
-            self.fingers[1].push(f.world_yaw(&scene.world, scene.gripper));
+            self.fingers[1].push(f.world_yaw(&scene.world));
         }
         for (o, cols) in scene.objects.iter().zip(self.joints.iter_mut()) {
             if cols.is_empty() {
@@ -283,12 +283,10 @@ pub fn live_snapshot(scene: &SimScene, spec: &TaskSpec) -> SceneSnapshot {
         }),
         scene.gripper_position().into(),
         |i| scene.joint_positions(&scene.objects[i]),
-        scene.fingers.as_ref().map(|f| {
-            (
-                f.opening(&scene.world),
-                f.world_yaw(&scene.world, scene.gripper),
-            )
-        }),
+        scene
+            .fingers
+            .as_ref()
+            .map(|f| (f.opening(&scene.world), f.world_yaw(&scene.world))),
         scene
             .arm
             .as_ref()

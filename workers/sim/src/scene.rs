@@ -120,6 +120,8 @@ pub struct Fingers {
     pub goal: f32,
     pub yaw: f32,
     pub max_opening: f32,
+    /// The tool the pads hang from.
+    pub tool: RigidBodyHandle,
 }
 
 impl Fingers {
@@ -136,17 +138,17 @@ impl Fingers {
         })
     }
 
-    /// The gap between the pads' inner faces, measured (along the first pad's closing axis,
-    /// wherever the tool has turned them).
+    /// The gap between the pads' inner faces, measured along their closing axis (wherever the
+    /// tool has turned them).
     pub fn opening(&self, world: &PhysicsWorld) -> f32 {
         let [a, b] = self.bodies.map(|h| world.bodies[h].translation());
-        let axis = world.bodies[self.bodies[0]].rotation() * Vec3::Y;
+        let axis = Rotation::from_rotation_z(self.world_yaw(world)) * Vec3::Y;
         (b - a).dot(axis) - 2.0 * FINGER_HALF_EXTENTS[1]
     }
 
     /// The pads' turn about z in the world: the tool's turn plus theirs on it.
-    pub fn world_yaw(&self, world: &PhysicsWorld, gripper: RigidBodyHandle) -> f32 {
-        yaw_of(world.bodies[gripper].rotation()) + self.yaw
+    pub fn world_yaw(&self, world: &PhysicsWorld) -> f32 {
+        yaw_of(world.bodies[self.tool].rotation()) + self.yaw
     }
 
     /// Pads and joints for the tool `gripper` where it is, turned by `yaw` on it, `opening`
@@ -225,6 +227,7 @@ impl Fingers {
             goal: target,
             yaw,
             max_opening,
+            tool: gripper,
         }
     }
 }
