@@ -36,6 +36,12 @@ SCRIPTED_INTERFACE = Interface(
     action_space="ee_delta",
 )
 
+VISION_INTERFACE = Interface(
+    cameras=[Camera("scene", "top", 128, 128, depth=True), Camera("wrist", "wrist", 64, 64, depth=True)],
+    state=list(vision.STATE),
+    action_space="ee_delta",
+)
+
 
 def lerobot_standin():
     from assay_policy_kit import LeRobotAdapter
@@ -62,26 +68,8 @@ POLICIES = {
         1,
         {"factory": lerobot_standin},
     ),
-    "vision": (
-        Interface(
-            cameras=[Camera("scene", "top", 128, 128, depth=True),
-                     Camera("wrist", "wrist", 64, 64, depth=True)],
-            state=list(vision.STATE),
-            action_space="ee_delta",
-        ),
-        1,
-        {"factory": vision.VisionPolicy},
-    ),
-    "vision_no_turn": (
-        Interface(
-            cameras=[Camera("scene", "top", 128, 128, depth=True),
-                     Camera("wrist", "wrist", 64, 64, depth=True)],
-            state=list(vision.STATE),
-            action_space="ee_delta",
-        ),
-        1,
-        {"factory": lambda: vision.VisionPolicy(turn=False)},
-    ),
+    "vision": (VISION_INTERFACE, 1, {"factory": vision.VisionPolicy}),
+    "vision_no_turn": (VISION_INTERFACE, 1, {"factory": lambda: vision.VisionPolicy(turn=False)}),
     "zeros": (
         Interface(
             cameras=[Camera("image", "scene", 224, 224), Camera("wrist_image", "wrist", 224, 224)],
