@@ -28,6 +28,8 @@ pub struct Recorder {
     contact_pairs: Vec<u32>,
     contact_points: Vec<u32>,
     ee_contact: Vec<bool>,
+    /// The tool's turn about z (rad): 0 unless a policy turns it.
+    ee_yaw: Vec<f32>,
     /// Per object: x, y, z, qx, qy, qz, qw.
     objects: Vec<[Vec<f32>; 7]>,
     /// Per object: each moving joint's name and position (articulated objects only).
@@ -124,6 +126,7 @@ impl Recorder {
         self.contact_pairs.push(pairs);
         self.contact_points.push(points);
         self.ee_contact.push(ee_touch);
+        self.ee_yaw.push(scene.tool_yaw());
         for (o, cols) in scene.objects.iter().zip(self.objects.iter_mut()) {
             let p = scene.pose(o);
             let t = p.translation;
@@ -190,6 +193,11 @@ impl Recorder {
         cols.push(Arc::new(UInt32Array::from(self.contact_points.clone())));
         fields.push(Field::new("ee_in_contact", DataType::Boolean, false));
         cols.push(Arc::new(BooleanArray::from(self.ee_contact.clone())));
+        // Only episodes whose tool turned carry its yaw: other files stay as they were.
+        if self.ee_yaw.iter().any(|&y| y != 0.0) {
+            fields.push(Field::new("ee_yaw", DataType::Float32, false));
+            cols.push(Arc::new(Float32Array::from(self.ee_yaw.clone())));
+        }
         for (id, data) in object_ids.iter().zip(&self.objects) {
             for (k, c) in ["x", "y", "z", "qx", "qy", "qz", "qw"].iter().enumerate() {
                 fields.push(Field::new(format!("{id}.{c}"), DataType::Float32, false));

@@ -226,13 +226,39 @@ fn an_ee_delta_policy_turns_the_block_it_carries_into_a_yaw_goal_free_and_on_the
             );
             assert!(target[2] < eye[2] - 0.9);
         }
-        // The yaw it reports turned to 45° while it carried the block.
+        // The yaw it reports turned to 45° while it carried the block, and the episode file
+        // records it.
         let turned = policy.states.iter().map(|s| s[3]).fold(0.0f32, f32::max);
         assert!(
             (turned - std::f32::consts::FRAC_PI_4).abs() < 0.02,
             "{turned}"
         );
+        let recorded = column(&ep.file, "ee_yaw").expect("an ee_yaw column");
+        let last = *recorded.last().unwrap();
+        assert!((last - std::f32::consts::FRAC_PI_4).abs() < 0.02, "{last}");
     }
+    // The oracle never turns the tool: its files have no such column.
+    let oracle = assay_sim::simulate(&task(""), 0, "oracle").unwrap();
+    assert!(column(&oracle.file, "ee_yaw").is_none());
+}
+
+/// A float column of an episode file, if it has one.
+fn column(file: &[u8], name: &str) -> Option<Vec<f32>> {
+    let reader = arrow_ipc::reader::FileReader::try_new(std::io::Cursor::new(file), None).unwrap();
+    let k = reader.schema().index_of(name).ok()?;
+    Some(
+        reader
+            .flat_map(|b| {
+                b.unwrap()
+                    .column(k)
+                    .as_any()
+                    .downcast_ref::<arrow_array::Float32Array>()
+                    .unwrap()
+                    .values()
+                    .to_vec()
+            })
+            .collect(),
+    )
 }
 
 #[test]
