@@ -70,6 +70,35 @@ fn spec_error_to_pb(e: &SpecError) -> pb::SpecError {
 }
 
 /// Parses and validates every document; returns the accepted tasks and every problem found.
+/// Refuses a batch whose policy declares, in its spec, an interface one of its tasks cannot fill
+/// (joint actions or joint state without an arm, a camera the task does not have): the error
+/// names the policy, the task and the field. Servers that declare their interface in `Health`
+/// are checked when their episodes start.
+fn check_interfaces(policies: &[String], tasks: &[PlannedTask]) -> Result<(), Status> {
+    let declared: Vec<(&String, PolicySpec)> = policies
+        .iter()
+        .filter_map(|p| PolicySpec::parse(p).ok().map(|s| (p, s)))
+        .filter(|(_, s)| s.declared_interface().is_some())
+        .collect();
+    if declared.is_empty() {
+        return Ok(());
+    }
+    for t in tasks {
+        let spec: assay_spec::spec::TaskSpec = serde_json::from_str(&t.spec_json)
+            .map_err(|e| Status::internal(format!("task {}: {e}", t.info.id)))?;
+        for (name, p) in &declared {
+            let interface = p.declared_interface().expect("filtered");
+            interface.check_task(&spec).map_err(|e| {
+                Status::invalid_argument(format!(
+                    "policy '{name}' does not fit task '{}': {e}",
+                    t.info.id
+                ))
+            })?;
+        }
+    }
+    Ok(())
+}
+
 pub fn plan_tasks(
     docs: &[pb::TaskDocument],
     asset_roots: &[std::path::PathBuf],
@@ -298,6 +327,7 @@ impl pb::coordinator_server::Coordinator for CoordinatorService {
             })
             .collect();
         let (tasks, invalid) = plan_tasks(&req.tasks, &roots);
+        check_interfaces(&policies, &tasks)?;
         let mut judges = req.judges.clone();
         judges.sort();
         judges.dedup();

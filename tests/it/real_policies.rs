@@ -382,3 +382,49 @@ fn a_seeing_ee_delta_policy_places_stacks_and_turns_blocks_with_the_panda() {
         }
     }
 }
+
+/// A space or camera that a task cannot give, declared in the policy's spec, is refused when the
+/// batch is submitted, before anything runs, naming the policy, the task and the field.
+#[test]
+fn a_declared_space_a_task_cannot_fill_is_refused_before_the_batch_starts() {
+    let task = repo().join("examples/tasks/placement/put-block-in-bowl.yaml");
+    for (policy, field) in [
+        (
+            "openpi:url=ws://127.0.0.1:9,space=joint_position,state=joints",
+            "action_space joint_position",
+        ),
+        (
+            "torchscript:path=none.pt,space=ee_delta,cameras=image:overhead_left@64",
+            "interface.cameras[0].source",
+        ),
+    ] {
+        let dir = tempfile::tempdir().unwrap();
+        let out = Command::new(bin())
+            .arg("eval")
+            .arg(&task)
+            .args([
+                "--seeds",
+                "1",
+                "--policy",
+                policy,
+                "--no-judge",
+                "--no-diversity",
+            ])
+            .arg("--out")
+            .arg(dir.path().join("out"))
+            .output()
+            .unwrap();
+        let text = format!(
+            "{}{}",
+            String::from_utf8_lossy(&out.stdout),
+            String::from_utf8_lossy(&out.stderr)
+        );
+        assert!(!out.status.success(), "{policy}: {text}");
+        assert!(
+            text.contains(&format!(
+                "policy '{policy}' does not fit task 'put-block-in-bowl'"
+            )) && text.contains(field),
+            "{policy}: {text}"
+        );
+    }
+}

@@ -92,7 +92,7 @@ impl<'p> Learned<'p> {
             ))
         };
         interface.validate().map_err(refuse)?;
-        interface.fits_task(arm.as_deref()).map_err(refuse)?;
+        interface.check_task(spec).map_err(refuse)?;
         let action_dims = interface
             .action
             .dims(arm.as_deref())
@@ -100,7 +100,7 @@ impl<'p> Learned<'p> {
         let task_cameras = assay_spec::scene::task_cameras(&spec.cameras);
         let standard = assay_spec::scene::scene_views();
         let mut cameras = Vec::new();
-        for (i, c) in interface.cameras.iter().enumerate() {
+        for c in &interface.cameras {
             let (w, h) = if c.width == 0 {
                 (frame, frame)
             } else {
@@ -120,23 +120,10 @@ impl<'p> Learned<'p> {
                     true,
                 ),
                 // A camera of the task, else one of Assay's standard views (a policy calibrated
-                // for the top view finds it on every task).
+                // for the top view finds it on every task); `check_task` made sure it is one.
                 CameraSource::Named(n) => {
-                    match task_cameras.iter().chain(&standard).find(|t| &t.name == n) {
-                        Some(t) => (t.clone(), false),
-                        None => {
-                            let known: Vec<&str> = task_cameras
-                                .iter()
-                                .chain(&standard)
-                                .map(|t| t.name.as_str())
-                                .collect();
-                            return Err(refuse(format!(
-                                "interface.cameras[{i}].source: the task has no camera '{n}' (its \
-                             cameras and the standard views: {}; or scene, wrist)",
-                                known.join(", ")
-                            )));
-                        }
-                    }
+                    let found = task_cameras.iter().chain(&standard).find(|t| &t.name == n);
+                    (found.expect("checked by check_task").clone(), false)
                 }
             };
             cameras.push(PolicyCamera {

@@ -297,6 +297,31 @@ impl Interface {
         Ok(())
     }
 
+    /// Checks the interface against `spec`: the arm its state and actions need, and the cameras
+    /// it names (the task's own or Assay's standard views). The error names the field.
+    pub fn check_task(&self, spec: &assay_spec::spec::TaskSpec) -> Result<(), String> {
+        self.fits_task(spec.arm.as_ref().map(|a| a.model.as_str()))?;
+        let task = assay_spec::scene::task_cameras(&spec.cameras);
+        let standard = assay_spec::scene::scene_views();
+        for (i, c) in self.cameras.iter().enumerate() {
+            if let CameraSource::Named(n) = &c.source
+                && !task.iter().chain(&standard).any(|t| &t.name == n)
+            {
+                let known: Vec<&str> = task
+                    .iter()
+                    .chain(&standard)
+                    .map(|t| t.name.as_str())
+                    .collect();
+                return Err(format!(
+                    "interface.cameras[{i}].source: the task has no camera '{n}' (its cameras and \
+                     the standard views: {}; or scene, wrist)",
+                    known.join(", ")
+                ));
+            }
+        }
+        Ok(())
+    }
+
     /// Reads the interface arguments of a policy spec (`space=`, `cameras=`, `state=`,
     /// `depth=`, `horizon=`) over the default; returns None when none is given. `cameras` is
     /// `name:source@WxH` items joined by `+` (`image:scene@224+wrist_image:wrist@224`; `@W`

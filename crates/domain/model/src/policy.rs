@@ -367,6 +367,18 @@ impl PolicySpec {
         Ok((spec, horizon))
     }
 
+    /// The interface the spec itself declares (openpi always; TorchScript and remote policies
+    /// when given interface arguments): checkable against tasks before anything runs.
+    pub fn declared_interface(&self) -> Option<&Interface> {
+        match self {
+            PolicySpec::OpenPi { interface, .. } => Some(interface),
+            PolicySpec::TorchScript { interface, .. } | PolicySpec::Remote { interface, .. } => {
+                interface.as_ref()
+            }
+            _ => None,
+        }
+    }
+
     /// Whether the policy is the simulator's scripted oracle (every other kind acts through
     /// [`Policy`]).
     pub fn is_oracle(&self) -> bool {
