@@ -9,9 +9,8 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
-use crate::common::bin;
 use crate::common::torchscript::torchscript;
-use assay_report::report::Report;
+use crate::common::{bin, finish_eval, spawn_eval};
 
 /// A pick-and-place task whose episodes end after 1440 physics steps (60 control steps), so a
 /// policy that never finishes costs little (the oracle needs about 1100).
@@ -57,47 +56,7 @@ fn serve_env(dir: &Path, policy: &str, delay_ms: u32, env: &[(&str, &str)]) -> (
 }
 
 fn eval(dir: &Path, task: &Path, policies: &[&str], seeds: u32) -> Child {
-    let log = std::fs::File::create(dir.join("eval.log")).unwrap();
-    let mut cmd = Command::new(bin());
-    cmd.arg("eval")
-        .arg(task)
-        .args(["--seeds", &seeds.to_string()]);
-    for p in policies {
-        cmd.args(["--policy", p]);
-    }
-    cmd.args([
-        "--no-judge",
-        "--no-diversity",
-        "--image-size",
-        "160x120",
-        "--quiet",
-    ])
-    .arg("--out")
-    .arg(dir.join("out"))
-    .stdin(Stdio::null())
-    .stdout(log.try_clone().unwrap())
-    .stderr(log)
-    .spawn()
-    .unwrap()
-}
-
-fn finish(mut child: Child, within: Duration, dir: &Path) -> Report {
-    let start = Instant::now();
-    loop {
-        if let Some(status) = child.try_wait().unwrap() {
-            let log = std::fs::read_to_string(dir.join("eval.log")).unwrap_or_default();
-            assert!(status.success(), "assay eval failed: {status}\n{log}");
-            break;
-        }
-        if start.elapsed() > within {
-            let _ = child.kill();
-            let log = std::fs::read_to_string(dir.join("eval.log")).unwrap_or_default();
-            panic!("assay eval still running after {within:?}\n{log}");
-        }
-        std::thread::sleep(Duration::from_millis(100));
-    }
-    let text = std::fs::read_to_string(dir.join("out/report.json")).unwrap();
-    serde_json::from_str(&text).unwrap()
+    spawn_eval(dir, &[task.to_path_buf()], policies, seeds, &[])
 }
 
 fn task_file(dir: &Path) -> PathBuf {
@@ -114,7 +73,7 @@ fn a_torchscript_policy_and_the_same_module_served_remotely_act_alike() {
     let (mut server, url) = serve(dir.path(), &local, 0);
     let remote = format!("remote:url={url},timeout_ms=5000");
     let task = task_file(dir.path());
-    let report = finish(
+    let report = finish_eval(
         eval(dir.path(), &task, &[&local, &remote, "oracle"], 2),
         Duration::from_secs(240),
         dir.path(),
@@ -165,7 +124,7 @@ fn killing_the_policy_server_mid_batch_fails_its_episodes_not_the_batch() {
     }
     server.kill().unwrap();
     server.wait().unwrap();
-    let report = finish(running, Duration::from_secs(240), dir.path());
+    let report = finish_eval(running, Duration::from_secs(240), dir.path());
     assert_eq!(report.run.state, "completed");
     let t = &report.results.tasks[0];
     let done = t.episodes.iter().filter(|e| e.policy == remote).count();

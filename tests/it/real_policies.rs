@@ -10,10 +10,10 @@
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use crate::common::torchscript::scripted_torchscript;
-use crate::common::{bin, repo};
+use crate::common::{bin, finish_eval, repo, spawn_eval};
 use assay_report::report::Report;
 
 /// The Python with the kit's dependencies (scripts/test's venv).
@@ -90,52 +90,18 @@ pub fn corpus_tasks(dir: &Path, n: usize) -> Vec<PathBuf> {
     specs
 }
 
-/// `assay eval` of `tasks` with `policies` on `seeds` seeds, no judge or diversity.
+/// `assay eval` of `tasks` with `policies` on `seeds` seeds (GenSim's assets readable), no judge
+/// or diversity.
 pub fn eval(dir: &Path, tasks: &[PathBuf], policies: &[&str], seeds: u32) -> Report {
-    let log_path = dir.join("eval.log");
-    let log = std::fs::File::create(&log_path).unwrap();
-    let mut cmd = Command::new(bin());
-    cmd.arg("eval")
-        .args(tasks)
-        .args(["--seeds", &seeds.to_string()]);
-    for p in policies {
-        cmd.args(["--policy", p]);
-    }
-    let corpus = repo().join("../shared/corpora/gensim-library");
-    let mut child = cmd
-        .arg("--asset-root")
-        .arg(corpus.join("assets"))
-        .args([
-            "--no-judge",
-            "--no-diversity",
-            "--image-size",
-            "160x120",
-            "--quiet",
-        ])
-        .arg("--out")
-        .arg(dir.join("out"))
-        .stdin(Stdio::null())
-        .stdout(log.try_clone().unwrap())
-        .stderr(log)
-        .spawn()
-        .unwrap();
-    let start = Instant::now();
-    loop {
-        if let Some(status) = child.try_wait().unwrap() {
-            let text = std::fs::read_to_string(&log_path).unwrap_or_default();
-            assert!(status.success(), "assay eval failed: {status}\n{text}");
-            break;
-        }
-        if start.elapsed() > Duration::from_secs(900) {
-            let _ = child.kill();
-            panic!(
-                "assay eval still running after 900 s\n{}",
-                std::fs::read_to_string(&log_path).unwrap_or_default()
-            );
-        }
-        std::thread::sleep(Duration::from_millis(200));
-    }
-    serde_json::from_str(&std::fs::read_to_string(dir.join("out/report.json")).unwrap()).unwrap()
+    let assets = repo().join("../shared/corpora/gensim-library/assets");
+    let child = spawn_eval(
+        dir,
+        tasks,
+        policies,
+        seeds,
+        &["--asset-root".as_ref(), assets.as_os_str()],
+    );
+    finish_eval(child, Duration::from_secs(900), dir)
 }
 
 /// The columns of an episode file (its metadata, which names the policy, left out).

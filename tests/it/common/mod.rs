@@ -23,6 +23,60 @@ pub fn repo() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
 }
 
+/// `assay eval TASKS --seeds N --policy P… --no-judge --no-diversity --image-size 160x120
+/// --quiet [EXTRA…] --out DIR/out`, its output in `DIR/eval.log`; [`finish_eval`] waits for it.
+pub fn spawn_eval(
+    dir: &Path,
+    tasks: &[PathBuf],
+    policies: &[&str],
+    seeds: u32,
+    extra: &[&std::ffi::OsStr],
+) -> Child {
+    let log = std::fs::File::create(dir.join("eval.log")).unwrap();
+    let mut cmd = Command::new(bin());
+    cmd.arg("eval")
+        .args(tasks)
+        .args(["--seeds", &seeds.to_string()]);
+    for p in policies {
+        cmd.args(["--policy", p]);
+    }
+    cmd.args([
+        "--no-judge",
+        "--no-diversity",
+        "--image-size",
+        "160x120",
+        "--quiet",
+    ])
+    .args(extra)
+    .arg("--out")
+    .arg(dir.join("out"))
+    .stdin(Stdio::null())
+    .stdout(log.try_clone().unwrap())
+    .stderr(log)
+    .spawn()
+    .unwrap()
+}
+
+/// Waits at most `within` for a [`spawn_eval`] to succeed and reads its `report.json`; fails the
+/// test with its log otherwise.
+pub fn finish_eval(mut child: Child, within: Duration, dir: &Path) -> Report {
+    let start = Instant::now();
+    let log = || std::fs::read_to_string(dir.join("eval.log")).unwrap_or_default();
+    loop {
+        if let Some(status) = child.try_wait().unwrap() {
+            assert!(status.success(), "assay eval failed: {status}\n{}", log());
+            break;
+        }
+        if start.elapsed() > within {
+            let _ = child.kill();
+            panic!("assay eval still running after {within:?}\n{}", log());
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    let text = std::fs::read_to_string(dir.join("out/report.json")).unwrap();
+    serde_json::from_str(&text).unwrap()
+}
+
 /// A child process that is SIGKILLed and reaped when dropped.
 pub struct Proc {
     pub name: String,
