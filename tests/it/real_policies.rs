@@ -104,10 +104,14 @@ pub fn eval(dir: &Path, tasks: &[PathBuf], policies: &[&str], seeds: u32) -> Rep
     finish_eval(child, Duration::from_secs(900), dir)
 }
 
-/// The columns of an episode file (its metadata, which names the policy, left out).
-fn columns(dir: &Path, artifact: &str) -> Vec<arrow_ipc::reader::FileReader<std::fs::File>> {
+/// The record batches of an episode file, column by column (its metadata, which names the
+/// policy, left out).
+fn columns(dir: &Path, artifact: &str) -> Vec<Vec<arrow_array::ArrayRef>> {
     let file = std::fs::File::open(dir.join("out/artifacts").join(artifact)).unwrap();
-    vec![arrow_ipc::reader::FileReader::try_new(file, None).unwrap()]
+    arrow_ipc::reader::FileReader::try_new(file, None)
+        .unwrap()
+        .map(|b| b.unwrap().columns().to_vec())
+        .collect()
 }
 
 /// The scripted policy's interface, as a spec declares it (the gRPC server declares it in Health).
@@ -141,12 +145,7 @@ fn one_python_policy_acts_alike_over_openpi_the_grpc_kit_and_torchscript() {
             assert_eq!((ea.steps, ea.success), (eb.steps, eb.success));
             assert_eq!((ea.steps, ea.success), (ec.steps, ec.success));
             // The episode files agree column by column: every pose of every step.
-            let batches = |e: &assay_report::report::EpisodeRow| -> Vec<Vec<_>> {
-                columns(dir.path(), &e.artifact)
-                    .into_iter()
-                    .flat_map(|r| r.map(|b| b.unwrap().columns().to_vec()))
-                    .collect()
-            };
+            let batches = |e: &assay_report::report::EpisodeRow| columns(dir.path(), &e.artifact);
             let (ca, cb, cc) = (batches(ea), batches(eb), batches(ec));
             assert!(
                 ca == cb,

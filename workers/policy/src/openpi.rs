@@ -158,15 +158,13 @@ impl OpenPiPolicy {
                     other => self.down(format!("websocket handshake: {other}")),
                 },
             )?;
-        let metadata = match self.receive(&mut socket, "its metadata")? {
-            Answer::Binary(bytes) => rmpv::decode::read_value(&mut Cursor::new(&bytes[..]))
-                .map_err(|e| {
-                    PolicyError::BadAnswer(format!(
-                        "openpi server at {}: its metadata is not msgpack: {e}",
-                        self.url
-                    ))
-                })?,
-        };
+        let bytes = self.receive(&mut socket, "its metadata")?;
+        let metadata = rmpv::decode::read_value(&mut Cursor::new(&bytes[..])).map_err(|e| {
+            PolicyError::BadAnswer(format!(
+                "openpi server at {}: its metadata is not msgpack: {e}",
+                self.url
+            ))
+        })?;
         self.metadata = metadata;
         self.socket = Some(socket);
         self.used = false;
@@ -178,11 +176,11 @@ impl OpenPiPolicy {
         &self,
         socket: &mut WebSocket<TcpStream>,
         what: &str,
-    ) -> Result<Answer, PolicyError> {
+    ) -> Result<Vec<u8>, PolicyError> {
         let start = Instant::now();
         loop {
             match socket.read() {
-                Ok(Message::Binary(b)) => return Ok(Answer::Binary(b.to_vec())),
+                Ok(Message::Binary(b)) => return Ok(b.to_vec()),
                 Ok(Message::Text(t)) => {
                     return Err(PolicyError::BadAnswer(format!(
                         "openpi server at {} failed instead of sending {what}: {}",
@@ -215,10 +213,6 @@ impl OpenPiPolicy {
             }
         }
     }
-}
-
-enum Answer {
-    Binary(Vec<u8>),
 }
 
 /// The last `n` lines of a traceback (its message).
@@ -432,9 +426,8 @@ impl Policy for OpenPiPolicy {
         if let Err(e) = socket.send(Message::Binary(message.into())) {
             return Err(self.down(format!("sending the observation at step {}: {e}", obs.step)));
         }
-        let answer = self.receive(&mut socket, &format!("actions at step {}", obs.step))?;
+        let bytes = self.receive(&mut socket, &format!("actions at step {}", obs.step))?;
         self.socket = Some(socket);
-        let Answer::Binary(bytes) = answer;
         decode_actions(&bytes).map_err(|reason| {
             PolicyError::BadAnswer(format!(
                 "openpi server at {} at step {}: {reason}",

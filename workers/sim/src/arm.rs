@@ -8,7 +8,7 @@ use std::collections::BTreeMap;
 use assay_spec::urdf::{Geometry, JointKind, Pose as UPose, Urdf};
 use rapier3d::prelude::*;
 
-use crate::tabletop::{GRIPPER_HALF_EXTENTS, OBJECT_FRICTION};
+use crate::tabletop::{GRIPPER_HALF_EXTENTS, OBJECT_FRICTION, wrap_angle as wrap};
 
 /// A built-in arm.
 struct Model {
@@ -75,12 +75,6 @@ pub struct Arm {
 
 /// Fastest a joint follows a joint-position target (rad/s).
 pub const MAX_JOINT_SPEED: f64 = 2.0;
-
-/// `a` in (−π, π].
-fn wrap(a: f32) -> f32 {
-    let t = std::f32::consts::TAU;
-    a - t * ((a + std::f32::consts::PI) / t).floor()
-}
 
 /// Solves `a x = b` for a 6 × 6 system by Gaussian elimination with partial pivoting.
 fn solve6(mut a: [[f64; 6]; 6], mut b: [f64; 6]) -> Option<[f64; 6]> {

@@ -287,10 +287,7 @@ impl<'p> Learned<'p> {
                 let target_yaw = crate::tabletop::yaw_of(&r);
                 self.velocity = cap((Vec3::new(a[0], a[1], a[2]) - ctl.command) / period);
                 let now = scene.yaw_goal.unwrap_or(0.0);
-                let d = target_yaw - now;
-                let d = d - std::f32::consts::TAU
-                    * ((d + std::f32::consts::PI) / std::f32::consts::TAU).floor();
-                self.turn_rate = turn(d / period);
+                self.turn_rate = turn(crate::tabletop::wrap_angle(target_yaw - now) / period);
             }
             ActionSpace::JointPosition => {
                 let n = self.action_dims - 1;

@@ -106,10 +106,7 @@ impl Waypoints {
     }
 }
 
-fn wrap(a: f32) -> f32 {
-    let t = std::f32::consts::TAU;
-    a - t * ((a + std::f32::consts::PI) / t).floor()
-}
+use assay_sim::tabletop::wrap_angle as wrap;
 
 impl Policy for Waypoints {
     fn reset(&mut self, episode: &EpisodeContext) -> Result<(), PolicyError> {
