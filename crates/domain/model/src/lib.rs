@@ -19,3 +19,4 @@ pub mod policy;
 pub mod proxy;
 pub mod quality;
 pub mod trainer;
+pub mod world;

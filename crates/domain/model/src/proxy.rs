@@ -28,6 +28,34 @@ pub struct ProxyConfig {
     /// An imagined episode judged by the judge role succeeds when its mean completion score
     /// (0–10) is at least this.
     pub completion_threshold: f64,
+    /// The imagination of a ranked episode stops, as a success, once the frame judge gives this
+    /// many consecutive imagined frames a probability of at least `threshold`; otherwise it runs
+    /// for the task's whole step budget. Never the real episode's length.
+    pub done_frames: u32,
+    /// Ablation: also imagine every ranked episode for exactly as many frames as its real
+    /// episode had and judge that last frame — the leak of the real outcome through the
+    /// episode's length, restored on purpose to measure what it is worth. Reported as a proxy
+    /// of its own ([`LEAK_SOURCE`]), never as the proxy.
+    pub leak_ablation: bool,
+    /// A world model served over `assay.v1.WorldModel` (any lab's model) instead of the RSSM
+    /// the proxy trains on the training episodes.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub external: Option<ExternalWorldModel>,
+}
+
+/// A world model behind the `assay.v1.WorldModel` gRPC service.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct ExternalWorldModel {
+    /// `http://host:port` of the server.
+    pub url: String,
+    /// Deadline of every call, milliseconds (a late answer fails the call as unavailable).
+    #[serde(default = "default_world_timeout_ms")]
+    pub timeout_ms: u64,
+}
+
+fn default_world_timeout_ms() -> u64 {
+    30_000
 }
 
 impl Default for ProxyConfig {
@@ -38,6 +66,9 @@ impl Default for ProxyConfig {
             judge_lr: 1e-3,
             threshold: 0.5,
             completion_threshold: 5.0,
+            done_frames: 2,
+            leak_ablation: false,
+            external: None,
         }
     }
 }
@@ -62,6 +93,20 @@ impl ProxyConfig {
                 self.completion_threshold
             ));
         }
+        if self.done_frames == 0 {
+            return Err("done_frames: must be at least 1".into());
+        }
+        if let Some(e) = &self.external {
+            if !(e.url.starts_with("http://") || e.url.starts_with("https://")) {
+                return Err(format!(
+                    "external.url: {:?} is not an http:// or https:// URL",
+                    e.url
+                ));
+            }
+            if e.timeout_ms == 0 {
+                return Err("external.timeout_ms: must be at least 1".into());
+            }
+        }
         Ok(())
     }
 }
@@ -73,6 +118,57 @@ pub struct RankingPlan {
     pub train_policies: Vec<String>,
     #[serde(default)]
     pub config: ProxyConfig,
+    /// Learned policies the cluster trains to be ranked (a ladder of diffusion policies).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub ladder: Option<LadderPlan>,
+}
+
+/// A ladder of learned policies to rank, as the video-world-model paper ranks checkpoints:
+/// per task group, one diffusion policy is trained on the first `n` episodes of
+/// `train_policy` for every `n` in `episodes`, and kept at every step in `checkpoints` —
+/// `episodes.len() × checkpoints.len()` policies of differing skill. Each runs in the simulator
+/// on every (task, seed) of the group (its real success) and is ranked by the proxy.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+#[serde(default, deny_unknown_fields)]
+pub struct LadderPlan {
+    /// Whose episodes the policies imitate.
+    pub train_policy: String,
+    /// Training episodes of each run (the group's first ones in planning order).
+    pub episodes: Vec<u32>,
+    /// Training steps at which each run's policy is kept (the last is the run's length).
+    pub checkpoints: Vec<u64>,
+    /// Horizon of the policies' episodes, physics steps (the task's own budget when smaller).
+    pub max_steps: u32,
+    pub config: crate::diffusion::DiffusionConfig,
+}
+
+impl Default for LadderPlan {
+    fn default() -> Self {
+        Self {
+            train_policy: "oracle".into(),
+            episodes: vec![10, 40],
+            checkpoints: vec![300, 1000, 3000],
+            max_steps: 6000,
+            config: crate::diffusion::DiffusionConfig::default(),
+        }
+    }
+}
+
+impl LadderPlan {
+    pub fn validate(&self) -> Result<(), String> {
+        if self.episodes.is_empty() || self.episodes.iter().any(|&n| n < 2) {
+            return Err("ladder.episodes: one or more runs of at least 2 episodes".into());
+        }
+        if self.checkpoints.is_empty() || self.checkpoints.contains(&0) {
+            return Err("ladder.checkpoints: one or more steps, each at least 1".into());
+        }
+        if self.max_steps == 0 {
+            return Err("ladder.max_steps: must be at least 1".into());
+        }
+        self.config
+            .validate()
+            .map_err(|e| format!("ladder.config.{e}"))
+    }
 }
 
 /// One episode the proxy uses: its dynamics clip in the artifact store and, for a training
@@ -88,6 +184,11 @@ pub struct ProxyEpisode {
     pub instruction: String,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub success: Option<bool>,
+    /// Physics steps the episode may run: the task's `physics.max_steps`, or the policy's
+    /// `max_steps` when smaller. A ranked episode's imagination runs this long at most (in clip
+    /// frames), whatever its real episode did.
+    #[serde(default)]
+    pub budget_steps: u32,
 }
 
 /// The proxy's verdict on one ranked episode.
@@ -105,11 +206,41 @@ pub struct ProxyPrediction {
     pub p_success_real_frame: f64,
     /// Mean squared error per pixel-channel of the last imagined frame against the real one.
     pub last_frame_mse: f64,
+    /// Clip frames imagined (the first, real one included).
+    #[serde(default)]
+    pub imagined_frames: u32,
+    /// Whether the frame judge stopped the imagination (`done_frames` frames in a row judged
+    /// done) before the task's step budget ran out.
+    #[serde(default)]
+    pub done_by_judge: bool,
+    /// The ablation of `ProxyConfig::leak_ablation`: the verdict when imagining exactly as many
+    /// frames as the real episode had.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub leak: Option<LeakVerdict>,
     /// The imagined rollout as the judge role sees it: [`IMAGINED_KEYFRAMES`] frames evenly
     /// spaced from the real first frame to the last imagined one, PNGs in the artifact store
     /// (`step` is the frame's index at the clip's rate, `camera` is `imagined`).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub imagined_keyframes: Vec<Keyframe>,
+}
+
+/// The frame judge's verdict on the last frame of a rollout imagined for the real episode's
+/// length (the leak ablation).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+pub struct LeakVerdict {
+    pub p_success: f64,
+    pub success: bool,
+}
+
+/// Whether the world model uses its actions: its open-loop prediction error (MSE per
+/// pixel-channel over every imagined frame) on the ranked episodes' real clips with their true
+/// actions, and with the actions of another episode of the same length class (each episode's
+/// actions replaced by the next episode's, cycled and cut or held to length).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+pub struct ActionTest {
+    pub episodes: u32,
+    pub true_actions_mse: f64,
+    pub shuffled_actions_mse: f64,
 }
 
 /// Keyframes of an imagined rollout: as many as the completion prompt shows of a real one.
@@ -147,6 +278,12 @@ pub fn judged_source(judge: &str) -> String {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct ProxyResult {
     pub group: String,
+    /// The world model that imagined: Assay's RSSM, or the server's own name and URL.
+    #[serde(default)]
+    pub world_model_name: String,
+    /// The world model's action test on the ranked episodes' real clips.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub action_test: Option<ActionTest>,
     /// The world model's fit (its one-step error measured on the ranked episodes).
     pub world_model: DynamicsFit,
     /// Frame-judge training examples (real and imagined last frames of the training episodes)
@@ -169,3 +306,5 @@ pub struct ProxyResult {
 /// Source names of the ranking's success cells.
 pub const REAL_SOURCE: &str = "sim";
 pub const PROXY_SOURCE: &str = "world-model";
+/// The leak ablation's source (imagined for the real episode's length).
+pub const LEAK_SOURCE: &str = "world-model-leak";

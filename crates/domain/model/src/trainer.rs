@@ -33,6 +33,10 @@ pub enum TrainerJob {
         group: String,
         clips: Vec<String>,
         config: DiffusionConfig,
+        /// Training steps at which the policy is also kept (a ladder's checkpoints; the final
+        /// policy is always kept).
+        #[serde(default, skip_serializing_if = "Vec::is_empty")]
+        checkpoints: Vec<u64>,
     },
     /// The world-model proxy of one group's ranked episodes (see [`crate::proxy`]).
     Proxy {
@@ -63,5 +67,8 @@ pub enum TrainerOutcome {
         group: String,
         model: String,
         fit: Box<DiffusionFit>,
+        /// The policies kept at the job's `checkpoints`: (step, key in the artifact store).
+        #[serde(default, skip_serializing_if = "Vec::is_empty")]
+        checkpoints: Vec<(u64, String)>,
     },
 }
