@@ -12,6 +12,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 "assay/v1/frames.proto",
                 "assay/v1/policy.proto",
                 "assay/v1/worker.proto",
+                "assay/v1/world_model.proto",
             ],
             &["."],
         )?;

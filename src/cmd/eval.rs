@@ -90,6 +90,9 @@ pub fn run(mut a: Args) -> anyhow::Result<ExitCode> {
     if !a.batch.dynamics_budgets.is_empty() && !rendering {
         anyhow::bail!("--dynamics-budgets needs rendered clips: run with --roles sim,render");
     }
+    if a.batch.rank_ladder.is_some() && !rendering {
+        anyhow::bail!("--rank-ladder needs rendered clips: run with --roles sim,render");
+    }
     if !a.batch.rank_train_policies.is_empty() && !rendering {
         anyhow::bail!("--rank-train-policies needs rendered clips: run with --roles sim,render");
     }

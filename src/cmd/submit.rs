@@ -73,6 +73,18 @@ pub struct BatchArgs {
     /// '{"judge_steps": 600, "world_model": {"steps": 2000}}').
     #[arg(long = "proxy", requires = "rank_train_policies")]
     pub proxy: Option<String>,
+    /// Rank a ladder of learned policies too (the world model ranks checkpoints, as the paper
+    /// does): per task group, diffusion policies trained on the first N episodes of one policy
+    /// and kept at several training steps, each run on the group's tasks and seeds. Optional JSON
+    /// settings over the defaults (fields of assay-model LadderPlan, e.g. '{"train_policy":
+    /// "oracle", "episodes": [10, 40], "checkpoints": [300, 1000, 3000], "max_steps": 6000}').
+    #[arg(
+        long = "rank-ladder",
+        num_args = 0..=1,
+        default_missing_value = "{}",
+        requires = "rank_train_policies"
+    )]
+    pub rank_ladder: Option<String>,
     /// Generalization: train a diffusion policy per task group on its oracle episodes and run it
     /// on training and held-out variations. Optional JSON settings (fields of assay-model
     /// GeneralizationPlan, e.g. '{"episodes": 40, "held_out_seeds": 3, "config": {"steps": 3000}}').
@@ -88,21 +100,28 @@ fn parse_template(s: &str) -> Result<(String, String), String> {
 }
 
 impl BatchArgs {
-    /// The `RankingPlan` JSON of `--rank-train-policies` and `--proxy` (empty: no ranking). A
-    /// `--proxy` that is not JSON is passed on for the coordinator to reject with its reason.
+    /// The `RankingPlan` JSON of `--rank-train-policies`, `--proxy` and `--rank-ladder` (empty:
+    /// no ranking). Settings that are not JSON are passed on for the coordinator to reject with
+    /// its reason.
     fn ranking_json(&self) -> String {
         if self.rank_train_policies.is_empty() {
             return String::new();
         }
-        let config = match &self.proxy {
-            None => serde_json::json!({}),
-            Some(text) => match serde_json::from_str::<serde_json::Value>(text) {
-                Ok(v) => v,
-                Err(_) => return format!("{{\"config\": {text}}}"),
-            },
-        };
-        serde_json::json!({"train_policies": self.rank_train_policies, "config": config})
-            .to_string()
+        let mut plan = serde_json::json!({"train_policies": self.rank_train_policies});
+        for (key, text) in [("config", &self.proxy), ("ladder", &self.rank_ladder)] {
+            match text
+                .as_deref()
+                .map(serde_json::from_str::<serde_json::Value>)
+            {
+                None => {}
+                Some(Ok(v)) => plan[key] = v,
+                Some(Err(_)) => return format!("{{\"{key}\": {}}}", text.as_deref().unwrap_or("")),
+            }
+        }
+        if plan.get("config").is_none() {
+            plan["config"] = serde_json::json!({});
+        }
+        plan.to_string()
     }
 
     pub fn request(
@@ -176,4 +195,45 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         println!("{}", r.batch_id);
         Ok(ExitCode::SUCCESS)
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::Parser;
+
+    #[derive(clap::Parser)]
+    struct Cli {
+        #[command(flatten)]
+        batch: BatchArgs,
+    }
+
+    fn ranking(args: &[&str]) -> serde_json::Value {
+        let cli =
+            Cli::try_parse_from(std::iter::once("assay").chain(args.iter().copied())).unwrap();
+        serde_json::from_str(&cli.batch.ranking_json()).unwrap()
+    }
+
+    #[test]
+    fn rank_ladder_takes_optional_json_and_needs_training_policies() {
+        let plan = ranking(&["--rank-train-policies", "oracle", "--rank-ladder"]);
+        assert_eq!(plan["ladder"], serde_json::json!({}));
+        let plan: assay_model::proxy::RankingPlan = serde_json::from_value(plan).unwrap();
+        assert_eq!(plan.ladder, Some(Default::default()));
+        let plan = ranking(&[
+            "--rank-train-policies",
+            "oracle",
+            "--proxy",
+            r#"{"judge_steps": 5}"#,
+            r#"--rank-ladder={"episodes": [4]}"#,
+        ]);
+        assert_eq!(plan["ladder"]["episodes"], serde_json::json!([4]));
+        assert_eq!(plan["config"]["judge_steps"], 5);
+        assert!(
+            ranking(&["--rank-train-policies", "oracle"])
+                .get("ladder")
+                .is_none()
+        );
+        assert!(Cli::try_parse_from(["assay", "--rank-ladder"]).is_err());
+    }
 }

@@ -265,7 +265,7 @@ fn the_python_policy_kit_passes_its_self_test_against_the_real_clients() {
         String::from_utf8_lossy(&out.stderr)
     );
     assert!(out.status.success(), "{text}");
-    assert!(text.contains("8/8 checks passed"), "{text}");
+    assert!(text.contains("11/11 checks passed"), "{text}");
 }
 
 /// `examples/tasks/<path>` carried by the Panda.

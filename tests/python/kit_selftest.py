@@ -3,10 +3,10 @@
 
     python tests/python/kit_selftest.py
 
-Starts tests/python/serve_policy.py (and the kit's CLI) in subprocesses and talks to them with a
-Python gRPC client over the kit's generated stubs and with openpi's real
-`WebsocketClientPolicy`; also regenerates the stubs into a temporary directory and diffs them
-with the checked-in ones. Needs tests/python/requirements.txt and
+Starts tests/python/serve_policy.py, tests/python/world_models/trivial.py (and the kit's CLI) in
+subprocesses and talks to them with a Python gRPC client over the kit's generated stubs and with
+openpi's real `WebsocketClientPolicy`; also regenerates the stubs into a temporary directory and
+diffs them with the checked-in ones. Needs tests/python/requirements.txt and
 `pip install --no-deps openpi-client==0.1.2`.
 """
 
@@ -33,6 +33,8 @@ import scripted  # noqa: E402
 from assay_policy_kit import LeRobotAdapter  # noqa: E402
 from assay_policy_kit._proto import policy_pb2 as pb  # noqa: E402
 from assay_policy_kit._proto import policy_pb2_grpc as pb_grpc  # noqa: E402
+from assay_policy_kit._proto import world_model_pb2 as wm  # noqa: E402
+from assay_policy_kit._proto import world_model_pb2_grpc as wm_grpc  # noqa: E402
 
 TOKEN = "selftest-token-0123456789abcdef"
 STARTED = []
@@ -157,7 +159,7 @@ def check_stubs():
     with tempfile.TemporaryDirectory() as tmp:
         env = dict(os.environ, PYTHON=sys.executable)
         subprocess.run(["bash", os.path.join(KIT, "generate_stubs.sh"), tmp], check=True, env=env)
-        for name in ("policy_pb2.py", "policy_pb2_grpc.py"):
+        for name in ("policy_pb2.py", "policy_pb2_grpc.py", "world_model_pb2.py", "world_model_pb2_grpc.py"):
             with open(os.path.join(tmp, name), "rb") as f:
                 fresh = f.read()
             with open(os.path.join(KIT, "src", "assay_policy_kit", "_proto", name), "rb") as f:
@@ -384,8 +386,135 @@ def check_cli():
         assert same(out["actions"], np.zeros((1, 7)))
 
 
+# ------------------------------------------------------------------------- world models
+
+WORLD_MODELS = os.path.join(HERE, "world_models")
+
+
+def serve_world_model(*args, env=None):
+    return Server([sys.executable, os.path.join(WORLD_MODELS, "trivial.py"), "--port", "0", *args],
+                  env=env if env is not None else clean_env())
+
+
+def wm_reset(stub, episode, frame, state=(0.5, 0.0, 0.1, 0.0), **kw):
+    h, w = frame.shape[:2]
+    req = wm.WorldModelResetRequest(episode_id=episode, task_id="t", seed=3, instruction="pick",
+                                    state=list(state))
+    req.frames.add(name="image", width=w, height=h, rgb=frame.tobytes())
+    return stub.Reset(req, **kw)
+
+
+def wm_step(stub, episode, actions, **kw):
+    a = np.asarray(actions, np.float32)
+    return stub.Step(wm.WorldModelStepRequest(episode_id=episode, actions=a.ravel().tolist(),
+                                              action_dims=a.shape[1]), **kw)
+
+
+def wm_frames(resp):
+    return [np.frombuffer(f.rgb, np.uint8).reshape(f.height, f.width, 3) for f in resp.frames]
+
+
+def wm_states(resp):
+    return np.array(resp.states, np.float32).reshape(-1, resp.state_dims)
+
+
+RIGHT = [[1, 0, 0, 1], [0, 1, 0, 1], [0.5, 0.5, 0.2, 0]]
+LEFT = [[-1, 0, 0, 0]] * 3
+
+
+def check_world_model():
+    sys.path.insert(0, WORLD_MODELS)
+    import trivial
+
+    start = frame(1, 16, 12)
+    # the model itself, as the server will run it
+    local = trivial.Trivial()
+    local.reset(start, np.array([0.5, 0.0, 0.1, 0.0], np.float32), "pick")
+    want_frames, want_states = local.step(np.array(RIGHT, np.float32))
+    assert want_frames.shape == (3, 12, 16, 3) and want_frames.dtype == np.uint8
+    assert np.allclose(want_states[2], [0.65, 0.15, 0.12, 0.0]), want_states
+
+    with serve_world_model() as srv, grpc.insecure_channel(srv.target) as ch:
+        stub = wm_grpc.WorldModelStub(ch)
+        h = stub.Health(wm.WorldModelHealthRequest(), timeout=10)
+        assert (h.name, h.width, h.height, h.action_dims, h.live_episodes) == ("trivial-ok", 0, 0, 0, 0), h
+        wm_reset(stub, "a", start)
+        wm_reset(stub, "b", start)  # a second episode: a model of its own
+        r = wm_step(stub, "a", RIGHT)
+        assert len(r.frames) == 3 and all((f.width, f.height) == (16, 12) for f in r.frames), r.frames
+        assert same(np.stack(wm_frames(r)), want_frames)
+        assert r.state_dims == 4 and same(wm_states(r), want_states)
+        other = wm_step(stub, "b", LEFT)
+        assert not same(np.stack(wm_frames(other)), want_frames)
+        assert stub.Health(wm.WorldModelHealthRequest()).live_episodes == 2
+
+        NF, IA = grpc.StatusCode.NOT_FOUND, grpc.StatusCode.INVALID_ARGUMENT
+        expect_code(lambda: wm_step(stub, "nope", RIGHT), NF)
+        expect_code(lambda: stub.Step(wm.WorldModelStepRequest(episode_id="a", actions=[0.0] * 5, action_dims=4)), IA, "5 floats")
+        expect_code(lambda: stub.Step(wm.WorldModelStepRequest(episode_id="a", actions=[], action_dims=4)), IA)
+        expect_code(lambda: wm_step(stub, "a", [[np.nan, 0, 0, 0]]), IA, "non-finite")
+        expect_code(lambda: stub.Reset(wm.WorldModelResetRequest(episode_id="c")), IA, "no frame")
+        bad = wm.WorldModelResetRequest(episode_id="c")
+        bad.frames.add(width=16, height=12, rgb=start.tobytes()[:-1])
+        expect_code(lambda: stub.Reset(bad), IA, "bytes")
+        expect_code(lambda: wm_reset(stub, "", start), IA)
+
+        stub.End(wm.WorldModelEndRequest(episode_id="a"))
+        stub.End(wm.WorldModelEndRequest(episode_id="never-there"))  # not an error
+        expect_code(lambda: wm_step(stub, "a", RIGHT), NF)
+        assert stub.Health(wm.WorldModelHealthRequest()).live_episodes == 1
+
+    with serve_world_model("--variant", "raises") as srv, grpc.insecure_channel(srv.target) as ch:
+        stub = wm_grpc.WorldModelStub(ch)
+        wm_reset(stub, "e", start)
+        e = expect_code(lambda: wm_step(stub, "e", RIGHT), grpc.StatusCode.INTERNAL, "world model exploded")
+        assert "ValueError" in e.details(), e.details()
+    # malformed answers are passed on for the client to refuse
+    for variant, check in (
+        ("wrong_size", lambda r: [(f.width, f.height) for f in r.frames] == [(17, 12)] * 3),
+        ("too_few", lambda r: len(r.frames) == 2),
+        ("frames_only", lambda r: len(r.frames) == 3 and len(r.states) == 0 and r.state_dims == 0),
+    ):
+        with serve_world_model("--variant", variant) as srv, grpc.insecure_channel(srv.target) as ch:
+            stub = wm_grpc.WorldModelStub(ch)
+            wm_reset(stub, "e", start)
+            r = wm_step(stub, "e", RIGHT)
+            assert check(r), (variant, r.frames[0].width, len(r.frames), r.state_dims)
+
+
+def check_world_model_auth():
+    secret = hashlib.sha256(b"assay/world-model\0" + TOKEN.encode()).hexdigest()
+    policy_secret = hashlib.sha256(b"assay/policy\0" + TOKEN.encode()).hexdigest()
+    with serve_world_model(env=clean_env(ASSAY_CLUSTER_TOKEN=TOKEN)) as srv, grpc.insecure_channel(srv.target) as ch:
+        stub = wm_grpc.WorldModelStub(ch)
+        UA = grpc.StatusCode.UNAUTHENTICATED
+        expect_code(lambda: stub.Health(wm.WorldModelHealthRequest()), UA, "world model server")
+        for wrong in (TOKEN, policy_secret, "x"):
+            expect_code(lambda: stub.Health(wm.WorldModelHealthRequest(), metadata=[("authorization", "Bearer " + wrong)]), UA)
+        md = [("authorization", "Bearer " + secret)]
+        assert stub.Health(wm.WorldModelHealthRequest(), metadata=md).name == "trivial-ok"
+        wm_reset(stub, "e", frame(2, 16, 12), metadata=md)
+        assert len(wm_step(stub, "e", RIGHT, metadata=md).frames) == 3
+
+
+def check_world_model_cli():
+    env = clean_env(PYTHONPATH=os.pathsep.join([os.path.join(KIT, "src"), WORLD_MODELS]))
+    argv = [sys.executable, "-m", "assay_policy_kit", "world-model", "trivial:Trivial", "--size", "16x12",
+            "--action-dims", "4", "--description", "from the CLI"]
+    with Server(argv, env=env) as srv, grpc.insecure_channel(srv.target) as ch:
+        stub = wm_grpc.WorldModelStub(ch)
+        h = stub.Health(wm.WorldModelHealthRequest())
+        assert (h.name, h.description, h.width, h.height, h.action_dims) == ("Trivial", "from the CLI", 16, 12, 4), h
+        IA = grpc.StatusCode.INVALID_ARGUMENT
+        expect_code(lambda: wm_reset(stub, "e", frame(3, 32, 32)), IA, "16x12")
+        wm_reset(stub, "e", frame(3, 16, 12))
+        expect_code(lambda: wm_step(stub, "e", [[0, 0, 0]]), IA, "takes 4")
+        assert len(wm_step(stub, "e", RIGHT).frames) == 3
+
+
 CHECKS = [check_stubs, check_grpc_scripted, check_grpc_malformed, check_grpc_auth,
-          check_openpi_scripted, check_openpi_errors_and_key, check_lerobot, check_cli]
+          check_openpi_scripted, check_openpi_errors_and_key, check_lerobot, check_cli,
+          check_world_model, check_world_model_auth, check_world_model_cli]
 
 
 def main():

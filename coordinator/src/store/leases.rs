@@ -168,8 +168,9 @@ impl Store {
     /// `JudgeOutcome` for a judge shard. Accepted only if `lease_id` is the shard's current lease:
     /// a result from an expired, returned or completed lease is not counted. An outcome that
     /// does not parse counts as a failed attempt. A rendered episode of a batch with judges
-    /// queues one judge shard per judge, in the same transaction, so the batch cannot look
-    /// finished in between.
+    /// queues one judge shard per judge, and a trained diffusion policy its episodes (a ladder's
+    /// or generalization's), in the same transaction, so the batch cannot look finished in
+    /// between.
     pub fn complete(
         &mut self,
         worker: &str,
@@ -180,16 +181,24 @@ impl Store {
         now_ms: i64,
     ) -> Result<(bool, Changed), CoordError> {
         let tx = self.conn.savepoint()?;
-        let current: Option<(String, String, String, i64, String)> = tx
+        #[allow(clippy::type_complexity)]
+        let current: Option<(String, String, String, i64, String, Option<String>)> = tx
             .prepare_cached(
-                "SELECT s.role, s.batch_id, s.task_id, s.seed, s.policy FROM shards s
+                "SELECT s.role, s.batch_id, s.task_id, s.seed, s.policy, s.job FROM shards s
                  WHERE s.id = ?1 AND s.lease_id = ?2 AND s.state = 'leased'",
             )?
             .query_row(params![shard_id as i64, lease_id as i64], |r| {
-                Ok((r.get(0)?, r.get(1)?, r.get(2)?, r.get(3)?, r.get(4)?))
+                Ok((
+                    r.get(0)?,
+                    r.get(1)?,
+                    r.get(2)?,
+                    r.get(3)?,
+                    r.get(4)?,
+                    r.get(5)?,
+                ))
             })
             .optional()?;
-        let Some((shard_role, batch, task, seed, policy)) = current else {
+        let Some((shard_role, batch, task, seed, policy, job)) = current else {
             return Ok((false, Changed::default()));
         };
         // What to queue after it: judge shards for a rendered episode of a judged batch.
@@ -236,8 +245,18 @@ impl Store {
             Self::queue_episode_judging(&tx, &batch, &task, seed, &policy, &judges, outcome_json)?;
         if shard_role == role::TRAINER {
             match serde_json::from_str::<TrainerOutcome>(outcome_json) {
-                Ok(TrainerOutcome::Diffusion { group, model, .. }) => {
-                    queued += Self::queue_generalization_episodes(&tx, &batch, &group, &model)?;
+                Ok(TrainerOutcome::Diffusion {
+                    group,
+                    model,
+                    checkpoints,
+                    ..
+                }) => {
+                    // A ladder's policies are ranked; a generalization policy is evaluated.
+                    queued += if job.as_deref().is_some_and(|j| j.starts_with("ladder ")) {
+                        Self::queue_ladder_episodes(&tx, &batch, &group, &model, &checkpoints)?
+                    } else {
+                        Self::queue_generalization_episodes(&tx, &batch, &group, &model)?
+                    };
                 }
                 Ok(TrainerOutcome::Proxy { result }) => {
                     queued += Self::queue_imagined_judging(&tx, &batch, &result)?;
@@ -458,6 +477,8 @@ impl Store {
 
     fn finish_if_done(conn: &Connection, batch_id: &str, now_ms: i64) -> Result<(), CoordError> {
         Self::queue_dynamics(conn, batch_id)?;
+        // Before the proxy, which waits for the ladder's policies and their episodes.
+        Self::queue_ladder(conn, batch_id)?;
         Self::queue_proxy(conn, batch_id)?;
         Self::queue_diffusion(conn, batch_id)?;
         // EXISTS, not COUNT: this runs on every completion, and counting the open shards made

@@ -2,16 +2,19 @@
 //!
 //! Owns: storing a submitted batch and its episodes (seed-major), the repeat of an evaluated
 //! batch, and the shards queued as a batch's work finishes: judge shards for a rendered episode,
-//! per group the world models (dynamics), the proxy and its imagined-rollout judging, the
-//! diffusion policy and its evaluation episodes. Each runs on the caller's transaction or
-//! savepoint, so a batch never looks finished between one shard and those it queues.
+//! per group the world models (dynamics), the ladder of learned policies to rank and their
+//! episodes, the proxy and its imagined-rollout judging, the diffusion policy and its evaluation
+//! episodes. Each runs on the caller's transaction or savepoint, so a batch never looks
+//! finished between one shard and those it queues.
 //! Never changes a shard's state once queued (that is `leases`).
 
 use assay_model::episode::{EpisodeImagery, EpisodeOutcome};
 use assay_model::generalization::{GeneralizationPlan, HELD_OUT_VARIATIONS, TRAIN_VARIATIONS};
-use assay_model::proxy::{IMAGINED_JUDGING, ProxyEpisode, ProxyResult, RankingPlan};
+use assay_model::policy::PolicySpec;
+use assay_model::proxy::{IMAGINED_JUDGING, LadderPlan, ProxyEpisode, ProxyResult, RankingPlan};
 use assay_model::quality::DEFAULT_REPEATS;
 use assay_model::trainer::TrainerJob;
+use assay_spec::spec::PhysicsSettings;
 use rusqlite::{Connection, OptionalExtension, params};
 
 use super::shard_state::QUEUED;
@@ -234,6 +237,48 @@ impl Store {
         Ok(started == 0 && open == 0)
     }
 
+    /// Whether `group`'s ladder trainings (a ranking batch's learned policies) are all queued and
+    /// finished, done or failed: until then the proxy waits, since their episodes are ranked.
+    fn ladder_settled(conn: &Connection, batch_id: &str, group: &str) -> Result<bool, CoordError> {
+        let (shards, open): (i64, i64) = conn.query_row(
+            "SELECT COUNT(*), COUNT(CASE WHEN state IN ('queued', 'leased') THEN 1 END) FROM shards
+             WHERE batch_id = ?1 AND role = 'trainer' AND grp = ?2 AND job LIKE 'ladder %'",
+            params![batch_id, group],
+            |r| Ok((r.get(0)?, r.get(1)?)),
+        )?;
+        Ok(shards > 0 && open == 0)
+    }
+
+    /// The dynamics clips of `group`'s finished episodes of `policy` (the batch's own, not a
+    /// trained policy's evaluation episodes), in planning order.
+    fn policy_clips(
+        conn: &Connection,
+        batch_id: &str,
+        group: &str,
+        policy: &str,
+    ) -> Result<Vec<String>, CoordError> {
+        let mut stmt = conn.prepare_cached(
+            "SELECT json_extract(s.outcome_json, '$.imagery.clip') AS clip
+             FROM shards s JOIN tasks t ON t.batch_id = s.batch_id AND t.task_id = s.task_id
+             WHERE s.batch_id = ?1 AND t.grp = ?2 AND s.role NOT IN ('judge', 'trainer')
+               AND s.policy = ?3 AND s.job IS NULL
+               AND s.state = 'done' AND clip IS NOT NULL ORDER BY s.id",
+        )?;
+        let clips = stmt
+            .query_map(params![batch_id, group, policy], |r| r.get(0))?
+            .collect::<Result<_, _>>()?;
+        Ok(clips)
+    }
+
+    /// The role of the batch's own episodes (what its policies' shards run on).
+    fn episode_role(conn: &Connection, batch_id: &str) -> Result<String, CoordError> {
+        Ok(conn.query_row(
+            "SELECT role FROM shards WHERE batch_id = ?1 AND job IS NULL AND role NOT IN ('judge', 'trainer') LIMIT 1",
+            [batch_id],
+            |r| r.get(0),
+        )?)
+    }
+
     /// Records a trainer shard of `group` that cannot run, with the reason.
     fn insert_failed_trainer_shard(
         conn: &Connection,
@@ -343,8 +388,11 @@ impl Store {
             return Ok(());
         };
         let groups = Self::groups(conn, batch_id)?;
+        let default_budget = PhysicsSettings::default().max_steps;
         for group in groups {
-            if !Self::group_ready(conn, batch_id, &group, "proxy")? {
+            if !Self::group_ready(conn, batch_id, &group, "proxy")?
+                || (plan.ladder.is_some() && !Self::ladder_settled(conn, batch_id, &group)?)
+            {
                 continue;
             }
             let (mut train, mut eval) = (Vec::new(), Vec::new());
@@ -353,15 +401,22 @@ impl Store {
                     "SELECT s.task_id, s.policy, s.seed,
                             json_extract(s.outcome_json, '$.imagery.clip') AS clip,
                             json_extract(s.outcome_json, '$.success'),
-                            COALESCE(json_extract(t.spec_json, '$.description'), '')
+                            COALESCE(json_extract(t.spec_json, '$.description'), ''),
+                            COALESCE(json_extract(t.spec_json, '$.physics.max_steps'), ?3)
                      FROM shards s JOIN tasks t ON t.batch_id = s.batch_id AND t.task_id = s.task_id
                      WHERE s.batch_id = ?1 AND t.grp = ?2 AND s.role NOT IN ('judge', 'trainer')
                        AND s.job IS NULL AND s.state = 'done' AND clip IS NOT NULL ORDER BY s.id",
                 )?;
-                let mut rows = stmt.query(params![batch_id, group])?;
+                let mut rows = stmt.query(params![batch_id, group, default_budget])?;
                 while let Some(r) = rows.next()? {
                     let policy: String = r.get(1)?;
                     let training = plan.train_policies.contains(&policy);
+                    // The simulator's horizon: the task's budget, or the policy's when smaller.
+                    let task_budget: u32 = r.get(6)?;
+                    let budget_steps = match PolicySpec::parse_with_horizon(&policy) {
+                        Ok((_, Some(h))) => h.min(task_budget),
+                        _ => task_budget,
+                    };
                     let ep = ProxyEpisode {
                         task_id: r.get(0)?,
                         policy,
@@ -369,6 +424,7 @@ impl Store {
                         clip: r.get(3)?,
                         instruction: r.get(5)?,
                         success: training.then(|| r.get::<_, i64>(4).unwrap_or(0) != 0),
+                        budget_steps,
                     };
                     if training {
                         train.push(ep);
@@ -419,18 +475,8 @@ impl Store {
             if !Self::group_ready(conn, batch_id, &group, "diffusion")? {
                 continue;
             }
-            let clips: Vec<String> = {
-                let mut stmt = conn.prepare(
-                    "SELECT json_extract(s.outcome_json, '$.imagery.clip') AS clip
-                     FROM shards s JOIN tasks t ON t.batch_id = s.batch_id AND t.task_id = s.task_id
-                     WHERE s.batch_id = ?1 AND t.grp = ?2 AND s.role NOT IN ('judge', 'trainer')
-                       AND s.policy = ?3 AND s.job IS NULL
-                       AND s.state = 'done' AND clip IS NOT NULL ORDER BY s.id",
-                )?;
-                stmt.query_map(params![batch_id, group, plan.train_policy], |r| r.get(0))?
-                    .take(plan.episodes as usize)
-                    .collect::<Result<_, _>>()?
-            };
+            let mut clips = Self::policy_clips(conn, batch_id, &group, &plan.train_policy)?;
+            clips.truncate(plan.episodes as usize);
             let job_name = format!("diffusion {group}");
             if clips.len() < 2 {
                 Self::insert_failed_trainer_shard(
@@ -451,10 +497,137 @@ impl Store {
                 group: group.clone(),
                 clips,
                 config: plan.config.clone(),
+                checkpoints: Vec::new(),
             };
             Self::insert_trainer_shard(conn, batch_id, &job_name, &group, &job)?;
         }
         Ok(())
+    }
+
+    /// Queues the ladder of learned policies of every group of a running ranking batch with a
+    /// ladder whose episodes are all finished and that has none yet: one diffusion training per
+    /// run (`ladder.episodes`) on the group's first `n` clips of the ladder's training policy in
+    /// planning order, for `max(checkpoints)` steps and kept at every checkpoint. A group with
+    /// fewer clips than a run trains it on all of them, and larger runs, which would repeat that
+    /// training, are left out. A group with fewer than 2 such clips gets one failed shard saying
+    /// so (and its proxy ranks what it has).
+    pub(super) fn queue_ladder(conn: &Connection, batch_id: &str) -> Result<(), CoordError> {
+        let Some(RankingPlan {
+            ladder: Some(ladder),
+            ..
+        }) = Self::running_plan::<RankingPlan>(conn, batch_id, "ranking_json")?
+        else {
+            return Ok(());
+        };
+        let mut runs = ladder.episodes.clone();
+        runs.sort_unstable();
+        runs.dedup();
+        let mut checkpoints = ladder.checkpoints.clone();
+        checkpoints.sort_unstable();
+        checkpoints.dedup();
+        let steps = checkpoints.last().copied().unwrap_or(ladder.config.steps);
+        for group in Self::groups(conn, batch_id)? {
+            if !Self::group_ready(conn, batch_id, &group, "ladder")? {
+                continue;
+            }
+            let clips = Self::policy_clips(conn, batch_id, &group, &ladder.train_policy)?;
+            if clips.len() < 2 {
+                Self::insert_failed_trainer_shard(
+                    conn,
+                    batch_id,
+                    &format!("ladder {group}"),
+                    &group,
+                    &format!(
+                        "group {group:?} has {} episode(s) of {} with a clip; a ladder policy needs at least 2 \
+                             (clips are rendered by workers with the render role)",
+                        clips.len(),
+                        ladder.train_policy
+                    ),
+                )?;
+                continue;
+            }
+            let mut runs = runs.clone();
+            if let Some(covering) = runs.iter().position(|n| *n as usize >= clips.len()) {
+                runs.truncate(covering + 1);
+            }
+            for n in runs {
+                let job = TrainerJob::Diffusion {
+                    group: group.clone(),
+                    clips: clips.iter().take(n as usize).cloned().collect(),
+                    config: assay_model::diffusion::DiffusionConfig {
+                        steps,
+                        ..ladder.config.clone()
+                    },
+                    checkpoints: checkpoints.clone(),
+                };
+                let name = format!("ladder {group} @ {n}");
+                Self::insert_trainer_shard(conn, batch_id, &name, &group, &job)?;
+            }
+        }
+        Ok(())
+    }
+
+    /// Queues the episodes of the policies one ladder training of `group` kept (each checkpoint
+    /// and the final model, each key once): every (task, seed) of the group the batch planned
+    /// for its own policies, as ordinary episodes of the batch (`job` NULL: they count in its
+    /// success tables and are ranked by the proxy). Returns how many.
+    pub(super) fn queue_ladder_episodes(
+        conn: &Connection,
+        batch_id: &str,
+        group: &str,
+        model: &str,
+        checkpoints: &[(u64, String)],
+    ) -> Result<u32, CoordError> {
+        let (plan, seeds): (Option<String>, String) = conn.query_row(
+            "SELECT ranking_json, seeds_json FROM batches WHERE id = ?1",
+            [batch_id],
+            |r| Ok((r.get(0)?, r.get(1)?)),
+        )?;
+        let Some(RankingPlan {
+            ladder: Some(ladder),
+            ..
+        }) = plan.map(|p| serde_json::from_str(&p)).transpose()?
+        else {
+            return Ok(0);
+        };
+        let seeds: Vec<u64> = serde_json::from_str(&seeds)?;
+        let mut kept: Vec<(u64, &str)> =
+            checkpoints.iter().map(|(s, k)| (*s, k.as_str())).collect();
+        kept.sort_unstable();
+        kept.push((u64::MAX, model));
+        let mut policies: Vec<String> = Vec::new();
+        for (_, key) in kept {
+            let name = ladder_policy_name(&ladder, key);
+            let exists: bool = conn
+                .prepare_cached(
+                    "SELECT EXISTS (SELECT 1 FROM shards WHERE batch_id = ?1 AND policy = ?2 AND job IS NULL)",
+                )?
+                .query_row(params![batch_id, name], |r| r.get(0))?;
+            if !exists && !policies.contains(&name) {
+                policies.push(name);
+            }
+        }
+        let tasks: Vec<String> = {
+            let mut stmt = conn.prepare(
+                "SELECT task_id FROM tasks WHERE batch_id = ?1 AND grp = ?2 ORDER BY rowid",
+            )?;
+            stmt.query_map(params![batch_id, group], |r| r.get(0))?
+                .collect::<Result<_, _>>()?
+        };
+        let role = Self::episode_role(conn, batch_id)?;
+        let mut ins = conn.prepare(
+            "INSERT INTO shards (batch_id, task_id, seed, policy, role, state) VALUES (?1, ?2, ?3, ?4, ?5, 'queued')",
+        )?;
+        let mut n = 0;
+        for seed in &seeds {
+            for policy in &policies {
+                for task in &tasks {
+                    ins.execute(params![batch_id, task, *seed as i64, policy, role])?;
+                    n += 1;
+                }
+            }
+        }
+        Ok(n)
     }
 
     /// Queues, for every judge of the batch that looks at images (every one but the built-in
@@ -567,11 +740,7 @@ impl Store {
             stmt.query_map(params![batch_id, group], |r| r.get(0))?
                 .collect::<Result<_, _>>()?
         };
-        let role: String = conn.query_row(
-            "SELECT role FROM shards WHERE batch_id = ?1 AND job IS NULL AND role NOT IN ('judge', 'trainer') LIMIT 1",
-            [batch_id],
-            |r| r.get(0),
-        )?;
+        let role = Self::episode_role(conn, batch_id)?;
         let mut ins = conn.prepare(
             "INSERT INTO shards (batch_id, task_id, seed, policy, role, state, job, grp)
              VALUES (?1, ?2, ?3, ?4, ?5, 'queued', ?6, ?7)",
@@ -606,4 +775,9 @@ impl Store {
         }
         Ok(n)
     }
+}
+
+/// The policy name of a ladder policy's episodes (its horizon is the ladder's).
+fn ladder_policy_name(ladder: &LadderPlan, model: &str) -> String {
+    format!("diffusion:model={model},max_steps={}", ladder.max_steps)
 }

@@ -199,8 +199,9 @@ impl Store {
                         let group = r.get::<_, Option<String>>(11)?.unwrap_or_default();
                         match (state.as_str(), outcome) {
                             (DONE, Some(json)) => {
-                                if let TrainerOutcome::Diffusion { group, model, fit } =
-                                    serde_json::from_str::<TrainerOutcome>(&json)?
+                                if let TrainerOutcome::Diffusion {
+                                    group, model, fit, ..
+                                } = serde_json::from_str::<TrainerOutcome>(&json)?
                                 {
                                     trained.push((group, model, *fit));
                                 }
@@ -208,6 +209,18 @@ impl Store {
                             (FAILED, _) => general_errors
                                 .push((group, r.get::<_, Option<String>>(6)?.unwrap_or_default())),
                             _ => {}
+                        }
+                        continue;
+                    }
+                    if job.starts_with("ladder") {
+                        // A ladder's policies are ranked by their episodes; a training that
+                        // failed is a failure of the group's ranking.
+                        if state == FAILED {
+                            let error = r.get::<_, Option<String>>(6)?.unwrap_or_default();
+                            proxy_errors.push((
+                                r.get::<_, Option<String>>(11)?.unwrap_or_default(),
+                                format!("{job}: {error}"),
+                            ));
                         }
                         continue;
                     }
@@ -251,21 +264,27 @@ impl Store {
                     && r.get::<_, Option<String>>(10)?.as_deref() == Some(IMAGINED_JUDGING)
                 {
                     // A judge's verdict on an imagined rollout: a proxy's, not quality.
-                    let completion = match (state.as_str(), outcome) {
+                    // Every repeat's score is kept: their spread is the judge's consistency.
+                    let (completion, scores, repeats) = match (state.as_str(), outcome) {
                         (DONE, Some(json)) => {
                             let o = serde_json::from_str::<JudgeOutcome>(&json)?;
                             let item = o.item(Item::Completion);
-                            let scores = item.map(|i| i.scores.as_slice()).unwrap_or_default();
-                            if scores.is_empty() {
+                            let scores = item.map(|i| i.scores.clone()).unwrap_or_default();
+                            let completion = if scores.is_empty() {
                                 Err(item
                                     .and_then(|i| i.errors.first())
                                     .map_or("no completion score".into(), |e| e.error.clone()))
                             } else {
                                 Ok(scores.iter().sum::<f64>() / scores.len() as f64)
-                            }
+                            };
+                            (completion, scores, o.repeats)
                         }
-                        (FAILED, _) => Err(r.get::<_, Option<String>>(6)?.unwrap_or_default()),
-                        (CANCELLED, _) => Err("cancelled".into()),
+                        (FAILED, _) => (
+                            Err(r.get::<_, Option<String>>(6)?.unwrap_or_default()),
+                            Vec::new(),
+                            0,
+                        ),
+                        (CANCELLED, _) => (Err("cancelled".into()), Vec::new(), 0),
                         _ => continue,
                     };
                     imagined.push(ImaginedJudgement {
@@ -274,6 +293,8 @@ impl Store {
                         policy: r.get(2)?,
                         judge: r.get::<_, Option<String>>(9)?.unwrap_or_default(),
                         completion,
+                        scores,
+                        repeats,
                     });
                     continue;
                 }
@@ -348,6 +369,13 @@ impl Store {
                 .collect();
             errors.sort_by_key(|(r, _)| *r);
             div.errors = errors.into_iter().map(|(_, e)| e).collect();
+        }
+        // A ranking ladder's learned policies are the batch's too: planned as its groups finish.
+        let mut policies = policies;
+        for s in &shards {
+            if !policies.contains(&s.policy) {
+                policies.push(s.policy.clone());
+            }
         }
         let mut results =
             report::build_results(&name, &policies, &seeds, &tasks, &shards, &invalid);

@@ -469,6 +469,7 @@ fn a_ranking_batch_queues_one_proxy_per_group_that_never_sees_the_ranked_outcome
     b.ranking = Some(RankingPlan {
         train_policies: vec!["oracle:noise=0.01".into()],
         config: ProxyConfig::default(),
+        ladder: None,
     });
     let (id, n) = s.submit(&b, 0).unwrap();
     assert_eq!(n, 12);
@@ -548,6 +549,9 @@ fn a_ranking_batch_queues_one_proxy_per_group_that_never_sees_the_ranked_outcome
                 success,
                 p_success_real_frame: if real { 0.8 } else { 0.2 },
                 last_frame_mse: 0.001,
+                imagined_frames: 0,
+                done_by_judge: false,
+                leak: None,
                 imagined_keyframes: (0..8)
                     .map(|k| Keyframe {
                         step: k,
@@ -559,25 +563,7 @@ fn a_ranking_batch_queues_one_proxy_per_group_that_never_sees_the_ranked_outcome
             }
         })
         .collect();
-    let fit: assay_model::dynamics::DynamicsFit = serde_json::from_value(serde_json::json!({
-        "group": "g", "budget": 4, "train_episodes": 4, "eval_episodes": 8, "eval_image_mse": 0.001,
-        "eval_proprio_mse": 0.0, "per_episode": [], "episodes": [], "final_train_loss": 1.0,
-        "steps": 10, "epochs": 1.0, "device": "cpu", "config": {}
-    }))
-    .unwrap();
-    let outcome = TrainerOutcome::Proxy {
-        result: Box::new(ProxyResult {
-            group: "g".into(),
-            world_model: fit,
-            judge_examples: 8,
-            judge_positives: 5,
-            judge_train_accuracy: 1.0,
-            predictions,
-            seconds: 1.0,
-            imagined_frames: Vec::new(),
-        }),
-    };
-    let json = serde_json::to_string(&outcome).unwrap();
+    let json = proxy_done(predictions);
     let l = &queued[0];
     assert!(
         s.complete("t", l.lease_id, l.shard_id, &json, 1.0, 4)
@@ -660,6 +646,282 @@ fn a_ranking_batch_queues_one_proxy_per_group_that_never_sees_the_ranked_outcome
     let q = s.report(&id).unwrap().results.quality.unwrap();
     let vlm = q.judges.iter().find(|j| j.judge == "vlm").unwrap();
     assert_eq!((vlm.episodes_judged, vlm.episodes_failed), (12, 0));
+}
+
+/// A finished proxy of group `g` with these predictions.
+fn proxy_done(predictions: Vec<assay_model::proxy::ProxyPrediction>) -> String {
+    let fit: assay_model::dynamics::DynamicsFit = serde_json::from_value(serde_json::json!({
+        "group": "g", "budget": 4, "train_episodes": 4, "eval_episodes": 8, "eval_image_mse": 0.001,
+        "eval_proprio_mse": 0.0, "per_episode": [], "episodes": [], "final_train_loss": 1.0,
+        "steps": 10, "epochs": 1.0, "device": "cpu", "config": {}
+    }))
+    .unwrap();
+    serde_json::to_string(&TrainerOutcome::Proxy {
+        result: Box::new(ProxyResult {
+            group: "g".into(),
+            world_model_name: String::new(),
+            action_test: None,
+            world_model: fit,
+            judge_examples: 8,
+            judge_positives: 5,
+            judge_train_accuracy: 1.0,
+            predictions,
+            seconds: 1.0,
+            imagined_frames: Vec::new(),
+        }),
+    })
+    .unwrap()
+}
+
+/// A trained diffusion policy of group `g`, with the policies kept at its checkpoints.
+fn diffusion_done(model: &str, checkpoints: &[(u64, &str)]) -> String {
+    let config = assay_model::diffusion::DiffusionConfig::default();
+    serde_json::to_string(&TrainerOutcome::Diffusion {
+        group: "g".into(),
+        model: model.into(),
+        fit: Box::new(assay_model::diffusion::DiffusionFit {
+            steps: config.steps,
+            final_loss: 0.1,
+            mean_last_100_loss: 0.1,
+            train_seconds: 1.0,
+            parameters: 1,
+            clips: 2,
+            samples: 10,
+            device: "cpu".into(),
+            libtorch: String::new(),
+            config,
+        }),
+        checkpoints: checkpoints
+            .iter()
+            .map(|(s, k)| (*s, (*k).to_owned()))
+            .collect(),
+    })
+    .unwrap()
+}
+
+/// Completes an episode lease of a task whose spec JSON names its `id`, rendered with a clip.
+fn finish_episode(s: &mut Store, l: &Lease, success: bool, clip: &str) {
+    let spec: serde_json::Value = serde_json::from_str(&l.task_spec_json).unwrap();
+    let mut e = episode(l);
+    e.task_id = spec["id"].as_str().unwrap().into();
+    e.success = success;
+    e.imagery = Some(assay_model::episode::EpisodeImagery {
+        adapter: "test".into(),
+        views: vec![],
+        keyframes: vec![],
+        contact_sheet: String::new(),
+        video: None,
+        caption: None,
+        clip: Some(clip.into()),
+    });
+    let json = serde_json::to_string(&e).unwrap();
+    assert!(
+        s.complete("w", l.lease_id, l.shard_id, &json, 0.1, 2)
+            .unwrap()
+            .0
+    );
+}
+
+fn trainer_jobs(leases: &[Lease]) -> Vec<TrainerJob> {
+    leases
+        .iter()
+        .map(|l| serde_json::from_str(l.trainer_job.as_deref().unwrap()).unwrap())
+        .collect()
+}
+
+/// A ranking batch whose policies all train the world model ranks a ladder of learned
+/// policies instead: trained once the group's episodes are done, on the ladder policy's first
+/// clips; each kept policy runs every (task, seed) of the group as an ordinary episode; the
+/// proxy waits for them (a failed training does not block it) and ranks them with each
+/// episode's step budget. A generalization policy of the same batch stays apart.
+#[test]
+fn a_ladder_of_learned_policies_is_trained_then_run_then_ranked() {
+    use assay_model::generalization::GeneralizationPlan;
+    use assay_model::proxy::{LadderPlan, ProxyConfig, ProxyPrediction};
+    let mut s = Store::open_in_memory().unwrap();
+    let mut b = batch(&["a", "b"], &[0, 1], 3);
+    // Task a's budget is its own, 400 steps; b has the default.
+    b.tasks[0].spec_json = r#"{"id": "a", "physics": {"max_steps": 400}}"#.into();
+    b.tasks[1].spec_json = r#"{"id": "b"}"#.into();
+    b.policies = vec!["oracle".into(), "oracle:noise=0.01".into()];
+    b.ranking = Some(RankingPlan {
+        train_policies: b.policies.clone(),
+        config: ProxyConfig::default(),
+        ladder: Some(LadderPlan {
+            train_policy: "oracle".into(),
+            episodes: vec![4, 2, 8],
+            checkpoints: vec![5, 2, 5],
+            max_steps: 600,
+            ..LadderPlan::default()
+        }),
+    });
+    b.generalization = Some(GeneralizationPlan {
+        episodes: 2,
+        held_out_seeds: 1,
+        ..GeneralizationPlan::default()
+    });
+    let (id, n) = s.submit(&b, 0).unwrap();
+    assert_eq!(n, 8);
+    let trainer = vec!["trainer".to_owned()];
+    let leases = s.lease("w", &sim(), 8, 1, TTL).unwrap();
+    for (i, l) in leases.iter().enumerate() {
+        finish_episode(&mut s, l, i % 2 == 0, &format!("clips/{i}.clip"));
+        if i + 1 < leases.len() {
+            assert!(s.lease("t", &trainer, 10, 2, TTL).unwrap().is_empty());
+        }
+    }
+    // One training per run; 4 clips of the oracle cover the run of 8, which is left out. The
+    // generalization policy is queued as before. No proxy yet.
+    let queued = s.lease("t", &trainer, 10, 3, TTL).unwrap();
+    let oracle_clips: Vec<String> = (0..8)
+        .filter(|i| leases[*i].policy == "oracle")
+        .map(|i| format!("clips/{i}.clip"))
+        .collect();
+    let mut ladder = Vec::new();
+    let mut general = None;
+    for (l, job) in queued.iter().zip(trainer_jobs(&queued)) {
+        let TrainerJob::Diffusion {
+            group,
+            clips,
+            config,
+            checkpoints,
+        } = job
+        else {
+            panic!("{job:?}")
+        };
+        assert_eq!(group, "g");
+        if checkpoints.is_empty() {
+            assert_eq!(clips, oracle_clips[..2]);
+            general = Some(l);
+        } else {
+            assert_eq!((config.steps, checkpoints), (5, vec![2, 5]));
+            ladder.push((l, clips));
+        }
+    }
+    assert_eq!(ladder.len(), 2);
+    assert_eq!(ladder[0].1, oracle_clips[..2]);
+    assert_eq!(ladder[1].1, oracle_clips);
+    let general = general.expect("a generalization training");
+    let done = diffusion_done("policies/g.diffusion", &[]);
+    let (ok, changed) = s
+        .complete("t", general.lease_id, general.shard_id, &done, 1.0, 4)
+        .unwrap();
+    assert!(ok);
+    assert_eq!(changed.requeued, 4, "2 trained variations, 2 held-out");
+    // The first run's policies (a checkpoint named twice, and the final one) run the group's
+    // 2 tasks × 2 seeds each, in the same transaction.
+    let (l2, _) = &ladder[0];
+    let done = diffusion_done(
+        "policies/m2.diffusion",
+        &[(2, "policies/c2.diffusion"), (3, "policies/c2.diffusion")],
+    );
+    let (ok, changed) = s
+        .complete("t", l2.lease_id, l2.shard_id, &done, 1.0, 5)
+        .unwrap();
+    assert!(ok);
+    assert_eq!(changed.requeued, 8);
+    // The second run fails: reported, and the proxy does not wait for it.
+    let (l4, _) = &ladder[1];
+    s.fail(l4.lease_id, l4.shard_id, "out of memory", false, 6)
+        .unwrap();
+    assert!(s.lease("t", &trainer, 10, 6, TTL).unwrap().is_empty());
+    let learned = [
+        "diffusion:model=policies/c2.diffusion,max_steps=600",
+        "diffusion:model=policies/m2.diffusion,max_steps=600",
+    ];
+    let episodes = s.lease("w", &sim(), 20, 7, TTL).unwrap();
+    assert_eq!(episodes.len(), 12);
+    let mut ranked: Vec<(String, String, u64)> = Vec::new();
+    for (i, l) in episodes.iter().enumerate() {
+        assert_eq!((l.role.as_str(), l.clip_size), ("sim", 64));
+        if !l.policy.contains("/g.diffusion") {
+            let spec: serde_json::Value = serde_json::from_str(&l.task_spec_json).unwrap();
+            let task = spec["id"].as_str().unwrap().to_owned();
+            ranked.push((l.policy.clone(), task, l.seed));
+        }
+        // The proxy waits for the last of them.
+        assert!(s.lease("t", &trainer, 10, 7, TTL).unwrap().is_empty());
+        finish_episode(
+            &mut s,
+            l,
+            l.policy == learned[1],
+            &format!("clips/l{i}.clip"),
+        );
+    }
+    ranked.sort();
+    let mut want: Vec<(String, String, u64)> = Vec::new();
+    for p in learned {
+        for t in ["a", "b"] {
+            for seed in [0, 1] {
+                want.push((p.to_owned(), t.to_owned(), seed));
+            }
+        }
+    }
+    assert_eq!(ranked, want);
+    let queued = s.lease("t", &trainer, 10, 8, TTL).unwrap();
+    assert_eq!(queued.len(), 1);
+    let input = queued[0].trainer_job.clone().unwrap();
+    let TrainerJob::Proxy { train, eval, .. } = serde_json::from_str(&input).unwrap() else {
+        panic!("{input}")
+    };
+    // Trained on the batch's 8 episodes, ranking the ladder's 8, never the generalization's.
+    assert_eq!(train.len(), 8);
+    assert_eq!(eval.len(), 8);
+    assert_eq!(input.matches("\"success\"").count(), 8);
+    assert!(eval.iter().all(|e| learned.contains(&e.policy.as_str())));
+    // Budgets: the task's, or the policy's horizon when smaller.
+    for e in train.iter().chain(&eval) {
+        let want = match (e.task_id.as_str(), eval.contains(e)) {
+            ("a", _) => 400,
+            (_, true) => 600,
+            _ => 20_000,
+        };
+        assert_eq!(e.budget_steps, want, "{e:?}");
+    }
+    let predictions = eval
+        .iter()
+        .map(|e| ProxyPrediction {
+            task_id: e.task_id.clone(),
+            policy: e.policy.clone(),
+            seed: e.seed,
+            p_success: 0.5,
+            success: e.policy == learned[1],
+            p_success_real_frame: 0.5,
+            last_frame_mse: 0.0,
+            imagined_frames: 3,
+            done_by_judge: false,
+            leak: None,
+            imagined_keyframes: Vec::new(),
+        })
+        .collect();
+    let l = &queued[0];
+    let done = proxy_done(predictions);
+    assert!(
+        s.complete("t", l.lease_id, l.shard_id, &done, 1.0, 9)
+            .unwrap()
+            .0
+    );
+    assert_eq!(s.counts(&id).unwrap().state, "completed");
+    let r = s.report(&id).unwrap().results;
+    // The learned policies are the batch's: in its success tables and ranked.
+    for p in learned {
+        assert!(r.policies.iter().any(|q| q == p), "{:?}", r.policies);
+        let row = r.by_policy.iter().find(|q| q.policy == p).unwrap();
+        assert_eq!(row.success.trials, 4);
+    }
+    let k = r.ranking.unwrap();
+    let mut ranked_policies = k.ranked_policies.clone();
+    ranked_policies.sort();
+    assert_eq!(ranked_policies, learned);
+    assert_eq!(k.rows.len(), 4);
+    assert!(k.proxy_agreement.is_some_and(|a| a.successes == a.trials));
+    assert_eq!(k.errors.len(), 1);
+    assert!(
+        k.errors[0].1.starts_with("ladder g @ 4: out of memory"),
+        "{:?}",
+        k.errors
+    );
+    assert_eq!(r.generalization.unwrap().groups.len(), 1);
 }
 
 #[test]

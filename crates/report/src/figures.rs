@@ -414,7 +414,7 @@ fn short(e: &Estimate) -> String {
 fn draw_ranking(c: &Comparison, out: &mut String) -> Result<(), Box<dyn std::error::Error>> {
     let title = format!(
         "{} against {}: r = {}, MMRV = {}",
-        c.proxy,
+        crate::ranking::source_title(&c.proxy),
         c.real,
         short(&c.pearson),
         short(&c.mmrv)
@@ -452,7 +452,11 @@ fn draw_ranking(c: &Comparison, out: &mut String) -> Result<(), Box<dyn std::err
     chart.draw_series(c.policies.iter().map(|p| {
         EmptyElement::at((p.real, p.proxy))
             + Circle::new((0, 0), 5, blue.filled())
-            + Text::new(p.policy.clone(), (8, -14), ("sans-serif", 12).into_font())
+            + Text::new(
+                crate::view::short_policy(&p.policy).unwrap_or_else(|| p.policy.clone()),
+                (8, -14),
+                ("sans-serif", 12).into_font(),
+            )
     }))?;
     root.present()?;
     Ok(())

@@ -1,17 +1,19 @@
 //! The policy-ranking section of a report (the video-world-model paper, §III): per (task,
 //! ranked policy) the real success from the simulator, the world-model proxy's and the judges'
 //! verdicts on imagined rollouts, and the ranking statistics of the proxies against the real rates
-//! ([`assay_stats::ranking`]). The proxy's plans and the trainer's results are
-//! [`assay_model::proxy`]'s.
+//! ([`assay_stats::ranking`]); per policy the same pooled over tasks; the leak ablation as a
+//! comparison of its own; and how consistently each judge scored an imagined rollout over its
+//! repeats. The proxy's plans and the trainer's results are [`assay_model::proxy`]'s.
 //!
 //! Owns: the aggregation. Never trains, imagines or judges anything.
 
 use serde::{Deserialize, Serialize};
 
 use assay_model::proxy::{
-    ImaginedJudgement, JudgedProxy, PROXY_SOURCE, ProxyPrediction, ProxyResult, REAL_SOURCE,
-    RankingPlan, judged_source,
+    ImaginedJudgement, JudgedProxy, LEAK_SOURCE, PROXY_SOURCE, ProxyConfig, ProxyPrediction,
+    ProxyResult, REAL_SOURCE, RankingPlan, judged_source,
 };
+use assay_model::quality::ScoreStats;
 use assay_stats::ranking::{Cell, Ranking, RankingConfig, rank};
 use assay_stats::stats::Proportion;
 
@@ -46,6 +48,49 @@ pub struct RankingRow {
     /// The judge role's verdicts on the imagined rollouts, one per judge (VLM judges only).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub judged_proxy: Vec<JudgedProxy>,
+    /// The leak ablation's verdicts (imagined for the real episode's length), when asked for.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub leak: Option<Proportion>,
+}
+
+/// One ranked policy's success, episodes pooled over the tasks of the ranking.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+pub struct RankedPolicy {
+    pub policy: String,
+    /// Tasks with real episodes of the policy.
+    pub tasks: u64,
+    /// Real success (the simulator's predicates).
+    pub real: Proportion,
+    /// Each proxy's predicted success (and the leak ablation's), in the order of the ranking's
+    /// comparisons, over the episodes it gave a verdict on.
+    pub predicted: Vec<SourceSuccess>,
+}
+
+/// A success source's pooled verdicts.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+pub struct SourceSuccess {
+    pub source: String,
+    pub success: Proportion,
+}
+
+/// How consistently one judge scored the imagined rollouts of one ranked policy (of every one
+/// when `policy` is absent) over its k repeats: the first paper's repeat consistency.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+pub struct RepeatConsistency {
+    pub judge: String,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub policy: Option<String>,
+    /// Repeats asked per rollout (k).
+    pub repeats: u32,
+    /// Imagined rollouts with a verdict.
+    pub rollouts: u64,
+    /// Mean over those rollouts (the ones with at least two scores) of the sample variance
+    /// (n − 1) of their completion scores; 0 when the judge always answers the same.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mean_variance: Option<f64>,
+    /// Rollouts whose repeats fall on both sides of `completion_threshold`: the verdict (the
+    /// mean's) hides a disagreement of the judge with itself.
+    pub split: u64,
 }
 
 /// The policy-ranking section of a report.
@@ -53,11 +98,22 @@ pub struct RankingRow {
 pub struct RankingResults {
     pub train_policies: Vec<String>,
     pub ranked_policies: Vec<String>,
+    /// The proxy's settings: the frame judge's threshold and `done_frames`, the judge role's
+    /// `completion_threshold`, whether the leak ablation ran.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub config: Option<ProxyConfig>,
     pub rows: Vec<RankingRow>,
+    /// Per ranked policy, best real success first: real and predicted success pooled over tasks.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub policies: Vec<RankedPolicy>,
+    /// Per judge of imagined rollouts: its repeat consistency per policy, then over all.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub repeat_consistency: Vec<RepeatConsistency>,
     /// Per group: the world model, the frame judge and every prediction.
     pub groups: Vec<ProxyResult>,
-    /// Pearson, MMRV, Spearman and Kendall of the proxy against the real success rates, over the
-    /// tasks whose proxy is done.
+    /// Pearson, MMRV, Spearman and Kendall of each proxy against the real success rates, over the
+    /// tasks whose proxy is done: the frame judge's, each judge's, then the leak ablation's
+    /// ([`LEAK_SOURCE`], never a proxy: the real episode's length given to the proxy).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub ranking: Option<Ranking>,
     /// Why there is no ranking yet (or at all).
@@ -82,8 +138,12 @@ pub struct RankingResults {
 pub const RANKING_FIGURE: &str = "ranking.svg";
 
 /// The file of the correlation plot of `proxy`: [`RANKING_FIGURE`] for the frame judge's, one
-/// per judge for the judge role's verdicts on imagined rollouts.
+/// per judge for the judge role's verdicts on imagined rollouts, `ranking-leak.svg` for the leak
+/// ablation.
 pub fn ranking_figure(proxy: &str) -> String {
+    if proxy == LEAK_SOURCE {
+        return "ranking-leak.svg".to_owned();
+    }
     match proxy.strip_prefix(&format!("{PROXY_SOURCE}+")) {
         Some(judge) => {
             let safe: String = judge
@@ -101,6 +161,44 @@ pub fn ranking_figure(proxy: &str) -> String {
         None => RANKING_FIGURE.to_owned(),
     }
 }
+
+/// Whether a comparison's source is the leak ablation (shown as such, never as the proxy).
+pub fn is_ablation(source: &str) -> bool {
+    source == LEAK_SOURCE
+}
+
+/// A success source as a column, heading or plot title reads: the leak ablation says it is one.
+pub fn source_title(source: &str) -> String {
+    if is_ablation(source) {
+        format!("{source} (ablation)")
+    } else {
+        source.to_owned()
+    }
+}
+
+/// The caption of the per-policy table (report.md and report.html).
+pub const PER_POLICY_NOTE: &str = "Episodes pooled over each policy's tasks: rate (successes/\
+    trials) [95 % Wilson interval]. The ranking statistics below compare R and R_S as each \
+    policy's mean over tasks of its per-task rate instead, which differs from the pooled rate \
+    when its tasks have different numbers of episodes.";
+
+/// What the action test measures.
+pub const ACTION_TEST_NOTE: &str = "The world model's open-loop image error on the ranked \
+    episodes' real clips, with their true actions and with another episode's (each episode's \
+    actions replaced by the next one's). A world model that uses its actions errs more with the \
+    wrong ones: a ratio near 1 means the actions barely matter to it.";
+
+/// What the judge repeat consistency table shows.
+pub const REPEAT_NOTE: &str = "Each imagined rollout is judged k times; its verdict is the \
+    mean completion's (a success when the mean is at least the threshold). Variance: the sample \
+    variance (n − 1) of a rollout's k completion scores, averaged over the policy's rollouts (0: \
+    the judge always answers the same). Split: rollouts whose repeats fall on both sides of the \
+    threshold.";
+
+/// What the leak ablation's comparison is.
+pub const LEAK_NOTE: &str = "An ablation, not the proxy: every ranked episode imagined for \
+    exactly as many frames as its real episode had and judged on that last frame — the real \
+    episode's length given to the proxy. It measures what that leak is worth.";
 
 /// Bootstrap resamples of the report's ranking statistics.
 pub const RANKING_RESAMPLES: usize = 2000;
@@ -159,6 +257,16 @@ pub fn ranking_results(
                     preds.len() as u64,
                 )
             });
+            let leaks: Vec<bool> = preds
+                .iter()
+                .filter_map(|p| p.leak.as_ref().map(|l| l.success))
+                .collect();
+            let leak = (!leaks.is_empty()).then(|| {
+                Proportion::new(
+                    leaks.iter().filter(|ok| **ok).count() as u64,
+                    leaks.len() as u64,
+                )
+            });
             let judged: Vec<f64> = eps.iter().filter_map(|e| e.judged_completion).collect();
             let mut judged_proxy = Vec::new();
             for judge in &judges {
@@ -197,15 +305,17 @@ pub fn ranking_results(
                 successes: Some(real.successes),
                 rate: real.rate.unwrap_or(0.0),
             });
-            if let Some(p) = &proxy {
-                cells.push(Cell {
-                    task: task.clone(),
-                    policy: policy.clone(),
-                    source: PROXY_SOURCE.into(),
-                    trials: Some(p.trials),
-                    successes: Some(p.successes),
-                    rate: p.rate.unwrap_or(0.0),
-                });
+            for (source, p) in [(PROXY_SOURCE, &proxy), (LEAK_SOURCE, &leak)] {
+                if let Some(p) = p {
+                    cells.push(Cell {
+                        task: task.clone(),
+                        policy: policy.clone(),
+                        source: source.into(),
+                        trials: Some(p.trials),
+                        successes: Some(p.successes),
+                        rate: p.rate.unwrap_or(0.0),
+                    });
+                }
             }
             rows.push(RankingRow {
                 task_id: task.clone(),
@@ -218,14 +328,24 @@ pub fn ranking_results(
                 judged_completion: (!judged.is_empty())
                     .then(|| judged.iter().sum::<f64>() / judged.len() as f64),
                 judged_proxy,
+                leak,
             });
         }
     }
-    // The frame judge's proxy first, then each judge's, as far as they have verdicts.
+    // The frame judge's proxy first, then each judge's, then the leak ablation, as far as they
+    // have verdicts.
     let proxies: Vec<String> = std::iter::once(PROXY_SOURCE.to_owned())
         .chain(judges.iter().map(|j| judged_source(j)))
+        .chain([LEAK_SOURCE.to_owned()])
         .filter(|p| cells.iter().any(|c| &c.source == p))
         .collect();
+    let policies = pooled(ranked_policies, &proxies, &cells);
+    let repeat_consistency = repeat_consistency(
+        &judges,
+        ranked_policies,
+        imagined,
+        plan.config.completion_threshold,
+    );
     let (ranking, ranking_missing) = if proxies.is_empty() {
         (None, Some("no proxy job has finished".to_owned()))
     } else {
@@ -243,7 +363,10 @@ pub fn ranking_results(
     RankingResults {
         train_policies: plan.train_policies.clone(),
         ranked_policies: ranked_policies.to_vec(),
+        config: Some(plan.config.clone()),
         rows,
+        policies,
+        repeat_consistency,
         groups,
         ranking,
         ranking_missing,
@@ -266,6 +389,97 @@ pub fn ranking_results(
             })
             .collect(),
     }
+}
+
+/// Per ranked policy, best real success first: its cells' trials and successes summed over
+/// tasks, for the real source and each of `sources`.
+fn pooled(ranked: &[String], sources: &[String], cells: &[Cell]) -> Vec<RankedPolicy> {
+    let sum = |policy: &str, source: &str| {
+        let of: Vec<&Cell> = cells
+            .iter()
+            .filter(|c| c.policy == policy && c.source == source)
+            .collect();
+        let count = |f: fn(&Cell) -> Option<u64>| of.iter().filter_map(|c| f(c)).sum::<u64>();
+        (!of.is_empty()).then(|| {
+            (
+                of.len() as u64,
+                Proportion::new(count(|c| c.successes), count(|c| c.trials)),
+            )
+        })
+    };
+    let mut out: Vec<RankedPolicy> = ranked
+        .iter()
+        .filter_map(|policy| {
+            let (tasks, real) = sum(policy, REAL_SOURCE)?;
+            Some(RankedPolicy {
+                policy: policy.clone(),
+                tasks,
+                real,
+                predicted: sources
+                    .iter()
+                    .filter_map(|s| {
+                        sum(policy, s).map(|(_, success)| SourceSuccess {
+                            source: s.clone(),
+                            success,
+                        })
+                    })
+                    .collect(),
+            })
+        })
+        .collect();
+    out.sort_by(|a, b| {
+        let rate = |p: &RankedPolicy| p.real.rate.unwrap_or(0.0);
+        rate(b).total_cmp(&rate(a)).then(a.policy.cmp(&b.policy))
+    });
+    out
+}
+
+/// Per judge: the spread of its completion scores over the repeats of each imagined rollout it
+/// gave a verdict on, per ranked policy and then over all of them.
+fn repeat_consistency(
+    judges: &[&str],
+    ranked: &[String],
+    imagined: &[ImaginedJudgement],
+    threshold: f64,
+) -> Vec<RepeatConsistency> {
+    let mut out = Vec::new();
+    for judge in judges {
+        let verdicts: Vec<&ImaginedJudgement> = imagined
+            .iter()
+            .filter(|j| j.judge == *judge && j.completion.is_ok())
+            .collect();
+        let k = verdicts.iter().map(|j| j.repeats).max().unwrap_or(0);
+        for policy in ranked.iter().map(Some).chain([None]) {
+            let of: Vec<&ImaginedJudgement> = verdicts
+                .iter()
+                .copied()
+                .filter(|j| policy.is_none_or(|p| &j.policy == p))
+                .collect();
+            if of.is_empty() {
+                continue;
+            }
+            let variances: Vec<f64> = of
+                .iter()
+                .filter_map(|j| ScoreStats::of(&j.scores).variance)
+                .collect();
+            out.push(RepeatConsistency {
+                judge: (*judge).to_owned(),
+                policy: policy.cloned(),
+                repeats: k,
+                rollouts: of.len() as u64,
+                mean_variance: (!variances.is_empty())
+                    .then(|| variances.iter().sum::<f64>() / variances.len() as f64),
+                split: of
+                    .iter()
+                    .filter(|j| {
+                        j.scores.iter().any(|s| *s >= threshold)
+                            && j.scores.iter().any(|s| *s < threshold)
+                    })
+                    .count() as u64,
+            });
+        }
+    }
+    out
 }
 
 #[cfg(test)]
@@ -295,6 +509,8 @@ mod tests {
             policy: policy.into(),
             seed,
             judge: judge.into(),
+            scores: completion.iter().copied().collect(),
+            repeats: 1,
             completion: completion.map_err(str::to_owned),
         }
     }
@@ -304,6 +520,7 @@ mod tests {
         let plan = RankingPlan {
             train_policies: vec!["teacher".into()],
             config: ProxyConfig::default(),
+            ladder: None,
         };
         let ranked: Vec<String> = ["good", "fair", "poor"].map(String::from).to_vec();
         let task_groups = vec![("t1".into(), "g".into()), ("t2".into(), "g".into())];
@@ -410,6 +627,160 @@ mod tests {
         assert!(
             md.contains("1 imagined rollouts could not be judged"),
             "{md}"
+        );
+    }
+
+    #[test]
+    fn the_section_shows_what_was_compared_per_policy_success_the_ablation_and_repeats() {
+        use crate::testing::{LADDER_BEST, LADDER_WORST, ranking_fixture, report_with_ranking};
+        let r = ranking_fixture();
+        // Aggregation: pooled per policy, best real success first.
+        let best = &r.policies[0];
+        assert_eq!(best.policy, LADDER_BEST);
+        assert_eq!((best.tasks, &best.real), (3, &Proportion::new(6, 6)));
+        let sources: Vec<(&str, &Proportion)> = best
+            .predicted
+            .iter()
+            .map(|s| (s.source.as_str(), &s.success))
+            .collect();
+        assert_eq!(
+            sources,
+            [
+                (PROXY_SOURCE, &Proportion::new(5, 6)),
+                ("world-model+vlm", &Proportion::new(2, 2)),
+                (LEAK_SOURCE, &Proportion::new(6, 6)),
+            ]
+        );
+        assert_eq!(r.policies[2].policy, LADDER_WORST);
+        let ranking = r.ranking.as_ref().unwrap();
+        let proxies: Vec<&str> = ranking
+            .comparisons
+            .iter()
+            .map(|c| c.proxy.as_str())
+            .collect();
+        assert_eq!(proxies, [PROXY_SOURCE, "world-model+vlm", LEAK_SOURCE]);
+        // The leak gives the real outcome back: a perfect ranking, as an ablation.
+        let leak = &ranking.comparisons[2];
+        assert!((leak.pearson.value.unwrap() - 1.0).abs() < 1e-12);
+        assert_eq!(leak.mmrv.value, Some(0.0));
+        assert_eq!(ranking_figure(LEAK_SOURCE), "ranking-leak.svg");
+        // Repeats: per-rollout sample variances 1, 0 | 4, 3 | 0, 4.5.
+        let consistency: Vec<(Option<&str>, u32, u64, f64, u64)> = r
+            .repeat_consistency
+            .iter()
+            .map(|c| {
+                (
+                    c.policy.as_deref(),
+                    c.repeats,
+                    c.rollouts,
+                    c.mean_variance.unwrap(),
+                    c.split,
+                )
+            })
+            .collect();
+        assert_eq!(
+            consistency,
+            [
+                (Some(LADDER_BEST), 3, 2, 0.5, 0),
+                (Some("scripted"), 3, 2, 3.5, 2),
+                (Some(LADDER_WORST), 3, 2, 2.25, 0),
+                (None, 3, 6, 12.5 / 6.0, 2),
+            ]
+        );
+        // report.json keeps it (a float read back may be an ulp off, so parts are compared).
+        let back: RankingResults =
+            serde_json::from_str(&serde_json::to_string(&r).unwrap()).unwrap();
+        assert_eq!(back.config, r.config);
+        assert_eq!(back.policies.len(), 3);
+        assert_eq!(back.policies[2].predicted.len(), 3);
+        assert_eq!(back.repeat_consistency.len(), 4);
+        assert!(back.rows.iter().all(|x| x.leak.is_some()));
+
+        let report = report_with_ranking(r);
+        let md = report.to_markdown();
+        let html = crate::html::report_html(&crate::html::HtmlInputs {
+            report: &report,
+            artifact: &|_| None,
+            human: None,
+        });
+        let both = |md_text: &str, html_text: &str| {
+            assert!(md.contains(md_text), "{md_text} not in:\n{md}");
+            assert!(html.contains(html_text), "{html_text} not in the page");
+        };
+        // Per policy, with Wilson intervals: 6/6 [61, 100], 5/6 [44, 97], 2/2 [34, 100].
+        both(
+            "| R_S world-model | R_S world-model+vlm | R_S world-model-leak (ablation) |",
+            "<th>R_S world-model-leak (ablation)</th>",
+        );
+        both(
+            "| diffusion 3fa9c2d1 | 3 | 100 % (6/6) [61, 100] | 83 % (5/6) [44, 97] | \
+             100 % (2/2) [34, 100] | 100 % (6/6) [61, 100] |",
+            "<td class=\"n\">83 % (5/6) [44, 97]</td>",
+        );
+        both(
+            "| scripted | 3 | 50 % (3/6) [19, 81] | 33 % (2/6) [10, 70] | 50 % (1/2) [9, 91] | \
+             50 % (3/6) [19, 81] |",
+            "<td class=\"n\">33 % (2/6) [10, 70]</td>",
+        );
+        both(
+            "| diffusion 77be01aa | 3 | 17 % (1/6) [3, 56] | 0 % (0/6) [0, 39] | \
+             0 % (0/2) [0, 66] | 17 % (1/6) [3, 56] |",
+            "<td class=\"n\">0 % (0/2) [0, 66]</td>",
+        );
+        both(PER_POLICY_NOTE, PER_POLICY_NOTE);
+        // Ladder policies shown short, their full names kept.
+        both(
+            &format!("- diffusion 3fa9c2d1: `{LADDER_BEST}`"),
+            &format!("<span title=\"{LADDER_BEST}\">diffusion 3fa9c2d1</span>"),
+        );
+        // What was compared.
+        for text in [
+            "an imagined rollout stops as a success once the frame judge calls 2 frames in a row \
+             done; otherwise it runs the task's whole step budget",
+            "vlm: k = 3 repeats",
+            "a rollout succeeds when its mean completion over k repeats is ≥ 5.00 (0–10)",
+            "assay RSSM (groups g1)",
+            "cosmos (http://wm:50051) (groups g2)",
+            "the real episode's length given to the proxy",
+        ] {
+            both(text, text);
+        }
+        both(
+            "| training policies (their episodes train the world model and the frame judge) | \
+             oracle |",
+            "<td>oracle</td>",
+        );
+        both(
+            "| ranked policies (never trained on) | diffusion 3fa9c2d1, scripted, \
+             diffusion 77be01aa |",
+            "diffusion 3fa9c2d1</span>, scripted, <span",
+        );
+        both(
+            "| g1 | assay RSSM | 500 | 1.200 | 40 (12) | 0.95 | 6/12 | 30.0 | 4.000 |",
+            "<td class=\"n\">6/12</td>",
+        );
+        // The action test: 2.000 against 5.000, 2.50 times the error.
+        both(
+            "| g1 | assay RSSM | 4 | 2.000 | 5.000 | 2.50 |",
+            "<td class=\"n\">2.50</td>",
+        );
+        // Repeat consistency: scripted's rollouts vary by 4 and 3, both split; 12.5/6 overall.
+        both(
+            "| `vlm` | scripted | 3 | 2 | 3.500 | 2 |",
+            "<td class=\"n\">3.500</td>",
+        );
+        both(
+            "| `vlm` | **all** | **3** | **6** | **2.083** | **2** |",
+            "<th class=\"n\">2.083</th>",
+        );
+        // The ablation's comparison, labelled as one.
+        both(
+            "## Policy ranking: world-model-leak (ablation) against sim\n\nAn ablation, not the proxy",
+            "<h3>world-model-leak (ablation) against sim</h3><p class=\"caption\">An ablation",
+        );
+        both(
+            "(ranking-leak.svg)",
+            "world-model-leak (ablation) against sim: r = 1.000",
         );
     }
 

@@ -9,9 +9,10 @@ use assay_stats::ranking::{Comparison, PolicyPoint};
 use crate::diversity::DiversityResults;
 use crate::generalization::{GeneralizationResults, LEARNT_THRESHOLD};
 use crate::quality::{JudgeSummary, QualityResults};
-use crate::ranking::RankingResults;
+use crate::ranking::{RankingResults, is_ablation, source_title};
 use crate::report::{PolicySuccess, Provenance, Results, RunInfo};
 use crate::view::{Cell, Span, Table, estimate, num2, proportion, score};
+use assay_model::proxy::{LEAK_SOURCE, PROXY_SOURCE, REAL_SOURCE};
 use assay_model::quality::ScoreStats;
 use assay_stats::agreement::Agreement;
 use assay_stats::diversity::TextDiversityTable;
@@ -549,21 +550,206 @@ pub fn generalization(g: &GeneralizationResults) -> Table {
     table
 }
 
+/// Lines of a cell.
+fn lines(items: impl IntoIterator<Item = String>) -> Cell {
+    let mut c = Cell::default();
+    for (i, x) in items.into_iter().enumerate() {
+        if i > 0 {
+            c = c.and(Span::Break);
+        }
+        c = c.and(Span::Text(x));
+    }
+    if c.0.is_empty() { Cell::missing() } else { c }
+}
+
+/// What the ranking compared: the two policy sets, the world models, the frame judge and the
+/// judge role's judges with the rules of their verdicts, and the leak ablation.
+pub fn ranking_compared(r: &RankingResults) -> Table {
+    let mut table = Table::new(["what", "value"]);
+    table.row(vec![
+        "training policies (their episodes train the world model and the frame judge)".into(),
+        Cell::policies(r.train_policies.iter().map(String::as_str)),
+    ]);
+    table.row(vec![
+        "ranked policies (never trained on)".into(),
+        Cell::policies(r.ranked_policies.iter().map(String::as_str)),
+    ]);
+    let mut models: Vec<(&str, Vec<&str>)> = Vec::new();
+    for g in &r.groups {
+        let name = g.world_model_name.as_str();
+        match models.iter_mut().find(|(m, _)| *m == name) {
+            Some((_, groups)) => groups.push(&g.group),
+            None => models.push((name, vec![&g.group])),
+        }
+    }
+    table.row(vec![
+        "world model".into(),
+        lines(models.iter().map(|(m, groups)| {
+            let m = if m.is_empty() { "(not named)" } else { m };
+            format!("{m} (groups {})", groups.join(", "))
+        })),
+    ]);
+    let Some(cfg) = &r.config else {
+        return table;
+    };
+    table.row(vec![
+        "frame judge".into(),
+        lines([
+            format!(
+                "a small CNN per group on last frames (training below); an imagined rollout \
+                 succeeds when its probability is ≥ {}",
+                num2(cfg.threshold)
+            ),
+            format!(
+                "an imagined rollout stops as a success once the frame judge calls {} frames in \
+                 a row done; otherwise it runs the task's whole step budget",
+                cfg.done_frames
+            ),
+        ]),
+    ]);
+    let judges: Vec<String> = r
+        .repeat_consistency
+        .iter()
+        .filter(|c| c.policy.is_none())
+        .map(|c| format!("{}: k = {} repeats", c.judge, c.repeats))
+        .collect();
+    table.row(vec![
+        "judges of imagined rollouts (world-model+<judge>)".into(),
+        if judges.is_empty() {
+            Cell::text("none (no judge that looks at images)")
+        } else {
+            let rule = format!(
+                "a rollout succeeds when its mean completion over k repeats is ≥ {} (0–10)",
+                num2(cfg.completion_threshold)
+            );
+            lines(judges.into_iter().chain([rule]))
+        },
+    ]);
+    let leak = cfg.leak_ablation || r.rows.iter().any(|x| x.leak.is_some());
+    table.row(vec![
+        "leak ablation".into(),
+        Cell::text(if leak {
+            "every ranked episode also imagined for exactly as many frames as its real episode \
+             had and judged on that last frame: the real episode's length given to the proxy. \
+             An ablation, never the proxy"
+        } else {
+            "off"
+        }),
+    ]);
+    table
+}
+
+/// Per ranked policy: real success and each proxy's predicted success, episodes pooled over
+/// tasks, with Wilson intervals.
+pub fn ranking_per_policy(r: &RankingResults) -> Table {
+    let mut sources: Vec<&str> = Vec::new();
+    for s in r.policies.iter().flat_map(|p| &p.predicted) {
+        if !sources.contains(&s.source.as_str()) {
+            sources.push(&s.source);
+        }
+    }
+    sources.sort_by_key(|s| (is_ablation(s), *s != PROXY_SOURCE, *s));
+    let mut columns = vec![
+        "policy".to_owned(),
+        "#tasks".to_owned(),
+        format!("#R real ({REAL_SOURCE})"),
+    ];
+    columns.extend(sources.iter().map(|s| format!("#R_S {}", source_title(s))));
+    let mut table = Table::new(columns);
+    for p in &r.policies {
+        let mut cells = vec![Cell::policy(&p.policy), n(p.tasks), proportion(&p.real)];
+        cells.extend(sources.iter().map(|s| {
+            p.predicted
+                .iter()
+                .find(|x| x.source == *s)
+                .map_or_else(Cell::missing, |x| proportion(&x.success))
+        }));
+        table.row(cells);
+    }
+    table
+}
+
+/// Per group: the world model's open-loop error with the episodes' true actions and with
+/// another episode's.
+pub fn action_test(r: &RankingResults) -> Table {
+    let mut table = Table::new([
+        "group",
+        "world model",
+        "#episodes",
+        "#image MSE ×10³, true actions",
+        "#image MSE ×10³, shuffled actions",
+        "#shuffled ÷ true",
+    ]);
+    for g in &r.groups {
+        let Some(a) = &g.action_test else { continue };
+        table.row(vec![
+            g.group.as_str().into(),
+            Cell::or_missing(&g.world_model_name),
+            n(a.episodes),
+            Cell::text(format!("{:.3}", a.true_actions_mse * 1e3)),
+            Cell::text(format!("{:.3}", a.shuffled_actions_mse * 1e3)),
+            if a.true_actions_mse > 0.0 {
+                Cell::text(num2(a.shuffled_actions_mse / a.true_actions_mse))
+            } else {
+                Cell::missing()
+            },
+        ]);
+    }
+    table
+}
+
+/// Per judge of imagined rollouts: the spread of its completion scores over each rollout's k
+/// repeats, per policy and over all.
+pub fn repeat_consistency(r: &RankingResults) -> Table {
+    let mut table = Table::new([
+        "judge",
+        "policy",
+        "#k (repeats)",
+        "#rollouts",
+        "#mean variance over repeats",
+        "#rollouts split by the threshold",
+    ]);
+    for c in &r.repeat_consistency {
+        let cells = vec![
+            Cell::code(&c.judge),
+            c.policy
+                .as_deref()
+                .map_or_else(|| "all".into(), Cell::policy),
+            n(c.repeats),
+            n(c.rollouts),
+            c.mean_variance
+                .map_or_else(Cell::missing, |v| Cell::text(format!("{v:.3}"))),
+            n(c.split),
+        ];
+        if c.policy.is_none() {
+            table.total(cells);
+        } else {
+            table.row(cells);
+        }
+    }
+    table
+}
+
 /// Per task and policy: real success, the proxy's verdicts and the judges' view.
 pub fn ranking_rows(r: &RankingResults) -> Table {
     let rate = |p: &assay_stats::stats::Proportion| match p.rate {
         Some(x) => Cell::text(format!("{:.0} % ({}/{})", x * 100.0, p.successes, p.trials)),
         None => Cell::missing(),
     };
-    let mut table = Table::new([
-        "task",
-        "policy",
-        "#real (sim)",
-        "#world-model proxy",
-        "#proxy mean p",
-        "imagined, judged (mean completion)",
-        "#judged completion",
-    ]);
+    let leak = r.rows.iter().any(|x| x.leak.is_some());
+    let mut columns = vec![
+        "task".to_owned(),
+        "policy".to_owned(),
+        "#real (sim)".to_owned(),
+        "#world-model proxy".to_owned(),
+        "#proxy mean p".to_owned(),
+        "imagined, judged (mean completion)".to_owned(),
+        "#judged completion".to_owned(),
+    ];
+    if leak {
+        columns.push(format!("#{}", source_title(LEAK_SOURCE)));
+    }
+    let mut table = Table::new(columns);
     for row in &r.rows {
         let mut judged = Cell::default();
         for (i, j) in row.judged_proxy.iter().enumerate() {
@@ -580,9 +766,9 @@ pub fn ranking_rows(r: &RankingResults) -> Table {
         if judged.0.is_empty() {
             judged = Cell::missing();
         }
-        table.row(vec![
+        let mut cells = vec![
             Cell(vec![Span::TaskLink(row.task_id.clone())]),
-            row.policy.as_str().into(),
+            Cell::policy(&row.policy),
             rate(&row.real),
             row.proxy.as_ref().map_or_else(Cell::missing, rate),
             row.proxy_mean_p
@@ -590,31 +776,48 @@ pub fn ranking_rows(r: &RankingResults) -> Table {
             judged,
             row.judged_completion
                 .map_or_else(Cell::missing, |c| Cell::text(format!("{c:.1}"))),
-        ]);
+        ];
+        if leak {
+            cells.push(row.leak.as_ref().map_or_else(Cell::missing, rate));
+        }
+        table.row(cells);
     }
     table
 }
 
-/// Per group: the world model and the frame judge the proxy used.
+/// Per group: the world model and the frame judge the proxy used, and how the imagined
+/// rollouts ended.
 pub fn proxy_models(r: &RankingResults) -> Table {
     let mut table = Table::new([
         "group",
+        "world model",
         "#world-model steps",
         "#one-step image MSE ×10³",
-        "#judge examples (successes)",
-        "#judge train accuracy",
+        "#frame-judge examples (successes)",
+        "#frame-judge train accuracy",
+        "#stopped by the frame judge",
+        "#mean imagined frames",
         "#mean last-frame MSE ×10³",
     ]);
     for g in &r.groups {
-        let mse = g.predictions.iter().map(|p| p.last_frame_mse).sum::<f64>()
-            / g.predictions.len().max(1) as f64;
+        let count = g.predictions.len().max(1) as f64;
+        let mean = |f: fn(&assay_model::proxy::ProxyPrediction) -> f64| {
+            g.predictions.iter().map(f).sum::<f64>() / count
+        };
         table.row(vec![
             g.group.as_str().into(),
+            Cell::or_missing(&g.world_model_name),
             n(g.world_model.steps),
             Cell::text(format!("{:.3}", g.world_model.eval_image_mse * 1e3)),
             Cell::text(format!("{} ({})", g.judge_examples, g.judge_positives)),
-            Cell::text(format!("{:.2}", g.judge_train_accuracy)),
-            Cell::text(format!("{:.3}", mse * 1e3)),
+            Cell::text(num2(g.judge_train_accuracy)),
+            Cell::text(format!(
+                "{}/{}",
+                g.predictions.iter().filter(|p| p.done_by_judge).count(),
+                g.predictions.len()
+            )),
+            Cell::text(format!("{:.1}", mean(|p| f64::from(p.imagined_frames)))),
+            Cell::text(format!("{:.3}", mean(|p| p.last_frame_mse) * 1e3)),
         ]);
     }
     table
@@ -626,7 +829,7 @@ pub fn ranking_policies(c: &Comparison) -> Table {
         "policy".to_owned(),
         "#tasks".to_owned(),
         format!("#R ({})", c.real),
-        format!("#R_S ({})", c.proxy),
+        format!("#R_S ({})", source_title(&c.proxy)),
     ]);
     let with_trials = |rate: f64, trials: Option<u64>| match trials {
         Some(t) => Cell::text(format!("{rate:.3} ({t} trials)")),
@@ -641,7 +844,7 @@ pub fn ranking_policies(c: &Comparison) -> Table {
     });
     for p in order {
         table.row(vec![
-            p.policy.as_str().into(),
+            Cell::policy(&p.policy),
             n(p.tasks),
             with_trials(p.real, p.real_trials),
             with_trials(p.proxy, p.proxy_trials),

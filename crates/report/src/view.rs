@@ -26,6 +26,12 @@ pub enum Span {
     Break,
     /// A link to a task's own section in the page (HTML); its text elsewhere.
     TaskLink(String),
+    /// A long name shown short: HTML gives the full one as the title, Markdown lists it under
+    /// the table (see [`short_policy`]).
+    Abbrev {
+        short: String,
+        full: String,
+    },
 }
 
 /// A table cell: spans shown one after another.
@@ -53,6 +59,27 @@ impl Cell {
             Self::text(s)
         }
     }
+    /// A policy's name, shortened when it is a learned policy's spec ([`short_policy`]).
+    pub fn policy(name: &str) -> Self {
+        match short_policy(name) {
+            Some(short) => Self(vec![Span::Abbrev {
+                short,
+                full: name.to_owned(),
+            }]),
+            None => Self::text(name),
+        }
+    }
+    /// Names, each with [`Cell::policy`], separated by commas.
+    pub fn policies<'a>(names: impl IntoIterator<Item = &'a str>) -> Self {
+        let mut c = Self::default();
+        for (i, name) in names.into_iter().enumerate() {
+            if i > 0 {
+                c = c.and(Span::Text(", ".into()));
+            }
+            c.0.extend(Self::policy(name).0);
+        }
+        if c.0.is_empty() { Self::missing() } else { c }
+    }
     /// Adds a span.
     pub fn and(mut self, span: Span) -> Self {
         self.0.push(span);
@@ -63,9 +90,11 @@ impl Cell {
         let mut out = String::new();
         for s in &self.0 {
             match s {
-                Span::Text(t) | Span::Code(t) | Span::Strong(t) | Span::TaskLink(t) => {
-                    out.push_str(t)
-                }
+                Span::Text(t)
+                | Span::Code(t)
+                | Span::Strong(t)
+                | Span::TaskLink(t)
+                | Span::Abbrev { short: t, .. } => out.push_str(t),
                 Span::Undefined(why) => {
                     out.push_str("undefined: ");
                     out.push_str(why);
@@ -192,9 +221,38 @@ pub fn md_cell(c: &Cell, total: bool) -> String {
                 out.push_str(&format!("`{}`", md_text(t).replace('`', "'")))
             }
             Span::Strong(t) => out.push_str(&format!("**{}**", md_text(t))),
+            Span::Abbrev { short, .. } => out.push_str(&md_text(short)),
             Span::Undefined(why) => out.push_str(&format!("undefined: {}", md_text(why))),
             Span::Missing => out.push('–'),
             Span::Break => out.push_str("; "),
+        }
+    }
+    out
+}
+
+/// A learned policy's spec shortened for tables and plots: `diffusion:model=policies/<sha>.
+/// diffusion,max_steps=6000` reads `diffusion 3fa9c2d1` (its kind and the model file's first 8
+/// characters). None for any other name, which is shown as it is.
+pub fn short_policy(name: &str) -> Option<String> {
+    let (kind, params) = name.split_once(':')?;
+    let model = params.split(',').find_map(|p| p.strip_prefix("model="))?;
+    let file = model.rsplit('/').next().unwrap_or(model);
+    let stem = file.split('.').next().unwrap_or(file);
+    let short: String = stem.chars().take(8).collect();
+    let shorter = format!("{kind} {short}");
+    (!short.is_empty() && shorter.len() < name.len()).then_some(shorter)
+}
+
+/// The abbreviations of a table's cells, each once, in order of appearance: (short, full).
+pub fn abbreviations<'a>(tables: impl IntoIterator<Item = &'a Table>) -> Vec<(String, String)> {
+    let mut out: Vec<(String, String)> = Vec::new();
+    for t in tables {
+        for s in t.rows.iter().flat_map(|r| &r.cells).flat_map(|c| &c.0) {
+            if let Span::Abbrev { short, full } = s
+                && !out.iter().any(|(_, f)| f == full)
+            {
+                out.push((short.clone(), full.clone()));
+            }
         }
     }
     out
@@ -265,6 +323,24 @@ mod tests {
         assert_eq!(
             t.markdown(),
             "| name | n |\n|---|---:|\n| `a\\|b` x y | 1 |\n| **all** | – |\n"
+        );
+    }
+
+    #[test]
+    fn learned_policies_read_short_and_keep_their_full_name() {
+        let full = "diffusion:model=policies/3fa9c2d1e8b74a60.diffusion,max_steps=6000";
+        assert_eq!(short_policy(full).as_deref(), Some("diffusion 3fa9c2d1"));
+        assert_eq!(short_policy("oracle:noise=0.03"), None);
+        assert_eq!(short_policy("diffusion-400"), None);
+        let mut t = Table::new(["policy"]);
+        t.row(vec![Cell::policies([full, "oracle", full])]);
+        assert_eq!(
+            t.rows[0].cells[0].plain(),
+            "diffusion 3fa9c2d1, oracle, diffusion 3fa9c2d1"
+        );
+        assert_eq!(
+            abbreviations([&t]),
+            [("diffusion 3fa9c2d1".to_owned(), full.to_owned())]
         );
     }
 

@@ -1,7 +1,8 @@
 //! `assay-policy`: the policies a simulator shard calls through [`Policy`] — remote policy servers
 //! over the `assay.v1.Policy` gRPC service ([`remote`]), the reference server for that service
 //! ([`server`]), openpi policy servers over websocket + msgpack-numpy ([`openpi`]), TorchScript modules on libtorch ([`torchscript`], feature `torch`) — and
-//! [`load`], which turns a [`PolicySpec`] into one of them.
+//! [`load`], which turns a [`PolicySpec`] into one of them. Also the client of world models served
+//! over the `assay.v1.WorldModel` gRPC service ([`world_model`]), which the proxy imagines in.
 //!
 //! Owns: the policy client and server, the TorchScript calling convention (`docs/policies.md`),
 //! the mapping between [`PolicyError`] and gRPC status codes. Never: physics, rendering, the job
@@ -24,6 +25,7 @@ mod status;
 #[cfg(feature = "torch")]
 pub mod torchscript;
 pub mod wire;
+pub mod world_model;
 
 pub use remote::{Health, RemotePolicy};
 pub use server::{PolicyFactory, ServerInfo, serve};

@@ -39,7 +39,9 @@
 //! is all zeros by format) with zero velocity and the last real hold command. Each training step
 //! draws `batch` samples uniformly with replacement. Adam (ours, `adam.rs`), gradients clipped at
 //! a global norm of 10; an exponential moving average of the weights (decay
-//! `min(ema_decay, 1 − (1 + step)^−0.75)`) is what the policy runs.
+//! `min(ema_decay, 1 − (1 + step)^−0.75)`) is what the policy runs. [`train_keeping`] also keeps
+//! that policy after given steps (a ranking ladder's checkpoints): the same seed and clips give
+//! the same weights after as many steps, so each is the policy of a run that long.
 //!
 //! All randomness is ours, from `assay_spec::rng` streams of the config's seed, never libtorch's
 //! global generator: initial weights (`diffusion/init`), the samples of training step `s`
@@ -131,6 +133,25 @@ pub fn train(
     device: Device,
     progress: &mut dyn FnMut(u64, f64),
 ) -> Result<(DiffusionPolicy, DiffusionFit), DiffusionError> {
+    let (policy, fit, _) = train_keeping(clips, cfg, &[], device, progress)?;
+    Ok((policy, fit))
+}
+
+/// A trained policy, its fit, and the policies kept on the way (step, policy).
+pub type Trained = (DiffusionPolicy, DiffusionFit, Vec<(u64, DiffusionPolicy)>);
+
+/// [`train`], also keeping the policy after each of the `checkpoints` steps below `cfg.steps`
+/// (a ladder of policies of differing skill from one run): each runs the EMA weights of that
+/// moment, as the final policy does, and its config says the steps it was trained for (the
+/// same seed and data give the same weights after as many steps, so it is the policy of a run
+/// that long). Returned in step order, each step once.
+pub fn train_keeping(
+    clips: &[Clip],
+    cfg: &DiffusionConfig,
+    checkpoints: &[u64],
+    device: Device,
+    progress: &mut dyn FnMut(u64, f64),
+) -> Result<Trained, DiffusionError> {
     cfg.validate().map_err(DiffusionError::Config)?;
     if clips.is_empty() {
         return Err(DiffusionError::NoClips);
@@ -158,6 +179,7 @@ pub fn train(
     let parameters: i64 = net.params.iter().map(Tensor::numel).map(|n| n as i64).sum();
 
     let started = Instant::now();
+    let mut kept = Vec::new();
     let mut losses = Vec::with_capacity(cfg.steps as usize);
     let b = cfg.batch as i64;
     let ph = cfg.pred_horizon as i64;
@@ -191,6 +213,23 @@ pub fn train(
         let value = loss.double_value(&[]);
         losses.push(value);
         progress(step + 1, value);
+        if step + 1 < cfg.steps && checkpoints.contains(&(step + 1)) {
+            let at = DiffusionConfig {
+                steps: step + 1,
+                ..cfg.clone()
+            };
+            let mut copy = Net::new(&at, device);
+            tch::no_grad(|| {
+                for (p, e) in copy.params.iter_mut().zip(&ema) {
+                    p.f_copy_(e)?;
+                }
+                Ok::<(), tch::TchError>(())
+            })?;
+            kept.push((
+                step + 1,
+                DiffusionPolicy::from_parts(at, data.stats, copy, device),
+            ));
+        }
     }
     let train_seconds = started.elapsed().as_secs_f64();
 
@@ -223,7 +262,7 @@ pub fn train(
         Ok::<(), tch::TchError>(())
     })?;
     let policy = DiffusionPolicy::from_parts(cfg.clone(), data.stats, net, device);
-    Ok((policy, fit))
+    Ok((policy, fit, kept))
 }
 
 fn check_clip(clip: &Clip, size: u32) -> Result<(), String> {
@@ -1096,5 +1135,83 @@ impl Policy for DiffusionPolicy {
             .map_err(|e| PolicyError::Load(format!("diffusion policy: {e}")))?;
         let start = self.cfg.obs_horizon - 1;
         Ok(chunk[start..start + self.cfg.action_horizon].to_vec())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `n` clips of 6 frames of 16×16: a bright pixel moving right, the tool's x in step.
+    fn clips(n: usize) -> Vec<Clip> {
+        (0..n)
+            .map(|k| {
+                let (mut rgb, mut proprio, mut actions) = (Vec::new(), Vec::new(), Vec::new());
+                for t in 0..6usize {
+                    let mut frame = vec![10u8; 16 * 16 * 3];
+                    frame[(4 * 16 + t + k) * 3] = 250;
+                    rgb.extend(frame);
+                    proprio.extend_from_slice(&[0.01 * t as f32, 0.02 * k as f32, 0.1, 0.0]);
+                    let a = if t < 5 {
+                        [0.1, 0.0, 0.0, 0.0]
+                    } else {
+                        [0.0; 4]
+                    };
+                    actions.extend_from_slice(&a);
+                }
+                Clip {
+                    height: 16,
+                    width: 16,
+                    interval_s: 0.1,
+                    proprio_dims: 4,
+                    action_dims: 4,
+                    rgb,
+                    proprio,
+                    actions,
+                }
+            })
+            .collect()
+    }
+
+    #[test]
+    fn a_training_keeps_a_distinct_loadable_policy_at_each_checkpoint() {
+        let cfg = DiffusionConfig {
+            image_size: 16,
+            steps: 3,
+            batch: 2,
+            encoder_depth: 4,
+            keypoints: 4,
+            obs_features: 8,
+            down_dims: vec![8, 16],
+            time_embed: 8,
+            groups: 4,
+            ..DiffusionConfig::default()
+        };
+        // Steps at or past the end are the final policy's, not checkpoints.
+        let (last, fit, kept) = train_keeping(
+            &clips(2),
+            &cfg,
+            &[2, 1, 3, 9, 2],
+            Device::Cpu,
+            &mut |_, _| {},
+        )
+        .unwrap();
+        assert_eq!(fit.steps, 3);
+        let steps: Vec<u64> = kept.iter().map(|(s, _)| *s).collect();
+        assert_eq!(steps, [1, 2]);
+        let mut bytes: Vec<Vec<u8>> = kept.iter().map(|(_, p)| p.to_bytes()).collect();
+        bytes.push(last.to_bytes());
+        for (i, b) in bytes.iter().enumerate() {
+            assert!(bytes[..i].iter().all(|a| a != b), "policy {i} repeats one");
+            let back = DiffusionPolicy::from_bytes(b, Device::Cpu).unwrap();
+            assert_eq!(&back.to_bytes(), b);
+        }
+        assert_eq!(kept[0].1.config().steps, 1);
+        assert_eq!(last.config().steps, 3);
+        // A kept policy acts.
+        let clip = &clips(1)[0];
+        let obs = PolicyObservation::legacy(0, 16, 16, clip.rgb[..16 * 16 * 3].to_vec(), [0.0; 4]);
+        let chunk = kept[1].1.predict(&[obs], 7).unwrap();
+        assert_eq!(chunk.len(), cfg.pred_horizon);
     }
 }

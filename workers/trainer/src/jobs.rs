@@ -12,7 +12,7 @@ use assay_spec::hash::sha256_hex;
 use assay_stats::diversity::TextDiversityTable;
 
 use crate::embedders::Embedders;
-use crate::proxy::PolicyLoader;
+use crate::proxy::{PolicyLoader, WorldModelLoader};
 use crate::world_model::{FitRequest, fit};
 
 /// Why a trainer shard failed, and whether another attempt could succeed.
@@ -50,6 +50,7 @@ pub fn run(
     artifacts: &Path,
     embedders: &Mutex<Embedders>,
     policies: &PolicyLoader<'_>,
+    world_models: &WorldModelLoader<'_>,
     device: tch::Device,
 ) -> Result<TrainerOutcome, JobError> {
     match job {
@@ -90,6 +91,7 @@ pub fn run(
             let req = crate::proxy::ProxyRequest {
                 group,
                 policies,
+                world_models,
                 train,
                 train_clips: &train_clips,
                 eval,
@@ -97,9 +99,16 @@ pub fn run(
                 config,
                 device,
             };
+            // A served world model that is down or late is retried, as a remote policy is.
             let mut result =
-                crate::proxy::run_proxy(&req, resume.as_deref(), &mut save).map_err(|e| {
-                    JobError::permanent(format!("world-model proxy of group {group:?}: {e}"))
+                crate::proxy::run_proxy(&req, resume.as_deref(), &mut save).map_err(|e| JobError {
+                    retryable: matches!(
+                        e,
+                        crate::world_model::WorldModelError::World(
+                            assay_model::world::WorldError::Unavailable(_)
+                        )
+                    ),
+                    message: format!("world-model proxy of group {group:?}: {e}"),
                 })?;
             // The imagined keyframes go to the artifact store, for the judge role.
             let size = config.world_model.image_size;
@@ -128,6 +137,7 @@ pub fn run(
             group,
             clips,
             config,
+            checkpoints,
         } => {
             let loaded = load_clips(artifacts, clips)?;
             let mut last = std::time::Instant::now();
@@ -137,21 +147,37 @@ pub fn run(
                     last = std::time::Instant::now();
                 }
             };
-            let (policy, fit) = crate::diffusion::train(&loaded, config, device, &mut progress)
-                .map_err(|e| {
-                    JobError::permanent(format!("diffusion policy of group {group:?}: {e}"))
-                })?;
-            let bytes = policy.to_bytes();
-            let key = format!("policies/{}.diffusion", sha256_hex(&bytes));
-            write_atomically(&artifacts.join(&key), &bytes).map_err(|e| JobError {
-                message: format!("storing the diffusion policy of group {group:?}: {e}"),
-                retryable: true,
+            let (policy, fit, kept) = crate::diffusion::train_keeping(
+                &loaded,
+                config,
+                checkpoints,
+                device,
+                &mut progress,
+            )
+            .map_err(|e| {
+                JobError::permanent(format!("diffusion policy of group {group:?}: {e}"))
             })?;
-            tracing::info!(group, model = %key, steps = fit.steps, loss = fit.mean_last_100_loss, "diffusion policy trained");
+            // Every kept policy is stored as the final one is, by the hash of its bytes.
+            let store = |policy: &crate::diffusion::DiffusionPolicy| {
+                let bytes = policy.to_bytes();
+                let key = format!("policies/{}.diffusion", sha256_hex(&bytes));
+                write_atomically(&artifacts.join(&key), &bytes).map_err(|e| JobError {
+                    message: format!("storing the diffusion policy of group {group:?}: {e}"),
+                    retryable: true,
+                })?;
+                Ok::<String, JobError>(key)
+            };
+            let mut stored = Vec::with_capacity(kept.len());
+            for (step, p) in &kept {
+                stored.push((*step, store(p)?));
+            }
+            let key = store(&policy)?;
+            tracing::info!(group, model = %key, steps = fit.steps, kept = stored.len(), loss = fit.mean_last_100_loss, "diffusion policy trained");
             Ok(TrainerOutcome::Diffusion {
                 group: group.clone(),
                 model: key,
                 fit: Box::new(fit),
+                checkpoints: stored,
             })
         }
         TrainerJob::Dynamics {

@@ -6,6 +6,7 @@ pub mod diffusion;
 pub mod embed;
 pub mod embedders;
 pub mod jobs;
+pub mod imagination;
 pub mod proxy;
 pub mod world_model;
 

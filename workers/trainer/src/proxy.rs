@@ -1,36 +1,44 @@
-//! The world-model proxy of one task group (see `assay_model::proxy`): a world model fitted on
-//! the training policies' clips, a frame judge that tells success from a last frame, and the
-//! ranked episodes imagined open loop from their first frame and judged.
+//! The world-model proxy of one task group (see `assay_model::proxy`): a world model — the RSSM
+//! fitted on the training policies' clips, or a lab's model served over `assay.v1.WorldModel` —,
+//! a frame judge that tells a finished task from an unfinished one, and every ranked policy
+//! acting closed loop inside the world model, judged frame by frame.
 //!
 //! # Frame judge
 //! Four stride-2 convolutions (kernel 4; 8, 16, 32, 64 channels; GroupNorm(1) + SiLU) on the
 //! 64×64 frame in [−0.5, 0.5], global average pooling, one linear layer to a logit. Trained with
 //! the logistic loss, positives weighted by negatives/positives (successes can be rare), Adam, on
-//! batches of 16 drawn from the training episodes' **real and imagined** last frames — so the
-//! judge has seen what the world model's blur looks like — each labelled with the episode's real
-//! outcome. Initial weights and batches come from `assay_spec::rng` streams: deterministic.
+//! batches of 16 drawn from the training episodes' **real and imagined** frames — so the judge
+//! has seen what the world model's blur looks like. A training episode's last frame is labelled
+//! with its real outcome; its frames at a quarter and at half of its length are labelled not done
+//! (the task is finished at the end of a successful episode, not before), so the judge can tell
+//! *when* an imagined rollout is done, not only whether a last frame looks like a success.
+//! Initial weights and batches come from `assay_spec::rng` streams: deterministic.
 //!
 //! # What the ranked policies act on
-//! A policy object (diffusion, TorchScript, remote) acts on the imagined frames: it is built
-//! again for the episode (`ProxyRequest::policies`), shown the frame and proprioception the world
-//! model decodes at each step and its actions drive the model, for as many frames as its real
-//! episode had ([`crate::world_model::WorldModel::imagine_policy`]). The scripted oracle cannot
-//! run outside the simulator (its plan reads the scene's state), but it is open loop once it has
-//! read the initial scene, which the world model is given too (the first real frame): its
-//! episodes are imagined with the actions it took in the simulator
-//! ([`crate::world_model::WorldModel::imagine`]).
+//! Every ranked policy is a policy object (diffusion, TorchScript, remote, openpi) built again for
+//! the episode (`ProxyRequest::policies`): it is shown the frame and state the world model gives
+//! at each step and its actions drive the model ([`crate::imagination::closed_loop`]), from the
+//! real first frame and state, until the frame judge calls `done_frames` frames in a row done or
+//! the task's step budget (`ProxyEpisode::budget_steps`, in clip frames) runs out. The real
+//! episode's length and outcome never reach the rollout. The scripted oracle cannot act outside
+//! the simulator (its plan reads the scene's state) and is refused as a ranked policy; it may
+//! train the world model.
 
 use std::time::Instant;
 
-use assay_model::clip::Clip;
+use assay_model::clip::{CLIP_STRIDE_STEPS, Clip};
+use assay_model::dynamics::DynamicsFit;
 use assay_model::policy::{EpisodeContext, Policy, PolicyError, PolicySpec};
 use assay_model::proxy::{
-    IMAGINED_KEYFRAMES, ProxyConfig, ProxyEpisode, ProxyPrediction, ProxyResult,
+    ExternalWorldModel, IMAGINED_KEYFRAMES, LeakVerdict, ProxyConfig, ProxyEpisode,
+    ProxyPrediction, ProxyResult,
 };
+use assay_model::world::{WorldError, WorldModelService};
 use assay_spec::rng::Rng;
 use tch::{Device, Kind, Tensor};
 
 use crate::adam::Adam;
+use crate::imagination::{self, Stop};
 use crate::world_model::{Conv, FitRequest, Init, Linear, WorldModelError, fit_model};
 
 const JUDGE_BATCH: usize = 16;
@@ -176,11 +184,20 @@ pub fn train_frame_judge(
 /// Builds a policy object from its name (`assay_policy::load_with` in the binary).
 pub type PolicyLoader<'a> = dyn Fn(&str) -> Result<Box<dyn Policy>, PolicyError> + Sync + 'a;
 
-/// The proxy of one group: its episodes with their loaded clips (same order).
+/// Connects to a served world model (`assay_policy::world_model::connect` in the binary).
+pub type WorldModelLoader<'a> =
+    dyn Fn(&ExternalWorldModel) -> Result<Box<dyn WorldModelService>, WorldError> + Sync + 'a;
+
+/// The proxy of one group: its episodes with their loaded clips (same order). Of a ranked
+/// episode's clip only the first frame and state reach its rollout; the rest serves the
+/// diagnostics (the world model's errors, the judge on the real last frame) and the leak
+/// ablation when asked.
 pub struct ProxyRequest<'a> {
     pub group: &'a str,
-    /// Builds the policy object a ranked episode names (not called for the oracle).
+    /// Builds the policy object a ranked episode names.
     pub policies: &'a PolicyLoader<'a>,
+    /// Connects to `config.external` when it is set.
+    pub world_models: &'a WorldModelLoader<'a>,
     pub train: &'a [ProxyEpisode],
     pub train_clips: &'a [Clip],
     pub eval: &'a [ProxyEpisode],
@@ -189,8 +206,23 @@ pub struct ProxyRequest<'a> {
     pub device: Device,
 }
 
-/// Runs the proxy of one group. `resume` and `on_checkpoint` are the world model's (see
-/// [`crate::world_model::fit`]).
+fn context(e: &ProxyEpisode) -> EpisodeContext {
+    EpisodeContext {
+        task_id: e.task_id.clone(),
+        seed: e.seed,
+        instruction: e.instruction.clone(),
+        arm: None,
+    }
+}
+
+/// Clip frames a ranked episode may be imagined for: its step budget at the clip's rate, the
+/// first frame included (an episode of `n` physics steps has `n / 24 + 1` clip frames).
+pub fn horizon_frames(budget_steps: u32) -> usize {
+    (u64::from(budget_steps) / CLIP_STRIDE_STEPS) as usize + 1
+}
+
+/// Runs the proxy of one group. `resume` and `on_checkpoint` are the RSSM's (see
+/// [`crate::world_model::fit`]); a served world model is not trained.
 pub fn run_proxy(
     req: &ProxyRequest<'_>,
     resume: Option<&[u8]>,
@@ -199,6 +231,7 @@ pub fn run_proxy(
     let ProxyRequest {
         group,
         policies,
+        world_models,
         train,
         train_clips,
         eval,
@@ -213,72 +246,98 @@ pub fn run_proxy(
             "episodes and clips differ in number".into(),
         ));
     }
-    let eval_keys: Vec<String> = eval.iter().map(|e| e.clip.clone()).collect();
-    let req = FitRequest {
-        config: &config.world_model,
-        group,
-        budget: train_clips.len() as u32,
-        train: train_clips,
-        eval: eval_clips,
-        eval_keys: &eval_keys,
-        device,
-    };
-    let (model, fit) = fit_model(&req, resume, on_checkpoint)?;
-    let batch = config.world_model.batch.max(1);
-    let imagined_train = model.imagine(train_clips, batch)?;
-    // The oracle's episodes open loop, in batches; policy objects closed loop, one by one.
-    let oracle: Vec<bool> = eval
-        .iter()
-        .map(|e| PolicySpec::parse(&e.policy).is_ok_and(|p| p.is_oracle()))
-        .collect();
-    let open: Vec<Clip> = eval_clips
-        .iter()
-        .zip(&oracle)
-        .filter(|(_, o)| **o)
-        .map(|(c, _)| c.clone())
-        .collect();
-    let mut open = model.imagine(&open, batch)?.into_iter();
-    let mut imagined_eval = Vec::with_capacity(eval.len());
-    for (i, e) in eval.iter().enumerate() {
-        if oracle[i] {
-            imagined_eval.push(open.next().expect("one per oracle episode"));
-            continue;
-        }
-        let what = |err: String| {
+    for e in eval {
+        let what = |reason: &str| {
             WorldModelError::Request(format!(
-                "policy '{}' on task {} seed {}: {err}",
+                "ranked policy '{}' on task {} seed {}: {reason}",
                 e.policy, e.task_id, e.seed
             ))
         };
-        let mut policy = policies(&e.policy).map_err(|err| what(err.to_string()))?;
-        let episode = EpisodeContext {
-            task_id: e.task_id.clone(),
-            seed: e.seed,
-            instruction: e.instruction.clone(),
-            arm: None,
-        };
-        let im = model
-            .imagine_policy(
-                &eval_clips[i],
-                eval_clips[i].len(),
-                policy.as_mut(),
-                &episode,
-            )
-            .map_err(|err| what(err.to_string()))?;
-        imagined_eval.push(im);
+        match PolicySpec::parse(&e.policy) {
+            Ok(p) if p.is_oracle() => {
+                return Err(what(
+                    "the scripted oracle reads the simulator's state and cannot act inside a world model; \
+                     it may train the world model (name it in train_policies), not be ranked",
+                ));
+            }
+            Err(err) => return Err(what(&err.to_string())),
+            Ok(_) => {}
+        }
+        if e.budget_steps == 0 {
+            return Err(what("no step budget (budget_steps is 0)"));
+        }
     }
-
     let size = config.world_model.image_size;
+    let eval_keys: Vec<String> = eval.iter().map(|e| e.clip.clone()).collect();
+    let rssm_model;
+    let rssm;
+    let external;
+    let (world, mut fit): (&dyn WorldModelService, DynamicsFit) = match &config.external {
+        None => {
+            let req = FitRequest {
+                config: &config.world_model,
+                group,
+                budget: train_clips.len() as u32,
+                train: train_clips,
+                eval: eval_clips,
+                eval_keys: &eval_keys,
+                device,
+            };
+            let (model, fit) = fit_model(&req, resume, on_checkpoint)?;
+            rssm_model = model;
+            rssm = rssm_model.service();
+            (&rssm, fit)
+        }
+        Some(server) => {
+            external = world_models(server)?;
+            let fit = DynamicsFit {
+                group: group.to_owned(),
+                budget: 0,
+                train_episodes: 0,
+                eval_episodes: eval_clips.len() as u32,
+                eval_image_mse: 0.0,
+                eval_proprio_mse: 0.0,
+                per_episode: Vec::new(),
+                episodes: eval_keys.clone(),
+                final_train_loss: 0.0,
+                steps: 0,
+                epochs: 0.0,
+                resumed_from_step: None,
+                steps_per_s: 0.0,
+                device: "served".into(),
+                libtorch: String::new(),
+                config: config.world_model.clone(),
+            };
+            (external.as_ref(), fit)
+        }
+    };
+    let train_ctx: Vec<EpisodeContext> = train.iter().map(context).collect();
+    let eval_ctx: Vec<EpisodeContext> = eval.iter().map(context).collect();
+
+    // The frame judge: real and imagined (replayed with the real actions) frames of the
+    // training episodes — last frames labelled with the outcome, earlier ones not done.
     let frame = (size * size * 3) as usize;
-    let last = |c: &Clip| -> Vec<u8> { c.rgb[(c.len() - 1) * frame..c.len() * frame].to_vec() };
-    let real_train: Vec<Vec<u8>> = train_clips.iter().map(last).collect();
-    let mut examples: Vec<(&[u8], bool)> = Vec::new();
+    let at = |c: &Clip, t: usize| c.rgb[t * frame..(t + 1) * frame].to_vec();
+    let mut owned: Vec<(Vec<u8>, bool)> = Vec::new();
     for (i, e) in train.iter().enumerate() {
+        let clip = &train_clips[i];
         let ok = e.success.unwrap_or(false);
-        examples.push((&real_train[i], ok));
-        let im = imagined_train[i].frames.last().expect("2 frames or more");
-        examples.push((im, ok));
+        let imagined = imagination::replay(
+            world,
+            &imagination::start_of(clip, &train_ctx[i]),
+            &imagination::actions_of(clip),
+        )?;
+        let last = clip.len() - 1;
+        owned.push((at(clip, last), ok));
+        owned.push((imagined[last - 1].clone(), ok));
+        for t in [last / 4, last / 2] {
+            if t >= 1 && t < last {
+                owned.push((at(clip, t), false));
+                owned.push((imagined[t - 1].clone(), false));
+            }
+        }
     }
+    let examples: Vec<(&[u8], bool)> = owned.iter().map(|(f, ok)| (f.as_slice(), *ok)).collect();
     let (judge, judge_train_accuracy) = train_frame_judge(
         &examples,
         size,
@@ -287,34 +346,58 @@ pub fn run_proxy(
         config.world_model.seed,
         device,
     );
-    let imagined_last: Vec<&[u8]> = imagined_eval
-        .iter()
-        .map(|i| i.frames.last().expect("2 frames or more").as_slice())
-        .collect();
-    let real_eval: Vec<Vec<u8>> = eval_clips.iter().map(last).collect();
-    let real_refs: Vec<&[u8]> = real_eval.iter().map(|v| v.as_slice()).collect();
-    let p_imagined = judge.probability_of(&imagined_last);
-    let p_real = judge.probability_of(&real_refs);
-    let predictions = eval
-        .iter()
-        .enumerate()
-        .map(|(i, e)| ProxyPrediction {
+    let judge_one = |f: &[u8]| judge.probability_of(&[f])[0];
+
+    // The world model's use of its actions, on the ranked episodes' real clips (a diagnostic).
+    let eval_refs: Vec<&Clip> = eval_clips.iter().collect();
+    let action_test = imagination::action_test(world, &eval_refs, &eval_ctx)?;
+    if config.external.is_some() {
+        fit.eval_image_mse = action_test.as_ref().map_or(0.0, |a| a.true_actions_mse);
+    }
+
+    let mut predictions = Vec::with_capacity(eval.len());
+    let mut imagined_frames = Vec::with_capacity(eval.len());
+    for (i, e) in eval.iter().enumerate() {
+        let clip = &eval_clips[i];
+        let what = |err: String| {
+            WorldModelError::Request(format!(
+                "policy '{}' on task {} seed {}: {err}",
+                e.policy, e.task_id, e.seed
+            ))
+        };
+        let mut policy = policies(&e.policy).map_err(|err| what(err.to_string()))?;
+        let stop = Stop {
+            horizon: horizon_frames(e.budget_steps),
+            judge: &judge_one,
+            threshold: config.threshold,
+            done_frames: config.done_frames as usize,
+            leak_at: config.leak_ablation.then(|| clip.len() - 1),
+        };
+        let start = imagination::start_of(clip, &eval_ctx[i]);
+        let rollout =
+            imagination::closed_loop(world, &start, policy.as_mut(), &eval_ctx[i], &stop)
+                .map_err(|err| what(err.to_string()))?;
+        let real_last = at(clip, clip.len() - 1);
+        let last_imagined = rollout.frames.last().unwrap_or(&start.rgb);
+        predictions.push(ProxyPrediction {
             task_id: e.task_id.clone(),
             policy: e.policy.clone(),
             seed: e.seed,
-            p_success: p_imagined[i],
-            success: p_imagined[i] >= config.threshold,
-            p_success_real_frame: p_real[i],
-            last_frame_mse: imagined_eval[i].last_frame_mse,
+            p_success: rollout.p_success,
+            success: rollout.done_by_judge,
+            p_success_real_frame: judge_one(&real_last),
+            last_frame_mse: imagination::mse(last_imagined, &real_last),
+            imagined_frames: rollout.frames.len() as u32 + 1,
+            done_by_judge: rollout.done_by_judge,
+            leak: rollout.leak.map(|p| LeakVerdict {
+                p_success: p,
+                success: p >= config.threshold,
+            }),
             // Named by the job runner once it has stored `imagined_frames`.
             imagined_keyframes: Vec::new(),
-        })
-        .collect();
-    let imagined_frames = imagined_eval
-        .iter()
-        .zip(eval_clips)
-        .map(|(im, clip)| keyframes_of(clip, im, frame))
-        .collect();
+        });
+        imagined_frames.push(keyframes_of(&start.rgb, &rollout.frames));
+    }
     tracing::info!(
         group,
         seconds = started.elapsed().as_secs_f64(),
@@ -325,6 +408,8 @@ pub fn run_proxy(
     );
     Ok(ProxyResult {
         group: group.to_owned(),
+        world_model_name: world.name(),
+        action_test,
         world_model: fit,
         judge_examples: examples.len() as u32,
         judge_positives: examples.iter().filter(|e| e.1).count() as u32,
@@ -335,20 +420,16 @@ pub fn run_proxy(
     })
 }
 
-/// [`IMAGINED_KEYFRAMES`] frames of an imagined rollout, evenly spaced from the clip's real
-/// first frame (what the world model was given) to the last imagined one, with their indices.
-fn keyframes_of(
-    clip: &Clip,
-    imagined: &crate::world_model::Imagined,
-    frame: usize,
-) -> Vec<(u64, Vec<u8>)> {
-    let last = imagined.frames.len();
+/// [`IMAGINED_KEYFRAMES`] frames of an imagined rollout, evenly spaced from the real first
+/// frame (what the world model was given) to the last imagined one, with their indices.
+fn keyframes_of(first: &[u8], imagined: &[Vec<u8>]) -> Vec<(u64, Vec<u8>)> {
+    let last = imagined.len();
     (0..IMAGINED_KEYFRAMES)
         .map(|k| {
             let t = (last as f64 * k as f64 / (IMAGINED_KEYFRAMES - 1) as f64).round() as usize;
             let rgb = match t {
-                0 => clip.rgb[..frame].to_vec(),
-                t => imagined.frames[t - 1].clone(),
+                0 => first.to_vec(),
+                t => imagined[t - 1].clone(),
             };
             (t as u64, rgb)
         })

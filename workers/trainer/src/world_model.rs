@@ -58,7 +58,6 @@ use std::time::Instant;
 
 use assay_model::clip::{ACTION_DIMS, Clip, PROPRIO_DIMS};
 use assay_model::dynamics::{DynamicsConfig, DynamicsFit};
-use assay_model::policy::{Action, EpisodeContext, Policy, PolicyError, PolicyObservation};
 use assay_spec::rng::Rng;
 use tch::{Device, Kind, Tensor};
 use thiserror::Error;
@@ -85,6 +84,8 @@ pub struct FitRequest<'a> {
     pub device: Device,
 }
 
+mod service;
+
 #[derive(Debug, Error)]
 pub enum WorldModelError {
     /// A clip that cannot be trained or evaluated on; `clip` names it (`train clip 3`,
@@ -101,6 +102,8 @@ pub enum WorldModelError {
     Checkpoint { step: u64, reason: String },
     #[error("libtorch: {0}")]
     Torch(#[from] tch::TchError),
+    #[error("{0}")]
+    World(#[from] assay_model::world::WorldError),
 }
 
 /// Fits the world model on `req.train` and evaluates its one-step prediction error on `req.eval`.
@@ -122,16 +125,6 @@ pub struct WorldModel {
     model: Model,
     size: i64,
     device: Device,
-}
-
-/// What the world model imagined for one clip: its frames predicted from the first alone.
-#[derive(Debug, Clone)]
-pub struct Imagined {
-    /// Predicted frames 1..T (`T − 1` frames of `H·W·3` RGB bytes); frame 0 is the real one.
-    pub frames: Vec<Vec<u8>>,
-    /// Mean squared error per pixel-channel (in [0, 1] units) of the last predicted frame
-    /// against the clip's real last frame.
-    pub last_frame_mse: f64,
 }
 
 /// [`fit`], keeping the trained model.
@@ -276,181 +269,14 @@ pub fn fit_model(
 }
 
 impl WorldModel {
-    /// Imagines a policy acting inside the world model, closed loop: from `first`'s frame 0 and
-    /// proprioception (the real ones, as in [`WorldModel::imagine`]), the policy is shown the
-    /// frame and proprioception the model decodes at each step (holding rounded to 0 or 1) and
-    /// its actions drive the next step, for `steps` frames in all. `policy` is reset with
-    /// `episode` first. Deterministic for a deterministic policy.
-    pub fn imagine_policy(
-        &self,
-        first: &Clip,
-        steps: usize,
-        policy: &mut dyn Policy,
-        episode: &EpisodeContext,
-    ) -> Result<Imagined, WorldModelError> {
-        check_clip(first, self.size as u32).map_err(|reason| WorldModelError::BadClip {
-            clip: "first frame of a policy's imagined episode".into(),
-            reason,
-        })?;
-        let size = self.size;
-        let frame = (size * size * 3) as usize;
-        let m = &self.model;
-        let policy_error = |step: usize, e: PolicyError| {
-            WorldModelError::Request(format!("imagined step {step}: {e}"))
-        };
-        policy.reset(episode).map_err(|e| policy_error(0, e))?;
-        tch::no_grad(|| {
-            let image = Tensor::from_slice(&first.rgb[..frame])
-                .view([1, size, size, 3])
-                .to_device(self.device)
-                .permute([0, 3, 1, 2])
-                .to_kind(Kind::Float)
-                / 255.0
-                - 0.5;
-            let proprio0: [f32; PROPRIO_DIMS] = first.proprio[..PROPRIO_DIMS]
-                .try_into()
-                .expect("PROPRIO_DIMS values");
-            let prop = Tensor::from_slice(&proprio0)
-                .view([1, -1])
-                .to_device(self.device);
-            let h0 = Tensor::zeros([1, m.deter], (Kind::Float, self.device));
-            let mut z = m.mode(&m.posterior(&h0, &m.post_e.forward(&m.encode(&image, &prop))));
-            let mut h = h0;
-            let mut seen = (first.rgb[..frame].to_vec(), proprio0);
-            let mut chunk = std::collections::VecDeque::new();
-            let mut frames = Vec::with_capacity(steps.saturating_sub(1));
-            for t in 0..steps.saturating_sub(1) {
-                if chunk.is_empty() {
-                    let obs = PolicyObservation::legacy(
-                        t as u32,
-                        size as u32,
-                        size as u32,
-                        seen.0.clone(),
-                        seen.1,
-                    );
-                    let answer = policy.act(&obs).map_err(|e| policy_error(t, e))?;
-                    if answer.is_empty() || answer.iter().flatten().any(|x| !x.is_finite()) {
-                        return Err(policy_error(
-                            t,
-                            PolicyError::BadAnswer("an empty or non-finite chunk".into()),
-                        ));
-                    }
-                    chunk.extend(answer);
-                }
-                let a: Action = chunk.pop_front().expect("a non-empty chunk");
-                let a = Tensor::from_slice(&a).view([1, -1]).to_device(self.device);
-                h = m.step_h(&h, &z, &a);
-                z = m.mode(&m.prior(&h));
-                let (img, prop) = m.decode(&Tensor::cat(&[&h, &z], -1));
-                let pixels = ((img.clamp(-0.5, 0.5) + 0.5) * 255.0)
-                    .round()
-                    .to_kind(Kind::Uint8)
-                    .permute([0, 2, 3, 1])
-                    .contiguous()
-                    .to_device(Device::Cpu);
-                let rgb = Vec::<u8>::try_from(pixels.flatten(0, -1))?;
-                let p = Vec::<f32>::try_from(prop.to_device(Device::Cpu).flatten(0, -1))?;
-                let mut proprio = [0f32; PROPRIO_DIMS];
-                proprio.copy_from_slice(&p[..PROPRIO_DIMS]);
-                proprio[PROPRIO_DIMS - 1] = if proprio[PROPRIO_DIMS - 1] >= 0.5 {
-                    1.0
-                } else {
-                    0.0
-                };
-                frames.push(rgb.clone());
-                seen = (rgb, proprio);
-            }
-            Ok::<_, WorldModelError>(frames)
-        })
-        .map(|frames| {
-            let real = &first.rgb[(first.len() - 1) * frame..first.len() * frame];
-            let last_frame_mse = frames.last().map_or(0.0, |predicted| {
-                real.iter()
-                    .zip(predicted)
-                    .map(|(a, b)| {
-                        let d = (f64::from(*a) - f64::from(*b)) / 255.0;
-                        d * d
-                    })
-                    .sum::<f64>()
-                    / frame as f64
-            });
-            Imagined {
-                frames,
-                last_frame_mse,
-            }
-        })
+    /// Frame size (square) the model works at.
+    pub fn image_size(&self) -> u32 {
+        self.size as u32
     }
 
-    /// Imagines every clip open loop from its first frame: the posterior of frame 0 (with
-    /// `h_0 = 0`, as in training), then `h_{t+1} = GRU(h_t, [z_t, a_t])` with the clip's own
-    /// action `a_t` and `z_{t+1}` the mode of the prior — never looking at a real frame after
-    /// the first. Deterministic (modes, no sampling). Clips go through `batch` at a time.
-    pub fn imagine(&self, clips: &[Clip], batch: usize) -> Result<Vec<Imagined>, WorldModelError> {
-        for (i, c) in clips.iter().enumerate() {
-            check_clip(c, self.size as u32).map_err(|reason| WorldModelError::BadClip {
-                clip: format!("imagined clip {i}"),
-                reason,
-            })?;
-        }
-        let size = self.size;
-        let frame = (size * size * 3) as usize;
-        let mut out = Vec::with_capacity(clips.len());
-        tch::no_grad(|| {
-            for first in (0..clips.len()).step_by(batch.max(1)) {
-                let last = (first + batch.max(1)).min(clips.len());
-                let spans: Vec<_> = (first..last).map(|i| (i, 0, clips[i].len())).collect();
-                let b = Batch::from_spans(clips, &spans, size, self.device);
-                let (l, n) = (b.len, b.batch);
-                let m = &self.model;
-                let images = b.images.view([l, n, 3, size, size]);
-                let embed = m.encode(&images.get(0), &b.proprio.get(0));
-                let h0 = Tensor::zeros([n, m.deter], (Kind::Float, self.device));
-                let mut z = m.mode(&m.posterior(&h0, &m.post_e.forward(&embed)));
-                let mut h = h0;
-                let mut feats = Vec::new();
-                for t in 0..l - 1 {
-                    h = m.step_h(&h, &z, &b.actions.get(t));
-                    z = m.mode(&m.prior(&h));
-                    feats.push(Tensor::cat(&[&h, &z], -1));
-                }
-                let feat = Tensor::stack(&feats, 0).view([(l - 1) * n, -1]);
-                let (img, _) = m.decode(&feat);
-                let pixels = ((img.clamp(-0.5, 0.5) + 0.5) * 255.0)
-                    .round()
-                    .to_kind(Kind::Uint8)
-                    .view([l - 1, n, 3, size, size])
-                    .permute([0, 1, 3, 4, 2])
-                    .contiguous()
-                    .to_device(Device::Cpu);
-                let bytes = Vec::<u8>::try_from(pixels.flatten(0, -1))?;
-                for (j, ci) in (first..last).enumerate() {
-                    let t_len = clips[ci].len();
-                    let frames: Vec<Vec<u8>> = (0..t_len - 1)
-                        .map(|t| {
-                            let at = (t * n as usize + j) * frame;
-                            bytes[at..at + frame].to_vec()
-                        })
-                        .collect();
-                    let real = &clips[ci].rgb[(t_len - 1) * frame..t_len * frame];
-                    let predicted = frames.last().expect("clips have 2 frames or more");
-                    let last_frame_mse = real
-                        .iter()
-                        .zip(predicted)
-                        .map(|(a, b)| {
-                            let d = (f64::from(*a) - f64::from(*b)) / 255.0;
-                            d * d
-                        })
-                        .sum::<f64>()
-                        / frame as f64;
-                    out.push(Imagined {
-                        frames,
-                        last_frame_mse,
-                    });
-                }
-            }
-            Ok::<(), WorldModelError>(())
-        })?;
-        Ok(out)
+    /// The model as a [`assay_model::world::WorldModelService`]: what the proxy imagines in.
+    pub fn service(&self) -> service::Rssm<'_> {
+        service::Rssm { model: self }
     }
 }
 

@@ -1,11 +1,17 @@
-//! The world-model proxy's parts: the frame judge tells frames apart, and the world model imagines
-//! whole clips from their first frame alone, deterministically.
+//! The world-model proxy's parts and its guarantees: the frame judge tells frames apart; the
+//! world model imagines from a first frame alone, deterministically, and uses its actions; a
+//! policy acts inside it closed loop; and nothing of a ranked episode's real outcome or length
+//! reaches the proxy's verdict (shuffling them changes nothing; the leak ablation does change).
 
 use assay_model::clip::{ACTION_DIMS, Clip, PROPRIO_DIMS};
 use assay_model::dynamics::DynamicsConfig;
+use assay_model::policy::{Action, EpisodeContext, Policy, PolicyError, PolicyObservation};
+use assay_model::proxy::{ProxyConfig, ProxyEpisode, ProxyResult};
+use assay_model::world::{WorldModelService, WorldStart};
 use assay_spec::rng::Rng;
-use assay_trainer::proxy::train_frame_judge;
-use assay_trainer::world_model::{FitRequest, fit_model};
+use assay_trainer::imagination::{self, Stop};
+use assay_trainer::proxy::{ProxyRequest, run_proxy, train_frame_judge};
+use assay_trainer::world_model::{FitRequest, WorldModel, fit_model};
 use tch::Device;
 
 const SIZE: u32 = 16;
@@ -55,15 +61,19 @@ fn the_frame_judge_learns_where_the_object_ended_up() {
     assert!(judge.probability_of(&frames).iter().all(|p| *p == 0.0));
 }
 
-/// A clip of the square moving right one pixel per frame (the action says so).
-fn clip(start: u32, len: u32) -> Clip {
+/// A clip of the square moving `dx` pixels per frame from `start` (the action says so: 0.25 per
+/// pixel), `len` frames.
+fn moving(start: u32, dx: i32, len: u32) -> Clip {
     let mut rgb = Vec::new();
     let mut proprio = Vec::new();
     let mut actions = Vec::new();
+    let mut x = start as i32;
     for t in 0..len {
-        rgb.extend(frame(start + t, 6));
-        proprio.extend([(start + t) as f32 / 16.0, 0.4, 0.1, 0.0]);
-        actions.extend([if t + 1 < len { 0.1 } else { 0.0 }, 0.0, 0.0, 0.0]);
+        rgb.extend(frame(x as u32, 6));
+        proprio.extend([x as f32 / 16.0, 0.4, 0.1, 0.0]);
+        let step = if t + 1 < len { dx } else { 0 };
+        actions.extend([step as f32 * 0.25, 0.0, 0.0, 0.0]);
+        x = (x + step).clamp(0, (SIZE - 4) as i32);
     }
     Clip {
         height: SIZE,
@@ -77,115 +87,153 @@ fn clip(start: u32, len: u32) -> Clip {
     }
 }
 
-#[test]
-fn the_world_model_imagines_every_frame_after_the_first_deterministically() {
-    let config = DynamicsConfig {
+/// A clip of the square moving right one pixel per frame.
+fn clip(start: u32, len: u32) -> Clip {
+    moving(start, 1, len)
+}
+
+fn small_config(steps: u64) -> DynamicsConfig {
+    DynamicsConfig {
         image_size: SIZE,
-        steps: 20,
+        steps,
         chunk: 6,
         deter: 32,
         hidden: 32,
         depth: 4,
         ..Default::default()
-    };
-    let clips: Vec<Clip> = (0..4).map(|i| clip(i, 6 + i)).collect();
-    let keys: Vec<String> = (0..4).map(|i| format!("c{i}")).collect();
+    }
+}
+
+fn train(clips: &[Clip], config: &DynamicsConfig) -> WorldModel {
+    let keys: Vec<String> = (0..clips.len()).map(|i| format!("c{i}")).collect();
     let req = FitRequest {
-        config: &config,
+        config,
         group: "g",
-        budget: 4,
-        train: &clips,
-        eval: &clips,
+        budget: clips.len() as u32,
+        train: clips,
+        eval: clips,
         eval_keys: &keys,
         device: Device::Cpu,
     };
-    let (model, fit) = fit_model(&req, None, &mut |_, _| Ok(())).unwrap();
-    assert_eq!(fit.steps, 20);
-    // Batches of 3 pad the shorter clips; each clip still gets exactly its own frames.
-    let imagined = model.imagine(&clips, 3).unwrap();
-    assert_eq!(imagined.len(), 4);
-    for (im, c) in imagined.iter().zip(&clips) {
-        assert_eq!(im.frames.len(), c.len() - 1);
-        assert!(
-            im.frames
-                .iter()
-                .all(|f| f.len() == (SIZE * SIZE * 3) as usize)
-        );
-        assert!(im.last_frame_mse.is_finite() && im.last_frame_mse > 0.0);
+    fit_model(&req, None, &mut |_, _| Ok(())).unwrap().0
+}
+
+fn context(seed: u64) -> EpisodeContext {
+    EpisodeContext {
+        task_id: "t".into(),
+        seed,
+        instruction: "move the square".into(),
+        arm: None,
     }
-    // The same clips, one at a time, give the same pictures: imagination draws no random numbers.
-    let again = model.imagine(&clips, 1).unwrap();
-    for (a, b) in imagined.iter().zip(&again) {
-        assert_eq!(a.frames, b.frames);
+}
+
+#[test]
+fn the_world_model_imagines_every_frame_after_the_first_deterministically() {
+    let clips: Vec<Clip> = (0..4).map(|i| clip(i, 6 + i)).collect();
+    let model = train(&clips, &small_config(20));
+    let world = model.service();
+    assert!(world.name().contains("RSSM"), "{}", world.name());
+    for (i, c) in clips.iter().enumerate() {
+        let start = imagination::start_of(c, &context(i as u64));
+        let actions = imagination::actions_of(c);
+        let frames = imagination::replay(&world, &start, &actions).unwrap();
+        assert_eq!(frames.len(), c.len() - 1);
+        assert!(frames.iter().all(|f| f.len() == (SIZE * SIZE * 3) as usize));
+        // Imagination draws no random numbers.
+        assert_eq!(frames, imagination::replay(&world, &start, &actions).unwrap());
     }
-    let mut bad = clip(0, 1);
-    bad.proprio_dims = PROPRIO_DIMS as u32;
-    let e = model.imagine(&[bad], 1).unwrap_err().to_string();
+    // A start the model cannot take is refused, saying why.
+    let mut start = imagination::start_of(&clips[0], &context(0));
+    start.width = 32;
+    let e = world.reset(&start).err().unwrap().to_string();
+    assert!(e.contains("frames of 32x16") && e.contains("16x16"), "{e}");
+    let start = imagination::start_of(&clips[0], &context(0));
+    let e = world
+        .reset(&start)
+        .unwrap()
+        .step(&[vec![0.0; 7]])
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("an action of 7 values"), "{e}");
+}
+
+#[test]
+fn the_trained_world_model_uses_its_actions() {
+    // Squares moving left, staying or moving right from the same starts, as their actions say:
+    // a model that ignored the actions could not tell these episodes apart after their first
+    // frame.
+    let clips: Vec<Clip> = (0..12)
+        .map(|i| moving(5 + (i / 3) % 3, [-2, 0, 2][i as usize % 3], 7))
+        .collect();
+    // Below its free nats the prior has no reason to follow the actions: in frames this small
+    // the whole episode's KL is under the default 1 nat, so the test trains without them.
+    let config = DynamicsConfig {
+        free_nats: 0.0,
+        ..small_config(1500)
+    };
+    let model = train(&clips, &config);
+    let world = model.service();
+    // Same start, different actions: different frames.
+    let start = imagination::start_of(&clips[1], &context(1));
+    let right = imagination::replay(&world, &start, &vec![vec![0.5, 0.0, 0.0, 0.0]; 3]).unwrap();
+    let left = imagination::replay(&world, &start, &vec![vec![-0.5, 0.0, 0.0, 0.0]; 3]).unwrap();
+    let apart = imagination::mse(&right[2], &left[2]);
+    assert!(apart > 1e-3, "3 steps right and 3 steps left differ by {apart}");
+    // Its error with the true actions is clearly below its error with another episode's.
+    let refs: Vec<&Clip> = clips.iter().collect();
+    let ctx: Vec<EpisodeContext> = (0..12).map(context).collect();
+    let test = imagination::action_test(&world, &refs, &ctx).unwrap().unwrap();
+    assert_eq!(test.episodes, 12);
     assert!(
-        e.contains("imagined clip 0") && e.contains("2 are needed"),
-        "{e}"
+        test.true_actions_mse * 4.0 < test.shuffled_actions_mse,
+        "true actions {} against shuffled {}",
+        test.true_actions_mse,
+        test.shuffled_actions_mse
     );
 }
 
 /// Always moves right, in chunks of 3; remembers what it saw.
 #[derive(Default)]
 struct Rightwards {
-    seen: Vec<assay_model::policy::PolicyObservation>,
+    seen: Vec<PolicyObservation>,
     resets: u32,
 }
 
-impl assay_model::policy::Policy for Rightwards {
-    fn reset(
-        &mut self,
-        _: &assay_model::policy::EpisodeContext,
-    ) -> Result<(), assay_model::policy::PolicyError> {
+impl Policy for Rightwards {
+    fn reset(&mut self, _: &EpisodeContext) -> Result<(), PolicyError> {
         self.resets += 1;
         Ok(())
     }
-    fn act(
-        &mut self,
-        obs: &assay_model::policy::PolicyObservation,
-    ) -> Result<Vec<assay_model::policy::Action>, assay_model::policy::PolicyError> {
+    fn act(&mut self, obs: &PolicyObservation) -> Result<Vec<Action>, PolicyError> {
         self.seen.push(obs.clone());
-        Ok(vec![[0.1, 0.0, 0.0, 0.0]; 3])
+        Ok(vec![[0.25, 0.0, 0.0, 0.0]; 3])
     }
+}
+
+fn never(_: &[u8]) -> f64 {
+    0.0
 }
 
 #[test]
 fn a_policy_acts_inside_the_world_model_on_the_frames_it_imagines() {
-    let config = DynamicsConfig {
-        image_size: SIZE,
-        steps: 20,
-        chunk: 6,
-        deter: 32,
-        hidden: 32,
-        depth: 4,
-        ..Default::default()
-    };
     let clips: Vec<Clip> = (0..3).map(|i| clip(i, 8)).collect();
-    let keys: Vec<String> = (0..3).map(|i| format!("c{i}")).collect();
-    let req = FitRequest {
-        config: &config,
-        group: "g",
-        budget: 3,
-        train: &clips,
-        eval: &clips,
-        eval_keys: &keys,
-        device: Device::Cpu,
-    };
-    let (model, _) = fit_model(&req, None, &mut |_, _| Ok(())).unwrap();
-    let episode = assay_model::policy::EpisodeContext {
-        task_id: "t".into(),
-        seed: 0,
-        instruction: "move right".into(),
-        arm: None,
+    let model = train(&clips, &small_config(20));
+    let world = model.service();
+    let episode = context(0);
+    let start = imagination::start_of(&clips[1], &episode);
+    let stop = Stop {
+        horizon: 8,
+        judge: &never,
+        threshold: 0.5,
+        done_frames: 2,
+        leak_at: None,
     };
     let mut policy = Rightwards::default();
-    let im = model
-        .imagine_policy(&clips[1], 8, &mut policy, &episode)
-        .unwrap();
+    let im = imagination::closed_loop(&world, &start, &mut policy, &episode, &stop).unwrap();
     assert_eq!(policy.resets, 1);
+    // Never judged done: the whole budget of 8 frames, the real first one and 7 imagined.
     assert_eq!(im.frames.len(), 7);
+    assert!(!im.done_by_judge);
     // Asked at steps 0, 3 and 6 (chunks of 3): first the real frame, then imagined ones.
     let steps: Vec<u32> = policy.seen.iter().map(|o| o.step).collect();
     assert_eq!(steps, [0, 3, 6]);
@@ -202,8 +250,189 @@ fn a_policy_acts_inside_the_world_model_on_the_frames_it_imagines() {
     );
     // The same policy again imagines the same episode.
     let mut again = Rightwards::default();
-    let im2 = model
-        .imagine_policy(&clips[1], 8, &mut again, &episode)
-        .unwrap();
+    let im2 = imagination::closed_loop(&world, &start, &mut again, &episode, &stop).unwrap();
     assert_eq!(im.frames, im2.frames);
+    // A judge that calls every frame done stops the rollout after `done_frames` frames.
+    let always = |_: &[u8]| 0.9;
+    let stop = Stop {
+        judge: &always,
+        ..stop
+    };
+    let done = imagination::closed_loop(&world, &start, &mut Rightwards::default(), &episode, &stop)
+        .unwrap();
+    assert!(done.done_by_judge);
+    assert_eq!((done.frames.len(), done.p_success), (2, 0.9));
+}
+
+/// A world model with no model in it: a served one that refuses every start.
+struct Refusing;
+
+impl WorldModelService for Refusing {
+    fn name(&self) -> String {
+        "refusing".into()
+    }
+    fn reset(
+        &self,
+        _: &WorldStart,
+    ) -> Result<Box<dyn assay_model::world::ImaginedEpisode + '_>, assay_model::world::WorldError>
+    {
+        Err(assay_model::world::WorldError::Unavailable(
+            "http://127.0.0.1:9: connection refused".into(),
+        ))
+    }
+}
+
+fn proxy_episode(policy: &str, seed: u64, success: Option<bool>) -> ProxyEpisode {
+    ProxyEpisode {
+        task_id: "t".into(),
+        policy: policy.into(),
+        seed,
+        clip: format!("clips/{policy}-{seed}"),
+        instruction: "move the square".into(),
+        success,
+        budget_steps: 24 * 11,
+    }
+}
+
+const RANKED: &str = "remote:url=http://127.0.0.1:1";
+
+fn run(
+    train: &[ProxyEpisode],
+    train_clips: &[Clip],
+    eval: &[ProxyEpisode],
+    eval_clips: &[Clip],
+    config: &ProxyConfig,
+) -> Result<ProxyResult, assay_trainer::world_model::WorldModelError> {
+    let policies = |_: &str| -> Result<Box<dyn Policy>, PolicyError> {
+        Ok(Box::new(Rightwards::default()))
+    };
+    let world_models = |_: &assay_model::proxy::ExternalWorldModel| {
+        Ok(Box::new(Refusing) as Box<dyn WorldModelService>)
+    };
+    run_proxy(
+        &ProxyRequest {
+            group: "g",
+            policies: &policies,
+            world_models: &world_models,
+            train,
+            train_clips,
+            eval,
+            eval_clips,
+            config,
+            device: Device::Cpu,
+        },
+        None,
+        &mut |_, _| Ok(()),
+    )
+}
+
+#[test]
+fn the_real_episodes_length_and_outcome_change_nothing_of_the_proxy() {
+    // Training episodes: the square ends on the right (success) or stays left (failure).
+    let mut train_eps = Vec::new();
+    let mut train_clips = Vec::new();
+    for i in 0..8u64 {
+        let right = i % 2 == 0;
+        train_clips.push(moving(1, if right { 1 } else { 0 }, 10));
+        train_eps.push(proxy_episode("oracle:noise=0.01", i, Some(right)));
+    }
+    // Ranked episodes: real clips of various lengths and endings; the proxy sees their first
+    // frame only.
+    let real = |i: u64| moving(1 + (i % 2) as u32, [1, 0, -1][i as usize % 3], 4 + i as u32);
+    let eval_clips: Vec<Clip> = (0..6).map(real).collect();
+    let eval_eps: Vec<ProxyEpisode> = (0..6).map(|i| proxy_episode(RANKED, i, None)).collect();
+    let config = ProxyConfig {
+        world_model: small_config(150),
+        judge_steps: 150,
+        judge_lr: 3e-3,
+        leak_ablation: true,
+        ..Default::default()
+    };
+    let base = run(&train_eps, &train_clips, &eval_eps, &eval_clips, &config).unwrap();
+    assert_eq!(base.predictions.len(), 6);
+    assert!(base.world_model_name.contains("RSSM"));
+    assert!(base.action_test.is_some());
+    // Shuffled: each ranked episode's real clip keeps its first frame and state but gets
+    // another length and another ending, and the episodes claim outcomes.
+    let shuffled_clips: Vec<Clip> = (0..6u64)
+        .map(|i| {
+            let mut other = real((i + 3) % 6);
+            let own = &eval_clips[i as usize];
+            let (frame, p) = ((SIZE * SIZE * 3) as usize, PROPRIO_DIMS);
+            other.rgb[..frame].copy_from_slice(&own.rgb[..frame]);
+            other.proprio[..p].copy_from_slice(&own.proprio[..p]);
+            other
+        })
+        .collect();
+    assert!(
+        shuffled_clips
+            .iter()
+            .zip(&eval_clips)
+            .any(|(a, b)| a.len() != b.len())
+    );
+    let claimed: Vec<ProxyEpisode> = (0..6)
+        .map(|i| proxy_episode(RANKED, i, Some(i % 2 == 1)))
+        .collect();
+    let shuffled = run(&train_eps, &train_clips, &claimed, &shuffled_clips, &config).unwrap();
+    for (a, b) in base.predictions.iter().zip(&shuffled.predictions) {
+        assert_eq!(
+            (a.p_success, a.success, a.done_by_judge, a.imagined_frames),
+            (b.p_success, b.success, b.done_by_judge, b.imagined_frames),
+            "{a:?}\n{b:?}"
+        );
+    }
+    assert_eq!(base.imagined_frames, shuffled.imagined_frames);
+    // The leak ablation reads the judge at the real length: it does move (which is why it is
+    // an ablation), so this test would see a leak into the verdict.
+    let leak_at = |r: &ProxyResult| -> Vec<f64> {
+        r.predictions
+            .iter()
+            .map(|p| p.leak.as_ref().unwrap().p_success)
+            .collect()
+    };
+    assert_ne!(leak_at(&base), leak_at(&shuffled));
+    // Every rollout runs the episode's step budget (11 clip frames) unless judged done.
+    for p in &base.predictions {
+        assert!(p.done_by_judge || p.imagined_frames == 11, "{p:?}");
+    }
+}
+
+#[test]
+fn a_scripted_oracle_is_refused_as_a_ranked_policy_and_a_dead_world_model_is_unavailable() {
+    let train_clips: Vec<Clip> = (0..2).map(|i| clip(i, 6)).collect();
+    let train_eps: Vec<ProxyEpisode> = (0..2)
+        .map(|i| proxy_episode("oracle:noise=0.01", i, Some(i == 0)))
+        .collect();
+    let config = ProxyConfig {
+        world_model: small_config(5),
+        judge_steps: 5,
+        ..Default::default()
+    };
+    let eval = [proxy_episode("oracle:noise=0.02", 0, None)];
+    let e = run(&train_eps, &train_clips, &eval, &train_clips[..1], &config)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("ranked policy 'oracle:noise=0.02'")
+            && e.contains("cannot act inside a world model"),
+        "{e}"
+    );
+    let served = ProxyConfig {
+        external: Some(assay_model::proxy::ExternalWorldModel {
+            url: "http://127.0.0.1:9".into(),
+            timeout_ms: 100,
+        }),
+        ..config
+    };
+    let eval = [proxy_episode(RANKED, 0, None)];
+    let e = run(&train_eps, &train_clips, &eval, &train_clips[..1], &served).unwrap_err();
+    assert!(
+        matches!(
+            e,
+            assay_trainer::world_model::WorldModelError::World(
+                assay_model::world::WorldError::Unavailable(_)
+            )
+        ),
+        "{e}"
+    );
 }

@@ -4,7 +4,9 @@ use std::path::Path;
 use std::sync::Mutex;
 
 use assay_model::policy::{Policy, PolicyError, PolicySpec};
+use assay_model::proxy::ExternalWorldModel;
 use assay_model::trainer::TrainerJob;
+use assay_model::world::WorldError;
 use assay_proto::v1 as pb;
 use assay_trainer::embedders::{Config, Embedders};
 use assay_worker_runtime::ShardError;
@@ -57,12 +59,20 @@ impl TrainerRole {
             })?;
             assay_policy::load_with(&spec, root, runtime, crate::diffusion_loader())
         };
+        // A lab's world model, served over `assay.v1.WorldModel`, when the proxy names one.
+        let world_models = |server: &ExternalWorldModel| {
+            let runtime = self.runtime.as_ref().ok_or_else(|| {
+                WorldError::Unavailable("the trainer role has no runtime for world-model calls".into())
+            })?;
+            assay_policy::world_model::connect(&server.url, server.timeout_ms, runtime)
+        };
         let outcome = assay_trainer::jobs::run(
             &job,
             &a.batch_id,
             root,
             &self.embedders,
             &policies,
+            &world_models,
             self.device,
         )
         .map_err(|e| ShardError {

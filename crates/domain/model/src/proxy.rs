@@ -258,6 +258,11 @@ pub struct ImaginedJudgement {
     pub judge: String,
     /// Mean completion score (0–10); Err when the judge shard failed or gave no score.
     pub completion: Result<f64, String>,
+    /// The completion score of each repeat that gave one, in repeat order (their mean is
+    /// `completion`): their spread is the judge's repeat consistency on imagined rollouts.
+    pub scores: Vec<f64>,
+    /// Repeats asked (the judge's `repeats`, k); 0 when the shard gave no outcome.
+    pub repeats: u32,
 }
 
 /// One judge's verdicts on the imagined rollouts of one (task, policy).

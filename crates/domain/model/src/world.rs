@@ -49,7 +49,7 @@ pub trait ImaginedEpisode {
 }
 
 /// A world model that imagines episodes.
-pub trait WorldModelService: Send + Sync {
+pub trait WorldModelService {
     /// What the report calls it.
     fn name(&self) -> String;
     /// Starts an imagined episode.

@@ -165,6 +165,7 @@ fn cell(c: &Cell) -> Markup {
                 Span::Missing => "–",
                 Span::Break => br;,
                 Span::TaskLink(id) => a href={ "#" (task_anchor(id)) } { (id) },
+                Span::Abbrev { short, full } => span title=(full) { (short) },
             }
         }
     }
@@ -199,7 +200,6 @@ mod tests {
     use crate::diversity::DiversityResults;
     use crate::generalization::{EvalEpisode, GeneralizationResults, GroupGeneralization};
     use crate::quality::build_quality;
-    use crate::ranking::RankingResults;
     use crate::report::RunInfo;
     use crate::report::build_results;
     use crate::testing::judged;
@@ -211,8 +211,6 @@ mod tests {
     use assay_stats::agreement::Estimate;
     use assay_stats::agreement::{AgreementRow, agreement};
     use assay_stats::diversity::{EmbeddingModel, TextDiversityRow, TextDiversityTable};
-    use assay_stats::ranking::{Cell, RankingConfig, rank};
-    use assay_stats::stats::Proportion;
 
     const EVIL: &str = "<script>alert(1)</script>";
 
@@ -372,38 +370,6 @@ mod tests {
         }
     }
 
-    fn ranking() -> RankingResults {
-        let mut cells = Vec::new();
-        for (p, real, proxy) in [("good", 0.9, 0.8), ("fair", 0.5, 0.6), ("poor", 0.1, 0.2)] {
-            for (source, rate) in [("real", real), ("world-model", proxy)] {
-                cells.push(Cell {
-                    task: "a".into(),
-                    policy: p.into(),
-                    source: source.into(),
-                    trials: None,
-                    successes: None,
-                    rate,
-                });
-            }
-        }
-        let cfg = RankingConfig {
-            resamples: 50,
-            ..RankingConfig::default()
-        };
-        RankingResults {
-            train_policies: vec!["oracle".into()],
-            ranked_policies: vec!["good".into(), "fair".into(), "poor".into()],
-            rows: Vec::new(),
-            groups: Vec::new(),
-            ranking: Some(rank(&cells, &cfg).unwrap()),
-            ranking_missing: None,
-            proxy_agreement: Some(Proportion::new(5, 6)),
-            judge_agreement_real_frames: None,
-            errors: Vec::new(),
-            judging_errors: Vec::new(),
-        }
-    }
-
     /// Two groups, three tasks (one named like a script), two judges, every section.
     fn report() -> Report {
         let tasks = vec![
@@ -494,7 +460,7 @@ mod tests {
             errors: vec![("dynamics g2 @ 20".into(), "trainer crashed".into())],
         });
         results.generalization = Some(generalization());
-        results.ranking = Some(ranking());
+        results.ranking = Some(crate::testing::ranking_fixture());
         Report {
             report_version: crate::report::REPORT_VERSION,
             provenance: Default::default(),
@@ -765,7 +731,16 @@ mod tests {
             tables::generalization(r.generalization.as_ref().unwrap()),
             tables::ranking_statistics(c),
             tables::ranking_policies(c),
+            tables::ranking_compared(k),
+            tables::proxy_models(k),
+            tables::ranking_per_policy(k),
+            tables::action_test(k),
+            tables::repeat_consistency(k),
+            tables::ranking_rows(k),
         ];
+        let comparisons = &k.ranking.as_ref().unwrap().comparisons;
+        shared.extend(comparisons.iter().map(tables::ranking_statistics));
+        shared.extend(comparisons.iter().map(tables::ranking_policies));
         shared.extend(q.judges.iter().map(tables::quality_per_group));
         for t in &shared {
             assert!(!t.rows.is_empty(), "{}", t.markdown());

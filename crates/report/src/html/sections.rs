@@ -6,7 +6,9 @@ use crate::diversity::DiversityResults;
 use crate::figures::{self, BarChart, Bars, Line};
 use crate::generalization::{GeneralizationResults, GroupGeneralization, HELD_OUT_NOTE};
 use crate::quality::{OFFLINE_JUDGE_NOTE, QualityResults};
-use crate::ranking::RankingResults;
+use crate::ranking::{
+    ACTION_TEST_NOTE, LEAK_NOTE, PER_POLICY_NOTE, REPEAT_NOTE, RankingResults, is_ablation,
+};
 use crate::tables::{self, AgreementLine};
 use crate::view::proportion;
 use assay_stats::agreement::{Agreement, Estimate};
@@ -310,17 +312,41 @@ pub(super) fn ranking(r: Option<&RankingResults>) -> Markup {
             }
         };
     };
+    let models = tables::proxy_models(r);
+    let per_policy = tables::ranking_per_policy(r);
+    let actions = tables::action_test(r);
+    let repeats = tables::repeat_consistency(r);
     html! {
         section id="ranking" {
             h2 { "Policy ranking" }
-            p {
-                "Ranked: " (r.ranked_policies.join(", ")) ". World model and frame judge trained \
-                 on the episodes of: " (r.train_policies.join(", ")) "."
+            h3 { "What was compared" }
+            (table(&tables::ranking_compared(r)))
+            @if !models.rows.is_empty() {
+                p.caption { "Per group, the world model and the frame judge:" }
+                (table(&models))
+            }
+            @if !per_policy.rows.is_empty() {
+                h3 { "Real and predicted success per policy" }
+                p.caption { (PER_POLICY_NOTE) }
+                (table(&per_policy))
+            }
+            @if !actions.rows.is_empty() {
+                h3 { "Does the world model use its actions?" }
+                p.caption { (ACTION_TEST_NOTE) }
+                (table(&actions))
+            }
+            @if !repeats.rows.is_empty() {
+                h3 { "Judge repeat consistency on imagined rollouts" }
+                p.caption { (REPEAT_NOTE) }
+                (table(&repeats))
             }
             @match (&r.ranking, &r.ranking_missing) {
                 (Some(rk), _) => {
                     @for (i, c) in rk.comparisons.iter().enumerate() {
-                        h3 { (c.proxy) " against " (c.real) }
+                        h3 { (crate::ranking::source_title(&c.proxy)) " against " (c.real) }
+                        @if is_ablation(&c.proxy) {
+                            p.caption { (LEAK_NOTE) }
+                        }
                         div.row {
                             (inline_svg(&figures::ranking(rk, i)))
                             div {
@@ -360,7 +386,6 @@ pub(super) fn ranking(r: Option<&RankingResults>) -> Markup {
                     (table(&tables::ranking_rows(r)))
                 }
             }
-            (table_if_any(&tables::proxy_models(r)))
             @for (group, e) in &r.errors {
                 p.undefined { "Proxy of group " (group) " failed: " (e) }
             }

@@ -4,15 +4,18 @@
 use std::fmt::Write as _;
 
 use assay_stats::agreement::BOOTSTRAP_RESAMPLES;
-use assay_stats::ranking::Ranking;
+use assay_stats::ranking::{Comparison, Ranking};
 use assay_stats::stats::Proportion;
 
 use crate::diversity::DiversityResults;
 use crate::generalization::GeneralizationResults;
 use crate::quality::{ERRORS_SHOWN, OFFLINE_JUDGE_NOTE, QualityResults, TaskQuality};
-use crate::ranking::{RankingResults, ranking_figure};
+use crate::ranking::{
+    ACTION_TEST_NOTE, LEAK_NOTE, PER_POLICY_NOTE, REPEAT_NOTE, RankingResults, is_ablation,
+    ranking_figure,
+};
 use crate::tables;
-use crate::view::md_text;
+use crate::view::{Table, abbreviations, md_text};
 
 impl QualityResults {
     /// The "## Quality" section of report.md. `figure`: relative path of the SVG to link as an
@@ -209,12 +212,35 @@ fn rate(p: &Proportion) -> String {
 impl RankingResults {
     /// The section of `report.md`.
     pub fn markdown(&self) -> String {
-        let mut out = format!(
-            "Ranked: {}. World model and frame judge trained on the episodes of: {}.\n\n",
-            md_text(&self.ranked_policies.join(", ")),
-            md_text(&self.train_policies.join(", "))
-        );
-        out.push_str(&tables::ranking_rows(self).markdown());
+        let compared = tables::ranking_compared(self);
+        let models = tables::proxy_models(self);
+        let per_policy = tables::ranking_per_policy(self);
+        let actions = tables::action_test(self);
+        let repeats = tables::repeat_consistency(self);
+        let rows = tables::ranking_rows(self);
+        let mut out = String::from("### What was compared\n\n");
+        out.push_str(&compared.markdown());
+        if !models.rows.is_empty() {
+            out.push_str("\nPer group, the world model and the frame judge:\n\n");
+            out.push_str(&models.markdown());
+        }
+        if !per_policy.rows.is_empty() {
+            out.push_str("\n### Real and predicted success per policy\n\n");
+            let _ = writeln!(out, "{}\n", md_text(PER_POLICY_NOTE));
+            out.push_str(&per_policy.markdown());
+        }
+        if !actions.rows.is_empty() {
+            out.push_str("\n### Does the world model use its actions?\n\n");
+            let _ = writeln!(out, "{}\n", md_text(ACTION_TEST_NOTE));
+            out.push_str(&actions.markdown());
+        }
+        if !repeats.rows.is_empty() {
+            out.push_str("\n### Judge repeat consistency on imagined rollouts\n\n");
+            let _ = writeln!(out, "{}\n", md_text(REPEAT_NOTE));
+            out.push_str(&repeats.markdown());
+        }
+        out.push_str("\n### Per task and policy\n\n");
+        out.push_str(&rows.markdown());
         out.push('\n');
         if let Some(a) = &self.proxy_agreement {
             let _ = write!(
@@ -232,18 +258,18 @@ impl RankingResults {
             );
         }
         out.push_str("\n\n");
-        out.push_str(&tables::proxy_models(self).markdown());
-        out.push('\n');
+        let mut shown = vec![compared, per_policy, repeats, rows];
         match (&self.ranking, &self.ranking_missing) {
             (Some(r), _) => {
-                out.push_str(&ranking(r));
                 for c in &r.comparisons {
+                    out.push_str(&comparison(r, c));
                     let _ = writeln!(
                         out,
-                        "\n![{}: predicted against real success, one point per policy]({})",
-                        md_text(&c.proxy),
+                        "![{}: predicted against real success, one point per policy]({})\n",
+                        md_text(&crate::ranking::source_title(&c.proxy)),
                         ranking_figure(&c.proxy)
                     );
+                    shown.push(tables::ranking_policies(c));
                 }
             }
             (None, Some(why)) => {
@@ -251,6 +277,7 @@ impl RankingResults {
             }
             (None, None) => {}
         }
+        out.push_str(&full_names(&shown));
         for (group, e) in &self.errors {
             let _ = writeln!(
                 out,
@@ -272,68 +299,95 @@ impl RankingResults {
     }
 }
 
+/// The full names of the policies `tables` show shortened, as a list (nothing when none is).
+fn full_names(tables: &[Table]) -> String {
+    let names = abbreviations(tables);
+    let mut out = String::new();
+    if names.is_empty() {
+        return out;
+    }
+    out.push_str("\nPolicy names shortened in the tables:\n\n");
+    for (short, full) in names {
+        let _ = writeln!(out, "- {}: `{}`", md_text(&short), md_text(&full));
+    }
+    out
+}
+
 /// A ranking for people (`assay rank` prints it; report.md's ranking section holds it): per
 /// comparison, the policies by real success with R and R_S, the four statistics with their
-/// intervals, the reasons for anything undefined and what was left out.
+/// intervals, the reasons for anything undefined and what was left out; the full names of
+/// policies shown shortened.
 pub fn ranking(r: &Ranking) -> String {
     let mut out = String::new();
     for c in &r.comparisons {
-        let _ = writeln!(
-            out,
-            "## Policy ranking: {} against {}\n",
-            md_text(&c.proxy),
-            md_text(&c.real)
-        );
-        let _ = writeln!(
-            out,
-            "{} policies, {} tasks. R: a policy's mean over tasks of its success rate in \
-             '{}'; R_S: the same in '{}'.\n",
-            c.policies.len(),
-            c.tasks.len(),
-            md_text(&c.real),
-            md_text(&c.proxy)
-        );
-        if !c.policies.is_empty() {
-            out.push_str(&tables::ranking_policies(c).markdown());
-            out.push('\n');
-        }
-        out.push_str(&tables::ranking_statistics(c).markdown());
-        let _ = writeln!(
-            out,
-            "\nIntervals: 95 % percentile bootstrap, {} resamples, seed {}: {}.",
-            r.resamples,
-            r.seed,
-            c.bootstrap.describe()
-        );
-        for n in &c.notes {
-            let _ = writeln!(out, "- {}", md_text(n));
-        }
-        if !c.excluded.is_empty() {
-            let _ = writeln!(out, "\nLeft out:\n");
-            for x in &c.excluded {
-                match &x.task {
-                    Some(t) => {
-                        let _ = writeln!(
-                            out,
-                            "- task `{}`, policy `{}`: {}",
-                            md_text(t),
-                            md_text(&x.policy),
-                            md_text(&x.reason)
-                        );
-                    }
-                    None => {
-                        let _ = writeln!(
-                            out,
-                            "- policy `{}`: {}",
-                            md_text(&x.policy),
-                            md_text(&x.reason)
-                        );
-                    }
+        out.push_str(&comparison(r, c));
+    }
+    let shown: Vec<Table> = r.comparisons.iter().map(tables::ranking_policies).collect();
+    out.push_str(&full_names(&shown));
+    out
+}
+
+/// One comparison of a ranking.
+fn comparison(r: &Ranking, c: &Comparison) -> String {
+    let mut out = String::new();
+    let _ = writeln!(
+        out,
+        "## Policy ranking: {} against {}\n",
+        md_text(&crate::ranking::source_title(&c.proxy)),
+        md_text(&c.real)
+    );
+    if is_ablation(&c.proxy) {
+        let _ = writeln!(out, "{}\n", md_text(LEAK_NOTE));
+    }
+    let _ = writeln!(
+        out,
+        "{} policies, {} tasks. R: a policy's mean over tasks of its success rate in \
+         '{}'; R_S: the same in '{}'.\n",
+        c.policies.len(),
+        c.tasks.len(),
+        md_text(&c.real),
+        md_text(&c.proxy)
+    );
+    if !c.policies.is_empty() {
+        out.push_str(&tables::ranking_policies(c).markdown());
+        out.push('\n');
+    }
+    out.push_str(&tables::ranking_statistics(c).markdown());
+    let _ = writeln!(
+        out,
+        "\nIntervals: 95 % percentile bootstrap, {} resamples, seed {}: {}.",
+        r.resamples,
+        r.seed,
+        c.bootstrap.describe()
+    );
+    for n in &c.notes {
+        let _ = writeln!(out, "- {}", md_text(n));
+    }
+    if !c.excluded.is_empty() {
+        let _ = writeln!(out, "\nLeft out:\n");
+        for x in &c.excluded {
+            match &x.task {
+                Some(t) => {
+                    let _ = writeln!(
+                        out,
+                        "- task `{}`, policy `{}`: {}",
+                        md_text(t),
+                        md_text(&x.policy),
+                        md_text(&x.reason)
+                    );
+                }
+                None => {
+                    let _ = writeln!(
+                        out,
+                        "- policy `{}`: {}",
+                        md_text(&x.policy),
+                        md_text(&x.reason)
+                    );
                 }
             }
         }
-        out.push('\n');
     }
+    out.push('\n');
     out
 }
 

@@ -1,5 +1,7 @@
 """Assay policy kit: serve any `obs -> actions` Python callable to Assay, over Assay's gRPC
-service `assay.v1.Policy` or openpi's websocket protocol.
+service `assay.v1.Policy` or openpi's websocket protocol; and any action-conditioned world model
+(`reset(frame, state, instruction)`, `step(actions) -> frames`) over `assay.v1.WorldModel`
+(`serve_world_model`).
 
     from assay_policy_kit import Camera, Interface, serve_grpc_forever
 
@@ -27,6 +29,9 @@ __all__ = [
     "serve_grpc",
     "serve_grpc_forever",
     "serve_openpi",
+    "serve_world_model",
+    "serve_world_model_forever",
+    "WorldModelError",
     "__version__",
 ]
 
@@ -37,6 +42,10 @@ def __getattr__(name):
         from . import grpc_server
 
         return getattr(grpc_server, name)
+    if name in ("serve_world_model", "serve_world_model_forever", "WorldModelError"):
+        from . import world_model_server
+
+        return getattr(world_model_server, name)
     if name == "serve_openpi":
         from .openpi_server import serve_openpi
 

@@ -1,8 +1,9 @@
-"""The cluster token, as Assay's policy clients present it.
+"""The cluster token, as Assay's policy and world-model clients present it.
 
 A cluster with a token (`$ASSAY_CLUSTER_TOKEN`, or the file `$ASSAY_CLUSTER_TOKEN_FILE` names)
-sends every policy call with `authorization: Bearer <hex SHA-256 of b"assay/policy\\0" + token>`:
-a policy server never sees the cluster token itself.
+sends every policy call with `authorization: Bearer <hex SHA-256 of b"assay/policy\\0" + token>`,
+and every world-model call with the same of b"assay/world-model\\0" + token: a server never sees
+the cluster token itself, nor another service's secret.
 """
 
 from __future__ import annotations
@@ -47,14 +48,24 @@ def token_from_env() -> Optional[str]:
     return None
 
 
+POLICY = "policy"
+WORLD_MODEL = "world-model"
+
+
+def service_secret(token: str, service: str) -> str:
+    """The secret a server of `service` checks: hex SHA-256 of b"assay/<service>\\0" + token
+    (Assay's `Token::derive`)."""
+    return hashlib.sha256(b"assay/" + service.encode() + b"\0" + token.encode()).hexdigest()
+
+
 def policy_secret(token: str) -> str:
     """The secret a policy server checks: hex SHA-256 of b"assay/policy\\0" + token."""
-    return hashlib.sha256(b"assay/policy\0" + token.encode()).hexdigest()
+    return service_secret(token, POLICY)
 
 
-def bearer(token: str) -> str:
-    """The `authorization` metadata value a client sends to a policy server."""
-    return "Bearer " + policy_secret(token)
+def bearer(token: str, service: str = POLICY) -> str:
+    """The `authorization` metadata value a client sends to a server of `service`."""
+    return "Bearer " + service_secret(token, service)
 
 
 def matches(expected: str, presented: Optional[str]) -> bool:

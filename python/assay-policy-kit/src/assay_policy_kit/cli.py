@@ -1,4 +1,5 @@
-"""`python -m assay_policy_kit serve MODULE:ATTR ...`: serve a policy from the command line."""
+"""`python -m assay_policy_kit serve MODULE:ATTR ...`: serve a policy from the command line;
+`python -m assay_policy_kit world-model MODULE:ATTR ...`: serve a world model."""
 
 from __future__ import annotations
 
@@ -48,12 +49,41 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--api-key", default=None, help="openpi: require Authorization: Api-Key KEY")
     s.add_argument("--check-actions", action="store_true",
                    help="refuse actions of the wrong width or not finite (else the client does)")
+    w = sub.add_parser("world-model", help="serve a world model to Assay (assay.v1.WorldModel)")
+    w.add_argument("target", help="MODULE:ATTR, a factory (e.g. the model's class) making one model "
+                                  "per episode, with reset(frame, state, instruction) and step(actions)")
+    w.add_argument("--host", default="127.0.0.1")
+    w.add_argument("--port", type=int, default=0, help="0: any free port (printed)")
+    w.add_argument("--name", default=None, help="the model's name in Health (default: ATTR)")
+    w.add_argument("--description", default="", help="free text in Health")
+    w.add_argument("--size", default=None, metavar="WxH",
+                   help="the frame size the model takes (default: any)")
+    w.add_argument("--action-dims", type=int, default=0, help="floats per action it takes (0: any)")
     return p
+
+
+def _size(text: Optional[str]):
+    if text is None:
+        return 0, 0
+    w, sep, h = text.partition("x")
+    if not sep or not w.isdigit() or not h.isdigit():
+        raise SystemExit(f"--size {text!r}: expected WxH, e.g. 64x64")
+    return int(w), int(h)
 
 
 def main(argv: Optional[List[str]] = None) -> int:
     args = _parser().parse_args(argv)
     logging.basicConfig(level=logging.INFO, stream=sys.stderr, format="%(levelname)s %(name)s: %(message)s")
+    if args.command == "world-model":
+        from .world_model_server import serve_world_model_forever
+
+        width, height = _size(args.size)
+        serve_world_model_forever(
+            load(args.target), host=args.host, port=args.port,
+            name=args.name or args.target.partition(":")[2], description=args.description,
+            width=width, height=height, action_dims=args.action_dims,
+        )
+        return 0
     interface = Interface(
         cameras=[Camera.parse(c) for c in args.camera] or [Camera("image")],
         state=[s for s in args.state.split("+") if s],

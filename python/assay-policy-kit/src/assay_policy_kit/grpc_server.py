@@ -138,15 +138,17 @@ class PolicyServicer(policy_pb2_grpc.PolicyServicer):
 
 
 class _TokenInterceptor(grpc.ServerInterceptor):
-    """Refuses every call without `authorization: Bearer <policy secret>` (UNAUTHENTICATED)."""
+    """Refuses every call without `authorization: Bearer <the service's secret>`
+    (UNAUTHENTICATED); `service` is "policy" or "world-model" (see auth.py)."""
 
-    def __init__(self, token: str):
-        self._expected = auth.bearer(token)
+    def __init__(self, token: str, service: str = auth.POLICY):
+        self._expected = auth.bearer(token, service)
+        what = service.replace("-", " ")
 
         def deny(request, context):
             context.abort(
                 grpc.StatusCode.UNAUTHENTICATED,
-                "this policy server needs the cluster's token (authorization: Bearer ...)",
+                f"this {what} server needs the cluster's token (authorization: Bearer ...)",
             )
 
         self._deny = grpc.unary_unary_rpc_method_handler(deny)
@@ -167,7 +169,8 @@ def _host_port(host: str, port: int) -> str:
 
 
 class GrpcPolicyServer:
-    """A started gRPC policy server: `url`, `port`, `stop()`, `wait()`; a context manager."""
+    """A started gRPC server (of a policy, or of a world model): `url`, `port`, `stop()`,
+    `wait()`; a context manager."""
 
     def __init__(self, server: grpc.Server, servicer: PolicyServicer, host: str, port: int):
         self.server = server
@@ -248,7 +251,11 @@ def serve_grpc(
 
 def serve_grpc_forever(*args, **kwargs) -> None:
     """`serve_grpc`, then blocks until SIGINT or SIGTERM (then stops, giving calls 2 s)."""
-    running = serve_grpc(*args, **kwargs)
+    _serve_until_signal(serve_grpc(*args, **kwargs))
+
+
+def _serve_until_signal(running: "GrpcPolicyServer") -> None:
+    """Blocks until SIGINT or SIGTERM, then stops `running`, giving calls 2 s."""
     done = threading.Event()
 
     def stop(signum, frame):

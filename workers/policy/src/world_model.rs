@@ -1,0 +1,652 @@
+//! A world model served elsewhere over the `assay.v1.WorldModel` gRPC service
+//! (`proto/assay/v1/world_model.proto`): the client behind [`WorldModelService`], for the proxy to
+//! imagine policies' episodes in any lab's model (the Python kit serves one in a few lines:
+//! `serve_world_model`, `python/assay-policy-kit/README.md`).
+//!
+//! It behaves as the remote policy client ([`crate::remote`]) does: a health check at connect (a
+//! server that is down is [`WorldError::Unavailable`] naming its address), a deadline on every
+//! call, sent as `grpc-timeout` and enforced here too (a late answer is `Unavailable` naming the
+//! call and the wait), and the cluster's token, when this process has one, presented as a secret
+//! derived from it ([`TOKEN_PURPOSE`]). An answer that is not one frame of the episode's size per
+//! action, with finite states if any, is [`WorldError::BadAnswer`]; a request the server declared
+//! it does not take (frame size, action width) is refused here before it is sent
+//! ([`WorldError::Refused`]).
+//!
+//! The client blocks on the runtime [`Handle`] it is given: call it from plain threads, never from
+//! inside that runtime (tokio panics if `block_on` is called on one of its own threads).
+
+use std::future::Future;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::{Duration, Instant};
+
+use assay_model::world::{ImaginedEpisode, WorldError, WorldFrame, WorldModelService, WorldStart};
+use assay_proto::auth::{AttachToken, Token};
+use assay_proto::v1 as pb;
+use tokio::runtime::Handle;
+use tonic::transport::Endpoint;
+use tonic::{Code, Status};
+use tracing::debug;
+
+use crate::server::{MAX_EPISODE_ID_BYTES, MAX_FRAME_SIDE};
+use crate::status::error_chain;
+
+/// What the token a world-model server checks is derived for: calls carry
+/// [`Token::for_service`]`("world-model")` of the cluster token, so a world-model server sees
+/// neither the cluster token nor a policy server's secret.
+pub const TOKEN_PURPOSE: &str = "world-model";
+
+/// Most actions in one `Step`.
+pub const MAX_STEP_ACTIONS: usize = 1024;
+
+/// Largest message either side sends or accepts: a `Step` answer is one frame per action.
+pub const MAX_MESSAGE_BYTES: usize = 256 * 1024 * 1024;
+
+/// Longest a client waits for `End` (sent best-effort when an imagined episode is dropped).
+const END_TIMEOUT: Duration = Duration::from_millis(500);
+
+/// What a world-model server said in `Health`.
+#[derive(Debug, Clone, PartialEq, Eq, Default)]
+pub struct WorldModelHealth {
+    pub name: String,
+    pub description: String,
+    /// The frame size the model works at; `None`: any size.
+    pub frame_size: Option<(u32, u32)>,
+    /// Floats per action the model takes; `None`: any width.
+    pub action_dims: Option<u32>,
+    /// Episodes the server holds.
+    pub live_episodes: u32,
+}
+
+impl From<pb::WorldModelHealthResponse> for WorldModelHealth {
+    fn from(h: pb::WorldModelHealthResponse) -> Self {
+        Self {
+            name: h.name,
+            description: h.description,
+            frame_size: (h.width != 0 && h.height != 0).then_some((h.width, h.height)),
+            action_dims: (h.action_dims != 0).then_some(h.action_dims),
+            live_episodes: h.live_episodes,
+        }
+    }
+}
+
+type Client = pb::world_model_client::WorldModelClient<assay_proto::auth::Channel>;
+
+/// A connection to one world-model server; any number of imagined episodes at a time.
+pub struct RemoteWorldModel {
+    url: String,
+    timeout: Duration,
+    rt: Handle,
+    client: Client,
+    info: WorldModelHealth,
+}
+
+impl std::fmt::Debug for RemoteWorldModel {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("RemoteWorldModel")
+            .field("url", &self.url)
+            .field("timeout", &self.timeout)
+            .field("info", &self.info)
+            .finish()
+    }
+}
+
+/// Connects to the world-model server at `url` (`http://host:port`) and checks its `Health`
+/// within `timeout_ms`, which is also the deadline of every later call ([`RemoteWorldModel::connect`]).
+/// Blocks on `rt`: do not call it from inside that runtime.
+pub fn connect(
+    url: &str,
+    timeout_ms: u64,
+    rt: &Handle,
+) -> Result<Box<dyn WorldModelService>, WorldError> {
+    Ok(Box::new(RemoteWorldModel::connect(
+        url,
+        Duration::from_millis(timeout_ms),
+        rt.clone(),
+    )?))
+}
+
+impl RemoteWorldModel {
+    /// Connects to the server at `url` and checks its `Health`, both within `timeout`, which is
+    /// also the deadline of every later call. A server that is down or silent is `Unavailable`;
+    /// one that refuses the call (no or a wrong token, not a world-model server) is `Refused`.
+    ///
+    /// When this process has the cluster token (`ASSAY_CLUSTER_TOKEN` or
+    /// `ASSAY_CLUSTER_TOKEN_FILE`), every call carries the secret derived from it for
+    /// [`TOKEN_PURPOSE`], never the token itself.
+    pub fn connect(url: &str, timeout: Duration, rt: Handle) -> Result<Self, WorldError> {
+        let token = Token::from_env()
+            .map_err(|e| WorldError::Refused(format!("world model server at {url}: {e}")))?
+            .map(|t| t.for_service(TOKEN_PURPOSE));
+        Self::connect_with(url, timeout, rt, token)
+    }
+
+    /// [`RemoteWorldModel::connect`] presenting `token` as it is (none: no `authorization`
+    /// header); a cluster's is `Token::for_service(TOKEN_PURPOSE)` of its token.
+    pub fn connect_with(
+        url: &str,
+        timeout: Duration,
+        rt: Handle,
+        token: Option<Token>,
+    ) -> Result<Self, WorldError> {
+        let start = Instant::now();
+        let endpoint = Endpoint::from_shared(url.to_owned())
+            .map_err(|e| {
+                WorldError::Refused(format!("bad world model server address '{url}': {e}"))
+            })?
+            .connect_timeout(timeout)
+            .tcp_nodelay(true);
+        let down = |reason: String| {
+            WorldError::Unavailable(format!(
+                "world model server at {url} is down: {reason} (after {} ms)",
+                start.elapsed().as_millis()
+            ))
+        };
+        let silent = || {
+            down(format!(
+                "no answer to Health within the {} ms deadline",
+                timeout.as_millis()
+            ))
+        };
+        let (client, info) = rt
+            .block_on(async {
+                tokio::time::timeout(timeout, async {
+                    let channel = endpoint
+                        .connect()
+                        .await
+                        .map_err(|e| down(error_chain(&e)))?;
+                    let mut client = pb::world_model_client::WorldModelClient::with_interceptor(
+                        channel,
+                        AttachToken::new(token),
+                    )
+                    .max_decoding_message_size(MAX_MESSAGE_BYTES)
+                    .max_encoding_message_size(MAX_MESSAGE_BYTES);
+                    let mut request = tonic::Request::new(pb::WorldModelHealthRequest {});
+                    request.set_timeout(timeout);
+                    let answer = client.health(request).await.map_err(|s| {
+                        if missed_deadline(&s, start.elapsed(), timeout) {
+                            return silent();
+                        }
+                        match from_status(&format!("world model server at {url} failed Health"), &s)
+                        {
+                            WorldError::Unavailable(_) => {
+                                down(format!("Health: {} ({:?})", s.message(), s.code()))
+                            }
+                            other => other,
+                        }
+                    })?;
+                    Ok((client, WorldModelHealth::from(answer.into_inner())))
+                })
+                .await
+            })
+            .map_err(|_| silent())??;
+        debug!(%url, name = %info.name, "world model server connected");
+        Ok(Self {
+            url: url.to_owned(),
+            timeout,
+            rt,
+            client,
+            info,
+        })
+    }
+
+    /// What the server said about its model when this client connected.
+    pub fn info(&self) -> &WorldModelHealth {
+        &self.info
+    }
+
+    pub fn url(&self) -> &str {
+        &self.url
+    }
+
+    /// Asks the server's `Health` again (blocks for at most the deadline).
+    pub fn health(&self) -> Result<WorldModelHealth, WorldError> {
+        let mut client = self.client.clone();
+        let mut request = tonic::Request::new(pb::WorldModelHealthRequest {});
+        request.set_timeout(self.timeout);
+        let answer = self.call("Health", async move { client.health(request).await })?;
+        Ok(answer.into())
+    }
+
+    /// Starts an imagined episode ([`WorldModelService::reset`]), as the concrete session type.
+    pub fn start(&self, start: &WorldStart) -> Result<RemoteEpisode<'_>, WorldError> {
+        let (w, h) = (start.width, start.height);
+        if !(1..=MAX_FRAME_SIDE).contains(&w) || !(1..=MAX_FRAME_SIDE).contains(&h) {
+            return Err(self.refused(format!(
+                "a start frame of {w}×{h} (each side 1 to {MAX_FRAME_SIDE})"
+            )));
+        }
+        let bytes = rgb_bytes(w, h);
+        if start.rgb.len() != bytes {
+            return Err(self.refused(format!(
+                "a start frame of {} bytes for {w}×{h} RGB8 ({bytes})",
+                start.rgb.len()
+            )));
+        }
+        if let Some((mw, mh)) = self.info.frame_size
+            && (mw, mh) != (w, h)
+        {
+            return Err(self.refused(format!("{w}×{h} frames: the model works at {mw}×{mh}")));
+        }
+        let episode_id = new_episode_id();
+        let mut request = tonic::Request::new(pb::WorldModelResetRequest {
+            episode_id: episode_id.clone(),
+            task_id: start.task_id.clone(),
+            seed: start.seed,
+            instruction: start.instruction.clone(),
+            frames: vec![pb::Image {
+                name: "image".into(),
+                width: w,
+                height: h,
+                rgb: start.rgb.clone(),
+                depth: Vec::new(),
+            }],
+            state: start.state.clone(),
+        });
+        request.set_timeout(self.timeout);
+        let mut client = self.client.clone();
+        self.call(
+            &format!("Reset (task {}, seed {})", start.task_id, start.seed),
+            async move { client.reset(request).await },
+        )?;
+        Ok(RemoteEpisode {
+            model: self,
+            episode_id,
+            task_id: start.task_id.clone(),
+            seed: start.seed,
+            width: w,
+            height: h,
+            steps: 0,
+        })
+    }
+
+    fn refused(&self, what: String) -> WorldError {
+        WorldError::Refused(format!(
+            "world model server at {} ({}) does not take {what}",
+            self.url, self.info.name
+        ))
+    }
+
+    /// Runs one call on the runtime with the deadline. A late answer is `Unavailable`; a failed
+    /// one is mapped by its status code; both errors name the server, the call (`what`), the
+    /// deadline and the time waited.
+    fn call<T>(
+        &self,
+        what: &str,
+        f: impl Future<Output = Result<tonic::Response<T>, Status>>,
+    ) -> Result<T, WorldError> {
+        let start = Instant::now();
+        let deadline_ms = self.timeout.as_millis();
+        let late = || {
+            WorldError::Unavailable(format!(
+                "world model server at {} did not answer {what} within the {deadline_ms} ms \
+                 deadline (waited {} ms)",
+                self.url,
+                start.elapsed().as_millis()
+            ))
+        };
+        match self
+            .rt
+            .block_on(async { tokio::time::timeout(self.timeout, f).await })
+        {
+            Ok(Ok(answer)) => Ok(answer.into_inner()),
+            Ok(Err(status)) if missed_deadline(&status, start.elapsed(), self.timeout) => {
+                Err(late())
+            }
+            Ok(Err(status)) => Err(from_status(
+                &format!(
+                    "world model server at {} failed {what} after {} ms (deadline {deadline_ms} ms)",
+                    self.url,
+                    start.elapsed().as_millis()
+                ),
+                &status,
+            )),
+            Err(_) => Err(late()),
+        }
+    }
+}
+
+impl WorldModelService for RemoteWorldModel {
+    /// The server's declared name and its address.
+    fn name(&self) -> String {
+        if self.info.name.is_empty() {
+            format!("world model at {}", self.url)
+        } else {
+            format!("{} at {}", self.info.name, self.url)
+        }
+    }
+
+    fn reset(&self, start: &WorldStart) -> Result<Box<dyn ImaginedEpisode + '_>, WorldError> {
+        Ok(Box::new(self.start(start)?))
+    }
+}
+
+/// One imagined episode on a world-model server; dropping it sends `End` (best effort).
+pub struct RemoteEpisode<'a> {
+    model: &'a RemoteWorldModel,
+    episode_id: String,
+    task_id: String,
+    seed: u64,
+    width: u32,
+    height: u32,
+    /// Actions stepped so far.
+    steps: usize,
+}
+
+impl std::fmt::Debug for RemoteEpisode<'_> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("RemoteEpisode")
+            .field("url", &self.model.url)
+            .field("episode_id", &self.episode_id)
+            .field("size", &(self.width, self.height))
+            .field("steps", &self.steps)
+            .finish()
+    }
+}
+
+impl ImaginedEpisode for RemoteEpisode<'_> {
+    /// One `Step` call for the whole chunk: blocks the calling thread for at most the deadline.
+    /// Actions of different widths, or of a width the server declared it does not take, are
+    /// refused before anything is sent; an empty chunk is answered at once with no frames.
+    fn step(&mut self, actions: &[Vec<f32>]) -> Result<Vec<WorldFrame>, WorldError> {
+        let Some(first) = actions.first() else {
+            return Ok(Vec::new());
+        };
+        let model = self.model;
+        let dims = first.len();
+        if dims == 0 {
+            return Err(model.refused("actions of no floats".into()));
+        }
+        if let Some((i, a)) = actions.iter().enumerate().find(|(_, a)| a.len() != dims) {
+            return Err(model.refused(format!(
+                "a chunk of actions of different widths (action 0 has {dims} floats, action {i} \
+                 has {})",
+                a.len()
+            )));
+        }
+        if let Some(d) = model.info.action_dims
+            && d as usize != dims
+        {
+            return Err(model.refused(format!("{dims}-float actions: it takes {d}")));
+        }
+        if let Some(i) = actions
+            .iter()
+            .position(|a| a.iter().any(|x| !x.is_finite()))
+        {
+            return Err(model.refused(format!("a non-finite action (action {i} of the chunk)")));
+        }
+        let k = actions.len();
+        let answer_bytes = k.saturating_mul(rgb_bytes(self.width, self.height));
+        if k > MAX_STEP_ACTIONS || answer_bytes > MAX_MESSAGE_BYTES - 1024 * 1024 {
+            return Err(model.refused(format!(
+                "a chunk of {k} actions of {}×{} frames (at most {MAX_STEP_ACTIONS} actions and \
+                 {} MiB of frames per Step)",
+                self.width,
+                self.height,
+                MAX_MESSAGE_BYTES / (1024 * 1024) - 1
+            )));
+        }
+        let mut request = tonic::Request::new(pb::WorldModelStepRequest {
+            episode_id: self.episode_id.clone(),
+            actions: actions.iter().flatten().copied().collect(),
+            action_dims: dims as u32,
+        });
+        request.set_timeout(model.timeout);
+        let mut client = model.client.clone();
+        let what = format!(
+            "Step of {k} actions from imagined step {} (task {}, seed {})",
+            self.steps, self.task_id, self.seed
+        );
+        let answer = model.call(&what, async move { client.step(request).await })?;
+        let frames = frames_from(answer, k, self.width, self.height).map_err(|reason| {
+            WorldError::BadAnswer(format!(
+                "world model server at {} ({}) answered {what}: {reason}",
+                model.url, model.info.name
+            ))
+        })?;
+        self.steps += k;
+        Ok(frames)
+    }
+}
+
+impl RemoteEpisode<'_> {
+    /// Sends `End` without waiting long: from a plain thread it waits at most [`END_TIMEOUT`];
+    /// from inside a runtime it only spawns the call.
+    fn end(&mut self) {
+        let episode_id = std::mem::take(&mut self.episode_id);
+        let mut client = self.model.client.clone();
+        let wait = self.model.timeout.min(END_TIMEOUT);
+        let end = async move {
+            let mut request = tonic::Request::new(pb::WorldModelEndRequest { episode_id });
+            request.set_timeout(wait);
+            let _ = tokio::time::timeout(wait, client.end(request)).await;
+        };
+        if Handle::try_current().is_ok() {
+            self.model.rt.spawn(end);
+        } else {
+            self.model.rt.block_on(end);
+        }
+    }
+}
+
+impl Drop for RemoteEpisode<'_> {
+    /// Frees the server's episode state (best effort, waiting at most [`END_TIMEOUT`]).
+    fn drop(&mut self) {
+        // A runtime that is already shut down panics in its timer: nothing to free then.
+        let _ = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| self.end()));
+    }
+}
+
+fn rgb_bytes(width: u32, height: u32) -> usize {
+    width as usize * height as usize * 3
+}
+
+/// Checks a `Step` answer to `k` actions: exactly `k` frames of `width × height` RGB8, and either
+/// no states or `k` finite states of `state_dims` floats.
+fn frames_from(
+    answer: pb::WorldModelStepResponse,
+    k: usize,
+    width: u32,
+    height: u32,
+) -> Result<Vec<WorldFrame>, String> {
+    let pb::WorldModelStepResponse {
+        frames,
+        states,
+        state_dims,
+    } = answer;
+    if frames.len() != k {
+        return Err(format!("{} frames for {k} actions", frames.len()));
+    }
+    let bytes = rgb_bytes(width, height);
+    for (i, f) in frames.iter().enumerate() {
+        if (f.width, f.height) != (width, height) {
+            return Err(format!(
+                "frame {i} is {}×{}; the episode's frames are {width}×{height}",
+                f.width, f.height
+            ));
+        }
+        if f.rgb.len() != bytes {
+            return Err(format!(
+                "frame {i} has {} bytes; a {width}×{height} RGB8 frame has {bytes}",
+                f.rgb.len()
+            ));
+        }
+    }
+    let states: Vec<Option<Vec<f32>>> = if states.is_empty() {
+        vec![None; k]
+    } else {
+        let d = state_dims as usize;
+        if d == 0 {
+            return Err(format!(
+                "{} floats of states with state_dims 0",
+                states.len()
+            ));
+        }
+        if states.len() != k * d {
+            return Err(format!(
+                "{} floats of states for {k} actions of {d}-float states ({})",
+                states.len(),
+                k * d
+            ));
+        }
+        if let Some(i) = states.iter().position(|x| !x.is_finite()) {
+            return Err(format!(
+                "a non-finite state (state {}, float {})",
+                i / d,
+                i % d
+            ));
+        }
+        states.chunks(d).map(|s| Some(s.to_vec())).collect()
+    };
+    Ok(frames
+        .into_iter()
+        .zip(states)
+        .map(|(f, state)| WorldFrame { rgb: f.rgb, state })
+        .collect())
+}
+
+/// Whether a failed call ran out of time: the deadline passed on the server
+/// (`DEADLINE_EXCEEDED`) or in tonic's client, which cancels a call at its `grpc-timeout`.
+fn missed_deadline(s: &Status, elapsed: Duration, timeout: Duration) -> bool {
+    match s.code() {
+        Code::DeadlineExceeded => true,
+        Code::Cancelled => elapsed >= timeout.mul_f32(0.9),
+        _ => false,
+    }
+}
+
+/// The one place where a world-model call's gRPC status becomes a [`WorldError`], as the service
+/// documents its codes: `what` names the server and the call. Errors of the connection itself
+/// and the retryable codes are `Unavailable`; a request the server will not take (a missing
+/// token included) is `Refused`; a model that failed is `BadAnswer`.
+fn from_status(what: &str, s: &Status) -> WorldError {
+    // A status made by the client from a transport error carries that error as its source; one
+    // answered by a server does not.
+    if let Some(source) = std::error::Error::source(s) {
+        return WorldError::Unavailable(format!("{what}: {}", error_chain(source)));
+    }
+    let message = format!("{what}: {} ({:?})", s.message(), s.code());
+    match s.code() {
+        Code::Unavailable
+        | Code::DeadlineExceeded
+        | Code::Cancelled
+        | Code::ResourceExhausted
+        | Code::Aborted
+        | Code::Unknown
+        | Code::NotFound => WorldError::Unavailable(message),
+        Code::Unauthenticated | Code::PermissionDenied => WorldError::Refused(format!(
+            "{message}; the server wants the cluster's world-model token: set \
+             ASSAY_CLUSTER_TOKEN or ASSAY_CLUSTER_TOKEN_FILE to the cluster's token"
+        )),
+        Code::Unimplemented => {
+            WorldError::Refused(format!("{message}; is it an assay.v1.WorldModel server?"))
+        }
+        Code::InvalidArgument
+        | Code::FailedPrecondition
+        | Code::OutOfRange
+        | Code::AlreadyExists => WorldError::Refused(message),
+        Code::Ok | Code::Internal | Code::DataLoss => WorldError::BadAnswer(message),
+    }
+}
+
+/// A unique episode id: a per-process random prefix and a counter.
+fn new_episode_id() -> String {
+    use std::hash::{BuildHasher, Hasher};
+    static PREFIX: std::sync::OnceLock<u64> = std::sync::OnceLock::new();
+    static NEXT: AtomicU64 = AtomicU64::new(0);
+    let prefix = PREFIX.get_or_init(|| {
+        let mut h = std::collections::hash_map::RandomState::new().build_hasher();
+        h.write_u32(std::process::id());
+        h.write_u128(
+            std::time::SystemTime::now()
+                .duration_since(std::time::UNIX_EPOCH)
+                .map(|d| d.as_nanos())
+                .unwrap_or(0),
+        );
+        h.finish()
+    });
+    let id = format!("wm-{prefix:016x}-{}", NEXT.fetch_add(1, Ordering::Relaxed));
+    debug_assert!(id.len() <= MAX_EPISODE_ID_BYTES);
+    id
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn frame(w: u32, h: u32) -> pb::Image {
+        pb::Image {
+            name: String::new(),
+            width: w,
+            height: h,
+            rgb: vec![7; rgb_bytes(w, h)],
+            depth: Vec::new(),
+        }
+    }
+
+    fn answer(
+        frames: Vec<pb::Image>,
+        states: Vec<f32>,
+        state_dims: u32,
+    ) -> pb::WorldModelStepResponse {
+        pb::WorldModelStepResponse {
+            frames,
+            states,
+            state_dims,
+        }
+    }
+
+    #[test]
+    fn checks_answers() {
+        let ok = frames_from(answer(vec![frame(4, 2); 2], vec![], 0), 2, 4, 2).unwrap();
+        assert_eq!(ok.len(), 2);
+        assert!(ok.iter().all(|f| f.rgb.len() == 24 && f.state.is_none()));
+        let with_states = frames_from(
+            answer(vec![frame(4, 2); 2], vec![1.0, 2.0, 3.0, 4.0], 2),
+            2,
+            4,
+            2,
+        )
+        .unwrap();
+        assert_eq!(with_states[1].state, Some(vec![3.0, 4.0]));
+        let bad = |a, k| frames_from(a, k, 4, 2).unwrap_err();
+        assert!(bad(answer(vec![frame(4, 2)], vec![], 0), 2).contains("1 frames for 2 actions"));
+        assert!(bad(answer(vec![frame(5, 2)], vec![], 0), 1).contains("5×2"));
+        let mut short = frame(4, 2);
+        short.rgb.pop();
+        assert!(bad(answer(vec![short], vec![], 0), 1).contains("23 bytes"));
+        assert!(bad(answer(vec![frame(4, 2)], vec![1.0], 0), 1).contains("state_dims 0"));
+        assert!(bad(answer(vec![frame(4, 2); 2], vec![1.0; 3], 2), 2).contains("3 floats"));
+        assert!(
+            bad(
+                answer(vec![frame(4, 2); 2], vec![1.0, 2.0, f32::NAN, 4.0], 2),
+                2
+            )
+            .contains("state 1, float 0")
+        );
+    }
+
+    #[test]
+    fn status_codes_map_to_world_errors() {
+        let e = from_status("Step", &Status::unauthenticated("needs the token"));
+        assert!(matches!(&e, WorldError::Refused(m) if m.contains("ASSAY_CLUSTER_TOKEN")));
+        assert!(matches!(
+            from_status("Step", &Status::not_found("episode")),
+            WorldError::Unavailable(_)
+        ));
+        assert!(matches!(
+            from_status("Step", &Status::invalid_argument("size")),
+            WorldError::Refused(_)
+        ));
+        assert!(matches!(
+            from_status("Step", &Status::internal("raised")),
+            WorldError::BadAnswer(_)
+        ));
+    }
+
+    #[test]
+    fn episode_ids_are_unique_and_short() {
+        let (a, b) = (new_episode_id(), new_episode_id());
+        assert_ne!(a, b);
+        assert!(a.len() <= MAX_EPISODE_ID_BYTES);
+    }
+}
