@@ -1,10 +1,13 @@
-//! Policy ranking by the world-model proxy with the real cluster: `assay eval` runs a ladder of
-//! oracles and a TorchScript policy, trains each group's world model and frame judge on the
-//! training policies' episodes, imagines the ranked ones (the TorchScript policy acting on the
-//! imagined frames) and prints r and MMRV; a VLM judge (a local OpenAI-compatible fixture) is
-//! asked about every imagined rollout's keyframes and is ranked as a proxy of its own; the
+//! Policy ranking by the world-model proxy with the real cluster: `assay eval` runs four scripted
+//! oracles (the training policies), trains a ladder of diffusion policies on the oracle's
+//! episodes and runs them, trains each group's world model and frame judge on the training
+//! policies' episodes only, has every ranked policy (the ladder's and a TorchScript one) act
+//! inside the world model and prints r and MMRV; a VLM judge (a local OpenAI-compatible fixture)
+//! is asked about every imagined rollout's keyframes and is ranked as a proxy of its own; the
 //! report joins real and proxy success per task and policy and the correlation plots are
-//! written beside it. Bad ranking settings are refused before anything runs, naming the setting.
+//! written beside it. A lab's world model served over `assay.v1.WorldModel` (a Python server)
+//! drives a ranking the same way. Bad ranking settings — a scripted oracle ranked among them —
+//! are refused before anything runs, naming the setting.
 #![cfg(feature = "trainer")]
 
 use std::process::Command;
@@ -12,6 +15,7 @@ use std::sync::Arc;
 
 use crate::common::torchscript::torchscript;
 use crate::common::*;
+use crate::real_policies::serve_script;
 use assay_report::report::Report;
 use assay_testkit::fixture::{Fixture, Received, Reply, Script};
 use base64::Engine;
@@ -93,9 +97,11 @@ fn eval_ranks_a_ladder_by_the_world_model_proxy() {
             "--policy",
             &learned,
             "--rank-train-policies",
-            "oracle:noise=0.01,oracle:noise=0.03",
+            TRAIN,
+            "--rank-ladder",
+            LADDER,
             "--proxy",
-            r#"{"judge_steps": 30, "world_model": {"steps": 30}}"#,
+            r#"{"judge_steps": 30, "world_model": {"steps": 30}, "leak_ablation": true}"#,
         ],
     );
     let stdout = String::from_utf8_lossy(&out.stdout);
@@ -110,11 +116,21 @@ fn eval_ranks_a_ladder_by_the_world_model_proxy() {
         serde_json::from_str(&std::fs::read_to_string(out_dir.join("report.json")).unwrap())
             .unwrap();
     let k = report.results.ranking.expect("a ranking section");
-    assert_eq!(
-        k.ranked_policies,
-        ["oracle", "oracle:noise=0.05", learned.as_str()]
+    // The ranked policies: the TorchScript one and the ladder's two diffusion policies (its
+    // checkpoint at step 10 and its final one), trained by the cluster on the oracle's episodes.
+    assert_eq!(k.ranked_policies.len(), 3, "{:?}", k.ranked_policies);
+    assert_eq!(k.ranked_policies[0], learned);
+    let ladder: Vec<&String> = k.ranked_policies[1..].iter().collect();
+    assert!(
+        ladder.iter().all(|p| p.starts_with("diffusion:model=policies/")
+            && p.ends_with(",max_steps=480")),
+        "{ladder:?}"
     );
-    assert_eq!(k.train_policies, ["oracle:noise=0.01", "oracle:noise=0.03"]);
+    assert_ne!(ladder[0], ladder[1]);
+    assert_eq!(
+        k.train_policies,
+        ["oracle", "oracle:noise=0.05", "oracle:noise=0.01", "oracle:noise=0.03"]
+    );
     // 2 tasks × 3 ranked policies, each with real and proxy success over the 2 seeds.
     assert_eq!(k.rows.len(), 6);
     for r in &k.rows {
@@ -124,13 +140,23 @@ fn eval_ranks_a_ladder_by_the_world_model_proxy() {
     assert_eq!(k.groups.len(), 1);
     let g = &k.groups[0];
     assert_eq!((g.group.as_str(), g.predictions.len()), ("placement", 12));
-    // The judge learned from 2 × (real + imagined) last frames of each training episode.
-    assert_eq!(g.judge_examples, 2 * 2 * 2 * 2);
-    assert!(
-        g.predictions
-            .iter()
-            .all(|p| (0.0..=1.0).contains(&p.p_success))
-    );
+    assert!(g.world_model_name.contains("RSSM"), "{}", g.world_model_name);
+    let test = g.action_test.as_ref().expect("the action test");
+    assert_eq!(test.episodes, 12);
+    assert!(test.true_actions_mse > 0.0 && test.shuffled_actions_mse > 0.0);
+    // The judge learned from the real and imagined last frames of every training episode (4
+    // policies × 2 tasks × 2 seeds), and from earlier, not-yet-done frames of them.
+    assert!(g.judge_examples >= 2 * 16, "{}", g.judge_examples);
+    for p in &g.predictions {
+        assert!((0.0..=1.0).contains(&p.p_success));
+        // Never longer than the step budget of 480 physics steps (21 clip frames), and shorter
+        // only when the frame judge called it done.
+        assert!(
+            p.imagined_frames == 21 || (p.done_by_judge && p.imagined_frames < 21),
+            "{p:?}"
+        );
+        assert!(p.leak.is_some(), "the leak ablation was asked for");
+    }
     // Every imagined rollout of a ranked episode was shown to the VLM: 8 frames of 64×64, asked
     // about completion only (a rollout that was never seen has no scene to align).
     let got = vlm.received();
@@ -168,12 +194,107 @@ fn eval_ranks_a_ladder_by_the_world_model_proxy() {
     assert!(stdout.contains("world-model+vlm against sim"), "{stdout}");
     assert!(out_dir.join("ranking-vlm.svg").is_file());
     let md = std::fs::read_to_string(out_dir.join("report.md")).unwrap();
-    assert!(
-        md.contains("| `put-block-in-bowl` | oracle:noise=0.05 |"),
-        "{md}"
-    );
+    assert!(md.contains("| `put-block-in-bowl` | diffusion "), "{md}");
+    assert!(md.contains("world-model-leak (ablation)"), "{md}");
+    assert!(md.contains("training policies") && md.contains("ranked policies"));
     let svg = std::fs::read_to_string(out_dir.join("ranking.svg")).unwrap();
     assert!(svg.contains("<svg"));
+}
+
+/// The four oracles of [`eval`]: they train the world model; none of them may be ranked.
+const TRAIN: &str = "oracle,oracle:noise=0.05,oracle:noise=0.01,oracle:noise=0.03";
+
+/// A ladder small enough for a test: one run on 2 oracle episodes, kept at steps 10 and 20.
+const LADDER: &str = r#"{"episodes": [2], "checkpoints": [10, 20], "max_steps": 480}"#;
+
+#[test]
+fn a_world_model_served_over_grpc_by_python_drives_the_ranking() {
+    let dir = tempfile::tempdir().unwrap();
+    let server = serve_script(
+        dir.path(),
+        "tests/python/world_models/trivial.py",
+        &["--port", "0"],
+        "world-model",
+    );
+    let module = torchscript(dir.path());
+    let learned = format!("torchscript:path={},max_steps=480", module.display());
+    let proxy = format!(
+        r#"{{"judge_steps": 30, "external": {{"url": "{}", "timeout_ms": 20000}}}}"#,
+        server.url
+    );
+    let out_dir = dir.path().join("out");
+    let out = eval(
+        &out_dir,
+        &[
+            "--no-judge",
+            "--policy",
+            &learned,
+            "--rank-train-policies",
+            TRAIN,
+            "--proxy",
+            &proxy,
+        ],
+    );
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stdout}\n{stderr}");
+    let report: Report =
+        serde_json::from_str(&std::fs::read_to_string(out_dir.join("report.json")).unwrap())
+            .unwrap();
+    let k = report.results.ranking.expect("a ranking section");
+    assert!(k.errors.is_empty(), "{:?}", k.errors);
+    assert_eq!(k.ranked_policies, [learned.as_str()]);
+    let g = &k.groups[0];
+    // The served model imagined, and was not trained: no RSSM step ran.
+    assert!(
+        g.world_model_name.contains("trivial") && g.world_model_name.contains(&server.url),
+        "{}",
+        g.world_model_name
+    );
+    assert_eq!(g.world_model.steps, 0);
+    assert_eq!(g.predictions.len(), 4, "2 tasks × 2 seeds of the ranked policy");
+    // The action test ran through the server too (the trivial model draws a square over the
+    // first frame, so it errs against the real frames whatever the actions).
+    let test = g.action_test.as_ref().expect("the action test");
+    assert_eq!(test.episodes, 4);
+    assert!(test.true_actions_mse > 0.0 && test.shuffled_actions_mse > 0.0);
+    for p in &g.predictions {
+        assert!(p.imagined_frames >= 2 && p.imagined_frames <= 21, "{p:?}");
+    }
+    let md = std::fs::read_to_string(out_dir.join("report.md")).unwrap();
+    assert!(md.contains("trivial"), "{md}");
+
+    // A world model that is down: the proxy is retried as a remote policy's episode is, then
+    // reported as the group's ranking error naming the server; the real episodes stay counted.
+    drop(server);
+    let dead = r#"{"judge_steps": 30, "external": {"url": "http://127.0.0.1:9", "timeout_ms": 2000}}"#;
+    let out_dir = dir.path().join("dead");
+    let out = eval(
+        &out_dir,
+        &[
+            "--no-judge",
+            "--policy",
+            &learned,
+            "--rank-train-policies",
+            TRAIN,
+            "--proxy",
+            dead,
+        ],
+    );
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    let report: Report =
+        serde_json::from_str(&std::fs::read_to_string(out_dir.join("report.json")).unwrap())
+            .unwrap_or_else(|e| panic!("{e}\n{stderr}"));
+    let k = report.results.ranking.expect("a ranking section");
+    assert_eq!(k.errors.len(), 1, "{:?}", k.errors);
+    let (group, error) = &k.errors[0];
+    assert_eq!(group, "placement");
+    assert!(
+        error.contains("unavailable") && error.contains("127.0.0.1:9"),
+        "{error}"
+    );
+    // 4 oracles and the ranked policy on 2 tasks × 2 seeds.
+    assert_eq!(report.results.totals.episodes_completed, 20);
 }
 
 #[test]
@@ -205,6 +326,19 @@ fn ranking_settings_that_cannot_work_are_refused_with_the_reason() {
     assert!(!out.status.success());
     assert!(
         stderr.contains("threshold: 2 is outside [0, 1]"),
+        "{stderr}"
+    );
+    // A scripted oracle cannot act inside a world model: ranking one is refused.
+    let out = eval(
+        dir.path(),
+        &["--no-judge", "--rank-train-policies", "oracle,oracle:noise=0.01"],
+    );
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(
+        stderr.contains("oracle:noise=0.05")
+            && stderr.contains("scripted oracle")
+            && stderr.contains("cannot act inside a world model"),
         "{stderr}"
     );
 }

@@ -36,13 +36,24 @@ impl Drop for Served {
 
 /// `tests/python/serve_policy.py --protocol P --policy NAME` on a free port.
 pub fn serve_python(dir: &Path, protocol: &str, policy: &str) -> Served {
-    let log = std::fs::File::create(dir.join(format!("{protocol}-{policy}.log"))).unwrap();
+    serve_script(
+        dir,
+        "tests/python/serve_policy.py",
+        &["--protocol", protocol, "--policy", policy, "--port", "0"],
+        &format!("{protocol}-{policy}"),
+    )
+}
+
+/// A Python test server (`script` with `args`) that prints `listening on URL` first; its
+/// stderr goes to `dir/<log>.log`.
+pub fn serve_script(dir: &Path, script: &str, args: &[&str], log: &str) -> Served {
+    let log_path = dir.join(format!("{log}.log"));
     let mut child = Command::new(python())
-        .arg(repo().join("tests/python/serve_policy.py"))
-        .args(["--protocol", protocol, "--policy", policy, "--port", "0"])
+        .arg(repo().join(script))
+        .args(args)
         .stdin(Stdio::null())
         .stdout(Stdio::piped())
-        .stderr(log)
+        .stderr(std::fs::File::create(&log_path).unwrap())
         .spawn()
         .unwrap();
     let mut first = String::new();
@@ -53,11 +64,10 @@ pub fn serve_python(dir: &Path, protocol: &str, policy: &str) -> Served {
         Some(url) => url.to_owned(),
         None => {
             let _ = child.kill();
-            let log = std::fs::read_to_string(dir.join(format!("{protocol}-{policy}.log")));
             panic!(
-                "serve_policy.py {protocol} {policy}: {first:?}\n{}\n(scripts/test installs the \
-                 kit's dependencies; or set ASSAY_TEST_PYTHON)",
-                log.unwrap_or_default()
+                "{script} {args:?}: {first:?}\n{}\n(scripts/test installs the kit's dependencies; \
+                 or set ASSAY_TEST_PYTHON)",
+                std::fs::read_to_string(&log_path).unwrap_or_default()
             );
         }
     };
