@@ -93,16 +93,16 @@ pub fn write(
             q.figure_svg(),
         )?;
     }
-    if let Some(ranking) = report
+    if let Some((k, ranking)) = report
         .results
         .ranking
         .as_ref()
-        .and_then(|k| k.ranking.as_ref())
+        .and_then(|k| Some((k, k.ranking.as_ref()?)))
     {
         for (i, c) in ranking.comparisons.iter().enumerate() {
             std::fs::write(
                 out.join(assay_report::ranking::ranking_figure(&c.proxy)),
-                assay_report::figures::ranking(ranking, i),
+                assay_report::figures::ranking_labelled(ranking, i, &k.labels),
             )?;
         }
     }

@@ -777,7 +777,8 @@ impl Store {
     }
 }
 
-/// The policy name of a ladder policy's episodes (its horizon is the ladder's).
-fn ladder_policy_name(ladder: &LadderPlan, model: &str) -> String {
+/// The policy name of a ladder policy's episodes (its horizon is the ladder's); the read model
+/// names the report's ladder labels by it.
+pub(super) fn ladder_policy_name(ladder: &LadderPlan, model: &str) -> String {
     format!("diffusion:model={model},max_steps={}", ladder.max_steps)
 }

@@ -10,11 +10,12 @@ use assay_model::quality::{Item, JudgeOutcome};
 use assay_model::trainer::TrainerOutcome;
 use assay_report::diversity::DiversityResults;
 use assay_report::generalization::{EvalEpisode, GeneralizationResults, GroupGeneralization};
-use assay_report::ranking::{RealEpisode, ranking_results};
+use assay_report::ranking::{RealEpisode, ladder_label, ranking_results};
 use assay_report::report::{self, Report, RunInfo};
 use assay_spec::SpecError;
 use rusqlite::OptionalExtension;
 
+use super::planner::ladder_policy_name;
 use super::shard_state::{CANCELLED, DONE, FAILED, LEASED, QUEUED};
 use super::{BatchCounts, Store, role};
 use crate::error::CoordError;
@@ -177,6 +178,8 @@ impl Store {
         let mut proxy_errors = Vec::new();
         let mut imagined = Vec::new();
         let mut trained = Vec::new();
+        // The ladder's kept policies: (group, episodes trained on, step, key).
+        let mut ladder: Vec<(String, u32, u64, String)> = Vec::new();
         let mut general_errors = Vec::new();
         let mut evaluated = Vec::new();
         {
@@ -214,7 +217,20 @@ impl Store {
                     }
                     if job.starts_with("ladder") {
                         // A ladder's policies are ranked by their episodes; a training that
-                        // failed is a failure of the group's ranking.
+                        // failed is a failure of the group's ranking. A finished one says what
+                        // each kept policy was trained on and for how long (the report's labels).
+                        if let (DONE, Some(json)) = (state.as_str(), &outcome)
+                            && let TrainerOutcome::Diffusion {
+                                group,
+                                model,
+                                fit,
+                                checkpoints,
+                            } = serde_json::from_str::<TrainerOutcome>(json)?
+                        {
+                            for (step, key) in checkpoints.into_iter().chain([(fit.steps, model)]) {
+                                ladder.push((group.clone(), fit.clips, step, key));
+                            }
+                        }
                         if state == FAILED {
                             let error = r.get::<_, Option<String>>(6)?.unwrap_or_default();
                             proxy_errors.push((
@@ -432,7 +448,7 @@ impl Store {
                 .iter()
                 .map(|t| (t.id.clone(), t.group.clone()))
                 .collect();
-            results.ranking = Some(ranking_results(
+            let mut ranking = ranking_results(
                 &plan,
                 &ranked,
                 &task_groups,
@@ -440,7 +456,27 @@ impl Store {
                 proxies,
                 &imagined,
                 proxy_errors,
-            ));
+            );
+            if let Some(plan) = &plan.ladder {
+                // By group (task order), episodes and step; a key kept twice (the final model
+                // at the last checkpoint) labelled once. With ladders in several groups, each
+                // label names its group.
+                let rank = |g: &str| tasks.iter().position(|t| t.group == g);
+                ladder.sort_by(|a, b| {
+                    (rank(&a.0), a.1, a.2, &a.3).cmp(&(rank(&b.0), b.1, b.2, &b.3))
+                });
+                let several = ladder.iter().any(|(g, ..)| *g != ladder[0].0);
+                for (group, episodes, step, key) in &ladder {
+                    let name = ladder_policy_name(plan, key);
+                    if !ranking.labels.iter().any(|(p, _)| *p == name) {
+                        let group = several.then_some(group.as_str());
+                        ranking
+                            .labels
+                            .push((name, ladder_label(*episodes, *step, group)));
+                    }
+                }
+            }
+            results.ranking = Some(ranking);
         }
         let wall = finished.map(|f| (f - submitted) as f64 / 1000.0);
         let rate = |x: f64| wall.filter(|w| *w > 0.0).map(|w| x / w);

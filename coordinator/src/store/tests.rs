@@ -913,6 +913,15 @@ fn a_ladder_of_learned_policies_is_trained_then_run_then_ranked() {
     let mut ranked_policies = k.ranked_policies.clone();
     ranked_policies.sort();
     assert_eq!(ranked_policies, learned);
+    // Each reads by what it was trained on and for how long: the run's 2 episodes, the step it
+    // was kept at (the checkpoint named twice by its first, the final model by the fit's).
+    assert_eq!(
+        k.labels,
+        [
+            (learned[0].to_owned(), "diffusion 2 ep @ 2".to_owned()),
+            (learned[1].to_owned(), "diffusion 2 ep @ 3000".to_owned()),
+        ]
+    );
     assert_eq!(k.rows.len(), 4);
     assert!(k.proxy_agreement.is_some_and(|a| a.successes == a.trials));
     assert_eq!(k.errors.len(), 1);

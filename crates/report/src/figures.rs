@@ -400,9 +400,19 @@ pub fn line_chart(title: &str, x_desc: &str, y_desc: &str, lines: &[Line]) -> St
 /// predicted success against real success, one labelled point per policy, the y = x diagonal, r
 /// and MMRV in the title. Panics if `comparison` is out of range.
 pub fn ranking(ranking: &Ranking, comparison: usize) -> String {
+    ranking_labelled(ranking, comparison, &[])
+}
+
+/// [`ranking`] with each policy that has one of `labels` (policy name, label; a ladder's
+/// policies, [`crate::ranking::RankingResults::labels`]) named by it.
+pub fn ranking_labelled(
+    ranking: &Ranking,
+    comparison: usize,
+    labels: &[(String, String)],
+) -> String {
     let c = &ranking.comparisons[comparison];
     let mut out = String::new();
-    draw_ranking(c, &mut out).expect("plotters draws into a String, which cannot fail");
+    draw_ranking(c, labels, &mut out).expect("plotters draws into a String, which cannot fail");
     out
 }
 
@@ -411,7 +421,11 @@ fn short(e: &Estimate) -> String {
         .map_or_else(|| "undefined".to_owned(), |v| format!("{v:.3}"))
 }
 
-fn draw_ranking(c: &Comparison, out: &mut String) -> Result<(), Box<dyn std::error::Error>> {
+fn draw_ranking(
+    c: &Comparison,
+    labels: &[(String, String)],
+    out: &mut String,
+) -> Result<(), Box<dyn std::error::Error>> {
     let title = format!(
         "{} against {}: r = {}, MMRV = {}",
         crate::ranking::source_title(&c.proxy),
@@ -453,7 +467,7 @@ fn draw_ranking(c: &Comparison, out: &mut String) -> Result<(), Box<dyn std::err
         EmptyElement::at((p.real, p.proxy))
             + Circle::new((0, 0), 5, blue.filled())
             + Text::new(
-                crate::view::short_policy(&p.policy).unwrap_or_else(|| p.policy.clone()),
+                crate::view::policy_label(&p.policy, labels).unwrap_or_else(|| p.policy.clone()),
                 (8, -14),
                 ("sans-serif", 12).into_font(),
             )

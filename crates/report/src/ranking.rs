@@ -132,6 +132,23 @@ pub struct RankingResults {
     /// Imagined rollouts the judge role could not judge: (judge, task, policy, seed, error).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub judging_errors: Vec<(String, String, String, u64, String)>,
+    /// Readable names of the ladder's learned policies: (policy name, label), the label saying
+    /// what each was trained on and for how long ([`ladder_label`]: `diffusion 10 ep @ 300`),
+    /// in ladder order (group, episodes, step). The tables and plots show a policy by its label
+    /// (the full name as the page's title, and listed under report.md's tables) and the
+    /// per-policy tables list the labelled policies in this order, after the others.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub labels: Vec<(String, String)>,
+}
+
+/// A ladder policy's label: the episodes it was trained on and the training step it was kept at,
+/// `diffusion 10 ep @ 300`; with its group when a batch has ladders in several groups
+/// (`diffusion 10 ep @ 300, g1`), so that no two policies read the same.
+pub fn ladder_label(episodes: u32, step: u64, group: Option<&str>) -> String {
+    match group {
+        Some(g) => format!("diffusion {episodes} ep @ {step}, {g}"),
+        None => format!("diffusion {episodes} ep @ {step}"),
+    }
 }
 
 /// The correlation plot written beside `report.md` (predicted against real success).
@@ -205,7 +222,8 @@ pub const RANKING_RESAMPLES: usize = 2000;
 
 /// Builds the ranking section: `episodes` are the finished episodes of the ranked policies,
 /// `groups` the finished proxy jobs, `imagined` the judge role's verdicts on their imagined
-/// rollouts, `task_groups` (task id, group) in report order.
+/// rollouts, `task_groups` (task id, group) in report order. Its `labels` are left empty: the
+/// store, which knows the ladder's trainings, fills them.
 pub fn ranking_results(
     plan: &RankingPlan,
     ranked_policies: &[String],
@@ -388,6 +406,7 @@ pub fn ranking_results(
                 })
             })
             .collect(),
+        labels: Vec::new(),
     }
 }
 
@@ -782,6 +801,71 @@ mod tests {
             "(ranking-leak.svg)",
             "world-model-leak (ablation) against sim: r = 1.000",
         );
+    }
+
+    #[test]
+    fn ladder_policies_read_by_their_episodes_and_step_in_ladder_order() {
+        use crate::testing::{LADDER_BEST, LADDER_WORST, ranking_fixture, report_with_ranking};
+        assert_eq!(ladder_label(10, 300, None), "diffusion 10 ep @ 300");
+        assert_eq!(
+            ladder_label(40, 3000, Some("g1")),
+            "diffusion 40 ep @ 3000, g1"
+        );
+        let mut r = ranking_fixture();
+        r.labels = vec![
+            (LADDER_WORST.to_owned(), ladder_label(10, 300, None)),
+            (LADDER_BEST.to_owned(), ladder_label(40, 3000, None)),
+        ];
+        let back: RankingResults =
+            serde_json::from_str(&serde_json::to_string(&r).unwrap()).unwrap();
+        assert_eq!(back.labels, r.labels);
+        let report = report_with_ranking(r);
+        let md = report.to_markdown();
+        let html = crate::html::report_html(&crate::html::HtmlInputs {
+            report: &report,
+            artifact: &|_| None,
+            human: None,
+        });
+        let both = |md_text: &str, html_text: &str| {
+            assert!(md.contains(md_text), "{md_text} not in:\n{md}");
+            assert!(html.contains(html_text), "{html_text} not in the page");
+        };
+        // Per policy: the others by real success, then the ladder by episodes and step.
+        let per_policy = [
+            "| scripted | 3 | 50 % (3/6) [19, 81] |",
+            "| diffusion 10 ep @ 300 | 3 | 17 % (1/6) [3, 56] |",
+            "| diffusion 40 ep @ 3000 | 3 | 100 % (6/6) [61, 100] |",
+        ]
+        .map(|row| {
+            md.find(row)
+                .unwrap_or_else(|| panic!("{row} not in:\n{md}"))
+        });
+        assert!(per_policy.is_sorted(), "{per_policy:?} in:\n{md}");
+        // What was compared, the comparisons' tables, the plots: the label, the full name
+        // listed (report.md) or as the title (report.html).
+        both(
+            "| ranked policies (never trained on) | diffusion 40 ep @ 3000, scripted, \
+             diffusion 10 ep @ 300 |",
+            &format!("<span title=\"{LADDER_BEST}\">diffusion 40 ep @ 3000</span>, scripted, "),
+        );
+        both(
+            "| diffusion 40 ep @ 3000 | 3 | 1.000 (6 trials) |",
+            &format!("<span title=\"{LADDER_WORST}\">diffusion 10 ep @ 300</span>"),
+        );
+        both(
+            &format!("- diffusion 40 ep @ 3000: `{LADDER_BEST}`"),
+            ">\ndiffusion 40 ep @ 3000\n</text>",
+        );
+        both(
+            &format!("- diffusion 10 ep @ 300: `{LADDER_WORST}`"),
+            ">\ndiffusion 10 ep @ 300\n</text>",
+        );
+        for shortened in ["diffusion 3fa9c2d1", "diffusion 77be01aa"] {
+            assert!(
+                !md.contains(shortened) && !html.contains(shortened),
+                "{shortened}"
+            );
+        }
     }
 
     #[test]

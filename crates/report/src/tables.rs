@@ -11,7 +11,7 @@ use crate::generalization::{GeneralizationResults, LEARNT_THRESHOLD};
 use crate::quality::{JudgeSummary, QualityResults};
 use crate::ranking::{RankingResults, is_ablation, source_title};
 use crate::report::{PolicySuccess, Provenance, Results, RunInfo};
-use crate::view::{Cell, Span, Table, estimate, num2, proportion, score};
+use crate::view::{Cell, Span, Table, estimate, label_rank, num2, proportion, score};
 use assay_model::proxy::{LEAK_SOURCE, PROXY_SOURCE, REAL_SOURCE};
 use assay_model::quality::ScoreStats;
 use assay_stats::agreement::Agreement;
@@ -568,11 +568,11 @@ pub fn ranking_compared(r: &RankingResults) -> Table {
     let mut table = Table::new(["what", "value"]);
     table.row(vec![
         "training policies (their episodes train the world model and the frame judge)".into(),
-        Cell::policies(r.train_policies.iter().map(String::as_str)),
+        Cell::policies(r.train_policies.iter().map(String::as_str), &r.labels),
     ]);
     table.row(vec![
         "ranked policies (never trained on)".into(),
-        Cell::policies(r.ranked_policies.iter().map(String::as_str)),
+        Cell::policies(r.ranked_policies.iter().map(String::as_str), &r.labels),
     ]);
     let mut models: Vec<(&str, Vec<&str>)> = Vec::new();
     for g in &r.groups {
@@ -596,8 +596,9 @@ pub fn ranking_compared(r: &RankingResults) -> Table {
         "frame judge".into(),
         lines([
             format!(
-                "a small CNN per group on last frames (training below); an imagined rollout \
-                 succeeds when its probability is ≥ {}",
+                "a small CNN per group, trained on the training episodes' real and imagined \
+                 frames (last frames labelled with their outcome, earlier ones not done; counts \
+                 below); it calls a frame done when its probability is ≥ {}",
                 num2(cfg.threshold)
             ),
             format!(
@@ -640,7 +641,8 @@ pub fn ranking_compared(r: &RankingResults) -> Table {
 }
 
 /// Per ranked policy: real success and each proxy's predicted success, episodes pooled over
-/// tasks, with Wilson intervals.
+/// tasks, with Wilson intervals. Best real success first, the ladder's policies last in ladder
+/// order (episodes, step).
 pub fn ranking_per_policy(r: &RankingResults) -> Table {
     let mut sources: Vec<&str> = Vec::new();
     for s in r.policies.iter().flat_map(|p| &p.predicted) {
@@ -656,8 +658,14 @@ pub fn ranking_per_policy(r: &RankingResults) -> Table {
     ];
     columns.extend(sources.iter().map(|s| format!("#R_S {}", source_title(s))));
     let mut table = Table::new(columns);
-    for p in &r.policies {
-        let mut cells = vec![Cell::policy(&p.policy), n(p.tasks), proportion(&p.real)];
+    let mut policies: Vec<_> = r.policies.iter().collect();
+    policies.sort_by_key(|p| label_rank(&p.policy, &r.labels));
+    for p in policies {
+        let mut cells = vec![
+            Cell::policy(&p.policy, &r.labels),
+            n(p.tasks),
+            proportion(&p.real),
+        ];
         cells.extend(sources.iter().map(|s| {
             p.predicted
                 .iter()
@@ -699,7 +707,7 @@ pub fn action_test(r: &RankingResults) -> Table {
 }
 
 /// Per judge of imagined rollouts: the spread of its completion scores over each rollout's k
-/// repeats, per policy and over all.
+/// repeats, per policy (the ladder's policies last in ladder order) and over all.
 pub fn repeat_consistency(r: &RankingResults) -> Table {
     let mut table = Table::new([
         "judge",
@@ -709,12 +717,21 @@ pub fn repeat_consistency(r: &RankingResults) -> Table {
         "#mean variance over repeats",
         "#rollouts split by the threshold",
     ]);
-    for c in &r.repeat_consistency {
+    let mut repeats: Vec<_> = r.repeat_consistency.iter().collect();
+    let judge_rank = |judge: &str| r.repeat_consistency.iter().position(|x| x.judge == judge);
+    repeats.sort_by_key(|c| {
+        (
+            judge_rank(&c.judge),
+            c.policy.is_none(),
+            c.policy.as_deref().and_then(|p| label_rank(p, &r.labels)),
+        )
+    });
+    for c in repeats {
         let cells = vec![
             Cell::code(&c.judge),
             c.policy
                 .as_deref()
-                .map_or_else(|| "all".into(), Cell::policy),
+                .map_or_else(|| "all".into(), |p| Cell::policy(p, &r.labels)),
             n(c.repeats),
             n(c.rollouts),
             c.mean_variance
@@ -730,7 +747,8 @@ pub fn repeat_consistency(r: &RankingResults) -> Table {
     table
 }
 
-/// Per task and policy: real success, the proxy's verdicts and the judges' view.
+/// Per task and policy: real success, the proxy's verdicts and the judges' view. Within a task,
+/// the ladder's policies last in ladder order (episodes, step).
 pub fn ranking_rows(r: &RankingResults) -> Table {
     let rate = |p: &assay_stats::stats::Proportion| match p.rate {
         Some(x) => Cell::text(format!("{:.0} % ({}/{})", x * 100.0, p.successes, p.trials)),
@@ -750,7 +768,10 @@ pub fn ranking_rows(r: &RankingResults) -> Table {
         columns.push(format!("#{}", source_title(LEAK_SOURCE)));
     }
     let mut table = Table::new(columns);
-    for row in &r.rows {
+    let mut rows: Vec<_> = r.rows.iter().collect();
+    let task_rank = |task: &str| r.rows.iter().position(|x| x.task_id == task);
+    rows.sort_by_key(|x| (task_rank(&x.task_id), label_rank(&x.policy, &r.labels)));
+    for row in rows {
         let mut judged = Cell::default();
         for (i, j) in row.judged_proxy.iter().enumerate() {
             if i > 0 {
@@ -768,7 +789,7 @@ pub fn ranking_rows(r: &RankingResults) -> Table {
         }
         let mut cells = vec![
             Cell(vec![Span::TaskLink(row.task_id.clone())]),
-            Cell::policy(&row.policy),
+            Cell::policy(&row.policy, &r.labels),
             rate(&row.real),
             row.proxy.as_ref().map_or_else(Cell::missing, rate),
             row.proxy_mean_p
@@ -823,8 +844,9 @@ pub fn proxy_models(r: &RankingResults) -> Table {
     table
 }
 
-/// One comparison's policies, by real success: R and R_S.
-pub fn ranking_policies(c: &Comparison) -> Table {
+/// One comparison's policies, by real success: R and R_S; a policy with one of `labels` (see
+/// [`RankingResults::labels`]) shown by it.
+pub fn ranking_policies(c: &Comparison, labels: &[(String, String)]) -> Table {
     let mut table = Table::new([
         "policy".to_owned(),
         "#tasks".to_owned(),
@@ -844,7 +866,7 @@ pub fn ranking_policies(c: &Comparison) -> Table {
     });
     for p in order {
         table.row(vec![
-            Cell::policy(&p.policy),
+            Cell::policy(&p.policy, labels),
             n(p.tasks),
             with_trials(p.real, p.real_trials),
             with_trials(p.proxy, p.proxy_trials),

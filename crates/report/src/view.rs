@@ -27,7 +27,7 @@ pub enum Span {
     /// A link to a task's own section in the page (HTML); its text elsewhere.
     TaskLink(String),
     /// A long name shown short: HTML gives the full one as the title, Markdown lists it under
-    /// the table (see [`short_policy`]).
+    /// the table (see [`policy_label`]).
     Abbrev {
         short: String,
         full: String,
@@ -59,9 +59,10 @@ impl Cell {
             Self::text(s)
         }
     }
-    /// A policy's name, shortened when it is a learned policy's spec ([`short_policy`]).
-    pub fn policy(name: &str) -> Self {
-        match short_policy(name) {
+    /// A policy's name, shortened when it has a label in `labels` or is a learned policy's spec
+    /// ([`policy_label`]).
+    pub fn policy(name: &str, labels: &[(String, String)]) -> Self {
+        match policy_label(name, labels) {
             Some(short) => Self(vec![Span::Abbrev {
                 short,
                 full: name.to_owned(),
@@ -70,13 +71,16 @@ impl Cell {
         }
     }
     /// Names, each with [`Cell::policy`], separated by commas.
-    pub fn policies<'a>(names: impl IntoIterator<Item = &'a str>) -> Self {
+    pub fn policies<'a>(
+        names: impl IntoIterator<Item = &'a str>,
+        labels: &[(String, String)],
+    ) -> Self {
         let mut c = Self::default();
         for (i, name) in names.into_iter().enumerate() {
             if i > 0 {
                 c = c.and(Span::Text(", ".into()));
             }
-            c.0.extend(Self::policy(name).0);
+            c.0.extend(Self::policy(name, labels).0);
         }
         if c.0.is_empty() { Self::missing() } else { c }
     }
@@ -243,6 +247,24 @@ pub fn short_policy(name: &str) -> Option<String> {
     (!short.is_empty() && shorter.len() < name.len()).then_some(shorter)
 }
 
+/// A policy's name as the tables and plots show it: its label in `labels` (policy name, label)
+/// when it has one (a ladder's policy reads `diffusion 10 ep @ 300`, see
+/// [`crate::ranking::RankingResults::labels`]), else [`short_policy`]'s. None for a name shown
+/// as it is.
+pub fn policy_label(name: &str, labels: &[(String, String)]) -> Option<String> {
+    labels
+        .iter()
+        .find(|(policy, _)| policy == name)
+        .map(|(_, label)| label.clone())
+        .or_else(|| short_policy(name))
+}
+
+/// Where `name` stands in the order of `labels` (a ladder's policies by episodes and step), for
+/// sorting: None, first, for a policy without a label.
+pub fn label_rank(name: &str, labels: &[(String, String)]) -> Option<usize> {
+    labels.iter().position(|(policy, _)| policy == name)
+}
+
 /// The abbreviations of a table's cells, each once, in order of appearance: (short, full).
 pub fn abbreviations<'a>(tables: impl IntoIterator<Item = &'a Table>) -> Vec<(String, String)> {
     let mut out: Vec<(String, String)> = Vec::new();
@@ -333,7 +355,7 @@ mod tests {
         assert_eq!(short_policy("oracle:noise=0.03"), None);
         assert_eq!(short_policy("diffusion-400"), None);
         let mut t = Table::new(["policy"]);
-        t.row(vec![Cell::policies([full, "oracle", full])]);
+        t.row(vec![Cell::policies([full, "oracle", full], &[])]);
         assert_eq!(
             t.rows[0].cells[0].plain(),
             "diffusion 3fa9c2d1, oracle, diffusion 3fa9c2d1"
@@ -341,6 +363,20 @@ mod tests {
         assert_eq!(
             abbreviations([&t]),
             [("diffusion 3fa9c2d1".to_owned(), full.to_owned())]
+        );
+        // A label (a ladder policy's episodes and step) comes before the shortened name.
+        let labels = [(full.to_owned(), "diffusion 10 ep @ 300".to_owned())];
+        assert_eq!(
+            policy_label(full, &labels).as_deref(),
+            Some("diffusion 10 ep @ 300")
+        );
+        assert_eq!(policy_label("oracle", &labels), None);
+        let mut t = Table::new(["policy"]);
+        t.row(vec![Cell::policies([full, "oracle"], &labels)]);
+        assert_eq!(t.rows[0].cells[0].plain(), "diffusion 10 ep @ 300, oracle");
+        assert_eq!(
+            abbreviations([&t]),
+            [("diffusion 10 ep @ 300".to_owned(), full.to_owned())]
         );
     }
 

@@ -730,7 +730,7 @@ mod tests {
             tables::diversity_errors(d, ""),
             tables::generalization(r.generalization.as_ref().unwrap()),
             tables::ranking_statistics(c),
-            tables::ranking_policies(c),
+            tables::ranking_policies(c, &k.labels),
             tables::ranking_compared(k),
             tables::proxy_models(k),
             tables::ranking_per_policy(k),
@@ -740,7 +740,11 @@ mod tests {
         ];
         let comparisons = &k.ranking.as_ref().unwrap().comparisons;
         shared.extend(comparisons.iter().map(tables::ranking_statistics));
-        shared.extend(comparisons.iter().map(tables::ranking_policies));
+        shared.extend(
+            comparisons
+                .iter()
+                .map(|c| tables::ranking_policies(c, &k.labels)),
+        );
         shared.extend(q.judges.iter().map(tables::quality_per_group));
         for t in &shared {
             assert!(!t.rows.is_empty(), "{}", t.markdown());

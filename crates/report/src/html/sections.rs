@@ -348,10 +348,10 @@ pub(super) fn ranking(r: Option<&RankingResults>) -> Markup {
                             p.caption { (LEAK_NOTE) }
                         }
                         div.row {
-                            (inline_svg(&figures::ranking(rk, i)))
+                            (inline_svg(&figures::ranking_labelled(rk, i, &r.labels)))
                             div {
                                 (table(&tables::ranking_statistics(c)))
-                                (table_if_any(&tables::ranking_policies(c)))
+                                (table_if_any(&tables::ranking_policies(c, &r.labels)))
                             }
                         }
                         p.caption {

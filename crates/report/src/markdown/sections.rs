@@ -262,14 +262,14 @@ impl RankingResults {
         match (&self.ranking, &self.ranking_missing) {
             (Some(r), _) => {
                 for c in &r.comparisons {
-                    out.push_str(&comparison(r, c));
+                    out.push_str(&comparison(r, c, &self.labels));
                     let _ = writeln!(
                         out,
                         "![{}: predicted against real success, one point per policy]({})\n",
                         md_text(&crate::ranking::source_title(&c.proxy)),
                         ranking_figure(&c.proxy)
                     );
-                    shown.push(tables::ranking_policies(c));
+                    shown.push(tables::ranking_policies(c, &self.labels));
                 }
             }
             (None, Some(why)) => {
@@ -320,15 +320,19 @@ fn full_names(tables: &[Table]) -> String {
 pub fn ranking(r: &Ranking) -> String {
     let mut out = String::new();
     for c in &r.comparisons {
-        out.push_str(&comparison(r, c));
+        out.push_str(&comparison(r, c, &[]));
     }
-    let shown: Vec<Table> = r.comparisons.iter().map(tables::ranking_policies).collect();
+    let shown: Vec<Table> = r
+        .comparisons
+        .iter()
+        .map(|c| tables::ranking_policies(c, &[]))
+        .collect();
     out.push_str(&full_names(&shown));
     out
 }
 
-/// One comparison of a ranking.
-fn comparison(r: &Ranking, c: &Comparison) -> String {
+/// One comparison of a ranking, the policies with `labels` named by them.
+fn comparison(r: &Ranking, c: &Comparison, labels: &[(String, String)]) -> String {
     let mut out = String::new();
     let _ = writeln!(
         out,
@@ -349,7 +353,7 @@ fn comparison(r: &Ranking, c: &Comparison) -> String {
         md_text(&c.proxy)
     );
     if !c.policies.is_empty() {
-        out.push_str(&tables::ranking_policies(c).markdown());
+        out.push_str(&tables::ranking_policies(c, labels).markdown());
         out.push('\n');
     }
     out.push_str(&tables::ranking_statistics(c).markdown());
