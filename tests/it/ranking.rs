@@ -122,14 +122,20 @@ fn eval_ranks_a_ladder_by_the_world_model_proxy() {
     assert_eq!(k.ranked_policies[0], learned);
     let ladder: Vec<&String> = k.ranked_policies[1..].iter().collect();
     assert!(
-        ladder.iter().all(|p| p.starts_with("diffusion:model=policies/")
-            && p.ends_with(",max_steps=480")),
+        ladder
+            .iter()
+            .all(|p| p.starts_with("diffusion:model=policies/") && p.ends_with(",max_steps=480")),
         "{ladder:?}"
     );
     assert_ne!(ladder[0], ladder[1]);
     assert_eq!(
         k.train_policies,
-        ["oracle", "oracle:noise=0.05", "oracle:noise=0.01", "oracle:noise=0.03"]
+        [
+            "oracle",
+            "oracle:noise=0.05",
+            "oracle:noise=0.01",
+            "oracle:noise=0.03"
+        ]
     );
     // 2 tasks × 3 ranked policies, each with real and proxy success over the 2 seeds.
     assert_eq!(k.rows.len(), 6);
@@ -140,7 +146,11 @@ fn eval_ranks_a_ladder_by_the_world_model_proxy() {
     assert_eq!(k.groups.len(), 1);
     let g = &k.groups[0];
     assert_eq!((g.group.as_str(), g.predictions.len()), ("placement", 12));
-    assert!(g.world_model_name.contains("RSSM"), "{}", g.world_model_name);
+    assert!(
+        g.world_model_name.contains("RSSM"),
+        "{}",
+        g.world_model_name
+    );
     let test = g.action_test.as_ref().expect("the action test");
     assert_eq!(test.episodes, 12);
     assert!(test.true_actions_mse > 0.0 && test.shuffled_actions_mse > 0.0);
@@ -252,7 +262,11 @@ fn a_world_model_served_over_grpc_by_python_drives_the_ranking() {
         g.world_model_name
     );
     assert_eq!(g.world_model.steps, 0);
-    assert_eq!(g.predictions.len(), 4, "2 tasks × 2 seeds of the ranked policy");
+    assert_eq!(
+        g.predictions.len(),
+        4,
+        "2 tasks × 2 seeds of the ranked policy"
+    );
     // The action test ran through the server too (the trivial model draws a square over the
     // first frame, so it errs against the real frames whatever the actions).
     let test = g.action_test.as_ref().expect("the action test");
@@ -267,7 +281,8 @@ fn a_world_model_served_over_grpc_by_python_drives_the_ranking() {
     // A world model that is down: the proxy is retried as a remote policy's episode is, then
     // reported as the group's ranking error naming the server; the real episodes stay counted.
     drop(server);
-    let dead = r#"{"judge_steps": 30, "external": {"url": "http://127.0.0.1:9", "timeout_ms": 2000}}"#;
+    let dead =
+        r#"{"judge_steps": 30, "external": {"url": "http://127.0.0.1:9", "timeout_ms": 2000}}"#;
     let out_dir = dir.path().join("dead");
     let out = eval(
         &out_dir,
@@ -331,7 +346,11 @@ fn ranking_settings_that_cannot_work_are_refused_with_the_reason() {
     // A scripted oracle cannot act inside a world model: ranking one is refused.
     let out = eval(
         dir.path(),
-        &["--no-judge", "--rank-train-policies", "oracle,oracle:noise=0.01"],
+        &[
+            "--no-judge",
+            "--rank-train-policies",
+            "oracle,oracle:noise=0.01",
+        ],
     );
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success());

@@ -166,7 +166,9 @@ pub fn closed_loop(
             start.state.len()
         ))));
     }
-    policy.reset(episode).map_err(|e| ImaginationError::Policy(0, e))?;
+    policy
+        .reset(episode)
+        .map_err(|e| ImaginationError::Policy(0, e))?;
     let mut world_episode = world.reset(start)?;
     let mut seen = (start.rgb.clone(), start.state.clone());
     let mut chunk: VecDeque<Vec<f32>> = VecDeque::new();
@@ -188,7 +190,9 @@ pub fn closed_loop(
                 seen.0.clone(),
                 proprio,
             );
-            let answer = policy.act(&obs).map_err(|e| ImaginationError::Policy(t, e))?;
+            let answer = policy
+                .act(&obs)
+                .map_err(|e| ImaginationError::Policy(t, e))?;
             if answer.is_empty() || answer.iter().flatten().any(|x| !x.is_finite()) {
                 return Err(ImaginationError::Policy(
                     t,

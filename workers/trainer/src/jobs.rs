@@ -101,14 +101,16 @@ pub fn run(
             };
             // A served world model that is down or late is retried, as a remote policy is.
             let mut result =
-                crate::proxy::run_proxy(&req, resume.as_deref(), &mut save).map_err(|e| JobError {
-                    retryable: matches!(
-                        e,
-                        crate::world_model::WorldModelError::World(
-                            assay_model::world::WorldError::Unavailable(_)
-                        )
-                    ),
-                    message: format!("world-model proxy of group {group:?}: {e}"),
+                crate::proxy::run_proxy(&req, resume.as_deref(), &mut save).map_err(|e| {
+                    JobError {
+                        retryable: matches!(
+                            e,
+                            crate::world_model::WorldModelError::World(
+                                assay_model::world::WorldError::Unavailable(_)
+                            )
+                        ),
+                        message: format!("world-model proxy of group {group:?}: {e}"),
+                    }
                 })?;
             // The imagined keyframes go to the artifact store, for the judge role.
             let size = config.world_model.image_size;

@@ -5,8 +5,8 @@ mod adam;
 pub mod diffusion;
 pub mod embed;
 pub mod embedders;
-pub mod jobs;
 pub mod imagination;
+pub mod jobs;
 pub mod proxy;
 pub mod world_model;
 

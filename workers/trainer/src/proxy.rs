@@ -374,9 +374,8 @@ pub fn run_proxy(
             leak_at: config.leak_ablation.then(|| clip.len() - 1),
         };
         let start = imagination::start_of(clip, &eval_ctx[i]);
-        let rollout =
-            imagination::closed_loop(world, &start, policy.as_mut(), &eval_ctx[i], &stop)
-                .map_err(|err| what(err.to_string()))?;
+        let rollout = imagination::closed_loop(world, &start, policy.as_mut(), &eval_ctx[i], &stop)
+            .map_err(|err| what(err.to_string()))?;
         let real_last = at(clip, clip.len() - 1);
         let last_imagined = rollout.frames.last().unwrap_or(&start.rgb);
         predictions.push(ProxyPrediction {

@@ -140,7 +140,10 @@ fn the_world_model_imagines_every_frame_after_the_first_deterministically() {
         assert_eq!(frames.len(), c.len() - 1);
         assert!(frames.iter().all(|f| f.len() == (SIZE * SIZE * 3) as usize));
         // Imagination draws no random numbers.
-        assert_eq!(frames, imagination::replay(&world, &start, &actions).unwrap());
+        assert_eq!(
+            frames,
+            imagination::replay(&world, &start, &actions).unwrap()
+        );
     }
     // A start the model cannot take is refused, saying why.
     let mut start = imagination::start_of(&clips[0], &context(0));
@@ -178,11 +181,16 @@ fn the_trained_world_model_uses_its_actions() {
     let right = imagination::replay(&world, &start, &vec![vec![0.5, 0.0, 0.0, 0.0]; 3]).unwrap();
     let left = imagination::replay(&world, &start, &vec![vec![-0.5, 0.0, 0.0, 0.0]; 3]).unwrap();
     let apart = imagination::mse(&right[2], &left[2]);
-    assert!(apart > 1e-3, "3 steps right and 3 steps left differ by {apart}");
+    assert!(
+        apart > 1e-3,
+        "3 steps right and 3 steps left differ by {apart}"
+    );
     // Its error with the true actions is clearly below its error with another episode's.
     let refs: Vec<&Clip> = clips.iter().collect();
     let ctx: Vec<EpisodeContext> = (0..12).map(context).collect();
-    let test = imagination::action_test(&world, &refs, &ctx).unwrap().unwrap();
+    let test = imagination::action_test(&world, &refs, &ctx)
+        .unwrap()
+        .unwrap();
     assert_eq!(test.episodes, 12);
     assert!(
         test.true_actions_mse * 4.0 < test.shuffled_actions_mse,
@@ -258,8 +266,9 @@ fn a_policy_acts_inside_the_world_model_on_the_frames_it_imagines() {
         judge: &always,
         ..stop
     };
-    let done = imagination::closed_loop(&world, &start, &mut Rightwards::default(), &episode, &stop)
-        .unwrap();
+    let done =
+        imagination::closed_loop(&world, &start, &mut Rightwards::default(), &episode, &stop)
+            .unwrap();
     assert!(done.done_by_judge);
     assert_eq!((done.frames.len(), done.p_success), (2, 0.9));
 }
@@ -303,9 +312,8 @@ fn run(
     eval_clips: &[Clip],
     config: &ProxyConfig,
 ) -> Result<ProxyResult, assay_trainer::world_model::WorldModelError> {
-    let policies = |_: &str| -> Result<Box<dyn Policy>, PolicyError> {
-        Ok(Box::new(Rightwards::default()))
-    };
+    let policies =
+        |_: &str| -> Result<Box<dyn Policy>, PolicyError> { Ok(Box::new(Rightwards::default())) };
     let world_models = |_: &assay_model::proxy::ExternalWorldModel| {
         Ok(Box::new(Refusing) as Box<dyn WorldModelService>)
     };

@@ -62,7 +62,9 @@ impl TrainerRole {
         // A lab's world model, served over `assay.v1.WorldModel`, when the proxy names one.
         let world_models = |server: &ExternalWorldModel| {
             let runtime = self.runtime.as_ref().ok_or_else(|| {
-                WorldError::Unavailable("the trainer role has no runtime for world-model calls".into())
+                WorldError::Unavailable(
+                    "the trainer role has no runtime for world-model calls".into(),
+                )
             })?;
             assay_policy::world_model::connect(&server.url, server.timeout_ms, runtime)
         };
