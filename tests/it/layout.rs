@@ -205,10 +205,9 @@ fn the_circle_check_finds_a_circle() {
 
 /// Files over [`FILE_LINES`] lines of code, each with why it is one file (ARCHITECTURE.md,
 /// "Crates"). Code lines: not blank, not a comment, not in `#[cfg(test)]`.
-const OVER: &[(&str, &str)] = &[(
-    "workers/trainer/src/world_model.rs",
-    "one RSSM: its layers, losses and imagination share private state",
-)];
+/// None now: `workers/trainer/src/world_model.rs` was one until its imagination moved out (issue
+/// 27: `imagination.rs`, and the RSSM's service in `world_model/service.rs`).
+const OVER: &[(&str, &str)] = &[];
 
 const FILE_LINES: usize = 1000;
 const CRATE_LINES: usize = 6000;
