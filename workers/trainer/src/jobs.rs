@@ -209,6 +209,7 @@ pub fn run(
                 eval: &loaded,
                 eval_keys: clips,
                 device,
+                normalize_actions: false,
             };
             let fit = fit(&req, resume.as_deref(), &mut save).map_err(|e| JobError {
                 message: format!("world model of group {group:?} on {budget} episodes: {e}"),

@@ -282,6 +282,7 @@ pub fn run_proxy(
                 eval: eval_clips,
                 eval_keys: &eval_keys,
                 device,
+                normalize_actions: config.normalize_actions,
             };
             let (model, fit) = fit_model(&req, resume, on_checkpoint)?;
             rssm_model = model;

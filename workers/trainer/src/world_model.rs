@@ -82,6 +82,12 @@ pub struct FitRequest<'a> {
     pub eval: &'a [Clip],
     pub eval_keys: &'a [String],
     pub device: Device,
+    /// Scale every action dimension to zero mean and unit deviation over the training clips
+    /// before it enters the model (the proxy's world model does; the dynamics-diversity fits,
+    /// whose published figures were measured without, do not). Clip actions are tool
+    /// velocities of about 0.15 m/s deviation: at that scale the RSSM can learn to ignore them
+    /// (see `tests/proxy.rs`).
+    pub normalize_actions: bool,
 }
 
 mod service;
@@ -142,6 +148,9 @@ pub fn fit_model(
     let size = i64::from(cfg.image_size);
 
     let mut model = Model::new(cfg, device);
+    if req.normalize_actions {
+        model.normalize_actions_of(req.train, device);
+    }
     let mut adam = Adam::new(&model.params, cfg.lr, GRAD_CLIP);
 
     let chunks = make_chunks(req.train, cfg.chunk);
@@ -704,6 +713,11 @@ struct Model {
     dec_proprio_out: Linear,
     names: Vec<String>,
     params: Vec<Tensor>,
+    /// What an action is shifted by and multiplied with before it enters the model (0 and 1
+    /// unless the fit normalizes actions); derived from the training clips, so a resumed fit
+    /// derives the same.
+    act_shift: Tensor,
+    act_scale: Tensor,
 }
 
 impl Model {
@@ -778,7 +792,37 @@ impl Model {
             dec_proprio_out,
             names: init.names,
             params: init.params,
+            act_shift: Tensor::zeros([ACTION_DIMS as i64], (Kind::Float, device)),
+            act_scale: Tensor::ones([ACTION_DIMS as i64], (Kind::Float, device)),
         }
+    }
+
+    /// Normalizes actions by the per-dimension mean and deviation of `clips`' actions (a
+    /// deviation under 1e-3 counts as 1e-3).
+    fn normalize_actions_of(&mut self, clips: &[Clip], device: Device) {
+        let (mut sum, mut sq, mut n) = ([0f64; ACTION_DIMS], [0f64; ACTION_DIMS], 0usize);
+        for c in clips {
+            for a in c.actions.chunks_exact(ACTION_DIMS) {
+                for (k, v) in a.iter().enumerate() {
+                    sum[k] += f64::from(*v);
+                    sq[k] += f64::from(*v) * f64::from(*v);
+                }
+                n += 1;
+            }
+        }
+        if n == 0 {
+            return;
+        }
+        let mean: Vec<f32> = sum.iter().map(|s| (s / n as f64) as f32).collect();
+        let scale: Vec<f32> = (0..ACTION_DIMS)
+            .map(|k| {
+                let m = sum[k] / n as f64;
+                let var = (sq[k] / n as f64 - m * m).max(0.0);
+                (1.0 / var.sqrt().max(1e-3)) as f32
+            })
+            .collect();
+        self.act_shift = Tensor::from_slice(&mean).to_device(device);
+        self.act_scale = Tensor::from_slice(&scale).to_device(device);
     }
 
     /// `[N, 3, H, W]` and `[N, 4]` → `[N, embed]`.
@@ -851,8 +895,9 @@ impl Model {
     }
 
     fn step_h(&self, h: &Tensor, z: &Tensor, a: &Tensor) -> Tensor {
+        let a = (a - &self.act_shift) * &self.act_scale;
         self.gru
-            .forward(&self.img_in.forward(&Tensor::cat(&[z, a], -1)), h)
+            .forward(&self.img_in.forward(&Tensor::cat(&[z, &a], -1)), h)
     }
 
     /// The training loss of a batch (mean over its valid frames).

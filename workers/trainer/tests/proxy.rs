@@ -114,6 +114,7 @@ fn train(clips: &[Clip], config: &DynamicsConfig) -> WorldModel {
         eval: clips,
         eval_keys: &keys,
         device: Device::Cpu,
+        normalize_actions: false,
     };
     fit_model(&req, None, &mut |_, _| Ok(())).unwrap().0
 }

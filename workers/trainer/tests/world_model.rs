@@ -130,6 +130,7 @@ fn run(
             eval,
             eval_keys: &eval_keys,
             device: Device::Cpu,
+            normalize_actions: false,
         },
         resume,
         on_checkpoint,

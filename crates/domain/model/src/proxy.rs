@@ -37,6 +37,9 @@ pub struct ProxyConfig {
     /// episode's length, restored on purpose to measure what it is worth. Reported as a proxy
     /// of its own ([`LEAK_SOURCE`]), never as the proxy.
     pub leak_ablation: bool,
+    /// Normalize the RSSM's actions (zero mean, unit deviation per dimension over the training
+    /// clips) before they enter it.
+    pub normalize_actions: bool,
     /// A world model served over `assay.v1.WorldModel` (any lab's model) instead of the RSSM
     /// the proxy trains on the training episodes.
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -68,6 +71,7 @@ impl Default for ProxyConfig {
             completion_threshold: 5.0,
             done_frames: 2,
             leak_ablation: false,
+            normalize_actions: true,
             external: None,
         }
     }
