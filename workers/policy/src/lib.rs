@@ -19,6 +19,7 @@ use assay_model::policy::{Policy, PolicyError, PolicySpec};
 use tokio::runtime::Handle;
 
 pub mod openpi;
+pub mod random;
 pub mod remote;
 pub mod server;
 mod status;
@@ -95,6 +96,7 @@ pub fn load_with(
             api_key_env.as_deref(),
             interface.clone(),
         )?)),
+        PolicySpec::Random { speed, hold } => Ok(Box::new(random::RandomPolicy::new(*speed, *hold))),
         PolicySpec::Diffusion { model } => match diffusion {
             Some(loader) => {
                 let path = artifact_path(artifact_root, model);

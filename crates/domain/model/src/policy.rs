@@ -48,6 +48,10 @@ pub enum PolicySpec {
     /// A diffusion policy trained by the cluster's trainer role: its checkpoint's key in the
     /// artifact store (or a path on the worker).
     Diffusion { model: String },
+    /// Exploration ("play") episodes to train world models on: the tool wanders at up to
+    /// `speed` m/s per axis and the gripper flips with probability `hold` per chunk
+    /// (`assay_policy::random`).
+    Random { speed: f64, hold: f64 },
 }
 
 /// Physics steps between two observations of a learned policy: the dynamics clips' stride, so
@@ -187,7 +191,14 @@ pub fn observation_camera() -> assay_spec::spec::Camera {
 }
 
 /// Kinds of policy this release runs.
-pub const KNOWN_POLICIES: &[&str] = &["oracle", "torchscript", "remote", "openpi", "diffusion"];
+pub const KNOWN_POLICIES: &[&str] = &[
+    "oracle",
+    "torchscript",
+    "remote",
+    "openpi",
+    "diffusion",
+    "random",
+];
 
 /// Default deadline of a remote policy's `Act` call.
 pub const DEFAULT_REMOTE_TIMEOUT_MS: u64 = 5000;
@@ -351,6 +362,23 @@ impl PolicySpec {
                     interface,
                 }
             }
+            "random" => {
+                let (mut speed, mut hold) = (0.2, 0.1);
+                for arg in &args {
+                    let value = arg.1.parse::<f64>().ok().filter(|v| v.is_finite());
+                    match (arg.0, value) {
+                        ("speed", Some(v)) if v > 0.0 && v <= 2.0 => speed = v,
+                        ("hold", Some(v)) if (0.0..=1.0).contains(&v) => hold = v,
+                        _ => {
+                            return Err(bad(
+                                arg,
+                                "speed=<m/s, in (0, 2]> or hold=<probability per chunk>",
+                            ));
+                        }
+                    }
+                }
+                PolicySpec::Random { speed, hold }
+            }
             _ => {
                 let mut model = None;
                 for arg in &args {
@@ -430,6 +458,14 @@ mod tests {
                 .unwrap_err()
                 .contains("missing model")
         );
+        assert_eq!(
+            PolicySpec::parse("random:speed=0.3,hold=0.2,max_steps=1200"),
+            Ok(PolicySpec::Random {
+                speed: 0.3,
+                hold: 0.2
+            })
+        );
+        assert!(PolicySpec::parse("random:speed=-1").is_err());
         assert_eq!(
             PolicySpec::parse("diffusion:model=policies/abc.ckpt"),
             Ok(PolicySpec::Diffusion {
