@@ -96,7 +96,9 @@ pub fn load_with(
             api_key_env.as_deref(),
             interface.clone(),
         )?)),
-        PolicySpec::Random { speed, hold } => Ok(Box::new(random::RandomPolicy::new(*speed, *hold))),
+        PolicySpec::Random { speed, hold } => {
+            Ok(Box::new(random::RandomPolicy::new(*speed, *hold)))
+        }
         PolicySpec::Diffusion { model } => match diffusion {
             Some(loader) => {
                 let path = artifact_path(artifact_root, model);
