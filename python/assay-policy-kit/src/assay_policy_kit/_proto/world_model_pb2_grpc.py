@@ -36,9 +36,11 @@ class WorldModelStub(object):
     Protocol. For every imagined episode the client (the trainer's proxy shard) calls `Reset` once
     with an `episode_id` it chose, the real first frame, the real first state and the task's
     instruction, then `Step` with chunks of actions, each answered with one imagined frame per
-    action, until it has imagined as many steps as the real episode ran; then `End`. Calls of one
-    episode are sequential; calls of different episodes arrive concurrently and must not share
-    state.
+    action, until Assay's frame judge calls the task done or the task's step budget runs out (never
+    as long as the real episode ran: that would tell the rollout the outcome); then `End`. For its
+    action test the client also replays real episodes' actions (and another episode's) from their
+    first frames. Calls of one episode are sequential; calls of different episodes arrive
+    concurrently and must not share state.
 
     Timing. Every call has the client's deadline (sent as the standard `grpc-timeout` header and
     enforced by the client too): a later answer fails the imagination as "world model unavailable"
@@ -101,9 +103,11 @@ class WorldModelServicer(object):
     Protocol. For every imagined episode the client (the trainer's proxy shard) calls `Reset` once
     with an `episode_id` it chose, the real first frame, the real first state and the task's
     instruction, then `Step` with chunks of actions, each answered with one imagined frame per
-    action, until it has imagined as many steps as the real episode ran; then `End`. Calls of one
-    episode are sequential; calls of different episodes arrive concurrently and must not share
-    state.
+    action, until Assay's frame judge calls the task done or the task's step budget runs out (never
+    as long as the real episode ran: that would tell the rollout the outcome); then `End`. For its
+    action test the client also replays real episodes' actions (and another episode's) from their
+    first frames. Calls of one episode are sequential; calls of different episodes arrive
+    concurrently and must not share state.
 
     Timing. Every call has the client's deadline (sent as the standard `grpc-timeout` header and
     enforced by the client too): a later answer fails the imagination as "world model unavailable"
@@ -203,9 +207,11 @@ class WorldModel(object):
     Protocol. For every imagined episode the client (the trainer's proxy shard) calls `Reset` once
     with an `episode_id` it chose, the real first frame, the real first state and the task's
     instruction, then `Step` with chunks of actions, each answered with one imagined frame per
-    action, until it has imagined as many steps as the real episode ran; then `End`. Calls of one
-    episode are sequential; calls of different episodes arrive concurrently and must not share
-    state.
+    action, until Assay's frame judge calls the task done or the task's step budget runs out (never
+    as long as the real episode ran: that would tell the rollout the outcome); then `End`. For its
+    action test the client also replays real episodes' actions (and another episode's) from their
+    first frames. Calls of one episode are sequential; calls of different episodes arrive
+    concurrently and must not share state.
 
     Timing. Every call has the client's deadline (sent as the standard `grpc-timeout` header and
     enforced by the client too): a later answer fails the imagination as "world model unavailable"
