@@ -11,7 +11,6 @@
 //! inside that runtime (tokio panics if `block_on` is called on one of its own threads).
 
 use std::future::Future;
-use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
 use assay_model::clip::{ACTION_DIMS, PROPRIO_DIMS};
@@ -24,7 +23,9 @@ use tonic::transport::Endpoint;
 use tracing::debug;
 
 use crate::server::{MAX_CHUNK, MAX_MESSAGE_BYTES, ServerInfo};
-use crate::status::{error_chain, from_status};
+use crate::status::{
+    CallError, block_on_call, error_chain, from_status, missed_deadline, new_episode_id,
+};
 
 /// Longest a client waits for `End` (sent best-effort when an episode is over).
 const END_TIMEOUT: Duration = Duration::from_millis(500);
@@ -179,32 +180,22 @@ impl RemotePolicy {
     ) -> Result<T, PolicyError> {
         let start = Instant::now();
         let deadline_ms = self.timeout.as_millis();
-        let late = || {
-            PolicyError::Unavailable(format!(
+        block_on_call(&self.rt, self.timeout, f).map_err(|e| match e {
+            CallError::Late => PolicyError::Unavailable(format!(
                 "policy server at {} did not answer {what} within the {deadline_ms} ms deadline \
                  (waited {} ms)",
                 self.url,
                 start.elapsed().as_millis()
-            ))
-        };
-        match self
-            .rt
-            .block_on(async { tokio::time::timeout(self.timeout, f).await })
-        {
-            Ok(Ok(answer)) => Ok(answer.into_inner()),
-            Ok(Err(status)) if missed_deadline(&status, start.elapsed(), self.timeout) => {
-                Err(late())
-            }
-            Ok(Err(status)) => Err(from_status(
+            )),
+            CallError::Failed(status) => from_status(
                 &format!(
                     "policy server at {} failed {what} after {} ms (deadline {deadline_ms} ms)",
                     self.url,
                     start.elapsed().as_millis()
                 ),
                 &status,
-            )),
-            Err(_) => Err(late()),
-        }
+            ),
+        })
     }
 
     /// Sends `End` for the current episode, if any, without waiting long: from a plain thread it
@@ -232,16 +223,6 @@ fn health_request(timeout: Duration) -> tonic::Request<pb::PolicyHealthRequest> 
     let mut request = tonic::Request::new(pb::PolicyHealthRequest {});
     request.set_timeout(timeout);
     request
-}
-
-/// Whether a failed call ran out of time: the deadline passed on the server
-/// (`DEADLINE_EXCEEDED`) or in tonic's client, which cancels a call at its `grpc-timeout`.
-fn missed_deadline(s: &tonic::Status, elapsed: Duration, timeout: Duration) -> bool {
-    match s.code() {
-        tonic::Code::DeadlineExceeded => true,
-        tonic::Code::Cancelled => elapsed >= timeout.mul_f32(0.9),
-        _ => false,
-    }
 }
 
 /// Checks a `Health` answer: the interface the server declares, and dims that agree with it (a
@@ -295,25 +276,6 @@ fn health_from(url: &str, h: pb::PolicyHealthResponse) -> Result<Health, PolicyE
         },
         live_episodes: h.live_episodes,
     })
-}
-
-/// A unique episode id: a per-process random prefix and a counter.
-fn new_episode_id() -> String {
-    use std::hash::{BuildHasher, Hasher};
-    static PREFIX: std::sync::OnceLock<u64> = std::sync::OnceLock::new();
-    static NEXT: AtomicU64 = AtomicU64::new(0);
-    let prefix = PREFIX.get_or_init(|| {
-        let mut h = std::collections::hash_map::RandomState::new().build_hasher();
-        h.write_u32(std::process::id());
-        h.write_u128(
-            std::time::SystemTime::now()
-                .duration_since(std::time::UNIX_EPOCH)
-                .map(|d| d.as_nanos())
-                .unwrap_or(0),
-        );
-        h.finish()
-    });
-    format!("{prefix:016x}-{}", NEXT.fetch_add(1, Ordering::Relaxed))
 }
 
 /// Checks an `Act` answer of the original interface: 1..=MAX_CHUNK actions of [`ACTION_DIMS`]
@@ -471,12 +433,5 @@ mod tests {
         let mut three = answer(vec![0.0; 3]);
         three.action_dims = 3;
         assert!(chunk(three).unwrap_err().contains("action_dims"));
-    }
-
-    #[test]
-    fn episode_ids_are_unique() {
-        let (a, b) = (new_episode_id(), new_episode_id());
-        assert_ne!(a, b);
-        assert!(a.len() <= crate::server::MAX_EPISODE_ID_BYTES);
     }
 }

@@ -16,7 +16,6 @@
 //! inside that runtime (tokio panics if `block_on` is called on one of its own threads).
 
 use std::future::Future;
-use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
 use assay_model::world::{ImaginedEpisode, WorldError, WorldFrame, WorldModelService, WorldStart};
@@ -27,8 +26,8 @@ use tonic::transport::Endpoint;
 use tonic::{Code, Status};
 use tracing::debug;
 
-use crate::server::{MAX_EPISODE_ID_BYTES, MAX_FRAME_SIDE};
-use crate::status::error_chain;
+use crate::server::MAX_FRAME_SIDE;
+use crate::status::{CallError, block_on_call, error_chain, missed_deadline, new_episode_id};
 
 /// What the token a world-model server checks is derived for: calls carry
 /// [`Token::for_service`]`("world-model")` of the cluster token, so a world-model server sees
@@ -276,32 +275,22 @@ impl RemoteWorldModel {
     ) -> Result<T, WorldError> {
         let start = Instant::now();
         let deadline_ms = self.timeout.as_millis();
-        let late = || {
-            WorldError::Unavailable(format!(
+        block_on_call(&self.rt, self.timeout, f).map_err(|e| match e {
+            CallError::Late => WorldError::Unavailable(format!(
                 "world model server at {} did not answer {what} within the {deadline_ms} ms \
                  deadline (waited {} ms)",
                 self.url,
                 start.elapsed().as_millis()
-            ))
-        };
-        match self
-            .rt
-            .block_on(async { tokio::time::timeout(self.timeout, f).await })
-        {
-            Ok(Ok(answer)) => Ok(answer.into_inner()),
-            Ok(Err(status)) if missed_deadline(&status, start.elapsed(), self.timeout) => {
-                Err(late())
-            }
-            Ok(Err(status)) => Err(from_status(
+            )),
+            CallError::Failed(status) => from_status(
                 &format!(
                     "world model server at {} failed {what} after {} ms (deadline {deadline_ms} ms)",
                     self.url,
                     start.elapsed().as_millis()
                 ),
                 &status,
-            )),
-            Err(_) => Err(late()),
-        }
+            ),
+        })
     }
 }
 
@@ -504,16 +493,6 @@ fn frames_from(
         .collect())
 }
 
-/// Whether a failed call ran out of time: the deadline passed on the server
-/// (`DEADLINE_EXCEEDED`) or in tonic's client, which cancels a call at its `grpc-timeout`.
-fn missed_deadline(s: &Status, elapsed: Duration, timeout: Duration) -> bool {
-    match s.code() {
-        Code::DeadlineExceeded => true,
-        Code::Cancelled => elapsed >= timeout.mul_f32(0.9),
-        _ => false,
-    }
-}
-
 /// The one place where a world-model call's gRPC status becomes a [`WorldError`], as the service
 /// documents its codes: `what` names the server and the call. Errors of the connection itself
 /// and the retryable codes are `Unavailable`; a request the server will not take (a missing
@@ -546,27 +525,6 @@ fn from_status(what: &str, s: &Status) -> WorldError {
         | Code::AlreadyExists => WorldError::Refused(message),
         Code::Ok | Code::Internal | Code::DataLoss => WorldError::BadAnswer(message),
     }
-}
-
-/// A unique episode id: a per-process random prefix and a counter.
-fn new_episode_id() -> String {
-    use std::hash::{BuildHasher, Hasher};
-    static PREFIX: std::sync::OnceLock<u64> = std::sync::OnceLock::new();
-    static NEXT: AtomicU64 = AtomicU64::new(0);
-    let prefix = PREFIX.get_or_init(|| {
-        let mut h = std::collections::hash_map::RandomState::new().build_hasher();
-        h.write_u32(std::process::id());
-        h.write_u128(
-            std::time::SystemTime::now()
-                .duration_since(std::time::UNIX_EPOCH)
-                .map(|d| d.as_nanos())
-                .unwrap_or(0),
-        );
-        h.finish()
-    });
-    let id = format!("wm-{prefix:016x}-{}", NEXT.fetch_add(1, Ordering::Relaxed));
-    debug_assert!(id.len() <= MAX_EPISODE_ID_BYTES);
-    id
 }
 
 #[cfg(test)]
@@ -641,12 +599,5 @@ mod tests {
             from_status("Step", &Status::internal("raised")),
             WorldError::BadAnswer(_)
         ));
-    }
-
-    #[test]
-    fn episode_ids_are_unique_and_short() {
-        let (a, b) = (new_episode_id(), new_episode_id());
-        assert_ne!(a, b);
-        assert!(a.len() <= MAX_EPISODE_ID_BYTES);
     }
 }
