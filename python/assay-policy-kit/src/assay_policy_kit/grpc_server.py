@@ -226,19 +226,27 @@ def serve_grpc(
         Policies(policy, factory), interface, name=name, version=version, chunk_size=chunk_size,
         max_episodes=max_episodes, check_actions=check_actions,
     )
-    if token is None:
-        token = auth.token_from_env()
-    else:
-        token = auth.check_token(token)
+    return _start(
+        servicer, policy_pb2_grpc.add_PolicyServicer_to_server, auth.POLICY, token=token,
+        host=host, port=port, max_workers=max_workers, announce=announce,
+    )
+
+
+def _start(servicer, add_servicer, service: str, *, token, host, port, max_workers, announce):
+    """Starts a gRPC server of `servicer` (registered by `add_servicer`) on host:port: a thread
+    pool of `max_workers`, the kit's message limits, and, with a cluster token (`token`, else
+    the environment's), every call checked for `service`'s bearer. Prints `listening on URL`
+    when `announce`."""
+    token = auth.token_from_env() if token is None else auth.check_token(token)
     server = grpc.server(
-        futures.ThreadPoolExecutor(max_workers=max_workers, thread_name_prefix="assay-policy"),
-        interceptors=[_TokenInterceptor(token)] if token else None,
+        futures.ThreadPoolExecutor(max_workers=max_workers, thread_name_prefix=f"assay-{service}"),
+        interceptors=[_TokenInterceptor(token, service)] if token else None,
         options=[
             ("grpc.max_receive_message_length", MAX_MESSAGE),
             ("grpc.max_send_message_length", MAX_MESSAGE),
         ],
     )
-    policy_pb2_grpc.add_PolicyServicer_to_server(servicer, server)
+    add_servicer(servicer, server)
     bound = server.add_insecure_port(_host_port(host, port))
     if bound == 0:
         raise OSError(f"cannot listen on {_host_port(host, port)}")

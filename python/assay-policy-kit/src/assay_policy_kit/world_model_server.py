@@ -16,7 +16,6 @@ from __future__ import annotations
 import inspect
 import threading
 from collections import OrderedDict
-from concurrent import futures
 from typing import Any, Callable, Optional, Tuple
 
 import grpc
@@ -26,7 +25,7 @@ from . import auth
 from ._policy import describe
 from ._proto import world_model_pb2 as pb
 from ._proto import world_model_pb2_grpc as pb_grpc
-from .grpc_server import MAX_MESSAGE, GrpcPolicyServer, _host_port, _serve_until_signal, _TokenInterceptor
+from .grpc_server import GrpcPolicyServer, _serve_until_signal, _start
 from .interface import MAX_PIXELS
 from .observation import BadRequest, _frame
 
@@ -316,24 +315,10 @@ def serve_world_model(
         factory, name=name, description=description, width=width, height=height,
         action_dims=action_dims, max_episodes=max_episodes,
     )
-    token = auth.token_from_env() if token is None else auth.check_token(token)
-    server = grpc.server(
-        futures.ThreadPoolExecutor(max_workers=max_workers, thread_name_prefix="assay-world-model"),
-        interceptors=[_TokenInterceptor(token, auth.WORLD_MODEL)] if token else None,
-        options=[
-            ("grpc.max_receive_message_length", MAX_MESSAGE),
-            ("grpc.max_send_message_length", MAX_MESSAGE),
-        ],
+    return _start(
+        servicer, pb_grpc.add_WorldModelServicer_to_server, auth.WORLD_MODEL, token=token,
+        host=host, port=port, max_workers=max_workers, announce=announce,
     )
-    pb_grpc.add_WorldModelServicer_to_server(servicer, server)
-    bound = server.add_insecure_port(_host_port(host, port))
-    if bound == 0:
-        raise OSError(f"cannot listen on {_host_port(host, port)}")
-    server.start()
-    running = GrpcPolicyServer(server, servicer, host, bound)
-    if announce:
-        print(f"listening on {running.url}", flush=True)
-    return running
 
 
 def serve_world_model_forever(*args, **kwargs) -> None:
