@@ -279,6 +279,14 @@ impl Store {
         )?)
     }
 
+    /// Why a policy trained on `group`'s episodes of `policy` cannot be: fewer than 2 with a clip.
+    fn too_few_clips(group: &str, have: usize, policy: &str, what: &str) -> String {
+        format!(
+            "group {group:?} has {have} episode(s) of {policy} with a clip; {what} needs at least 2 \
+             (clips are rendered by workers with the render role)"
+        )
+    }
+
     /// Records a trainer shard of `group` that cannot run, with the reason.
     fn insert_failed_trainer_shard(
         conn: &Connection,
@@ -479,18 +487,13 @@ impl Store {
             clips.truncate(plan.episodes as usize);
             let job_name = format!("diffusion {group}");
             if clips.len() < 2 {
-                Self::insert_failed_trainer_shard(
-                    conn,
-                    batch_id,
-                    &job_name,
+                let why = Self::too_few_clips(
                     &group,
-                    &format!(
-                        "group {group:?} has {} episode(s) of {} with a clip; a diffusion policy needs at least 2 \
-                             (clips are rendered by workers with the render role)",
-                        clips.len(),
-                        plan.train_policy
-                    ),
-                )?;
+                    clips.len(),
+                    &plan.train_policy,
+                    "a diffusion policy",
+                );
+                Self::insert_failed_trainer_shard(conn, batch_id, &job_name, &group, &why)?;
                 continue;
             }
             let job = TrainerJob::Diffusion {
@@ -532,17 +535,18 @@ impl Store {
             }
             let clips = Self::policy_clips(conn, batch_id, &group, &ladder.train_policy)?;
             if clips.len() < 2 {
+                let why = Self::too_few_clips(
+                    &group,
+                    clips.len(),
+                    &ladder.train_policy,
+                    "a ladder policy",
+                );
                 Self::insert_failed_trainer_shard(
                     conn,
                     batch_id,
                     &format!("ladder {group}"),
                     &group,
-                    &format!(
-                        "group {group:?} has {} episode(s) of {} with a clip; a ladder policy needs at least 2 \
-                             (clips are rendered by workers with the render role)",
-                        clips.len(),
-                        ladder.train_policy
-                    ),
+                    &why,
                 )?;
                 continue;
             }

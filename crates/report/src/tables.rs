@@ -821,6 +821,7 @@ pub fn proxy_models(r: &RankingResults) -> Table {
         "#mean last-frame MSE ×10³",
     ]);
     for g in &r.groups {
+        let served = g.world_model.device == assay_model::proxy::SERVED_DEVICE;
         let count = g.predictions.len().max(1) as f64;
         let mean = |f: fn(&assay_model::proxy::ProxyPrediction) -> f64| {
             g.predictions.iter().map(f).sum::<f64>() / count
@@ -828,8 +829,17 @@ pub fn proxy_models(r: &RankingResults) -> Table {
         table.row(vec![
             g.group.as_str().into(),
             Cell::or_missing(&g.world_model_name),
-            n(g.world_model.steps),
-            Cell::text(format!("{:.3}", g.world_model.eval_image_mse * 1e3)),
+            // A served world model was not trained here: no steps, no one-step error.
+            if served {
+                Cell::missing()
+            } else {
+                n(g.world_model.steps)
+            },
+            if served {
+                Cell::missing()
+            } else {
+                Cell::text(format!("{:.3}", g.world_model.eval_image_mse * 1e3))
+            },
             Cell::text(format!("{} ({})", g.judge_examples, g.judge_positives)),
             Cell::text(num2(g.judge_train_accuracy)),
             Cell::text(format!(

@@ -31,7 +31,7 @@ use assay_model::dynamics::DynamicsFit;
 use assay_model::policy::{EpisodeContext, Policy, PolicyError, PolicySpec};
 use assay_model::proxy::{
     ExternalWorldModel, IMAGINED_KEYFRAMES, LeakVerdict, ProxyConfig, ProxyEpisode,
-    ProxyPrediction, ProxyResult,
+    ProxyPrediction, ProxyResult, SERVED_DEVICE,
 };
 use assay_model::world::{WorldError, WorldModelService};
 use assay_spec::rng::Rng;
@@ -272,7 +272,7 @@ pub fn run_proxy(
     let rssm_model;
     let rssm;
     let external;
-    let (world, mut fit): (&dyn WorldModelService, DynamicsFit) = match &config.external {
+    let (world, fit): (&dyn WorldModelService, DynamicsFit) = match &config.external {
         None => {
             let req = FitRequest {
                 config: &config.world_model,
@@ -305,7 +305,7 @@ pub fn run_proxy(
                 epochs: 0.0,
                 resumed_from_step: None,
                 steps_per_s: 0.0,
-                device: "served".into(),
+                device: SERVED_DEVICE.into(),
                 libtorch: String::new(),
                 config: config.world_model.clone(),
             };
@@ -352,9 +352,6 @@ pub fn run_proxy(
     // The world model's use of its actions, on the ranked episodes' real clips (a diagnostic).
     let eval_refs: Vec<&Clip> = eval_clips.iter().collect();
     let action_test = imagination::action_test(world, &eval_refs, &eval_ctx)?;
-    if config.external.is_some() {
-        fit.eval_image_mse = action_test.as_ref().map_or(0.0, |a| a.true_actions_mse);
-    }
 
     let mut predictions = Vec::with_capacity(eval.len());
     let mut imagined_frames = Vec::with_capacity(eval.len());

@@ -293,7 +293,8 @@ pub struct ProxyResult {
     /// The world model's action test on the ranked episodes' real clips.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub action_test: Option<ActionTest>,
-    /// The world model's fit (its one-step error measured on the ranked episodes).
+    /// The world model's fit (its one-step error measured on the ranked episodes); a served
+    /// model's is empty, with `device` [`SERVED_DEVICE`].
     pub world_model: DynamicsFit,
     /// Frame-judge training examples (real and imagined last frames of the training episodes)
     /// and how many of them were successes.
@@ -315,5 +316,8 @@ pub struct ProxyResult {
 /// Source names of the ranking's success cells.
 pub const REAL_SOURCE: &str = "sim";
 pub const PROXY_SOURCE: &str = "world-model";
+/// `ProxyResult.world_model.device` of a served world model: nothing was trained, so the fit's
+/// steps and one-step error say nothing (the action test gives its errors).
+pub const SERVED_DEVICE: &str = "served";
 /// The leak ablation's source (imagined for the real episode's length).
 pub const LEAK_SOURCE: &str = "world-model-leak";
