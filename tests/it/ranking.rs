@@ -217,6 +217,31 @@ const TRAIN: &str = "oracle,oracle:noise=0.05,oracle:noise=0.01,oracle:noise=0.0
 /// A ladder small enough for a test: one run on 2 oracle episodes, kept at steps 10 and 20.
 const LADDER: &str = r#"{"episodes": [2], "checkpoints": [10, 20], "max_steps": 480}"#;
 
+/// [`eval`] ranking `learned` with the proxy settings `proxy` (no judge), and its report.
+fn rank_served(
+    out_dir: &std::path::Path,
+    learned: &str,
+    proxy: &str,
+) -> (std::process::Output, Report) {
+    let out = eval(
+        out_dir,
+        &[
+            "--no-judge",
+            "--policy",
+            learned,
+            "--rank-train-policies",
+            TRAIN,
+            "--proxy",
+            proxy,
+        ],
+    );
+    let report = std::fs::read_to_string(out_dir.join("report.json"))
+        .map_err(|e| e.to_string())
+        .and_then(|t| serde_json::from_str(&t).map_err(|e| e.to_string()))
+        .unwrap_or_else(|e| panic!("{e}\n{}", String::from_utf8_lossy(&out.stderr)));
+    (out, report)
+}
+
 #[test]
 fn a_world_model_served_over_grpc_by_python_drives_the_ranking() {
     let dir = tempfile::tempdir().unwrap();
@@ -233,24 +258,10 @@ fn a_world_model_served_over_grpc_by_python_drives_the_ranking() {
         server.url
     );
     let out_dir = dir.path().join("out");
-    let out = eval(
-        &out_dir,
-        &[
-            "--no-judge",
-            "--policy",
-            &learned,
-            "--rank-train-policies",
-            TRAIN,
-            "--proxy",
-            &proxy,
-        ],
-    );
+    let (out, report) = rank_served(&out_dir, &learned, &proxy);
     let stdout = String::from_utf8_lossy(&out.stdout);
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "{stdout}\n{stderr}");
-    let report: Report =
-        serde_json::from_str(&std::fs::read_to_string(out_dir.join("report.json")).unwrap())
-            .unwrap();
     let k = report.results.ranking.expect("a ranking section");
     assert!(k.errors.is_empty(), "{:?}", k.errors);
     assert_eq!(k.ranked_policies, [learned.as_str()]);
@@ -283,23 +294,7 @@ fn a_world_model_served_over_grpc_by_python_drives_the_ranking() {
     drop(server);
     let dead =
         r#"{"judge_steps": 30, "external": {"url": "http://127.0.0.1:9", "timeout_ms": 2000}}"#;
-    let out_dir = dir.path().join("dead");
-    let out = eval(
-        &out_dir,
-        &[
-            "--no-judge",
-            "--policy",
-            &learned,
-            "--rank-train-policies",
-            TRAIN,
-            "--proxy",
-            dead,
-        ],
-    );
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    let report: Report =
-        serde_json::from_str(&std::fs::read_to_string(out_dir.join("report.json")).unwrap())
-            .unwrap_or_else(|e| panic!("{e}\n{stderr}"));
+    let (_, report) = rank_served(&dir.path().join("dead"), &learned, dead);
     let k = report.results.ranking.expect("a ranking section");
     assert_eq!(k.errors.len(), 1, "{:?}", k.errors);
     let (group, error) = &k.errors[0];
