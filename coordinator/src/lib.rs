@@ -5,6 +5,7 @@
 //! Never links physics, rendering or torch (checked by `tests/forbidden_dependencies.rs`).
 
 pub mod actor;
+pub mod capability;
 pub mod config;
 pub mod error;
 pub mod metrics;
@@ -57,6 +58,7 @@ pub async fn serve(
         work: Notify::new(),
         events,
         workers_connected: AtomicU32::new(0),
+        capabilities: Default::default(),
         shutdown: stop_rx.clone(),
     });
 

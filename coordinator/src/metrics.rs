@@ -16,7 +16,7 @@ pub use crate::store::{SHARD_SECONDS_BUCKETS, Snapshot};
 
 /// Every role a shard can have, so a role with no shard yet still reports 0 (an autoscaler
 /// reading a missing series sees "no data", not "empty queue").
-const ROLES: &[&str] = &["sim", "judge", "trainer"];
+const ROLES: &[&str] = &["sim", "render", "judge", "trainer"];
 
 impl Snapshot {
     fn shards_in(&self, role: &str, state: &str) -> u64 {

@@ -42,6 +42,8 @@ pub struct Shared {
     /// Ids of batches whose counts changed.
     pub events: broadcast::Sender<String>,
     pub workers_connected: AtomicU32,
+    /// What each connected worker can do.
+    pub capabilities: crate::capability::Registry,
     pub shutdown: watch::Receiver<bool>,
 }
 
@@ -344,6 +346,7 @@ fn counts_to_pb(c: &BatchCounts, workers: u32) -> pb::BatchStatus {
         trainer_failed: c.trainer_failed,
         content_hash: c.content_hash.clone(),
         duplicate_of: c.duplicate_of.clone().unwrap_or_default(),
+        waiting: Vec::new(),
     }
 }
 
@@ -356,11 +359,17 @@ type SessionStream = Pin<Box<dyn Stream<Item = Result<pb::CoordinatorMessage, St
 
 impl CoordinatorService {
     async fn status(&self, id: String) -> Result<pb::BatchStatus, Status> {
-        let c = self.shared.store.call(move |s| s.counts(&id)).await?;
-        Ok(counts_to_pb(
+        let (c, queued) = self
+            .shared
+            .store
+            .call(move |s| Ok((s.counts(&id)?, s.queued_needs(Some(&id))?)))
+            .await?;
+        let mut status = counts_to_pb(
             &c,
             self.shared.workers_connected.load(Ordering::Relaxed),
-        ))
+        );
+        status.waiting = crate::capability::waiting(&queued, &self.shared.capabilities.offered());
+        Ok(status)
     }
 }
 
@@ -502,6 +511,12 @@ impl pb::coordinator_server::Coordinator for CoordinatorService {
             },
             invalid: invalid.clone(),
             role: pb::Role::Sim.name().into(),
+            // Judges look at pictures, and clips are pictures: either makes the batch render.
+            render: req.render
+                || !judges.is_empty()
+                || dynamics.is_some()
+                || ranking.is_some()
+                || generalization.is_some(),
             judges,
             judge_repeats: req.judge_repeats,
             judge_budget_usd: (req.judge_budget_usd > 0.0).then_some(req.judge_budget_usd),
@@ -690,15 +705,19 @@ impl pb::worker_session_server::WorkerSession for WorkerSessionService {
             .filter(|r| *r != pb::Role::Unspecified)
             .map(|r| r.name().to_owned())
             .collect();
+        // Shards are leased by what they need: a worker offers its roles and what it declares.
+        let roles = crate::capability::capabilities(&register.capabilities, &roles);
         let (tx, rx) = mpsc::channel(64);
         let shared = self.shared.clone();
         tokio::spawn(async move {
             let worker = register.worker_id.clone();
             shared.workers_connected.fetch_add(1, Ordering::Relaxed);
+            let joined = shared.capabilities.join(roles.clone());
             let result = run_session(&shared, register, roles, inbound, &tx).await;
             if let Err((e, _)) = &result {
                 warn!(%worker, error = %e, "session failed");
             }
+            shared.capabilities.leave(joined);
             shared.workers_connected.fetch_sub(1, Ordering::Relaxed);
             match result {
                 Ok(SessionEnd::Shutdown) => debug!(%worker, "session closed for shutdown"),
@@ -784,12 +803,14 @@ async fn assign(
                 .unwrap_or_default(),
             judge_repeats: l.judge.as_ref().map_or(0, |j| j.repeats),
             budget_left_usd: l.judge.as_ref().and_then(|j| j.budget_left_usd),
-            input_json: match (l.judge, l.trainer_job) {
-                (Some(j), _) => j.episode_json,
-                (None, Some(job)) => job,
-                (None, None) => String::new(),
+            input_json: match (l.judge, l.trainer_job, l.render_input) {
+                (Some(j), _, _) => j.episode_json,
+                (None, Some(job), _) => job,
+                (None, None, Some(episode)) => episode,
+                (None, None, None) => String::new(),
             },
             clip_size: l.clip_size,
+            render: l.render,
         };
         if tx.send(msg(Out::Assignment(a))).await.is_err() {
             return false;

@@ -51,6 +51,7 @@ fn outcome_json() -> String {
         versions: Default::default(),
         imagery: None,
         cutoff: None,
+        scenes: None,
     })
     .expect("outcome serialises")
 }
@@ -72,6 +73,7 @@ fn bench_batch(tasks: Vec<assay_coordinator::store::PlannedTask>, shards: u64) -
         max_attempts: 3,
         invalid: Vec::new(),
         role: "sim".into(),
+        render: false,
         judges: Vec::new(),
         judge_repeats: 0,
         judge_budget_usd: None,

@@ -14,7 +14,7 @@ use super::{Changed, JudgeLease, Lease, Store, batch_state, role};
 use crate::error::CoordError;
 
 /// id, batch, seed, policy, role, attempts, spec JSON, judge, input JSON, repeats, budget,
-/// clip size (of the batch's dynamics or ranking world model).
+/// clip size (of the batch's dynamics or ranking world model), whether the batch renders, stage.
 type QueuedShard = (
     i64,
     String,
@@ -28,37 +28,49 @@ type QueuedShard = (
     u32,
     Option<f64>,
     Option<i64>,
+    bool,
+    Option<String>,
 );
 
+/// What a shard needs of its worker, in SQL: its `needs` (a JSON array), else its role.
+const NEEDS: &str = "COALESCE(s.needs, json_array(s.role))";
+
 impl Store {
-    /// Leases up to `n` queued shards of running batches for one of `roles`.
+    /// Leases up to `n` queued shards of running batches to a worker offering `capabilities`
+    /// (its roles and what else it can do): only shards that need nothing else.
     pub fn lease(
         &mut self,
         worker: &str,
-        roles: &[String],
+        capabilities: &[String],
         n: u32,
         now_ms: i64,
         ttl_ms: i64,
     ) -> Result<Vec<Lease>, CoordError> {
-        if n == 0 || roles.is_empty() {
+        if n == 0 || capabilities.is_empty() {
             return Ok(Vec::new());
         }
         let tx = self.conn.savepoint()?;
-        let placeholders = roles.iter().map(|_| "?").collect::<Vec<_>>().join(",");
+        let placeholders = capabilities
+            .iter()
+            .map(|_| "?")
+            .collect::<Vec<_>>()
+            .join(",");
         let sql = format!(
             "SELECT s.id, s.batch_id, s.seed, s.policy, s.role, s.attempts, COALESCE(t.spec_json, ''),
                     s.judge, s.input_json, b.judge_repeats, b.judge_budget_usd,
                     COALESCE(json_extract(b.dynamics_json, '$.config.image_size'),
                              json_extract(b.ranking_json, '$.config.world_model.image_size'),
-                             json_extract(b.generalization_json, '$.config.image_size'))
+                             json_extract(b.generalization_json, '$.config.image_size')),
+                    b.render, s.stage
              FROM shards s LEFT JOIN tasks t ON t.batch_id = s.batch_id AND t.task_id = s.task_id
                            JOIN batches b ON b.id = s.batch_id
-             WHERE s.state = 'queued' AND s.role IN ({placeholders})
+             WHERE s.state = 'queued'
+               AND NOT EXISTS (SELECT 1 FROM json_each({NEEDS}) WHERE value NOT IN ({placeholders}))
              ORDER BY s.id LIMIT {n}"
         );
         let rows: Vec<QueuedShard> = {
             let mut stmt = tx.prepare_cached(&sql)?;
-            let it = stmt.query_map(rusqlite::params_from_iter(roles.iter()), |r| {
+            let it = stmt.query_map(rusqlite::params_from_iter(capabilities.iter()), |r| {
                 Ok((
                     r.get(0)?,
                     r.get(1)?,
@@ -72,6 +84,8 @@ impl Store {
                     r.get(9)?,
                     r.get(10)?,
                     r.get(11)?,
+                    r.get(12)?,
+                    r.get(13)?,
                 ))
             })?;
             it.collect::<Result<_, _>>()?
@@ -93,9 +107,17 @@ impl Store {
                 repeats,
                 budget,
                 dynamics,
+                renders,
+                stage,
             ),
         ) in rows.into_iter().enumerate()
         {
+            // An episode waiting for its pictures goes to a render worker with its scenes.
+            let (shard_role, render_input, input) = if stage.as_deref() == Some(role::RENDER) {
+                (role::RENDER.to_owned(), input, None)
+            } else {
+                (shard_role, None, input)
+            };
             let trainer_job = if shard_role == role::TRAINER {
                 input.clone()
             } else {
@@ -135,6 +157,8 @@ impl Store {
                 judge,
                 trainer_job,
                 clip_size,
+                render: renders || clip_size > 0,
+                render_input,
             });
         }
         tx.commit()?;
@@ -182,9 +206,9 @@ impl Store {
     ) -> Result<(bool, Changed), CoordError> {
         let tx = self.conn.savepoint()?;
         #[allow(clippy::type_complexity)]
-        let current: Option<(String, String, String, i64, String, Option<String>)> = tx
+        let current: Option<(String, String, String, i64, String, Option<String>, Option<String>)> = tx
             .prepare_cached(
-                "SELECT s.role, s.batch_id, s.task_id, s.seed, s.policy, s.job FROM shards s
+                "SELECT s.role, s.batch_id, s.task_id, s.seed, s.policy, s.job, s.stage FROM shards s
                  WHERE s.id = ?1 AND s.lease_id = ?2 AND s.state = 'leased'",
             )?
             .query_row(params![shard_id as i64, lease_id as i64], |r| {
@@ -195,10 +219,11 @@ impl Store {
                     r.get(3)?,
                     r.get(4)?,
                     r.get(5)?,
+                    r.get(6)?,
                 ))
             })
             .optional()?;
-        let Some((shard_role, batch, task, seed, policy, job)) = current else {
+        let Some((shard_role, batch, task, seed, policy, job, stage)) = current else {
             return Ok((false, Changed::default()));
         };
         // What to queue after it: judge shards for a rendered episode of a judged batch.
@@ -220,6 +245,37 @@ impl Store {
                 }
             },
             _ => match serde_json::from_str::<EpisodeOutcome>(outcome_json) {
+                // Simulated by a worker without a renderer: the episode waits for a render
+                // worker, with its scenes, before it counts as done.
+                Ok(o) if o.scenes.is_some() && stage.is_none() => {
+                    tx.prepare_cached(
+                        "UPDATE shards SET state = 'queued', stage = ?1, needs = ?2, input_json = ?3,
+                         attempts = 0, lease_expires_ms = NULL, worker = ?4,
+                         wall_time_s = ?5 WHERE id = ?6 AND lease_id = ?7 AND state = 'leased'",
+                    )?
+                    .execute(params![
+                        role::RENDER,
+                        serde_json::to_string(&[role::RENDER])?,
+                        outcome_json,
+                        worker,
+                        wall_time_s,
+                        shard_id as i64,
+                        lease_id as i64
+                    ])?;
+                    tx.commit()?;
+                    return Ok((
+                        true,
+                        Changed {
+                            batches: vec![batch],
+                            requeued: 1,
+                        },
+                    ));
+                }
+                Ok(o) if o.scenes.is_some() => {
+                    drop(tx);
+                    let err = "a render worker sent the episode back without its pictures";
+                    return Ok((false, self.fail(lease_id, shard_id, err, true, now_ms)?));
+                }
                 Ok(o) if o.imagery.is_some() => {
                     let judges: String = tx.query_row(
                         "SELECT judges_json FROM batches WHERE id = ?1",
@@ -237,8 +293,10 @@ impl Store {
             },
         };
         tx.prepare_cached(
-            "UPDATE shards SET state = 'done', outcome_json = ?1, wall_time_s = ?2, worker = ?3, error = NULL,
-             lease_expires_ms = NULL WHERE id = ?4 AND lease_id = ?5 AND state = 'leased'",
+            "UPDATE shards SET state = 'done', outcome_json = ?1, wall_time_s = COALESCE(wall_time_s, 0) + ?2,
+             worker = CASE WHEN stage IS NULL THEN ?3 ELSE worker END, error = NULL, lease_expires_ms = NULL,
+             input_json = CASE WHEN stage IS NULL THEN input_json END
+             WHERE id = ?4 AND lease_id = ?5 AND state = 'leased'",
         )?
         .execute(params![outcome_json, wall_time_s, worker, shard_id as i64, lease_id as i64])?;
         let mut queued =

@@ -49,7 +49,9 @@ impl Store {
         let conn = &self.conn;
         let mut s = Snapshot::default();
         let mut stmt = conn.prepare(
-            "SELECT role, state, COUNT(*), COALESCE(SUM(MAX(attempts - 1, 0)), 0) FROM shards GROUP BY role, state",
+            // An episode waiting for its pictures is render work (what a render pool scales on).
+            "SELECT CASE WHEN stage = 'render' AND state IN ('queued', 'leased') THEN 'render' ELSE role END AS r,
+                    state, COUNT(*), COALESCE(SUM(MAX(attempts - 1, 0)), 0) FROM shards GROUP BY r, state",
         )?;
         let rows = stmt.query_map([], |r| {
             Ok((

@@ -52,6 +52,7 @@ pub mod batch_state {
 /// Shard roles.
 pub mod role {
     pub const SIM: &str = "sim";
+    pub const RENDER: &str = "render";
     pub const JUDGE: &str = "judge";
     pub const TRAINER: &str = "trainer";
 }
@@ -80,6 +81,8 @@ pub struct NewBatch {
     pub max_attempts: u32,
     pub invalid: Vec<SpecError>,
     pub role: String,
+    /// Every episode is rendered (views, keyframes, contact sheet).
+    pub render: bool,
     /// Judges that score every rendered episode (empty: none).
     pub judges: Vec<String>,
     /// Times each judge item is asked (0: the default, 5).
@@ -120,6 +123,10 @@ pub struct Lease {
     pub trainer_job: Option<String>,
     /// For an episode of a batch that measures dynamics diversity: the clip's frame size.
     pub clip_size: u32,
+    /// For an episode of a batch that renders: its pictures are wanted.
+    pub render: bool,
+    /// For an episode waiting for its pictures (role `render`): its outcome with its scenes.
+    pub render_input: Option<String>,
 }
 
 #[derive(Debug, Clone, PartialEq)]

@@ -134,9 +134,10 @@ impl Store {
             }
         }
         tx.execute(
-            "UPDATE batches SET content_hash = ?1 WHERE id = ?2",
-            params![batch.content_hash, id],
+            "UPDATE batches SET content_hash = ?1, render = ?2 WHERE id = ?3",
+            params![batch.content_hash, batch.render, id],
         )?;
+        Self::mark_rendering_in_loop(&tx, &id)?;
         if let Some(plan) = &batch.ranking {
             tx.execute(
                 "UPDATE batches SET ranking_json = ?1 WHERE id = ?2",
@@ -177,9 +178,19 @@ impl Store {
     ) -> Result<u32, CoordError> {
         for judge in judges {
             conn.execute(
-                "INSERT INTO shards (batch_id, task_id, seed, policy, role, state, judge, input_json)
-                 VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8)",
-                params![batch_id, task_id, seed, policy, role::JUDGE, QUEUED, judge, outcome_json],
+                "INSERT INTO shards (batch_id, task_id, seed, policy, role, state, judge, input_json, needs)
+                 VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9)",
+                params![
+                    batch_id,
+                    task_id,
+                    seed,
+                    policy,
+                    role::JUDGE,
+                    QUEUED,
+                    judge,
+                    outcome_json,
+                    judge_needs(judge)?
+                ],
             )?;
         }
         Ok(judges.len() as u32)
@@ -631,6 +642,7 @@ impl Store {
                 }
             }
         }
+        Self::mark_rendering_in_loop(conn, batch_id)?;
         Ok(n)
     }
 
@@ -658,8 +670,8 @@ impl Store {
                AND policy = ?4 AND role NOT IN ('judge', 'trainer') AND job IS NULL AND state = 'done'",
         )?;
         let mut ins = conn.prepare(
-            "INSERT INTO shards (batch_id, task_id, seed, policy, role, state, judge, input_json, job, grp)
-             VALUES (?1, ?2, ?3, ?4, ?5, 'queued', ?6, ?7, ?8, ?9)",
+            "INSERT INTO shards (batch_id, task_id, seed, policy, role, state, judge, input_json, job, grp, needs)
+             VALUES (?1, ?2, ?3, ?4, ?5, 'queued', ?6, ?7, ?8, ?9, ?10)",
         )?;
         let mut n = 0;
         for p in result
@@ -697,6 +709,7 @@ impl Store {
                     input,
                     IMAGINED_JUDGING,
                     result.group,
+                    judge_needs(judge)?,
                 ])?;
                 n += 1;
             }
@@ -777,8 +790,48 @@ impl Store {
                 n += 1;
             }
         }
+        Self::mark_rendering_in_loop(conn, batch_id)?;
         Ok(n)
     }
+
+    /// Queued episodes of a policy that may see while it runs need a worker that renders beside
+    /// its simulator (`PolicySpec::renders_in_loop`): frames in the loop cannot wait for a
+    /// render shard.
+    fn mark_rendering_in_loop(conn: &Connection, batch_id: &str) -> Result<(), CoordError> {
+        let policies: Vec<(String, String)> = {
+            let mut stmt = conn.prepare(
+                "SELECT DISTINCT policy, role FROM shards WHERE batch_id = ?1 AND state = 'queued'
+                 AND needs IS NULL AND stage IS NULL AND role NOT IN ('judge', 'trainer')",
+            )?;
+            stmt.query_map([batch_id], |r| Ok((r.get(0)?, r.get(1)?)))?
+                .collect::<Result<_, _>>()?
+        };
+        for (policy, role) in policies {
+            let sees = assay_model::policy::PolicySpec::parse(&policy)
+                .is_ok_and(|p| p.renders_in_loop());
+            if sees {
+                conn.execute(
+                    "UPDATE shards SET needs = ?1 WHERE batch_id = ?2 AND policy = ?3 AND state = 'queued'
+                     AND needs IS NULL AND stage IS NULL AND role = ?4",
+                    params![
+                        serde_json::to_string(&[role.as_str(), super::role::RENDER])?,
+                        batch_id,
+                        policy,
+                        role
+                    ],
+                )?;
+            }
+        }
+        Ok(())
+    }
+}
+
+/// What a judge shard needs of its worker: the judge role and that judge configured.
+fn judge_needs(judge: &str) -> Result<String, CoordError> {
+    Ok(serde_json::to_string(&[
+        role::JUDGE.to_owned(),
+        format!("judge:{judge}"),
+    ])?)
 }
 
 /// The policy name of a ladder policy's episodes (its horizon is the ladder's); the read model

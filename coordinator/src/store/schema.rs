@@ -79,6 +79,12 @@ const ADDED_COLUMNS: &[(&str, &str, &str)] = &[
     // repeats.
     ("batches", "content_hash", "TEXT NOT NULL DEFAULT ''"),
     ("batches", "duplicate_of", "TEXT"),
+    // Capabilities (issue 28): whether the batch renders its episodes; what a shard needs of its
+    // worker (JSON array; NULL: its role), and an episode's stage ('render' while it waits for
+    // its pictures; NULL: simulating or done).
+    ("batches", "render", "INTEGER NOT NULL DEFAULT 0"),
+    ("shards", "needs", "TEXT"),
+    ("shards", "stage", "TEXT"),
 ];
 
 /// Creates what is missing: the tables and indexes of a new store, the columns an older one lacks.

@@ -397,6 +397,7 @@ mod tests {
             versions: BTreeMap::new(),
             imagery: None,
             cutoff: None,
+            scenes: None,
         }
     }
 

@@ -572,6 +572,7 @@ mod tests {
             versions: BTreeMap::new(),
             imagery: None,
             cutoff: None,
+            scenes: None,
         }
     }
 

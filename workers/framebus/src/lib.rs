@@ -9,6 +9,8 @@
 //!
 //! Owns: the frame header layout and the iceoryx2 settings. Never renders or simulates.
 
+pub mod cache;
+
 use iceoryx2::port::publisher::Publisher;
 use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
@@ -48,7 +50,7 @@ pub mod format {
 #[error("frame bus: {0}")]
 pub struct BusError(String);
 
-fn err(what: &str, e: impl std::fmt::Debug) -> BusError {
+pub(crate) fn err(what: &str, e: impl std::fmt::Debug) -> BusError {
     BusError(format!("{what}: {e:?}"))
 }
 
@@ -65,7 +67,7 @@ pub fn monotonic_ns() -> u64 {
 
 /// One process's handle on the node's frame bus.
 pub struct FrameBus {
-    node: Node<ipc::Service>,
+    pub(crate) node: Node<ipc::Service>,
 }
 
 fn config() -> Config {

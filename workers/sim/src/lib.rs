@@ -542,6 +542,7 @@ pub fn simulate_with(
             versions,
             imagery: None,
             cutoff,
+            scenes: None,
         },
         file,
         notes,

@@ -6,6 +6,7 @@
 
 use std::collections::BTreeMap;
 
+use assay_spec::scene::SceneSnapshot;
 use serde::{Deserialize, Serialize};
 
 /// Where a success label came from.
@@ -53,6 +54,43 @@ pub struct EpisodeOutcome {
     /// (`physics.max_steps`). Such an episode is unsuccessful whatever its predicates say.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub cutoff: Option<String>,
+    /// An episode waiting for its pictures: the scene states a render worker draws them from
+    /// (set by a sim worker without a renderer of its own, taken by the render worker; never
+    /// part of a finished episode or a report).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[schemars(skip)]
+    pub scenes: Option<EpisodeScenes>,
+}
+
+/// What an episode's pictures are drawn from, as plain data: small beside the pictures (poses,
+/// joint values and shapes), so it travels from a sim worker to a render worker in the shard's
+/// result and assignment.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct EpisodeScenes {
+    /// The scene after the initial settle, before the policy acts (for the scene views).
+    pub initial: SceneSnapshot,
+    /// The physics step of `initial`.
+    pub initial_step: u64,
+    /// States evenly spaced from the first policy step to the end, with their steps.
+    pub keyframes: Vec<(u64, SceneSnapshot)>,
+    /// Goal predicates holding at each keyframe.
+    pub keyframe_goals: Vec<u32>,
+    /// Video states (empty: no video).
+    #[serde(default)]
+    pub video: Vec<(u64, SceneSnapshot)>,
+    /// The states of a dynamics clip, when the batch asks for clips.
+    #[serde(default)]
+    pub clip: Option<ClipScenes>,
+}
+
+/// The states a dynamics clip is drawn from ([`crate::clip::Clip`] less its pixels).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ClipScenes {
+    pub interval_s: f32,
+    pub steps: Vec<u64>,
+    pub scenes: Vec<SceneSnapshot>,
+    pub proprio: Vec<f32>,
+    pub actions: Vec<f32>,
 }
 
 /// Pictures of one episode, as artifact keys.

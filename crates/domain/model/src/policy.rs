@@ -413,6 +413,23 @@ impl PolicySpec {
         matches!(self, PolicySpec::Oracle { .. })
     }
 
+    /// Whether an episode of this policy may need a renderer beside its simulator while it runs
+    /// (camera frames in the loop): the oracle that senses with a camera, diffusion policies, and
+    /// every served or TorchScript policy unless its spec declares an interface without cameras
+    /// (a server that declares its interface only in `Health` may see, so it counts as seeing).
+    /// The coordinator leases such an episode only to a worker with both roles.
+    pub fn renders_in_loop(&self) -> bool {
+        match self {
+            PolicySpec::Oracle { .. } => self.sees(),
+            PolicySpec::Random { .. } => false,
+            PolicySpec::Diffusion { .. } => true,
+            PolicySpec::OpenPi { interface, .. } => !interface.cameras.is_empty(),
+            PolicySpec::TorchScript { interface, .. } | PolicySpec::Remote { interface, .. } => {
+                interface.as_ref().is_none_or(|i| !i.cameras.is_empty())
+            }
+        }
+    }
+
     /// Whether episodes of this policy need camera frames while they run.
     pub fn sees(&self) -> bool {
         matches!(
