@@ -16,9 +16,7 @@ pub struct Registry {
 impl Registry {
     /// Records a session's capabilities; the returned id removes them when it ends.
     pub fn join(&self, capabilities: Vec<String>) -> u64 {
-        let id = self
-            .next
-            .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        let id = self.next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
         self.sessions
             .lock()
             .expect("registry")
@@ -59,7 +57,11 @@ pub fn waiting(queued: &[(Vec<String>, u32)], offered: &[Vec<String>]) -> Vec<St
         {
             continue;
         }
-        let shards = if *n == 1 { "shard needs" } else { "shards need" };
+        let shards = if *n == 1 {
+            "shard needs"
+        } else {
+            "shards need"
+        };
         let missing: Vec<&str> = needs
             .iter()
             .filter(|need| !offered.iter().any(|caps| caps.contains(need)))

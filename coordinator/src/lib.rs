@@ -230,7 +230,11 @@ async fn publish_progress(
             _ = stop.changed() => return,
         };
         let id = batch.clone();
-        let Ok(c) = shared.store.call(move |s| s.counts(&id)).await else {
+        let Ok((c, queued)) = shared
+            .store
+            .call(move |s| Ok((s.counts(&id)?, s.queued_needs(Some(&id))?)))
+            .await
+        else {
             continue;
         };
         if !publishers.contains_key(&batch) {
@@ -261,6 +265,7 @@ async fn publish_progress(
             workers_connected: shared
                 .workers_connected
                 .load(std::sync::atomic::Ordering::Relaxed),
+            waiting: crate::capability::waiting(&queued, &shared.capabilities.offered()),
         };
         if let Err(e) = publishers[&batch].put(&progress).await {
             warn!(error = %e, "telemetry put");

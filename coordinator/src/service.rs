@@ -364,10 +364,7 @@ impl CoordinatorService {
             .store
             .call(move |s| Ok((s.counts(&id)?, s.queued_needs(Some(&id))?)))
             .await?;
-        let mut status = counts_to_pb(
-            &c,
-            self.shared.workers_connected.load(Ordering::Relaxed),
-        );
+        let mut status = counts_to_pb(&c, self.shared.workers_connected.load(Ordering::Relaxed));
         status.waiting = crate::capability::waiting(&queued, &self.shared.capabilities.offered());
         Ok(status)
     }

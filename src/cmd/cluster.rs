@@ -19,9 +19,14 @@ pub struct ClusterArgs {
     #[arg(long, default_value_t = 1)]
     pub capacity: u32,
     /// Worker roles: sim,render (pictures of every episode, judging, dynamics diversity) or sim
-    /// (physics only, faster).
+    /// (physics only, faster; with --render-workers, pictures are drawn by those).
     #[arg(long, default_value = "sim,render")]
     pub roles: String,
+    /// Render-only worker processes to start beside the sim workers: they draw the pictures
+    /// of episodes that sim-only workers (`--roles sim`) simulated, and the judge reads them
+    /// over shared memory.
+    #[arg(long, default_value_t = 0)]
+    pub render_workers: u32,
     /// Size of rendered views and keyframes, WIDTHxHEIGHT.
     #[arg(long, default_value = "640x480")]
     pub image_size: String,
@@ -49,6 +54,8 @@ pub struct Plan {
     pub capacity: u32,
     /// Roles of the sim workers (`sim,render` or `sim`).
     pub roles: String,
+    /// Render-only worker processes.
+    pub render_workers: u32,
     pub image_size: String,
     pub video: bool,
     /// Configuration file passed to the judge and trainer workers.
@@ -165,6 +172,27 @@ impl LocalCluster {
             workers.push(Supervised::new(proc, args, log));
         }
         let sim_workers = workers.len();
+        for i in 0..plan.render_workers {
+            let args: Vec<String> = vec![
+                "worker".into(),
+                "--coordinator".into(),
+                addr.clone(),
+                "--roles".into(),
+                "render".into(),
+                "--image-size".into(),
+                plan.image_size.clone(),
+                "--capacity".into(),
+                plan.capacity.to_string(),
+                "--node-id".into(),
+                "local".into(),
+                "--worker-id".into(),
+                format!("local/render-{i}"),
+            ];
+            let log = run_dir.join(format!("render-{i}.log"));
+            let proc = ChildProc::spawn(&format!("render worker {i}"), &args, &log)?;
+            workers.push(Supervised::new(proc, args, log));
+        }
+
         if !plan.judges.is_empty() {
             let mut args: Vec<String> = vec![
                 "worker".into(),
@@ -215,7 +243,11 @@ impl LocalCluster {
             workers.push(Supervised::new(proc, args, log));
         }
         eprintln!(
-            "local cluster: coordinator at {addr}, {sim_workers} sim workers{}{}; metrics at {}; logs in {}",
+            "local cluster: coordinator at {addr}, {sim_workers} sim workers{}{}{}; metrics at {}; logs in {}",
+            match plan.render_workers {
+                0 => String::new(),
+                n => format!(", {n} render workers"),
+            },
             if plan.judges.is_empty() {
                 String::new()
             } else {

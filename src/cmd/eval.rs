@@ -71,7 +71,8 @@ pub fn run(mut a: Args) -> anyhow::Result<ExitCode> {
         }
     };
     crate::outdir::check_apart(&a.out, &a.paths)?;
-    let rendering = a.cluster.roles.split(',').any(|r| r.trim() == "render");
+    let rendering =
+        a.cluster.render_workers > 0 || a.cluster.roles.split(',').any(|r| r.trim() == "render");
     if a.cluster.no_judge || !rendering {
         if !a.batch.judges.is_empty() {
             anyhow::bail!("--judge needs rendered episodes: run with --roles sim,render");
@@ -128,6 +129,7 @@ pub fn run(mut a: Args) -> anyhow::Result<ExitCode> {
         .batch
         .request(docs, &super::submit::default_name(&a.paths));
     req.asset_roots = crate::docs::root_strings(&roots);
+    req.render = rendering;
     let claim = crate::outdir::claim(&a.out, &crate::outdir::batch_key(&req), a.force)?;
     for (k, (path, batch)) in imported.iter().enumerate() {
         let pipeline = a.import.expect("imported with a pipeline");
@@ -152,6 +154,7 @@ pub fn run(mut a: Args) -> anyhow::Result<ExitCode> {
             workers: a.cluster.workers,
             capacity: a.cluster.capacity,
             roles: a.cluster.roles.clone(),
+            render_workers: a.cluster.render_workers,
             image_size: a.cluster.image_size.clone(),
             video: a.cluster.video,
             config: a.cluster.config.clone(),

@@ -50,8 +50,14 @@ pub fn line(s: &pb::BatchStatus) -> String {
     } else {
         judged
     };
+    // Work no connected worker can take, on lines of their own.
+    let waiting: String = s
+        .waiting
+        .iter()
+        .map(|w| format!("\n  waiting: {w}"))
+        .collect();
     format!(
-        "{}  {:<9}  {}/{} done  {} ok  {} failed  {} running  {} queued  {} cancelled  {} invalid tasks{judged}  {} workers  {}",
+        "{}  {:<9}  {}/{} done  {} ok  {} failed  {} running  {} queued  {} cancelled  {} invalid tasks{judged}  {} workers  {}{waiting}",
         s.batch_id,
         super::state_name(s.state),
         s.shards_done + s.shards_failed + s.shards_cancelled,

@@ -20,6 +20,11 @@ pub struct Args {
 
 #[derive(clap::Args, Clone)]
 pub struct BatchArgs {
+    /// Render every episode's pictures (scene views, keyframes, caption, contact sheet) even
+    /// without a judge; judges, dynamics budgets, a ranking and generalization imply it. A
+    /// rendering batch runs on sim workers with a renderer, or on sim workers and render workers.
+    #[arg(long)]
+    pub render: bool,
     /// A folder the tasks may read asset files (URDF, meshes) from, besides the task paths
     /// themselves (repeatable; default: the working folder). A task whose asset root lies
     /// outside them is rejected.
@@ -155,6 +160,7 @@ impl BatchArgs {
             generalization_json: self.generalization.clone().unwrap_or_default(),
             skip_if_evaluated: false,
             asset_roots: Vec::new(),
+            render: self.render,
         }
     }
 }

@@ -32,15 +32,24 @@ fn table(
 ) -> String {
     let mut out = String::from("\x1b[2J\x1b[H");
     out.push_str(&format!(
-        "{:<32} {:>9} {:>7} {:>7} {:>7} {:>8} {:>12} {:>9}\n",
-        "worker", "episodes", "failed", "judged", "trained", "leases", "steps/s", "frames/s"
+        "{:<32} {:>9} {:>7} {:>8} {:>7} {:>7} {:>8} {:>12} {:>9}\n",
+        "worker",
+        "episodes",
+        "failed",
+        "rendered",
+        "judged",
+        "trained",
+        "leases",
+        "steps/s",
+        "frames/s"
     ));
     for w in workers.values() {
         out.push_str(&format!(
-            "{:<32} {:>9} {:>7} {:>7} {:>7} {:>8} {:>12.0} {:>9.1}\n",
+            "{:<32} {:>9} {:>7} {:>8} {:>7} {:>7} {:>8} {:>12.0} {:>9.1}\n",
             w.worker,
             w.episodes_done,
             w.episodes_failed,
+            w.rendered,
             w.judged,
             w.trained,
             format!("{}/{}", w.leases_held, w.lease_capacity),
@@ -61,6 +70,9 @@ fn table(
             b.running,
             b.name
         ));
+        for w in &b.waiting {
+            out.push_str(&format!("  waiting: {w}\n"));
+        }
     }
     out
 }

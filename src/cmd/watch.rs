@@ -219,7 +219,8 @@ fn now_ms() -> i64 {
 pub fn run(mut a: Args) -> anyhow::Result<ExitCode> {
     std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
     anyhow::ensure!(a.dir.is_dir(), "{} is not a folder", a.dir.display());
-    let rendering = a.cluster.roles.split(',').any(|r| r.trim() == "render");
+    let rendering =
+        a.cluster.render_workers > 0 || a.cluster.roles.split(',').any(|r| r.trim() == "render");
     if !a.cluster.no_judge && rendering && a.batch.judges.is_empty() {
         a.batch.judges.push(assay_judge::OFFLINE.into());
     }
@@ -248,6 +249,7 @@ pub fn run(mut a: Args) -> anyhow::Result<ExitCode> {
                 workers: a.cluster.workers,
                 capacity: a.cluster.capacity,
                 roles: a.cluster.roles.clone(),
+                render_workers: a.cluster.render_workers,
                 image_size: a.cluster.image_size.clone(),
                 video: a.cluster.video,
                 config: a.cluster.config.clone(),
@@ -475,6 +477,8 @@ fn evaluate(
     let mut req = a.batch.request(docs, name);
     req.asset_roots = crate::docs::root_strings(&roots);
     req.skip_if_evaluated = true;
+    req.render =
+        a.cluster.render_workers > 0 || a.cluster.roles.split(',').any(|r| r.trim() == "render");
     let (response, status) = rt.block_on(async {
         let mut c = super::client(addr).await?;
         let r = c.submit_batch(req).await?.into_inner();

@@ -7,9 +7,11 @@ use std::process::ExitCode;
 pub struct Args {
     #[arg(long, env = "ASSAY_COORDINATOR", default_value = super::DEFAULT_COORDINATOR)]
     pub coordinator: String,
-    /// Comma-separated roles: sim, render, judge (trainer comes with a later release). With sim
-    /// and render, every episode gets its scene views, keyframes, scene caption and a contact
-    /// sheet; judge scores rendered episodes with the judges a batch names.
+    /// Comma-separated roles: sim, render, judge, trainer. With sim and render the episodes of a
+    /// batch that renders get their scene views, keyframes, scene caption and contact sheet in
+    /// this process; render alone draws the episodes sim-only workers simulated (and a policy
+    /// that sees while it runs needs sim and render on one worker); judge scores rendered
+    /// episodes with the judges a batch names; trainer fits the batch's models.
     #[arg(long, default_value = "sim", value_delimiter = ',')]
     pub roles: Vec<String>,
     /// Configuration file (TOML) naming the judges this worker can run (`[judges.<name>]`);
@@ -32,6 +34,10 @@ pub struct Args {
     /// Worker id (defaults to <node>/<pid>).
     #[arg(long)]
     pub worker_id: Option<String>,
+    /// MiB of drawn pictures and captions the render role keeps in memory, where the node's
+    /// judges read them over shared memory (0: none; they read the artifact store).
+    #[arg(long, default_value_t = 256)]
+    pub keep_mib: usize,
     /// A folder tasks may read asset files (URDF, meshes) from (repeatable): this worker
     /// opens no asset file outside them, whatever a task says. None: each task's own asset
     /// root confines it.
@@ -66,6 +72,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         capacity: a.capacity,
         node_id: a.node_id,
         worker_id: a.worker_id,
+        keep_mib: a.keep_mib,
     })?;
     super::block_on(async move { worker.serve(super::terminated()).await })?;
     Ok(ExitCode::SUCCESS)

@@ -30,6 +30,17 @@ pub struct WorkerStats {
     /// Trainer jobs finished (trainer role: text diversity, world models).
     #[serde(default)]
     pub trained: u64,
+    /// Episodes whose pictures this worker drew for a sim worker without a renderer (render
+    /// shards).
+    #[serde(default)]
+    pub rendered: u64,
+    /// Pictures and captions the judge role read from a process of its node over shared memory
+    /// (iceoryx2), and those it read from the artifact store (drawn on another node, or no
+    /// longer kept).
+    #[serde(default)]
+    pub frames_from_shared_memory: u64,
+    #[serde(default)]
+    pub frames_from_store: u64,
     /// Leases this worker holds now (shards running).
     pub leases_held: u64,
     /// Leases it may hold at once (its capacity).
@@ -52,6 +63,9 @@ pub struct BatchProgress {
     pub running: u32,
     pub successes: u32,
     pub workers_connected: u32,
+    /// Work that waits for a capability no connected worker offers, one line each.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub waiting: Vec<String>,
 }
 
 #[derive(Debug, thiserror::Error)]

@@ -24,6 +24,7 @@ mod rank;
 mod ranking;
 mod real_policies;
 mod report;
+mod roles;
 mod security;
 mod telemetry;
 mod watch;

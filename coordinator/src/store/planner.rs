@@ -807,8 +807,8 @@ impl Store {
                 .collect::<Result<_, _>>()?
         };
         for (policy, role) in policies {
-            let sees = assay_model::policy::PolicySpec::parse(&policy)
-                .is_ok_and(|p| p.renders_in_loop());
+            let sees =
+                assay_model::policy::PolicySpec::parse(&policy).is_ok_and(|p| p.renders_in_loop());
             if sees {
                 conn.execute(
                     "UPDATE shards SET needs = ?1 WHERE batch_id = ?2 AND policy = ?3 AND state = 'queued'

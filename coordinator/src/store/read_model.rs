@@ -23,14 +23,19 @@ use crate::error::CoordError;
 impl Store {
     /// The queued shards of a batch (every running batch when `None`) by what they need of a
     /// worker, as `(needs, count)`.
-    pub fn queued_needs(&self, batch_id: Option<&str>) -> Result<Vec<(Vec<String>, u32)>, CoordError> {
+    pub fn queued_needs(
+        &self,
+        batch_id: Option<&str>,
+    ) -> Result<Vec<(Vec<String>, u32)>, CoordError> {
         let mut stmt = self.conn.prepare_cached(
             "SELECT COALESCE(s.needs, json_array(s.role)) AS nd, COUNT(*) FROM shards s
              JOIN batches b ON b.id = s.batch_id
              WHERE s.state = 'queued' AND b.state = 'running' AND (?1 IS NULL OR s.batch_id = ?1)
              GROUP BY nd ORDER BY nd",
         )?;
-        let rows = stmt.query_map([batch_id], |r| Ok((r.get::<_, String>(0)?, r.get::<_, u32>(1)?)))?;
+        let rows = stmt.query_map([batch_id], |r| {
+            Ok((r.get::<_, String>(0)?, r.get::<_, u32>(1)?))
+        })?;
         let mut out = Vec::new();
         for row in rows {
             let (needs, n) = row?;

@@ -1000,13 +1000,23 @@ fn an_episode_simulated_without_a_renderer_waits_for_a_render_worker_then_is_jud
     let l = s.lease("sim-only", &sim(), 5, 1, TTL).unwrap().remove(0);
     assert!(l.render, "a rendering batch asks for the pictures");
     let (ok, changed) = s
-        .complete("sim-only", l.lease_id, l.shard_id, &awaiting_pictures(&l), 0.5, 2)
+        .complete(
+            "sim-only",
+            l.lease_id,
+            l.shard_id,
+            &awaiting_pictures(&l),
+            0.5,
+            2,
+        )
         .unwrap();
     assert!(ok);
     assert_eq!(changed.requeued, 1, "render workers are woken");
     let c = s.counts(&id).unwrap();
     assert_eq!((c.total, c.done, c.queued, c.judge_total), (1, 0, 1, 0));
-    assert_eq!(c.state, "running", "the episode is not done without its pictures");
+    assert_eq!(
+        c.state, "running",
+        "the episode is not done without its pictures"
+    );
     assert!(s.lease("sim-only", &sim(), 5, 3, TTL).unwrap().is_empty());
     assert_eq!(
         s.queued_needs(Some(&id)).unwrap(),
@@ -1017,16 +1027,36 @@ fn an_episode_simulated_without_a_renderer_waits_for_a_render_worker_then_is_jud
     // renders it: nothing is lost, and the expired one's late result is not counted.
     let r1 = s.lease("r1", &render, 5, 4, TTL).unwrap().remove(0);
     assert_eq!(r1.role, "render");
-    assert_eq!(r1.render_input.as_deref(), Some(awaiting_pictures(&l).as_str()));
+    assert_eq!(
+        r1.render_input.as_deref(),
+        Some(awaiting_pictures(&l).as_str())
+    );
     s.expire(4 + TTL + 1, None).unwrap();
-    let r2 = s.lease("r2", &render, 5, 4 + TTL + 2, TTL).unwrap().remove(0);
+    let r2 = s
+        .lease("r2", &render, 5, 4 + TTL + 2, TTL)
+        .unwrap()
+        .remove(0);
     assert_eq!((r2.shard_id, r2.attempt), (l.shard_id, 2));
     let (late, _) = s
-        .complete("r1", r1.lease_id, r1.shard_id, &rendered(&l), 0.1, 4 + TTL + 3)
+        .complete(
+            "r1",
+            r1.lease_id,
+            r1.shard_id,
+            &rendered(&l),
+            0.1,
+            4 + TTL + 3,
+        )
         .unwrap();
     assert!(!late);
     let (ok, changed) = s
-        .complete("r2", r2.lease_id, r2.shard_id, &rendered(&l), 0.25, 4 + TTL + 3)
+        .complete(
+            "r2",
+            r2.lease_id,
+            r2.shard_id,
+            &rendered(&l),
+            0.25,
+            4 + TTL + 3,
+        )
         .unwrap();
     assert!(ok);
     assert_eq!(changed.requeued, 1, "one judge shard");
@@ -1034,7 +1064,11 @@ fn an_episode_simulated_without_a_renderer_waits_for_a_render_worker_then_is_jud
     assert_eq!((c.done, c.queued, c.judge_total), (1, 0, 1));
     let report = s.report(&id).unwrap();
     assert!(report.results.tasks[0].episodes[0].imagery.is_some());
-    assert_eq!(report.run.workers, vec!["sim-only"], "the episode is the simulator's");
+    assert_eq!(
+        report.run.workers,
+        vec!["sim-only"],
+        "the episode is the simulator's"
+    );
     let judge: Vec<String> = vec!["judge".into(), "judge:offline".into()];
     let j = s.lease("j", &judge, 5, 4 + TTL + 4, TTL).unwrap().remove(0);
     assert_eq!(j.judge.unwrap().episode_json, rendered(&l));

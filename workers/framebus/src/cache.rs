@@ -226,8 +226,8 @@ mod tests {
 
     #[test]
     fn a_kept_artifact_is_served_by_address_and_an_unknown_one_is_a_miss() {
-        let keeper = ArtifactKeeper::start(&format!("keeper-test-{}", std::process::id()), 1 << 20)
-            .unwrap();
+        let keeper =
+            ArtifactKeeper::start(&format!("keeper-test-{}", std::process::id()), 1 << 20).unwrap();
         let frame = vec![7u8; 300_000];
         let key = key_of(&frame);
         keeper.keep(&key, frame.clone());
@@ -251,7 +251,10 @@ mod tests {
         keeper.keep(&key_of(&second), second.clone());
         let deadline = Instant::now() + Duration::from_secs(5);
         while reader.fetch(&key, t).unwrap().is_some() {
-            assert!(Instant::now() < deadline, "the oldest artifact was never dropped");
+            assert!(
+                Instant::now() < deadline,
+                "the oldest artifact was never dropped"
+            );
             std::thread::sleep(Duration::from_millis(10));
         }
         assert_eq!(reader.fetch(&key_of(&second), t).unwrap(), Some(second));

@@ -166,11 +166,12 @@ impl Judge {
         description: &str,
         repeats: u32,
         budget_left_usd: Option<f64>,
-        root: &Path,
+        artifacts: &Artifacts,
     ) -> Result<Judged, JudgeError> {
+        let root = artifacts.root.as_path();
         let imagery = episode.imagery.as_ref().ok_or_else(|| {
             JudgeError::Permanent(format!(
-                "task {} seed {}: the episode has no imagery to judge (run its sim workers with --roles sim,render)",
+                "task {} seed {}: the episode has no imagery to judge (its batch did not ask for pictures)",
                 episode.task_id, episode.seed
             ))
         })?;
@@ -202,11 +203,11 @@ impl Judge {
                     episode.task_id, episode.seed
                 )));
             }
-            Kind::Offline => offline(episode, description, repeats, root, &ledger)?,
+            Kind::Offline => offline(episode, description, repeats, artifacts, &ledger)?,
             Kind::Vlm(endpoint) => {
                 let mut items = Vec::new();
                 for &(item, keys) in &asked {
-                    let images = read_images(root, keys, item)?;
+                    let images = read_images(artifacts, keys, item)?;
                     let prompt = Prompt::for_images(item);
                     let text = prompt.render(description, &[]);
                     items.push(
@@ -223,12 +224,12 @@ impl Judge {
                 for &(item, keys) in &asked {
                     let captions = match captioner {
                         Some(c) => {
-                            let images = read_images(root, keys, item)?;
+                            let images = read_images(artifacts, keys, item)?;
                             caption_images(c, item, &images, keys, &ledger).await
                         }
                         // The structured caption describes the initial scene only.
                         None if item == Item::SceneAlignment => {
-                            let caption = read_caption(root, imagery.caption.as_deref())?;
+                            let caption = read_caption(artifacts, imagery.caption.as_deref())?;
                             Ok(vec![caption.to_text()])
                         }
                         None => continue,
@@ -278,13 +279,13 @@ fn offline(
     episode: &EpisodeOutcome,
     description: &str,
     repeats: u32,
-    root: &Path,
+    artifacts: &Artifacts,
     ledger: &Ledger,
 ) -> Result<Vec<ItemOutcome>, JudgeError> {
     let imagery = episode.imagery.as_ref().expect("checked by the caller");
     let alignment = match imagery.caption.as_deref() {
         Some(key) => {
-            let caption = read_caption(root, Some(key))?;
+            let caption = read_caption(artifacts, Some(key))?;
             let s = offline_alignment(description, &caption);
             Ok(format!("{}\nScore: {:.2}", s.rationale, s.score))
         }
@@ -373,17 +374,64 @@ fn offline(
     Ok(items)
 }
 
-fn read_caption(root: &Path, key: Option<&str>) -> Result<SceneCaption, JudgeError> {
+/// Where a judge reads an episode's pictures and caption: bytes the worker already holds (read
+/// from the node's shared memory, where the render role that drew them keeps them), else the
+/// artifact store's files. Counts which was which.
+pub struct Artifacts {
+    pub root: PathBuf,
+    held: std::collections::HashMap<String, Vec<u8>>,
+    from_memory: std::sync::atomic::AtomicU32,
+    from_store: std::sync::atomic::AtomicU32,
+}
+
+impl Artifacts {
+    /// Reads from `root`, and first from `held` (key → bytes).
+    pub fn new(root: &Path, held: std::collections::HashMap<String, Vec<u8>>) -> Self {
+        Self {
+            root: root.to_owned(),
+            held,
+            from_memory: Default::default(),
+            from_store: Default::default(),
+        }
+    }
+
+    fn read(&self, key: &str) -> std::io::Result<Vec<u8>> {
+        use std::sync::atomic::Ordering::Relaxed;
+        if let Some(bytes) = self.held.get(key) {
+            self.from_memory.fetch_add(1, Relaxed);
+            return Ok(bytes.clone());
+        }
+        let bytes = std::fs::read(self.root.join(key))?;
+        self.from_store.fetch_add(1, Relaxed);
+        Ok(bytes)
+    }
+
+    /// Artifacts read so far from what the worker held, and from the artifact store.
+    pub fn reads(&self) -> (u32, u32) {
+        use std::sync::atomic::Ordering::Relaxed;
+        (
+            self.from_memory.load(Relaxed),
+            self.from_store.load(Relaxed),
+        )
+    }
+}
+
+fn read_caption(artifacts: &Artifacts, key: Option<&str>) -> Result<SceneCaption, JudgeError> {
     let key = key.ok_or_else(|| {
         JudgeError::Permanent("the episode's imagery has no scene caption".into())
     })?;
-    let bytes = std::fs::read(root.join(key))
+    let bytes = artifacts
+        .read(key)
         .map_err(|e| JudgeError::Retryable(format!("scene caption {key}: {e}")))?;
     serde_json::from_slice(&bytes)
         .map_err(|e| JudgeError::Permanent(format!("scene caption {key}: {e}")))
 }
 
-fn read_images(root: &Path, keys: &[String], item: Item) -> Result<Vec<Vec<u8>>, JudgeError> {
+fn read_images(
+    artifacts: &Artifacts,
+    keys: &[String],
+    item: Item,
+) -> Result<Vec<Vec<u8>>, JudgeError> {
     if keys.len() != item.images() {
         return Err(JudgeError::Permanent(format!(
             "{}: the episode has {} images, the protocol asks for {}",
@@ -394,7 +442,8 @@ fn read_images(root: &Path, keys: &[String], item: Item) -> Result<Vec<Vec<u8>>,
     }
     keys.iter()
         .map(|k| {
-            std::fs::read(root.join(k))
+            artifacts
+                .read(k)
                 .map_err(|e| JudgeError::Retryable(format!("image {k}: {e}")))
         })
         .collect()

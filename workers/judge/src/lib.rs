@@ -17,4 +17,4 @@ pub mod judge;
 pub mod prompts;
 
 pub use config::{Config, JudgeConfig, OFFLINE};
-pub use judge::{Judge, JudgeError, Judged};
+pub use judge::{Artifacts, Judge, JudgeError, Judged};

@@ -79,9 +79,15 @@ fn judge(cfg: EndpointConfig) -> Judge {
 fn run(j: &Judge, root: &Path, repeats: u32, budget: Option<f64>) -> JudgeOutcome {
     let rt = tokio::runtime::Runtime::new().unwrap();
     let ep = episode(root);
-    rt.block_on(j.judge(&ep, DESCRIPTION, repeats, budget, root))
-        .unwrap()
-        .outcome
+    rt.block_on(j.judge(
+        &ep,
+        DESCRIPTION,
+        repeats,
+        budget,
+        &assay_judge::Artifacts::new(root, Default::default()),
+    ))
+    .unwrap()
+    .outcome
 }
 
 fn is_completion(r: &Received) -> bool {

@@ -59,6 +59,8 @@ pub struct WorkerConfig {
     pub worker_id: String,
     pub node_id: String,
     pub roles: Vec<pb::Role>,
+    /// What the worker offers beyond its roles (see `Register.capabilities`).
+    pub capabilities: Vec<String>,
     pub capacity: u32,
     pub versions: BTreeMap<String, String>,
     /// Longest wait between reconnection attempts.
@@ -145,6 +147,7 @@ pub async fn run_worker(
             worker_id: config.worker_id.clone(),
             node_id: config.node_id.clone(),
             roles: config.roles.iter().map(|r| *r as i32).collect(),
+            capabilities: config.capabilities.clone(),
             capacity: config.capacity,
             versions: config.versions.clone().into_iter().collect(),
             held_leases: running.keys().copied().collect(),

@@ -64,6 +64,7 @@ impl JudgeRole {
                 ))
             })?;
         let judge = self.judge(&a.judge)?;
+        let artifacts = assay_judge::Artifacts::new(root, held_on_this_node(&episode));
         let judged = self
             .runtime
             .block_on(judge.judge(
@@ -71,7 +72,7 @@ impl JudgeRole {
                 &spec.description,
                 a.judge_repeats,
                 a.budget_left_usd,
-                root,
+                &artifacts,
             ))
             .map_err(|e| {
                 let msg = format!("task {} seed {}: judge '{}': {e}", spec.id, a.seed, a.judge);
@@ -84,7 +85,64 @@ impl JudgeRole {
         outcome.transcript = Some(
             artifacts::put(root, "judge", "json", &judged.transcript).map_err(io_error("judge"))?,
         );
+        let (shared, stored) = artifacts.reads();
+        self.counters
+            .frames_shared
+            .fetch_add(u64::from(shared), Ordering::Relaxed);
+        self.counters
+            .frames_stored
+            .fetch_add(u64::from(stored), Ordering::Relaxed);
         self.counters.judged.fetch_add(1, Ordering::Relaxed);
         serde_json::to_string(&outcome).map_err(|e| ShardError::retryable(e.to_string()))
     }
+}
+
+/// The episode's pictures and caption that a process of this node keeps in memory (the render
+/// role that drew them), read over shared memory and checked against their content addresses.
+/// What is not found there (drawn on another node, no longer kept, or its process gone) is read
+/// from the artifact store, where every picture was written before its episode was reported.
+fn held_on_this_node(
+    episode: &assay_model::episode::EpisodeOutcome,
+) -> std::collections::HashMap<String, Vec<u8>> {
+    use std::time::Duration;
+    let mut held = std::collections::HashMap::new();
+    let Some(imagery) = &episode.imagery else {
+        return held;
+    };
+    let keys = imagery
+        .views
+        .iter()
+        .map(|v| v.artifact.as_str())
+        .chain(imagery.keyframes.iter().map(|k| k.artifact.as_str()))
+        .chain(imagery.caption.as_deref());
+    // iceoryx2 ports belong to the thread that made them: this shard's.
+    static READERS: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+    let reader = assay_framebus::FrameBus::open(&format!(
+        "assay-judge-{}-{}",
+        std::process::id(),
+        READERS.fetch_add(1, Ordering::Relaxed)
+    ))
+    .and_then(|bus| Ok((bus.artifact_reader()?, bus)));
+    let (reader, _bus) = match reader {
+        Ok(r) => r,
+        Err(e) => {
+            tracing::debug!(error = %e, "no shared memory: reading the artifact store");
+            return held;
+        }
+    };
+    for key in keys {
+        match reader.fetch(key, Duration::from_millis(500)) {
+            Ok(Some(bytes)) => {
+                held.insert(key.to_owned(), bytes);
+            }
+            // One process keeps all of an episode's pictures: one miss, and the rest are
+            // read from the artifact store without asking again.
+            Ok(None) => break,
+            Err(e) => {
+                tracing::debug!(error = %e, key, "shared memory read failed");
+                break;
+            }
+        }
+    }
+    held
 }

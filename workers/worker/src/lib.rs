@@ -1,6 +1,7 @@
 //! `assay-worker`: what a worker process does — its roles as library code, so that each can be
-//! run and tested in one process. The sim role (rapier3d episodes, `sim`), the render role in the
-//! same process (wgpu, `render`), the judge role (`judge`), the trainer role (libtorch,
+//! run and tested in one process. The sim role (rapier3d episodes, `sim`), the render role
+//! (wgpu, `render`: beside sim in the same process, or alone, drawing episodes other workers
+//! simulated), the judge role (`judge`), the trainer role (libtorch,
 //! `trainer`, with the `trainer` feature), the frames relay across nodes (`relay`), and the
 //! statistics a worker publishes (`telemetry`). [`Worker`] puts the asked roles together behind
 //! one [`assay_worker_runtime::ShardHandler`] and serves a coordinator with them.
@@ -51,6 +52,8 @@ pub struct Options {
     pub node_id: Option<String>,
     /// Worker id (defaults to `<node>/<pid>`).
     pub worker_id: Option<String>,
+    /// MiB of drawn pictures the render role keeps in memory for the node's judges (0: none).
+    pub keep_mib: usize,
 }
 
 impl Default for Options {
@@ -64,6 +67,7 @@ impl Default for Options {
             capacity: 1,
             node_id: None,
             worker_id: None,
+            keep_mib: 256,
         }
     }
 }
@@ -94,6 +98,7 @@ pub(crate) fn io_error(what: &str) -> impl Fn(std::io::Error) -> ShardError + '_
 /// The roles of one worker process: shards go to the role they were leased for.
 pub struct Roles {
     sim: Option<SimRole>,
+    render: Option<Arc<RenderRole>>,
     judge: Option<JudgeRole>,
     #[cfg(feature = "trainer")]
     trainer: Option<trainer::TrainerRole>,
@@ -117,6 +122,10 @@ impl ShardHandler for Roles {
                 result
             }
             (Ok(pb::Role::Sim), Some(sim), _) => sim.run(a, artifact_root),
+            (Ok(pb::Role::Render), _, _) if self.render.is_some() => {
+                let render = self.render.as_ref().expect("checked");
+                render.run(a, artifact_root, &self.counters)
+            }
             #[cfg(feature = "trainer")]
             (Ok(pb::Role::Trainer), _, _) if self.trainer.is_some() => {
                 let trainer = self.trainer.as_ref().expect("checked");
@@ -140,14 +149,17 @@ impl ShardHandler for Roles {
 /// trainer's device chosen), before it joins a coordinator.
 pub struct Worker {
     coordinator: String,
-    /// The roles shards are leased for (render rides along with sim).
+    /// The roles shards are leased for.
     roles: Vec<pb::Role>,
     role_names: Vec<String>,
+    /// What this worker offers beyond its roles (`judge:<name>`, `gpu`, `libtorch`).
+    capabilities: Vec<String>,
     capacity: u32,
     node_id: String,
     worker_id: String,
     judge_config: Option<(assay_judge::Config, String)>,
-    render: Option<RenderRole>,
+    render: Option<Arc<RenderRole>>,
+    video: bool,
     simulating: bool,
     #[cfg(feature = "trainer")]
     trainer: Option<trainer::TrainerRole>,
@@ -173,11 +185,6 @@ impl Worker {
                 None => bail!("unknown role '{r}' (sim, render, judge, trainer)"),
             }
         }
-        if roles.contains(&pb::Role::Render) && !roles.contains(&pb::Role::Sim) {
-            bail!(
-                "this build runs render together with sim (--roles sim,render): a render-only worker, fed scene states over the frame bus, comes with the policy role"
-            );
-        }
         let judge_config = match &o.config {
             Some(path) => (
                 assay_judge::Config::load(path).map_err(anyhow::Error::msg)?,
@@ -194,21 +201,29 @@ impl Worker {
                 .unwrap_or_else(|_| "local".into())
         });
         let worker_id = o.worker_id.unwrap_or_else(|| default_worker_id(&node_id));
+        let mut capabilities = Vec::new();
         let render = if roles.contains(&pb::Role::Render) {
             let renderer = Renderer::new().context("starting the render role")?;
             tracing::info!(adapter = %renderer.adapter(), "render role ready");
-            Some(RenderRole::start(
+            if renderer.adapter().device_type != "Cpu" {
+                capabilities.push("gpu".to_owned());
+            }
+            Some(Arc::new(RenderRole::start(
                 renderer,
                 imagery_stream(&worker_id),
                 o.image_size,
-                o.video,
-            )?)
+                o.keep_mib << 20,
+            )?))
         } else {
             None
         };
-        // Shards are leased for the sim and judge roles; rendering rides along with sim.
-        roles.retain(|r| *r != pb::Role::Render);
         let judging = roles.contains(&pb::Role::Judge);
+        if judging {
+            capabilities.extend(judge_config.0.names().iter().map(|n| format!("judge:{n}")));
+        }
+        if cfg!(feature = "trainer") && roles.contains(&pb::Role::Trainer) {
+            capabilities.push("libtorch".to_owned());
+        }
         #[cfg(feature = "trainer")]
         let trainer = if roles.contains(&pb::Role::Trainer) {
             let text = match &o.config {
@@ -230,11 +245,13 @@ impl Worker {
             coordinator: o.coordinator,
             roles,
             role_names: o.roles,
+            capabilities,
             capacity: o.capacity.max(1),
             node_id,
             worker_id,
             judge_config: judging.then_some(judge_config),
             render,
+            video: o.video,
             simulating,
             #[cfg(feature = "trainer")]
             trainer,
@@ -263,12 +280,14 @@ impl Worker {
             counters: counters.clone(),
         });
         let sim = self.simulating.then(|| SimRole {
-            render: self.render,
+            render: self.render.clone(),
+            video: self.video,
             counters: counters.clone(),
             runtime: runtime.clone(),
         });
         let roles = Roles {
             sim,
+            render: self.render,
             judge,
             // Made before the runtime (a bad configuration fails first); runs on it.
             #[cfg(feature = "trainer")]
@@ -279,6 +298,7 @@ impl Worker {
             coordinator: self.coordinator,
             roles: self.roles,
             role_names: self.role_names,
+            capabilities: self.capabilities,
             capacity: self.capacity,
             node_id: self.node_id,
             worker_id: self.worker_id,
@@ -301,6 +321,7 @@ impl Worker {
             worker_id: parts.worker_id,
             node_id: parts.node_id,
             roles: parts.roles,
+            capabilities: parts.capabilities,
             capacity: parts.capacity,
             versions,
             max_backoff: Duration::from_secs(2),
@@ -332,6 +353,7 @@ struct WorkerConfigParts {
     coordinator: String,
     roles: Vec<pb::Role>,
     role_names: Vec<String>,
+    capabilities: Vec<String>,
     capacity: u32,
     node_id: String,
     worker_id: String,

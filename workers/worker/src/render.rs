@@ -7,14 +7,18 @@
 
 use std::path::Path;
 
-use assay_model::episode::{EpisodeImagery, Keyframe, NamedArtifact};
+use assay_model::episode::{ClipScenes, EpisodeImagery, EpisodeScenes, Keyframe, NamedArtifact};
 use assay_render::Renderer;
 use assay_render::imagery::Shot;
 use assay_spec::scene::{Observation, SceneSnapshot, task_cameras};
 use assay_spec::spec::{Camera, TaskSpec};
+use std::sync::atomic::Ordering;
+
+use assay_proto::v1 as pb;
 use assay_worker_runtime::{ShardError, artifacts};
 
 use crate::io_error;
+use crate::telemetry::Counters;
 
 /// The render role: one thread owns the device (a GPU, or lavapipe) and this worker's frame-bus
 /// stream `<worker-id>/imagery`; shard threads send it episodes and wait for their pictures, and
@@ -24,8 +28,9 @@ use crate::io_error;
 pub(crate) struct RenderRole {
     pub(crate) jobs: std::sync::mpsc::Sender<RenderJob>,
     pub(crate) adapter: String,
-    /// Episodes come with video states (the sim role is asked for them).
-    pub(crate) video: bool,
+    /// Keeps this worker's pictures and captions in memory for the node's judges (None: no
+    /// shared memory on this node).
+    keeper: Option<assay_framebus::cache::ArtifactKeeper>,
 }
 
 pub(crate) enum RenderJob {
@@ -58,7 +63,7 @@ pub(crate) struct EpisodeJob {
     /// Video states; empty when no video is wanted.
     pub(crate) video: Vec<(u64, SceneSnapshot)>,
     /// Dynamics clip states and the clip's frame size, when the shard asks for a clip.
-    pub(crate) clip: Option<(assay_sim::ClipStates, u32)>,
+    pub(crate) clip: Option<(ClipScenes, u32)>,
     pub(crate) camera: Camera,
     pub(crate) reply: std::sync::mpsc::Sender<Result<Rendered, assay_render::RenderError>>,
 }
@@ -71,31 +76,117 @@ pub(crate) struct Rendered {
 }
 
 impl RenderRole {
+    /// Starts the render thread; `keep_bytes` is how much of what it draws is kept in memory
+    /// for the node's judges (0: nothing).
     pub(crate) fn start(
         renderer: Renderer,
         stream: String,
         size: (u32, u32),
-        video: bool,
+        keep_bytes: usize,
     ) -> anyhow::Result<Self> {
         let adapter = renderer.adapter().to_string();
         let (jobs, rx) = std::sync::mpsc::channel::<RenderJob>();
         std::thread::Builder::new()
             .name("render".into())
             .spawn(move || render_loop(renderer, &stream, size, rx))?;
+        let keeper = if keep_bytes == 0 {
+            None
+        } else {
+            match assay_framebus::cache::ArtifactKeeper::start(
+                &format!("assay-keeper-{}", std::process::id()),
+                keep_bytes,
+            ) {
+                Ok(k) => Some(k),
+                Err(e) => {
+                    tracing::warn!(error = %e, "no shared memory: judges on this node read pictures from the artifact store");
+                    None
+                }
+            }
+        };
         Ok(RenderRole {
             jobs,
             adapter,
-            video,
+            keeper,
         })
     }
 
-    /// Renders and stores `ep`'s pictures, and its dynamics clip at `clip_size` pixels square
-    /// when it carries clip states.
+    /// Draws an episode's pictures and counts them.
+    pub(crate) fn draw(
+        &self,
+        spec: &TaskSpec,
+        shard: u64,
+        scenes: EpisodeScenes,
+        clip_size: u32,
+        root: &Path,
+        counters: &Counters,
+    ) -> Result<EpisodeImagery, ShardError> {
+        let video_frames = scenes.video.len();
+        let clip_frames = scenes.clip.as_ref().map_or(0, |c| c.scenes.len());
+        let imagery = self.imagery(spec, shard, scenes, clip_size, root)?;
+        counters.frames.fetch_add(
+            (imagery.views.len() + imagery.keyframes.len() + video_frames + clip_frames) as u64,
+            Ordering::Relaxed,
+        );
+        Ok(imagery)
+    }
+
+    /// A render shard: the pictures of an episode a sim worker without a renderer simulated,
+    /// drawn from the scenes it returned. Answers the episode's outcome with its pictures.
+    pub(crate) fn run(
+        &self,
+        a: &pb::Assignment,
+        root: &Path,
+        counters: &Counters,
+    ) -> Result<String, ShardError> {
+        let spec: TaskSpec = serde_json::from_str(&a.task_spec_json).map_err(|e| {
+            ShardError::permanent(format!(
+                "task spec from the coordinator does not parse: {e}"
+            ))
+        })?;
+        let mut outcome: assay_model::episode::EpisodeOutcome = serde_json::from_str(&a.input_json)
+            .map_err(|e| {
+                ShardError::permanent(format!(
+                    "task {}: the episode to render does not parse: {e}",
+                    spec.id
+                ))
+            })?;
+        let scenes = outcome.scenes.take().ok_or_else(|| {
+            ShardError::permanent(format!(
+                "task {} seed {}: the episode to render carries no scenes",
+                spec.id, a.seed
+            ))
+        })?;
+        counters.running.fetch_add(1, Ordering::Relaxed);
+        let drawn = self.draw(&spec, a.shard_id, scenes, a.clip_size, root, counters);
+        counters.running.fetch_sub(1, Ordering::Relaxed);
+        outcome.imagery = Some(drawn?);
+        counters.rendered.fetch_add(1, Ordering::Relaxed);
+        serde_json::to_string(&outcome).map_err(|e| ShardError::retryable(e.to_string()))
+    }
+
+    /// Stores `bytes` in the artifact store and keeps them in memory for the node's readers.
+    fn put(
+        &self,
+        root: &Path,
+        kind: &str,
+        ext: &str,
+        bytes: Vec<u8>,
+    ) -> Result<String, ShardError> {
+        let key = artifacts::put(root, kind, ext, &bytes).map_err(io_error(kind))?;
+        if let Some(k) = &self.keeper {
+            k.keep(&key, bytes);
+        }
+        Ok(key)
+    }
+
+    /// Renders and stores an episode's pictures from its scenes, and its dynamics clip at
+    /// `clip_size` pixels square when it carries clip states. The pictures and the caption are
+    /// also kept in this process's memory, where the node's judges read them.
     pub(crate) fn imagery(
         &self,
         spec: &TaskSpec,
         shard: u64,
-        ep: assay_sim::Episode,
+        ep: EpisodeScenes,
         clip_size: u32,
         root: &Path,
     ) -> Result<EpisodeImagery, ShardError> {
@@ -121,9 +212,7 @@ impl RenderRole {
             }
         })?;
         let img = rendered.imagery;
-        let put = |bytes: Vec<u8>| {
-            artifacts::put(root, "imagery", "png", &bytes).map_err(io_error("imagery"))
-        };
+        let put = |bytes: Vec<u8>| self.put(root, "imagery", "png", bytes);
         let mut views = Vec::new();
         for (name, i) in &img.views {
             views.push(NamedArtifact {
@@ -158,11 +247,10 @@ impl RenderRole {
             adapter: self.adapter.clone(),
             views,
             keyframes,
-            contact_sheet: put(img.sheet.png())?,
+            contact_sheet: artifacts::put(root, "imagery", "png", &img.sheet.png())
+                .map_err(io_error("imagery"))?,
             video,
-            caption: Some(
-                artifacts::put(root, "captions", "json", &caption).map_err(io_error("captions"))?,
-            ),
+            caption: Some(self.put(root, "captions", "json", caption)?),
             clip,
         })
     }

@@ -1,5 +1,6 @@
 //! The sim role: one episode per shard on the shard's thread (rapier3d), with the render role of
-//! the same process drawing its pictures and a seeing policy's frames when it has one.
+//! the same process drawing its pictures and a seeing policy's frames when it has one. Without
+//! one, an episode whose pictures are wanted returns its scenes, and a render worker draws them.
 //!
 //! Owns: building the episode's policy object, running it, storing the episode file. Never
 //! renders by itself (it asks the render role) and never talks to the coordinator.
@@ -8,6 +9,7 @@ use std::path::Path;
 use std::sync::Arc;
 use std::sync::atomic::Ordering;
 
+use assay_model::episode::{ClipScenes, EpisodeScenes};
 use assay_proto::v1 as pb;
 use assay_spec::spec::TaskSpec;
 use assay_worker_runtime::{ShardError, ShardHandler, artifacts};
@@ -18,7 +20,9 @@ use crate::telemetry::Counters;
 
 /// The sim role, with the render role in the same process when asked for.
 pub(crate) struct SimRole {
-    pub(crate) render: Option<RenderRole>,
+    pub(crate) render: Option<Arc<RenderRole>>,
+    /// Record video states for the episodes' videos (drawn here or by a render worker).
+    pub(crate) video: bool,
     pub(crate) counters: Arc<Counters>,
     /// The runtime remote policies' gRPC calls run on (shard threads block on it).
     pub(crate) runtime: tokio::runtime::Handle,
@@ -53,20 +57,19 @@ impl SimRole {
             .as_ref()
             .map(|p| p.name.as_str())
             .unwrap_or("oracle");
-        let video_frames = match &self.render {
-            Some(r) if r.video => assay_sim::VIDEO_FRAMES,
-            _ => 0,
-        };
-        let mut observer = self.render.as_ref().map(|role| RoleObserver {
-            role,
-            shard: a.shard_id,
-        });
-        // A dynamics clip is drawn by the render role; a worker without it has no imagery.
-        let clip_size = if self.render.is_some() {
-            a.clip_size
+        // The batch wants the episode's pictures (a clip is pictures too): drawn here when this
+        // worker renders, else by a render worker from the scenes this returns.
+        let pictures = a.render || a.clip_size > 0;
+        let video_frames = if pictures && self.video {
+            assay_sim::VIDEO_FRAMES
         } else {
             0
         };
+        let mut observer = self.render.as_deref().map(|role| RoleObserver {
+            role,
+            shard: a.shard_id,
+        });
+        let clip_size = a.clip_size;
         // Every policy but the built-in oracle is a policy object, made for this episode: a
         // remote server is health-checked here, a model is loaded from this worker or the
         // artifact store.
@@ -118,16 +121,41 @@ impl SimRole {
         self.counters
             .frames
             .fetch_add(ep.observations, Ordering::Relaxed);
-        if let Some(render) = &self.render {
-            let video_frames = ep.video.len();
-            let clip_frames = ep.clip.as_ref().map_or(0, |c| c.len());
-            let imagery = render.imagery(&spec, a.shard_id, ep, clip_size, artifact_root)?;
-            self.counters.frames.fetch_add(
-                (imagery.views.len() + imagery.keyframes.len() + video_frames + clip_frames) as u64,
-                Ordering::Relaxed,
-            );
-            outcome.imagery = Some(imagery);
+        if pictures {
+            let scenes = scenes_of(ep);
+            match &self.render {
+                Some(render) => {
+                    outcome.imagery = Some(render.draw(
+                        &spec,
+                        a.shard_id,
+                        scenes,
+                        clip_size,
+                        artifact_root,
+                        &self.counters,
+                    )?);
+                }
+                // The coordinator queues the episode for a render worker.
+                None => outcome.scenes = Some(scenes),
+            }
         }
         serde_json::to_string(&outcome).map_err(|e| ShardError::retryable(e.to_string()))
+    }
+}
+
+/// What an episode's pictures are drawn from.
+fn scenes_of(ep: assay_sim::Episode) -> EpisodeScenes {
+    EpisodeScenes {
+        initial: ep.initial,
+        initial_step: ep.initial_step,
+        keyframes: ep.keyframes,
+        keyframe_goals: ep.keyframe_goals,
+        video: ep.video,
+        clip: ep.clip.map(|c| ClipScenes {
+            interval_s: c.interval_s,
+            steps: c.steps,
+            scenes: c.scenes,
+            proprio: c.proprio,
+            actions: c.actions,
+        }),
     }
 }

@@ -16,6 +16,10 @@ pub struct Counters {
     pub frames: AtomicU64,
     pub judged: AtomicU64,
     pub trained: AtomicU64,
+    pub rendered: AtomicU64,
+    /// Pictures a judge read over shared memory, and from the artifact store.
+    pub frames_shared: AtomicU64,
+    pub frames_stored: AtomicU64,
 }
 
 /// Publishes this worker's statistics every second on `assay/<cluster>/workers/<worker>/stats`,
@@ -77,6 +81,9 @@ pub(crate) async fn publish_stats(
             episodes_failed: counters.failed.load(Ordering::Relaxed),
             judged: counters.judged.load(Ordering::Relaxed),
             trained: counters.trained.load(Ordering::Relaxed),
+            rendered: counters.rendered.load(Ordering::Relaxed),
+            frames_from_shared_memory: counters.frames_shared.load(Ordering::Relaxed),
+            frames_from_store: counters.frames_stored.load(Ordering::Relaxed),
             leases_held: counters.running.load(Ordering::Relaxed),
             lease_capacity: capacity,
             physics_steps_per_s: (steps - last_steps) as f64 / dt,

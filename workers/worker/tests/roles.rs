@@ -124,7 +124,7 @@ fn shards_a_role_cannot_run_fail_for_good_and_say_why() {
 }
 
 #[test]
-fn unknown_roles_and_render_without_sim_are_refused_before_any_connection() {
+fn unknown_roles_are_refused_before_any_connection() {
     let bad = |roles: &[&str]| {
         Worker::new(Options {
             roles: roles.iter().map(|r| (*r).to_owned()).collect(),
@@ -135,5 +135,50 @@ fn unknown_roles_and_render_without_sim_are_refused_before_any_connection() {
         .unwrap_or_default()
     };
     assert!(bad(&["painter"]).contains("unknown role 'painter'"));
-    assert!(bad(&["render"]).contains("render together with sim"));
+}
+
+#[test]
+fn a_render_worker_draws_what_a_sim_only_worker_simulated_as_a_sim_render_worker_would() {
+    let rt = runtime();
+    let root = tempfile::tempdir().unwrap();
+    let spec = example("stacking/bbsea-stack-green-cube-on-red-cube.yaml");
+    let mut shard = sim_shard(spec.clone(), 3, "oracle");
+    shard.render = true;
+    // In one process.
+    let both = roles(&["sim", "render"], &rt);
+    let whole: EpisodeOutcome =
+        serde_json::from_str(&both.run(&shard, root.path()).unwrap()).unwrap();
+    assert!(whole.scenes.is_none());
+    let imagery = whole
+        .imagery
+        .clone()
+        .expect("pictures drawn in the process");
+    // Apart: the sim-only worker returns the scenes, the render worker draws from them.
+    let sim = roles(&["sim"], &rt);
+    let simulated: EpisodeOutcome =
+        serde_json::from_str(&sim.run(&shard, root.path()).unwrap()).unwrap();
+    assert!(simulated.imagery.is_none());
+    assert!(
+        simulated.scenes.is_some(),
+        "the scenes travel to a render worker"
+    );
+    let render = roles(&["render"], &rt);
+    let mut render_shard = shard.clone();
+    render_shard.role = pb::Role::Render as i32;
+    render_shard.input_json = serde_json::to_string(&simulated).unwrap();
+    let drawn: EpisodeOutcome =
+        serde_json::from_str(&render.run(&render_shard, root.path()).unwrap()).unwrap();
+    assert_eq!(
+        drawn, whole,
+        "the same episode and the same pictures, byte for byte"
+    );
+    assert_eq!(drawn.imagery.unwrap(), imagery);
+    // A render-only worker runs no episode.
+    let err = render.run(&shard, root.path()).unwrap_err();
+    assert!(err.to_string().contains("does not hold the role"), "{err}");
+    // Without the render flag, no pictures are asked for and none are drawn.
+    shard.render = false;
+    let plain: EpisodeOutcome =
+        serde_json::from_str(&both.run(&shard, root.path()).unwrap()).unwrap();
+    assert!(plain.imagery.is_none() && plain.scenes.is_none());
 }
