@@ -7,6 +7,7 @@ use std::path::Path;
 use std::time::{Duration, Instant};
 
 use crate::common::*;
+use assay_proto::v1 as pb;
 
 fn stream(name: &str) -> String {
     // Streams are node-wide: keep concurrent test runs apart.
@@ -213,13 +214,22 @@ fn render_run(name: &str, policy: &str, frames: u64) -> RenderRun {
         dir.path(),
     );
     let report = runtime().block_on(async {
-        let b = submit_for(
-            &addr,
-            &["tests/fixtures/small/small-stack-two-blocks.yaml"],
-            1,
-            policy,
-        )
-        .await;
+        let mut c = client(&addr).await;
+        let b = c
+            .submit_batch(pb::SubmitBatchRequest {
+                name: "test".into(),
+                tasks: documents(&["tests/fixtures/small/small-stack-two-blocks.yaml"]),
+                policies: vec![pb::PolicyRef {
+                    name: policy.into(),
+                }],
+                seeds: vec![0],
+                // The episode's pictures are wanted (no judge asks for them here).
+                render: true,
+                ..Default::default()
+            })
+            .await
+            .unwrap()
+            .into_inner();
         wait_for(&addr, &b.batch_id, Duration::from_secs(120), finished).await;
         crate::common::report(&addr, &b.batch_id).await
     });

@@ -172,7 +172,7 @@ fn serve(server: ArtifactServer, inserts: mpsc::Receiver<(Address, Vec<u8>)>, bu
             }
         }
         if !busy {
-            std::thread::sleep(Duration::from_micros(500));
+            std::thread::sleep(Duration::from_millis(2));
         }
     }
 }
