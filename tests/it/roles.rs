@@ -78,8 +78,7 @@ fn last_stats(top: &Proc, worker: &str) -> serde_json::Value {
         .filter(|l| l.starts_with("{\"key\""))
         .filter_map(|l| serde_json::from_str::<serde_json::Value>(l).ok())
         .filter(|v| v["key"].as_str().is_some_and(|k| k.ends_with("/stats")))
-        .filter(|v| v["value"]["worker"] == worker)
-        .last()
+        .rfind(|v| v["value"]["worker"] == worker)
         .map(|v| v["value"].clone())
         .unwrap_or_else(|| panic!("no stats from {worker}:\n{}", top.log_text()))
 }
@@ -98,7 +97,7 @@ fn sim_render_and_judge_workers_apart_make_the_report_one_worker_with_every_role
         } else {
             digest % 11
         };
-        Reply::text(&format!("Looked at {} pictures.\nScore: {score}", r.images))
+        Reply::text(format!("Looked at {} pictures.\nScore: {score}", r.images))
     });
     let f = Fixture::start(script).unwrap();
     let root = tempfile::tempdir().unwrap();

@@ -41,13 +41,18 @@ pub fn checkpoint_path(artifacts: &Path, batch: &str, job: &TrainerJob) -> PathB
         .join(format!("{}.ckpt", &key[..32]))
 }
 
-/// Runs `job`. `artifacts` is the artifact store's root (clips are read and checkpoints written
-/// there). Text jobs hold `embedders` (the loaded models) while they run; world-model fits of
-/// one worker run side by side.
+/// Reads an artifact by its key: where it is kept (the caller's choice), else the store.
+pub type ArtifactReader<'a> = dyn Fn(&str) -> std::io::Result<Vec<u8>> + 'a;
+
+/// Runs `job`. `artifacts` is the artifact store's root (checkpoints are written there); clips
+/// are read with `read`. Text jobs hold `embedders` (the loaded models) while they run;
+/// world-model fits of one worker run side by side.
+#[allow(clippy::too_many_arguments)]
 pub fn run(
     job: &TrainerJob,
     batch: &str,
     artifacts: &Path,
+    read: &ArtifactReader<'_>,
     embedders: &Mutex<Embedders>,
     policies: &PolicyLoader<'_>,
     world_models: &WorldModelLoader<'_>,
@@ -78,8 +83,8 @@ pub fn run(
             config,
         } => {
             let keys = |e: &[ProxyEpisode]| e.iter().map(|e| e.clip.clone()).collect::<Vec<_>>();
-            let train_clips = load_clips(artifacts, &keys(train))?;
-            let eval_clips = load_clips(artifacts, &keys(eval))?;
+            let train_clips = load_clips(read, &keys(train))?;
+            let eval_clips = load_clips(read, &keys(eval))?;
             let ckpt = checkpoint_path(artifacts, batch, job);
             let resume = std::fs::read(&ckpt).ok();
             let mut save = |step: u64, bytes: &[u8]| -> Result<(), String> {
@@ -141,7 +146,7 @@ pub fn run(
             config,
             checkpoints,
         } => {
-            let loaded = load_clips(artifacts, clips)?;
+            let loaded = load_clips(read, clips)?;
             let mut last = std::time::Instant::now();
             let mut progress = |step: u64, loss: f64| {
                 if last.elapsed().as_secs() >= 30 {
@@ -188,7 +193,7 @@ pub fn run(
             clips,
             config,
         } => {
-            let loaded = load_clips(artifacts, clips)?;
+            let loaded = load_clips(read, clips)?;
             let train_n = (*budget as usize).min(loaded.len());
             let ckpt = checkpoint_path(artifacts, batch, job);
             let resume = std::fs::read(&ckpt).ok();
@@ -220,11 +225,11 @@ pub fn run(
     }
 }
 
-/// Reads and decodes the clips at `keys` in the artifact store.
-fn load_clips(artifacts: &Path, keys: &[String]) -> Result<Vec<Clip>, JobError> {
+/// Reads and decodes the clips at `keys`.
+fn load_clips(read: &ArtifactReader<'_>, keys: &[String]) -> Result<Vec<Clip>, JobError> {
     let mut loaded = Vec::with_capacity(keys.len());
     for key in keys {
-        let bytes = std::fs::read(artifacts.join(key)).map_err(|e| JobError {
+        let bytes = read(key).map_err(|e| JobError {
             message: format!("dynamics clip {key}: {e}"),
             retryable: true,
         })?;

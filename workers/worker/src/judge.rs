@@ -98,13 +98,11 @@ impl JudgeRole {
 }
 
 /// The episode's pictures and caption that a process of this node keeps in memory (the render
-/// role that drew them), read over shared memory and checked against their content addresses.
-/// What is not found there (drawn on another node, no longer kept, or its process gone) is read
-/// from the artifact store, where every picture was written before its episode was reported.
+/// role that drew them). One process keeps all of an episode's pictures: after one miss the rest
+/// are read from the artifact store without asking again.
 fn held_on_this_node(
     episode: &assay_model::episode::EpisodeOutcome,
 ) -> std::collections::HashMap<String, Vec<u8>> {
-    use std::time::Duration;
     let mut held = std::collections::HashMap::new();
     let Some(imagery) = &episode.imagery else {
         return held;
@@ -115,33 +113,13 @@ fn held_on_this_node(
         .map(|v| v.artifact.as_str())
         .chain(imagery.keyframes.iter().map(|k| k.artifact.as_str()))
         .chain(imagery.caption.as_deref());
-    // iceoryx2 ports belong to the thread that made them: this shard's.
-    static READERS: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
-    let reader = assay_framebus::FrameBus::open(&format!(
-        "assay-judge-{}-{}",
-        std::process::id(),
-        READERS.fetch_add(1, Ordering::Relaxed)
-    ))
-    .and_then(|bus| Ok((bus.artifact_reader()?, bus)));
-    let (reader, _bus) = match reader {
-        Ok(r) => r,
-        Err(e) => {
-            tracing::debug!(error = %e, "no shared memory: reading the artifact store");
-            return held;
-        }
-    };
+    let node = crate::kept::NodeArtifacts::open();
     for key in keys {
-        match reader.fetch(key, Duration::from_millis(500)) {
-            Ok(Some(bytes)) => {
+        match node.kept(key) {
+            Some(bytes) => {
                 held.insert(key.to_owned(), bytes);
             }
-            // One process keeps all of an episode's pictures: one miss, and the rest are
-            // read from the artifact store without asking again.
-            Ok(None) => break,
-            Err(e) => {
-                tracing::debug!(error = %e, key, "shared memory read failed");
-                break;
-            }
+            None => break,
         }
     }
     held

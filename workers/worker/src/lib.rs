@@ -20,6 +20,7 @@ use assay_render::Renderer;
 use assay_worker_runtime::{ShardError, ShardHandler, WorkerConfig, default_worker_id, run_worker};
 
 pub mod judge;
+mod kept;
 pub mod relay;
 pub mod render;
 pub mod sim;
@@ -130,7 +131,7 @@ impl ShardHandler for Roles {
             (Ok(pb::Role::Trainer), _, _) if self.trainer.is_some() => {
                 let trainer = self.trainer.as_ref().expect("checked");
                 self.counters.running.fetch_add(1, Ordering::Relaxed);
-                let result = trainer.run(a, artifact_root);
+                let result = trainer.run(a, artifact_root, &self.counters);
                 self.counters.running.fetch_sub(1, Ordering::Relaxed);
                 if result.is_ok() {
                     self.counters.trained.fetch_add(1, Ordering::Relaxed);

@@ -1,20 +1,21 @@
 //! The render role: one thread owns the device (a GPU, or lavapipe) and this worker's frame-bus
 //! stream `<worker-id>/imagery`; shard threads send it episodes and wait for their pictures, and a
-//! seeing policy's frames while its episode runs.
+//! seeing policy's frames while its episode runs. Alone in a worker it runs render shards: the
+//! pictures of episodes sim-only workers simulated, from their scene states. What it stores it
+//! also keeps in memory for the node's judges (`assay_framebus::cache`).
 //!
 //! Owns: the render thread, the frame-bus samples it draws into, storing pictures, captions,
 //! videos and clips in the artifact store. Never runs physics or talks to the coordinator.
 
 use std::path::Path;
+use std::sync::atomic::Ordering;
 
 use assay_model::episode::{ClipScenes, EpisodeImagery, EpisodeScenes, Keyframe, NamedArtifact};
+use assay_proto::v1 as pb;
 use assay_render::Renderer;
 use assay_render::imagery::Shot;
 use assay_spec::scene::{Observation, SceneSnapshot, task_cameras};
 use assay_spec::spec::{Camera, TaskSpec};
-use std::sync::atomic::Ordering;
-
-use assay_proto::v1 as pb;
 use assay_worker_runtime::{ShardError, artifacts};
 
 use crate::io_error;
@@ -236,9 +237,7 @@ impl RenderRole {
             None => None,
         };
         let clip = match rendered.clip {
-            Some(c) => Some(
-                artifacts::put(root, "clips", "clip", &c.encode()).map_err(io_error("clips"))?,
-            ),
+            Some(c) => Some(self.put(root, "clips", "clip", c.encode())?),
             None => None,
         };
         let caption = serde_json::to_vec_pretty(&rendered.caption)

@@ -43,7 +43,12 @@ impl TrainerRole {
         }
     }
 
-    pub fn run(&self, a: &pb::Assignment, root: &Path) -> Result<String, ShardError> {
+    pub fn run(
+        &self,
+        a: &pb::Assignment,
+        root: &Path,
+        counters: &crate::telemetry::Counters,
+    ) -> Result<String, ShardError> {
         let job: TrainerJob = serde_json::from_str(&a.input_json).map_err(|e| {
             ShardError::permanent(format!(
                 "trainer shard {}: the job does not parse: {e}",
@@ -68,10 +73,14 @@ impl TrainerRole {
             })?;
             assay_policy::world_model::connect(&server.url, server.timeout_ms, runtime)
         };
+        // Clips are read where they are: kept by a render worker of this node, else stored.
+        let node = crate::kept::NodeArtifacts::open();
+        let read = |key: &str| node.read(root, key, counters);
         let outcome = assay_trainer::jobs::run(
             &job,
             &a.batch_id,
             root,
+            &read,
             &self.embedders,
             &policies,
             &world_models,
