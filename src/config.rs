@@ -2,7 +2,10 @@
 //!
 //! The file's `[eval]`, `[watch]`, `[coordinator]`, `[worker]`, `[submit]`… tables give defaults
 //! to the options of that subcommand; keys are its long flags as written on the command line
-//! (`asset-root`, `judge`; `_` for `-` is accepted). Only the section of the subcommand that runs
+//! (`asset-root`, `judge`; `_` for `-` is accepted) and its positional arguments by name
+//! (`paths`). Nested settings (`world-model`, `proxy`, `rank-ladder`, `generalization`) are
+//! tables (`[eval.world-model]`), handed to the option as JSON and checked, like every value,
+//! while the command line is read — before anything starts. Only the section of the subcommand that runs
 //! is read and checked — a mistake in `[worker]` never stops `assay eval` — and `--help`,
 //! `--version` and `help` read no file at all. A bad key or value is an error naming the file,
 //! the section, the key and the reason. The same file holds `[judges.*]` and `[embedders.*]`,
@@ -16,7 +19,8 @@
 //! or the file accept `1/0`, `true/false`, `yes/no`, `on/off`.
 //!
 //! The file is the subcommand's `--config FILE`, else `$ASSAY_CONFIG`, else `./assay.toml`
-//! when present.
+//! when present. `assay eval` writes the run's resolved configuration ([`resolved`]) to
+//! OUT/config.toml, a file of this form that `--config` reads back.
 
 use std::ffi::OsString;
 use std::path::{Path, PathBuf};
@@ -140,11 +144,19 @@ pub fn layer(
     let Some(values) = values.as_table() else {
         return Err(at(format!("{section} must be a table ([{section}])")));
     };
-    // Keys are the long flags (`asset-root`), `_` accepted for `-`.
+    // Keys are the long flags (`asset-root`), `_` accepted for `-`, and the positional
+    // arguments by name (`paths`).
     let flags: Vec<(String, String)> = sc
         .get_arguments()
         .filter(|a| a.get_id() != "config")
-        .filter_map(|a| a.get_long().map(|l| (l.to_owned(), a.get_id().to_string())))
+        .filter_map(|a| {
+            let id = a.get_id().to_string();
+            match a.get_long() {
+                Some(l) => Some((l.to_owned(), id)),
+                None if a.is_positional() => Some((id.replace('_', "-"), id)),
+                None => None,
+            }
+        })
         .collect();
     let mut defaults: Vec<(String, Vec<String>)> = Vec::new();
     for (key, value) in values {
@@ -166,21 +178,25 @@ pub fn layer(
                 toml::Value::Float(f) => Ok(f.to_string()),
                 toml::Value::Boolean(b) => Ok(b.to_string()),
                 other => Err(at(format!(
-                    "[{section}] {key}: expected a string, number, boolean or a list of them, \
-                     not {}",
+                    "[{section}] {key}: expected a string, number, boolean, a list of them or a \
+                     table, not {}",
                     other.type_str()
                 ))),
             }
         };
         let list: Vec<String> = match value {
             toml::Value::Array(items) => items.iter().map(scalar).collect::<Result<_, _>>()?,
+            // A nested setting (`[eval.world-model]`): the option takes it as JSON, and checks
+            // it when the command line is read, before anything starts.
+            toml::Value::Table(t) => vec![serde_json::to_string(t).map_err(|e| at(e.to_string()))?],
             v => vec![scalar(v)?],
         };
         defaults.push((id.clone(), list));
     }
     cmd = cmd.mut_subcommand(section, |mut sc| {
         for (id, list) in defaults {
-            sc = sc.mut_arg(id, |a| a.default_values(list));
+            // A positional the file gives is no longer required on the command line.
+            sc = sc.mut_arg(id, |a| a.required(false).default_values(list));
         }
         sc
     });
@@ -225,6 +241,115 @@ pub fn blame(file: Option<&Path>, section: Option<&str>, err: &clap::Error) -> O
         "configuration file {}: [{section}] {key} = {shown}",
         path.display()
     ))
+}
+
+/// Options a resolved configuration leaves out: the file itself, and what only makes sense once.
+const NOT_RESOLVED: &[&str] = &["config", "force", "help", "version"];
+
+/// The resolved configuration of a `section` run: every option it ran with (from the command
+/// line, the environment, the file or the option's default) as the `[section]` table of a file
+/// that `--config` reads back, the file's `[judges.*]` and `[embedders.*]` tables (the workers
+/// read them from the same file), and the command line in a comment.
+pub fn resolved(
+    cmd: &Command,
+    matches: &clap::ArgMatches,
+    section: &str,
+    file: Option<&Path>,
+    args: &[OsString],
+) -> String {
+    let mut table = toml::Table::new();
+    if let (Some(sc), Some(m)) = (
+        cmd.find_subcommand(section),
+        matches.subcommand_matches(section),
+    ) {
+        for a in sc.get_arguments() {
+            let id = a.get_id().as_str();
+            if NOT_RESOLVED.contains(&id) || m.value_source(id).is_none() {
+                continue;
+            }
+            let Ok(Some(raw)) = m.try_get_raw(id) else {
+                continue;
+            };
+            let mut values: Vec<toml::Value> = raw.map(|v| typed(&v.to_string_lossy())).collect();
+            let many = matches!(a.get_action(), clap::ArgAction::Append)
+                || a.get_value_delimiter().is_some()
+                || a.get_num_args().is_some_and(|r| r.max_values() > 1);
+            let key = a
+                .get_long()
+                .map_or_else(|| id.replace('_', "-"), str::to_owned);
+            match (values.len(), many) {
+                (0, _) => {}
+                (1, false) => {
+                    table.insert(key, values.remove(0));
+                }
+                _ => {
+                    table.insert(key, toml::Value::Array(values));
+                }
+            }
+        }
+    }
+    let mut out = toml::Table::new();
+    out.insert(section.to_owned(), toml::Value::Table(table));
+    let original = file
+        .and_then(|f| std::fs::read_to_string(f).ok())
+        .and_then(|t| toml::from_str::<toml::Table>(&t).ok());
+    for name in OTHER_SECTIONS {
+        if let Some(t) = original.as_ref().and_then(|o| o.get(*name)) {
+            out.insert((*name).to_owned(), t.clone());
+        }
+    }
+    let line: Vec<String> = std::iter::once("assay".to_owned())
+        .chain(
+            args.iter()
+                .skip(1)
+                .map(|a| shell_word(&a.to_string_lossy())),
+        )
+        .collect();
+    let cwd = std::env::current_dir()
+        .map(|d| d.display().to_string())
+        .unwrap_or_default();
+    format!(
+        "# The resolved configuration of this run: `assay {section} --config THIS_FILE` runs it again\n\
+         # (flags still win: add --out DIR to run it into another folder). Relative paths are\n\
+         # relative to the folder the run started in.\n\
+         # Command line: {}\n\
+         # Started in: {cwd}\n\n{}",
+        line.join(" "),
+        toml::to_string_pretty(&out).unwrap_or_default()
+    )
+}
+
+/// A command-line value as TOML: JSON objects (nested settings) as tables, integers, floats and
+/// booleans as themselves, anything else as a string (the option parses it either way).
+fn typed(v: &str) -> toml::Value {
+    if v.starts_with('{')
+        && let Ok(serde_json::Value::Object(o)) = serde_json::from_str::<serde_json::Value>(v)
+        && let Ok(toml::Value::Table(t)) = toml::Value::try_from(serde_json::Value::Object(o))
+    {
+        return toml::Value::Table(t);
+    }
+    if let Ok(i) = v.parse::<i64>()
+        && i.to_string() == v
+    {
+        return toml::Value::Integer(i);
+    }
+    match v {
+        "true" => toml::Value::Boolean(true),
+        "false" => toml::Value::Boolean(false),
+        _ => toml::Value::String(v.to_owned()),
+    }
+}
+
+/// `w` quoted for a POSIX shell when it needs to be.
+fn shell_word(w: &str) -> String {
+    if !w.is_empty()
+        && w.chars()
+            .all(|c| c.is_ascii_alphanumeric() || "-_./=:,@+".contains(c))
+    {
+        w.to_owned()
+    } else {
+        format!("'{}'", w.replace('\'', "'\\''"))
+    }
 }
 
 #[cfg(test)]
@@ -401,7 +526,10 @@ mod tests {
             e.contains("[run] has no option 'wokers'") && e.contains("workers"),
             "{e}"
         );
+        // A table is a nested setting (JSON to the option), which a number refuses.
         let e = parse(Some("[run]\nworkers = { a = 1 }\n"), &["run"]).unwrap_err();
+        assert!(e.contains("'{\"a\":1}'") && e.contains("--workers"), "{e}");
+        let e = parse(Some("[run]\nworkers = 2024-01-01\n"), &["run"]).unwrap_err();
         assert!(e.contains("workers: expected a string"), "{e}");
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("assay.toml");
@@ -417,5 +545,117 @@ mod tests {
         );
         let e = parse(Some("run = 3"), &["run"]).unwrap_err();
         assert!(e.contains("must be a table"), "{e}");
+    }
+
+    /// The real command line with `file` as its configuration file.
+    fn eval_matches(file: &str, args: &[&str]) -> (Command, Result<clap::ArgMatches, String>) {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("assay.toml");
+        std::fs::write(&path, file).unwrap();
+        let cmd = layer(crate::Cli::command(), Some(&path), Some("eval")).unwrap();
+        let m = cmd.clone().try_get_matches_from(args).map_err(|e| {
+            let said = blame(Some(&path), Some("eval"), &e).unwrap_or_default();
+            format!("{said}\n{e}")
+        });
+        (cmd, m)
+    }
+
+    #[test]
+    fn nested_settings_are_tables_checked_before_anything_starts() {
+        let file = "[eval]\npaths = [\"examples/tasks\"]\n\
+                    [eval.world-model]\nsteps = 300\nimage_size = 32\n\
+                    [eval.generalization]\nepisodes = 10\nconfig = { steps = 200 }\n";
+        let (_, m) = eval_matches(file, &["assay", "eval"]);
+        let m = m.unwrap();
+        let Some(("eval", sub)) = m.subcommand() else {
+            panic!("no eval")
+        };
+        let wm: serde_json::Value =
+            serde_json::from_str(sub.get_one::<String>("world_model").unwrap()).unwrap();
+        assert_eq!(wm, serde_json::json!({"steps": 300, "image_size": 32}));
+        let g: serde_json::Value =
+            serde_json::from_str(sub.get_one::<String>("generalization").unwrap()).unwrap();
+        assert_eq!(g["config"]["steps"], 200);
+        // A misspelt key deep inside a table: refused while the command line is read, naming
+        // the file, the key and serde's reason with the field's path.
+        let bad = "[eval]\npaths = [\"x\"]\n[eval.generalization]\nconfig = { stepz = 200 }\n";
+        let e = eval_matches(bad, &["assay", "eval"]).1.unwrap_err();
+        assert!(
+            e.contains("configuration file ")
+                && e.contains("[eval] generalization")
+                && e.contains("config.stepz: unknown field `stepz`"),
+            "{e}"
+        );
+        let e = eval_matches(
+            "[eval.world-model]\nsteps = \"many\"\n",
+            &["assay", "eval", "x"],
+        )
+        .1
+        .unwrap_err();
+        assert!(e.contains("steps: invalid type: string \"many\""), "{e}");
+        // The same on the command line, without a file.
+        let e = crate::Cli::command()
+            .try_get_matches_from(["assay", "eval", "x", "--proxy", "{\"judge_stepz\": 1}"])
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("unknown field `judge_stepz`"), "{e}");
+    }
+
+    #[test]
+    fn a_resolved_configuration_reads_back_as_the_same_run() {
+        let args = [
+            "assay",
+            "eval",
+            "examples/tasks/stacking",
+            "--seeds",
+            "2",
+            "--policy",
+            "oracle",
+            "--policy",
+            "oracle:noise=0.02",
+            "--world-model",
+            "{\"steps\": 10, \"image_size\": 32}",
+            "--dynamics-budgets",
+            "2,4",
+            "--out",
+            "runs/first",
+            "--force",
+        ];
+        let (cmd, m) = eval_matches("[judges.x]\nbackend = \"offline\"\n", &args);
+        let dir = tempfile::tempdir().unwrap();
+        let original = dir.path().join("original.toml");
+        std::fs::write(&original, "[judges.x]\nbackend = \"offline\"\n").unwrap();
+        let os: Vec<OsString> = args.iter().map(OsString::from).collect();
+        let first = resolved(&cmd, &m.unwrap(), "eval", Some(&original), &os);
+        assert!(first.contains("# Command line: assay eval examples/tasks/stacking --seeds 2"));
+        assert!(
+            first.contains("'{\"steps\": 10, \"image_size\": 32}'"),
+            "{first}"
+        );
+        let t: toml::Table = toml::from_str(&first).unwrap();
+        assert_eq!(t["eval"]["seeds"].as_integer(), Some(2));
+        assert_eq!(t["eval"]["world-model"]["steps"].as_integer(), Some(10));
+        assert_eq!(
+            t["eval"]["paths"][0].as_str(),
+            Some("examples/tasks/stacking")
+        );
+        assert_eq!(t["judges"]["x"]["backend"].as_str(), Some("offline"));
+        assert!(t["eval"].get("force").is_none(), "--force is not repeated");
+        // Read back, the file gives the same run, and resolves to the same file.
+        let (cmd, m) = eval_matches(&first, &["assay", "eval"]);
+        let again = resolved(
+            &cmd,
+            &m.unwrap(),
+            "eval",
+            Some(&original),
+            &["assay", "eval"].map(OsString::from),
+        );
+        let body = |s: &str| {
+            s.lines()
+                .filter(|l| !l.starts_with('#'))
+                .collect::<Vec<_>>()
+                .join("\n")
+        };
+        assert_eq!(body(&again), body(&first));
     }
 }

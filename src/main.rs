@@ -96,7 +96,7 @@ fn main() -> std::process::ExitCode {
             return std::process::ExitCode::FAILURE;
         }
     };
-    let matches = match command.try_get_matches_from(&args) {
+    let matches = match command.clone().try_get_matches_from(&args) {
         Ok(m) => m,
         Err(e) => {
             if let Some(blame) =
@@ -114,7 +114,16 @@ fn main() -> std::process::ExitCode {
     logging::init(&cli.log_format);
     proc::die_with_parent();
     let result = match cli.command {
-        Command::Eval(a) => cmd::eval::run(a),
+        Command::Eval(a) => {
+            let resolved = config::resolved(
+                &command,
+                &matches,
+                "eval",
+                config::file(&args).as_deref(),
+                &args,
+            );
+            cmd::eval::run(a, Some(resolved))
+        }
         #[cfg(feature = "trainer")]
         Command::Watch(a) => cmd::watch::run(a),
         Command::Doctor(a) => cmd::doctor::run(a),

@@ -144,13 +144,14 @@ impl LocalCluster {
         let telemetry = on(lines.next());
         let metrics = on(lines.next());
         let mut workers = Vec::new();
-        for i in 0..plan.workers.max(1) {
-            let mut args: Vec<String> = vec![
+        // A worker of `roles` drawing pictures at the run's size, named `local/<name>`.
+        let drawing = |roles: &str, name: String| -> Vec<String> {
+            vec![
                 "worker".into(),
                 "--coordinator".into(),
                 addr.clone(),
                 "--roles".into(),
-                plan.roles.clone(),
+                roles.to_owned(),
                 "--image-size".into(),
                 plan.image_size.clone(),
                 "--capacity".into(),
@@ -158,8 +159,11 @@ impl LocalCluster {
                 "--node-id".into(),
                 "local".into(),
                 "--worker-id".into(),
-                format!("local/worker-{i}"),
-            ];
+                format!("local/{name}"),
+            ]
+        };
+        for i in 0..plan.workers.max(1) {
+            let mut args = drawing(&plan.roles, format!("worker-{i}"));
             if plan.video {
                 args.push("--video".into());
             }
@@ -173,21 +177,7 @@ impl LocalCluster {
         }
         let sim_workers = workers.len();
         for i in 0..plan.render_workers {
-            let args: Vec<String> = vec![
-                "worker".into(),
-                "--coordinator".into(),
-                addr.clone(),
-                "--roles".into(),
-                "render".into(),
-                "--image-size".into(),
-                plan.image_size.clone(),
-                "--capacity".into(),
-                plan.capacity.to_string(),
-                "--node-id".into(),
-                "local".into(),
-                "--worker-id".into(),
-                format!("local/render-{i}"),
-            ];
+            let args = drawing("render", format!("render-{i}"));
             let log = run_dir.join(format!("render-{i}.log"));
             let proc = ChildProc::spawn(&format!("render worker {i}"), &args, &log)?;
             workers.push(Supervised::new(proc, args, log));

@@ -30,7 +30,8 @@ pub struct Args {
     /// each; default: the number of CPUs).
     #[arg(long)]
     pub trainer_capacity: Option<u32>,
-    /// Output folder: report.json, report.md, artifacts/, and run/ (job store and process logs).
+    /// Output folder: report.json, report.md, artifacts/, config.toml (this run's resolved
+    /// settings: `--config OUT/config.toml` runs it again), and run/ (job store and process logs).
     /// Run the same command again to continue an interrupted run from its job store; a folder
     /// holding another batch, or one Assay did not make, is refused.
     #[arg(long, default_value = "assay-out")]
@@ -51,7 +52,9 @@ pub struct Args {
     pub quiet: bool,
 }
 
-pub fn run(mut a: Args) -> anyhow::Result<ExitCode> {
+/// Runs the batch. `resolved` is the run's resolved configuration (`crate::config::resolved`),
+/// written to OUT/config.toml once the folder is claimed.
+pub fn run(mut a: Args, resolved: Option<String>) -> anyhow::Result<ExitCode> {
     // Read before anything starts: a bad ratings file fails now, not after the batch.
     let human = a.human.table()?;
     // Read (and import) everything first: the output folder is claimed before anything is
@@ -131,6 +134,10 @@ pub fn run(mut a: Args) -> anyhow::Result<ExitCode> {
     req.asset_roots = crate::docs::root_strings(&roots);
     req.render = rendering;
     let claim = crate::outdir::claim(&a.out, &crate::outdir::batch_key(&req), a.force)?;
+    if let Some(resolved) = resolved {
+        let path = a.out.join("config.toml");
+        std::fs::write(&path, resolved).with_context(|| format!("writing {}", path.display()))?;
+    }
     for (k, (path, batch)) in imported.iter().enumerate() {
         let pipeline = a.import.expect("imported with a pipeline");
         print!("{}", batch.report());

@@ -67,34 +67,89 @@ pub struct BatchArgs {
     /// (e.g. 10,20,40), evaluated on the group's first max(budgets) episodes.
     #[arg(long = "dynamics-budgets", value_delimiter = ',')]
     pub dynamics_budgets: Vec<u32>,
-    /// World-model settings as JSON (fields of assay-model DynamicsConfig, e.g. '{"steps": 2000}').
-    #[arg(long = "world-model")]
+    /// World-model settings as JSON (fields of assay-model DynamicsConfig, e.g. '{"steps": 2000}');
+    /// in the configuration file a table (`[eval.world-model]`).
+    #[arg(long = "world-model", value_parser = setting::<assay_model::dynamics::DynamicsConfig>)]
     pub world_model: Option<String>,
     /// Rank the batch's policies with a world-model proxy trained on the episodes of these
     /// policies (comma-separated; they must be among --policies and are not ranked themselves).
     #[arg(long = "rank-train-policies", value_delimiter = ',')]
     pub rank_train_policies: Vec<String>,
     /// Proxy settings as JSON (fields of assay-model ProxyConfig, e.g.
-    /// '{"judge_steps": 600, "world_model": {"steps": 2000}}').
-    #[arg(long = "proxy", requires = "rank_train_policies")]
+    /// '{"judge_steps": 600, "world_model": {"steps": 2000}}'); in the file `[eval.proxy]`.
+    #[arg(
+        long = "proxy",
+        requires = "rank_train_policies",
+        value_parser = setting::<assay_model::proxy::ProxyConfig>
+    )]
     pub proxy: Option<String>,
     /// Rank a ladder of learned policies too (the world model ranks checkpoints, as the paper
     /// does): per task group, diffusion policies trained on the first N episodes of one policy
     /// and kept at several training steps, each run on the group's tasks and seeds. Optional JSON
     /// settings over the defaults (fields of assay-model LadderPlan, e.g. '{"train_policy":
-    /// "oracle", "episodes": [10, 40], "checkpoints": [300, 1000, 3000], "max_steps": 6000}').
+    /// "oracle", "episodes": [10, 40], "checkpoints": [300, 1000, 3000], "max_steps": 6000}');
+    /// in the file `[eval.rank-ladder]`.
     #[arg(
         long = "rank-ladder",
         num_args = 0..=1,
         default_missing_value = "{}",
-        requires = "rank_train_policies"
+        requires = "rank_train_policies",
+        value_parser = setting::<assay_model::proxy::LadderPlan>
     )]
     pub rank_ladder: Option<String>,
     /// Generalization: train a diffusion policy per task group on its oracle episodes and run it
     /// on training and held-out variations. Optional JSON settings (fields of assay-model
-    /// GeneralizationPlan, e.g. '{"episodes": 40, "held_out_seeds": 3, "config": {"steps": 3000}}').
-    #[arg(long = "generalization", num_args = 0..=1, default_missing_value = "{}")]
+    /// GeneralizationPlan, e.g. '{"episodes": 40, "held_out_seeds": 3, "config": {"steps": 3000}}');
+    /// in the file `[eval.generalization]`.
+    #[arg(
+        long = "generalization",
+        num_args = 0..=1,
+        default_missing_value = "{}",
+        value_parser = setting::<assay_model::generalization::GeneralizationPlan>
+    )]
     pub generalization: Option<String>,
+}
+
+/// A nested setting of a batch, with the coordinator's own check of it.
+trait Setting: serde::de::DeserializeOwned {
+    fn check(&self) -> Result<(), String> {
+        Ok(())
+    }
+}
+
+impl Setting for assay_model::dynamics::DynamicsConfig {}
+
+impl Setting for assay_model::proxy::ProxyConfig {
+    fn check(&self) -> Result<(), String> {
+        self.validate()
+    }
+}
+
+impl Setting for assay_model::proxy::LadderPlan {
+    fn check(&self) -> Result<(), String> {
+        self.validate()
+    }
+}
+
+impl Setting for assay_model::generalization::GeneralizationPlan {
+    fn check(&self) -> Result<(), String> {
+        self.validate()
+    }
+}
+
+/// A nested setting: JSON that must read as a `T` and pass its check (unknown fields, wrong
+/// types and values the coordinator would refuse are refused here, before anything starts, with
+/// the field's path and the reason), passed on as given.
+fn setting<T: Setting>(s: &str) -> Result<String, String> {
+    let mut de = serde_json::Deserializer::from_str(s);
+    match serde_path_to_error::deserialize::<_, T>(&mut de) {
+        Ok(t) => t.check().map(|()| s.to_owned()),
+        Err(e) if e.path().iter().next().is_none() => Err(e.into_inner().to_string()),
+        Err(e) => {
+            let path = e.path().to_string();
+            Err(format!("{path}: {}", e.into_inner()))
+        }
+    }
 }
 
 fn parse_template(s: &str) -> Result<(String, String), String> {

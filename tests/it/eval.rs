@@ -334,23 +334,41 @@ fn invalid_specs_are_reported_by_task_field_and_reason_and_the_rest_runs() {
 #[test]
 fn the_same_batch_twice_gives_identical_results() {
     let (a, b) = (tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap());
-    for d in [&a, &b] {
-        let out = eval(
-            &[
-                "tests/fixtures/small",
-                "examples/tasks/piles/push-block-pile-into-zone.yaml",
-            ],
-            "3",
-            d.path(),
-            // Diversity included (short fits): world models are seeded and deterministic.
-            &["--world-model", r#"{"steps": 30}"#],
-        );
-        assert!(
-            out.status.success(),
-            "{}",
-            String::from_utf8_lossy(&out.stderr)
-        );
-    }
+    let out = eval(
+        &[
+            "tests/fixtures/small",
+            "examples/tasks/piles/push-block-pile-into-zone.yaml",
+        ],
+        "3",
+        a.path(),
+        // Diversity included (short fits): world models are seeded and deterministic.
+        &["--world-model", r#"{"steps": 30}"#],
+    );
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    // The second time from the first run's resolved configuration alone (into another folder).
+    let resolved = a.path().join("config.toml");
+    let written = std::fs::read_to_string(&resolved).unwrap();
+    assert!(
+        written.contains("[eval.world-model]") && written.contains("steps = 30"),
+        "{written}"
+    );
+    let out = Command::new(bin())
+        .args(["eval", "--config"])
+        .arg(&resolved)
+        .arg("--out")
+        .arg(b.path())
+        .current_dir(repo())
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let (ra, rb) = (read_report(a.path()), read_report(b.path()));
     assert_eq!(
         serde_json::to_string_pretty(&ra.results).unwrap(),
@@ -358,6 +376,35 @@ fn the_same_batch_twice_gives_identical_results() {
     );
     // Timings and ids are the only difference.
     assert_ne!(ra.run.submitted_at_unix_ms, 0);
+}
+
+#[test]
+fn a_malformed_nested_setting_is_refused_before_anything_starts() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = dir.path().join("lab.toml");
+    std::fs::write(
+        &config,
+        "[eval]\nseeds = 2\n\n[eval.world-model]\nsteps = 300\nimage_sise = 32\n",
+    )
+    .unwrap();
+    let out_dir = dir.path().join("out");
+    let out = Command::new(bin())
+        .args(["eval", "tests/fixtures/small", "--config"])
+        .arg(&config)
+        .arg("--out")
+        .arg(&out_dir)
+        .current_dir(repo())
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(
+        err.contains(&format!("configuration file {}", config.display()))
+            && err.contains("[eval] world-model")
+            && err.contains("image_sise: unknown field `image_sise`"),
+        "{err}"
+    );
+    assert!(!out_dir.exists(), "nothing started, nothing written");
 }
 
 /// The shapes and tools of issue 7 through the render role: an articulated drawer (its joint
