@@ -10,6 +10,7 @@ pub mod config;
 pub mod error;
 pub mod metrics;
 pub mod service;
+pub mod settings;
 pub mod store;
 
 use std::future::Future;

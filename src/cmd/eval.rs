@@ -133,6 +133,9 @@ pub fn run(mut a: Args, resolved: Option<String>) -> anyhow::Result<ExitCode> {
         .request(docs, &super::submit::default_name(&a.paths));
     req.asset_roots = crate::docs::root_strings(&roots);
     req.render = rendering;
+    // The coordinator's own check of the batch's settings, before any process starts.
+    assay_coordinator::settings::check(&req)
+        .map_err(|e| anyhow::anyhow!("the batch's settings: {e}"))?;
     let claim = crate::outdir::claim(&a.out, &crate::outdir::batch_key(&req), a.force)?;
     if let Some(resolved) = resolved {
         let path = a.out.join("config.toml");

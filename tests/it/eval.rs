@@ -405,6 +405,33 @@ fn a_malformed_nested_setting_is_refused_before_anything_starts() {
         "{err}"
     );
     assert!(!out_dir.exists(), "nothing started, nothing written");
+    // Settings that read well but that the coordinator would refuse: refused by the same check,
+    // still before anything starts.
+    let out = Command::new(bin())
+        .args([
+            "eval",
+            "tests/fixtures/small",
+            "--policy",
+            "oracle",
+            "--policy",
+            "oracle:noise=0.02",
+            "--rank-train-policies",
+            "oracle",
+            "--out",
+        ])
+        .arg(&out_dir)
+        .current_dir(repo())
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(
+        err.contains(
+            "the batch's settings: ranking settings: policy \"oracle:noise=0.02\" is ranked"
+        ),
+        "{err}"
+    );
+    assert!(!out_dir.exists(), "nothing started, nothing written");
 }
 
 /// The shapes and tools of issue 7 through the render role: an articulated drawer (its joint

@@ -1,0 +1,235 @@
+//! A batch's settings as the coordinator takes them: its policies, and its dynamics, ranking and
+//! generalization plans, each checked against the others. `assay eval` runs the same check before
+//! it starts a process, so a plan the coordinator would refuse never costs a cluster start.
+//!
+//! Owns: parsing and checking the settings of a `SubmitBatchRequest`. Never reads task documents
+//! (the planner does) or the store.
+
+use assay_model::dynamics::DynamicsConfig;
+use assay_model::generalization::GeneralizationPlan;
+use assay_model::policy::PolicySpec;
+use assay_model::proxy::RankingPlan;
+use assay_proto::v1 as pb;
+
+use crate::store::DynamicsPlan;
+
+/// The settings of a batch that passed [`check`].
+#[derive(Debug)]
+pub struct Settings {
+    /// The policies (`oracle` when the request names none).
+    pub policies: Vec<String>,
+    pub dynamics: Option<DynamicsPlan>,
+    pub ranking: Option<RankingPlan>,
+    pub generalization: Option<GeneralizationPlan>,
+}
+
+/// The request's settings, or what is wrong with them (prefixed with the part it concerns).
+pub fn check(req: &pb::SubmitBatchRequest) -> Result<Settings, String> {
+    let mut policies: Vec<String> = req.policies.iter().map(|p| p.name.clone()).collect();
+    if policies.is_empty() {
+        policies.push("oracle".into());
+    }
+    for p in &policies {
+        PolicySpec::parse(p)?;
+    }
+    let dynamics = if req.dynamics_budgets.is_empty() {
+        None
+    } else {
+        let config: DynamicsConfig = if req.dynamics_json.trim().is_empty() {
+            DynamicsConfig::default()
+        } else {
+            serde_json::from_str(&req.dynamics_json)
+                .map_err(|e| format!("dynamics settings: {e}"))?
+        };
+        let mut budgets = req.dynamics_budgets.clone();
+        budgets.sort_unstable();
+        budgets.dedup();
+        if budgets.contains(&0) {
+            return Err("dynamics budgets: every budget must be at least 1 episode".to_owned());
+        }
+        if config.image_size == 0
+            || !config.image_size.is_multiple_of(16)
+            || config.image_size > 256
+        {
+            return Err(format!(
+                "dynamics settings: image_size {} must be a multiple of 16 up to 256",
+                config.image_size
+            ));
+        }
+        Some(DynamicsPlan { budgets, config })
+    };
+    let ranking = if req.ranking_json.trim().is_empty() {
+        None
+    } else {
+        let plan: RankingPlan = serde_json::from_str(&req.ranking_json)
+            .map_err(|e| format!("ranking settings: {e}"))?;
+        check_ranking(&plan, &policies, dynamics.as_ref())
+            .map_err(|e| format!("ranking settings: {e}"))?;
+        Some(plan)
+    };
+    let generalization = if req.generalization_json.trim().is_empty() {
+        None
+    } else {
+        let plan: GeneralizationPlan = serde_json::from_str(&req.generalization_json)
+            .map_err(|e| format!("generalization settings: {e}"))?;
+        plan.validate()
+            .map_err(|e| format!("generalization settings: {e}"))?;
+        if !policies.contains(&plan.train_policy) {
+            return Err(format!(
+                "generalization settings: train_policy {:?} is not one of the batch's policies",
+                plan.train_policy
+            ));
+        }
+        let size = plan.config.image_size;
+        let other = dynamics
+            .as_ref()
+            .map(|d| d.config.image_size)
+            .or(ranking.as_ref().map(|r| r.config.world_model.image_size));
+        if let Some(other) = other.filter(|o| *o != size) {
+            return Err(format!(
+                "generalization settings: config.image_size {size} differs from the clips' {other}"
+            ));
+        }
+        Some(plan)
+    };
+    Ok(Settings {
+        policies,
+        dynamics,
+        ranking,
+        generalization,
+    })
+}
+
+/// What a ranking plan asks that cannot work (the caller prefixes `ranking settings: `): proxy
+/// settings, the clips' size, training policies that are not the batch's, a ranked policy that
+/// is the scripted oracle (it reads the simulator's state, so it cannot act inside a world
+/// model), a ladder that does not fit, and nothing to rank.
+fn check_ranking(
+    plan: &RankingPlan,
+    policies: &[String],
+    dynamics: Option<&DynamicsPlan>,
+) -> Result<(), String> {
+    plan.config.validate()?;
+    let size = plan.config.world_model.image_size;
+    if size == 0 || !size.is_multiple_of(16) || size > 256 {
+        return Err(format!(
+            "world_model.image_size {size} must be a multiple of 16 up to 256"
+        ));
+    }
+    if let Some(d) = dynamics.filter(|d| d.config.image_size != size) {
+        return Err(format!(
+            "world_model.image_size {size} differs from the dynamics clips' {}",
+            d.config.image_size
+        ));
+    }
+    if plan.train_policies.is_empty() {
+        return Err("train_policies is empty (the world model trains on their episodes)".into());
+    }
+    if let Some(p) = plan.train_policies.iter().find(|p| !policies.contains(p)) {
+        return Err(format!(
+            "training policy {p:?} is not one of the batch's policies"
+        ));
+    }
+    let ranked: Vec<&String> = policies
+        .iter()
+        .filter(|p| !plan.train_policies.contains(p))
+        .collect();
+    for p in &ranked {
+        if PolicySpec::parse(p).is_ok_and(|s| s.is_oracle()) {
+            return Err(format!(
+                "policy {p:?} is ranked but is the scripted oracle, which reads the simulator's state \
+                 and cannot act inside a world model; name it in train_policies (it may train the \
+                 world model) or rank a learned policy"
+            ));
+        }
+    }
+    if let Some(ladder) = &plan.ladder {
+        ladder.validate()?;
+        if !policies.contains(&ladder.train_policy) {
+            return Err(format!(
+                "ladder.train_policy {:?} is not one of the batch's policies (the ladder's \
+                 policies imitate its episodes)",
+                ladder.train_policy
+            ));
+        }
+        if ladder.config.image_size != size {
+            return Err(format!(
+                "ladder.config.image_size {} differs from the clips' {size} (world_model.image_size)",
+                ladder.config.image_size
+            ));
+        }
+    }
+    if ranked.is_empty() && plan.ladder.is_none() {
+        return Err(
+            "nothing to rank: every policy trains the proxy and there is no ladder of learned \
+             policies"
+                .into(),
+        );
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use assay_model::proxy::{LadderPlan, ProxyConfig};
+
+    fn plan(train: &[&str], ladder: Option<LadderPlan>) -> RankingPlan {
+        RankingPlan {
+            train_policies: train.iter().map(|p| p.to_string()).collect(),
+            config: ProxyConfig::default(),
+            ladder,
+        }
+    }
+
+    fn names(p: &[&str]) -> Vec<String> {
+        p.iter().map(|p| p.to_string()).collect()
+    }
+
+    #[test]
+    fn a_ranked_oracle_is_refused_naming_it_and_why() {
+        let policies = names(&["oracle", "oracle:noise=0.02", "diffusion:model=m"]);
+        let e = check_ranking(&plan(&["oracle"], None), &policies, None).unwrap_err();
+        assert!(
+            e.contains("policy \"oracle:noise=0.02\" is ranked but is the scripted oracle")
+                && e.contains("cannot act inside a world model")
+                && e.contains("name it in train_policies"),
+            "{e}"
+        );
+        // Training the world model is what an oracle may do; a learned policy is ranked.
+        let ok = plan(&["oracle", "oracle:noise=0.02"], None);
+        assert_eq!(check_ranking(&ok, &policies, None), Ok(()));
+    }
+
+    #[test]
+    fn a_ladder_must_imitate_a_batch_policy_fit_the_clips_and_validate() {
+        let policies = names(&["oracle", "oracle:noise=0.01"]);
+        let train = ["oracle", "oracle:noise=0.01"];
+        // Every policy trains the proxy: with a ladder there is still something to rank.
+        assert_eq!(
+            check_ranking(&plan(&train, Some(LadderPlan::default())), &policies, None),
+            Ok(())
+        );
+        let e = check_ranking(&plan(&train, None), &policies, None).unwrap_err();
+        assert!(e.starts_with("nothing to rank"), "{e}");
+        let elsewhere = LadderPlan {
+            train_policy: "oracle:noise=0.2".into(),
+            ..LadderPlan::default()
+        };
+        let e = check_ranking(&plan(&train, Some(elsewhere)), &policies, None).unwrap_err();
+        assert!(
+            e.contains("ladder.train_policy \"oracle:noise=0.2\" is not one of the batch's"),
+            "{e}"
+        );
+        let short = LadderPlan {
+            episodes: vec![1],
+            ..LadderPlan::default()
+        };
+        let e = check_ranking(&plan(&train, Some(short)), &policies, None).unwrap_err();
+        assert!(e.starts_with("ladder.episodes"), "{e}");
+        let mut other_size = LadderPlan::default();
+        other_size.config.image_size = 32;
+        let e = check_ranking(&plan(&train, Some(other_size)), &policies, None).unwrap_err();
+        assert!(e.contains("ladder.config.image_size 32 differs"), "{e}");
+    }
+}
