@@ -503,6 +503,26 @@ mod tests {
     }
 
     #[test]
+    fn the_demo_profiles_are_valid_for_the_real_command_line() {
+        for name in ["demo", "paper"] {
+            let path = Path::new(env!("CARGO_MANIFEST_DIR")).join(format!("examples/{name}.toml"));
+            let cmd = layer(crate::Cli::command(), Some(&path), Some("eval")).unwrap();
+            let m = cmd
+                .try_get_matches_from(["assay", "eval"])
+                .unwrap_or_else(|e| panic!("{name}: {e}"));
+            let Some(("eval", sub)) = m.subcommand() else {
+                panic!("no eval subcommand");
+            };
+            let paths: Vec<&PathBuf> = sub.get_many::<PathBuf>("paths").unwrap().collect();
+            assert!(
+                paths
+                    .iter()
+                    .all(|p| Path::new(env!("CARGO_MANIFEST_DIR")).join(p).is_dir())
+            );
+        }
+    }
+
+    #[test]
     fn deployment_commands_read_every_option_from_the_environment_and_others_do_not() {
         let cmd = layer(Cli::command(), None, None).unwrap();
         let env = |sub: &str, id: &str| {

@@ -11,6 +11,7 @@ use crate::proc::{ChildProc, wait_for_file};
 /// The local cluster's options, shared by `assay eval` and `assay watch` (flattened into both,
 /// so their flags, defaults and configuration keys are the same).
 #[derive(clap::Args, Debug, Clone)]
+#[command(next_help_heading = "Local cluster")]
 pub struct ClusterArgs {
     /// Sim worker processes to start.
     #[arg(long, default_value_t = 2)]

@@ -23,9 +23,19 @@ pub struct Args {
     #[command(flatten)]
     pub cluster: super::cluster::ClusterArgs,
     /// No diversity (by default: text diversity with minilm, and with rendering, dynamics
-    /// diversity at 10, 20 and 40 episodes per group, on a trainer worker).
-    #[arg(long, conflicts_with_all = ["text_models", "dynamics_budgets"])]
+    /// diversity at the profile's budgets, on a trainer worker).
+    #[arg(
+        long,
+        conflicts_with_all = ["text_models", "dynamics_budgets"],
+        help_heading = "Diversity"
+    )]
     pub no_diversity: bool,
+    /// The size of what is not set explicitly: `quick` — dynamics diversity from world models of
+    /// 200 steps trained on 4 and 8 episodes per group (seconds per fit, curves from few
+    /// episodes) — or `paper` — the paper's 10, 20 and 40 episodes, 2000 steps each (about 2½
+    /// minutes per fit on one core). --dynamics-budgets and --world-model win over either.
+    #[arg(long, value_enum, default_value = "quick", help_heading = "Diversity")]
+    pub profile: Profile,
     /// Training shards the trainer worker runs at once (world-model fits use one CPU thread
     /// each; default: the number of CPUs).
     #[arg(long)]
@@ -34,23 +44,36 @@ pub struct Args {
     /// settings: `--config OUT/config.toml` runs it again), and run/ (job store and process logs).
     /// Run the same command again to continue an interrupted run from its job store; a folder
     /// holding another batch, or one Assay did not make, is refused.
-    #[arg(long, default_value = "assay-out")]
+    #[arg(long, default_value = "assay-out", help_heading = "Output")]
     pub out: PathBuf,
     /// Start this batch in --out even if it holds another batch's run (its run/ is replaced) or
     /// was not made by Assay (nothing but what a run writes is touched).
-    #[arg(long)]
+    #[arg(long, help_heading = "Output")]
     pub force: bool,
     #[command(flatten)]
     pub batch: super::submit::BatchArgs,
     #[command(flatten)]
     pub human: super::report::HumanArgs,
     /// Exit non-zero if any task was invalid or any episode failed with an error.
-    #[arg(long)]
+    #[arg(long, help_heading = "Output")]
     pub strict: bool,
     /// No progress bar (logs a line per change instead).
-    #[arg(long)]
+    #[arg(long, help_heading = "Output")]
     pub quiet: bool,
 }
+
+/// How large the defaults of `assay eval` are (`--profile`).
+#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Profile {
+    /// Minutes on a laptop.
+    Quick,
+    /// The papers' scale.
+    Paper,
+}
+
+/// Dynamics budgets and world-model steps of the `quick` profile.
+const QUICK_BUDGETS: [u32; 2] = [4, 8];
+const QUICK_STEPS: u64 = 200;
 
 /// Runs the batch. `resolved` is the run's resolved configuration (`crate::config::resolved`),
 /// written to OUT/config.toml once the folder is claimed.
@@ -88,7 +111,17 @@ pub fn run(mut a: Args, resolved: Option<String>) -> anyhow::Result<ExitCode> {
             a.batch.text_models.push("minilm".into());
         }
         if a.batch.dynamics_budgets.is_empty() && rendering {
-            a.batch.dynamics_budgets = assay_model::dynamics::DEFAULT_BUDGETS.to_vec();
+            match a.profile {
+                Profile::Quick => {
+                    a.batch.dynamics_budgets = QUICK_BUDGETS.to_vec();
+                    if a.batch.world_model.is_none() {
+                        a.batch.world_model = Some(format!("{{\"steps\": {QUICK_STEPS}}}"));
+                    }
+                }
+                Profile::Paper => {
+                    a.batch.dynamics_budgets = assay_model::dynamics::DEFAULT_BUDGETS.to_vec();
+                }
+            }
         }
     }
     if !a.batch.dynamics_budgets.is_empty() && !rendering {

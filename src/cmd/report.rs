@@ -32,6 +32,7 @@ pub struct Args {
 
 /// Human ratings for the report's judge-agreement view (the paper's figure 3).
 #[derive(clap::Args, Clone, Default)]
+#[command(next_help_heading = "Judging")]
 pub struct HumanArgs {
     /// CSV of human ratings beside the judges' scores of the same items, as `assay agreement`
     /// reads it (a `human` column, one column per judge, optionally `dataset`/`group`).

@@ -23,64 +23,81 @@ pub struct BatchArgs {
     /// Render every episode's pictures (scene views, keyframes, caption, contact sheet) even
     /// without a judge; judges, dynamics budgets, a ranking and generalization imply it. A
     /// rendering batch runs on sim workers with a renderer, or on sim workers and render workers.
-    #[arg(long)]
+    #[arg(long, help_heading = "Batch")]
     pub render: bool,
     /// A folder the tasks may read asset files (URDF, meshes) from, besides the task paths
     /// themselves (repeatable; default: the working folder). A task whose asset root lies
     /// outside them is rejected.
-    #[arg(long = "asset-root", value_name = "DIR")]
+    #[arg(long = "asset-root", value_name = "DIR", help_heading = "Batch")]
     pub asset_roots: Vec<std::path::PathBuf>,
     /// Seeds 0..N per task and policy.
-    #[arg(long, default_value_t = 5)]
+    #[arg(long, default_value_t = 5, help_heading = "Batch")]
     pub seeds: u64,
     /// Explicit seeds (overrides --seeds).
-    #[arg(long, value_delimiter = ',')]
+    #[arg(long, value_delimiter = ',', help_heading = "Batch")]
     pub seed_list: Vec<u64>,
-    /// Policies (oracle, oracle:noise=0.01).
-    #[arg(long = "policy", default_value = "oracle")]
+    /// Policies, repeatable: `oracle[:noise=M][,sense=state|camera]` (the task's scripted plan),
+    /// `openpi:url=ws://HOST:PORT` (an openpi server), `remote:url=http://HOST:PORT` (an
+    /// assay.v1.Policy server), `torchscript:path=FILE.pt` (a TorchScript module),
+    /// `diffusion:model=KEY` (a diffusion policy the cluster trained), `random[:speed=V]`
+    /// (exploration episodes). docs/policies.md has each one's arguments and interface.
+    #[arg(long = "policy", default_value = "oracle", help_heading = "Policies")]
     pub policies: Vec<String>,
     /// A name for the batch (shown in reports).
-    #[arg(long)]
+    #[arg(long, help_heading = "Batch")]
     pub name: Option<String>,
     /// Attempts per shard before it is recorded as failed (0: coordinator default).
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, default_value_t = 0, help_heading = "Batch")]
     pub max_attempts: u32,
     /// Judges that score every rendered episode (names from the judge workers' configuration;
     /// `offline` is built in). Repeat or separate with commas.
-    #[arg(long = "judge", value_delimiter = ',')]
+    #[arg(long = "judge", value_delimiter = ',', help_heading = "Judging")]
     pub judges: Vec<String>,
     /// Times each judge item (scene alignment, completion) is asked.
-    #[arg(long, default_value_t = assay_model::quality::DEFAULT_REPEATS)]
+    #[arg(long, default_value_t = assay_model::quality::DEFAULT_REPEATS, help_heading = "Judging")]
     pub judge_repeats: u32,
     /// Stop making judge calls once this batch's judges have spent this many USD (0: no limit).
-    #[arg(long, default_value_t = 0.0)]
+    #[arg(long, default_value_t = 0.0, help_heading = "Judging")]
     pub judge_budget_usd: f64,
     /// Text diversity of the task texts with these embedding models (built in: minilm, mpnet;
     /// others from the trainer workers' `[embedders.NAME]`). Comma-separated.
-    #[arg(long = "text-models", value_delimiter = ',')]
+    #[arg(
+        long = "text-models",
+        value_delimiter = ',',
+        help_heading = "Diversity"
+    )]
     pub text_models: Vec<String>,
     /// Text embedded per source pipeline, `PIPELINE=TEMPLATE` with {name} and {description}
     /// (default: the paper's GenSim form for GenSim tasks, the description for others).
-    #[arg(long = "text-template", value_parser = parse_template)]
+    #[arg(long = "text-template", value_parser = parse_template, help_heading = "Diversity")]
     pub text_templates: Vec<(String, String)>,
     /// Dynamics diversity: world models per task group trained on these episode budgets
     /// (e.g. 10,20,40), evaluated on the group's first max(budgets) episodes.
-    #[arg(long = "dynamics-budgets", value_delimiter = ',')]
+    #[arg(
+        long = "dynamics-budgets",
+        value_delimiter = ',',
+        help_heading = "Diversity"
+    )]
     pub dynamics_budgets: Vec<u32>,
     /// World-model settings as JSON (fields of assay-model DynamicsConfig, e.g. '{"steps": 2000}');
     /// in the configuration file a table (`[eval.world-model]`).
-    #[arg(long = "world-model", value_parser = setting::<assay_model::dynamics::DynamicsConfig>)]
+    #[arg(long = "world-model", value_parser = setting::<assay_model::dynamics::DynamicsConfig>, help_heading = "Diversity")]
     pub world_model: Option<String>,
     /// Rank the batch's policies with a world-model proxy trained on the episodes of these
     /// policies (comma-separated; they must be among --policies and are not ranked themselves).
-    #[arg(long = "rank-train-policies", value_delimiter = ',')]
+    #[arg(
+        long = "rank-train-policies",
+        value_delimiter = ',',
+        help_heading = "Ranking"
+    )]
     pub rank_train_policies: Vec<String>,
     /// Proxy settings as JSON (fields of assay-model ProxyConfig, e.g.
     /// '{"judge_steps": 600, "world_model": {"steps": 2000}}'); in the file `[eval.proxy]`.
     #[arg(
         long = "proxy",
         requires = "rank_train_policies",
-        value_parser = setting::<assay_model::proxy::ProxyConfig>
+        value_parser = setting::<assay_model::proxy::ProxyConfig>,
+        help_heading = "Ranking"
     )]
     pub proxy: Option<String>,
     /// Rank a ladder of learned policies too (the world model ranks checkpoints, as the paper
@@ -94,7 +111,8 @@ pub struct BatchArgs {
         num_args = 0..=1,
         default_missing_value = "{}",
         requires = "rank_train_policies",
-        value_parser = setting::<assay_model::proxy::LadderPlan>
+        value_parser = setting::<assay_model::proxy::LadderPlan>,
+        help_heading = "Ranking"
     )]
     pub rank_ladder: Option<String>,
     /// Generalization: train a diffusion policy per task group on its oracle episodes and run it
@@ -105,7 +123,8 @@ pub struct BatchArgs {
         long = "generalization",
         num_args = 0..=1,
         default_missing_value = "{}",
-        value_parser = setting::<assay_model::generalization::GeneralizationPlan>
+        value_parser = setting::<assay_model::generalization::GeneralizationPlan>,
+        help_heading = "Generalization"
     )]
     pub generalization: Option<String>,
 }

@@ -86,18 +86,18 @@ fn eval_runs_a_batch_on_a_local_cluster_and_writes_both_reports() {
          worker measured diversity"
     );
     // By default: text diversity with minilm per group and for All, and a world model per group
-    // and budget on the rendered clips.
+    // and budget on the rendered clips (the quick profile's 4 and 8 episodes).
     let d = r.results.diversity.as_ref().expect("diversity");
     let text = d.text.as_ref().expect("text diversity");
     assert_eq!(text.models[0].name, "minilm");
     assert_eq!(text.rows.last().map(|r| r.group.as_str()), Some("All"));
     assert_eq!(text.rows.last().map(|r| r.n), Some(4));
     assert!(!d.dynamics.is_empty(), "{:?}", d.errors);
-    // One task of 3 episodes per group: the 10-episode budget trains on all 3, and the larger
-    // budgets, which would repeat that fit, are not queued.
+    // One task of 3 episodes per group: the 4-episode budget trains on all 3, and the larger
+    // budget, which would repeat that fit, is not queued.
     assert_eq!(d.dynamics.len(), 4, "{:?}", d.errors);
     assert!(d.dynamics.iter().all(|f| f.eval_image_mse.is_finite()
-        && (f.budget, f.train_episodes, f.eval_episodes, f.steps) == (10, 3, 3, 30)));
+        && (f.budget, f.train_episodes, f.eval_episodes, f.steps) == (4, 3, 3, 30)));
     // The embedded default judges every episode with the offline judge: both quality scores
     // for every task.
     let q = r.results.quality.as_ref().expect("quality");
