@@ -4,6 +4,7 @@
 mod cmd;
 mod config;
 mod docs;
+mod episodes_table;
 mod logging;
 mod outdir;
 mod proc;

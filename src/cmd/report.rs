@@ -56,8 +56,8 @@ impl HumanArgs {
     }
 }
 
-/// Writes `report.json`, `report.md` and `report.html` into `out`, and the figures (quality,
-/// ranking) as SVG files beside them. Pictures in report.html come from `artifacts`.
+/// Writes `report.json`, `report.md`, `report.html` and `episodes.parquet` (one row per episode)
+/// into `out`, and the figures (quality, ranking) as SVG files beside them. Pictures in report.html come from `artifacts`.
 pub fn write(
     out: &Path,
     report: &assay_report::report::Report,
@@ -70,6 +70,10 @@ pub fn write(
         format!("{}\n", serde_json::to_string_pretty(report)?),
     )?;
     std::fs::write(out.join("report.md"), report.to_markdown())?;
+    std::fs::write(
+        out.join(crate::episodes_table::EPISODES_TABLE),
+        crate::episodes_table::episodes_parquet(&report.results).map_err(anyhow::Error::msg)?,
+    )?;
     let read = |key: &str| -> Option<Vec<u8>> {
         // Keys are relative paths inside the store; never follow one out of it.
         let rel = Path::new(key);

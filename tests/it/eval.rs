@@ -235,7 +235,7 @@ fn eval_runs_a_batch_on_a_local_cluster_and_writes_both_reports() {
         .iter()
         .find_map(|t| t.episodes.first().map(|e| (t, e)))
         .unwrap();
-    let out = Command::new(python)
+    let out = Command::new(&python)
         .arg(repo().join("tests/python/read_episode.py"))
         .arg(dir.path().join("artifacts").join(&e.artifact))
         .output()
@@ -246,6 +246,57 @@ fn eval_runs_a_batch_on_a_local_cluster_and_writes_both_reports() {
         String::from_utf8_lossy(&out.stderr)
     );
     let py: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    // The flat table beside the report: one row per episode, the report's own values.
+    let table = Command::new(&python)
+        .arg(repo().join("tests/python/read_table.py"))
+        .arg(dir.path().join("episodes.parquet"))
+        .output()
+        .unwrap();
+    assert!(
+        table.status.success(),
+        "{}",
+        String::from_utf8_lossy(&table.stderr)
+    );
+    let table: serde_json::Value = serde_json::from_slice(&table.stdout).unwrap();
+    let rows = table["rows"].as_array().unwrap();
+    assert_eq!(rows.len() as u64, r.results.totals.episodes_planned);
+    let mut from_table: Vec<(String, u64, String, bool, u64, String)> = rows
+        .iter()
+        .map(|row| {
+            (
+                row["task"].as_str().unwrap().to_owned(),
+                row["seed"].as_u64().unwrap(),
+                row["policy"].as_str().unwrap().to_owned(),
+                row["success"].as_bool().unwrap(),
+                row["steps"].as_u64().unwrap(),
+                row["episode"].as_str().unwrap().to_owned(),
+            )
+        })
+        .collect();
+    let mut from_report: Vec<(String, u64, String, bool, u64, String)> = r
+        .results
+        .tasks
+        .iter()
+        .flat_map(|t| {
+            t.episodes.iter().map(|e| {
+                (
+                    t.id.clone(),
+                    e.seed,
+                    e.policy.clone(),
+                    e.success,
+                    e.steps,
+                    format!("artifacts/{}", e.artifact),
+                )
+            })
+        })
+        .collect();
+    from_table.sort();
+    from_report.sort();
+    assert_eq!(from_table, from_report);
+    assert!(rows.iter().all(|row| row["completed"] == true
+        && row["group"].is_string()
+        && dir.path().join(row["episode"].as_str().unwrap()).is_file()));
+    assert_eq!(table["types"][4], "uint64", "seed: {:?}", table["types"]);
     assert_eq!(py["task_id"], task.id.as_str());
     assert_eq!(py["seed"], e.seed);
     assert_eq!(py["success"], e.success);

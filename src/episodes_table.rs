@@ -1,0 +1,174 @@
+//! The flat table of a batch's episodes, `episodes.parquet` beside every report: one row per
+//! planned episode — its task, group, seed and policy, whether it completed and succeeded, its
+//! steps, the episode file, and the error of one that failed — for pandas, polars or DuckDB
+//! (`pd.read_parquet("out/episodes.parquet")`).
+//!
+//! Owns: the table's columns and their Parquet encoding (`cmd::report::write` writes it).
+
+use std::sync::Arc;
+
+use arrow_array::{ArrayRef, BooleanArray, RecordBatch, StringArray, UInt64Array};
+use arrow_schema::{DataType, Field, Schema};
+
+use assay_report::report::Results;
+
+/// The table's file name, beside report.json.
+pub const EPISODES_TABLE: &str = "episodes.parquet";
+
+/// The columns of one row.
+#[derive(Default)]
+struct Columns {
+    task: Vec<String>,
+    task_name: Vec<String>,
+    group: Vec<String>,
+    pipeline: Vec<String>,
+    seed: Vec<u64>,
+    policy: Vec<String>,
+    completed: Vec<bool>,
+    success: Vec<Option<bool>>,
+    label_source: Vec<Option<String>>,
+    steps: Vec<Option<u64>>,
+    cutoff: Vec<Option<String>>,
+    episode: Vec<Option<String>>,
+    error: Vec<Option<String>>,
+}
+
+/// `results`' episodes as a Parquet file: completed episodes first, then failed ones, each in
+/// task order. `episode` is the episode file's path relative to the report's folder
+/// (`artifacts/episodes/<sha256>.arrow`).
+pub fn episodes_parquet(results: &Results) -> Result<Vec<u8>, String> {
+    let mut c = Columns::default();
+    for t in &results.tasks {
+        let task = |c: &mut Columns, seed: u64, policy: &str| {
+            c.task.push(t.id.clone());
+            c.task_name.push(t.name.clone());
+            c.group.push(t.group.clone());
+            c.pipeline.push(t.pipeline.clone());
+            c.seed.push(seed);
+            c.policy.push(policy.to_owned());
+        };
+        for e in &t.episodes {
+            task(&mut c, e.seed, &e.policy);
+            c.completed.push(true);
+            c.success.push(Some(e.success));
+            c.label_source.push(
+                serde_json::to_value(e.label_source)
+                    .ok()
+                    .and_then(|v| v.as_str().map(str::to_owned)),
+            );
+            c.steps.push(Some(e.steps));
+            c.cutoff.push(e.cutoff.clone());
+            c.episode.push(Some(format!("artifacts/{}", e.artifact)));
+            c.error.push(None);
+        }
+        for f in &t.failures {
+            task(&mut c, f.seed, &f.policy);
+            c.completed.push(false);
+            c.success.push(None);
+            c.label_source.push(None);
+            c.steps.push(None);
+            c.cutoff.push(None);
+            c.episode.push(None);
+            c.error.push(Some(if f.cancelled {
+                "cancelled".to_owned()
+            } else {
+                f.error.clone()
+            }));
+        }
+    }
+    let text = |v: Vec<String>| Arc::new(StringArray::from(v)) as ArrayRef;
+    let maybe_text = |v: Vec<Option<String>>| Arc::new(StringArray::from(v)) as ArrayRef;
+    let columns: Vec<(&str, DataType, bool, ArrayRef)> = vec![
+        ("task", DataType::Utf8, false, text(c.task)),
+        ("task_name", DataType::Utf8, false, text(c.task_name)),
+        ("group", DataType::Utf8, false, text(c.group)),
+        ("pipeline", DataType::Utf8, false, text(c.pipeline)),
+        (
+            "seed",
+            DataType::UInt64,
+            false,
+            Arc::new(UInt64Array::from(c.seed)),
+        ),
+        ("policy", DataType::Utf8, false, text(c.policy)),
+        (
+            "completed",
+            DataType::Boolean,
+            false,
+            Arc::new(BooleanArray::from(c.completed)),
+        ),
+        (
+            "success",
+            DataType::Boolean,
+            true,
+            Arc::new(BooleanArray::from(c.success)),
+        ),
+        (
+            "label_source",
+            DataType::Utf8,
+            true,
+            maybe_text(c.label_source),
+        ),
+        (
+            "steps",
+            DataType::UInt64,
+            true,
+            Arc::new(UInt64Array::from(c.steps)),
+        ),
+        ("cutoff", DataType::Utf8, true, maybe_text(c.cutoff)),
+        ("episode", DataType::Utf8, true, maybe_text(c.episode)),
+        ("error", DataType::Utf8, true, maybe_text(c.error)),
+    ];
+    let schema = Arc::new(Schema::new(
+        columns
+            .iter()
+            .map(|(name, ty, nullable, _)| Field::new(*name, ty.clone(), *nullable))
+            .collect::<Vec<_>>(),
+    ));
+    let batch = RecordBatch::try_new(
+        schema.clone(),
+        columns.into_iter().map(|(_, _, _, a)| a).collect(),
+    )
+    .map_err(|e| e.to_string())?;
+    let mut bytes = Vec::new();
+    let mut writer = parquet::arrow::ArrowWriter::try_new(&mut bytes, schema, None)
+        .map_err(|e| e.to_string())?;
+    writer.write(&batch).map_err(|e| e.to_string())?;
+    writer.close().map_err(|e| e.to_string())?;
+    Ok(bytes)
+}
+
+#[cfg(test)]
+mod tests {
+    use assay_model::episode::{ShardRecord, TaskInfo};
+    use assay_report::report::build_results;
+
+    use super::*;
+
+    #[test]
+    fn a_failed_episode_is_a_row_too() {
+        let failed = ShardRecord {
+            task_id: "a".into(),
+            seed: 3,
+            policy: "oracle".into(),
+            judge: String::new(),
+            attempts: 3,
+            outcome: None,
+            error: Some("boom".into()),
+            cancelled: false,
+        };
+        let task = TaskInfo {
+            id: "a".into(),
+            name: "a".into(),
+            group: "g".into(),
+            pipeline: "assay".into(),
+            origin: String::new(),
+            spec_hash: "h".into(),
+        };
+        let results = build_results("x", &["oracle".into()], &[3], &[task], &[failed], &[]);
+        let bytes = episodes_parquet(&results).unwrap();
+        assert_eq!(
+            (&bytes[..4], &bytes[bytes.len() - 4..]),
+            (&b"PAR1"[..], &b"PAR1"[..])
+        );
+    }
+}
