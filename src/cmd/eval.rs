@@ -8,7 +8,7 @@ use std::time::Duration;
 
 use anyhow::Context;
 use assay_proto::v1 as pb;
-use indicatif::{ProgressBar, ProgressStyle};
+use indicatif::{MultiProgress, ProgressBar, ProgressDrawTarget, ProgressStyle};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -214,6 +214,7 @@ pub fn run(mut a: Args, resolved: Option<String>) -> anyhow::Result<ExitCode> {
     let telemetry = cluster.telemetry.clone();
 
     let quiet = a.quiet;
+    let (has_judges, has_training) = (!a.batch.judges.is_empty(), training);
     let out = a.out.clone();
     // A local process that dies (a crash, the OOM killer) is started again (a few times, with
     // backoff); one that keeps dying stops the watch, and the report of what finished is still
@@ -244,17 +245,34 @@ pub fn run(mut a: Args, resolved: Option<String>) -> anyhow::Result<ExitCode> {
                 (r.batch_id, Some(r.rejected.len()))
             }
         };
-        let bar = if quiet {
-            ProgressBar::hidden()
+        // One bar per kind of work the batch has, each with its own ETA: episodes, judging,
+        // training.
+        let bars = if quiet {
+            MultiProgress::with_draw_target(ProgressDrawTarget::hidden())
         } else {
-            ProgressBar::new(0)
+            MultiProgress::new()
         };
-        bar.set_style(
-            ProgressStyle::with_template(
-                "{spinner} [{elapsed_precise}] {bar:40} {pos}/{len} episodes  {msg}",
-            )
-            .expect("progress template"),
-        );
+        let style =
+            |template: &str| ProgressStyle::with_template(template).expect("progress template");
+        let bar = bars.add(ProgressBar::new(0));
+        bar.set_style(style(
+            "{spinner} [{elapsed_precise}] {bar:40} {pos}/{len} episodes, eta {eta}  {msg}",
+        ));
+        let judging = ProgressBar::new(0);
+        judging.set_style(style(
+            "  judging      {bar:40} {pos}/{len} episodes judged, eta {eta}  {msg}",
+        ));
+        let training_bar = ProgressBar::new(0);
+        training_bar.set_style(style(
+            "  training     {bar:40} {pos}/{len} trainer jobs, eta {eta}  {msg}",
+        ));
+        // Shown from the start when the batch will have such work, in this order.
+        if has_judges {
+            bars.add(judging.clone());
+        }
+        if has_training {
+            bars.add(training_bar.clone());
+        }
         // Cluster-wide rates from the workers' telemetry, shown beside the progress.
         let rates = std::sync::Arc::new(std::sync::Mutex::new(std::collections::HashMap::<
             String,
@@ -316,7 +334,7 @@ pub fn run(mut a: Args, resolved: Option<String>) -> anyhow::Result<ExitCode> {
             match cluster.supervise() {
                 Ok(lines) => {
                     for l in lines {
-                        bar.suspend(|| eprintln!("{l}"));
+                        bars.suspend(|| eprintln!("{l}"));
                         events.push(l);
                     }
                 }
@@ -370,24 +388,18 @@ pub fn run(mut a: Args, resolved: Option<String>) -> anyhow::Result<ExitCode> {
                 .expect("rates")
                 .values()
                 .fold((0.0, 0.0), |a, r| (a.0 + r.0, a.1 + r.1));
-            let mut judged = if st.judge_total > 0 {
-                format!(
-                    ", {}/{} judged",
-                    st.judge_done + st.judge_failed,
-                    st.judge_total
-                )
-            } else {
-                String::new()
-            };
+            if st.judge_total > 0 {
+                judging.set_length(u64::from(st.judge_total));
+                judging.set_position(u64::from(st.judge_done + st.judge_failed));
+                judging.set_message(format!("{} failed", st.judge_failed));
+            }
             if st.trainer_total > 0 {
-                judged.push_str(&format!(
-                    ", {}/{} trained",
-                    st.trainer_done + st.trainer_failed,
-                    st.trainer_total
-                ));
+                training_bar.set_length(u64::from(st.trainer_total));
+                training_bar.set_position(u64::from(st.trainer_done + st.trainer_failed));
+                training_bar.set_message(format!("{} failed", st.trainer_failed));
             }
             bar.set_message(format!(
-                "{} ok, {} failed, {} running{judged}, {} workers, {:.0} steps/s, {:.0} frames/s",
+                "{} ok, {} failed, {} running, {} workers, {:.0} steps/s, {:.0} frames/s",
                 st.successes,
                 st.shards_failed,
                 st.shards_running,
@@ -401,6 +413,12 @@ pub fn run(mut a: Args, resolved: Option<String>) -> anyhow::Result<ExitCode> {
             last = Some(st);
         }
         bar.finish();
+        if has_judges {
+            judging.finish();
+        }
+        if has_training {
+            training_bar.finish();
+        }
         if let Some(l) = listener {
             l.abort();
         }
