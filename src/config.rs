@@ -319,8 +319,9 @@ pub fn resolved(
     )
 }
 
-/// A command-line value as TOML: JSON objects (nested settings) as tables, integers, floats and
-/// booleans as themselves, anything else as a string (the option parses it either way).
+/// A command-line value as TOML: JSON objects (nested settings) as tables, integers and booleans
+/// as themselves, anything else (floats included: "0.02" stays as typed) as a string — the
+/// option parses it either way.
 fn typed(v: &str) -> toml::Value {
     if v.starts_with('{')
         && let Ok(serde_json::Value::Object(o)) = serde_json::from_str::<serde_json::Value>(v)
