@@ -25,6 +25,7 @@ mod ranking;
 mod real_policies;
 mod report;
 mod roles;
+mod scripts;
 mod security;
 mod telemetry;
 mod watch;
