@@ -51,6 +51,15 @@ fn check_video(out: &std::path::Path, key: &str) {
     assert_ne!(frames.first(), frames.last(), "{key}: nothing moved");
 }
 
+/// Asserts that a finished command exited 0, showing its stderr when it did not.
+fn succeeded(out: &std::process::Output) {
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
+
 fn read_report(out: &std::path::Path) -> Report {
     serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap()
 }
@@ -65,11 +74,7 @@ fn eval_runs_a_batch_on_a_local_cluster_and_writes_both_reports() {
         dir.path(),
         &["--video", "--world-model", r#"{"steps": 30}"#],
     );
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    succeeded(&out);
     let r = read_report(dir.path());
     assert_eq!(r.results.totals.episodes_completed, 12);
     assert_eq!(r.results.tasks.len(), 4);
@@ -240,11 +245,7 @@ fn eval_runs_a_batch_on_a_local_cluster_and_writes_both_reports() {
         .arg(dir.path().join("artifacts").join(&e.artifact))
         .output()
         .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    succeeded(&out);
     let py: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     // The flat table beside the report: one row per episode, the report's own values.
     let table = Command::new(&python)
@@ -252,11 +253,7 @@ fn eval_runs_a_batch_on_a_local_cluster_and_writes_both_reports() {
         .arg(dir.path().join("episodes.parquet"))
         .output()
         .unwrap();
-    assert!(
-        table.status.success(),
-        "{}",
-        String::from_utf8_lossy(&table.stderr)
-    );
+    succeeded(&table);
     let table: serde_json::Value = serde_json::from_slice(&table.stdout).unwrap();
     let rows = table["rows"].as_array().unwrap();
     assert_eq!(rows.len() as u64, r.results.totals.episodes_planned);
@@ -395,11 +392,7 @@ fn the_same_batch_twice_gives_identical_results() {
         // Diversity included (short fits): world models are seeded and deterministic.
         &["--world-model", r#"{"steps": 30}"#],
     );
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    succeeded(&out);
     // The second time from the first run's resolved configuration alone (into another folder).
     let resolved = a.path().join("config.toml");
     let written = std::fs::read_to_string(&resolved).unwrap();
@@ -415,11 +408,7 @@ fn the_same_batch_twice_gives_identical_results() {
         .current_dir(repo())
         .output()
         .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    succeeded(&out);
     let (ra, rb) = (read_report(a.path()), read_report(b.path()));
     assert_eq!(
         serde_json::to_string_pretty(&ra.results).unwrap(),
@@ -505,11 +494,7 @@ fn articulated_objects_arms_pads_and_piles_are_rendered_and_judged() {
         dir.path(),
         &["--no-diversity"],
     );
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    succeeded(&out);
     let r = read_report(dir.path());
     assert_each_episode_once(&r, 4, 4);
     for t in &r.results.tasks {
