@@ -141,6 +141,15 @@ impl Store {
         ))
     }
 
+    /// The task specs of a batch as it stored them (canonical JSON), by task id, in task order.
+    pub fn task_specs(&self, batch_id: &str) -> Result<Vec<(String, String)>, CoordError> {
+        let mut stmt = self.conn.prepare_cached(
+            "SELECT task_id, spec_json FROM tasks WHERE batch_id = ?1 ORDER BY rowid",
+        )?;
+        let rows = stmt.query_map([batch_id], |r| Ok((r.get(0)?, r.get(1)?)))?;
+        Ok(rows.collect::<Result<_, _>>()?)
+    }
+
     pub fn batch_ids(&self) -> Result<Vec<String>, CoordError> {
         let mut stmt = self.conn.prepare("SELECT id FROM batches ORDER BY seq")?;
         let ids = stmt

@@ -45,7 +45,8 @@ pub fn encode(frames: &[Rgb], fps: u32) -> Result<Video, String> {
     })
 }
 
-fn ffmpeg_available() -> bool {
+/// Whether `ffmpeg` runs (checked once per process).
+pub fn ffmpeg_available() -> bool {
     static FOUND: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
     *FOUND.get_or_init(|| {
         Command::new("ffmpeg")
@@ -127,6 +128,98 @@ fn mp4(frames: &[Rgb], fps: u32) -> Result<Vec<u8>, String> {
     };
     let _ = std::fs::remove_dir_all(&dir);
     result
+}
+
+/// An H.264 MP4 that ffmpeg writes as frames arrive: many episodes back to back in one file,
+/// as datasets keep them (LeRobotDataset). Constant frame rate, yuv420p, a keyframe every other
+/// frame and no B-frames, so that a reader seeking to any frame's timestamp decodes it at once.
+pub struct Mp4Writer {
+    child: Option<std::process::Child>,
+    stdin: Option<std::process::ChildStdin>,
+    frame_bytes: usize,
+    frames: u64,
+}
+
+impl Mp4Writer {
+    /// Starts ffmpeg writing `path`, frames `width` × `height` (both even) at `fps`.
+    pub fn create(
+        path: &std::path::Path,
+        width: u32,
+        height: u32,
+        fps: u32,
+    ) -> Result<Self, String> {
+        if width % 2 == 1 || height % 2 == 1 || width == 0 || height == 0 || fps == 0 {
+            return Err(format!(
+                "H.264 in yuv420p needs even frame sizes and a frame rate: {width}x{height} at \
+                 {fps} frames/s"
+            ));
+        }
+        if !ffmpeg_available() {
+            return Err("ffmpeg is not installed (apt-get install ffmpeg)".into());
+        }
+        let mut child = Command::new("ffmpeg")
+            .args(["-hide_banner", "-loglevel", "error", "-y", "-f", "rawvideo"])
+            .args(["-pix_fmt", "rgb24", "-s"])
+            .arg(format!("{width}x{height}"))
+            .args(["-r", &fps.to_string(), "-i", "-"])
+            .args(["-c:v", "libx264", "-pix_fmt", "yuv420p", "-crf", "18"])
+            .args(["-g", "2", "-bf", "0", "-movflags", "+faststart"])
+            .arg(path)
+            .stdin(Stdio::piped())
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped())
+            .spawn()
+            .map_err(|e| format!("starting ffmpeg: {e}"))?;
+        let stdin = child.stdin.take();
+        Ok(Self {
+            child: Some(child),
+            stdin,
+            frame_bytes: width as usize * height as usize * 3,
+            frames: 0,
+        })
+    }
+
+    /// Appends one frame: RGB, rows top to bottom.
+    pub fn push(&mut self, rgb: &[u8]) -> Result<(), String> {
+        if rgb.len() != self.frame_bytes {
+            return Err(format!(
+                "a frame of {} bytes where the video's frames have {}",
+                rgb.len(),
+                self.frame_bytes
+            ));
+        }
+        let stdin = self.stdin.as_mut().ok_or("the video is finished")?;
+        stdin
+            .write_all(rgb)
+            .map_err(|e| format!("writing to ffmpeg: {e}"))?;
+        self.frames += 1;
+        Ok(())
+    }
+
+    /// Closes the file; the number of frames it holds.
+    pub fn finish(mut self) -> Result<u64, String> {
+        drop(self.stdin.take());
+        let child = self.child.take().ok_or("the video is finished")?;
+        let out = child.wait_with_output().map_err(|e| e.to_string())?;
+        if !out.status.success() {
+            return Err(format!(
+                "ffmpeg {}: {}",
+                out.status,
+                String::from_utf8_lossy(&out.stderr).trim()
+            ));
+        }
+        Ok(self.frames)
+    }
+}
+
+impl Drop for Mp4Writer {
+    /// A writer dropped unfinished (an error on the way) stops its ffmpeg.
+    fn drop(&mut self) {
+        if let Some(mut child) = self.child.take() {
+            let _ = child.kill();
+            let _ = child.wait();
+        }
+    }
 }
 
 #[cfg(test)]

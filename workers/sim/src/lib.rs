@@ -558,18 +558,73 @@ pub fn simulate_with(
             .map(|row| (u64::from(rec.step_at(row)), rec.snapshot(row, spec)))
             .collect(),
         observations,
-        clip: clip.then(|| clip_states(&rec, spec, first_policy_row, dt)),
+        clip: clip.then(|| clip_states(&rec, spec, first_policy_row, dt, CLIP_STRIDE_STEPS)),
     })
 }
 
-/// The recorded rows every [`CLIP_STRIDE_STEPS`] physics steps from `first` to the end, as clip
-/// states.
-fn clip_states(rec: &Recorder, spec: &TaskSpec, first: usize, dt: f64) -> ClipStates {
+/// A recorded episode's states every `stride_steps` physics steps from its first policy step to
+/// its end, as [`ClipStates`] (the scenes, the proprioception and the commanded velocities a
+/// dynamics clip holds, which is a clip's when `stride_steps` is [`CLIP_STRIDE_STEPS`]). `spec`
+/// is the task as submitted, `file` the episode file the sim role wrote for it with `seed`:
+/// nothing is simulated again, the file's rows are drawn as they were recorded.
+///
+/// Refused: a file recorded for another task, another version of it or another seed, and a
+/// stride that is not a whole number of recorded rows ([`RECORD_STRIDE`]).
+pub fn recorded_states(
+    spec: &TaskSpec,
+    seed: u64,
+    file: &[u8],
+    stride_steps: u64,
+) -> Result<ClipStates, SimError> {
+    if stride_steps == 0 || !stride_steps.is_multiple_of(RECORD_STRIDE) {
+        return Err(SimError::Policy(format!(
+            "frames every {stride_steps} physics steps: rows are recorded every {RECORD_STRIDE} \
+             steps, so the stride must be a positive multiple of {RECORD_STRIDE}"
+        )));
+    }
+    let (rec, meta) = Recorder::decode(file)?;
+    let field = |k: &str| meta.get(k).map(String::as_str).unwrap_or("");
+    let hash = spec.spec_hash();
+    if field("assay.task_id") != spec.id || field("assay.spec_hash") != hash {
+        return Err(SimError::internal(format!(
+            "the episode file was recorded for task '{}' (spec {}), not for '{}' (spec {hash})",
+            field("assay.task_id"),
+            field("assay.spec_hash"),
+            spec.id
+        )));
+    }
+    if field("assay.seed") != seed.to_string() {
+        return Err(SimError::internal(format!(
+            "the episode file was recorded with seed {}, not {seed}",
+            field("assay.seed")
+        )));
+    }
+    let dt: f64 = field("assay.dt")
+        .parse()
+        .map_err(|_| SimError::internal("episode file: assay.dt is not a number"))?;
+    let varied = spec.for_seed(seed);
+    // The row the policy started from: the last one of the initial settle.
+    let settle = varied.physics.settle_steps;
+    let first = (0..rec.rows())
+        .take_while(|&row| rec.step_at(row) <= settle)
+        .last()
+        .unwrap_or(0);
+    Ok(clip_states(&rec, &varied, first, dt, stride_steps))
+}
+
+/// The recorded rows every `stride_steps` physics steps from `first` to the end, as clip states.
+fn clip_states(
+    rec: &Recorder,
+    spec: &TaskSpec,
+    first: usize,
+    dt: f64,
+    stride_steps: u64,
+) -> ClipStates {
     let start = rec.step_at(first);
     let rows: Vec<usize> = (first..rec.rows())
-        .filter(|&row| u64::from(rec.step_at(row) - start).is_multiple_of(CLIP_STRIDE_STEPS))
+        .filter(|&row| u64::from(rec.step_at(row) - start).is_multiple_of(stride_steps))
         .collect();
-    let interval = CLIP_STRIDE_STEPS as f64 * dt;
+    let interval = stride_steps as f64 * dt;
     let holding = |row: usize| f32::from(u8::from(rec.grasped_at(row) >= 0));
     let mut proprio = Vec::with_capacity(rows.len() * PROPRIO_DIMS);
     let mut actions = Vec::with_capacity(rows.len() * ACTION_DIMS);

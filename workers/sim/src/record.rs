@@ -161,6 +161,126 @@ impl Recorder {
         }
     }
 
+    /// Reads an episode file ([`Recorder::encode`]'s output) back: its rows and its schema
+    /// metadata. Every column the file format names is read by name; a file without one of the
+    /// required columns, or with a column of another type, is refused naming it.
+    pub fn decode(file: &[u8]) -> Result<(Self, HashMap<String, String>), SimError> {
+        let bad = |what: String| SimError::internal(format!("episode file: {what}"));
+        let reader = arrow_ipc::reader::FileReader::try_new(std::io::Cursor::new(file), None)
+            .map_err(|e| bad(e.to_string()))?;
+        let schema = reader.schema();
+        let metadata = schema.metadata().clone();
+        let objects: Vec<String> = serde_json::from_str(
+            metadata
+                .get("assay.objects")
+                .ok_or_else(|| bad("no assay.objects in its metadata".into()))?,
+        )
+        .map_err(|e| bad(format!("assay.objects: {e}")))?;
+        let names: Vec<String> = schema.fields().iter().map(|f| f.name().clone()).collect();
+        let mut rec = Recorder::new(objects.len());
+        for (id, cols) in objects.iter().zip(rec.joints.iter_mut()) {
+            let prefix = format!("{id}.joint.");
+            cols.extend(
+                names
+                    .iter()
+                    .filter_map(|n| n.strip_prefix(&prefix))
+                    .map(|j| (j.to_owned(), Vec::new())),
+            );
+        }
+        rec.arm = names
+            .iter()
+            .filter_map(|n| n.strip_prefix("arm."))
+            .map(|j| (j.to_owned(), Vec::new()))
+            .collect();
+        let has = |n: &str| names.iter().any(|x| x == n);
+        let (yaw, fingers) = (has("ee_yaw"), has("gripper_opening"));
+        for batch in reader {
+            let batch = batch.map_err(|e| bad(e.to_string()))?;
+            let column = |name: &str| {
+                batch
+                    .column_by_name(name)
+                    .ok_or_else(|| bad(format!("no column '{name}'")))
+            };
+            let f32s = |name: &str, into: &mut Vec<f32>| -> Result<(), SimError> {
+                let c = column(name)?;
+                let a = c
+                    .as_any()
+                    .downcast_ref::<Float32Array>()
+                    .ok_or_else(|| bad(format!("column '{name}' is not float32")))?;
+                into.extend(a.values().iter().copied());
+                Ok(())
+            };
+            let c = column("step")?;
+            let steps = c
+                .as_any()
+                .downcast_ref::<UInt32Array>()
+                .ok_or_else(|| bad("column 'step' is not uint32".into()))?;
+            rec.step.extend(steps.values().iter().copied());
+            let c = column("time_s")?;
+            let times = c
+                .as_any()
+                .downcast_ref::<Float64Array>()
+                .ok_or_else(|| bad("column 'time_s' is not float64".into()))?;
+            rec.time.extend(times.values().iter().copied());
+            for (k, axis) in ["x", "y", "z"].iter().enumerate() {
+                f32s(&format!("ee_{axis}"), &mut rec.ee[k])?;
+                f32s(&format!("ee_cmd_{axis}"), &mut rec.cmd[k])?;
+            }
+            let c = column("grasped")?;
+            let grasped = c
+                .as_any()
+                .downcast_ref::<Int16Array>()
+                .ok_or_else(|| bad("column 'grasped' is not int16".into()))?;
+            rec.grasped.extend(grasped.values().iter().copied());
+            let c = column("contact_pairs")?;
+            let pairs = c
+                .as_any()
+                .downcast_ref::<UInt32Array>()
+                .ok_or_else(|| bad("column 'contact_pairs' is not uint32".into()))?;
+            rec.contact_pairs.extend(pairs.values().iter().copied());
+            let c = column("contact_points")?;
+            let points = c
+                .as_any()
+                .downcast_ref::<UInt32Array>()
+                .ok_or_else(|| bad("column 'contact_points' is not uint32".into()))?;
+            rec.contact_points.extend(points.values().iter().copied());
+            let c = column("ee_in_contact")?;
+            let touch = c
+                .as_any()
+                .downcast_ref::<BooleanArray>()
+                .ok_or_else(|| bad("column 'ee_in_contact' is not bool".into()))?;
+            rec.ee_contact
+                .extend(touch.iter().map(|b| b.unwrap_or(false)));
+            if yaw {
+                f32s("ee_yaw", &mut rec.ee_yaw)?;
+            } else {
+                rec.ee_yaw
+                    .extend(std::iter::repeat_n(0.0, batch.num_rows()));
+            }
+            for (id, cols) in objects.iter().zip(rec.objects.iter_mut()) {
+                for (k, c) in ["x", "y", "z", "qx", "qy", "qz", "qw"].iter().enumerate() {
+                    f32s(&format!("{id}.{c}"), &mut cols[k])?;
+                }
+            }
+            for (name, col) in &mut rec.arm {
+                f32s(&format!("arm.{name}"), col)?;
+            }
+            if fingers {
+                f32s("gripper_opening", &mut rec.fingers[0])?;
+                f32s("gripper_yaw", &mut rec.fingers[1])?;
+            }
+            for (id, joints) in objects.iter().zip(rec.joints.iter_mut()) {
+                for (name, col) in joints {
+                    f32s(&format!("{id}.joint.{name}"), col)?;
+                }
+            }
+        }
+        if rec.step.is_empty() {
+            return Err(bad("no rows".into()));
+        }
+        Ok((rec, metadata.into()))
+    }
+
     /// Encodes the episode as an Arrow IPC file with `metadata` on the schema.
     pub fn encode(
         &self,

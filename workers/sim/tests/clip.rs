@@ -139,3 +139,39 @@ fn asking_for_a_clip_changes_nothing_else_and_is_deterministic() {
     let other = with_clip(&spec, 4);
     assert_ne!(a.clip.unwrap().proprio, other.clip.unwrap().proprio);
 }
+
+/// An episode file read back gives the states the episode's clip was made of, exactly: the
+/// scenes (objects, tool, pads, arm, joints), proprioception and actions — for a plain task, an
+/// arm with a friction gripper, an articulated object and a pile.
+#[test]
+fn an_episode_file_read_back_gives_the_clip_states_it_was_recorded_with() {
+    for (rel, seed) in [
+        ("placement/put-block-in-bowl.yaml", 1),
+        ("robomimic/lift-cube.yaml", 0),
+        ("articulated/open-cabinet-door.yaml", 2),
+        ("robomimic/nut-on-square-peg.yaml", 0),
+        ("piles/align-pile-along-line.yaml", 0),
+    ] {
+        let spec = task(rel);
+        let ep = with_clip(&spec, seed);
+        let recorded = ep.clip.as_ref().expect("clip states were asked for");
+        let read = assay_sim::recorded_states(&spec, seed, &ep.file, CLIP_STRIDE_STEPS)
+            .unwrap_or_else(|e| panic!("{rel}: {e}"));
+        assert_eq!(&read, recorded, "{rel}");
+        // Other strides take every matching recorded row.
+        let fine = assay_sim::recorded_states(&spec, seed, &ep.file, 8).unwrap();
+        assert_eq!(fine.steps[0], recorded.steps[0], "{rel}");
+        assert!(fine.steps.windows(2).all(|w| w[1] - w[0] == 8), "{rel}");
+        let span = ep.outcome.steps - ep.initial_step;
+        assert_eq!(fine.len() as u64, span / 8 + 1, "{rel}");
+        // Refused: another seed, another task, a stride between recorded rows.
+        let e = assay_sim::recorded_states(&spec, seed + 1, &ep.file, 24).unwrap_err();
+        assert!(e.to_string().contains("seed"), "{e}");
+        let mut other = spec.clone();
+        other.description.push('!');
+        let e = assay_sim::recorded_states(&other, seed, &ep.file, 24).unwrap_err();
+        assert!(e.to_string().contains("recorded for task"), "{e}");
+        let e = assay_sim::recorded_states(&spec, seed, &ep.file, 6).unwrap_err();
+        assert!(e.to_string().contains("multiple of 4"), "{e}");
+    }
+}
