@@ -4,7 +4,6 @@
 mod cmd;
 mod config;
 mod docs;
-mod episodes_table;
 mod logging;
 mod outdir;
 mod proc;
@@ -51,6 +50,8 @@ enum Command {
     Status(cmd::status::Args),
     /// Fetch a batch's report (report.json, report.md).
     Report(cmd::report::Args),
+    /// Write a finished run's results in another tool's format (LeRobotDataset, TensorBoard).
+    Export(cmd::export::Args),
     /// Cancel a batch.
     Cancel(cmd::status::CancelArgs),
     /// Live view of a cluster: workers' rates and batches' progress, from telemetry.
@@ -133,6 +134,7 @@ fn main() -> std::process::ExitCode {
         Command::Submit(a) => cmd::submit::run(a),
         Command::Status(a) => cmd::status::run(a),
         Command::Report(a) => cmd::report::run(a),
+        Command::Export(a) => cmd::export::run(a),
         Command::Cancel(a) => cmd::status::cancel(a),
         Command::Top(a) => cmd::top::run(a),
         Command::Validate(a) => cmd::validate::run(a),

@@ -9,6 +9,7 @@ pub mod coordinator;
 pub mod diversity;
 pub mod doctor;
 pub mod eval;
+pub mod export;
 pub mod frames;
 pub mod import;
 pub mod policy;

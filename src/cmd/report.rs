@@ -71,8 +71,9 @@ pub fn write(
     )?;
     std::fs::write(out.join("report.md"), report.to_markdown())?;
     std::fs::write(
-        out.join(crate::episodes_table::EPISODES_TABLE),
-        crate::episodes_table::episodes_parquet(&report.results).map_err(anyhow::Error::msg)?,
+        out.join(assay_export::episodes_table::EPISODES_TABLE),
+        assay_export::episodes_table::episodes_parquet(&report.results)
+            .map_err(anyhow::Error::msg)?,
     )?;
     let read = |key: &str| -> Option<Vec<u8>> {
         // Keys are relative paths inside the store; never follow one out of it.

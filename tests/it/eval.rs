@@ -304,6 +304,10 @@ fn eval_runs_a_batch_on_a_local_cluster_and_writes_both_reports() {
         let z = p[2].as_f64().unwrap_or_else(|| panic!("{id}: {p}"));
         assert!(z > 0.0 && z < 1.0, "{id} ends at z = {z}");
     }
+
+    // The same run exported as a LeRobotDataset and as TensorBoard scalars (tests/it/export.rs).
+    crate::export::lerobot_export_of(dir.path(), &r);
+    crate::export::tensorboard_export_of(dir.path(), &r);
 }
 
 #[test]

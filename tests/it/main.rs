@@ -10,6 +10,7 @@ mod cluster;
 mod deploy;
 mod diversity;
 mod eval;
+mod export;
 mod forbidden_dependencies;
 mod framebus;
 mod generalization;

@@ -5,10 +5,11 @@
 //!
 //! Owns: the table's columns and their Parquet encoding (`cmd::report::write` writes it).
 
+use std::collections::HashMap;
 use std::sync::Arc;
 
 use arrow_array::{ArrayRef, BooleanArray, RecordBatch, StringArray, UInt64Array};
-use arrow_schema::{DataType, Field, Schema};
+use arrow_schema::{Field, Schema};
 
 use assay_report::report::Results;
 
@@ -78,55 +79,45 @@ pub fn episodes_parquet(results: &Results) -> Result<Vec<u8>, String> {
     }
     let text = |v: Vec<String>| Arc::new(StringArray::from(v)) as ArrayRef;
     let maybe_text = |v: Vec<Option<String>>| Arc::new(StringArray::from(v)) as ArrayRef;
-    let columns: Vec<(&str, DataType, bool, ArrayRef)> = vec![
-        ("task", DataType::Utf8, false, text(c.task)),
-        ("task_name", DataType::Utf8, false, text(c.task_name)),
-        ("group", DataType::Utf8, false, text(c.group)),
-        ("pipeline", DataType::Utf8, false, text(c.pipeline)),
-        (
-            "seed",
-            DataType::UInt64,
-            false,
-            Arc::new(UInt64Array::from(c.seed)),
-        ),
-        ("policy", DataType::Utf8, false, text(c.policy)),
+    let columns: Vec<(&str, bool, ArrayRef)> = vec![
+        ("task", false, text(c.task)),
+        ("task_name", false, text(c.task_name)),
+        ("group", false, text(c.group)),
+        ("pipeline", false, text(c.pipeline)),
+        ("seed", false, Arc::new(UInt64Array::from(c.seed))),
+        ("policy", false, text(c.policy)),
         (
             "completed",
-            DataType::Boolean,
             false,
             Arc::new(BooleanArray::from(c.completed)),
         ),
-        (
-            "success",
-            DataType::Boolean,
-            true,
-            Arc::new(BooleanArray::from(c.success)),
-        ),
-        (
-            "label_source",
-            DataType::Utf8,
-            true,
-            maybe_text(c.label_source),
-        ),
-        (
-            "steps",
-            DataType::UInt64,
-            true,
-            Arc::new(UInt64Array::from(c.steps)),
-        ),
-        ("cutoff", DataType::Utf8, true, maybe_text(c.cutoff)),
-        ("episode", DataType::Utf8, true, maybe_text(c.episode)),
-        ("error", DataType::Utf8, true, maybe_text(c.error)),
+        ("success", true, Arc::new(BooleanArray::from(c.success))),
+        ("label_source", true, maybe_text(c.label_source)),
+        ("steps", true, Arc::new(UInt64Array::from(c.steps))),
+        ("cutoff", true, maybe_text(c.cutoff)),
+        ("episode", true, maybe_text(c.episode)),
+        ("error", true, maybe_text(c.error)),
     ];
-    let schema = Arc::new(Schema::new(
-        columns
-            .iter()
-            .map(|(name, ty, nullable, _)| Field::new(*name, ty.clone(), *nullable))
-            .collect::<Vec<_>>(),
-    ));
+    to_parquet(columns, HashMap::new())
+}
+
+/// `columns` (name, nullable, values) as one Parquet file, `metadata` on its schema.
+pub fn to_parquet(
+    columns: Vec<(&str, bool, ArrayRef)>,
+    metadata: HashMap<String, String>,
+) -> Result<Vec<u8>, String> {
+    let schema = Arc::new(
+        Schema::new(
+            columns
+                .iter()
+                .map(|(name, nullable, a)| Field::new(*name, a.data_type().clone(), *nullable))
+                .collect::<Vec<_>>(),
+        )
+        .with_metadata(metadata),
+    );
     let batch = RecordBatch::try_new(
         schema.clone(),
-        columns.into_iter().map(|(_, _, _, a)| a).collect(),
+        columns.into_iter().map(|(_, _, a)| a).collect(),
     )
     .map_err(|e| e.to_string())?;
     let mut bytes = Vec::new();

@@ -1,0 +1,613 @@
+//! `assay export lerobot RUN OUT`: a run's episodes as a LeRobotDataset v3.0 — what LeRobot's
+//! `LeRobotDataset(repo_id, root=OUT)` loads and its training scripts read.
+//!
+//! Per frame (`fps` frames a second of the episode, from the policy's first step to the end):
+//! - `observation.images.scene`: the task's first camera (the keyframes' and dynamics clips'
+//!   camera) drawn at `size` × `size`, stored in one H.264 MP4 for all episodes, back to back;
+//! - `observation.state` (4 float32): the tool centre x, y, z (m) and 1 while it holds an object;
+//! - `action` (4 float32): the tool's commanded velocity until the next frame (m/s) and the hold
+//!   command — a dynamics clip's action (docs/episode-format.md), zeros on the last frame;
+//! - the task's instruction (its `description`) as the frame's task.
+//!
+//! Nothing is simulated again: the states are the episode file's recorded rows
+//! ([`assay_sim::recorded_states`]), drawn by the same renderer as the run's pictures. An episode
+//! that cannot be exported (its file missing or altered, its task's time step not a whole
+//! number of recorded rows per frame) is left out with its reason; the rest are written.
+//!
+//! Owns: the dataset's files. Reads the run's report and artifact store; never writes into the
+//! run.
+
+use std::collections::{BTreeMap, HashMap};
+use std::path::Path;
+use std::sync::Arc;
+
+use anyhow::{Context, bail};
+use arrow_array::builder::{ListBuilder, StringBuilder};
+use arrow_array::{
+    ArrayRef, BooleanArray, FixedSizeListArray, Float32Array, Float64Array, Int64Array,
+    StringArray, UInt64Array,
+};
+use arrow_schema::{DataType, Field};
+use serde_json::json;
+
+use assay_model::clip::{ACTION_DIMS, PROPRIO_DIMS};
+use assay_report::report::Report;
+use assay_spec::spec::TaskSpec;
+
+use crate::episodes_table::to_parquet;
+
+/// The dataset format this writes (LeRobot's `CODEBASE_VERSION`).
+pub const CODEBASE_VERSION: &str = "v3.0";
+/// The one camera's feature key.
+pub const VIDEO_KEY: &str = "observation.images.scene";
+const STATE_NAMES: [&str; PROPRIO_DIMS] = ["ee_x", "ee_y", "ee_z", "holding"];
+const ACTION_NAMES: [&str; ACTION_DIMS] = ["ee_vx", "ee_vy", "ee_vz", "hold"];
+
+/// What to export and how.
+#[derive(Debug, Clone)]
+pub struct Options {
+    /// Frames are `size` × `size` pixels (even).
+    pub size: u32,
+    /// Frames a second of the episode's time.
+    pub fps: u32,
+    /// Only these policies' episodes (all when empty).
+    pub policies: Vec<String>,
+    /// Only episodes that succeeded.
+    pub successful_only: bool,
+}
+
+/// What was written.
+#[derive(Debug, Default)]
+pub struct Summary {
+    pub episodes: usize,
+    pub frames: usize,
+    pub tasks: usize,
+    /// Episodes left out: "task T seed S policy P: reason".
+    pub skipped: Vec<String>,
+}
+
+/// One exported episode's rows and where they went.
+struct EpisodeMeta {
+    index: i64,
+    task: String,
+    task_id: String,
+    seed: u64,
+    policy: String,
+    success: bool,
+    file: String,
+    from: i64,
+    length: i64,
+    video_from_s: f64,
+}
+
+/// The frame table, column by column.
+#[derive(Default)]
+struct Frames {
+    state: Vec<f32>,
+    action: Vec<f32>,
+    timestamp: Vec<f32>,
+    frame_index: Vec<i64>,
+    episode_index: Vec<i64>,
+    task_index: Vec<i64>,
+}
+
+/// Running per-dimension statistics (min, max, mean, std, count).
+#[derive(Default, Clone)]
+struct Moments {
+    min: Vec<f64>,
+    max: Vec<f64>,
+    sum: Vec<f64>,
+    sum_sq: Vec<f64>,
+    count: u64,
+}
+
+impl Moments {
+    fn new(dims: usize) -> Self {
+        Self {
+            min: vec![f64::INFINITY; dims],
+            max: vec![f64::NEG_INFINITY; dims],
+            sum: vec![0.0; dims],
+            sum_sq: vec![0.0; dims],
+            count: 0,
+        }
+    }
+
+    /// Adds `values`, rows of `dims` values each.
+    fn add_rows(&mut self, values: &[f32]) {
+        let dims = self.min.len();
+        for row in values.chunks_exact(dims) {
+            for (d, &v) in row.iter().enumerate() {
+                self.add(d, f64::from(v));
+            }
+            self.count += 1;
+        }
+    }
+
+    fn add(&mut self, d: usize, v: f64) {
+        self.min[d] = self.min[d].min(v);
+        self.max[d] = self.max[d].max(v);
+        self.sum[d] += v;
+        self.sum_sq[d] += v * v;
+    }
+
+    /// LeRobot's stats entry; `shape` wraps each per-dimension list (images: `[3, 1, 1]`).
+    fn json(&self, image: bool) -> serde_json::Value {
+        let n = self.count.max(1) as f64;
+        let mean: Vec<f64> = self.sum.iter().map(|s| s / n).collect();
+        let std: Vec<f64> = self
+            .sum_sq
+            .iter()
+            .zip(&mean)
+            .map(|(s, m)| (s / n - m * m).max(0.0).sqrt())
+            .collect();
+        let shape = |v: &[f64]| {
+            if image {
+                json!(v.iter().map(|x| json!([[x]])).collect::<Vec<_>>())
+            } else {
+                json!(v)
+            }
+        };
+        json!({
+            "min": shape(&self.min),
+            "max": shape(&self.max),
+            "mean": shape(&mean),
+            "std": shape(&std),
+            "count": [self.count],
+        })
+    }
+}
+
+/// The task specs of a run by task id: each parsed, or why it could not be.
+pub type Specs = HashMap<String, Result<TaskSpec, String>>;
+
+/// Exports `run` (an `assay eval` output folder: report.json and the artifact store) to `out`,
+/// which must not exist or be empty; `specs` are the run's tasks as it ran them (its job store).
+pub fn export(run: &Path, out: &Path, specs: &Specs, o: &Options) -> anyhow::Result<Summary> {
+    if o.size == 0 || o.size % 2 == 1 || o.size > assay_render::imagery::MAX_CLIP_SIZE {
+        bail!(
+            "--size {}: frames are an even number of pixels square, at most {}",
+            o.size,
+            assay_render::imagery::MAX_CLIP_SIZE
+        );
+    }
+    if o.fps == 0 {
+        bail!("--fps 0: a dataset needs a frame rate");
+    }
+    let report_path = run.join("report.json");
+    let report: Report =
+        serde_json::from_slice(&std::fs::read(&report_path).with_context(|| {
+            format!(
+                "{} is not an `assay eval` output folder (no report.json)",
+                run.display()
+            )
+        })?)
+        .with_context(|| format!("reading {}", report_path.display()))?;
+    if out.exists()
+        && std::fs::read_dir(out)
+            .with_context(|| format!("reading {}", out.display()))?
+            .next()
+            .is_some()
+    {
+        bail!(
+            "{} is not empty: the dataset goes into a new folder",
+            out.display()
+        );
+    }
+    let video_rel = format!("videos/{VIDEO_KEY}/chunk-000/file-000.mp4");
+    let video_path = out.join(&video_rel);
+    for dir in ["meta/episodes/chunk-000", "data/chunk-000"] {
+        std::fs::create_dir_all(out.join(dir))?;
+    }
+    std::fs::create_dir_all(video_path.parent().expect("video folder"))?;
+
+    let mut renderer = assay_render::Renderer::new().context("starting the renderer")?;
+    let mut video = assay_render::video::Mp4Writer::create(&video_path, o.size, o.size, o.fps)
+        .map_err(anyhow::Error::msg)
+        .context("writing the dataset's video")?;
+    let mut summary = Summary::default();
+    let mut frames = Frames::default();
+    let mut episodes: Vec<EpisodeMeta> = Vec::new();
+    let mut tasks: Vec<String> = Vec::new();
+    let mut state_stats = Moments::new(PROPRIO_DIMS);
+    let mut action_stats = Moments::new(ACTION_DIMS);
+    let mut image_stats = Moments::new(3);
+    for t in &report.results.tasks {
+        for e in &t.episodes {
+            if (!o.policies.is_empty() && !o.policies.contains(&e.policy))
+                || (o.successful_only && !e.success)
+            {
+                continue;
+            }
+            let skip =
+                |why: String| format!("task {} seed {} policy {}: {why}", t.id, e.seed, e.policy);
+            let spec = match specs.get(&t.id) {
+                Some(Ok(s)) => s,
+                Some(Err(why)) => {
+                    summary.skipped.push(skip(why.clone()));
+                    continue;
+                }
+                None => {
+                    summary
+                        .skipped
+                        .push(skip("the run's job store has no spec for it".into()));
+                    continue;
+                }
+            };
+            let episode = match render_episode(run, spec, e.seed, &e.artifact, o, &mut renderer) {
+                Ok(ep) => ep,
+                Err(why) => {
+                    summary.skipped.push(skip(why));
+                    continue;
+                }
+            };
+            let instruction = instruction(spec);
+            let task_index = match tasks.iter().position(|x| *x == instruction) {
+                Some(i) => i,
+                None => {
+                    tasks.push(instruction.clone());
+                    tasks.len() - 1
+                }
+            } as i64;
+            let n = episode.len;
+            let index = episodes.len() as i64;
+            let from = frames.frame_index.len() as i64;
+            for (k, rgb) in episode.rgb.chunks_exact(episode.frame_bytes).enumerate() {
+                video.push(rgb).map_err(anyhow::Error::msg)?;
+                for px in rgb.chunks_exact(3) {
+                    for (c, &v) in px.iter().enumerate() {
+                        image_stats.add(c, f64::from(v) / 255.0);
+                    }
+                }
+                frames.timestamp.push(k as f32 / o.fps as f32);
+                frames.frame_index.push(k as i64);
+                frames.episode_index.push(index);
+                frames.task_index.push(task_index);
+            }
+            image_stats.count += (n * episode.frame_bytes / 3) as u64;
+            state_stats.add_rows(&episode.state);
+            action_stats.add_rows(&episode.action);
+            frames.state.extend_from_slice(&episode.state);
+            frames.action.extend_from_slice(&episode.action);
+            let video_from_s = from as f64 / f64::from(o.fps);
+            episodes.push(EpisodeMeta {
+                index,
+                task: instruction,
+                task_id: t.id.clone(),
+                seed: e.seed,
+                policy: e.policy.clone(),
+                success: e.success,
+                file: format!("artifacts/{}", e.artifact),
+                from,
+                length: n as i64,
+                video_from_s,
+            });
+        }
+    }
+    let written = video.finish().map_err(anyhow::Error::msg)?;
+    if episodes.is_empty() {
+        let _ = std::fs::remove_dir_all(out.join("videos"));
+        bail!(
+            "no episode of {} could be exported{}",
+            run.display(),
+            if summary.skipped.is_empty() {
+                " (none matches --policy / --successful)".to_owned()
+            } else {
+                format!(":\n  {}", summary.skipped.join("\n  "))
+            }
+        );
+    }
+    debug_assert_eq!(written as usize, frames.frame_index.len());
+    summary.episodes = episodes.len();
+    summary.frames = frames.frame_index.len();
+    summary.tasks = tasks.len();
+
+    let write = |rel: &str, bytes: &[u8]| -> anyhow::Result<()> {
+        std::fs::write(out.join(rel), bytes).with_context(|| format!("writing {rel}"))
+    };
+    write(
+        "data/chunk-000/file-000.parquet",
+        &data_table(&frames).map_err(anyhow::Error::msg)?,
+    )?;
+    write(
+        "meta/episodes/chunk-000/file-000.parquet",
+        &episodes_table(&episodes, o.fps).map_err(anyhow::Error::msg)?,
+    )?;
+    write(
+        "meta/tasks.parquet",
+        &tasks_table(&tasks).map_err(anyhow::Error::msg)?,
+    )?;
+    let info = info_json(o, &summary, std::fs::metadata(&video_path)?.len());
+    write("meta/info.json", &serde_json::to_vec_pretty(&info)?)?;
+    let stats = json!({
+        "observation.state": state_stats.json(false),
+        "action": action_stats.json(false),
+        VIDEO_KEY: image_stats.json(true),
+    });
+    write("meta/stats.json", &serde_json::to_vec_pretty(&stats)?)?;
+    let provenance = json!({
+        "exported_by": format!("assay {}", env!("CARGO_PKG_VERSION")),
+        "run": run.display().to_string(),
+        "batch_id": report.run.batch_id,
+        "size": o.size,
+        "fps": o.fps,
+        "policies": o.policies,
+        "successful_only": o.successful_only,
+        "skipped": summary.skipped,
+    });
+    write("meta/assay.json", &serde_json::to_vec_pretty(&provenance)?)?;
+    Ok(summary)
+}
+
+/// What a task asks for, in words: its description, else its name.
+fn instruction(spec: &TaskSpec) -> String {
+    let d = spec.description.trim();
+    if d.is_empty() {
+        spec.name.clone()
+    } else {
+        d.to_owned()
+    }
+}
+
+/// One episode's frames and rows.
+struct Rendered {
+    len: usize,
+    frame_bytes: usize,
+    rgb: Vec<u8>,
+    state: Vec<f32>,
+    action: Vec<f32>,
+}
+
+/// Reads episode `artifact` of `spec` with `seed` from the run's artifact store and draws its
+/// states `o.fps` times a second.
+fn render_episode(
+    run: &Path,
+    spec: &TaskSpec,
+    seed: u64,
+    artifact: &str,
+    o: &Options,
+    renderer: &mut assay_render::Renderer,
+) -> Result<Rendered, String> {
+    let path = run.join("artifacts").join(artifact);
+    let bytes =
+        std::fs::read(&path).map_err(|e| format!("episode file {}: {e}", path.display()))?;
+    let expected = artifact
+        .rsplit('/')
+        .next()
+        .and_then(|f| f.split('.').next())
+        .unwrap_or_default();
+    if assay_spec::hash::sha256_hex(&bytes) != expected {
+        return Err(format!(
+            "episode file {} does not match its content address (changed since the run)",
+            path.display()
+        ));
+    }
+    let dt = spec.for_seed(seed).physics.dt;
+    let stride = 1.0 / (f64::from(o.fps) * dt);
+    let steps = stride.round();
+    if (stride - steps).abs() > 1e-6 || steps < 1.0 {
+        return Err(format!(
+            "--fps {}: physics.dt = {dt} s gives {stride:.3} physics steps a frame, not a whole \
+             number",
+            o.fps
+        ));
+    }
+    let states = assay_sim::recorded_states(spec, seed, &bytes, steps as u64)
+        .map_err(|e| format!("episode file: {e}"))?;
+    let camera = assay_spec::scene::task_cameras(&spec.cameras).remove(0);
+    let clip = assay_render::imagery::render_clip(
+        renderer,
+        &states.scenes,
+        &camera,
+        o.size,
+        states.interval_s,
+        states.proprio,
+        states.actions,
+    )
+    .map_err(|e| format!("rendering: {e}"))?;
+    Ok(Rendered {
+        len: states.steps.len(),
+        frame_bytes: (o.size * o.size * 3) as usize,
+        rgb: clip.rgb,
+        state: clip.proprio,
+        action: clip.actions,
+    })
+}
+
+/// A fixed-size list column of `dims` float32 values per row (a `datasets.Sequence` of a length).
+fn vectors(values: Vec<f32>, dims: usize) -> ArrayRef {
+    Arc::new(
+        FixedSizeListArray::try_new(
+            Arc::new(Field::new("item", DataType::Float32, true)),
+            dims as i32,
+            Arc::new(Float32Array::from(values)),
+            None,
+        )
+        .expect("whole rows"),
+    )
+}
+
+fn data_table(f: &Frames) -> Result<Vec<u8>, String> {
+    let n = f.frame_index.len() as i64;
+    to_parquet(
+        vec![
+            (
+                "observation.state",
+                true,
+                vectors(f.state.clone(), PROPRIO_DIMS),
+            ),
+            ("action", true, vectors(f.action.clone(), ACTION_DIMS)),
+            (
+                "timestamp",
+                true,
+                Arc::new(Float32Array::from(f.timestamp.clone())),
+            ),
+            (
+                "frame_index",
+                true,
+                Arc::new(Int64Array::from(f.frame_index.clone())),
+            ),
+            (
+                "episode_index",
+                true,
+                Arc::new(Int64Array::from(f.episode_index.clone())),
+            ),
+            ("index", true, Arc::new(Int64Array::from_iter_values(0..n))),
+            (
+                "task_index",
+                true,
+                Arc::new(Int64Array::from(f.task_index.clone())),
+            ),
+        ],
+        HashMap::new(),
+    )
+}
+
+fn episodes_table(episodes: &[EpisodeMeta], fps: u32) -> Result<Vec<u8>, String> {
+    let ints = |f: &dyn Fn(&EpisodeMeta) -> i64| -> ArrayRef {
+        Arc::new(Int64Array::from_iter_values(episodes.iter().map(f)))
+    };
+    let floats = |f: &dyn Fn(&EpisodeMeta) -> f64| -> ArrayRef {
+        Arc::new(Float64Array::from_iter_values(episodes.iter().map(f)))
+    };
+    let texts = |f: &dyn Fn(&EpisodeMeta) -> String| -> ArrayRef {
+        Arc::new(StringArray::from_iter_values(episodes.iter().map(f)))
+    };
+    let mut task_lists = ListBuilder::new(StringBuilder::new());
+    for e in episodes {
+        task_lists.values().append_value(&e.task);
+        task_lists.append(true);
+    }
+    let video = |k: &str| format!("videos/{VIDEO_KEY}/{k}");
+    let (chunk, file, from_ts, to_ts) = (
+        video("chunk_index"),
+        video("file_index"),
+        video("from_timestamp"),
+        video("to_timestamp"),
+    );
+    let fps = f64::from(fps);
+    to_parquet(
+        vec![
+            ("episode_index", true, ints(&|e| e.index)),
+            ("tasks", true, Arc::new(task_lists.finish())),
+            ("length", true, ints(&|e| e.length)),
+            ("data/chunk_index", true, ints(&|_| 0)),
+            ("data/file_index", true, ints(&|_| 0)),
+            ("dataset_from_index", true, ints(&|e| e.from)),
+            ("dataset_to_index", true, ints(&|e| e.from + e.length)),
+            (&chunk, true, ints(&|_| 0)),
+            (&file, true, ints(&|_| 0)),
+            (&from_ts, true, floats(&|e| e.video_from_s)),
+            (
+                &to_ts,
+                true,
+                floats(&|e| e.video_from_s + e.length as f64 / fps),
+            ),
+            ("meta/episodes/chunk_index", true, ints(&|_| 0)),
+            ("meta/episodes/file_index", true, ints(&|_| 0)),
+            // Where each episode came from, for joining with the run's episodes.parquet.
+            ("assay/task_id", true, texts(&|e| e.task_id.clone())),
+            (
+                "assay/seed",
+                true,
+                Arc::new(UInt64Array::from_iter_values(
+                    episodes.iter().map(|e| e.seed),
+                )),
+            ),
+            ("assay/policy", true, texts(&|e| e.policy.clone())),
+            (
+                "assay/success",
+                true,
+                Arc::new(BooleanArray::from(
+                    episodes.iter().map(|e| e.success).collect::<Vec<_>>(),
+                )),
+            ),
+            ("assay/episode_file", true, texts(&|e| e.file.clone())),
+        ],
+        HashMap::new(),
+    )
+}
+
+/// `meta/tasks.parquet`: a pandas frame indexed by the task's text with its `task_index` (the
+/// pandas metadata makes the text the index again when pandas reads it, as LeRobot does).
+fn tasks_table(tasks: &[String]) -> Result<Vec<u8>, String> {
+    let pandas = json!({
+        "index_columns": ["__index_level_0__"],
+        "column_indexes": [{
+            "name": null, "field_name": null, "pandas_type": "unicode",
+            "numpy_type": "object", "metadata": {"encoding": "UTF-8"}
+        }],
+        "columns": [
+            {"name": "task_index", "field_name": "task_index", "pandas_type": "int64",
+             "numpy_type": "int64", "metadata": null},
+            {"name": null, "field_name": "__index_level_0__", "pandas_type": "unicode",
+             "numpy_type": "object", "metadata": null}
+        ],
+        "creator": {"library": "assay", "version": env!("CARGO_PKG_VERSION")},
+        "pandas_version": "2.2.3"
+    });
+    to_parquet(
+        vec![
+            (
+                "task_index",
+                true,
+                Arc::new(Int64Array::from_iter_values(0..tasks.len() as i64)),
+            ),
+            (
+                "__index_level_0__",
+                true,
+                Arc::new(StringArray::from_iter_values(tasks)),
+            ),
+        ],
+        HashMap::from([("pandas".to_owned(), pandas.to_string())]),
+    )
+}
+
+fn info_json(o: &Options, s: &Summary, video_bytes: u64) -> serde_json::Value {
+    let scalar = |dtype: &str| json!({"dtype": dtype, "shape": [1], "names": null});
+    let mut features = BTreeMap::new();
+    features.insert(
+        VIDEO_KEY.to_owned(),
+        json!({
+            "dtype": "video",
+            "shape": [o.size, o.size, 3],
+            "names": ["height", "width", "channels"],
+            "info": {
+                "video.height": o.size,
+                "video.width": o.size,
+                "video.codec": "h264",
+                "video.pix_fmt": "yuv420p",
+                "video.is_depth_map": false,
+                "video.fps": o.fps,
+                "video.channels": 3,
+                "has_audio": false
+            }
+        }),
+    );
+    features.insert(
+        "observation.state".to_owned(),
+        json!({"dtype": "float32", "shape": [PROPRIO_DIMS], "names": STATE_NAMES}),
+    );
+    features.insert(
+        "action".to_owned(),
+        json!({"dtype": "float32", "shape": [ACTION_DIMS], "names": ACTION_NAMES}),
+    );
+    features.insert("timestamp".to_owned(), scalar("float32"));
+    for k in ["frame_index", "episode_index", "index", "task_index"] {
+        features.insert(k.to_owned(), scalar("int64"));
+    }
+    json!({
+        "codebase_version": CODEBASE_VERSION,
+        "robot_type": "assay_tool",
+        "total_episodes": s.episodes,
+        "total_frames": s.frames,
+        "total_tasks": s.tasks,
+        "chunks_size": 1000,
+        "data_files_size_in_mb": 100,
+        "video_files_size_in_mb": (video_bytes / (1 << 20)).max(200),
+        "fps": o.fps,
+        "splits": {"train": format!("0:{}", s.episodes)},
+        "data_path": "data/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet",
+        "video_path": "videos/{video_key}/chunk-{chunk_index:03d}/file-{file_index:03d}.mp4",
+        "features": features,
+    })
+}

@@ -1,0 +1,211 @@
+//! `assay export`: a finished run as a LeRobotDataset and as TensorBoard scalars, read back by
+//! the readers a lab uses. Called by `eval::eval_runs_a_batch_on_a_local_cluster_and_writes_both_reports`
+//! on its run (rendered episodes with 64-pixel dynamics clips), so no batch runs twice.
+
+use std::path::Path;
+use std::process::Command;
+
+use crate::common::*;
+use assay_report::report::Report;
+
+fn python() -> String {
+    std::env::var("ASSAY_TEST_PYTHON").expect(
+        "ASSAY_TEST_PYTHON names the test Python (scripts/test sets it up: tests/python/requirements.txt)",
+    )
+}
+
+fn assay(args: &[&std::ffi::OsStr]) -> std::process::Output {
+    Command::new(bin())
+        .args(args)
+        .current_dir(repo())
+        .output()
+        .unwrap()
+}
+
+fn ok(out: &std::process::Output) -> String {
+    assert!(
+        out.status.success(),
+        "{}\n{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+/// Reads `dataset` with tests/python/read_lerobot.py against `run`: what it checked.
+fn read_lerobot(dataset: &Path, run: &Path) -> serde_json::Value {
+    let out = Command::new(python())
+        .arg(repo().join("tests/python/read_lerobot.py"))
+        .args([dataset, run])
+        .output()
+        .unwrap();
+    serde_json::from_str(&ok(&out)).unwrap()
+}
+
+/// The LeRobot export of `run`, a finished `assay eval` folder whose episodes have dynamics clips
+/// of 64 pixels: loads as the format says, its states and actions are the episode files' rows,
+/// its frames are the clips' frames; filters work; broken episodes are left out by name while
+/// the rest are written.
+pub fn lerobot_export_of(run: &Path, r: &Report) {
+    let tmp = tempfile::tempdir().unwrap();
+    let dataset = tmp.path().join("dataset");
+    let out = assay(&[
+        "export".as_ref(),
+        "lerobot".as_ref(),
+        run.as_os_str(),
+        dataset.as_os_str(),
+        "--size".as_ref(),
+        "64".as_ref(),
+    ]);
+    let said = ok(&out);
+    let episodes: Vec<_> = r.results.tasks.iter().flat_map(|t| &t.episodes).collect();
+    assert!(
+        said.contains(&format!("with {} episodes", episodes.len())),
+        "{said}"
+    );
+    let checked = read_lerobot(&dataset, run);
+    assert_eq!(checked["episodes"], episodes.len());
+    let with_clips = episodes
+        .iter()
+        .filter(|e| e.imagery.as_ref().is_some_and(|i| i.clip.is_some()))
+        .count();
+    assert!(
+        with_clips > 0,
+        "the run measured dynamics: its episodes have clips"
+    );
+    assert_eq!(
+        checked["clips_compared"], with_clips,
+        "every episode with a clip has the clip's frames, states and actions: {checked}"
+    );
+
+    // Only the oracle's successful episodes.
+    let oracle = tmp.path().join("oracle");
+    ok(&assay(&[
+        "export".as_ref(),
+        "lerobot".as_ref(),
+        run.as_os_str(),
+        oracle.as_os_str(),
+        "--size".as_ref(),
+        "32".as_ref(),
+        "--fps".as_ref(),
+        "20".as_ref(),
+        "--policy".as_ref(),
+        "oracle".as_ref(),
+        "--successful".as_ref(),
+    ]));
+    let wanted = episodes
+        .iter()
+        .filter(|e| e.policy == "oracle" && e.success)
+        .count();
+    assert_eq!(read_lerobot(&oracle, run)["episodes"], wanted);
+
+    // A folder that holds something is not written into.
+    let refused = assay(&[
+        "export".as_ref(),
+        "lerobot".as_ref(),
+        run.as_os_str(),
+        dataset.as_os_str(),
+    ]);
+    assert!(!refused.status.success());
+    assert!(
+        String::from_utf8_lossy(&refused.stderr).contains("is not empty"),
+        "{}",
+        String::from_utf8_lossy(&refused.stderr)
+    );
+
+    // One episode file gone, another changed since the run: both left out, named by task, seed
+    // and policy with the reason; the others are exported and read back as before.
+    let (t0, t1) = (&r.results.tasks[0], &r.results.tasks[1]);
+    let (gone, changed) = (&t0.episodes[0], &t1.episodes[0]);
+    let gone_path = run.join("artifacts").join(&gone.artifact);
+    let kept = tmp.path().join("kept.arrow");
+    std::fs::rename(&gone_path, &kept).unwrap();
+    let changed_path = run.join("artifacts").join(&changed.artifact);
+    let original = std::fs::read(&changed_path).unwrap();
+    let mut altered = original.clone();
+    let mid = altered.len() / 2;
+    altered[mid] ^= 0xff;
+    std::fs::write(&changed_path, &altered).unwrap();
+    let partial = tmp.path().join("partial");
+    let out = assay(&[
+        "export".as_ref(),
+        "lerobot".as_ref(),
+        run.as_os_str(),
+        partial.as_os_str(),
+        "--size".as_ref(),
+        "64".as_ref(),
+    ]);
+    std::fs::rename(&kept, &gone_path).unwrap();
+    std::fs::write(&changed_path, &original).unwrap();
+    ok(&out);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    for (t, e, why) in [
+        (t0, gone, "No such file"),
+        (t1, changed, "does not match its content address"),
+    ] {
+        let line = format!(
+            "left out: task {} seed {} policy {}: ",
+            t.id, e.seed, e.policy
+        );
+        assert!(
+            stderr
+                .lines()
+                .any(|l| l.starts_with(&line) && l.contains(why)),
+            "{line}…{why} in:\n{stderr}"
+        );
+    }
+    let checked = read_lerobot(&partial, run);
+    assert_eq!(checked["episodes"], episodes.len() - 2);
+}
+
+/// The TensorBoard export of `run`: tbparse reads the report's figures back at their steps.
+pub fn tensorboard_export_of(run: &Path, r: &Report) {
+    let tmp = tempfile::tempdir().unwrap();
+    let logdir = tmp.path().join("tb");
+    ok(&assay(&[
+        "export".as_ref(),
+        "tensorboard".as_ref(),
+        run.as_os_str(),
+        logdir.as_os_str(),
+    ]));
+    let out = Command::new(python())
+        .arg(repo().join("tests/python/read_tensorboard.py"))
+        .arg(&logdir)
+        .output()
+        .unwrap();
+    let scalars: Vec<serde_json::Value> = serde_json::from_str(&ok(&out)).unwrap();
+    let value = |tag: &str, step: i64| {
+        scalars
+            .iter()
+            .find(|s| s["tag"] == tag && s["step"] == step)
+            .and_then(|s| s["value"].as_f64())
+            .unwrap_or_else(|| panic!("no scalar {tag} at step {step} in {scalars:?}"))
+    };
+    for p in &r.results.by_policy {
+        let rate = p.success.rate.expect("episodes ran");
+        assert!((value(&format!("success/{}", p.policy), 0) - rate).abs() < 1e-6);
+    }
+    for g in &r.results.groups {
+        for p in &g.by_policy {
+            let rate = p.success.rate.expect("episodes ran");
+            let tag = format!("success/{}/{}", g.group, p.policy);
+            assert!((value(&tag, 0) - rate).abs() < 1e-6, "{tag}");
+        }
+    }
+    let d = r.results.diversity.as_ref().expect("diversity");
+    for f in &d.dynamics {
+        let tag = format!("diversity/dynamics/{}/eval_image_mse", f.group);
+        let got = value(&tag, i64::from(f.budget));
+        assert!(
+            (got - f.eval_image_mse).abs() <= 1e-6 * f.eval_image_mse.abs().max(1.0),
+            "{tag}: {got} vs {}",
+            f.eval_image_mse
+        );
+    }
+    let q = r.results.quality.as_ref().expect("judged");
+    for j in &q.judges {
+        let mean = j.completion.mean.expect("episodes judged");
+        let tag = format!("quality/{}/completion", j.judge);
+        assert!((value(&tag, 0) - mean).abs() < 1e-5, "{tag}");
+    }
+}
