@@ -294,6 +294,29 @@ fn eval_runs_a_batch_on_a_local_cluster_and_writes_both_reports() {
         && row["group"].is_string()
         && dir.path().join(row["episode"].as_str().unwrap()).is_file()));
     assert_eq!(table["types"][4], "uint64", "seed: {:?}", table["types"]);
+    // Each judge's scores of each episode (the mean over its repeats) beside its row.
+    let q = r.results.quality.as_ref().expect("judged");
+    let mut scored = 0;
+    for t in &q.tasks {
+        for e in &t.episodes {
+            let row = rows
+                .iter()
+                .find(|row| {
+                    row["task"] == t.task_id.as_str()
+                        && row["seed"] == e.seed
+                        && row["policy"] == e.policy.as_str()
+                })
+                .unwrap();
+            let column = format!("{}.completion", t.judge);
+            assert_eq!(row[&column].as_f64(), e.completion, "{column}");
+            scored += 1;
+        }
+    }
+    assert_eq!(
+        scored,
+        rows.len(),
+        "every episode was judged and has its scores"
+    );
     assert_eq!(py["task_id"], task.id.as_str());
     assert_eq!(py["seed"], e.seed);
     assert_eq!(py["success"], e.success);

@@ -1,14 +1,15 @@
 //! The flat table of a batch's episodes, `episodes.parquet` beside every report: one row per
 //! planned episode — its task, group, seed and policy, whether it completed and succeeded, its
-//! steps, the episode file, and the error of one that failed — for pandas, polars or DuckDB
-//! (`pd.read_parquet("out/episodes.parquet")`).
+//! steps, the episode file, the error of one that failed, and each judge's scores of it
+//! (`<judge>.scene_alignment`, `<judge>.completion`: the mean over its repeats) — for pandas,
+//! polars or DuckDB (`pd.read_parquet("out/episodes.parquet")`).
 //!
 //! Owns: the table's columns and their Parquet encoding (`cmd::report::write` writes it).
 
 use std::collections::HashMap;
 use std::sync::Arc;
 
-use arrow_array::{ArrayRef, BooleanArray, RecordBatch, StringArray, UInt64Array};
+use arrow_array::{ArrayRef, BooleanArray, Float64Array, RecordBatch, StringArray, UInt64Array};
 use arrow_schema::{Field, Schema};
 
 use assay_report::report::Results;
@@ -77,6 +78,44 @@ pub fn episodes_parquet(results: &Results) -> Result<Vec<u8>, String> {
             }));
         }
     }
+    // Each judge's scores of each episode, by (task, seed, policy).
+    let mut scores: Vec<(
+        String,
+        HashMap<(&str, u64, &str), (Option<f64>, Option<f64>)>,
+    )> = Vec::new();
+    if let Some(q) = &results.quality {
+        for j in &q.judges {
+            let mut by_episode = HashMap::new();
+            for t in q.tasks.iter().filter(|t| t.judge == j.judge) {
+                for e in &t.episodes {
+                    by_episode.insert(
+                        (t.task_id.as_str(), e.seed, e.policy.as_str()),
+                        (e.scene_alignment, e.completion),
+                    );
+                }
+            }
+            scores.push((j.judge.clone(), by_episode));
+        }
+    }
+    let keys: Vec<(&str, u64, &str)> = c
+        .task
+        .iter()
+        .zip(&c.seed)
+        .zip(&c.policy)
+        .map(|((t, s), p)| (t.as_str(), *s, p.as_str()))
+        .collect();
+    let mut judged: Vec<(String, ArrayRef)> = Vec::new();
+    for (judge, by_episode) in &scores {
+        let column = |pick: fn(&(Option<f64>, Option<f64>)) -> Option<f64>| -> ArrayRef {
+            Arc::new(Float64Array::from(
+                keys.iter()
+                    .map(|k| by_episode.get(k).and_then(pick))
+                    .collect::<Vec<_>>(),
+            ))
+        };
+        judged.push((format!("{judge}.scene_alignment"), column(|s| s.0)));
+        judged.push((format!("{judge}.completion"), column(|s| s.1)));
+    }
     let text = |v: Vec<String>| Arc::new(StringArray::from(v)) as ArrayRef;
     let maybe_text = |v: Vec<Option<String>>| Arc::new(StringArray::from(v)) as ArrayRef;
     let columns: Vec<(&str, bool, ArrayRef)> = vec![
@@ -98,6 +137,14 @@ pub fn episodes_parquet(results: &Results) -> Result<Vec<u8>, String> {
         ("episode", true, maybe_text(c.episode)),
         ("error", true, maybe_text(c.error)),
     ];
+    let columns = columns
+        .into_iter()
+        .chain(
+            judged
+                .iter()
+                .map(|(name, a)| (name.as_str(), true, a.clone())),
+        )
+        .collect();
     to_parquet(columns, HashMap::new())
 }
 

@@ -105,12 +105,61 @@ pub struct TaskQuality {
     pub errors: Vec<String>,
     /// Item outcomes with repeats left unasked because the judge budget was spent.
     pub unjudged: u64,
+    /// The pooled variance above split as the first paper reports it: over the k repeats of
+    /// the same input (judge consistency, its Tables 4–5) and over the task's episodes.
+    #[serde(default)]
+    pub scene_alignment_split: VarianceSplit,
+    #[serde(default)]
+    pub completion_split: VarianceSplit,
+    /// Each judged episode's scores: the mean over its repeats.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub episodes: Vec<EpisodeScores>,
+}
+
+/// Where a task's score variance comes from.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+pub struct VarianceSplit {
+    /// The mean over the task's episodes of the variance of one episode's k repeats (the same
+    /// pictures asked again): the judge's own inconsistency. None with fewer than 2 repeats.
+    pub over_repeats: Option<f64>,
+    /// The variance over the task's episodes of each episode's mean score: how much the
+    /// episodes (seeds, policies) differ. None with fewer than 2 judged episodes.
+    pub over_episodes: Option<f64>,
+}
+
+impl VarianceSplit {
+    /// From each episode's valid repeat scores.
+    fn of(per_episode: &[Vec<f64>]) -> Self {
+        let within: Vec<f64> = per_episode
+            .iter()
+            .filter_map(|s| ScoreStats::of(s).variance)
+            .collect();
+        let means: Vec<f64> = per_episode
+            .iter()
+            .filter_map(|s| ScoreStats::of(s).mean)
+            .collect();
+        Self {
+            over_repeats: ScoreStats::of(&within).mean,
+            over_episodes: ScoreStats::of(&means).variance,
+        }
+    }
+}
+
+/// One judged episode's mean scores over its repeats (None: no valid score).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+pub struct EpisodeScores {
+    pub seed: u64,
+    pub policy: String,
+    pub scene_alignment: Option<f64>,
+    pub completion: Option<f64>,
 }
 
 #[derive(Default)]
 struct TaskAcc {
     scene_alignment: Vec<f64>,
     completion: Vec<f64>,
+    /// Per judged episode: (seed, policy, scene alignment repeats, completion repeats).
+    episodes: Vec<(u64, String, Vec<f64>, Vec<f64>)>,
     errors: Vec<String>,
     unjudged: u64,
 }
@@ -216,6 +265,17 @@ pub fn build_quality(
         j.models.insert(o.model.as_str());
         j.repeats = j.repeats.max(o.repeats);
         j.usage.add(&o.usage);
+        let repeats = |which: Item| -> Vec<f64> {
+            o.item(which)
+                .map(|i| valid_scores(i).collect())
+                .unwrap_or_default()
+        };
+        task.episodes.push((
+            r.seed,
+            r.policy.clone(),
+            repeats(Item::SceneAlignment),
+            repeats(Item::Completion),
+        ));
         for item in &o.items {
             j.prompts.insert(item.prompt.as_str());
             match item.item {
@@ -243,10 +303,7 @@ pub fn build_quality(
                 ));
             }
         }
-        let completion: Vec<f64> = o
-            .item(Item::Completion)
-            .map(|i| valid_scores(i).collect())
-            .unwrap_or_default();
+        let completion = repeats(Item::Completion);
         let sim = truth.get(&(r.task_id.as_str(), r.policy.as_str(), r.seed));
         if let (Some(mean), Some(ok)) = (ScoreStats::of(&completion).mean, sim) {
             j.pairs.push((if *ok { 10.0 } else { 0.0 }, mean));
@@ -260,6 +317,11 @@ pub fn build_quality(
         let (mut sa_means, mut c_means) = (Vec::new(), Vec::new());
         for (task_id, t) in j.tasks {
             let group = group_of.get(task_id).copied().unwrap_or(NO_GROUP);
+            let (sa, c): (Vec<Vec<f64>>, Vec<Vec<f64>>) = t
+                .episodes
+                .iter()
+                .map(|(_, _, sa, c)| (sa.clone(), c.clone()))
+                .unzip();
             let row = TaskQuality {
                 task_id: task_id.to_owned(),
                 group: group.to_owned(),
@@ -268,6 +330,18 @@ pub fn build_quality(
                 completion: ScoreStats::of(&t.completion),
                 errors: t.errors,
                 unjudged: t.unjudged,
+                scene_alignment_split: VarianceSplit::of(&sa),
+                completion_split: VarianceSplit::of(&c),
+                episodes: t
+                    .episodes
+                    .into_iter()
+                    .map(|(seed, policy, sa, c)| EpisodeScores {
+                        seed,
+                        policy,
+                        scene_alignment: ScoreStats::of(&sa).mean,
+                        completion: ScoreStats::of(&c).mean,
+                    })
+                    .collect(),
             };
             let g = by_group.entry(group).or_default();
             g.0 += 1;
@@ -514,6 +588,31 @@ mod tests {
         close(gpt.groups[1].completion.mean, 8.0);
     }
 
+    /// The paper's split: the variance over one episode's repeats (judge consistency) apart from
+    /// the variance over episodes of their means; each episode's means kept for the table.
+    #[test]
+    fn variance_splits_into_repeats_and_episodes() {
+        let tasks = vec![info("a", "g")];
+        let records = vec![
+            judged("offline", "a", 0, &[4.0, 4.0, 4.0], &[2.0, 4.0, 6.0]),
+            judged("offline", "a", 1, &[2.0, 2.0, 2.0], &[8.0, 8.0, 8.0]),
+            judged("offline", "a", 2, &[3.0], &[5.0]),
+        ];
+        let q = build_quality(&tasks, &[], &records).unwrap();
+        let t = &q.tasks[0];
+        // Completion: repeats' variances 4 and 0 (one repeat has none) -> 2; means 4, 8, 5 ->
+        // variance 13/3. Scene alignment: no spread over repeats; means 4, 2, 3 -> 1.
+        assert_eq!(t.completion_split.over_repeats, Some(2.0));
+        assert!((t.completion_split.over_episodes.unwrap() - 13.0 / 3.0).abs() < 1e-12);
+        assert_eq!(t.scene_alignment_split.over_repeats, Some(0.0));
+        assert_eq!(t.scene_alignment_split.over_episodes, Some(1.0));
+        let means: Vec<_> = t.episodes.iter().map(|e| (e.seed, e.completion)).collect();
+        assert_eq!(means, [(0, Some(4.0)), (1, Some(8.0)), (2, Some(5.0))]);
+        // One judged episode: no spread over episodes to speak of.
+        let q = build_quality(&tasks, &[], &records[..1]).unwrap();
+        assert_eq!(q.tasks[0].completion_split.over_episodes, None);
+    }
+
     #[test]
     fn judge_against_simulator() {
         let tasks = vec![info("t", "g")];
@@ -704,7 +803,10 @@ mod tests {
             "| judge | against | group | n | Pearson r | MAE | Spearman ρ | Kendall τ |",
             "![Scene alignment against task completion per group](quality.svg)",
             "### Quality per task\n",
-            "| `a` | g1 | `offline` | 3.00 (var 1.33, n 4) | 5.00 (var 33.33, n 4) | 0 |",
+            // The pooled completion variance 33.33 splits into 0 over repeats (the offline judge
+            // repeats itself) and 50 over the two episodes' means (10 and 0).
+            "| `a` | g1 | `offline` | 3.00 (var 1.33, n 4) | 5.00 (var 33.33, n 4) | 0.000 | 50.000 | 0 |",
+            "| `a` | g1 | `gpt-4o` | 3.00 (var 0.00, n 2) | 2.50 (var 0.50, n 2) | 0.500 | – | 0 |",
         ] {
             assert!(md.contains(line), "missing {line:?} in\n{md}");
         }

@@ -369,8 +369,11 @@ pub fn quality_per_task(q: &QualityResults) -> Table {
         "judge",
         "#scene alignment (1–5)",
         "#completion (0–10)",
+        "#completion variance over repeats",
+        "#completion variance over episodes",
         "#unjudged",
     ]);
+    let var = |v: Option<f64>| v.map_or_else(Cell::missing, |v| Cell::text(format!("{v:.3}")));
     for t in &q.tasks {
         table.row(vec![
             Cell(vec![Span::TaskLink(t.task_id.clone())]),
@@ -378,6 +381,8 @@ pub fn quality_per_task(q: &QualityResults) -> Table {
             Cell::code(&t.judge),
             stats(&t.scene_alignment),
             stats(&t.completion),
+            var(t.completion_split.over_repeats),
+            var(t.completion_split.over_episodes),
             n(t.unjudged),
         ]);
     }

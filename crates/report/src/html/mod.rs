@@ -64,11 +64,11 @@ text-align:left;max-width:680px}";
 /// The sections and their titles in the navigation bar.
 const NAV: [(&str, &str); 10] = [
     ("overview", "Overview"),
-    ("figure-4", "Figure 4"),
-    ("figure-3", "Figure 3"),
-    ("table-1", "Table 1"),
-    ("table-2", "Table 2"),
-    ("table-3", "Table 3"),
+    ("figure-4", "Scene vs completion"),
+    ("figure-3", "Judge agreement"),
+    ("table-1", "Text diversity"),
+    ("table-2", "Dynamics diversity"),
+    ("table-3", "Generalization"),
     ("ranking", "Ranking"),
     ("invalid", "Invalid tasks"),
     ("imports", "Import"),
@@ -697,7 +697,9 @@ mod tests {
             );
         }
         assert!(html.contains("Not in this batch (no judge ran: run with --judge)"));
-        assert_eq!(html.matches("<svg").count(), 0);
+        // The overview's success chart is the only figure left.
+        assert_eq!(html.matches("<svg").count(), 1);
+        assert!(html.contains("Success per group and policy (95 % Wilson intervals)"));
         let with_quality = render(&self::report(), None);
         assert!(
             with_quality.contains("Not in this batch (human ratings: run with --human-ratings)")

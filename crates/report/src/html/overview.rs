@@ -2,6 +2,7 @@
 //! policy, and the invalid tasks.
 
 use super::*;
+use crate::figures::{self, BarChart, Bars};
 use crate::tables;
 
 pub(super) fn header(report: &Report) -> Markup {
@@ -27,10 +28,46 @@ pub(super) fn header(report: &Report) -> Markup {
 }
 
 pub(super) fn overview(report: &Report) -> Markup {
+    let r = &report.results;
+    // Success per group and policy, each bar with its 95 % Wilson interval; "All" last.
+    let mut categories: Vec<String> = r.groups.iter().map(|g| g.group.clone()).collect();
+    categories.push("All".into());
+    let series: Vec<Bars> = r
+        .policies
+        .iter()
+        .map(|p| {
+            let of = |by: &[crate::report::PolicySuccess]| {
+                by.iter()
+                    .find(|s| s.policy == *p)
+                    .map(|s| (s.success.rate, s.success.ci95))
+                    .unwrap_or((None, None))
+            };
+            let cells: Vec<_> = r
+                .groups
+                .iter()
+                .map(|g| of(&g.by_policy))
+                .chain(std::iter::once(of(&r.by_policy)))
+                .collect();
+            Bars {
+                name: p.clone(),
+                values: cells.iter().map(|c| c.0).collect(),
+                intervals: cells.iter().map(|c| c.1).collect(),
+            }
+        })
+        .collect();
     html! {
         section id="overview" {
-            h2 { "Overview: success per group" }
-            (table(&tables::success_per_group(&report.results)))
+            h2 { "Overview: success per group and policy" }
+            @if !r.groups.is_empty() {
+                (inline_svg(&figures::bar_chart(&BarChart {
+                    title: "Success per group and policy (95 % Wilson intervals)",
+                    y_desc: "success rate",
+                    categories: &categories,
+                    series: &series,
+                    y_range: Some((0.0, 1.0)),
+                })))
+            }
+            (table(&tables::success_per_group(r)))
         }
     }
 }

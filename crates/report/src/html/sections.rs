@@ -18,7 +18,7 @@ pub(super) fn figure_4(quality: Option<&QualityResults>) -> Markup {
     let Some(q) = quality else {
         return html! {
             section id="figure-4" {
-                h2 { "Figure 4: scene alignment against task completion" }
+                h2 { "Scene alignment against task completion (figure 4)" }
                 (absent("no judge ran: run with --judge"))
             }
         };
@@ -38,7 +38,7 @@ pub(super) fn figure_4(quality: Option<&QualityResults>) -> Markup {
         .collect();
     html! {
         section id="figure-4" {
-            h2 { "Figure 4: scene alignment against task completion" }
+            h2 { "Scene alignment against task completion (figure 4)" }
             (inline_svg(&figures::scene_vs_completion(&points)))
             p.caption {
                 "One marker per (task, judge): the judge's mean scene alignment (1–5, from the 4 \
@@ -85,7 +85,7 @@ pub(super) fn figure_3(quality: Option<&QualityResults>, human: Option<&Agreemen
     if lines.is_empty() {
         return html! {
             section id="figure-3" {
-                h2 { "Figure 3: judge agreement" }
+                h2 { "Judge agreement with the simulator and with people (figure 3)" }
                 @if quality.is_none() {
                     (absent("no judge ran: run with --judge"))
                 } @else {
@@ -131,7 +131,7 @@ pub(super) fn figure_3(quality: Option<&QualityResults>, human: Option<&Agreemen
     };
     html! {
         section id="figure-3" {
-            h2 { "Figure 3: judge agreement" }
+            h2 { "Judge agreement with the simulator and with people (figure 3)" }
             div.row {
                 (inline_svg(&figures::bar_chart(&BarChart {
                     title: "Pearson r per judge",
@@ -168,7 +168,7 @@ pub(super) fn table_1(diversity: Option<&DiversityResults>) -> Markup {
     let Some(t) = diversity.and_then(|d| d.text.as_ref()) else {
         return html! {
             section id="table-1" {
-                h2 { "Table 1: text diversity" }
+                h2 { "Text diversity per group (Table 1)" }
                 (absent("text diversity was not measured: run without --no-diversity"))
                 (diversity_errors(diversity, "text"))
             }
@@ -191,7 +191,7 @@ pub(super) fn table_1(diversity: Option<&DiversityResults>) -> Markup {
         .collect();
     html! {
         section id="table-1" {
-            h2 { "Table 1: text diversity" }
+            h2 { "Text diversity per group (Table 1)" }
             (inline_svg(&figures::bar_chart(&BarChart {
                 title: "Text diversity per group and embedding model",
                 y_desc: "diversity",
@@ -209,7 +209,7 @@ pub(super) fn table_2(diversity: Option<&DiversityResults>) -> Markup {
     let Some(d) = diversity.filter(|d| !d.dynamics.is_empty()) else {
         return html! {
             section id="table-2" {
-                h2 { "Table 2: dynamics diversity" }
+                h2 { "Dynamics diversity against episode budget (Table 2)" }
                 (absent("dynamics diversity was not measured: it needs rendering and a trainer \
                          worker"))
                 (diversity_errors(diversity, "dynamics"))
@@ -240,7 +240,7 @@ pub(super) fn table_2(diversity: Option<&DiversityResults>) -> Markup {
         .collect();
     html! {
         section id="table-2" {
-            h2 { "Table 2: dynamics diversity" }
+            h2 { "Dynamics diversity against episode budget (Table 2)" }
             (inline_svg(&figures::line_chart(
                 "World-model error against training episodes",
                 "episodes trained on",
@@ -264,7 +264,7 @@ pub(super) fn table_3(g: Option<&GeneralizationResults>) -> Markup {
     let Some(g) = g else {
         return html! {
             section id="table-3" {
-                h2 { "Table 3: generalization per group" }
+                h2 { "Generalization to held-out variations (Table 3)" }
                 (absent("run with --generalization"))
             }
         };
@@ -281,7 +281,7 @@ pub(super) fn table_3(g: Option<&GeneralizationResults>) -> Markup {
     ];
     html! {
         section id="table-3" {
-            h2 { "Table 3: generalization per group" }
+            h2 { "Generalization to held-out variations (Table 3)" }
             (inline_svg(&figures::bar_chart(&BarChart {
                 title: "Success of the trained policy per group",
                 y_desc: "success rate",
@@ -307,7 +307,7 @@ pub(super) fn ranking(r: Option<&RankingResults>) -> Markup {
     let Some(r) = r else {
         return html! {
             section id="ranking" {
-                h2 { "Policy ranking" }
+                h2 { "Policy ranking: predicted against real success" }
                 (absent("run with --rank-train-policies"))
             }
         };
@@ -318,7 +318,7 @@ pub(super) fn ranking(r: Option<&RankingResults>) -> Markup {
     let repeats = tables::repeat_consistency(r);
     html! {
         section id="ranking" {
-            h2 { "Policy ranking" }
+            h2 { "Policy ranking: predicted against real success" }
             h3 { "What was compared" }
             (table(&tables::ranking_compared(r)))
             @if !models.rows.is_empty() {

@@ -85,11 +85,25 @@ pub(super) fn task_page(inputs: &HtmlInputs<'_>, t: &TaskResult) -> Markup {
                 },
                 None => p.absent { "No pictures: the batch did not render this task." },
             }
+            @let videos: Vec<_> = t.episodes.iter()
+                .filter_map(|e| e.imagery.as_ref()?.video.as_ref().map(|v| (e, v)))
+                .collect();
+            @if !videos.is_empty() {
+                h3 { "Episode videos" }
+                p {
+                    @for (i, (e, v)) in videos.iter().enumerate() {
+                        @if i > 0 { " · " }
+                        a href={ "artifacts/" (v) } { "seed " (e.seed) ", " (e.policy) }
+                    }
+                }
+            }
             @if !judged.is_empty() {
                 h3 { "Judges" }
                 table {
                     tr {
                         th { "judge" } th { "scene alignment (1–5)" } th { "completion (0–10)" }
+                        th { "completion variance over repeats" }
+                        th { "completion variance over episodes" }
                         th { "unjudged" } th { "errors" }
                     }
                     @for q in &judged {
@@ -97,6 +111,9 @@ pub(super) fn task_page(inputs: &HtmlInputs<'_>, t: &TaskResult) -> Markup {
                             td { (q.judge) }
                             td.n { (cell(&score(q.scene_alignment.mean, q.scene_alignment.variance, q.scene_alignment.n))) }
                             td.n { (cell(&score(q.completion.mean, q.completion.variance, q.completion.n))) }
+                            @for v in [q.completion_split.over_repeats, q.completion_split.over_episodes] {
+                                td.n { @match v { Some(v) => (format!("{v:.3}")), None => "n/a" } }
+                            }
                             td.n { (q.unjudged) }
                             td { (q.errors.join("; ")) }
                         }
