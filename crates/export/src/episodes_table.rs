@@ -17,6 +17,11 @@ use assay_report::report::Results;
 /// The table's file name, beside report.json.
 pub const EPISODES_TABLE: &str = "episodes.parquet";
 
+/// An episode: its task, seed and policy.
+type EpisodeKey<'a> = (&'a str, u64, &'a str);
+/// A judge's mean scene alignment and completion of one episode.
+type Scores = (Option<f64>, Option<f64>);
+
 /// The columns of one row.
 #[derive(Default)]
 struct Columns {
@@ -79,10 +84,7 @@ pub fn episodes_parquet(results: &Results) -> Result<Vec<u8>, String> {
         }
     }
     // Each judge's scores of each episode, by (task, seed, policy).
-    let mut scores: Vec<(
-        String,
-        HashMap<(&str, u64, &str), (Option<f64>, Option<f64>)>,
-    )> = Vec::new();
+    let mut scores: Vec<(String, HashMap<EpisodeKey<'_>, Scores>)> = Vec::new();
     if let Some(q) = &results.quality {
         for j in &q.judges {
             let mut by_episode = HashMap::new();
@@ -106,7 +108,7 @@ pub fn episodes_parquet(results: &Results) -> Result<Vec<u8>, String> {
         .collect();
     let mut judged: Vec<(String, ArrayRef)> = Vec::new();
     for (judge, by_episode) in &scores {
-        let column = |pick: fn(&(Option<f64>, Option<f64>)) -> Option<f64>| -> ArrayRef {
+        let column = |pick: fn(&Scores) -> Option<f64>| -> ArrayRef {
             Arc::new(Float64Array::from(
                 keys.iter()
                     .map(|k| by_episode.get(k).and_then(pick))
