@@ -32,6 +32,18 @@ fn ok(out: &std::process::Output) -> String {
     String::from_utf8_lossy(&out.stdout).into_owned()
 }
 
+/// `assay export lerobot RUN OUT EXTRA…`.
+fn export_lerobot(run: &Path, out: &Path, extra: &[&str]) -> std::process::Output {
+    let mut args = vec![
+        "export".as_ref(),
+        "lerobot".as_ref(),
+        run.as_os_str(),
+        out.as_os_str(),
+    ];
+    args.extend(extra.iter().map(|a| std::ffi::OsStr::new(*a)));
+    assay(&args)
+}
+
 /// Reads `dataset` with tests/python/read_lerobot.py against `run`: what it checked.
 fn read_lerobot(dataset: &Path, run: &Path) -> serde_json::Value {
     let out = Command::new(python())
@@ -49,15 +61,7 @@ fn read_lerobot(dataset: &Path, run: &Path) -> serde_json::Value {
 pub fn lerobot_export_of(run: &Path, r: &Report) {
     let tmp = tempfile::tempdir().unwrap();
     let dataset = tmp.path().join("dataset");
-    let out = assay(&[
-        "export".as_ref(),
-        "lerobot".as_ref(),
-        run.as_os_str(),
-        dataset.as_os_str(),
-        "--size".as_ref(),
-        "64".as_ref(),
-    ]);
-    let said = ok(&out);
+    let said = ok(&export_lerobot(run, &dataset, &["--size", "64"]));
     let episodes: Vec<_> = r.results.tasks.iter().flat_map(|t| &t.episodes).collect();
     assert!(
         said.contains(&format!("with {} episodes", episodes.len())),
@@ -80,19 +84,19 @@ pub fn lerobot_export_of(run: &Path, r: &Report) {
 
     // Only the oracle's successful episodes.
     let oracle = tmp.path().join("oracle");
-    ok(&assay(&[
-        "export".as_ref(),
-        "lerobot".as_ref(),
-        run.as_os_str(),
-        oracle.as_os_str(),
-        "--size".as_ref(),
-        "32".as_ref(),
-        "--fps".as_ref(),
-        "20".as_ref(),
-        "--policy".as_ref(),
-        "oracle".as_ref(),
-        "--successful".as_ref(),
-    ]));
+    ok(&export_lerobot(
+        run,
+        &oracle,
+        &[
+            "--size",
+            "32",
+            "--fps",
+            "20",
+            "--policy",
+            "oracle",
+            "--successful",
+        ],
+    ));
     let wanted = episodes
         .iter()
         .filter(|e| e.policy == "oracle" && e.success)
@@ -100,12 +104,7 @@ pub fn lerobot_export_of(run: &Path, r: &Report) {
     assert_eq!(read_lerobot(&oracle, run)["episodes"], wanted);
 
     // A folder that holds something is not written into.
-    let refused = assay(&[
-        "export".as_ref(),
-        "lerobot".as_ref(),
-        run.as_os_str(),
-        dataset.as_os_str(),
-    ]);
+    let refused = export_lerobot(run, &dataset, &[]);
     assert!(!refused.status.success());
     assert!(
         String::from_utf8_lossy(&refused.stderr).contains("is not empty"),
@@ -127,14 +126,7 @@ pub fn lerobot_export_of(run: &Path, r: &Report) {
     altered[mid] ^= 0xff;
     std::fs::write(&changed_path, &altered).unwrap();
     let partial = tmp.path().join("partial");
-    let out = assay(&[
-        "export".as_ref(),
-        "lerobot".as_ref(),
-        run.as_os_str(),
-        partial.as_os_str(),
-        "--size".as_ref(),
-        "64".as_ref(),
-    ]);
+    let out = export_lerobot(run, &partial, &["--size", "64"]);
     std::fs::rename(&kept, &gone_path).unwrap();
     std::fs::write(&changed_path, &original).unwrap();
     ok(&out);

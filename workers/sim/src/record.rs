@@ -196,59 +196,25 @@ impl Recorder {
         let (yaw, fingers) = (has("ee_yaw"), has("gripper_opening"));
         for batch in reader {
             let batch = batch.map_err(|e| bad(e.to_string()))?;
-            let column = |name: &str| {
-                batch
-                    .column_by_name(name)
-                    .ok_or_else(|| bad(format!("no column '{name}'")))
-            };
             let f32s = |name: &str, into: &mut Vec<f32>| -> Result<(), SimError> {
-                let c = column(name)?;
-                let a = c
-                    .as_any()
-                    .downcast_ref::<Float32Array>()
-                    .ok_or_else(|| bad(format!("column '{name}' is not float32")))?;
-                into.extend(a.values().iter().copied());
+                into.extend(column::<Float32Array>(&batch, name, "float32")?.values());
                 Ok(())
             };
-            let c = column("step")?;
-            let steps = c
-                .as_any()
-                .downcast_ref::<UInt32Array>()
-                .ok_or_else(|| bad("column 'step' is not uint32".into()))?;
-            rec.step.extend(steps.values().iter().copied());
-            let c = column("time_s")?;
-            let times = c
-                .as_any()
-                .downcast_ref::<Float64Array>()
-                .ok_or_else(|| bad("column 'time_s' is not float64".into()))?;
-            rec.time.extend(times.values().iter().copied());
+            rec.step
+                .extend(column::<UInt32Array>(&batch, "step", "uint32")?.values());
+            rec.time
+                .extend(column::<Float64Array>(&batch, "time_s", "float64")?.values());
             for (k, axis) in ["x", "y", "z"].iter().enumerate() {
                 f32s(&format!("ee_{axis}"), &mut rec.ee[k])?;
                 f32s(&format!("ee_cmd_{axis}"), &mut rec.cmd[k])?;
             }
-            let c = column("grasped")?;
-            let grasped = c
-                .as_any()
-                .downcast_ref::<Int16Array>()
-                .ok_or_else(|| bad("column 'grasped' is not int16".into()))?;
-            rec.grasped.extend(grasped.values().iter().copied());
-            let c = column("contact_pairs")?;
-            let pairs = c
-                .as_any()
-                .downcast_ref::<UInt32Array>()
-                .ok_or_else(|| bad("column 'contact_pairs' is not uint32".into()))?;
-            rec.contact_pairs.extend(pairs.values().iter().copied());
-            let c = column("contact_points")?;
-            let points = c
-                .as_any()
-                .downcast_ref::<UInt32Array>()
-                .ok_or_else(|| bad("column 'contact_points' is not uint32".into()))?;
-            rec.contact_points.extend(points.values().iter().copied());
-            let c = column("ee_in_contact")?;
-            let touch = c
-                .as_any()
-                .downcast_ref::<BooleanArray>()
-                .ok_or_else(|| bad("column 'ee_in_contact' is not bool".into()))?;
+            rec.grasped
+                .extend(column::<Int16Array>(&batch, "grasped", "int16")?.values());
+            rec.contact_pairs
+                .extend(column::<UInt32Array>(&batch, "contact_pairs", "uint32")?.values());
+            rec.contact_points
+                .extend(column::<UInt32Array>(&batch, "contact_points", "uint32")?.values());
+            let touch = column::<BooleanArray>(&batch, "ee_in_contact", "bool")?;
             rec.ee_contact
                 .extend(touch.iter().map(|b| b.unwrap_or(false)));
             if yaw {
@@ -361,6 +327,21 @@ impl Recorder {
         }
         Ok(buf)
     }
+}
+
+/// Column `name` of an episode file's `batch` as an array of type `T` (`kind` names it in the
+/// error).
+fn column<'a, T: 'static>(
+    batch: &'a arrow_array::RecordBatch,
+    name: &str,
+    kind: &str,
+) -> Result<&'a T, SimError> {
+    batch
+        .column_by_name(name)
+        .ok_or_else(|| SimError::internal(format!("episode file: no column '{name}'")))?
+        .as_any()
+        .downcast_ref::<T>()
+        .ok_or_else(|| SimError::internal(format!("episode file: column '{name}' is not {kind}")))
 }
 
 /// Contact points closer than this count as touching. rapier also keeps speculative contacts a
