@@ -103,6 +103,17 @@ pub fn lerobot_export_of(run: &Path, r: &Report) {
         .count();
     assert_eq!(read_lerobot(&oracle, run)["episodes"], wanted);
 
+    // Nothing matches: refused, and nothing is left in the folder.
+    let none = tmp.path().join("none");
+    let refused = export_lerobot(run, &none, &["--policy", "no-such-policy"]);
+    assert!(!refused.status.success());
+    assert!(
+        String::from_utf8_lossy(&refused.stderr).contains("none matches --policy"),
+        "{}",
+        String::from_utf8_lossy(&refused.stderr)
+    );
+    assert_eq!(std::fs::read_dir(&none).map_or(0, |d| d.count()), 0);
+
     // A folder that holds something is not written into.
     let refused = export_lerobot(run, &dataset, &[]);
     assert!(!refused.status.success());

@@ -193,8 +193,7 @@ pub fn export(run: &Path, out: &Path, specs: &Specs, o: &Options) -> anyhow::Res
             out.display()
         );
     }
-    let video_rel = format!("videos/{VIDEO_KEY}/chunk-000/file-000.mp4");
-    let video_path = out.join(&video_rel);
+    let video_path = out.join(format!("videos/{VIDEO_KEY}/chunk-000/file-000.mp4"));
     for dir in ["meta/episodes/chunk-000", "data/chunk-000"] {
         std::fs::create_dir_all(out.join(dir))?;
     }
@@ -283,9 +282,13 @@ pub fn export(run: &Path, out: &Path, specs: &Specs, o: &Options) -> anyhow::Res
             });
         }
     }
-    let written = video.finish().map_err(anyhow::Error::msg)?;
     if episodes.is_empty() {
-        let _ = std::fs::remove_dir_all(out.join("videos"));
+        // Nothing to write: stop ffmpeg and take back the folders made above (`out` held
+        // nothing before).
+        drop(video);
+        for dir in ["videos", "meta", "data"] {
+            let _ = std::fs::remove_dir_all(out.join(dir));
+        }
         bail!(
             "no episode of {} could be exported{}",
             run.display(),
@@ -296,6 +299,7 @@ pub fn export(run: &Path, out: &Path, specs: &Specs, o: &Options) -> anyhow::Res
             }
         );
     }
+    let written = video.finish().map_err(anyhow::Error::msg)?;
     debug_assert_eq!(written as usize, frames.frame_index.len());
     summary.episodes = episodes.len();
     summary.frames = frames.frame_index.len();
