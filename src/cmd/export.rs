@@ -30,8 +30,8 @@ pub enum Format {
 pub struct TensorboardArgs {
     /// An `assay eval` output folder (report.json).
     pub run: PathBuf,
-    /// The log folder (created when missing; several runs may share one, each in its own
-    /// sub-folder).
+    /// The log folder (created when missing). To compare runs in TensorBoard, give each its own
+    /// folder under one log root.
     pub out: PathBuf,
 }
 
@@ -44,8 +44,8 @@ pub struct LerobotArgs {
     /// Frames are SIZE x SIZE pixels (even), from the task's first camera.
     #[arg(long, default_value_t = 256)]
     pub size: u32,
-    /// Frames per second of episode time (the physics time step must divide into it: at the
-    /// default 1/240 s, 10, 15, 20, 30 or 60).
+    /// Frames per second of episode time. A frame's physics steps must be a whole number of
+    /// recorded rows (4 steps): at the default time step of 1/240 s, e.g. 5, 10, 15, 20, 30, 60.
     #[arg(long, default_value_t = 10)]
     pub fps: u32,
     /// Only this policy's episodes (repeatable; all policies by default).

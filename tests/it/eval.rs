@@ -228,6 +228,15 @@ fn eval_runs_a_batch_on_a_local_cluster_and_writes_both_reports() {
             "report.md links {}'s video",
             t.id
         );
+        for e in &t.episodes {
+            let video = e.imagery.as_ref().and_then(|i| i.video.as_ref()).unwrap();
+            assert!(
+                html.contains(&format!("href=\"artifacts/{video}\"")),
+                "report.html links {} seed {}'s video",
+                t.id,
+                e.seed
+            );
+        }
     }
 
     // And from Python, as a lab's own scripts read them.
