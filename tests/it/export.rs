@@ -114,6 +114,22 @@ pub fn lerobot_export_of(run: &Path, r: &Report) {
     );
     assert_eq!(std::fs::read_dir(&none).map_or(0, |d| d.count()), 0);
 
+    // A rate the recorded rows do not divide into, and an odd frame size: refused with why.
+    for (args, why) in [
+        (["--fps", "7"], "--fps 7: physics.dt"),
+        (
+            ["--size", "63"],
+            "--size 63: frames are an even number of pixels",
+        ),
+    ] {
+        let out = export_lerobot(run, &tmp.path().join("refused"), &args);
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(
+            !out.status.success() && stderr.contains(why),
+            "{why}: {stderr}"
+        );
+    }
+
     // A folder that holds something is not written into.
     let refused = export_lerobot(run, &dataset, &[]);
     assert!(!refused.status.success());
