@@ -4,7 +4,7 @@
 //! (`<judge>.scene_alignment`, `<judge>.completion`: the mean over its repeats) — for pandas,
 //! polars or DuckDB (`pd.read_parquet("out/episodes.parquet")`).
 //!
-//! Owns: the table's columns and their Parquet encoding (`cmd::report::write` writes it).
+//! Owns: the table's columns and their Parquet encoding (the CLI's `cmd::report` writes it).
 
 use std::collections::HashMap;
 use std::sync::Arc;
