@@ -43,51 +43,6 @@ pub fn address_of_key(key: &str) -> Option<Address> {
     Some(out)
 }
 
-/// A static service configuration still writable this long after it was written is an orphan:
-/// a live creator finishes it (and makes it read-only) within milliseconds.
-const ORPHAN_AGE: Duration = Duration::from_secs(5);
-
-/// Removes [`SERVICE`]'s static configuration when the process creating it died half-way
-/// (killed -9): iceoryx2 0.10 leaves the file writable and then refuses to open or create the
-/// service for every later process, so every picture would come from the artifact store
-/// (iceoryx2 issue 1584; 0.10 has no API to remove it). Only a file that names this service, is
-/// still writable and is older than [`ORPHAN_AGE`] is removed. Whether one was.
-fn remove_orphaned_config() -> bool {
-    let c = crate::config();
-    let dir = std::path::PathBuf::from(c.global.root_path().to_string())
-        .join(c.global.service.directory.to_string());
-    let (prefix, suffix) = (
-        c.global.prefix.to_string(),
-        c.global.service.static_config_storage_suffix.to_string(),
-    );
-    let Ok(entries) = std::fs::read_dir(&dir) else {
-        return false;
-    };
-    let mut removed = false;
-    for entry in entries.flatten() {
-        let file = entry.file_name().to_string_lossy().into_owned();
-        let Ok(meta) = entry.metadata() else {
-            continue;
-        };
-        let orphan = file.starts_with(&prefix)
-            && file.ends_with(&suffix)
-            && !meta.permissions().readonly()
-            && meta
-                .modified()
-                .ok()
-                .and_then(|m| m.elapsed().ok())
-                .is_some_and(|age| age > ORPHAN_AGE);
-        if orphan
-            && std::fs::read_to_string(entry.path())
-                .is_ok_and(|t| t.contains(&format!("service_name = \"{SERVICE}\"")))
-            && std::fs::remove_file(entry.path()).is_ok()
-        {
-            removed = true;
-        }
-    }
-    removed
-}
-
 type ArtifactServer = Server<ipc::Service, Address, (), [u8], ()>;
 type ArtifactClient = Client<ipc::Service, Address, (), [u8], ()>;
 
@@ -120,7 +75,7 @@ impl FrameBus {
             Ok(service) => Ok(service),
             // A creator killed half-way leaves the service unusable for everyone after it:
             // remove what it left and try once more.
-            Err(_) if remove_orphaned_config() => {
+            Err(_) if crate::remove_orphaned_config(SERVICE) => {
                 open().map_err(|e| err(&format!("opening service '{SERVICE}'"), e))
             }
             Err(e) => Err(err(&format!("opening service '{SERVICE}'"), e)),

@@ -70,6 +70,52 @@ pub struct FrameBus {
     pub(crate) node: Node<ipc::Service>,
 }
 
+/// A static service configuration still writable this long after it was written is an orphan:
+/// a live creator finishes it (and makes it read-only) within milliseconds.
+const ORPHAN_AGE: std::time::Duration = std::time::Duration::from_secs(5);
+
+/// Removes service `service`'s static configuration when the process creating it died half-way
+/// (killed -9): iceoryx2 0.10 leaves the file writable and then refuses to open or create the
+/// service for every later process — a frame stream that never comes back, an artifact cache
+/// whose every picture comes from the store (iceoryx2 issue 1584; 0.10 has no API to remove
+/// it). Only a file that names this service, is still writable and is older than
+/// [`ORPHAN_AGE`] is removed. Whether one was.
+pub(crate) fn remove_orphaned_config(service: &str) -> bool {
+    let c = config();
+    let dir = std::path::PathBuf::from(c.global.root_path().to_string())
+        .join(c.global.service.directory.to_string());
+    let (prefix, suffix) = (
+        c.global.prefix.to_string(),
+        c.global.service.static_config_storage_suffix.to_string(),
+    );
+    let Ok(entries) = std::fs::read_dir(&dir) else {
+        return false;
+    };
+    let mut removed = false;
+    for entry in entries.flatten() {
+        let file = entry.file_name().to_string_lossy().into_owned();
+        let Ok(meta) = entry.metadata() else {
+            continue;
+        };
+        let orphan = file.starts_with(&prefix)
+            && file.ends_with(&suffix)
+            && !meta.permissions().readonly()
+            && meta
+                .modified()
+                .ok()
+                .and_then(|m| m.elapsed().ok())
+                .is_some_and(|age| age > ORPHAN_AGE);
+        if orphan
+            && std::fs::read_to_string(entry.path())
+                .is_ok_and(|t| t.contains(&format!("service_name = \"{service}\"")))
+            && std::fs::remove_file(entry.path()).is_ok()
+        {
+            removed = true;
+        }
+    }
+    removed
+}
+
 fn config() -> Config {
     let mut c = Config::default();
     c.global.prefix = FileName::new(b"assay_").expect("a valid file name prefix");
@@ -109,19 +155,28 @@ impl FrameBus {
         BusError,
     > {
         let name = ServiceName::new(stream).map_err(|e| err("stream name", e))?;
-        self.node
-            .service_builder(&name)
-            .publish_subscribe::<[u8]>()
-            .user_header::<FrameHeader>()
-            .max_publishers(2)
-            .max_subscribers(MAX_SUBSCRIBERS)
-            .subscriber_max_buffer_size(QUEUE)
-            .subscriber_max_borrowed_samples(2)
-            .history_size(0)
-            // A full queue drops its oldest frame: a dead or slow reader never blocks a camera.
-            .enable_safe_overflow(true)
-            .open_or_create()
-            .map_err(|e| err(&format!("opening stream '{stream}'"), e))
+        let open = || {
+            self.node
+                .service_builder(&name)
+                .publish_subscribe::<[u8]>()
+                .user_header::<FrameHeader>()
+                .max_publishers(2)
+                .max_subscribers(MAX_SUBSCRIBERS)
+                .subscriber_max_buffer_size(QUEUE)
+                .subscriber_max_borrowed_samples(2)
+                .history_size(0)
+                // A full queue drops its oldest frame: a dead or slow reader never blocks a camera.
+                .enable_safe_overflow(true)
+                .open_or_create()
+        };
+        match open() {
+            Ok(service) => Ok(service),
+            // A creator killed half-way leaves the stream unusable: remove what it left, once.
+            Err(_) if remove_orphaned_config(stream) => {
+                open().map_err(|e| err(&format!("opening stream '{stream}'"), e))
+            }
+            Err(e) => Err(err(&format!("opening stream '{stream}'"), e)),
+        }
     }
 
     /// A publisher for frames of up to `max_frame_bytes` (larger ones grow the segment).
