@@ -14,24 +14,6 @@ fn python() -> String {
     )
 }
 
-fn assay(args: &[&std::ffi::OsStr]) -> std::process::Output {
-    Command::new(bin())
-        .args(args)
-        .current_dir(repo())
-        .output()
-        .unwrap()
-}
-
-fn ok(out: &std::process::Output) -> String {
-    assert!(
-        out.status.success(),
-        "{}\n{}",
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
-    String::from_utf8_lossy(&out.stdout).into_owned()
-}
-
 /// `assay export lerobot RUN OUT EXTRA…`.
 fn export_lerobot(run: &Path, out: &Path, extra: &[&str]) -> std::process::Output {
     let mut args = vec![

@@ -1,28 +1,10 @@
 //! `assay rank` as a user runs it, on the example ladder (5 policies, 3 tasks, real and a world
 //! model).
 
-use std::process::Command;
-
+use crate::common::{assay, ok};
 use assay_stats::ranking::{Ranking, RankingConfig, parse_success_table, rank};
 
 const LADDER: &str = "examples/rank/ladder.csv";
-
-fn assay(args: &[&str]) -> std::process::Output {
-    Command::new(env!("CARGO_BIN_EXE_assay"))
-        .args(args)
-        .current_dir(env!("CARGO_MANIFEST_DIR"))
-        .output()
-        .unwrap()
-}
-
-fn ok(out: &std::process::Output) -> String {
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    String::from_utf8(out.stdout.clone()).unwrap()
-}
 
 #[test]
 fn rank_json_is_what_the_library_computes() {

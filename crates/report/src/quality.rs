@@ -129,15 +129,13 @@ pub struct VarianceSplit {
 
 impl VarianceSplit {
     /// From each episode's valid repeat scores.
-    fn of(per_episode: &[Vec<f64>]) -> Self {
-        let within: Vec<f64> = per_episode
-            .iter()
-            .filter_map(|s| ScoreStats::of(s).variance)
-            .collect();
-        let means: Vec<f64> = per_episode
-            .iter()
-            .filter_map(|s| ScoreStats::of(s).mean)
-            .collect();
+    fn of<'a>(per_episode: impl Iterator<Item = &'a [f64]>) -> Self {
+        let (mut within, mut means) = (Vec::new(), Vec::new());
+        for scores in per_episode {
+            let s = ScoreStats::of(scores);
+            within.extend(s.variance);
+            means.extend(s.mean);
+        }
         Self {
             over_repeats: ScoreStats::of(&within).mean,
             over_episodes: ScoreStats::of(&means).variance,
@@ -317,11 +315,6 @@ pub fn build_quality(
         let (mut sa_means, mut c_means) = (Vec::new(), Vec::new());
         for (task_id, t) in j.tasks {
             let group = group_of.get(task_id).copied().unwrap_or(NO_GROUP);
-            let (sa, c): (Vec<Vec<f64>>, Vec<Vec<f64>>) = t
-                .episodes
-                .iter()
-                .map(|(_, _, sa, c)| (sa.clone(), c.clone()))
-                .unzip();
             let row = TaskQuality {
                 task_id: task_id.to_owned(),
                 group: group.to_owned(),
@@ -330,8 +323,12 @@ pub fn build_quality(
                 completion: ScoreStats::of(&t.completion),
                 errors: t.errors,
                 unjudged: t.unjudged,
-                scene_alignment_split: VarianceSplit::of(&sa),
-                completion_split: VarianceSplit::of(&c),
+                scene_alignment_split: VarianceSplit::of(
+                    t.episodes.iter().map(|(_, _, sa, _)| sa.as_slice()),
+                ),
+                completion_split: VarianceSplit::of(
+                    t.episodes.iter().map(|(_, _, _, c)| c.as_slice()),
+                ),
                 episodes: t
                     .episodes
                     .into_iter()

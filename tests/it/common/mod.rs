@@ -23,6 +23,26 @@ pub fn repo() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
 }
 
+/// `assay ARGS…` run to its end in the repository, its output kept.
+pub fn assay<S: AsRef<std::ffi::OsStr>>(args: &[S]) -> std::process::Output {
+    std::process::Command::new(bin())
+        .args(args)
+        .current_dir(repo())
+        .output()
+        .unwrap()
+}
+
+/// Its standard output, after asserting that `out` exited 0 (else showing both streams).
+pub fn ok(out: &std::process::Output) -> String {
+    assert!(
+        out.status.success(),
+        "{}\n{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
 /// `assay eval TASKS --seeds N --policy P… --no-judge --no-diversity --image-size 160x120
 /// --quiet [EXTRA…] --out DIR/out`, its output in `DIR/eval.log`; [`finish_eval`] waits for it.
 pub fn spawn_eval(

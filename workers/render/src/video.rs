@@ -81,6 +81,37 @@ pub fn gif(frames: &[Rgb], fps: u32) -> Result<Vec<u8>, String> {
     Ok(out)
 }
 
+/// ffmpeg reading `width` × `height` RGB frames at `fps` on its stdin and writing a faststart
+/// H.264 (yuv420p) MP4 to `path`, with `extra` encoder arguments.
+fn h264(
+    path: &std::path::Path,
+    width: u32,
+    height: u32,
+    fps: u32,
+    extra: &[&str],
+) -> Result<std::process::Child, String> {
+    Command::new("ffmpeg")
+        .args(["-hide_banner", "-loglevel", "error", "-y", "-f", "rawvideo"])
+        .args(["-pix_fmt", "rgb24", "-s"])
+        .arg(format!("{width}x{height}"))
+        .args(["-r", &fps.to_string(), "-i", "-"])
+        .args(extra)
+        .args([
+            "-c:v",
+            "libx264",
+            "-pix_fmt",
+            "yuv420p",
+            "-movflags",
+            "+faststart",
+        ])
+        .arg(path)
+        .stdin(Stdio::piped())
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .map_err(|e| format!("starting ffmpeg: {e}"))
+}
+
 /// H.264 MP4 from raw RGB on ffmpeg's stdin, through a temporary file (MP4 needs a seekable
 /// output for its index).
 fn mp4(frames: &[Rgb], fps: u32) -> Result<Vec<u8>, String> {
@@ -93,26 +124,13 @@ fn mp4(frames: &[Rgb], fps: u32) -> Result<Vec<u8>, String> {
     std::fs::create_dir_all(&dir).map_err(|e| e.to_string())?;
     let path = dir.join("episode.mp4");
     // H.264 in yuv420p needs even sizes: pad by one pixel where needed.
-    let mut child = Command::new("ffmpeg")
-        .args(["-hide_banner", "-loglevel", "error", "-y", "-f", "rawvideo"])
-        .args(["-pix_fmt", "rgb24", "-s"])
-        .arg(format!("{}x{}", first.width, first.height))
-        .args(["-r", &fps.to_string(), "-i", "-"])
-        .args(["-vf", "pad=ceil(iw/2)*2:ceil(ih/2)*2"])
-        .args([
-            "-c:v",
-            "libx264",
-            "-pix_fmt",
-            "yuv420p",
-            "-movflags",
-            "+faststart",
-        ])
-        .arg(&path)
-        .stdin(Stdio::piped())
-        .stdout(Stdio::null())
-        .stderr(Stdio::piped())
-        .spawn()
-        .map_err(|e| format!("starting ffmpeg: {e}"))?;
+    let mut child = h264(
+        &path,
+        first.width,
+        first.height,
+        fps,
+        &["-vf", "pad=ceil(iw/2)*2:ceil(ih/2)*2"],
+    )?;
     let written = {
         let mut stdin = child.stdin.take().expect("piped stdin");
         frames.iter().try_for_each(|f| stdin.write_all(&f.data))
@@ -157,19 +175,13 @@ impl Mp4Writer {
         if !ffmpeg_available() {
             return Err("ffmpeg is not installed (apt-get install ffmpeg)".into());
         }
-        let mut child = Command::new("ffmpeg")
-            .args(["-hide_banner", "-loglevel", "error", "-y", "-f", "rawvideo"])
-            .args(["-pix_fmt", "rgb24", "-s"])
-            .arg(format!("{width}x{height}"))
-            .args(["-r", &fps.to_string(), "-i", "-"])
-            .args(["-c:v", "libx264", "-pix_fmt", "yuv420p", "-crf", "18"])
-            .args(["-g", "2", "-bf", "0", "-movflags", "+faststart"])
-            .arg(path)
-            .stdin(Stdio::piped())
-            .stdout(Stdio::null())
-            .stderr(Stdio::piped())
-            .spawn()
-            .map_err(|e| format!("starting ffmpeg: {e}"))?;
+        let mut child = h264(
+            path,
+            width,
+            height,
+            fps,
+            &["-crf", "18", "-g", "2", "-bf", "0"],
+        )?;
         let stdin = child.stdin.take();
         Ok(Self {
             child: Some(child),
