@@ -1,6 +1,7 @@
 //! `assay export`: a finished run's results in the formats researchers already read —
-//! `lerobot` (a LeRobotDataset v3.0 of its episodes) and `tensorboard` (its figures as
-//! TensorBoard scalars); the formats are `assay_export`'s.
+//! `lerobot` (a LeRobotDataset v3.0 of its episodes), `tensorboard` (its figures as
+//! TensorBoard scalars) and `wandb` (the same figures as a W&B offline run); the formats are
+//! `assay_export`'s.
 
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -22,8 +23,22 @@ pub enum Format {
     Lerobot(LerobotArgs),
     /// The run's figures (success per policy and group, judge scores, diversity against budget,
     /// ranking, generalization) as TensorBoard scalars: one event file in OUT, for
-    /// `tensorboard --logdir OUT`, tbparse, or `wandb sync --sync-tensorboard`.
+    /// `tensorboard --logdir OUT` or tbparse.
     Tensorboard(TensorboardArgs),
+    /// The same figures as a Weights & Biases offline run (config, history, summary):
+    /// OUT/offline-run-*/, which `wandb sync OUT/offline-run-*` uploads. Nothing is sent from here.
+    Wandb(WandbArgs),
+}
+
+#[derive(clap::Args)]
+pub struct WandbArgs {
+    /// An `assay eval` output folder (report.json; its config.toml becomes the run's config).
+    pub run: PathBuf,
+    /// Where the offline run's folder goes (created when missing), e.g. your `wandb/` folder.
+    pub out: PathBuf,
+    /// The W&B project the run belongs to (`wandb sync -p` overrides it).
+    #[arg(long, default_value = "assay")]
+    pub project: String,
 }
 
 #[derive(clap::Args)]
@@ -88,6 +103,18 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         Format::Tensorboard(a) => {
             let (file, n) = assay_export::tensorboard::export(&a.run, &a.out)?;
             println!("{}: {n} scalars", file.display());
+            Ok(ExitCode::SUCCESS)
+        }
+        Format::Wandb(a) => {
+            let e = assay_export::wandb::export(&a.run, &a.out, &a.project)?;
+            println!(
+                "{}: W&B offline run {} ({} scalars, {} history steps); upload it with `wandb sync {}`",
+                e.dir.display(),
+                e.run_id,
+                e.scalars,
+                e.steps,
+                e.dir.display()
+            );
             Ok(ExitCode::SUCCESS)
         }
     }

@@ -337,9 +337,11 @@ fn eval_runs_a_batch_on_a_local_cluster_and_writes_both_reports() {
         assert!(z > 0.0 && z < 1.0, "{id} ends at z = {z}");
     }
 
-    // The same run exported as a LeRobotDataset and as TensorBoard scalars (tests/it/export.rs).
+    // The same run exported as a LeRobotDataset, as TensorBoard scalars and as a W&B offline run
+    // (tests/it/export.rs).
     crate::export::lerobot_export_of(dir.path(), &r);
     crate::export::tensorboard_export_of(dir.path(), &r);
+    crate::export::wandb_export_of(dir.path(), &r);
 }
 
 #[test]

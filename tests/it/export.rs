@@ -1,5 +1,5 @@
-//! `assay export`: a finished run as a LeRobotDataset and as TensorBoard scalars, read back by
-//! the readers a lab uses. Called by `eval::eval_runs_a_batch_on_a_local_cluster_and_writes_both_reports`
+//! `assay export`: a finished run as a LeRobotDataset, as TensorBoard scalars and as a W&B
+//! offline run, read back by the readers a lab uses. Called by `eval::eval_runs_a_batch_on_a_local_cluster_and_writes_both_reports`
 //! on its run (rendered episodes with 64-pixel dynamics clips), so no batch runs twice.
 
 use std::path::Path;
@@ -208,5 +208,96 @@ pub fn tensorboard_export_of(run: &Path, r: &Report) {
         let mean = j.completion.mean.expect("episodes judged");
         let tag = format!("quality/{}/completion", j.judge);
         assert!((value(&tag, 0) - mean).abs() < 1e-5, "{tag}");
+    }
+}
+
+/// The W&B export of `run`: the real `wandb sync` (wandb 0.30's wandb-core reads the file)
+/// uploads it to a stand-in for W&B's server (tests/python/sync_wandb.py), which receives the
+/// run's config, a history row per step with the report's figures, and its summary.
+pub fn wandb_export_of(run: &Path, r: &Report) {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("wandb");
+    let printed = ok(&assay(&[
+        "export".as_ref(),
+        "wandb".as_ref(),
+        run.as_os_str(),
+        out.as_os_str(),
+        "--project".as_ref(),
+        "assay-it".as_ref(),
+    ]));
+    let dirs: Vec<_> = std::fs::read_dir(&out)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .collect();
+    assert_eq!(dirs.len(), 1, "{dirs:?}");
+    let name = dirs[0].file_name().unwrap().to_string_lossy().into_owned();
+    assert!(name.starts_with("offline-run-"), "{name}");
+    let run_id = name.rsplit('-').next().unwrap().to_owned();
+    assert!(printed.contains(&run_id), "{printed}");
+    let synced = Command::new(python())
+        .arg(repo().join("tests/python/sync_wandb.py"))
+        .arg(&dirs[0])
+        .output()
+        .unwrap();
+    let got: serde_json::Value = serde_json::from_str(&ok(&synced)).unwrap();
+    assert_eq!(got["exit_code"], 0, "wandb sync: {}", got["output"]);
+    assert_eq!(got["complete"], true, "the run was never finished: {got}");
+    assert_eq!(got["exitcode"], 0);
+    assert_eq!(got["run"]["name"], run_id.as_str());
+    assert_eq!(got["run"]["project"], "assay-it");
+    assert_eq!(got["run"]["displayName"], r.run.batch_id.as_str());
+    assert_eq!(got["config"]["batch_id"], r.run.batch_id.as_str());
+    // The run's resolved settings travel as its config.
+    assert!(got["config"]["policy"].is_array(), "{}", got["config"]);
+    let history = got["history"].as_array().unwrap();
+    let row = |step: i64| {
+        history
+            .iter()
+            .find(|h| h["_step"] == step)
+            .unwrap_or_else(|| panic!("no history row at step {step}: {history:?}"))
+    };
+    let close = |got: &serde_json::Value, want: f64, what: &str| {
+        let got = got.as_f64().unwrap_or_else(|| panic!("{what}: {got}"));
+        assert!(
+            (got - want).abs() <= 1e-9 * want.abs().max(1.0),
+            "{what}: {got} vs {want}"
+        );
+    };
+    for p in &r.results.by_policy {
+        let tag = format!("success/{}", p.policy);
+        close(&row(0)[&tag], p.success.rate.unwrap(), &tag);
+        close(&got["summary"][&tag], p.success.rate.unwrap(), &tag);
+    }
+    for g in &r.results.groups {
+        for p in &g.by_policy {
+            let tag = format!("success/{}/{}", g.group, p.policy);
+            close(&row(0)[&tag], p.success.rate.unwrap(), &tag);
+        }
+    }
+    let q = r.results.quality.as_ref().expect("judged");
+    for j in &q.judges {
+        let tag = format!("quality/{}/completion", j.judge);
+        close(&row(0)[&tag], j.completion.mean.unwrap(), &tag);
+    }
+    // The diversity-against-budget curve: a row per budget, ascending, and the largest budget's
+    // figure as the summary.
+    let d = r.results.diversity.as_ref().expect("diversity");
+    let steps: Vec<i64> = history
+        .iter()
+        .map(|h| h["_step"].as_i64().unwrap())
+        .collect();
+    assert!(steps.windows(2).all(|w| w[0] < w[1]), "{steps:?}");
+    for f in &d.dynamics {
+        let tag = format!("diversity/dynamics/{}/eval_image_mse", f.group);
+        close(&row(i64::from(f.budget))[&tag], f.eval_image_mse, &tag);
+        let last = d
+            .dynamics
+            .iter()
+            .filter(|o| o.group == f.group)
+            .map(|o| o.budget)
+            .max();
+        if last == Some(f.budget) {
+            close(&got["summary"][&tag], f.eval_image_mse, &tag);
+        }
     }
 }

@@ -1,10 +1,13 @@
 //! `assay-export`: a run's results where researchers already look — the flat table of episodes
 //! beside every report (`episodes.parquet`), a LeRobotDataset v3.0 of its episodes, and its
-//! figures as TensorBoard scalars.
+//! figures as TensorBoard scalars and as a W&B offline run.
 //!
 //! Owns: those formats' encodings. Reads a run folder (report.json, the artifact store) and the
 //! task specs its caller hands it; never writes into the run.
 
+mod crc;
 pub mod episodes_table;
 pub mod lerobot;
+pub mod scalars;
 pub mod tensorboard;
+pub mod wandb;
