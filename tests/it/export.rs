@@ -301,3 +301,61 @@ pub fn wandb_export_of(run: &Path, r: &Report) {
         }
     }
 }
+
+/// Real input: tasks of GenSim's own library (imported where it lies, the first three in name
+/// order, their URDF assets read from the library) run with dynamics clips and exported as a
+/// LeRobotDataset, which loads as the format says with every frame, state and action equal to
+/// the run's.
+#[cfg(feature = "trainer")]
+#[test]
+fn gensim_library_tasks_export_as_a_lerobot_dataset() {
+    let dir = tempfile::tempdir().unwrap();
+    let tasks = crate::real_policies::corpus_tasks(dir.path(), 3);
+    let run = dir.path().join("run");
+    let assets = repo().join("../shared/corpora/gensim-library/assets");
+    let mut args: Vec<&std::ffi::OsStr> = vec!["eval".as_ref()];
+    args.extend(tasks.iter().map(|t| t.as_os_str()));
+    args.extend(
+        [
+            "--seeds",
+            "2",
+            "--workers",
+            "2",
+            "--policy",
+            "oracle",
+            "--policy",
+            "oracle:noise=0.05",
+            "--no-judge",
+            "--dynamics-budgets",
+            "2",
+            "--world-model",
+            r#"{"steps": 10}"#,
+            "--quiet",
+        ]
+        .iter()
+        .map(std::ffi::OsStr::new),
+    );
+    args.extend([
+        "--asset-root".as_ref(),
+        assets.as_os_str(),
+        "--out".as_ref(),
+        run.as_os_str(),
+    ]);
+    ok(&assay(&args));
+    let r: Report =
+        serde_json::from_slice(&std::fs::read(run.join("report.json")).unwrap()).unwrap();
+    assert_eq!(r.results.tasks.len(), 3);
+    assert!(r.results.tasks.iter().all(|t| t.pipeline == "gensim"));
+    let episodes: Vec<_> = r.results.tasks.iter().flat_map(|t| &t.episodes).collect();
+    assert_eq!(episodes.len(), 12);
+    let dataset = dir.path().join("dataset");
+    ok(&export_lerobot(&run, &dataset, &["--size", "64"]));
+    let checked = read_lerobot(&dataset, &run);
+    assert_eq!(checked["episodes"], episodes.len(), "{checked}");
+    let with_clips = episodes
+        .iter()
+        .filter(|e| e.imagery.as_ref().is_some_and(|i| i.clip.is_some()))
+        .count();
+    assert!(with_clips > 0, "the run measured dynamics: {checked}");
+    assert_eq!(checked["clips_compared"], with_clips, "{checked}");
+}
