@@ -270,3 +270,76 @@ impl FrameSubscriber {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::os::unix::fs::PermissionsExt;
+    use std::time::{Duration, SystemTime};
+
+    /// The static configuration file of service `name`, if there is one.
+    fn config_file(name: &str) -> Option<std::path::PathBuf> {
+        let c = config();
+        let dir = std::path::PathBuf::from(c.global.root_path().to_string())
+            .join(c.global.service.directory.to_string());
+        std::fs::read_dir(dir).ok()?.flatten().find_map(|e| {
+            std::fs::read_to_string(e.path())
+                .is_ok_and(|t| t.contains(&format!("service_name = \"{name}\"")))
+                .then(|| e.path())
+        })
+    }
+
+    /// What a creator killed -9 half-way through creating a stream leaves: the stream's static
+    /// configuration, still writable, and nothing else. The bus removes it — only once it is
+    /// older than a live creator could be — and the stream works again.
+    #[test]
+    fn a_stream_left_half_created_by_a_killed_process_is_recovered() {
+        let stream = format!("test/orphan-{}", std::process::id());
+        let bus = FrameBus::open(&format!("orphan-test-{}", std::process::id())).unwrap();
+        let publisher = bus.publisher(&stream, 64).unwrap();
+        let file = config_file(&stream).expect("the stream's static configuration");
+        let text = std::fs::read(&file).unwrap();
+        assert!(
+            std::fs::metadata(&file).unwrap().permissions().readonly(),
+            "a finished configuration is read-only"
+        );
+        drop(publisher);
+        drop(bus);
+        assert!(
+            config_file(&stream).is_none(),
+            "the stream is gone with its last port"
+        );
+
+        // The orphan: the same configuration, writable, with no dynamic part.
+        std::fs::write(&file, &text).unwrap();
+        std::fs::set_permissions(&file, std::fs::Permissions::from_mode(0o600)).unwrap();
+        let bus = FrameBus::open(&format!("orphan-test-{}-2", std::process::id())).unwrap();
+        // Just written, it may be a creator at work: left alone, and the stream cannot open.
+        assert!(!remove_orphaned_config(&stream));
+        assert!(file.exists());
+        assert!(
+            bus.publisher(&stream, 64).is_err(),
+            "iceoryx2 refuses a service whose static configuration was never finished"
+        );
+        // Older than a live creator could be: removed, and the stream opens again.
+        std::fs::File::options()
+            .write(true)
+            .open(&file)
+            .unwrap()
+            .set_modified(SystemTime::now() - Duration::from_secs(60))
+            .unwrap();
+        // A file that names another service is not touched.
+        assert!(!remove_orphaned_config(&format!("{stream}-other")));
+        assert!(file.exists());
+        let publisher = bus.publisher(&stream, 64).unwrap();
+        let subscriber = bus.subscriber(&stream).unwrap();
+        let header = FrameHeader::default();
+        publisher
+            .publish(header, 3, |b| b.copy_from_slice(&[1, 2, 3]))
+            .unwrap();
+        let got = subscriber.receive(|_, b| b.to_vec()).unwrap();
+        assert_eq!(got.as_deref(), Some(&[1u8, 2, 3][..]));
+        let file = config_file(&stream).expect("the stream's new configuration");
+        assert!(std::fs::metadata(&file).unwrap().permissions().readonly());
+    }
+}
