@@ -92,6 +92,8 @@ def main():
             "WANDB_API_KEY": "local-" + "0" * 40,
             "WANDB_CONFIG_DIR": home, "WANDB_CACHE_DIR": home, "WANDB_DATA_DIR": home,
             "HOME": home, "WANDB_SILENT": "false",
+            # No error reports to W&B's Sentry: nothing leaves loopback.
+            "WANDB_ERROR_REPORTING": "false",
         })
         proc = subprocess.run(
             [str(wandb), "sync", "--include-synced", "--entity", "assay-test", str(run_dir)],
