@@ -22,7 +22,7 @@ import threading
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 
-received = {"operations": [], "run": None, "history": [], "summary": {}, "complete": False}
+received = {"operations": [], "run": None, "history": {}, "summary": {}, "complete": False}
 lock = threading.Lock()
 
 
@@ -66,8 +66,10 @@ class Server(BaseHTTPRequestHandler):
     def stream(self, body):
         received["operations"].append("file_stream")
         files = body.get("files") or {}
-        for line in (files.get("wandb-history.jsonl") or {}).get("content", []):
-            received["history"].append(json.loads(line))
+        history = files.get("wandb-history.jsonl") or {}
+        # Lines are numbered by the chunk's offset: a chunk sent again replaces, never repeats.
+        for i, line in enumerate(history.get("content", [])):
+            received["history"][history.get("offset", 0) + i] = json.loads(line)
         for line in (files.get("wandb-summary.json") or {}).get("content", []):
             received["summary"] = json.loads(line)
         if body.get("complete"):
@@ -109,7 +111,7 @@ def main():
         "operations": received["operations"],
         "run": received["run"],
         "config": {k: v.get("value") for k, v in config.items() if isinstance(v, dict)},
-        "history": received["history"],
+        "history": [received["history"][i] for i in sorted(received["history"])],
         "summary": received["summary"],
         "complete": received["complete"],
         "exitcode": received.get("exitcode"),
