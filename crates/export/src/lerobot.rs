@@ -31,7 +31,6 @@ use arrow_schema::{DataType, Field};
 use serde_json::json;
 
 use assay_model::clip::{ACTION_DIMS, PROPRIO_DIMS};
-use assay_report::report::Report;
 use assay_spec::spec::TaskSpec;
 
 use crate::episodes_table::to_parquet;
@@ -173,15 +172,7 @@ pub fn export(run: &Path, out: &Path, specs: &Specs, o: &Options) -> anyhow::Res
     if o.fps == 0 {
         bail!("--fps 0: a dataset needs a frame rate");
     }
-    let report_path = run.join("report.json");
-    let report: Report =
-        serde_json::from_slice(&std::fs::read(&report_path).with_context(|| {
-            format!(
-                "{} is not an `assay eval` output folder (no report.json)",
-                run.display()
-            )
-        })?)
-        .with_context(|| format!("reading {}", report_path.display()))?;
+    let report = crate::read_report(run)?;
     if out.exists()
         && std::fs::read_dir(out)
             .with_context(|| format!("reading {}", out.display()))?

@@ -11,3 +11,19 @@ pub mod lerobot;
 pub mod scalars;
 pub mod tensorboard;
 pub mod wandb;
+
+use std::path::Path;
+
+use anyhow::Context;
+
+/// The report of `run`, an `assay eval` output folder.
+pub fn read_report(run: &Path) -> anyhow::Result<assay_report::report::Report> {
+    let path = run.join("report.json");
+    serde_json::from_slice(&std::fs::read(&path).with_context(|| {
+        format!(
+            "{} is not an `assay eval` output folder (no report.json)",
+            run.display()
+        )
+    })?)
+    .with_context(|| format!("reading {}", path.display()))
+}

@@ -11,11 +11,7 @@
 //! - `ranking/<policy>/real` and `ranking/<policy>/<source>`: real and predicted success;
 //! - `generalization/<group>/train` and `generalization/<group>/held_out`.
 //!
-//! Owns: the names. Reads report.json; writes nothing.
-
-use std::path::Path;
-
-use anyhow::Context;
+//! Owns: the names. Reads a report; writes nothing.
 
 use assay_report::report::Report;
 
@@ -116,16 +112,4 @@ pub fn scalars(report: &Report) -> Vec<Scalar> {
         }
     }
     out
-}
-
-/// The report of `run`, an `assay eval` output folder.
-pub fn read_report(run: &Path) -> anyhow::Result<Report> {
-    let path = run.join("report.json");
-    serde_json::from_slice(&std::fs::read(&path).with_context(|| {
-        format!(
-            "{} is not an `assay eval` output folder (no report.json)",
-            run.display()
-        )
-    })?)
-    .with_context(|| format!("reading {}", path.display()))
 }

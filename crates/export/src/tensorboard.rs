@@ -14,7 +14,8 @@ use anyhow::Context;
 use prost::Message;
 
 use crate::crc::crc32c;
-use crate::scalars::{read_report, scalars};
+use crate::read_report;
+use crate::scalars::scalars;
 
 /// `tensorflow.Event`, the fields a scalar file uses.
 #[derive(Clone, PartialEq, prost::Message)]

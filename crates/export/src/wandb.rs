@@ -25,7 +25,8 @@ use anyhow::Context;
 use prost::Message;
 
 use crate::crc::crc32;
-use crate::scalars::{Scalar, read_report, scalars};
+use crate::read_report;
+use crate::scalars::{Scalar, scalars};
 
 const BLOCK: usize = 32 * 1024;
 const CHUNK_HEADER: usize = 7;
@@ -297,26 +298,13 @@ fn run_id(batch_id: &str, submitted_ms: i64) -> String {
 }
 
 /// `YYYYMMDD_HHMMSS` of a Unix time, UTC (W&B's run folders name local time; UTC keeps an
-/// export the same wherever it runs).
+/// export the same wherever it runs), from the report's own UTC formatting.
 fn utc_stamp(unix_s: i64) -> String {
-    let days = unix_s.div_euclid(86_400);
-    let secs = unix_s.rem_euclid(86_400);
-    // Civil date from days since 1970-01-01 (Howard Hinnant's `civil_from_days`).
-    let z = days + 719_468;
-    let era = z.div_euclid(146_097);
-    let doe = z.rem_euclid(146_097);
-    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
-    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
-    let mp = (5 * doy + 2) / 153;
-    let day = doy - (153 * mp + 2) / 5 + 1;
-    let month = if mp < 10 { mp + 3 } else { mp - 9 };
-    let year = yoe + era * 400 + i64::from(month <= 2);
-    format!(
-        "{year:04}{month:02}{day:02}_{:02}{:02}{:02}",
-        secs / 3600,
-        secs / 60 % 60,
-        secs % 60
-    )
+    let digits: String = assay_report::tables::utc(unix_s * 1000)
+        .chars()
+        .filter(char::is_ascii_digit)
+        .collect();
+    format!("{}_{}", &digits[..8], &digits[8..])
 }
 
 /// W&B's transaction log: the file header, then records in LevelDB's block format.
