@@ -314,12 +314,7 @@ impl pb::coordinator_server::Coordinator for CoordinatorService {
         let mut seeds = req.seeds.clone();
         seeds.sort_unstable();
         seeds.dedup();
-        let crate::settings::Settings {
-            policies,
-            dynamics,
-            ranking,
-            generalization,
-        } = crate::settings::check(&req).map_err(Status::invalid_argument)?;
+        let settings = crate::settings::check(&req).map_err(Status::invalid_argument)?;
         let roots: Vec<std::path::PathBuf> = req
             .asset_roots
             .iter()
@@ -329,7 +324,9 @@ impl pb::coordinator_server::Coordinator for CoordinatorService {
             })
             .collect();
         let (tasks, invalid) = plan_tasks(&req.tasks, &roots);
-        check_interfaces(&policies, &tasks)?;
+        check_interfaces(&settings.policies, &tasks)?;
+        let groups: Vec<&str> = tasks.iter().map(|t| t.info.group.as_str()).collect();
+        crate::settings::check_groups(&settings, &groups).map_err(Status::invalid_argument)?;
         let mut judges = req.judges.clone();
         judges.sort();
         judges.dedup();
@@ -356,6 +353,12 @@ impl pb::coordinator_server::Coordinator for CoordinatorService {
             )));
         }
         let text_groups = text_groups(&tasks, &req.text_templates)?;
+        let crate::settings::Settings {
+            policies,
+            dynamics,
+            ranking,
+            generalization,
+        } = settings;
         let content_hash = content_hash(&req.tasks, &tasks, &invalid);
         let batch = NewBatch {
             name: if req.name.is_empty() {

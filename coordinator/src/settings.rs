@@ -100,6 +100,35 @@ pub fn check(req: &pb::SubmitBatchRequest) -> Result<Settings, String> {
     })
 }
 
+/// What the settings name that the batch lacks: a ranking or generalization group (`groups`)
+/// that none of the batch's valid tasks (whose groups are `groups`) belongs to.
+pub fn check_groups(settings: &Settings, groups: &[&str]) -> Result<(), String> {
+    let named = [
+        ("ranking", settings.ranking.as_ref().map(|r| &r.groups)),
+        (
+            "generalization",
+            settings.generalization.as_ref().map(|g| &g.groups),
+        ),
+    ];
+    for (part, named) in named {
+        let Some(g) = named
+            .into_iter()
+            .flatten()
+            .find(|g| !groups.contains(&g.as_str()))
+        else {
+            continue;
+        };
+        let mut have: Vec<&str> = groups.to_vec();
+        have.sort_unstable();
+        have.dedup();
+        return Err(format!(
+            "{part} settings: groups: no task of the batch is in group {g:?} (its groups: {})",
+            have.join(", ")
+        ));
+    }
+    Ok(())
+}
+
 /// What a ranking plan asks that cannot work (the caller prefixes `ranking settings: `): proxy
 /// settings, the clips' size, training policies that are not the batch's, a ranked policy that
 /// is the scripted oracle (it reads the simulator's state, so it cannot act inside a world
@@ -159,6 +188,9 @@ fn check_ranking(
             ));
         }
     }
+    if plan.groups.iter().any(|g| g.trim().is_empty()) {
+        return Err("groups: a group name is empty".into());
+    }
     if ranked.is_empty() && plan.ladder.is_none() {
         return Err(
             "nothing to rank: every policy trains the proxy and there is no ladder of learned \
@@ -179,6 +211,7 @@ mod tests {
             train_policies: train.iter().map(|p| p.to_string()).collect(),
             config: ProxyConfig::default(),
             ladder,
+            groups: Vec::new(),
         }
     }
 
@@ -231,5 +264,49 @@ mod tests {
         other_size.config.image_size = 32;
         let e = check_ranking(&plan(&train, Some(other_size)), &policies, None).unwrap_err();
         assert!(e.contains("ladder.config.image_size 32 differs"), "{e}");
+    }
+
+    #[test]
+    fn a_named_group_the_batch_lacks_is_refused_naming_the_setting_and_the_groups() {
+        let policies = names(&["oracle", "oracle:noise=0.01"]);
+        let mut ranking = plan(
+            &["oracle", "oracle:noise=0.01"],
+            Some(LadderPlan::default()),
+        );
+        ranking.groups = names(&["placement"]);
+        let settings = |ranking: RankingPlan, general: Vec<String>| Settings {
+            policies: policies.clone(),
+            dynamics: None,
+            ranking: Some(ranking),
+            generalization: Some(GeneralizationPlan {
+                groups: general,
+                ..GeneralizationPlan::default()
+            }),
+        };
+        let batch = ["placement", "robomimic", "placement"];
+        let ok = settings(ranking.clone(), names(&["robomimic"]));
+        assert_eq!(check_groups(&ok, &batch), Ok(()));
+        // Empty: every group.
+        assert_eq!(
+            check_groups(&settings(plan(&["oracle"], None), vec![]), &batch),
+            Ok(())
+        );
+        let e = check_groups(&settings(ranking.clone(), names(&["robomimc"])), &batch).unwrap_err();
+        assert_eq!(
+            e,
+            "generalization settings: groups: no task of the batch is in group \"robomimc\" \
+             (its groups: placement, robomimic)"
+        );
+        ranking.groups.push("stacking".into());
+        let e = check_groups(&settings(ranking.clone(), vec![]), &batch).unwrap_err();
+        assert!(
+            e.starts_with(
+                "ranking settings: groups: no task of the batch is in group \"stacking\""
+            ),
+            "{e}"
+        );
+        ranking.groups = names(&[" "]);
+        let e = check_ranking(&ranking, &policies, None).unwrap_err();
+        assert_eq!(e, "groups: a group name is empty");
     }
 }

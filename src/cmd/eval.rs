@@ -167,8 +167,22 @@ pub fn run(mut a: Args, resolved: Option<String>) -> anyhow::Result<ExitCode> {
     req.asset_roots = crate::docs::root_strings(&roots);
     req.render = rendering;
     // The coordinator's own check of the batch's settings, before any process starts.
-    assay_coordinator::settings::check(&req)
+    let settings = assay_coordinator::settings::check(&req)
         .map_err(|e| anyhow::anyhow!("the batch's settings: {e}"))?;
+    if settings
+        .ranking
+        .as_ref()
+        .is_some_and(|r| !r.groups.is_empty())
+        || settings
+            .generalization
+            .as_ref()
+            .is_some_and(|g| !g.groups.is_empty())
+    {
+        let (tasks, _) = assay_coordinator::service::plan_tasks(&req.tasks, &roots);
+        let groups: Vec<&str> = tasks.iter().map(|t| t.info.group.as_str()).collect();
+        assay_coordinator::settings::check_groups(&settings, &groups)
+            .map_err(|e| anyhow::anyhow!("the batch's settings: {e}"))?;
+    }
     let claim = crate::outdir::claim(&a.out, &crate::outdir::batch_key(&req), a.force)?;
     if let Some(resolved) = resolved {
         let path = a.out.join("config.toml");

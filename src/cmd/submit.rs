@@ -115,6 +115,16 @@ pub struct BatchArgs {
         help_heading = "Ranking"
     )]
     pub rank_ladder: Option<String>,
+    /// Rank only these task groups (comma-separated; default: every group of the batch). A
+    /// ranking costs minutes per group, and a ladder spreads only in a group whose tasks one
+    /// policy can learn.
+    #[arg(
+        long = "rank-groups",
+        value_delimiter = ',',
+        requires = "rank_train_policies",
+        help_heading = "Ranking"
+    )]
+    pub rank_groups: Vec<String>,
     /// Generalization: train a diffusion policy per task group on its oracle episodes and run it
     /// on training and held-out variations. Optional JSON settings (fields of assay-model
     /// GeneralizationPlan, e.g. '{"episodes": 40, "held_out_seeds": 3, "config": {"steps": 3000}}');
@@ -199,6 +209,9 @@ impl BatchArgs {
         }
         if plan.get("config").is_none() {
             plan["config"] = serde_json::json!({});
+        }
+        if !self.rank_groups.is_empty() {
+            plan["groups"] = serde_json::json!(self.rank_groups);
         }
         plan.to_string()
     }

@@ -510,6 +510,30 @@ fn a_malformed_nested_setting_is_refused_before_anything_starts() {
         "{err}"
     );
     assert!(!out_dir.exists(), "nothing started, nothing written");
+    // A group the batch's tasks do not carry (a misspelt one, in the file), also before.
+    std::fs::write(
+        &config,
+        "[eval]\nrank-train-policies = [\"oracle\"]\nrank-groups = [\"stakcing\"]\n\
+         [eval.rank-ladder]\nepisodes = [2]\n",
+    )
+    .unwrap();
+    let out = Command::new(bin())
+        .args(["eval", "tests/fixtures/small", "--config"])
+        .arg(&config)
+        .arg("--out")
+        .arg(&out_dir)
+        .current_dir(repo())
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(
+        err.contains(
+            "the batch's settings: ranking settings: groups: no task of the batch is in group \"stakcing\""
+        ),
+        "{err}"
+    );
+    assert!(!out_dir.exists(), "nothing started, nothing written");
 }
 
 /// The shapes and tools of issue 7 through the render role: an articulated drawer (its joint

@@ -102,6 +102,10 @@ fn eval_ranks_a_ladder_by_the_world_model_proxy() {
             LADDER,
             "--proxy",
             r#"{"judge_steps": 30, "world_model": {"steps": 30}, "leak_ablation": true}"#,
+            // A task of another group, evaluated but not ranked.
+            STACKING,
+            "--rank-groups",
+            "placement",
         ],
     );
     let stdout = String::from_utf8_lossy(&out.stdout);
@@ -146,6 +150,25 @@ fn eval_ranks_a_ladder_by_the_world_model_proxy() {
     assert_eq!(k.groups.len(), 1);
     let g = &k.groups[0];
     assert_eq!((g.group.as_str(), g.predictions.len()), ("placement", 12));
+    // The proxy started from the world model fitted while the ladder trained: at its last step,
+    // training no further.
+    assert_eq!(g.world_model.steps, 30);
+    assert_eq!(
+        g.world_model.resumed_from_step,
+        Some(30),
+        "{:?}",
+        g.world_model
+    );
+    // The stacking task ran the batch's five policies (the oracles and the TorchScript one) on
+    // its 2 seeds, and nothing of the ranking: no ladder policy, no row.
+    let stacking = report
+        .results
+        .tasks
+        .iter()
+        .find(|t| t.group == "stacking")
+        .expect("the stacking task");
+    assert_eq!(stacking.success.trials, 5 * 2, "{:?}", stacking.by_policy);
+    assert!(k.rows.iter().all(|r| r.group == "placement"));
     assert!(
         g.world_model_name.contains("RSSM"),
         "{}",
@@ -210,6 +233,9 @@ fn eval_ranks_a_ladder_by_the_world_model_proxy() {
     let svg = std::fs::read_to_string(out_dir.join("ranking.svg")).unwrap();
     assert!(svg.contains("<svg"));
 }
+
+/// A task of the stacking group.
+const STACKING: &str = "examples/tasks/stacking/build-two-block-tower.yaml";
 
 /// The four oracles of [`eval`]: they train the world model; none of them may be ranked.
 const TRAIN: &str = "oracle,oracle:noise=0.05,oracle:noise=0.01,oracle:noise=0.03";

@@ -55,6 +55,14 @@ impl Store {
             .map(|_| "?")
             .collect::<Vec<_>>()
             .join(",");
+        // Queue order, except that a trainer takes the dynamics-diversity fits last: nothing
+        // waits for them, while a proxy, a ladder or a generalization policy has episodes or a
+        // proxy after it (a proxy queued after the fits still runs before them).
+        let order = if capabilities.iter().any(|c| c == role::TRAINER) {
+            "(s.role = 'trainer' AND s.job LIKE 'dynamics %'), s.id"
+        } else {
+            "s.id"
+        };
         let sql = format!(
             "SELECT s.id, s.batch_id, s.seed, s.policy, s.role, s.attempts, COALESCE(t.spec_json, ''),
                     s.judge, s.input_json, b.judge_repeats, b.judge_budget_usd,
@@ -66,7 +74,7 @@ impl Store {
                            JOIN batches b ON b.id = s.batch_id
              WHERE s.state = 'queued'
                AND NOT EXISTS (SELECT 1 FROM json_each({NEEDS}) WHERE value NOT IN ({placeholders}))
-             ORDER BY s.id LIMIT {n}"
+             ORDER BY {order} LIMIT {n}"
         );
         let rows: Vec<QueuedShard> = {
             let mut stmt = tx.prepare_cached(&sql)?;
@@ -534,11 +542,14 @@ impl Store {
     }
 
     fn finish_if_done(conn: &Connection, batch_id: &str, now_ms: i64) -> Result<(), CoordError> {
-        Self::queue_dynamics(conn, batch_id)?;
-        // Before the proxy, which waits for the ladder's policies and their episodes.
+        // Trainer shards lease in the order they are queued (the dynamics fits last): the
+        // longest chain first — the proxy's world model, then the ladder whose policies'
+        // episodes the proxy also waits for, then the generalization policy.
+        Self::queue_proxy_world(conn, batch_id)?;
         Self::queue_ladder(conn, batch_id)?;
-        Self::queue_proxy(conn, batch_id)?;
         Self::queue_diffusion(conn, batch_id)?;
+        Self::queue_dynamics(conn, batch_id)?;
+        Self::queue_proxy(conn, batch_id)?;
         // EXISTS, not COUNT: this runs on every completion, and counting the open shards made
         // each one O(open shards) — quadratic over a batch (`assay bench coordinator` found it).
         let open: bool = conn

@@ -272,6 +272,18 @@ impl Store {
                         }
                         continue;
                     }
+                    if job.starts_with("world model") {
+                        // A proxy's world model fitted ahead of it: its proxy reports the fit;
+                        // a failure is the group's ranking's (its proxy then fits its own).
+                        if state == FAILED {
+                            let error = r.get::<_, Option<String>>(6)?.unwrap_or_default();
+                            proxy_errors.push((
+                                r.get::<_, Option<String>>(11)?.unwrap_or_default(),
+                                format!("{job}: {error}"),
+                            ));
+                        }
+                        continue;
+                    }
                     if job.starts_with("proxy") {
                         match (state.as_str(), outcome) {
                             (DONE, Some(json)) => {
@@ -295,8 +307,9 @@ impl Store {
                             match serde_json::from_str::<TrainerOutcome>(&json)? {
                                 TrainerOutcome::Text { table } => div.text = Some(table),
                                 TrainerOutcome::Dynamics { fit } => div.dynamics.push(*fit),
-                                TrainerOutcome::Proxy { .. } | TrainerOutcome::Diffusion { .. } => {
-                                }
+                                TrainerOutcome::Proxy { .. }
+                                | TrainerOutcome::ProxyWorld { .. }
+                                | TrainerOutcome::Diffusion { .. } => {}
                             }
                         }
                         (FAILED, _) => {
@@ -476,8 +489,10 @@ impl Store {
                     }
                 })
                 .collect();
+            // Only the ranked groups: a served policy's episodes elsewhere have no proxy.
             let task_groups: Vec<(String, String)> = tasks
                 .iter()
+                .filter(|t| plan.covers(&t.group))
                 .map(|t| (t.id.clone(), t.group.clone()))
                 .collect();
             let mut ranking = ranking_results(

@@ -482,6 +482,7 @@ fn a_ranking_batch_queues_one_proxy_per_group_that_never_sees_the_ranked_outcome
         train_policies: vec!["oracle:noise=0.01".into()],
         config: ProxyConfig::default(),
         ladder: None,
+        groups: Vec::new(),
     });
     let (id, n) = s.submit(&b, 0).unwrap();
     assert_eq!(n, 12);
@@ -768,6 +769,7 @@ fn a_ladder_of_learned_policies_is_trained_then_run_then_ranked() {
             max_steps: 600,
             ..LadderPlan::default()
         }),
+        groups: Vec::new(),
     });
     b.generalization = Some(GeneralizationPlan {
         episodes: 2,
@@ -793,7 +795,13 @@ fn a_ladder_of_learned_policies_is_trained_then_run_then_ranked() {
         .collect();
     let mut ladder = Vec::new();
     let mut general = None;
+    let mut world = None;
     for (l, job) in queued.iter().zip(trainer_jobs(&queued)) {
+        if let TrainerJob::ProxyWorld { train, .. } = &job {
+            assert_eq!(train.len(), 8);
+            world = Some(l);
+            continue;
+        }
         let TrainerJob::Diffusion {
             group,
             clips,
@@ -813,6 +821,10 @@ fn a_ladder_of_learned_policies_is_trained_then_run_then_ranked() {
         }
     }
     assert_eq!(ladder.len(), 2);
+    // The proxy's world model, fitted ahead, fails: reported, and the proxy fits its own.
+    let world = world.expect("the proxy's world model, fitted ahead");
+    s.fail(world.lease_id, world.shard_id, "no space left", false, 4)
+        .unwrap();
     assert_eq!(ladder[0].1, oracle_clips[..2]);
     assert_eq!(ladder[1].1, oracle_clips);
     let general = general.expect("a generalization training");
@@ -878,9 +890,16 @@ fn a_ladder_of_learned_policies_is_trained_then_run_then_ranked() {
     let queued = s.lease("t", &trainer, 10, 8, TTL).unwrap();
     assert_eq!(queued.len(), 1);
     let input = queued[0].trainer_job.clone().unwrap();
-    let TrainerJob::Proxy { train, eval, .. } = serde_json::from_str(&input).unwrap() else {
+    let TrainerJob::Proxy {
+        train,
+        eval,
+        world_model,
+        ..
+    } = serde_json::from_str(&input).unwrap()
+    else {
         panic!("{input}")
     };
+    assert_eq!(world_model, None);
     // Trained on the batch's 8 episodes, ranking the ladder's 8, never the generalization's.
     assert_eq!(train.len(), 8);
     assert_eq!(eval.len(), 8);
@@ -941,9 +960,18 @@ fn a_ladder_of_learned_policies_is_trained_then_run_then_ranked() {
     );
     assert_eq!(k.rows.len(), 4);
     assert!(k.proxy_agreement.is_some_and(|a| a.successes == a.trials));
-    assert_eq!(k.errors.len(), 1);
+    assert_eq!(k.errors.len(), 2);
     assert!(
-        k.errors[0].1.starts_with("ladder g @ 4: out of memory"),
+        k.errors
+            .iter()
+            .any(|e| e.1.starts_with("ladder g @ 4: out of memory")),
+        "{:?}",
+        k.errors
+    );
+    assert!(
+        k.errors
+            .iter()
+            .any(|e| e.1 == "world model g: no space left"),
         "{:?}",
         k.errors
     );
@@ -970,3 +998,5 @@ fn a_store_from_before_judges_gains_their_columns() {
     let (id, _) = s.submit(&batch(&["a"], &[0], 3), 1).unwrap();
     assert_eq!(s.counts(&id).unwrap().total, 1);
 }
+
+mod groups;

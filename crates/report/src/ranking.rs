@@ -540,6 +540,7 @@ mod tests {
             train_policies: vec!["teacher".into()],
             config: ProxyConfig::default(),
             ladder: None,
+            groups: Vec::new(),
         };
         let ranked: Vec<String> = ["good", "fair", "poor"].map(String::from).to_vec();
         let task_groups = vec![("t1".into(), "g".into()), ("t2".into(), "g".into())];

@@ -203,6 +203,7 @@ pub(crate) fn ranking_fixture() -> crate::ranking::RankingResults {
             ..ProxyConfig::default()
         },
         ladder: None,
+        groups: Vec::new(),
     };
     ranking_results(
         &plan,

@@ -1,5 +1,6 @@
-//! Running one trainer shard: text diversity of a batch's texts, or one world-model fit with
-//! checkpoints in the artifact store.
+//! Running one trainer shard: text diversity of a batch's texts, one world-model fit with
+//! checkpoints in the artifact store, a proxy's world model fitted ahead of it, a proxy, or a
+//! diffusion policy.
 
 use std::path::{Path, PathBuf};
 use std::sync::Mutex;
@@ -76,17 +77,79 @@ pub fn run(
                 table: TextDiversityTable::build(described, groups, &embeddings),
             })
         }
+        TrainerJob::ProxyWorld {
+            group,
+            train,
+            config,
+        } => {
+            let keys: Vec<String> = train.iter().map(|e| e.clip.clone()).collect();
+            let clips = load_clips(read, &keys)?;
+            let ckpt = checkpoint_path(artifacts, batch, job);
+            let resume = std::fs::read(&ckpt).ok();
+            let mut save = |step: u64, bytes: &[u8]| -> Result<(), String> {
+                write_atomically(&ckpt, bytes)
+                    .map_err(|e| format!("checkpoint {}: {e}", ckpt.display()))?;
+                tracing::debug!(group, step, "proxy world-model checkpoint written");
+                Ok(())
+            };
+            // Exactly the fit the proxy would run (its settings, its training clips), evaluated
+            // on one clip only: the proxy evaluates on the ranked ones.
+            let req = FitRequest {
+                config: &config.world_model,
+                group,
+                budget: clips.len() as u32,
+                train: &clips,
+                eval: &clips[..clips.len().min(1)],
+                eval_keys: &keys[..keys.len().min(1)],
+                device,
+                normalize_actions: config.normalize_actions,
+            };
+            let (fit, last) = crate::world_model::fit_to_checkpoint(
+                &req,
+                resume.as_deref(),
+                &mut save,
+            )
+            .map_err(|e| {
+                JobError::permanent(format!("the proxy's world model of group {group:?}: {e}"))
+            })?;
+            let key = format!(
+                "checkpoints/{batch}/world-{}.ckpt",
+                &sha256_hex(&last)[..32]
+            );
+            write_atomically(&artifacts.join(&key), &last).map_err(|e| JobError {
+                message: format!("storing the proxy's world model of group {group:?}: {e}"),
+                retryable: true,
+            })?;
+            Ok(TrainerOutcome::ProxyWorld {
+                group: group.clone(),
+                checkpoint: key,
+                fit: Box::new(fit),
+            })
+        }
         TrainerJob::Proxy {
             group,
             train,
             eval,
             config,
+            world_model,
         } => {
             let keys = |e: &[ProxyEpisode]| e.iter().map(|e| e.clip.clone()).collect::<Vec<_>>();
             let train_clips = load_clips(read, &keys(train))?;
             let eval_clips = load_clips(read, &keys(eval))?;
             let ckpt = checkpoint_path(artifacts, batch, job);
-            let resume = std::fs::read(&ckpt).ok();
+            // This job's own checkpoint (an earlier attempt's), else the world model fitted
+            // ahead of it (trained to its last step: the proxy goes straight to imagining).
+            let mut resume = std::fs::read(&ckpt).ok();
+            let mut ahead = false;
+            if resume.is_none()
+                && let Some(key) = world_model
+            {
+                resume = Some(read(key).map_err(|e| JobError {
+                    message: format!("the proxy's world model {key}: {e}"),
+                    retryable: true,
+                })?);
+                ahead = true;
+            }
             let mut save = |step: u64, bytes: &[u8]| -> Result<(), String> {
                 write_atomically(&ckpt, bytes)
                     .map_err(|e| format!("checkpoint {}: {e}", ckpt.display()))?;
@@ -104,19 +167,24 @@ pub fn run(
                 config,
                 device,
             };
+            let mut outcome = crate::proxy::run_proxy(&req, resume.as_deref(), &mut save);
+            if ahead
+                && let Err(crate::world_model::WorldModelError::CheckpointRefused(why)) = &outcome
+            {
+                // Not this fit's model (other clips or settings): fit from the start.
+                tracing::warn!(group, why = %why, "the world model fitted ahead is refused; fitting the proxy's own");
+                outcome = crate::proxy::run_proxy(&req, None, &mut save);
+            }
             // A served world model that is down or late is retried, as a remote policy is.
-            let mut result =
-                crate::proxy::run_proxy(&req, resume.as_deref(), &mut save).map_err(|e| {
-                    JobError {
-                        retryable: matches!(
-                            e,
-                            crate::world_model::WorldModelError::World(
-                                assay_model::world::WorldError::Unavailable(_)
-                            )
-                        ),
-                        message: format!("world-model proxy of group {group:?}: {e}"),
-                    }
-                })?;
+            let mut result = outcome.map_err(|e| JobError {
+                retryable: matches!(
+                    e,
+                    crate::world_model::WorldModelError::World(
+                        assay_model::world::WorldError::Unavailable(_)
+                    )
+                ),
+                message: format!("world-model proxy of group {group:?}: {e}"),
+            })?;
             // The imagined keyframes go to the artifact store, for the judge role.
             let size = config.world_model.image_size;
             let frames = std::mem::take(&mut result.imagined_frames);

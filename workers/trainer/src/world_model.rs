@@ -139,6 +139,27 @@ pub fn fit_model(
     resume: Option<&[u8]>,
     on_checkpoint: &mut CheckpointSink<'_>,
 ) -> Result<(WorldModel, DynamicsFit), WorldModelError> {
+    fit_keeping(req, resume, on_checkpoint, false).map(|(m, f, _)| (m, f))
+}
+
+/// [`fit`], returning the fit and a checkpoint of its last step: resuming from it trains no
+/// further, so a later job gets this model without fitting it again (the proxy's world
+/// model, fitted while a ladder trains).
+pub fn fit_to_checkpoint(
+    req: &FitRequest<'_>,
+    resume: Option<&[u8]>,
+    on_checkpoint: &mut CheckpointSink<'_>,
+) -> Result<(DynamicsFit, Vec<u8>), WorldModelError> {
+    let (_, fit, last) = fit_keeping(req, resume, on_checkpoint, true)?;
+    Ok((fit, last.expect("asked for the last checkpoint")))
+}
+
+fn fit_keeping(
+    req: &FitRequest<'_>,
+    resume: Option<&[u8]>,
+    on_checkpoint: &mut CheckpointSink<'_>,
+    keep_last: bool,
+) -> Result<(WorldModel, DynamicsFit, Option<Vec<u8>>), WorldModelError> {
     let cfg = req.config;
     validate(req)?;
     if req.device == Device::Cpu {
@@ -227,6 +248,18 @@ pub fn fit_model(
     }
     let train_s = started.elapsed().as_secs_f64();
     let done = step - first_step;
+    let last = if keep_last {
+        Some(save_checkpoint(
+            &model,
+            &adam,
+            config_hash,
+            data_hash,
+            step,
+            epoch_loss,
+        )?)
+    } else {
+        None
+    };
 
     let eval = tch::no_grad(|| model.evaluate(req.eval, cfg.batch, size, device));
     let frames: usize = eval.iter().map(|e| e.frames).sum();
@@ -274,6 +307,7 @@ pub fn fit_model(
             device,
         },
         fit,
+        last,
     ))
 }
 

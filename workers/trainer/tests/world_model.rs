@@ -4,7 +4,9 @@
 use assay_model::clip::Clip;
 use assay_model::dynamics::{DynamicsConfig, DynamicsFit};
 use assay_spec::rng::Rng;
-use assay_trainer::world_model::{CheckpointSink, FitRequest, WorldModelError, fit};
+use assay_trainer::world_model::{
+    CheckpointSink, FitRequest, WorldModelError, fit, fit_to_checkpoint,
+};
 use tch::Device;
 
 const SIZE: u32 = 32;
@@ -281,6 +283,57 @@ fn resumed_fit_matches_an_uninterrupted_one_exactly() {
     })
     .expect("resumed with another checkpoint interval");
     assert_eq!(again.eval_image_mse, full.eval_image_mse);
+}
+
+/// A fit's last checkpoint (the proxy's world model, fitted ahead of the proxy) is the trained
+/// model: a fit resumed from it trains no further step and evaluates exactly as the model that
+/// wrote it — on clips it never saw while it was fitted.
+#[test]
+fn a_fit_resumed_from_its_last_checkpoint_is_the_fitted_model() {
+    let clips = simple_family(6);
+    let mut cfg = tiny();
+    cfg.steps = 7;
+    let eval_keys = keys(3);
+    let (train, held_out) = (&clips[..4], &clips[3..]);
+    let req = || FitRequest {
+        config: &cfg,
+        group: "g",
+        budget: 4,
+        train,
+        eval: held_out,
+        eval_keys: &eval_keys,
+        device: Device::Cpu,
+        normalize_actions: true,
+    };
+    // Evaluated on one clip only, as the trainer's job does.
+    let ahead_req = FitRequest {
+        eval: &held_out[..1],
+        eval_keys: &eval_keys[..1],
+        ..req()
+    };
+    let (ahead, last) = fit_to_checkpoint(&ahead_req, None, &mut |_, _| Ok(()))
+        .expect("fit to its last checkpoint");
+    assert_eq!(ahead.steps, 7);
+    let full = fit(&req(), None, &mut |_, _| Ok(())).expect("a fit of its own");
+    let resumed = fit(&req(), Some(&last), &mut |_, _| {
+        panic!("a fit resumed at its last step trains nothing, so writes no checkpoint")
+    })
+    .expect("resumed from the last checkpoint");
+    assert_eq!(resumed.resumed_from_step, Some(7));
+    assert_eq!(resumed.steps, 7);
+    assert_eq!(resumed.eval_image_mse, full.eval_image_mse);
+    assert_eq!(resumed.per_episode, full.per_episode);
+    assert_eq!(resumed.final_train_loss, full.final_train_loss);
+    // Fitted on other clips, it is refused.
+    let other = FitRequest {
+        train: &clips[1..5],
+        ..req()
+    };
+    let err = fit(&other, Some(&last), &mut |_, _| Ok(())).expect_err("other clips");
+    assert!(
+        matches!(err, WorldModelError::CheckpointRefused(_)),
+        "{err}"
+    );
 }
 
 /// `steps` fixes the training length whatever the budget; `epochs` (with `steps` 0) scales it

@@ -32,6 +32,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         train,
         eval,
         config,
+        ..
     } = job
     else {
         return Err("not a proxy job".into());

@@ -27,6 +27,8 @@ pub struct GeneralizationPlan {
     /// example corpus); the task's own `physics.max_steps` when smaller.
     pub max_steps: u32,
     pub config: DiffusionConfig,
+    /// The task groups that get a policy; empty: every group of the batch.
+    pub groups: Vec<String>,
 }
 
 impl Default for GeneralizationPlan {
@@ -38,6 +40,7 @@ impl Default for GeneralizationPlan {
             held_out_seed_base: 1_000_000,
             max_steps: 6000,
             config: DiffusionConfig::default(),
+            groups: Vec::new(),
         }
     }
 }
@@ -53,7 +56,15 @@ impl GeneralizationPlan {
         if self.max_steps == 0 {
             return Err("max_steps: must be at least 1".into());
         }
+        if self.groups.iter().any(|g| g.trim().is_empty()) {
+            return Err("groups: a group name is empty".into());
+        }
         self.config.validate().map_err(|e| format!("config.{e}"))
+    }
+
+    /// Whether `group` gets a policy.
+    pub fn covers(&self, group: &str) -> bool {
+        self.groups.is_empty() || self.groups.iter().any(|g| g == group)
     }
 
     /// The policy name of a trained model's episodes.

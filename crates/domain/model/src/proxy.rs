@@ -125,6 +125,18 @@ pub struct RankingPlan {
     /// Learned policies the cluster trains to be ranked (a ladder of diffusion policies).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub ladder: Option<LadderPlan>,
+    /// The task groups ranked (their world models, frame judges and ladders); empty: every
+    /// group of the batch. A ranking costs minutes per group, and only a group whose tasks one
+    /// policy can learn gives a ladder that spreads.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub groups: Vec<String>,
+}
+
+impl RankingPlan {
+    /// Whether `group` is ranked.
+    pub fn covers(&self, group: &str) -> bool {
+        self.groups.is_empty() || self.groups.iter().any(|g| g == group)
+    }
 }
 
 /// A ladder of learned policies to rank, as the video-world-model paper ranks checkpoints:

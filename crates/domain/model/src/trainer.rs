@@ -46,6 +46,20 @@ pub enum TrainerJob {
         /// Episodes of the ranked policies, without them.
         eval: Vec<ProxyEpisode>,
         config: ProxyConfig,
+        /// The artifact key of the world model a [`TrainerJob::ProxyWorld`] job fitted on these
+        /// `train` episodes with these settings: the proxy starts from it instead of fitting
+        /// its own (absent: it fits its own).
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        world_model: Option<String>,
+    },
+    /// The proxy's world model of one group, fitted ahead of the proxy on the training
+    /// policies' episodes: a ranking with a ladder queues it as soon as the group's episodes are
+    /// done, so it trains while the ladder's policies train and run, not after them.
+    ProxyWorld {
+        group: String,
+        /// Episodes of the training policies, as the proxy will get them.
+        train: Vec<ProxyEpisode>,
+        config: ProxyConfig,
     },
 }
 
@@ -61,6 +75,12 @@ pub enum TrainerOutcome {
     },
     Proxy {
         result: Box<ProxyResult>,
+    },
+    /// A proxy's world model, fitted: its final checkpoint's key in the artifact store.
+    ProxyWorld {
+        group: String,
+        checkpoint: String,
+        fit: Box<DynamicsFit>,
     },
     /// A trained diffusion policy: its checkpoint's key in the artifact store and its fit.
     Diffusion {
