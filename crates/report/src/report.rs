@@ -267,6 +267,14 @@ pub struct Results {
     pub generalization: Option<crate::generalization::GeneralizationResults>,
 }
 
+impl Results {
+    /// Readable names of the ranking ladder's policies (policy name, label): how every table
+    /// and plot shows them (`diffusion 10 ep @ 300`), the full name as its title.
+    pub fn policy_labels(&self) -> &[(String, String)] {
+        self.ranking.as_ref().map_or(&[], |k| k.labels.as_slice())
+    }
+}
+
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct Totals {
     pub tasks: u64,

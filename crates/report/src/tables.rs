@@ -57,7 +57,7 @@ pub fn success_per_policy(r: &Results) -> Table {
     let mut table = Table::new(["policy", "#episodes", "#success (Wilson 95 %)"]);
     for p in &r.by_policy {
         table.row(vec![
-            p.policy.as_str().into(),
+            Cell::policy(&p.policy, r.policy_labels()),
             n(p.success.trials),
             proportion(&p.success),
         ]);
@@ -69,7 +69,16 @@ pub fn success_per_policy(r: &Results) -> Table {
 /// success.
 fn policy_columns(r: &Results) -> Vec<String> {
     if r.policies.len() > 1 {
-        r.policies.iter().map(|p| format!("#{p}")).collect()
+        let labels = r.policy_labels();
+        r.policies
+            .iter()
+            .map(|p| {
+                format!(
+                    "#{}",
+                    crate::view::policy_label(p, labels).unwrap_or_else(|| p.clone())
+                )
+            })
+            .collect()
     } else {
         vec!["#success (Wilson 95 %)".into()]
     }
@@ -165,7 +174,7 @@ pub fn failures(r: &Results) -> Table {
             table.row(vec![
                 Cell::code(&t.id),
                 n(f.seed),
-                f.policy.as_str().into(),
+                Cell::policy(&f.policy, r.policy_labels()),
                 n(f.attempts),
                 error.and(Span::Text(f.error.clone())),
             ]);

@@ -11,7 +11,8 @@ pub(super) fn header(report: &Report) -> Markup {
         header {
             h1 { (r.batch_name) }
             p {
-                "Policies " (r.policies.join(", ")) ", seeds "
+                "Policies " (cell(&Cell::policies(r.policies.iter().map(String::as_str), r.policy_labels())))
+                ", seeds "
                 (r.seeds.iter().map(u64::to_string).collect::<Vec<_>>().join(", "))
                 ". Success rates read rate (successes/trials) [95 % Wilson interval]; success is \
                  the simulator's ground truth (goal predicates) over completed episodes."
@@ -49,7 +50,7 @@ pub(super) fn overview(report: &Report) -> Markup {
                 .chain(std::iter::once(of(&r.by_policy)))
                 .collect();
             Bars {
-                name: p.clone(),
+                name: crate::view::policy_label(p, r.policy_labels()).unwrap_or_else(|| p.clone()),
                 values: cells.iter().map(|c| c.0).collect(),
                 intervals: cells.iter().map(|c| c.1).collect(),
             }

@@ -44,6 +44,8 @@ pub(super) fn task_page(inputs: &HtmlInputs<'_>, t: &TaskResult) -> Markup {
         .find_map(|e| e.imagery.as_ref().map(|i| (e, i)));
     let judged = task_quality(inputs.report, &t.id);
     let failed: Vec<_> = t.episodes.iter().filter(|e| !e.success).collect();
+    let labels = inputs.report.results.policy_labels();
+    let policy = |name: &str| cell(&Cell::policy(name, labels));
     html! {
         section class="task" id=(task_anchor(&t.id)) {
             h2 { "Task " (t.name) }
@@ -65,7 +67,7 @@ pub(super) fn task_page(inputs: &HtmlInputs<'_>, t: &TaskResult) -> Markup {
                 h3 { "Success by policy" }
                 table {
                     @for p in &t.by_policy {
-                        tr { td { (p.policy) } td.n { (cell(&proportion(&p.success))) } }
+                        tr { td { (policy(&p.policy)) } td.n { (cell(&proportion(&p.success))) } }
                     }
                 }
             }
@@ -80,7 +82,7 @@ pub(super) fn task_page(inputs: &HtmlInputs<'_>, t: &TaskResult) -> Markup {
             }
             @match pictured {
                 Some((e, imagery)) => {
-                    h3 { "Pictures of episode seed " (e.seed) ", policy " (e.policy) }
+                    h3 { "Pictures of episode seed " (e.seed) ", policy " (policy(&e.policy)) }
                     (pictures(inputs, imagery))
                 },
                 None => p.absent { "No pictures: the batch did not render this task." },
@@ -93,7 +95,7 @@ pub(super) fn task_page(inputs: &HtmlInputs<'_>, t: &TaskResult) -> Markup {
                 p {
                     @for (i, (e, v)) in videos.iter().enumerate() {
                         @if i > 0 { " · " }
-                        a href={ "artifacts/" (v) } { "seed " (e.seed) ", " (e.policy) }
+                        a href={ "artifacts/" (v) } { "seed " (e.seed) ", " (policy(&e.policy)) }
                     }
                 }
             }
@@ -127,7 +129,7 @@ pub(super) fn task_page(inputs: &HtmlInputs<'_>, t: &TaskResult) -> Markup {
                     @for e in failed {
                         tr {
                             td.n { (e.seed) }
-                            td { (e.policy) }
+                            td { (policy(&e.policy)) }
                             td {
                                 @for (i, p) in e.unmet.iter().enumerate() {
                                     @if i > 0 { br; }
@@ -149,7 +151,7 @@ pub(super) fn task_page(inputs: &HtmlInputs<'_>, t: &TaskResult) -> Markup {
                     @for f in &t.failures {
                         tr {
                             td.n { (f.seed) }
-                            td { (f.policy) }
+                            td { (policy(&f.policy)) }
                             td.n { (f.attempts) }
                             td { @if f.cancelled { "(cancelled) " } (f.error) }
                         }

@@ -27,7 +27,13 @@ impl Report {
             "Policies {} · seeds {}. Everything above the Run section depends only on the batch, \
              its seeds and the versions of the code: the same batch gives the same text. Success \
              rates read `rate (successes/trials) [95 % Wilson interval]`.\n",
-            md_text(&r.policies.join(", ")),
+            crate::view::md_cell(
+                &crate::view::Cell::policies(
+                    r.policies.iter().map(String::as_str),
+                    r.policy_labels()
+                ),
+                false
+            ),
             r.seeds
                 .iter()
                 .map(u64::to_string)
@@ -38,7 +44,9 @@ impl Report {
         md.push_str(&tables::summary(r).markdown());
         if r.policies.len() > 1 {
             let _ = writeln!(md, "\n## Success per policy\n");
-            md.push_str(&tables::success_per_policy(r).markdown());
+            let table = tables::success_per_policy(r);
+            md.push_str(&table.markdown());
+            md.push_str(&sections::full_names(std::slice::from_ref(&table)));
         }
         let _ = writeln!(md, "\n## Success per group\n");
         md.push_str(&tables::success_per_group(r).markdown());

@@ -300,7 +300,7 @@ impl RankingResults {
 }
 
 /// The full names of the policies `tables` show shortened, as a list (nothing when none is).
-fn full_names(tables: &[Table]) -> String {
+pub(super) fn full_names(tables: &[Table]) -> String {
     let names = abbreviations(tables);
     let mut out = String::new();
     if names.is_empty() {
