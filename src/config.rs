@@ -514,12 +514,37 @@ mod tests {
             let Some(("eval", sub)) = m.subcommand() else {
                 panic!("no eval subcommand");
             };
-            let paths: Vec<&PathBuf> = sub.get_many::<PathBuf>("paths").unwrap().collect();
-            assert!(
-                paths
-                    .iter()
-                    .all(|p| Path::new(env!("CARGO_MANIFEST_DIR")).join(p).is_dir())
-            );
+            // Task folders or task files, all of them there, and every group the ranking or
+            // the generalization names among their tasks' groups.
+            let paths: Vec<PathBuf> = sub
+                .get_many::<PathBuf>("paths")
+                .unwrap()
+                .map(|p| Path::new(env!("CARGO_MANIFEST_DIR")).join(p))
+                .collect();
+            for p in &paths {
+                assert!(p.exists(), "{name}: {}", p.display());
+            }
+            let docs = crate::docs::collect(&paths).unwrap();
+            let (tasks, invalid) = assay_coordinator::service::plan_tasks(&docs, &[]);
+            assert!(invalid.is_empty(), "{name}: {invalid:?}");
+            let groups: Vec<&str> = tasks.iter().map(|t| t.info.group.as_str()).collect();
+            let mut named: Vec<String> = sub
+                .get_many::<String>("rank_groups")
+                .into_iter()
+                .flatten()
+                .cloned()
+                .collect();
+            if let Some(g) = sub.get_one::<String>("generalization") {
+                let plan: assay_model::generalization::GeneralizationPlan =
+                    serde_json::from_str(g).unwrap();
+                named.extend(plan.groups);
+            }
+            for g in &named {
+                assert!(
+                    groups.contains(&g.as_str()),
+                    "{name}: group {g} in {groups:?}"
+                );
+            }
         }
     }
 
