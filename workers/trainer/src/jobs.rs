@@ -214,6 +214,21 @@ pub fn run(
             config,
             checkpoints,
         } => {
+            // The same training (same clips, same settings: the same bytes, as training is
+            // deterministic) may have run in this batch already — a generalization policy that
+            // is a ladder's final one. Without checkpoints to keep, its policy is taken as is.
+            let memo = diffusion_memo(artifacts, batch, clips, config);
+            if checkpoints.is_empty()
+                && let Some((model, fit)) = read_memo(&memo, artifacts)
+            {
+                tracing::info!(group, model = %model, "diffusion policy: the same training ran in this batch; its policy is reused");
+                return Ok(TrainerOutcome::Diffusion {
+                    group: group.clone(),
+                    model,
+                    fit: Box::new(fit),
+                    checkpoints: Vec::new(),
+                });
+            }
             let loaded = load_clips(read, clips)?;
             let mut last = std::time::Instant::now();
             let mut progress = |step: u64, loss: f64| {
@@ -248,6 +263,10 @@ pub fn run(
             }
             let key = store(&policy)?;
             tracing::info!(group, model = %key, steps = fit.steps, kept = stored.len(), loss = fit.mean_last_100_loss, "diffusion policy trained");
+            if let Ok(json) = serde_json::to_vec(&(&key, &fit)) {
+                // Best effort: without it, the same training runs again.
+                let _ = write_atomically(&memo, &json);
+            }
             Ok(TrainerOutcome::Diffusion {
                 group: group.clone(),
                 model: key,
@@ -291,6 +310,31 @@ pub fn run(
             Ok(TrainerOutcome::Dynamics { fit: Box::new(fit) })
         }
     }
+}
+
+/// Where a diffusion training of `batch` on `clips` with `config` records its policy's key and
+/// fit, for [`read_memo`].
+fn diffusion_memo(
+    artifacts: &Path,
+    batch: &str,
+    clips: &[String],
+    config: &assay_model::diffusion::DiffusionConfig,
+) -> PathBuf {
+    let what = serde_json::to_string(&(clips, config)).unwrap_or_default();
+    artifacts.join("checkpoints").join(batch).join(format!(
+        "diffusion-{}.json",
+        &sha256_hex(what.as_bytes())[..32]
+    ))
+}
+
+/// The policy key and fit a training recorded at `memo`, when its policy is in the store.
+fn read_memo(
+    memo: &Path,
+    artifacts: &Path,
+) -> Option<(String, assay_model::diffusion::DiffusionFit)> {
+    let (model, fit): (String, assay_model::diffusion::DiffusionFit) =
+        serde_json::from_slice(&std::fs::read(memo).ok()?).ok()?;
+    artifacts.join(&model).is_file().then_some((model, fit))
 }
 
 /// Reads and decodes the clips at `keys`.

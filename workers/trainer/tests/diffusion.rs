@@ -585,3 +585,83 @@ fn bench_default_run() {
     );
     println!("load average after: {}", load_average());
 }
+
+/// A diffusion job run twice in one batch — a ladder's run with checkpoints, then a
+/// generalization policy on the same clips and settings — trains once: the second takes the
+/// first's policy and fit as they are, without reading a clip. Another batch, or other settings,
+/// trains its own.
+#[test]
+fn the_same_training_twice_in_a_batch_trains_once() {
+    use assay_model::proxy::ExternalWorldModel;
+    use assay_model::trainer::{TrainerJob, TrainerOutcome};
+    use assay_model::world::{WorldError, WorldModelService};
+    use assay_trainer::embedders::{Config, Embedders};
+    let dir = tempfile::tempdir().unwrap();
+    let root = dir.path();
+    let store_clips = || {
+        std::fs::create_dir_all(root.join("clips")).unwrap();
+        for (i, c) in clips(2, 12, 5).iter().enumerate() {
+            std::fs::write(root.join(format!("clips/{i}.clip")), c.encode()).unwrap();
+        }
+    };
+    store_clips();
+    let keys: Vec<String> = (0..2).map(|i| format!("clips/{i}.clip")).collect();
+    let read = |k: &str| std::fs::read(root.join(k));
+    let embedders = std::sync::Mutex::new(Embedders::new(Config::default(), Device::Cpu));
+    let policies =
+        |p: &str| -> Result<Box<dyn Policy>, PolicyError> { panic!("no policy is loaded: {p}") };
+    let worlds = |_: &ExternalWorldModel| -> Result<Box<dyn WorldModelService>, WorldError> {
+        panic!("no world model is served")
+    };
+    let run = |checkpoints: Vec<u64>, config: DiffusionConfig, batch: &str| {
+        let job = TrainerJob::Diffusion {
+            group: "g".into(),
+            clips: keys.clone(),
+            config,
+            checkpoints,
+        };
+        assay_trainer::jobs::run(
+            &job,
+            batch,
+            root,
+            &read,
+            &embedders,
+            &policies,
+            &worlds,
+            Device::Cpu,
+        )
+        .map(|outcome| match outcome {
+            TrainerOutcome::Diffusion {
+                model,
+                fit,
+                checkpoints,
+                ..
+            } => (model, *fit, checkpoints),
+            other => panic!("{other:?}"),
+        })
+        .map_err(|e| e.message)
+    };
+    let (model, fit, kept) = run(vec![2], tiny_config(), "b1").unwrap();
+    assert_eq!(kept.len(), 1);
+    // The clips are gone: only a policy taken as it is can come back.
+    std::fs::remove_dir_all(root.join("clips")).unwrap();
+    let (again, again_fit, again_kept) = run(Vec::new(), tiny_config(), "b1").unwrap();
+    assert_eq!(again, model);
+    assert_eq!(
+        (again_fit.steps, again_fit.final_loss, again_fit.samples),
+        (fit.steps, fit.final_loss, fit.samples)
+    );
+    assert!(again_kept.is_empty());
+    // Another batch, or other settings, trains its own: it reads the clips.
+    let e = run(Vec::new(), tiny_config(), "b2").unwrap_err();
+    assert!(e.contains("clips/0.clip"), "{e}");
+    let seeded = DiffusionConfig {
+        seed: 1,
+        ..tiny_config()
+    };
+    let e = run(Vec::new(), seeded.clone(), "b1").unwrap_err();
+    assert!(e.contains("clips/0.clip"), "{e}");
+    store_clips();
+    let (other, _, _) = run(Vec::new(), seeded, "b1").unwrap();
+    assert_ne!(other, model);
+}
