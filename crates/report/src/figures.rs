@@ -228,10 +228,16 @@ pub struct BarChart<'a> {
     pub y_range: Option<(f64, f64)>,
 }
 
-/// A grouped bar chart with error bars where intervals are given.
+/// Width of the legend beside a bar chart, in pixels.
+const LEGEND_WIDTH: u32 = 200;
+
+/// A grouped bar chart with error bars where intervals are given; its legend beside the plot, so
+/// that no bar is hidden behind it however many series there are.
 pub fn bar_chart(c: &BarChart<'_>) -> String {
-    render(680, 420, |root| {
-        root.fill(&WHITE)?;
+    render(680 + LEGEND_WIDTH, 420, |whole| {
+        whole.fill(&WHITE)?;
+        let (plot, side) = whole.split_horizontally(680);
+        let root = &plot;
         let n = c.categories.len().max(1);
         let (y0, y1) = c.y_range.unwrap_or_else(|| {
             let values = c.series.iter().flat_map(|s| {
@@ -283,10 +289,7 @@ pub fn bar_chart(c: &BarChart<'_>) -> String {
                     )
                 })
             });
-            chart
-                .draw_series(bars)?
-                .label(s.name.clone())
-                .legend(move |(x, y)| Rectangle::new([(x, y - 5), (x + 10, y + 5)], col.filled()));
+            chart.draw_series(bars)?;
             let undefined = s
                 .values
                 .iter()
@@ -327,13 +330,18 @@ pub fn bar_chart(c: &BarChart<'_>) -> String {
                 });
             chart.draw_series(whiskers)?;
         }
-        chart
-            .configure_series_labels()
-            .position(SeriesLabelPosition::UpperRight)
-            .background_style(WHITE.mix(0.85))
-            .border_style(BLACK.mix(0.3))
-            .label_font(("sans-serif", 12))
-            .draw()?;
+        for (si, s) in c.series.iter().enumerate() {
+            let y = 48 + 20 * si as i32;
+            side.draw(&Rectangle::new(
+                [(4, y - 5), (14, y + 5)],
+                colour(si).filled(),
+            ))?;
+            side.draw(&Text::new(
+                s.name.clone(),
+                (20, y - 7),
+                ("sans-serif", 12).into_font(),
+            ))?;
+        }
         Ok(())
     })
 }
