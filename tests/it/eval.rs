@@ -460,56 +460,50 @@ fn the_same_batch_twice_gives_identical_results() {
 fn a_malformed_nested_setting_is_refused_before_anything_starts() {
     let dir = tempfile::tempdir().unwrap();
     let config = dir.path().join("lab.toml");
+    let out_dir = dir.path().join("out");
+    // `assay eval tests/fixtures/small ARGS… --out OUT` fails with a message holding every one
+    // of `want`, and writes nothing.
+    let refused = |args: &[&str], want: &[&str]| {
+        let out = Command::new(bin())
+            .args(["eval", "tests/fixtures/small"])
+            .args(args)
+            .arg("--out")
+            .arg(&out_dir)
+            .current_dir(repo())
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success());
+        assert!(want.iter().all(|w| err.contains(w)), "{err}");
+        assert!(!out_dir.exists(), "nothing started, nothing written");
+    };
+    let file = config.to_str().unwrap();
     std::fs::write(
         &config,
         "[eval]\nseeds = 2\n\n[eval.world-model]\nsteps = 300\nimage_sise = 32\n",
     )
     .unwrap();
-    let out_dir = dir.path().join("out");
-    let out = Command::new(bin())
-        .args(["eval", "tests/fixtures/small", "--config"])
-        .arg(&config)
-        .arg("--out")
-        .arg(&out_dir)
-        .current_dir(repo())
-        .output()
-        .unwrap();
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert!(!out.status.success());
-    assert!(
-        err.contains(&format!("configuration file {}", config.display()))
-            && err.contains("[eval] world-model")
-            && err.contains("image_sise: unknown field `image_sise`"),
-        "{err}"
+    refused(
+        &["--config", file],
+        &[
+            &format!("configuration file {file}"),
+            "[eval] world-model",
+            "image_sise: unknown field `image_sise`",
+        ],
     );
-    assert!(!out_dir.exists(), "nothing started, nothing written");
     // Settings that read well but that the coordinator would refuse: refused by the same check,
     // still before anything starts.
-    let out = Command::new(bin())
-        .args([
-            "eval",
-            "tests/fixtures/small",
+    refused(
+        &[
             "--policy",
             "oracle",
             "--policy",
             "oracle:noise=0.02",
             "--rank-train-policies",
             "oracle",
-            "--out",
-        ])
-        .arg(&out_dir)
-        .current_dir(repo())
-        .output()
-        .unwrap();
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert!(!out.status.success());
-    assert!(
-        err.contains(
-            "the batch's settings: ranking settings: policy \"oracle:noise=0.02\" is ranked"
-        ),
-        "{err}"
+        ],
+        &["the batch's settings: ranking settings: policy \"oracle:noise=0.02\" is ranked"],
     );
-    assert!(!out_dir.exists(), "nothing started, nothing written");
     // A group the batch's tasks do not carry (a misspelt one, in the file), also before.
     std::fs::write(
         &config,
@@ -517,23 +511,12 @@ fn a_malformed_nested_setting_is_refused_before_anything_starts() {
          [eval.rank-ladder]\nepisodes = [2]\n",
     )
     .unwrap();
-    let out = Command::new(bin())
-        .args(["eval", "tests/fixtures/small", "--config"])
-        .arg(&config)
-        .arg("--out")
-        .arg(&out_dir)
-        .current_dir(repo())
-        .output()
-        .unwrap();
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert!(!out.status.success());
-    assert!(
-        err.contains(
-            "the batch's settings: ranking settings: groups: no task of the batch is in group \"stakcing\""
-        ),
-        "{err}"
+    refused(
+        &["--config", file],
+        &[
+            "the batch's settings: ranking settings: groups: no task of the batch is in group \"stakcing\"",
+        ],
     );
-    assert!(!out_dir.exists(), "nothing started, nothing written");
 }
 
 /// The shapes and tools of issue 7 through the render role: an articulated drawer (its joint

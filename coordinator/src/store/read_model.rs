@@ -247,11 +247,15 @@ impl Store {
                         }
                         continue;
                     }
-                    if job.starts_with("ladder") {
-                        // A ladder's policies are ranked by their episodes; a training that
-                        // failed is a failure of the group's ranking. A finished one says what
-                        // each kept policy was trained on and for how long (the report's labels).
-                        if let (DONE, Some(json)) = (state.as_str(), &outcome)
+                    // A ladder's policies are ranked by their episodes, and the proxy's world
+                    // model fitted ahead of it reports through the proxy: a failure of either is
+                    // a failure of the group's ranking (the proxy then ranks what exists, or
+                    // fits its own). A finished ladder training says what each kept policy was
+                    // trained on and for how long (the report's labels).
+                    let ladder_job = job.starts_with("ladder");
+                    if ladder_job || job.starts_with("world model") {
+                        if ladder_job
+                            && let (DONE, Some(json)) = (state.as_str(), &outcome)
                             && let TrainerOutcome::Diffusion {
                                 group,
                                 model,
@@ -263,18 +267,6 @@ impl Store {
                                 ladder.push((group.clone(), fit.clips, step, key));
                             }
                         }
-                        if state == FAILED {
-                            let error = r.get::<_, Option<String>>(6)?.unwrap_or_default();
-                            proxy_errors.push((
-                                r.get::<_, Option<String>>(11)?.unwrap_or_default(),
-                                format!("{job}: {error}"),
-                            ));
-                        }
-                        continue;
-                    }
-                    if job.starts_with("world model") {
-                        // A proxy's world model fitted ahead of it: its proxy reports the fit;
-                        // a failure is the group's ranking's (its proxy then fits its own).
                         if state == FAILED {
                             let error = r.get::<_, Option<String>>(6)?.unwrap_or_default();
                             proxy_errors.push((
