@@ -42,6 +42,18 @@ pub fn checkpoint_path(artifacts: &Path, batch: &str, job: &TrainerJob) -> PathB
         .join(format!("{}.ckpt", &key[..32]))
 }
 
+/// Where a world-model fit of `group` stores its checkpoints: the file `ckpt`, written whole.
+fn checkpoint_sink<'a>(
+    ckpt: &'a Path,
+    group: &'a str,
+) -> impl FnMut(u64, &[u8]) -> Result<(), String> + 'a {
+    move |step, bytes| {
+        write_atomically(ckpt, bytes).map_err(|e| format!("checkpoint {}: {e}", ckpt.display()))?;
+        tracing::debug!(group, step, checkpoint = %ckpt.display(), "world-model checkpoint written");
+        Ok(())
+    }
+}
+
 /// Reads an artifact by its key: where it is kept (the caller's choice), else the store.
 pub type ArtifactReader<'a> = dyn Fn(&str) -> std::io::Result<Vec<u8>> + 'a;
 
@@ -86,12 +98,7 @@ pub fn run(
             let clips = load_clips(read, &keys)?;
             let ckpt = checkpoint_path(artifacts, batch, job);
             let resume = std::fs::read(&ckpt).ok();
-            let mut save = |step: u64, bytes: &[u8]| -> Result<(), String> {
-                write_atomically(&ckpt, bytes)
-                    .map_err(|e| format!("checkpoint {}: {e}", ckpt.display()))?;
-                tracing::debug!(group, step, "proxy world-model checkpoint written");
-                Ok(())
-            };
+            let mut save = checkpoint_sink(&ckpt, group);
             // Exactly the fit the proxy would run (its settings, its training clips), evaluated
             // on one clip only: the proxy evaluates on the ranked ones.
             let req = FitRequest {
@@ -150,12 +157,7 @@ pub fn run(
                 })?);
                 ahead = true;
             }
-            let mut save = |step: u64, bytes: &[u8]| -> Result<(), String> {
-                write_atomically(&ckpt, bytes)
-                    .map_err(|e| format!("checkpoint {}: {e}", ckpt.display()))?;
-                tracing::debug!(group, step, "proxy world-model checkpoint written");
-                Ok(())
-            };
+            let mut save = checkpoint_sink(&ckpt, group);
             let req = crate::proxy::ProxyRequest {
                 group,
                 policies,
@@ -287,12 +289,7 @@ pub fn run(
             if resume.is_some() {
                 tracing::info!(group, budget, checkpoint = %ckpt.display(), "resuming a world model");
             }
-            let mut save = |step: u64, bytes: &[u8]| -> Result<(), String> {
-                write_atomically(&ckpt, bytes)
-                    .map_err(|e| format!("checkpoint {}: {e}", ckpt.display()))?;
-                tracing::debug!(group, budget, step, "world-model checkpoint written");
-                Ok(())
-            };
+            let mut save = checkpoint_sink(&ckpt, group);
             let req = FitRequest {
                 config,
                 group,
