@@ -79,11 +79,37 @@ pub fn subcommand(args: &[OsString]) -> Option<String> {
 /// `file` is given, the file's `[running]` section as the defaults of that subcommand's options.
 /// An unknown key, or a value the option refuses, is an error naming the file, the section and
 /// the key.
-pub fn layer(
-    mut cmd: Command,
-    file: Option<&Path>,
-    running: Option<&str>,
-) -> Result<Command, String> {
+pub fn layer(cmd: Command, file: Option<&Path>, running: Option<&str>) -> Result<Command, String> {
+    let cmd = with_environment(cmd);
+    let (Some(path), Some(section)) = (file, running) else {
+        return Ok(cmd);
+    };
+    let at = |what: String| format!("configuration file {}: {what}", path.display());
+    let text = std::fs::read_to_string(path).map_err(|e| at(e.to_string()))?;
+    let table: toml::Table = toml::from_str(&text).map_err(|e| at(e.to_string()))?;
+    warn_other_sections(&cmd, &table, &at);
+    let Some(values) = table.get(section) else {
+        return Ok(cmd);
+    };
+    if cmd.find_subcommand(section).is_none() {
+        return Ok(cmd);
+    }
+    let Some(values) = values.as_table() else {
+        return Err(at(format!("{section} must be a table ([{section}])")));
+    };
+    let defaults = file_defaults(&cmd, section, values, &at)?;
+    Ok(cmd.mut_subcommand(section, |mut sc| {
+        for (id, list) in defaults {
+            // A positional the file gives is no longer required on the command line.
+            sc = sc.mut_arg(id, |a| a.required(false).default_values(list));
+        }
+        sc
+    }))
+}
+
+/// Switches that accept `1/0/yes/no/on/off`, and the deployment commands' options readable from
+/// `ASSAY_<OPTION>` (options that name their own variable keep it).
+fn with_environment(mut cmd: Command) -> Command {
     let names: Vec<String> = cmd
         .get_subcommands()
         .map(|s| s.get_name().to_owned())
@@ -116,15 +142,18 @@ pub fn layer(
             sc
         });
     }
-    let (Some(path), Some(section)) = (file, running) else {
-        return Ok(cmd);
-    };
-    let at = |what: String| format!("configuration file {}: {what}", path.display());
-    let text = std::fs::read_to_string(path).map_err(|e| at(e.to_string()))?;
-    let table: toml::Table = toml::from_str(&text).map_err(|e| at(e.to_string()))?;
+    cmd
+}
+
+/// Warns of sections of the file that are no subcommand's (said, not fatal: another command's
+/// section is not this command's business).
+fn warn_other_sections(cmd: &Command, table: &toml::Table, at: &dyn Fn(String) -> String) {
+    let names: Vec<String> = cmd
+        .get_subcommands()
+        .map(|s| s.get_name().to_owned())
+        .collect();
     for key in table.keys() {
         if !OTHER_SECTIONS.contains(&key.as_str()) && cmd.find_subcommand(key).is_none() {
-            // Said, not fatal: another command's section is not this command's business.
             eprintln!(
                 "warning: {}",
                 at(format!(
@@ -135,15 +164,17 @@ pub fn layer(
             );
         }
     }
-    let Some(values) = table.get(section) else {
-        return Ok(cmd);
-    };
-    let Some(sc) = cmd.find_subcommand(section) else {
-        return Ok(cmd);
-    };
-    let Some(values) = values.as_table() else {
-        return Err(at(format!("{section} must be a table ([{section}])")));
-    };
+}
+
+/// The file's `[section]` values as defaults of the subcommand's options, by option id. An
+/// unknown key, or a value of a type no option takes, is an error naming the key.
+fn file_defaults(
+    cmd: &Command,
+    section: &str,
+    values: &toml::Table,
+    at: &dyn Fn(String) -> String,
+) -> Result<Vec<(String, Vec<String>)>, String> {
+    let sc = cmd.find_subcommand(section).expect("checked by the caller");
     // Keys are the long flags (`asset-root`), `_` accepted for `-`, and the positional
     // arguments by name (`paths`).
     let flags: Vec<(String, String)> = sc
@@ -193,14 +224,7 @@ pub fn layer(
         };
         defaults.push((id.clone(), list));
     }
-    cmd = cmd.mut_subcommand(section, |mut sc| {
-        for (id, list) in defaults {
-            // A positional the file gives is no longer required on the command line.
-            sc = sc.mut_arg(id, |a| a.required(false).default_values(list));
-        }
-        sc
-    });
-    Ok(cmd)
+    Ok(defaults)
 }
 
 /// When a command line fails on a value, the file key that gave it, if the file did:
@@ -524,8 +548,8 @@ mod tests {
             for p in &paths {
                 assert!(p.exists(), "{name}: {}", p.display());
             }
-            let docs = crate::docs::collect(&paths).unwrap();
-            let (tasks, invalid) = assay_coordinator::service::plan_tasks(&docs, &[]);
+            let docs = assay_run::docs::collect(&paths).unwrap();
+            let (tasks, invalid) = assay_plan::plan_tasks(&docs, &[]);
             assert!(invalid.is_empty(), "{name}: {invalid:?}");
             let groups: Vec<&str> = tasks.iter().map(|t| t.info.group.as_str()).collect();
             let mut named: Vec<String> = sub

@@ -1,12 +1,13 @@
-//! `assay`: the command-line entry point. Thin: each subcommand lives in `cmd/`, the logic in the
-//! workspace's libraries.
+//! `assay`: the command-line entry point. Thin: each subcommand lives in `cmd/` (its arguments,
+//! one library call, what it prints), the logic in the workspace's libraries — `assay-run` for
+//! running batches and reading their results.
 
+mod args;
 mod cmd;
 mod config;
-mod docs;
 mod logging;
-mod outdir;
-mod proc;
+mod print;
+mod progress;
 
 use clap::{CommandFactory, FromArgMatches, Parser, Subcommand};
 
@@ -114,7 +115,7 @@ fn main() -> std::process::ExitCode {
         Err(e) => e.exit(),
     };
     logging::init(&cli.log_format);
-    proc::die_with_parent();
+    assay_run::local::die_with_parent();
     let result = match cli.command {
         Command::Eval(a) => {
             let resolved = config::resolved(

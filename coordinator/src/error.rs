@@ -14,6 +14,15 @@ pub enum CoordError {
     GroupCommit(String),
     #[error("the job store has stopped")]
     StoreStopped,
+    /// A batch the planner refuses (its documents, settings, templates or interfaces).
+    #[error(transparent)]
+    Plan(#[from] assay_plan::PlanError),
+}
+
+impl From<assay_plan::SettingsError> for CoordError {
+    fn from(e: assay_plan::SettingsError) -> Self {
+        CoordError::Plan(e.into())
+    }
 }
 
 impl From<CoordError> for tonic::Status {
@@ -21,6 +30,9 @@ impl From<CoordError> for tonic::Status {
         match e {
             CoordError::NotFound(m) => tonic::Status::not_found(m),
             CoordError::InvalidRequest(m) => tonic::Status::invalid_argument(m),
+            CoordError::Plan(e) if e.is_invalid_input() => {
+                tonic::Status::invalid_argument(e.to_string())
+            }
             CoordError::StoreStopped => {
                 tonic::Status::unavailable("the coordinator is shutting down")
             }

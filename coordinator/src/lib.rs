@@ -10,7 +10,6 @@ pub mod config;
 pub mod error;
 pub mod metrics;
 pub mod service;
-pub mod settings;
 pub mod store;
 
 use std::future::Future;

@@ -1,17 +1,14 @@
 //! The two gRPC services: `Coordinator` for clients and `WorkerSession` for workers.
 
-use std::collections::{BTreeMap, BTreeSet};
+use std::collections::BTreeSet;
 use std::pin::Pin;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU32, Ordering};
 use std::time::Duration;
 
-use assay_model::episode::TaskInfo;
-use assay_model::policy::PolicySpec;
+use assay_plan::settings::{BatchSettings, Settings, check, check_groups};
+use assay_plan::{TaskDocument, plan_tasks};
 use assay_proto::v1 as pb;
-use assay_spec::spec::{Format, parse_task};
-use assay_spec::{SpecError, SpecErrors};
-use assay_stats::diversity::task_text;
 use tokio::sync::{Notify, broadcast, mpsc, watch};
 use tokio_stream::Stream;
 use tokio_stream::wrappers::ReceiverStream;
@@ -21,7 +18,7 @@ use tracing::{debug, info, warn};
 use crate::actor::StoreHandle;
 use crate::config::CoordinatorConfig;
 use crate::error::CoordError;
-use crate::store::{BatchCounts, Changed, NewBatch, PlannedTask, batch_state};
+use crate::store::{BatchCounts, Changed, NewBatch, batch_state};
 
 pub fn now_ms() -> i64 {
     std::time::SystemTime::now()
@@ -59,163 +56,6 @@ impl Shared {
     }
 }
 
-fn spec_error_to_pb(e: &SpecError) -> pb::SpecError {
-    pb::SpecError {
-        task_id: e.task.clone().unwrap_or_default(),
-        origin: e.origin.clone(),
-        path: e.path.clone(),
-        reason: e.reason.clone(),
-    }
-}
-
-/// Parses and validates every document; returns the accepted tasks and every problem found.
-/// Refuses a batch whose policy declares, in its spec, an interface one of its tasks cannot fill
-/// (joint actions or joint state without an arm, a camera the task does not have): the error
-/// names the policy, the task and the field. Servers that declare their interface in `Health`
-/// are checked when their episodes start.
-fn check_interfaces(policies: &[String], tasks: &[PlannedTask]) -> Result<(), Status> {
-    let declared: Vec<(&String, PolicySpec)> = policies
-        .iter()
-        .filter_map(|p| PolicySpec::parse(p).ok().map(|s| (p, s)))
-        .filter(|(_, s)| s.declared_interface().is_some())
-        .collect();
-    if declared.is_empty() {
-        return Ok(());
-    }
-    for t in tasks {
-        let spec: assay_spec::spec::TaskSpec = serde_json::from_str(&t.spec_json)
-            .map_err(|e| Status::internal(format!("task {}: {e}", t.info.id)))?;
-        for (name, p) in &declared {
-            let interface = p.declared_interface().expect("filtered");
-            interface.check_task(&spec).map_err(|e| {
-                Status::invalid_argument(format!(
-                    "policy '{name}' does not fit task '{}': {e}",
-                    t.info.id
-                ))
-            })?;
-        }
-    }
-    Ok(())
-}
-
-pub fn plan_tasks(
-    docs: &[pb::TaskDocument],
-    asset_roots: &[std::path::PathBuf],
-) -> (Vec<PlannedTask>, Vec<SpecError>) {
-    let mut planned: Vec<PlannedTask> = Vec::new();
-    let mut errors = Vec::new();
-    let mut seen: BTreeMap<String, String> = BTreeMap::new();
-    for doc in docs {
-        let format = match doc.format.as_str() {
-            "yaml" | "yml" => Format::Yaml,
-            "json" => Format::Json,
-            "" => match Format::from_path(&doc.origin) {
-                Some(f) => f,
-                None => {
-                    errors.push(SpecError {
-                        task: None,
-                        origin: doc.origin.clone(),
-                        path: String::new(),
-                        reason: "unknown format: name the file .yaml, .yml or .json".into(),
-                    });
-                    continue;
-                }
-            },
-            other => {
-                errors.push(SpecError {
-                    task: None,
-                    origin: doc.origin.clone(),
-                    path: String::new(),
-                    reason: format!("unknown format '{other}' (yaml or json)"),
-                });
-                continue;
-            }
-        };
-        match parse_task(&doc.content, format, &doc.origin) {
-            Ok(spec) => {
-                if let Err((path, reason)) = spec.check_asset_roots(asset_roots) {
-                    errors.push(SpecError {
-                        task: Some(spec.id.clone()),
-                        origin: doc.origin.clone(),
-                        path,
-                        reason,
-                    });
-                    continue;
-                }
-                if let Some(first) = seen.get(&spec.id) {
-                    errors.push(SpecError {
-                        task: Some(spec.id.clone()),
-                        origin: doc.origin.clone(),
-                        path: "id".into(),
-                        reason: format!("duplicate task id '{}': already used by {first}", spec.id),
-                    });
-                    continue;
-                }
-                seen.insert(spec.id.clone(), doc.origin.clone());
-                planned.push(PlannedTask {
-                    info: TaskInfo {
-                        id: spec.id.clone(),
-                        name: spec.name.clone(),
-                        group: spec.group.clone(),
-                        pipeline: spec.source.pipeline.clone(),
-                        origin: doc.origin.clone(),
-                        spec_hash: spec.spec_hash(),
-                    },
-                    spec_json: spec.canonical_json(),
-                });
-            }
-            Err(SpecErrors(es)) => errors.extend(es),
-        }
-    }
-    (planned, errors)
-}
-
-/// The texts of the batch's tasks for text diversity: one group per task group (in order of first
-/// appearance), then "All" with every task. A template that names neither `{name}` nor
-/// `{description}` is refused (it would embed the same text for every task).
-pub fn text_groups(
-    tasks: &[PlannedTask],
-    templates: &std::collections::HashMap<String, String>,
-) -> Result<Vec<(String, Vec<String>)>, Status> {
-    for (pipeline, t) in templates {
-        if !t.contains("{name}") && !t.contains("{description}") {
-            return Err(Status::invalid_argument(format!(
-                "text template for {pipeline:?}: it names neither {{name}} nor {{description}}"
-            )));
-        }
-    }
-    let mut groups: Vec<(String, Vec<String>)> = Vec::new();
-    let mut all = Vec::with_capacity(tasks.len());
-    for t in tasks {
-        let description = serde_json::from_str::<serde_json::Value>(&t.spec_json)
-            .ok()
-            .and_then(|v| {
-                v.get("description")
-                    .and_then(|d| d.as_str())
-                    .map(str::to_owned)
-            })
-            .unwrap_or_default();
-        let text = task_text(
-            &t.info.pipeline,
-            &t.info.name,
-            &description,
-            templates.get(&t.info.pipeline).map(String::as_str),
-        );
-        match groups.iter_mut().find(|(g, _)| *g == t.info.group) {
-            Some((_, texts)) => texts.push(text.clone()),
-            None => groups.push((t.info.group.clone(), vec![text.clone()])),
-        }
-        all.push(text);
-    }
-    let total = if groups.iter().any(|(g, _)| g == "All") {
-        "All tasks"
-    } else {
-        "All"
-    };
-    groups.push((total.to_owned(), all));
-    Ok(groups)
-}
-
 /// Judge names are keys of the judge workers' configuration.
 fn valid_judge_name(name: &str) -> bool {
     !name.is_empty()
@@ -223,23 +63,6 @@ fn valid_judge_name(name: &str) -> bool {
         && name
             .chars()
             .all(|c| c.is_ascii_alphanumeric() || matches!(c, '-' | '_' | '.'))
-}
-
-/// SHA-256 of a batch's tasks: the spec hashes of `tasks` and the SHA-256 of the documents that
-/// did not become tasks (`invalid`), sorted, one per line. The same tasks give the same hash,
-/// whatever their file names, order or YAML formatting.
-fn content_hash(
-    docs: &[pb::TaskDocument],
-    tasks: &[PlannedTask],
-    invalid: &[assay_spec::SpecError],
-) -> String {
-    let mut hashes: Vec<String> = tasks.iter().map(|t| t.info.spec_hash.clone()).collect();
-    for d in docs {
-        if invalid.iter().any(|e| e.origin == d.origin) {
-            hashes.push(assay_spec::hash::sha256_hex(d.content.as_bytes()));
-        }
-    }
-    assay_report::report::batch_hash(hashes.iter().map(String::as_str))
 }
 
 fn counts_to_pb(c: &BatchCounts, workers: u32) -> pb::BatchStatus {
@@ -314,7 +137,7 @@ impl pb::coordinator_server::Coordinator for CoordinatorService {
         let mut seeds = req.seeds.clone();
         seeds.sort_unstable();
         seeds.dedup();
-        let settings = crate::settings::check(&req).map_err(Status::invalid_argument)?;
+        let settings = check(&BatchSettings::from(&req)).map_err(CoordError::from)?;
         let roots: Vec<std::path::PathBuf> = req
             .asset_roots
             .iter()
@@ -323,10 +146,12 @@ impl pb::coordinator_server::Coordinator for CoordinatorService {
                 p.canonicalize().unwrap_or(p)
             })
             .collect();
-        let (tasks, invalid) = plan_tasks(&req.tasks, &roots);
-        check_interfaces(&settings.policies, &tasks)?;
+        let docs: Vec<TaskDocument> = req.tasks.iter().map(TaskDocument::from).collect();
+        let (tasks, invalid) = plan_tasks(&docs, &roots);
+        assay_plan::interfaces::check_interfaces(&settings.policies, &tasks)
+            .map_err(CoordError::from)?;
         let groups: Vec<&str> = tasks.iter().map(|t| t.info.group.as_str()).collect();
-        crate::settings::check_groups(&settings, &groups).map_err(Status::invalid_argument)?;
+        check_groups(&settings, &groups).map_err(CoordError::from)?;
         let mut judges = req.judges.clone();
         judges.sort();
         judges.dedup();
@@ -352,14 +177,15 @@ impl pb::coordinator_server::Coordinator for CoordinatorService {
                 "embedding model name {bad:?}: expected letters, digits, '-', '_' or '.'"
             )));
         }
-        let text_groups = text_groups(&tasks, &req.text_templates)?;
-        let crate::settings::Settings {
+        let text_groups = assay_plan::texts::text_groups(&tasks, &req.text_templates)
+            .map_err(CoordError::from)?;
+        let Settings {
             policies,
             dynamics,
             ranking,
             generalization,
         } = settings;
-        let content_hash = content_hash(&req.tasks, &tasks, &invalid);
+        let content_hash = assay_plan::hash::content_hash(&docs, &tasks, &invalid);
         let batch = NewBatch {
             name: if req.name.is_empty() {
                 "batch".into()
@@ -418,7 +244,7 @@ impl pb::coordinator_server::Coordinator for CoordinatorService {
                 batch_id,
                 accepted_tasks: accepted,
                 shards: 0,
-                rejected: invalid.iter().map(spec_error_to_pb).collect(),
+                rejected: invalid.iter().map(pb::SpecError::from).collect(),
                 content_hash,
                 duplicate_of,
             }));
@@ -433,7 +259,7 @@ impl pb::coordinator_server::Coordinator for CoordinatorService {
             batch_id,
             accepted_tasks: accepted,
             shards,
-            rejected: invalid.iter().map(spec_error_to_pb).collect(),
+            rejected: invalid.iter().map(pb::SpecError::from).collect(),
             content_hash,
             duplicate_of: String::new(),
         }))

@@ -1,7 +1,8 @@
 //! `assay-proto`: the gRPC contract between the coordinator, its clients and its workers.
 //!
-//! Owns: `assay/v1/*.proto`, the generated types, and the one place where domain errors become
-//! gRPC status codes. Never holds logic beyond conversions.
+//! Owns: `assay/v1/*.proto`, the generated types, and their conversions to and from the domain's
+//! types (`convert`: task documents, batch settings, spec errors). Never holds logic beyond
+//! conversions.
 
 #[allow(clippy::all, clippy::pedantic, rust_2018_idioms)]
 pub mod v1 {
@@ -11,6 +12,7 @@ pub mod v1 {
 pub use v1::*;
 
 pub mod auth;
+mod convert;
 
 /// Message size limit for every Assay channel (frames and reports exceed tonic's 4 MiB default).
 pub const MAX_MESSAGE_BYTES: usize = 64 * 1024 * 1024;

@@ -57,7 +57,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         endpoint => Some(endpoint.to_owned()),
     };
     let telemetry_line = config.telemetry.clone().unwrap_or_else(|| "off".into());
-    super::block_on(async move {
+    assay_run::rt::block_on(async move {
         let listener = tokio::net::TcpListener::bind(&a.listen)
             .await
             .with_context(|| format!("binding {}", a.listen))?;
@@ -90,7 +90,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
             std::fs::write(&tmp, format!("{addr}\n{telemetry_line}\n{metrics_line}\n"))?;
             std::fs::rename(&tmp, f)?;
         }
-        assay_coordinator::serve(config, listener, metrics, super::terminated()).await?;
+        assay_coordinator::serve(config, listener, metrics, assay_run::rt::terminated()).await?;
         Ok(ExitCode::SUCCESS)
     })
 }

@@ -3,10 +3,9 @@
 //! TensorBoard scalars) and `wandb` (the same figures as a W&B offline run); the formats are
 //! `assay_export`'s.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::process::ExitCode;
 
-use anyhow::{Context, bail};
 use assay_export::lerobot;
 
 #[derive(clap::Args)]
@@ -80,8 +79,9 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
                 policies: a.policies,
                 successful_only: a.successful,
             };
-            let specs = task_specs(&a.run)?;
-            let s = lerobot::export(&a.run, &a.out, &specs, &options)?;
+            let specs = assay_run::export::task_specs(&a.run)?;
+            let mut drawing = assay_run::export::RunDrawing::default();
+            let s = lerobot::export(&a.run, &a.out, &specs, &options, &mut drawing)?;
             for why in &s.skipped {
                 eprintln!("left out: {why}");
             }
@@ -118,36 +118,4 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
             Ok(ExitCode::SUCCESS)
         }
     }
-}
-
-/// The task specs of `run` (an `assay eval` folder) as its job store holds them.
-fn task_specs(run: &Path) -> anyhow::Result<lerobot::Specs> {
-    let marker = run.join(crate::outdir::MARKER);
-    let batch_id = serde_json::from_slice::<crate::outdir::Marker>(
-        &std::fs::read(&marker)
-            .with_context(|| format!("{} is not an `assay eval` output folder", run.display()))?,
-    )
-    .with_context(|| format!("reading {}", marker.display()))?
-    .batch_id
-    .with_context(|| format!("{}: the run never submitted its batch", run.display()))?;
-    let db = run.join("run").join("jobs.db");
-    if !db.is_file() {
-        bail!(
-            "{} has no job store (run/jobs.db): the task specs come from there",
-            run.display()
-        );
-    }
-    let store = assay_coordinator::store::Store::open(&db)
-        .map_err(|e| anyhow::anyhow!("{}: {e}", db.display()))?;
-    let rows = store
-        .task_specs(&batch_id)
-        .map_err(|e| anyhow::anyhow!("{}: {e}", db.display()))?;
-    Ok(rows
-        .into_iter()
-        .map(|(id, json)| {
-            let spec = serde_json::from_str(&json)
-                .map_err(|e| format!("its stored spec does not parse: {e}"));
-            (id, spec)
-        })
-        .collect())
 }

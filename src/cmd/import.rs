@@ -2,12 +2,11 @@
 //! the per-task mapping report (what was mapped, inferred, left out, and why a task was not
 //! imported). `assay eval --import PIPELINE PATH` runs the same import before evaluating.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::process::ExitCode;
 
-use anyhow::Context;
-use assay_import::{Import, ImportOptions, Pipeline, import, spec_to_yaml};
-use assay_proto::v1 as pb;
+use assay_import::Pipeline;
+use assay_run::imports;
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -34,189 +33,22 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> anyhow::Result<ExitCode> {
-    let mut batch = read(a.pipeline, &a.path, a.asset_root.clone())?;
+    let mut batch = imports::read(a.pipeline, &a.path, a.asset_root.clone())?;
     if a.check_oracle > 0 {
-        check_oracles(&mut batch, a.check_oracle);
+        imports::check_oracles(&mut batch, a.check_oracle);
     }
     print!("{}", batch.report());
     if let Some(out) = &a.out {
-        let written = write(&batch, out)?;
+        let written = imports::write(&batch, out)?;
         println!(
             "wrote {written} task spec(s) and import-report.json to {}",
             out.display()
         );
     }
-    let failed = failed(&batch);
+    let failed = imports::failed(&batch);
     Ok(if batch.specs().is_empty() || (a.strict && failed > 0) {
         ExitCode::FAILURE
     } else {
         ExitCode::SUCCESS
     })
-}
-
-/// Runs every imported task's oracle on seeds `0..seeds` and adds what happened to its mapping
-/// report: a plan that fails on some seed is reported, not hidden.
-pub fn check_oracles(batch: &mut Import, seeds: u64) {
-    use assay_import::{Mapping, MappingStatus};
-    let specs: Vec<(usize, assay_spec::spec::TaskSpec)> = batch
-        .tasks
-        .iter()
-        .enumerate()
-        .filter_map(|(i, t)| t.spec.clone().map(|s| (i, s)))
-        .collect();
-    let jobs: Vec<(usize, u64)> = (0..specs.len())
-        .flat_map(|k| (0..seeds).map(move |s| (k, s)))
-        .collect();
-    let next = std::sync::atomic::AtomicUsize::new(0);
-    let results = std::sync::Mutex::new(vec![Vec::new(); specs.len()]);
-    let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
-    std::thread::scope(|scope| {
-        for _ in 0..threads {
-            scope.spawn(|| {
-                loop {
-                    let j = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-                    let Some(&(k, seed)) = jobs.get(j) else {
-                        return;
-                    };
-                    let why = match assay_sim::simulate(&specs[k].1, seed, "oracle") {
-                        Ok(ep) if ep.outcome.success => None,
-                        Ok(ep) => Some(
-                            ep.outcome
-                                .predicates
-                                .iter()
-                                .find(|p| !p.holds)
-                                .map(|p| format!("{}: {}", p.label, p.detail))
-                                .unwrap_or_else(|| "the plan did not finish".into()),
-                        ),
-                        Err(e) => Some(format!("cannot simulate: {e}")),
-                    };
-                    results.lock().expect("not poisoned")[k].push((seed, why));
-                }
-            });
-        }
-    });
-    let results = results.into_inner().expect("not poisoned");
-    for ((i, _), mut rs) in specs.into_iter().zip(results) {
-        rs.sort_by_key(|r| r.0);
-        let solved = rs.iter().filter(|r| r.1.is_none()).count();
-        let failed: Vec<String> = rs
-            .iter()
-            .filter(|r| r.1.is_some())
-            .map(|r| r.0.to_string())
-            .collect();
-        let note = match rs.iter().find_map(|r| r.1.as_ref().map(|w| (r.0, w))) {
-            None => format!("checked in the simulator: solves {solved} of {seeds} seeds"),
-            Some((seed, why)) => format!(
-                "checked in the simulator: solves {solved} of {seeds} seeds; fails on seed(s) {}; seed {seed}: {why}",
-                failed.join(", ")
-            ),
-        };
-        batch.tasks[i].mapping.push(Mapping {
-            field: "oracle (checked)".into(),
-            status: MappingStatus::Inferred,
-            note,
-        });
-    }
-}
-
-/// Imports a batch, failing only when nothing under `path` can be read at all.
-pub fn read(
-    pipeline: Pipeline,
-    path: &Path,
-    asset_root: Option<PathBuf>,
-) -> anyhow::Result<Import> {
-    anyhow::ensure!(path.exists(), "{}: no such file or folder", path.display());
-    let batch = import(
-        pipeline,
-        path,
-        &ImportOptions {
-            asset_root,
-            ..ImportOptions::default()
-        },
-    );
-    anyhow::ensure!(
-        !batch.tasks.is_empty() || !batch.errors.is_empty(),
-        "no {pipeline} tasks found under {}",
-        path.display()
-    );
-    Ok(batch)
-}
-
-/// Tasks that could not be imported, and batch-level errors.
-pub fn failed(batch: &Import) -> usize {
-    batch.tasks.iter().filter(|t| t.spec.is_none()).count() + batch.errors.len()
-}
-
-/// Writes every imported spec (`ID.yaml`) and `import-report.json` to `out`.
-pub fn write(batch: &Import, out: &Path) -> anyhow::Result<usize> {
-    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
-    let specs = batch.specs();
-    for spec in &specs {
-        let file = out.join(format!("{}.yaml", spec.id));
-        std::fs::write(&file, spec_to_yaml(spec))
-            .with_context(|| format!("writing {}", file.display()))?;
-    }
-    let report = out.join("import-report.json");
-    std::fs::write(&report, serde_json::to_vec_pretty(batch)?)
-        .with_context(|| format!("writing {}", report.display()))?;
-    Ok(specs.len())
-}
-
-/// What the report says of an imported tree (`mapping_file`: its mapping, relative to the
-/// report).
-pub fn summary(
-    batch: &Import,
-    path: &Path,
-    mapping_file: &str,
-) -> assay_report::report::ImportSummary {
-    use assay_import::MappingStatus;
-    let lines = |t: &assay_import::ImportedTask, status: MappingStatus| -> Vec<String> {
-        t.mapping
-            .iter()
-            .filter(|m| m.status == status)
-            .map(|m| format!("{}: {}", m.field, m.note))
-            .collect()
-    };
-    assay_report::report::ImportSummary {
-        pipeline: batch.pipeline.name().into(),
-        root: path.display().to_string(),
-        mapping_file: mapping_file.into(),
-        tasks: batch
-            .tasks
-            .iter()
-            .map(|t| assay_report::report::ImportedTaskSummary {
-                id: t.id.clone(),
-                name: t.name.clone(),
-                source: t.source.display().to_string(),
-                imported: t.spec.is_some(),
-                errors: t
-                    .errors
-                    .iter()
-                    .map(|e| match e.path.as_str() {
-                        "" => e.reason.clone(),
-                        field => format!("{field}: {}", e.reason),
-                    })
-                    .collect(),
-                inferred: lines(t, MappingStatus::Inferred),
-                not_mapped: lines(t, MappingStatus::NotMapped),
-            })
-            .collect(),
-    }
-}
-
-/// The imported specs as task documents for a batch (origin: the source file).
-pub fn documents(batch: &Import) -> Vec<pb::TaskDocument> {
-    batch
-        .specs()
-        .into_iter()
-        .map(|spec| pb::TaskDocument {
-            origin: spec
-                .source
-                .origin
-                .clone()
-                .unwrap_or_else(|| spec.id.clone()),
-            format: "yaml".into(),
-            content: spec_to_yaml(spec),
-        })
-        .collect()
 }

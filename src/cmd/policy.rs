@@ -2,7 +2,7 @@
 //! service, the client and the loaders live in `assay-policy`; this file only parses flags.
 
 use std::net::SocketAddr;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::time::Duration;
 
@@ -63,102 +63,118 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
             listen,
             delay_ms,
             artifact_root,
-        } => {
-            let spec = PolicySpec::parse(&policy).map_err(anyhow::Error::msg)?;
-            let factory = assay_policy::factory(
-                &spec,
-                &artifact_root,
-                rt.handle(),
-                assay_worker::diffusion_loader(),
-            )?;
-            let factory = delayed(factory, Duration::from_millis(delay_ms));
-            // The served policy's interface, declared in Health (one instance, made and dropped).
-            let sample = factory()?;
-            let info = ServerInfo {
-                name: policy.clone(),
-                version: env!("CARGO_PKG_VERSION").into(),
-                interface: sample.interface(),
-                ..ServerInfo::default()
-            };
-            drop(sample);
-            rt.block_on(async {
-                let listener = tokio::net::TcpListener::bind(listen)
-                    .await
-                    .with_context(|| format!("cannot listen on {listen}"))?;
-                let addr = listener.local_addr()?;
-                {
-                    use std::io::Write;
-                    let mut out = std::io::stdout().lock();
-                    writeln!(out, "listening on http://{addr}")?;
-                    out.flush()?;
-                }
-                // With the cluster token, only callers with the cluster's policy token get in.
-                let token = assay_proto::auth::Token::from_env()
-                    .map_err(anyhow::Error::msg)?
-                    .map(|t| t.for_service("policy"));
-                assay_policy::serve(listener, factory, info, token, super::terminated())
-                    .await
-                    .context("policy server")
-            })?;
-            Ok(ExitCode::SUCCESS)
-        }
+        } => serve(&rt, &policy, listen, delay_ms, &artifact_root),
         Cmd::Check {
             spec,
             artifact_root,
-        } => {
-            let name = spec;
-            let spec = if name.starts_with("http://") || name.starts_with("https://") {
-                PolicySpec::Remote {
-                    url: name.clone(),
-                    timeout_ms: DEFAULT_REMOTE_TIMEOUT_MS,
-                    interface: None,
-                }
-            } else {
-                PolicySpec::parse(&name).map_err(anyhow::Error::msg)?
-            };
-            let report = match &spec {
-                PolicySpec::Remote {
-                    url, timeout_ms, ..
-                } => {
-                    let remote = RemotePolicy::connect(
-                        url,
-                        Duration::from_millis(*timeout_ms),
-                        rt.handle().clone(),
-                    )?;
-                    let h = remote.health()?;
-                    json!({
-                        "url": url,
-                        "name": h.info.name,
-                        "version": h.info.version,
-                        "image_width": h.info.image_width,
-                        "image_height": h.info.image_height,
-                        "chunk_size": h.info.chunk_size,
-                        "live_episodes": h.live_episodes,
-                        "interface": interface_json(&h.info.interface),
-                    })
-                }
-                _ => {
-                    let mut policy = assay_policy::load_with(
-                        &spec,
-                        &artifact_root,
-                        rt.handle(),
-                        assay_worker::diffusion_loader(),
-                    )?;
-                    // f32 → JSON goes through f64: round so 0.1 prints as 0.1.
-                    let chunk: Vec<Vec<f64>> = trial_act(policy.as_mut())?
-                        .iter()
-                        .map(|a| a.iter().map(|x| (*x as f64 * 1e6).round() / 1e6).collect())
-                        .collect();
-                    json!({
-                        "policy": name,
-                        "trial_chunk": chunk,
-                    })
-                }
-            };
-            println!("{}", serde_json::to_string_pretty(&report)?);
-            Ok(ExitCode::SUCCESS)
-        }
+        } => check(&rt, spec, &artifact_root),
     }
+}
+
+/// Serves `policy` on `listen` until SIGTERM or Ctrl-C.
+fn serve(
+    rt: &tokio::runtime::Runtime,
+    policy: &str,
+    listen: SocketAddr,
+    delay_ms: u64,
+    artifact_root: &Path,
+) -> anyhow::Result<ExitCode> {
+    let spec = PolicySpec::parse(policy).map_err(anyhow::Error::msg)?;
+    let factory = assay_policy::factory(
+        &spec,
+        artifact_root,
+        rt.handle(),
+        assay_worker::diffusion_loader(),
+    )?;
+    let factory = delayed(factory, Duration::from_millis(delay_ms));
+    // The served policy's interface, declared in Health (one instance, made and dropped).
+    let sample = factory()?;
+    let info = ServerInfo {
+        name: policy.to_owned(),
+        version: env!("CARGO_PKG_VERSION").into(),
+        interface: sample.interface(),
+        ..ServerInfo::default()
+    };
+    drop(sample);
+    rt.block_on(async {
+        let listener = tokio::net::TcpListener::bind(listen)
+            .await
+            .with_context(|| format!("cannot listen on {listen}"))?;
+        let addr = listener.local_addr()?;
+        {
+            use std::io::Write;
+            let mut out = std::io::stdout().lock();
+            writeln!(out, "listening on http://{addr}")?;
+            out.flush()?;
+        }
+        // With the cluster token, only callers with the cluster's policy token get in.
+        let token = assay_proto::auth::Token::from_env()
+            .map_err(anyhow::Error::msg)?
+            .map(|t| t.for_service("policy"));
+        assay_policy::serve(listener, factory, info, token, assay_run::rt::terminated())
+            .await
+            .context("policy server")
+    })?;
+    Ok(ExitCode::SUCCESS)
+}
+
+/// Loads a policy, or connects to a server, and prints what it says about itself.
+fn check(
+    rt: &tokio::runtime::Runtime,
+    spec: String,
+    artifact_root: &Path,
+) -> anyhow::Result<ExitCode> {
+    let name = spec;
+    let spec = if name.starts_with("http://") || name.starts_with("https://") {
+        PolicySpec::Remote {
+            url: name.clone(),
+            timeout_ms: DEFAULT_REMOTE_TIMEOUT_MS,
+            interface: None,
+        }
+    } else {
+        PolicySpec::parse(&name).map_err(anyhow::Error::msg)?
+    };
+    let report = match &spec {
+        PolicySpec::Remote {
+            url, timeout_ms, ..
+        } => {
+            let remote = RemotePolicy::connect(
+                url,
+                Duration::from_millis(*timeout_ms),
+                rt.handle().clone(),
+            )?;
+            let h = remote.health()?;
+            json!({
+                "url": url,
+                "name": h.info.name,
+                "version": h.info.version,
+                "image_width": h.info.image_width,
+                "image_height": h.info.image_height,
+                "chunk_size": h.info.chunk_size,
+                "live_episodes": h.live_episodes,
+                "interface": interface_json(&h.info.interface),
+            })
+        }
+        _ => {
+            let mut policy = assay_policy::load_with(
+                &spec,
+                artifact_root,
+                rt.handle(),
+                assay_worker::diffusion_loader(),
+            )?;
+            // f32 → JSON goes through f64: round so 0.1 prints as 0.1.
+            let chunk: Vec<Vec<f64>> = trial_act(policy.as_mut())?
+                .iter()
+                .map(|a| a.iter().map(|x| (*x as f64 * 1e6).round() / 1e6).collect())
+                .collect();
+            json!({
+                "policy": name,
+                "trial_chunk": chunk,
+            })
+        }
+    };
+    println!("{}", serde_json::to_string_pretty(&report)?);
+    Ok(ExitCode::SUCCESS)
 }
 
 /// A policy interface as `assay policy check` prints it.

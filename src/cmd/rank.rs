@@ -30,7 +30,7 @@ pub struct Args {
     #[arg(long, value_name = "DIR_OR_FILE.svg")]
     pub plot: Option<PathBuf>,
     /// Bootstrap resamples for the 95 % intervals (at least 40; 0 for none).
-    #[arg(long, default_value_t = BOOTSTRAP_RESAMPLES, value_parser = super::resamples)]
+    #[arg(long, default_value_t = BOOTSTRAP_RESAMPLES, value_parser = crate::args::resamples)]
     pub resamples: usize,
     /// Seed of the bootstrap.
     #[arg(long, default_value_t = 0)]

@@ -1,15 +1,19 @@
-use std::path::{Path, PathBuf};
+//! `assay report`: a batch's report bundle (report.json, report.md, report.html, episodes.parquet
+//! and the figures) fetched from a coordinator, or written again from a report.json; the bundle is
+//! `assay_run::bundle`'s.
+
+use std::path::PathBuf;
 use std::process::ExitCode;
 
-use anyhow::Context;
-use assay_proto::v1 as pb;
+use assay_run::bundle::{self, HumanArgs};
+use assay_run::client::DEFAULT_COORDINATOR;
 
 #[derive(clap::Args)]
 pub struct Args {
     /// The batch whose report the coordinator builds (or --from a report.json).
     #[arg(required_unless_present = "from", conflicts_with = "from")]
     pub batch: Option<String>,
-    #[arg(long, env = "ASSAY_COORDINATOR", default_value = super::DEFAULT_COORDINATOR)]
+    #[arg(long, env = "ASSAY_COORDINATOR", default_value = DEFAULT_COORDINATOR)]
     pub coordinator: String,
     /// Write report.md and report.html again from this report.json, without a coordinator.
     #[arg(long, value_name = "REPORT_JSON")]
@@ -30,168 +34,16 @@ pub struct Args {
     pub human: HumanArgs,
 }
 
-/// Human ratings for the report's judge-agreement view (the paper's figure 3).
-#[derive(clap::Args, Clone, Default)]
-#[command(next_help_heading = "Judging")]
-pub struct HumanArgs {
-    /// CSV of human ratings beside the judges' scores of the same items, as `assay agreement`
-    /// reads it (a `human` column, one column per judge, optionally `dataset`/`group`).
-    #[arg(long, value_name = "CSV")]
-    pub human_ratings: Option<PathBuf>,
-}
-
-impl HumanArgs {
-    /// The agreement table of the ratings, when given.
-    pub fn table(&self) -> anyhow::Result<Option<assay_stats::agreement::AgreementTable>> {
-        let Some(path) = &self.human_ratings else {
-            return Ok(None);
-        };
-        let text =
-            std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
-        let ratings = assay_stats::agreement::parse_ratings(&text, "human", None)
-            .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
-        Ok(Some(
-            ratings.agreement(assay_stats::agreement::BOOTSTRAP_RESAMPLES, 0),
-        ))
-    }
-}
-
-/// Writes `report.json`, `report.md`, `report.html` and `episodes.parquet` (one row per episode)
-/// into `out`, and the figures (quality, ranking) as SVG files beside them. Pictures in report.html come from `artifacts`.
-pub fn write(
-    out: &Path,
-    report: &assay_report::report::Report,
-    artifacts: &Path,
-    human: Option<&assay_stats::agreement::AgreementTable>,
-) -> anyhow::Result<()> {
-    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
-    std::fs::write(
-        out.join("report.json"),
-        format!("{}\n", serde_json::to_string_pretty(report)?),
-    )?;
-    std::fs::write(out.join("report.md"), report.to_markdown())?;
-    std::fs::write(
-        out.join(assay_export::episodes_table::EPISODES_TABLE),
-        assay_export::episodes_table::episodes_parquet(&report.results)
-            .map_err(anyhow::Error::msg)?,
-    )?;
-    let read = |key: &str| -> Option<Vec<u8>> {
-        // Keys are relative paths inside the store; never follow one out of it.
-        let rel = Path::new(key);
-        if rel.is_absolute()
-            || rel
-                .components()
-                .any(|c| !matches!(c, std::path::Component::Normal(_)))
-        {
-            return None;
-        }
-        std::fs::read(artifacts.join(rel)).ok()
-    };
-    let html = assay_report::html::report_html(&assay_report::html::HtmlInputs {
-        report,
-        artifact: &read,
-        human,
-    });
-    std::fs::write(out.join("report.html"), html)?;
-    if let Some(q) = &report.results.quality {
-        std::fs::write(
-            out.join(assay_report::report::QUALITY_FIGURE),
-            q.figure_svg(),
-        )?;
-    }
-    if let Some((k, ranking)) = report
-        .results
-        .ranking
-        .as_ref()
-        .and_then(|k| Some((k, k.ranking.as_ref()?)))
-    {
-        for (i, c) in ranking.comparisons.iter().enumerate() {
-            std::fs::write(
-                out.join(assay_report::ranking::ranking_figure(&c.proxy)),
-                assay_report::figures::ranking_labelled(ranking, i, &k.labels),
-            )?;
-        }
-    }
-    Ok(())
-}
-
-/// The coordinator's report, parsed.
-pub fn parse(r: &pb::GetReportResponse) -> anyhow::Result<assay_report::report::Report> {
-    serde_json::from_str(&r.report_json).context("the coordinator's report")
-}
-
-/// One line per ranking comparison of `report` (for a terminal), empty without a ranking.
-pub fn ranking_lines(report: &assay_report::report::Report) -> Vec<String> {
-    let Some(ranking) = report
-        .results
-        .ranking
-        .as_ref()
-        .and_then(|k| k.ranking.as_ref())
-    else {
-        return Vec::new();
-    };
-    let est = |e: &assay_stats::agreement::Estimate| match (e.value, e.ci95) {
-        (Some(v), Some([lo, hi])) => format!("{v:.3} [{lo:.3}, {hi:.3}]"),
-        (Some(v), None) => format!("{v:.3}"),
-        (None, _) => "undefined".into(),
-    };
-    ranking
-        .comparisons
-        .iter()
-        .map(|c| {
-            format!(
-                "policy ranking, {} against {} ({} policies): Pearson r {}, MMRV {}, Spearman {}, Kendall {}",
-                c.proxy,
-                c.real,
-                c.policies.len(),
-                est(&c.pearson),
-                est(&c.mmrv),
-                est(&c.spearman),
-                est(&c.kendall)
-            )
-        })
-        .collect()
-}
-
-/// Refuses to write `report` into `out` when `out` holds the report of another batch.
-fn check_out(out: &Path, report: &assay_report::report::Report, force: bool) -> anyhow::Result<()> {
-    let existing = out.join("report.json");
-    let Ok(text) = std::fs::read_to_string(&existing) else {
-        return Ok(());
-    };
-    let theirs = serde_json::from_str::<assay_report::report::Report>(&text)
-        .map(|r| r.run.batch_id)
-        .unwrap_or_else(|_| "(unreadable)".into());
-    if theirs != report.run.batch_id && !force {
-        anyhow::bail!(
-            "{} is the report of batch {theirs}, not {}: refusing to replace it; choose another \
-             --out, or pass --force",
-            existing.display(),
-            report.run.batch_id
-        );
-    }
-    Ok(())
-}
-
 pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     let human = a.human.table()?;
     if let Some(from) = &a.from {
-        let text =
-            std::fs::read_to_string(from).with_context(|| format!("reading {}", from.display()))?;
-        let report: assay_report::report::Report =
-            serde_json::from_str(&text).with_context(|| format!("{}", from.display()))?;
-        let beside = from
-            .parent()
-            .filter(|p| !p.as_os_str().is_empty())
-            .unwrap_or(Path::new("."))
-            .to_path_buf();
-        let out = a.out.clone().unwrap_or_else(|| beside.clone());
-        let artifacts = a
-            .artifacts
-            .clone()
-            .unwrap_or_else(|| beside.join(assay_report::report::ARTIFACTS_LINK));
-        check_out(&out, &report, a.force)?;
-        write(&out, &report, &artifacts, human.as_ref())?;
+        let out = bundle::rewrite(
+            from,
+            a.out.as_deref(),
+            a.artifacts.as_deref(),
+            a.force,
+            human.as_ref(),
+        )?;
         eprintln!(
             "wrote report.json, report.md and report.html in {}",
             out.display()
@@ -199,32 +51,22 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         return Ok(ExitCode::SUCCESS);
     }
     let batch = a.batch.clone().unwrap_or_default();
-    let out = a
-        .out
-        .clone()
-        .unwrap_or_else(|| PathBuf::from(format!("report-{batch}")));
-    let artifacts = a
-        .artifacts
-        .clone()
-        .unwrap_or_else(|| out.join(assay_report::report::ARTIFACTS_LINK));
-    super::block_on(async move {
-        let mut c = super::client(&a.coordinator).await?;
-        let r = c
-            .get_report(pb::GetReportRequest { batch_id: batch })
-            .await?
-            .into_inner();
-        let report = parse(&r)?;
-        check_out(&out, &report, a.force)?;
-        write(&out, &report, &artifacts, human.as_ref())?;
-        eprintln!(
-            "wrote report.json, report.md and report.html in {}{}",
-            out.display(),
-            if r.r#final {
-                ""
-            } else {
-                " (partial: the batch is still running)"
-            }
-        );
-        Ok(ExitCode::SUCCESS)
-    })
+    let (out, final_) = assay_run::rt::block_on(bundle::fetch(
+        &a.coordinator,
+        &batch,
+        a.out.as_deref(),
+        a.artifacts.as_deref(),
+        a.force,
+        human.as_ref(),
+    ))?;
+    eprintln!(
+        "wrote report.json, report.md and report.html in {}{}",
+        out.display(),
+        if final_ {
+            ""
+        } else {
+            " (partial: the batch is still running)"
+        }
+    );
+    Ok(ExitCode::SUCCESS)
 }

@@ -78,7 +78,7 @@ fn table(
 }
 
 pub fn run(a: Args) -> anyhow::Result<ExitCode> {
-    super::block_on(async move {
+    assay_run::rt::block_on(async move {
         let password = assay_proto::auth::Token::from_env()
             .map_err(anyhow::Error::msg)?
             .map(|t| t.derive("zenoh"));
@@ -99,7 +99,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         let deadline = a
             .duration
             .map(|d| Instant::now() + Duration::from_secs_f64(d));
-        let stop = super::terminated();
+        let stop = assay_run::rt::terminated();
         tokio::pin!(stop);
         let (mut workers, mut batches) = (BTreeMap::new(), BTreeMap::new());
         let mut redraw = tokio::time::interval(Duration::from_secs(1));

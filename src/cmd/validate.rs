@@ -1,5 +1,9 @@
+//! `assay validate`: task specs checked exactly as the coordinator's planner checks them.
+
 use std::path::PathBuf;
 use std::process::ExitCode;
+
+use assay_run::docs;
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -14,9 +18,9 @@ pub struct Args {
 
 /// Checks documents exactly as the coordinator's planner does (duplicate ids included).
 pub fn run(a: Args) -> anyhow::Result<ExitCode> {
-    let docs = crate::docs::collect(&a.paths)?;
-    let roots = crate::docs::asset_roots(&a.paths, &a.asset_roots)?;
-    let (planned, errors) = assay_coordinator::service::plan_tasks(&docs, &roots);
+    let tasks = docs::collect(&a.paths)?;
+    let roots = docs::asset_roots(&a.paths, &a.asset_roots)?;
+    let (planned, errors) = assay_plan::plan_tasks(&tasks, &roots);
     for e in &errors {
         eprintln!("{e}");
     }

@@ -5,7 +5,7 @@ use std::process::ExitCode;
 
 #[derive(clap::Args)]
 pub struct Args {
-    #[arg(long, env = "ASSAY_COORDINATOR", default_value = super::DEFAULT_COORDINATOR)]
+    #[arg(long, env = "ASSAY_COORDINATOR", default_value = assay_run::client::DEFAULT_COORDINATOR)]
     pub coordinator: String,
     /// Comma-separated roles: sim, render, judge, trainer. With sim and render the episodes of a
     /// batch that renders get their scene views, keyframes, scene caption and contact sheet in
@@ -74,6 +74,6 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         worker_id: a.worker_id,
         keep_mib: a.keep_mib,
     })?;
-    super::block_on(async move { worker.serve(super::terminated()).await })?;
+    assay_run::rt::block_on(async move { worker.serve(assay_run::rt::terminated()).await })?;
     Ok(ExitCode::SUCCESS)
 }

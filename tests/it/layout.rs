@@ -249,3 +249,164 @@ fn crates_and_files_stay_small_enough_to_read() {
     }
     assert!(problems.is_empty(), "{}", problems.join("\n"));
 }
+
+/// A function of a source file: its name, its first line (1-based) and its length in lines,
+/// from its `fn` line to the `}` at the same indent. Functions in `#[cfg(test)]` code (at the end
+/// by house style) are left out; trait declarations without a body too.
+fn functions(text: &str) -> Vec<(String, usize, usize)> {
+    let text = match text.find("\n#[cfg(test)]") {
+        Some(i) => &text[..i],
+        None => text,
+    };
+    let lines: Vec<&str> = text.lines().collect();
+    let mut out = Vec::new();
+    for (i, line) in lines.iter().enumerate() {
+        let rest = line.trim_start();
+        let indent = &line[..line.len() - rest.len()];
+        let mut rest = rest;
+        for prefix in [
+            "pub(crate) ",
+            "pub(super) ",
+            "pub ",
+            "const ",
+            "async ",
+            "unsafe ",
+        ] {
+            rest = rest.strip_prefix(prefix).unwrap_or(rest);
+        }
+        let Some(sig) = rest.strip_prefix("fn ") else {
+            continue;
+        };
+        let name: String = sig
+            .chars()
+            .take_while(|c| c.is_alphanumeric() || *c == '_')
+            .collect();
+        if line.trim_end().ends_with(';') || name.is_empty() {
+            continue;
+        }
+        let close = format!("{indent}}}");
+        if let Some(end) = (i..lines.len()).find(|&j| lines[j] == close) {
+            out.push((name, i + 1, end - i + 1));
+        }
+    }
+    out
+}
+
+/// The `.rs` files under `dir`, recursively.
+fn sources_under(dir: &Path) -> Vec<PathBuf> {
+    if dir.is_dir() {
+        rust_files(dir)
+    } else {
+        Vec::new()
+    }
+}
+
+/// At most this many lines per function of the command line (`src/`): a command parses, calls
+/// one library function and prints (STYLE.md, "Functions"; issue 41).
+const CLI_FUNCTION_LINES: usize = 100;
+/// At most this many lines of code in `src/cmd/eval.rs` and `src/cmd/watch.rs`.
+const RUN_COMMAND_LINES: usize = 150;
+/// The ceiling for every function of the workspace. It falls as long functions are split: the
+/// four longest (RoboGen's `import_one`, 656 lines; the spec's `validate`, 562; GenSim's
+/// `translate`, 515; the sim's `simulate_with`, 309) and the report read model (375) were split
+/// by section in issue 41.
+const FUNCTION_LINES: usize = 300;
+
+#[test]
+fn the_command_line_is_thin_and_no_command_uses_another() {
+    let src = repo().join("src");
+    let mut problems = Vec::new();
+    for f in rust_files(&src) {
+        let rel = f.strip_prefix(repo()).unwrap().display().to_string();
+        for (name, line, n) in functions(&std::fs::read_to_string(&f).unwrap()) {
+            if n > CLI_FUNCTION_LINES {
+                problems.push(format!(
+                    "{rel}:{line}: fn {name} is {n} lines (at most {CLI_FUNCTION_LINES})"
+                ));
+            }
+        }
+    }
+    for run in ["eval", "watch"] {
+        let n = code_lines(&src.join(format!("cmd/{run}.rs")));
+        if n > RUN_COMMAND_LINES {
+            problems.push(format!(
+                "src/cmd/{run}.rs: {n} lines of code (at most {RUN_COMMAND_LINES})"
+            ));
+        }
+    }
+    let commands: Vec<String> = modules(&src.join("cmd")).into_keys().collect();
+    for (command, files) in modules(&src.join("cmd")) {
+        for f in files {
+            let code = code(&f);
+            let used = following(&code, "super::")
+                .into_iter()
+                .chain(following(&code, "crate::cmd::"));
+            for other in used.filter(|u| *u != command && commands.contains(u)) {
+                problems.push(format!(
+                    "src/cmd/{command}: uses the command `{other}` (shared code goes in a \
+                     library or in src/ outside cmd/)"
+                ));
+            }
+        }
+    }
+    assert!(problems.is_empty(), "{}", problems.join("\n"));
+}
+
+#[test]
+fn no_function_of_the_workspace_is_over_the_ceiling() {
+    let mut all = Vec::new();
+    for src in crate_sources() {
+        for f in rust_files(&src) {
+            let rel = f.strip_prefix(repo()).unwrap().display().to_string();
+            for (name, line, n) in functions(&std::fs::read_to_string(&f).unwrap()) {
+                all.push((n, format!("{rel}:{line}: fn {name}")));
+            }
+        }
+    }
+    all.sort_by_key(|b| std::cmp::Reverse(b.0));
+    println!("the longest functions:");
+    for (n, at) in all.iter().take(10) {
+        println!("  {n:>4} {at}");
+    }
+    let over: Vec<String> = all
+        .iter()
+        .filter(|(n, _)| *n > FUNCTION_LINES)
+        .map(|(n, at)| format!("{at} is {n} lines (at most {FUNCTION_LINES})"))
+        .collect();
+    assert!(over.is_empty(), "{}", over.join("\n"));
+}
+
+#[test]
+fn the_function_check_measures_functions() {
+    let text = "pub fn a() {\n    one();\n}\n\nimpl X {\n    pub(crate) async fn b(\n        x: u8,\n    ) -> u8 {\n        x\n    }\n    fn decl();\n}\n#[cfg(test)]\nfn t() {\n}\n";
+    assert_eq!(
+        functions(text),
+        vec![("a".to_owned(), 1, 3), ("b".to_owned(), 6, 5)]
+    );
+}
+
+#[test]
+fn nothing_outside_the_coordinator_uses_its_grpc_service_module() {
+    // Planning is `assay-plan`'s: the coordinator's gRPC service module serves it, nothing else
+    // links it for its helpers.
+    let mut users = Vec::new();
+    for dir in [
+        "src",
+        "crates",
+        "workers",
+        "telemetry",
+        "proto",
+        "tools",
+        "tests",
+    ] {
+        for f in sources_under(&repo().join(dir)) {
+            if std::fs::read_to_string(&f)
+                .unwrap()
+                .contains(concat!("assay_coordinator", "::service"))
+            {
+                users.push(f.strip_prefix(repo()).unwrap().display().to_string());
+            }
+        }
+    }
+    assert!(users.is_empty(), "{}", users.join("\n"));
+}

@@ -190,12 +190,13 @@ fn a_rendering_batch_waits_for_a_render_worker_and_one_killed_mid_batch_loses_no
     let seeds = 3;
     let sub = rt.block_on(submit_rendering(&addr, seeds, &["offline"]));
     let total = 2 * seeds as u32;
-    // Every episode is simulated, then waits: no connected worker can render.
+    // Every episode is simulated, then waits: no connected worker can render. (Until the sim
+    // worker has registered, the shards wait for it instead.)
     let waiting = rt.block_on(wait_for(
         &addr,
         &sub.batch_id,
         Duration::from_secs(120),
-        |s| s.shards_queued == total && !s.waiting.is_empty(),
+        |s| s.shards_queued == total && s.waiting.iter().any(|w| w.contains("need render")),
     ));
     assert_eq!(
         waiting.shards_done, 0,

@@ -13,8 +13,6 @@
 
 use std::path::Path;
 
-use assay_model::dynamics::DynamicsConfig;
-use assay_model::episode::TaskInfo;
 use assay_model::generalization::GeneralizationPlan;
 use assay_model::proxy::RankingPlan;
 use assay_spec::SpecError;
@@ -57,19 +55,7 @@ pub mod role {
     pub const TRAINER: &str = "trainer";
 }
 
-/// The dynamics part of a batch: episode budgets and world-model settings.
-#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
-pub struct DynamicsPlan {
-    pub budgets: Vec<u32>,
-    pub config: DynamicsConfig,
-}
-
-/// A task accepted by the planner.
-#[derive(Debug, Clone)]
-pub struct PlannedTask {
-    pub info: TaskInfo,
-    pub spec_json: String,
-}
+pub use assay_plan::{DynamicsPlan, PlannedTask};
 
 /// A batch ready to be stored.
 #[derive(Debug, Clone)]

@@ -3,7 +3,8 @@
 
 use std::collections::BTreeMap;
 
-use assay_model::episode::{EpisodeOutcome, LabelSource};
+use assay_model::dynamics::DynamicsConfig;
+use assay_model::episode::{EpisodeOutcome, LabelSource, TaskInfo};
 use assay_model::proxy::ProxyResult;
 use assay_model::quality::{Item, JudgeOutcome};
 use assay_model::trainer::{TrainerJob, TrainerOutcome};

@@ -9,13 +9,15 @@
 //!   command — a dynamics clip's action (docs/episode-format.md), zeros on the last frame;
 //! - the task's instruction (its `description`) as the frame's task.
 //!
-//! Nothing is simulated again: the states are the episode file's recorded rows
-//! ([`assay_sim::recorded_states`]), drawn by the same renderer as the run's pictures. An episode
-//! that cannot be exported (its file missing or altered, its task's time step not a whole
-//! number of recorded rows per frame) is left out with its reason; the rest are written.
+//! Nothing is simulated again: the states are the episode file's recorded rows, drawn by the
+//! same renderer as the run's pictures — a [`Drawing`] the caller hands in (the `assay-run`
+//! layer implements it with `assay-sim`'s recorded states and `assay-render`; this crate links
+//! neither). An episode that cannot be exported (its file missing or altered, its task's time
+//! step not a whole number of recorded rows per frame) is left out with its reason; the rest are
+//! written.
 //!
 //! Owns: the dataset's files. Reads the run's report and artifact store; never writes into the
-//! run.
+//! run, never simulates or renders.
 
 use std::collections::{BTreeMap, HashMap};
 use std::path::Path;
@@ -53,6 +55,44 @@ pub struct Options {
     pub policies: Vec<String>,
     /// Only episodes that succeeded.
     pub successful_only: bool,
+}
+
+/// One episode's recorded states drawn again: `len` frames of `size` × `size` RGB, back to back,
+/// with the tool's state and commanded action per frame (`PROPRIO_DIMS` and `ACTION_DIMS`
+/// floats each).
+pub struct Drawn {
+    pub len: usize,
+    pub rgb: Vec<u8>,
+    pub state: Vec<f32>,
+    pub action: Vec<f32>,
+}
+
+/// An H.264 video the frames go into, one RGB frame at a time.
+pub trait VideoSink {
+    fn push(&mut self, rgb: &[u8]) -> Result<(), String>;
+    /// Closes the file; returns the frames written.
+    fn finish(self: Box<Self>) -> Result<u64, String>;
+}
+
+/// What draws an episode's recorded states and encodes video: the renderer and the episode
+/// reader of the layer above.
+pub trait Drawing {
+    /// The largest frame side it draws, in pixels.
+    fn max_size(&self) -> u32;
+    /// Readies the renderer, once the dataset's folder is known to be writable.
+    fn start(&mut self) -> anyhow::Result<()>;
+    /// Draws the episode file `episode` of `spec` with `seed` from its task's first camera, one
+    /// frame every `steps` physics steps, `size` pixels square.
+    fn draw(
+        &mut self,
+        spec: &TaskSpec,
+        seed: u64,
+        episode: &[u8],
+        steps: u64,
+        size: u32,
+    ) -> Result<Drawn, String>;
+    /// A video file at `path` of `size` × `size` frames at `fps`.
+    fn video(&mut self, path: &Path, size: u32, fps: u32) -> Result<Box<dyn VideoSink>, String>;
 }
 
 /// What was written.
@@ -161,12 +201,18 @@ pub type Specs = HashMap<String, Result<TaskSpec, String>>;
 
 /// Exports `run` (an `assay eval` output folder: report.json and the artifact store) to `out`,
 /// which must not exist or be empty; `specs` are the run's tasks as it ran them (its job store).
-pub fn export(run: &Path, out: &Path, specs: &Specs, o: &Options) -> anyhow::Result<Summary> {
-    if o.size == 0 || o.size % 2 == 1 || o.size > assay_render::imagery::MAX_CLIP_SIZE {
+pub fn export(
+    run: &Path,
+    out: &Path,
+    specs: &Specs,
+    o: &Options,
+    drawing: &mut dyn Drawing,
+) -> anyhow::Result<Summary> {
+    if o.size == 0 || o.size % 2 == 1 || o.size > drawing.max_size() {
         bail!(
             "--size {}: frames are an even number of pixels square, at most {}",
             o.size,
-            assay_render::imagery::MAX_CLIP_SIZE
+            drawing.max_size()
         );
     }
     if o.fps == 0 {
@@ -190,8 +236,9 @@ pub fn export(run: &Path, out: &Path, specs: &Specs, o: &Options) -> anyhow::Res
     }
     std::fs::create_dir_all(video_path.parent().expect("video folder"))?;
 
-    let mut renderer = assay_render::Renderer::new().context("starting the renderer")?;
-    let mut video = assay_render::video::Mp4Writer::create(&video_path, o.size, o.size, o.fps)
+    drawing.start()?;
+    let mut video = drawing
+        .video(&video_path, o.size, o.fps)
         .map_err(anyhow::Error::msg)
         .context("writing the dataset's video")?;
     let mut summary = Summary::default();
@@ -223,7 +270,7 @@ pub fn export(run: &Path, out: &Path, specs: &Specs, o: &Options) -> anyhow::Res
                     continue;
                 }
             };
-            let episode = match render_episode(run, spec, e.seed, &e.artifact, o, &mut renderer) {
+            let episode = match render_episode(run, spec, e.seed, &e.artifact, o, drawing) {
                 Ok(ep) => ep,
                 Err(why) => {
                     summary.skipped.push(skip(why));
@@ -241,7 +288,8 @@ pub fn export(run: &Path, out: &Path, specs: &Specs, o: &Options) -> anyhow::Res
             let n = episode.len;
             let index = episodes.len() as i64;
             let from = frames.frame_index.len() as i64;
-            for (k, rgb) in episode.rgb.chunks_exact(episode.frame_bytes).enumerate() {
+            let frame_bytes = (o.size * o.size * 3) as usize;
+            for (k, rgb) in episode.rgb.chunks_exact(frame_bytes).enumerate() {
                 video.push(rgb).map_err(anyhow::Error::msg)?;
                 for px in rgb.chunks_exact(3) {
                     for (c, &v) in px.iter().enumerate() {
@@ -253,7 +301,7 @@ pub fn export(run: &Path, out: &Path, specs: &Specs, o: &Options) -> anyhow::Res
                 frames.episode_index.push(index);
                 frames.task_index.push(task_index);
             }
-            image_stats.count += (n * episode.frame_bytes / 3) as u64;
+            image_stats.count += (n * frame_bytes / 3) as u64;
             state_stats.add_rows(&episode.state);
             action_stats.add_rows(&episode.action);
             frames.state.extend_from_slice(&episode.state);
@@ -343,15 +391,6 @@ fn instruction(spec: &TaskSpec) -> String {
     }
 }
 
-/// One episode's frames and rows.
-struct Rendered {
-    len: usize,
-    frame_bytes: usize,
-    rgb: Vec<u8>,
-    state: Vec<f32>,
-    action: Vec<f32>,
-}
-
 /// Reads episode `artifact` of `spec` with `seed` from the run's artifact store and draws its
 /// states `o.fps` times a second.
 fn render_episode(
@@ -360,8 +399,8 @@ fn render_episode(
     seed: u64,
     artifact: &str,
     o: &Options,
-    renderer: &mut assay_render::Renderer,
-) -> Result<Rendered, String> {
+    drawing: &mut dyn Drawing,
+) -> Result<Drawn, String> {
     let path = run.join("artifacts").join(artifact);
     let bytes =
         std::fs::read(&path).map_err(|e| format!("episode file {}: {e}", path.display()))?;
@@ -386,26 +425,7 @@ fn render_episode(
             o.fps
         ));
     }
-    let states = assay_sim::recorded_states(spec, seed, &bytes, steps as u64)
-        .map_err(|e| format!("episode file: {e}"))?;
-    let camera = assay_spec::scene::task_cameras(&spec.cameras).remove(0);
-    let clip = assay_render::imagery::render_clip(
-        renderer,
-        &states.scenes,
-        &camera,
-        o.size,
-        states.interval_s,
-        states.proprio,
-        states.actions,
-    )
-    .map_err(|e| format!("rendering: {e}"))?;
-    Ok(Rendered {
-        len: states.steps.len(),
-        frame_bytes: (o.size * o.size * 3) as usize,
-        rgb: clip.rgb,
-        state: clip.proprio,
-        action: clip.actions,
-    })
+    drawing.draw(spec, seed, &bytes, steps as u64, o.size)
 }
 
 /// A fixed-size list column of `dims` float32 values per row (a `datasets.Sequence` of a length).

@@ -121,16 +121,7 @@ pub fn json_schema() -> serde_json::Value {
 }
 
 /// [`Provenance::batch_hash`] of tasks with these spec hashes.
-pub fn batch_hash<'a>(spec_hashes: impl IntoIterator<Item = &'a str>) -> String {
-    let mut hashes: Vec<&str> = spec_hashes.into_iter().collect();
-    hashes.sort_unstable();
-    let mut text = String::new();
-    for h in hashes {
-        text.push_str(h);
-        text.push('\n');
-    }
-    assay_spec::hash::sha256_hex(text.as_bytes())
-}
+pub use assay_spec::hash::batch_hash;
 
 impl Provenance {
     /// (what, values) in the order people read them: report.md and report.html show these.
@@ -273,6 +264,43 @@ impl Results {
     pub fn policy_labels(&self) -> &[(String, String)] {
         self.ranking.as_ref().map_or(&[], |k| k.labels.as_slice())
     }
+
+    /// The policies in the order the report shows them: by name, except that the ladder's
+    /// policies (those with a label) take their places in the order of their labels — by group,
+    /// episodes and training step, not by the hash in their names. `policies` stays in name order
+    /// (report.json's order).
+    pub fn policies_shown(&self) -> Vec<&String> {
+        in_shown_order(
+            self.policies.iter().collect(),
+            |p| p.as_str(),
+            self.policy_labels(),
+        )
+    }
+
+    /// `items` (one per policy, in name order, as `by_policy` lists them) in the order of
+    /// [`Results::policies_shown`].
+    pub fn shown<'a, T>(&self, items: &'a [T], policy: impl Fn(&T) -> &str) -> Vec<&'a T> {
+        in_shown_order(items.iter().collect(), policy, self.policy_labels())
+    }
+}
+
+/// `items` with those whose policy has a label moved, among their own places, into the order of
+/// `labels`.
+fn in_shown_order<'a, T: ?Sized>(
+    mut items: Vec<&'a T>,
+    policy: impl Fn(&T) -> &str,
+    labels: &[(String, String)],
+) -> Vec<&'a T> {
+    let rank = |item: &T| labels.iter().position(|(p, _)| p == policy(item));
+    let places: Vec<usize> = (0..items.len())
+        .filter(|&i| rank(items[i]).is_some())
+        .collect();
+    let mut labelled: Vec<&'a T> = places.iter().map(|&i| items[i]).collect();
+    labelled.sort_by_key(|item| rank(item));
+    for (place, item) in places.into_iter().zip(labelled) {
+        items[place] = item;
+    }
+    items
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]

@@ -1,9 +1,13 @@
-//! Reading task documents from files and folders.
+//! Reading task documents from files and folders, and the asset roots a batch's tasks are
+//! confined to.
+//!
+//! Owns: the walk (sorted, confined to each root given, skipping Assay's own output folders).
+//! Never parses a document (the planner does).
 
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
-use assay_proto::v1 as pb;
+use assay_plan::TaskDocument;
 
 /// Every `.yaml`, `.yml` and `.json` file under `paths` (folders are walked, sorted by path).
 ///
@@ -11,7 +15,7 @@ use assay_proto::v1 as pb;
 /// points to is inside that root (a link out of it is refused, naming both), and Assay output
 /// folders (those holding [`crate::outdir::MARKER`]) are skipped, so a run never reads its own
 /// report as a task.
-pub fn collect(paths: &[PathBuf]) -> anyhow::Result<Vec<pb::TaskDocument>> {
+pub fn collect(paths: &[PathBuf]) -> anyhow::Result<Vec<TaskDocument>> {
     let mut files = Vec::new();
     for p in paths {
         let root = p
@@ -40,7 +44,7 @@ pub fn collect(paths: &[PathBuf]) -> anyhow::Result<Vec<pb::TaskDocument>> {
             } else {
                 "yaml"
             };
-            Ok(pb::TaskDocument {
+            Ok(TaskDocument {
                 origin: f.display().to_string(),
                 format: format.into(),
                 content,
@@ -131,7 +135,7 @@ mod tests {
 
     const TASK: &str = "id: t\n";
 
-    fn origins(docs: &[pb::TaskDocument]) -> Vec<String> {
+    fn origins(docs: &[TaskDocument]) -> Vec<String> {
         docs.iter().map(|d| d.origin.clone()).collect()
     }
 

@@ -1,26 +1,15 @@
-//! `assay doctor`: checks what this machine needs to run Assay's roles, and says what to fix.
+//! `assay doctor` as a library: checks what this machine needs to run Assay's roles, and says
+//! what to fix.
 //!
 //! Each check is run for real (an adapter opened, a tensor computed, a model loaded, a zenoh
 //! router opened, a frame sent through shared memory), not guessed from files.
+//!
+//! Owns: the checks and their verdicts. Never prints (the CLI does).
 
-use std::path::PathBuf;
-use std::process::ExitCode;
+use std::path::Path;
 use std::time::{Duration, Instant};
 
 use serde::Serialize;
-
-#[derive(clap::Args)]
-pub struct Args {
-    /// Configuration file: its judges' endpoints are checked for reachability.
-    #[arg(long, env = "ASSAY_CONFIG")]
-    pub config: Option<PathBuf>,
-    /// Also check that this coordinator answers (`http://host:7878`).
-    #[arg(long)]
-    pub coordinator: Option<String>,
-    /// Print JSON.
-    #[arg(long)]
-    pub json: bool,
-}
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "lowercase")]
@@ -102,24 +91,21 @@ fn vulkan() -> (Verdict, String, String) {
 
 #[cfg(feature = "trainer")]
 fn libtorch() -> (Verdict, String, String) {
-    let version = assay_trainer::libtorch_version();
-    let device = assay_trainer::default_device();
-    let t = tch::Tensor::from_slice(&[1.0f32, 2.0, 3.0]).to_device(device);
-    let sum = f64::try_from((&t * &t).sum(tch::Kind::Float)).unwrap_or(f64::NAN);
-    if (sum - 14.0).abs() > 1e-6 {
+    let p = assay_trainer::probe();
+    let version = &p.version;
+    if (p.sum - 14.0).abs() > 1e-6 {
         return (
             Verdict::Fail,
-            format!("libtorch {version} computed {sum} for 1²+2²+3²"),
+            format!("libtorch {version} computed {} for 1²+2²+3²", p.sum),
             "reinstall libtorch: scripts/setup-libtorch".into(),
         );
     }
-    let cuda = tch::Cuda::is_available();
     let detail = format!(
         "libtorch {version}, trainer device {} (CUDA {})",
-        assay_trainer::world_model::device_name(device),
-        if cuda { "available" } else { "not available" }
+        p.device,
+        if p.cuda { "available" } else { "not available" }
     );
-    if cuda {
+    if p.cuda {
         (Verdict::Ok, detail, String::new())
     } else {
         (
@@ -143,10 +129,8 @@ fn libtorch() -> (Verdict, String, String) {
 
 #[cfg(feature = "trainer")]
 fn embedding(name: &str) -> (Verdict, String, String) {
-    let mut e = assay_trainer::embedders::Embedders::new(
-        assay_trainer::embedders::Config::default(),
-        tch::Device::Cpu,
-    );
+    let mut e =
+        assay_trainer::embedders::Embedders::on_cpu(assay_trainer::embedders::Config::default());
     let folder = assay_trainer::embedders::models_dir();
     match e.describe(name).and_then(|m| {
         let v = e.embed(name, &["a red block on a blue block".to_owned()])?;
@@ -196,7 +180,7 @@ fn embedding(_name: &str) -> (Verdict, String, String) {
 fn zenoh() -> (Verdict, String, String) {
     let run = || -> anyhow::Result<String> {
         let endpoint = assay_telemetry::free_loopback_endpoint()?;
-        super::block_on(async {
+        crate::rt::block_on(async {
             // With the user-password check zenoh runs when the cluster has a token.
             let password = "assay-doctor-check";
             let router = assay_telemetry::open_router(&endpoint, Some(password)).await?;
@@ -395,12 +379,14 @@ fn python_numpy() -> (Verdict, String, String) {
         Err(e) => (
             Verdict::Warn,
             format!("{python}: {e}"),
-            "install Python 3 with numpy, or set ASSAY_PYTHON".into(),
+            "run scripts/setup-python (numpy in ~/.cache/assay/python, found without settings), or set ASSAY_PYTHON".into(),
         ),
     }
 }
 
-pub fn run(a: Args) -> anyhow::Result<ExitCode> {
+/// Every check, and with `config` its judges' endpoints, and with `coordinator` whether it
+/// answers.
+pub fn checks(config: Option<&Path>, coordinator: Option<&str>) -> Vec<Check> {
     let mut checks = vec![
         check("Vulkan adapter", "render", vulkan),
         check("libtorch", "trainer", libtorch),
@@ -412,63 +398,38 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         check("ffmpeg", "render (videos)", ffmpeg),
         check("Python with numpy", "import gensim", python_numpy),
     ];
-    if let Some(path) = &a.config {
+    if let Some(path) = config {
         checks.extend(judges(path));
     }
-    if let Some(addr) = &a.coordinator {
-        let addr = addr.clone();
-        checks.push(check(&format!("coordinator {addr}"), "all", move || {
-            let r = super::block_on(async {
-                let mut c = super::client(&addr).await?;
-                let n = c
-                    .list_batches(assay_proto::v1::ListBatchesRequest {})
-                    .await?
-                    .into_inner()
-                    .batches
-                    .len();
-                anyhow::Ok(n)
-            });
-            match r {
-                Ok(n) => (
-                    Verdict::Ok,
-                    format!("answers; {n} batches in its store"),
-                    String::new(),
-                ),
-                Err(e) => (
-                    Verdict::Fail,
-                    format!("{e:#}"),
-                    "start it (assay coordinator) or fix the address".into(),
-                ),
-            }
+    if let Some(addr) = coordinator {
+        checks.push(check(&format!("coordinator {addr}"), "all", || {
+            coordinator_answers(addr)
         }));
     }
-    let failed = checks.iter().any(|c| c.verdict == Verdict::Fail);
-    if a.json {
-        println!("{}", serde_json::to_string_pretty(&checks)?);
-    } else {
-        for c in &checks {
-            let mark = match c.verdict {
-                Verdict::Ok => "ok  ",
-                Verdict::Warn => "warn",
-                Verdict::Fail => "FAIL",
-            };
-            println!("{mark} {} ({}): {}", c.name, c.needed_by, c.detail);
-            if !c.fix.is_empty() {
-                println!("     fix: {}", c.fix);
-            }
-        }
-        println!(
-            "{}",
-            if failed {
-                "Some checks failed: the roles named beside them cannot run here until fixed."
-            } else {
-                "Everything Assay needs is here."
-            }
-        );
+    checks
+}
+
+fn coordinator_answers(addr: &str) -> (Verdict, String, String) {
+    let r = crate::rt::block_on(async {
+        let mut c = crate::client::connect(addr).await?;
+        let n = c
+            .list_batches(assay_proto::v1::ListBatchesRequest {})
+            .await?
+            .into_inner()
+            .batches
+            .len();
+        anyhow::Ok(n)
+    });
+    match r {
+        Ok(n) => (
+            Verdict::Ok,
+            format!("answers; {n} batches in its store"),
+            String::new(),
+        ),
+        Err(e) => (
+            Verdict::Fail,
+            format!("{e:#}"),
+            "start it (assay coordinator) or fix the address".into(),
+        ),
     }
-    Ok(if failed {
-        ExitCode::FAILURE
-    } else {
-        ExitCode::SUCCESS
-    })
 }

@@ -1,77 +1,16 @@
-//! `assay frames`: publish or subscribe to a frame stream on this node's frame bus, or relay a
-//! node's streams to other nodes over gRPC (`assay.v1.Frames`). Used by the multi-process tests
-//! and the hand-off benchmark; handy for checking a node's shared memory.
+//! `assay frames` as a library: publish or subscribe to a frame stream on this node's frame bus,
+//! or relay a node's streams to other nodes over gRPC (`assay.v1.Frames`). Used by the
+//! multi-process tests and the hand-off benchmark; handy for checking a node's shared memory.
+//!
+//! Owns: the test pattern, the subscriber's statistics, the relay's threads. Never prints: each
+//! function returns what the command prints.
 
-use std::path::PathBuf;
-use std::process::ExitCode;
+use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use anyhow::Context;
 use assay_framebus::{FrameBus, FrameHeader, format, monotonic_ns};
 use serde_json::json;
-
-#[derive(clap::Args)]
-pub struct Args {
-    #[command(subcommand)]
-    pub cmd: Cmd,
-}
-
-#[derive(clap::Subcommand)]
-pub enum Cmd {
-    /// Publish a test pattern (frame number in every byte, sequence number up front).
-    Publish {
-        #[arg(long)]
-        stream: String,
-        #[arg(long, default_value_t = 100)]
-        count: u64,
-        #[arg(long, default_value_t = 640)]
-        width: u32,
-        #[arg(long, default_value_t = 480)]
-        height: u32,
-        /// Pause between frames, in microseconds.
-        #[arg(long, default_value_t = 1000)]
-        interval_us: u64,
-    },
-    /// Receive frames, check them, and report counts and hand-off latency as JSON.
-    Subscribe {
-        #[arg(long)]
-        stream: String,
-        /// Stop after this many frames.
-        #[arg(long, default_value_t = 100)]
-        count: u64,
-        /// Stop after this long without reaching `count`.
-        #[arg(long, default_value_t = 30.0)]
-        timeout_s: f64,
-        /// Written once the subscriber is connected.
-        #[arg(long)]
-        ready_file: Option<PathBuf>,
-        /// Poll without sleeping (lowest latency; uses a whole core).
-        #[arg(long)]
-        spin: bool,
-        /// Receive from a frame relay over gRPC (e.g. http://10.0.0.5:7460) instead of this
-        /// node's shared memory. Latency is only meaningful when the relay is on this node.
-        #[arg(long)]
-        grpc: Option<String>,
-        /// Save every RGBA frame as DIR/<episode>-<camera>-<step>.png instead of checking it
-        /// against the test pattern (to look at what a worker's render role publishes; shared
-        /// memory only).
-        #[arg(long)]
-        save: Option<PathBuf>,
-    },
-    /// Serve this node's frame streams to other nodes over gRPC (`assay.v1.Frames`). Frames are
-    /// copied out of shared memory only while some client is subscribed.
-    Relay {
-        /// Streams to serve (repeat the flag).
-        #[arg(long, required = true)]
-        stream: Vec<String>,
-        /// Address to listen on (port 0: any free port).
-        #[arg(long, default_value = "127.0.0.1:7460")]
-        listen: std::net::SocketAddr,
-        /// Written with the address actually bound, once serving.
-        #[arg(long)]
-        addr_file: Option<PathBuf>,
-    },
-}
 
 /// The test pattern: the sequence number (little endian) in the first 8 bytes, its low byte in
 /// every other byte.
@@ -92,145 +31,126 @@ fn percentile(sorted: &[f64], p: f64) -> Option<f64> {
     (!sorted.is_empty()).then(|| sorted[((sorted.len() - 1) as f64 * p).round() as usize])
 }
 
-pub fn run(a: Args) -> anyhow::Result<ExitCode> {
-    match a.cmd {
-        Cmd::Publish {
-            stream,
-            count,
+/// Publishes `count` test-pattern frames of `width` × `height` RGBA on `stream`, `interval_us`
+/// apart; returns what was sent and how many subscribers each frame reached, as JSON.
+pub fn publish(
+    stream: &str,
+    count: u64,
+    (width, height): (u32, u32),
+    interval_us: u64,
+) -> anyhow::Result<serde_json::Value> {
+    let bus = FrameBus::open("assay-frames-publish")?;
+    let len = (width * height * 4) as usize;
+    let publisher = bus.publisher(stream, len)?;
+    let (mut reached_min, mut reached_max) = (usize::MAX, 0);
+    let start = Instant::now();
+    for seq in 0..count {
+        let header = FrameHeader {
+            episode: 1,
+            step: seq,
+            camera: 0,
+            format: format::RGBA8,
             width,
             height,
-            interval_us,
-        } => {
-            let bus = FrameBus::open("assay-frames-publish")?;
-            let len = (width * height * 4) as usize;
-            let publisher = bus.publisher(&stream, len)?;
-            let (mut reached_min, mut reached_max) = (usize::MAX, 0);
-            let start = Instant::now();
-            for seq in 0..count {
-                let header = FrameHeader {
-                    episode: 1,
-                    step: seq,
-                    camera: 0,
-                    format: format::RGBA8,
-                    width,
-                    height,
-                    stride: width * 4,
-                    ..Default::default()
-                };
-                let reached = publisher.publish(header, len, |buf| fill_pattern(seq, buf))?;
-                reached_min = reached_min.min(reached);
-                reached_max = reached_max.max(reached);
-                if interval_us > 0 {
-                    std::thread::sleep(Duration::from_micros(interval_us));
-                }
-            }
-            let elapsed = start.elapsed().as_secs_f64();
-            println!(
-                "{}",
-                json!({"sent": count, "reached_min": reached_min, "reached_max": reached_max, "elapsed_s": elapsed, "frames_per_s": count as f64 / elapsed})
-            );
-            Ok(ExitCode::SUCCESS)
+            stride: width * 4,
+            ..Default::default()
+        };
+        let reached = publisher.publish(header, len, |buf| fill_pattern(seq, buf))?;
+        reached_min = reached_min.min(reached);
+        reached_max = reached_max.max(reached);
+        if interval_us > 0 {
+            std::thread::sleep(Duration::from_micros(interval_us));
         }
-        Cmd::Subscribe {
-            stream,
-            count,
-            timeout_s,
-            ready_file,
-            spin,
-            grpc,
-            save,
-        } => {
-            if let Some(dir) = &save {
-                std::fs::create_dir_all(dir)?;
-            }
-            let deadline = Instant::now() + Duration::from_secs_f64(timeout_s);
-            let mut stats = Stats::default();
-            match grpc {
-                Some(url) => crate::cmd::block_on(async {
-                    let mut frames = assay_worker::relay::subscribe(&url, &stream).await?;
-                    if let Some(f) = ready_file {
-                        std::fs::write(f, "ready\n")?;
-                    }
-                    while !stats.done(count) {
-                        let left = deadline.saturating_duration_since(Instant::now());
-                        let Ok(next) = tokio::time::timeout(left, frames.message()).await else {
-                            break;
-                        };
-                        let Some(f) = next? else { break };
-                        let now = monotonic_ns();
-                        stats.dropped += f.dropped;
-                        let ok = check_pattern(&f.data) == Some(f.step)
-                            && f.data.len() as u64 == u64::from(f.stride) * u64::from(f.height);
-                        stats.record(f.step, ok, f.timestamp_ns, now);
-                    }
-                    anyhow::Ok(())
-                })?,
-                None => {
-                    let bus = FrameBus::open("assay-frames-subscribe")?;
-                    let subscriber = bus.subscriber(&stream)?;
-                    if let Some(f) = ready_file {
-                        std::fs::write(f, "ready\n")?;
-                    }
-                    while !stats.done(count) && Instant::now() < deadline {
-                        let seq = stats.received;
-                        let got = subscriber.receive(|h, payload| {
-                            let now = monotonic_ns();
-                            let sized = payload.len() as u32 == h.stride * h.height;
-                            let (seq, ok) = match &save {
-                                Some(dir) => (seq, sized && save_frame(dir, h, payload)),
-                                None => (h.step, sized && check_pattern(payload) == Some(h.step)),
-                            };
-                            (seq, ok, h.timestamp_ns, now)
-                        })?;
-                        match got {
-                            Some((seq, ok, sent, now)) => stats.record(seq, ok, sent, now),
-                            None if spin => std::hint::spin_loop(),
-                            None => std::thread::sleep(Duration::from_micros(50)),
-                        }
-                    }
-                }
-            }
-            let Stats {
-                received,
-                corrupt,
-                out_of_order,
-                dropped,
-                lost,
-                first,
-                last,
-                mut latencies,
-                first_ns,
-                last_ns,
-            } = stats;
-            let span_s = last_ns.saturating_sub(first_ns) as f64 / 1e9;
-            let frames_per_s =
-                (received > 1 && span_s > 0.0).then(|| (received - 1) as f64 / span_s);
-            latencies.sort_by(f64::total_cmp);
-            println!(
-                "{}",
-                json!({
-                    "received": received, "corrupt": corrupt, "out_of_order": out_of_order,
-                    "lost": lost, "dropped_reported": dropped, "first": first, "last": last,
-                    "frames_per_s": frames_per_s,
-                    "latency_us_p50": percentile(&latencies, 0.5), "latency_us_p99": percentile(&latencies, 0.99),
-                })
-            );
-            Ok(if corrupt == 0 && out_of_order == 0 {
-                ExitCode::SUCCESS
-            } else {
-                ExitCode::FAILURE
-            })
-        }
-        Cmd::Relay {
-            stream,
-            listen,
-            addr_file,
-        } => relay(stream, listen, addr_file),
     }
+    let elapsed = start.elapsed().as_secs_f64();
+    Ok(
+        json!({"sent": count, "reached_min": reached_min, "reached_max": reached_max, "elapsed_s": elapsed, "frames_per_s": count as f64 / elapsed}),
+    )
+}
+
+/// How a subscription runs.
+pub struct Subscription {
+    pub stream: String,
+    /// Stop after this many frames.
+    pub count: u64,
+    /// Stop after this long without reaching `count`.
+    pub timeout_s: f64,
+    /// Written once the subscriber is connected.
+    pub ready_file: Option<PathBuf>,
+    /// Poll without sleeping.
+    pub spin: bool,
+    /// A frame relay to receive from over gRPC instead of this node's shared memory.
+    pub grpc: Option<String>,
+    /// Save every RGBA frame as a PNG here instead of checking it (shared memory only).
+    pub save: Option<PathBuf>,
+}
+
+/// Receives and checks frames; returns the counts and hand-off latency as JSON, and whether
+/// every frame was whole and in order.
+pub fn subscribe(s: &Subscription) -> anyhow::Result<(serde_json::Value, bool)> {
+    if let Some(dir) = &s.save {
+        std::fs::create_dir_all(dir)?;
+    }
+    let deadline = Instant::now() + Duration::from_secs_f64(s.timeout_s);
+    let stats = match &s.grpc {
+        Some(url) => crate::rt::block_on(from_relay(s, url, deadline))?,
+        None => from_bus(s, deadline)?,
+    };
+    Ok(stats.summary())
+}
+
+/// Frames from a relay over gRPC.
+async fn from_relay(s: &Subscription, url: &str, deadline: Instant) -> anyhow::Result<Stats> {
+    let mut stats = Stats::default();
+    let mut frames = assay_worker::relay::subscribe(url, &s.stream).await?;
+    if let Some(f) = &s.ready_file {
+        std::fs::write(f, "ready\n")?;
+    }
+    while !stats.done(s.count) {
+        let left = deadline.saturating_duration_since(Instant::now());
+        let Ok(next) = tokio::time::timeout(left, frames.message()).await else {
+            break;
+        };
+        let Some(f) = next? else { break };
+        let now = monotonic_ns();
+        stats.dropped += f.dropped;
+        let ok = check_pattern(&f.data) == Some(f.step)
+            && f.data.len() as u64 == u64::from(f.stride) * u64::from(f.height);
+        stats.record(f.step, ok, f.timestamp_ns, now);
+    }
+    Ok(stats)
+}
+
+/// Frames from this node's shared memory.
+fn from_bus(s: &Subscription, deadline: Instant) -> anyhow::Result<Stats> {
+    let mut stats = Stats::default();
+    let bus = FrameBus::open("assay-frames-subscribe")?;
+    let subscriber = bus.subscriber(&s.stream)?;
+    if let Some(f) = &s.ready_file {
+        std::fs::write(f, "ready\n")?;
+    }
+    while !stats.done(s.count) && Instant::now() < deadline {
+        let seq = stats.received;
+        let got = subscriber.receive(|h, payload| {
+            let now = monotonic_ns();
+            let sized = payload.len() as u32 == h.stride * h.height;
+            let (seq, ok) = match &s.save {
+                Some(dir) => (seq, sized && save_frame(dir, h, payload)),
+                None => (h.step, sized && check_pattern(payload) == Some(h.step)),
+            };
+            (seq, ok, h.timestamp_ns, now)
+        })?;
+        match got {
+            Some((seq, ok, sent, now)) => stats.record(seq, ok, sent, now),
+            None if s.spin => std::hint::spin_loop(),
+            None => std::thread::sleep(Duration::from_micros(50)),
+        }
+    }
+    Ok(stats)
 }
 
 /// Writes an RGBA frame as a PNG named after its header; false if it is not RGBA or not written.
-fn save_frame(dir: &std::path::Path, h: &FrameHeader, payload: &[u8]) -> bool {
+fn save_frame(dir: &Path, h: &FrameHeader, payload: &[u8]) -> bool {
     if h.format != format::RGBA8 || h.stride != h.width * 4 {
         return false;
     }
@@ -281,15 +201,42 @@ impl Stats {
     fn done(&self, count: u64) -> bool {
         self.received >= count || self.last.is_some_and(|l| l + 1 >= count)
     }
+
+    /// The counts and latency percentiles as JSON, and whether nothing was corrupt or out of
+    /// order.
+    fn summary(self) -> (serde_json::Value, bool) {
+        let Stats {
+            received,
+            corrupt,
+            out_of_order,
+            dropped,
+            lost,
+            first,
+            last,
+            mut latencies,
+            first_ns,
+            last_ns,
+        } = self;
+        let span_s = last_ns.saturating_sub(first_ns) as f64 / 1e9;
+        let frames_per_s = (received > 1 && span_s > 0.0).then(|| (received - 1) as f64 / span_s);
+        latencies.sort_by(f64::total_cmp);
+        let summary = json!({
+            "received": received, "corrupt": corrupt, "out_of_order": out_of_order,
+            "lost": lost, "dropped_reported": dropped, "first": first, "last": last,
+            "frames_per_s": frames_per_s,
+            "latency_us_p50": percentile(&latencies, 0.5), "latency_us_p99": percentile(&latencies, 0.99),
+        });
+        (summary, corrupt == 0 && out_of_order == 0)
+    }
 }
 
 /// Serves `streams` of this node's frame bus over gRPC until SIGTERM or Ctrl-C. One thread per
 /// stream reads the bus; a frame is copied into a message only when some client is subscribed.
-fn relay(
+pub fn relay(
     streams: Vec<String>,
     listen: std::net::SocketAddr,
     addr_file: Option<PathBuf>,
-) -> anyhow::Result<ExitCode> {
+) -> anyhow::Result<()> {
     let hub = assay_worker::relay::FrameHub::default();
     let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
     let mut threads = Vec::new();
@@ -344,7 +291,7 @@ fn relay(
             .context("relay thread")?
             .map_err(anyhow::Error::msg)?;
     }
-    crate::cmd::block_on(async {
+    crate::rt::block_on(async {
         let listener = tokio::net::TcpListener::bind(listen)
             .await
             .with_context(|| format!("cannot listen on {listen}"))?;
@@ -361,7 +308,7 @@ fn relay(
             .add_service(hub.server(token))
             .serve_with_incoming_shutdown(
                 tokio_stream::wrappers::TcpListenerStream::new(listener),
-                crate::cmd::terminated(),
+                crate::rt::terminated(),
             )
             .await?;
         anyhow::Ok(())
@@ -370,5 +317,5 @@ fn relay(
     for t in threads {
         t.join().expect("relay thread")?;
     }
-    Ok(ExitCode::SUCCESS)
+    Ok(())
 }

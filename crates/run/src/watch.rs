@@ -1,28 +1,32 @@
-//! `assay watch DIR`: continuous evaluation. Every batch (a sub-folder of task specs) that lands
-//! in DIR is evaluated once it has stopped changing; a batch whose tasks were evaluated before
-//! (the same content hash) is recorded as skipped, not run again; each evaluated batch gets its
-//! marginal text diversity against every batch evaluated before it; a corpus report accumulates.
+//! `assay watch DIR` as a library: continuous evaluation. Every batch (a sub-folder of task
+//! specs) that lands in DIR is evaluated once it has stopped changing; a batch whose tasks were
+//! evaluated before (the same content hash) is recorded as skipped, not run again; each evaluated
+//! batch gets its marginal text diversity against every batch evaluated before it; a corpus
+//! report accumulates.
 //!
 //! The coordinator keeps the history (every batch, skipped ones too, with its content hash) in
 //! its job store: a local cluster's store persists in OUT/run across restarts of the watch, and
 //! with `--coordinator` a lab's cluster does the same for everyone who submits to it.
+//!
+//! Owns: the watch loop and what it measures per batch (the corpus report is `corpus`).
+//! Never prints (an [`Observer`] is told what happens).
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
-use std::process::ExitCode;
 use std::time::{Duration, Instant, SystemTime};
 
+use crate::batch::BatchArgs;
+use crate::corpus::{CORPUS_JSON, CORPUS_MD, Corpus, Entry};
+use crate::follow::{Event, Observer};
+use crate::local::{ClusterArgs, LocalCluster};
+use crate::{bundle, docs};
 use anyhow::Context;
 use assay_proto::v1 as pb;
 use assay_stats::diversity::{Marginal, marginal_diversity, text_diversity};
-use serde::{Deserialize, Serialize};
 
-/// The corpus report, `OUT/corpus.json`.
-pub const CORPUS_JSON: &str = "corpus.json";
-pub const CORPUS_MD: &str = "corpus.md";
-
+/// What `assay watch` watches and how (its flags).
 #[derive(clap::Args)]
-pub struct Args {
+pub struct WatchArgs {
     /// The folder to watch: each sub-folder is one batch of task specs (.yaml, .yml, .json).
     pub dir: PathBuf,
     /// Output folder: corpus.json and corpus.md, batches/NAME/report.{json,md,html},
@@ -52,119 +56,9 @@ pub struct Args {
     )]
     pub marginal_models: Vec<String>,
     #[command(flatten)]
-    pub cluster: super::cluster::ClusterArgs,
+    pub cluster: ClusterArgs,
     #[command(flatten)]
-    pub batch: super::submit::BatchArgs,
-}
-
-/// One batch the watch handled.
-#[derive(Debug, Clone, Serialize, Deserialize)]
-pub struct Entry {
-    /// The sub-folder's name.
-    pub name: String,
-    /// Files, sizes and modification times when it was taken.
-    pub fingerprint: String,
-    pub batch_id: String,
-    /// SHA-256 of the batch's tasks (the coordinator's).
-    pub content_hash: String,
-    /// `evaluated`, `skipped` (a repeat of `duplicate_of`), or `failed` (with `error`).
-    pub outcome: String,
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub duplicate_of: Option<String>,
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub error: Option<String>,
-    pub tasks: u32,
-    pub invalid_tasks: u32,
-    pub episodes: u32,
-    pub successes: u32,
-    /// Texts of the batch's valid tasks, as text diversity embeds them.
-    pub texts: Vec<String>,
-    /// Per embedding model: the batch's marginal diversity against every batch evaluated
-    /// before it (None for the first batch, with nothing before it).
-    pub marginal: BTreeMap<String, Option<Marginal>>,
-    /// Per embedding model: text diversity of the corpus (every evaluated batch) after it.
-    pub corpus_diversity: BTreeMap<String, Option<f64>>,
-    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
-    pub diversity_errors: BTreeMap<String, String>,
-    pub finished_at_unix_ms: i64,
-}
-
-/// The corpus report: every batch in the order handled.
-#[derive(Debug, Clone, Default, Serialize, Deserialize)]
-pub struct Corpus {
-    pub models: Vec<String>,
-    pub batches: Vec<Entry>,
-}
-
-impl Corpus {
-    /// The corpus report as Markdown.
-    pub fn markdown(&self) -> String {
-        let mut md = String::from("# Assay corpus: continuous evaluation\n\n");
-        let evaluated = self
-            .batches
-            .iter()
-            .filter(|b| b.outcome == "evaluated")
-            .count();
-        let tasks: u32 = self
-            .batches
-            .iter()
-            .filter(|b| b.outcome == "evaluated")
-            .map(|b| b.tasks)
-            .sum();
-        md.push_str(&format!(
-            "{} batches seen: {evaluated} evaluated ({tasks} tasks), {} skipped as repeats, {} failed.\n\n",
-            self.batches.len(),
-            self.batches.iter().filter(|b| b.outcome == "skipped").count(),
-            self.batches.iter().filter(|b| b.outcome == "failed").count(),
-        ));
-        md.push_str(
-            "Marginal diversity: div(corpus before + batch) − div(corpus before), the paper's eq. 1 \
-             on the task texts; positive means the batch widened the corpus.\n\n",
-        );
-        md.push_str("| # | batch | outcome | tasks | episodes | success |");
-        for m in &self.models {
-            md.push_str(&format!(" marginal ({m}) | corpus div ({m}) |"));
-        }
-        md.push_str("\n|---:|---|---|---:|---:|---:|");
-        md.push_str(&"---:|---:|".repeat(self.models.len()));
-        md.push('\n');
-        for (i, b) in self.batches.iter().enumerate() {
-            let outcome = match (&b.duplicate_of, &b.error) {
-                (Some(d), _) => format!("skipped: repeats {d}"),
-                (_, Some(e)) => format!("failed: {}", e.replace('|', "\\|").replace('\n', " ")),
-                _ => format!("evaluated as `{}`", b.batch_id),
-            };
-            let success = if b.episodes > 0 {
-                format!(
-                    "{:.1} %",
-                    100.0 * f64::from(b.successes) / f64::from(b.episodes)
-                )
-            } else {
-                "–".into()
-            };
-            md.push_str(&format!(
-                "| {} | {} | {outcome} | {} | {} | {success} |",
-                i + 1,
-                b.name.replace('|', "\\|"),
-                b.tasks,
-                b.episodes
-            ));
-            for m in &self.models {
-                let marginal = match b.marginal.get(m) {
-                    Some(Some(x)) => format!("{:+.3}", x.marginal),
-                    Some(None) if b.outcome == "evaluated" => "first batch".into(),
-                    _ => "–".into(),
-                };
-                let corpus = match b.corpus_diversity.get(m) {
-                    Some(Some(d)) => format!("{d:.3}"),
-                    _ => "–".into(),
-                };
-                md.push_str(&format!(" {marginal} | {corpus} |"));
-            }
-            md.push('\n');
-        }
-        md
-    }
+    pub batch: BatchArgs,
 }
 
 /// Files, sizes and modification times under `dir`, one per line, sorted.
@@ -216,12 +110,24 @@ fn now_ms() -> i64 {
         .map_or(0, |d| d.as_millis() as i64)
 }
 
-pub fn run(mut a: Args) -> anyhow::Result<ExitCode> {
+/// The watch's resources: the cluster it submits to (a local one it keeps alive, or a running
+/// coordinator), a runtime, the stop signal, and the embedding models of marginal diversity.
+struct Watcher<'o> {
+    a: WatchArgs,
+    addr: String,
+    cluster: Option<LocalCluster>,
+    rt: std::sync::Arc<tokio::runtime::Runtime>,
+    stop: std::sync::Arc<std::sync::atomic::AtomicBool>,
+    artifacts: PathBuf,
+    embedders: assay_trainer::embedders::Embedders,
+    observer: &'o mut dyn Observer,
+}
+
+/// Watches `a.dir` until stopped (SIGINT, SIGTERM) or `--exit-after` batches were handled.
+pub fn run(mut a: WatchArgs, observer: &mut dyn Observer) -> anyhow::Result<()> {
     std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
     anyhow::ensure!(a.dir.is_dir(), "{} is not a folder", a.dir.display());
-    let rendering =
-        a.cluster.render_workers > 0 || a.cluster.roles.split(',').any(|r| r.trim() == "render");
-    if !a.cluster.no_judge && rendering && a.batch.judges.is_empty() {
+    if !a.cluster.no_judge && a.cluster.rendering() && a.batch.judges.is_empty() {
         a.batch.judges.push(assay_judge::OFFLINE.into());
     }
     if a.batch.text_models.is_empty() {
@@ -238,82 +144,99 @@ pub fn run(mut a: Args) -> anyhow::Result<ExitCode> {
         Err(_) => Corpus::default(),
     };
     corpus.models = a.marginal_models.clone();
-    let artifacts = a
-        .artifacts
-        .clone()
-        .unwrap_or_else(|| a.out.join(assay_report::report::ARTIFACTS_LINK));
-    let cluster = match &a.coordinator {
-        Some(_) => None,
-        None => Some(super::cluster::LocalCluster::start(
-            &super::cluster::Plan {
-                workers: a.cluster.workers,
-                capacity: a.cluster.capacity,
-                roles: a.cluster.roles.clone(),
-                render_workers: a.cluster.render_workers,
-                image_size: a.cluster.image_size.clone(),
-                video: a.cluster.video,
-                config: a.cluster.config.clone(),
-                judges: a.batch.judges.clone(),
-                judge_capacity: a.cluster.judge_capacity,
-                training: true,
-                trainer_capacity: None,
-                asset_roots: crate::docs::asset_roots(
-                    std::slice::from_ref(&a.dir),
-                    &a.batch.asset_roots,
-                )?,
-            },
-            &a.out.join("run"),
-            &artifacts,
-        )?),
-    };
-    let addr = match (&a.coordinator, &cluster) {
-        (Some(c), _) => c.clone(),
-        (None, Some(c)) => c.addr.clone(),
-        (None, None) => unreachable!("a local cluster starts without --coordinator"),
-    };
-    // The local cluster's processes are started again when they die, as `assay eval` does.
-    let mut cluster = cluster;
-    let mut supervise = || -> anyhow::Result<()> {
-        if let Some(c) = cluster.as_mut() {
+    let mut w = Watcher::start(a, observer)?;
+    let result = w.watch(&mut corpus, &corpus_path);
+    if let Some(c) = w.cluster.take() {
+        c.stop();
+    }
+    result
+}
+
+impl<'o> Watcher<'o> {
+    /// Starts the local cluster (without `--coordinator`), the runtime and the signal handler.
+    fn start(a: WatchArgs, observer: &'o mut dyn Observer) -> anyhow::Result<Self> {
+        let artifacts = a
+            .artifacts
+            .clone()
+            .unwrap_or_else(|| a.out.join(assay_report::report::ARTIFACTS_LINK));
+        let cluster = match &a.coordinator {
+            Some(_) => None,
+            None => {
+                let roots = docs::asset_roots(std::slice::from_ref(&a.dir), &a.batch.asset_roots)?;
+                let plan = a.cluster.plan(&a.batch.judges, true, None, roots);
+                let cluster = LocalCluster::start(&plan, &a.out.join("run"), &artifacts)?;
+                observer.event(Event::ClusterStarted {
+                    description: &cluster.description,
+                });
+                Some(cluster)
+            }
+        };
+        let addr = match (&a.coordinator, &cluster) {
+            (Some(c), _) => c.clone(),
+            (None, Some(c)) => c.addr.clone(),
+            (None, None) => unreachable!("a local cluster starts without --coordinator"),
+        };
+        let rt = std::sync::Arc::new(
+            tokio::runtime::Builder::new_multi_thread()
+                .worker_threads(2)
+                .enable_all()
+                .build()?,
+        );
+        let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+        {
+            let stop = stop.clone();
+            rt.spawn(async move {
+                crate::rt::terminated().await;
+                stop.store(true, std::sync::atomic::Ordering::Relaxed);
+            });
+        }
+        let embedders = assay_trainer::embedders::Embedders::on_default_device(
+            assay_trainer::embedders::Config::default(),
+        );
+        Ok(Self {
+            a,
+            addr,
+            cluster,
+            rt,
+            stop,
+            artifacts,
+            embedders,
+            observer,
+        })
+    }
+
+    fn stopped(&self) -> bool {
+        self.stop.load(std::sync::atomic::Ordering::Relaxed)
+    }
+
+    /// The local cluster's processes are started again when they die, as `assay eval` does.
+    fn supervise(&mut self) -> anyhow::Result<()> {
+        if let Some(c) = self.cluster.as_mut() {
             for line in c.supervise()? {
-                eprintln!("{line}");
+                self.observer.event(Event::Process { line: &line });
             }
         }
         Ok(())
-    };
-    let rt = tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(2)
-        .enable_all()
-        .build()?;
-    let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
-    {
-        let stop = stop.clone();
-        rt.spawn(async move {
-            super::terminated().await;
-            stop.store(true, std::sync::atomic::Ordering::Relaxed);
-        });
     }
-    let mut embedders = assay_trainer::embedders::Embedders::new(
-        assay_trainer::embedders::Config::default(),
-        assay_trainer::default_device(),
-    );
-    eprintln!(
-        "watching {} (every {} ms); corpus report in {}",
-        a.dir.display(),
-        a.poll_ms,
-        a.out.join(CORPUS_MD).display()
-    );
-    let mut pending: BTreeMap<PathBuf, String> = BTreeMap::new();
-    let mut handled = 0usize;
-    let result = (|| -> anyhow::Result<()> {
+
+    /// Lists the folder every `--poll-ms` and handles each batch folder that stopped changing
+    /// and was not handled before, writing the corpus report after each.
+    fn watch(&mut self, corpus: &mut Corpus, corpus_path: &Path) -> anyhow::Result<()> {
+        let corpus_md = self.a.out.join(CORPUS_MD);
+        self.observer.event(Event::Watching {
+            dir: &self.a.dir,
+            poll_ms: self.a.poll_ms,
+            corpus: &corpus_md,
+        });
+        let mut pending: BTreeMap<PathBuf, String> = BTreeMap::new();
+        let mut handled = 0usize;
+        let done = |handled: usize, a: &WatchArgs| a.exit_after.is_some_and(|n| handled >= n);
         loop {
-            if stop.load(std::sync::atomic::Ordering::Relaxed)
-                || a.exit_after.is_some_and(|n| handled >= n)
-            {
+            if self.stopped() || done(handled, &self.a) {
                 return Ok(());
             }
-            supervise()?;
-            for folder in batch_folders(&a.dir)? {
+            self.supervise()?;
+            for folder in batch_folders(&self.a.dir)? {
                 let name = folder
                     .file_name()
                     .map(|n| n.to_string_lossy().into_owned())
@@ -334,169 +257,137 @@ pub fn run(mut a: Args) -> anyhow::Result<ExitCode> {
                     continue;
                 }
                 pending.remove(&folder);
-                let entry = handle(
-                    &a,
-                    &rt,
-                    &addr,
-                    &folder,
-                    &name,
-                    print,
-                    &artifacts,
-                    &corpus,
-                    &mut embedders,
-                    &mut supervise,
-                    &stop,
-                );
-                eprintln!("{}", summary(&entry, &corpus.models));
+                let entry = self.handle(&folder, &name, print, corpus);
+                self.observer.event(Event::Handled {
+                    entry: &entry,
+                    models: &corpus.models,
+                });
                 corpus.batches.push(entry);
-                std::fs::write(&corpus_path, serde_json::to_string_pretty(&corpus)? + "\n")?;
-                std::fs::write(a.out.join(CORPUS_MD), corpus.markdown())?;
+                std::fs::write(corpus_path, serde_json::to_string_pretty(&*corpus)? + "\n")?;
+                std::fs::write(&corpus_md, corpus.markdown())?;
                 handled += 1;
-                if a.exit_after.is_some_and(|n| handled >= n) {
+                if done(handled, &self.a) {
                     return Ok(());
                 }
             }
-            std::thread::sleep(Duration::from_millis(a.poll_ms.max(50)));
+            std::thread::sleep(Duration::from_millis(self.a.poll_ms.max(50)));
         }
-    })();
-    if let Some(c) = cluster {
-        c.stop();
     }
-    result?;
-    Ok(ExitCode::SUCCESS)
-}
 
-/// One line for a terminal.
-fn summary(e: &Entry, models: &[String]) -> String {
-    match e.outcome.as_str() {
-        "skipped" => format!(
-            "{}: skipped, the same tasks were evaluated in {} (content {})",
-            e.name,
-            e.duplicate_of.as_deref().unwrap_or("?"),
-            &e.content_hash[..e.content_hash.len().min(12)]
-        ),
-        "evaluated" => {
-            let marginal: Vec<String> = models
-                .iter()
-                .map(|m| match e.marginal.get(m) {
-                    Some(Some(x)) => format!(
-                        "{m} {:+.3} ({} tasks before, {:.3} → {:.3})",
-                        x.marginal, x.base_n, x.base_div, x.union_div
-                    ),
-                    _ => match e.diversity_errors.get(m) {
-                        Some(err) => format!("{m}: {err}"),
-                        None => format!("{m}: first batch"),
-                    },
+    /// Submits one batch folder, waits for it, writes its reports and measures its marginal
+    /// diversity. Errors become a `failed` entry: the watch goes on with the next batch.
+    fn handle(&mut self, folder: &Path, name: &str, print: String, corpus: &Corpus) -> Entry {
+        let mut entry = Entry {
+            name: name.to_owned(),
+            fingerprint: print,
+            batch_id: String::new(),
+            content_hash: String::new(),
+            outcome: "failed".into(),
+            duplicate_of: None,
+            error: None,
+            tasks: 0,
+            invalid_tasks: 0,
+            episodes: 0,
+            successes: 0,
+            texts: Vec::new(),
+            marginal: BTreeMap::new(),
+            corpus_diversity: BTreeMap::new(),
+            diversity_errors: BTreeMap::new(),
+            finished_at_unix_ms: 0,
+        };
+        if let Err(e) = self.evaluate(folder, name, corpus, &mut entry) {
+            entry.outcome = "failed".into();
+            entry.error = Some(format!("{e:#}"));
+        }
+        entry.finished_at_unix_ms = now_ms();
+        entry
+    }
+
+    fn evaluate(
+        &mut self,
+        folder: &Path,
+        name: &str,
+        corpus: &Corpus,
+        entry: &mut Entry,
+    ) -> anyhow::Result<()> {
+        let docs = docs::collect(&[folder.to_path_buf()])?;
+        let roots =
+            docs::asset_roots(std::slice::from_ref(&self.a.dir), &self.a.batch.asset_roots)?;
+        let (planned, _) = assay_plan::plan_tasks(&docs, &roots);
+        let templates = self.a.batch.text_templates.iter().cloned().collect();
+        let texts = assay_plan::texts::all_texts(&planned, &templates)?;
+        let mut req = self.a.batch.request(docs, name);
+        req.asset_roots = docs::root_strings(&roots);
+        req.skip_if_evaluated = true;
+        req.render = self.a.cluster.rendering();
+        let (response, status) = self.submit_and_wait(req)?;
+        entry.batch_id = response.batch_id.clone();
+        entry.content_hash = response.content_hash.clone();
+        entry.tasks = response.accepted_tasks;
+        entry.invalid_tasks = response.rejected.len() as u32;
+        let Some(status) = status else {
+            entry.outcome = "skipped".into();
+            entry.duplicate_of = Some(response.duplicate_of);
+            return Ok(());
+        };
+        entry.episodes = status.shards_done;
+        entry.successes = status.successes;
+        let report = self.rt.block_on(async {
+            let mut c = crate::client::connect(&self.addr).await?;
+            anyhow::Ok(
+                c.get_report(pb::GetReportRequest {
+                    batch_id: response.batch_id.clone(),
                 })
-                .collect();
-            format!(
-                "{}: evaluated as {}: {} tasks, {}/{} episodes succeeded; marginal diversity: {}",
-                e.name,
-                e.batch_id,
-                e.tasks,
-                e.successes,
-                e.episodes,
-                marginal.join("; ")
+                .await?
+                .into_inner(),
             )
-        }
-        _ => format!(
-            "{}: failed: {}",
-            e.name,
-            e.error.as_deref().unwrap_or_default()
-        ),
+        })?;
+        let report = bundle::parse(&report)?;
+        let folder = self.a.out.join("batches").join(name);
+        bundle::write(&folder, &report, &self.artifacts, None)?;
+        entry.outcome = "evaluated".into();
+        self.marginal(corpus, &texts, entry);
+        entry.texts = texts;
+        Ok(())
     }
-}
 
-/// Submits one batch folder, waits for it, writes its reports and measures its marginal
-/// diversity. Errors become a `failed` entry: the watch goes on with the next batch.
-#[allow(clippy::too_many_arguments)]
-fn handle(
-    a: &Args,
-    rt: &tokio::runtime::Runtime,
-    addr: &str,
-    folder: &Path,
-    name: &str,
-    print: String,
-    artifacts: &Path,
-    corpus: &Corpus,
-    embedders: &mut assay_trainer::embedders::Embedders,
-    supervise: &mut dyn FnMut() -> anyhow::Result<()>,
-    stop: &std::sync::atomic::AtomicBool,
-) -> Entry {
-    let mut entry = Entry {
-        name: name.to_owned(),
-        fingerprint: print,
-        batch_id: String::new(),
-        content_hash: String::new(),
-        outcome: "failed".into(),
-        duplicate_of: None,
-        error: None,
-        tasks: 0,
-        invalid_tasks: 0,
-        episodes: 0,
-        successes: 0,
-        texts: Vec::new(),
-        marginal: BTreeMap::new(),
-        corpus_diversity: BTreeMap::new(),
-        diversity_errors: BTreeMap::new(),
-        finished_at_unix_ms: 0,
-    };
-    if let Err(e) = evaluate(
-        a, rt, addr, folder, name, artifacts, corpus, embedders, supervise, stop, &mut entry,
-    ) {
-        entry.outcome = "failed".into();
-        entry.error = Some(format!("{e:#}"));
+    /// Submits the batch and polls it until it is final; a skipped repeat has no status.
+    fn submit_and_wait(
+        &mut self,
+        req: pb::SubmitBatchRequest,
+    ) -> anyhow::Result<(pb::SubmitBatchResponse, Option<pb::BatchStatus>)> {
+        let rt = self.rt.clone();
+        rt.block_on(async {
+            let mut c = crate::client::connect(&self.addr).await?;
+            let r = c.submit_batch(req).await?.into_inner();
+            self.observer.event(Event::Rejected {
+                errors: &r.rejected,
+            });
+            if !r.duplicate_of.is_empty() {
+                return anyhow::Ok((r, None));
+            }
+            let status = self.wait(&mut c, &r.batch_id).await?;
+            Ok((r, Some(status)))
+        })
     }
-    entry.finished_at_unix_ms = now_ms();
-    entry
-}
 
-#[allow(clippy::too_many_arguments)]
-fn evaluate(
-    a: &Args,
-    rt: &tokio::runtime::Runtime,
-    addr: &str,
-    folder: &Path,
-    name: &str,
-    artifacts: &Path,
-    corpus: &Corpus,
-    embedders: &mut assay_trainer::embedders::Embedders,
-    supervise: &mut dyn FnMut() -> anyhow::Result<()>,
-    stop: &std::sync::atomic::AtomicBool,
-    entry: &mut Entry,
-) -> anyhow::Result<()> {
-    let docs = crate::docs::collect(&[folder.to_path_buf()])?;
-    let roots = crate::docs::asset_roots(std::slice::from_ref(&a.dir), &a.batch.asset_roots)?;
-    let (planned, _) = assay_coordinator::service::plan_tasks(&docs, &roots);
-    let templates = a.batch.text_templates.iter().cloned().collect();
-    let texts = assay_coordinator::service::text_groups(&planned, &templates)
-        .map_err(|s| anyhow::anyhow!("{}", s.message()))?
-        .pop()
-        .map(|(_, all)| all)
-        .unwrap_or_default();
-    let mut req = a.batch.request(docs, name);
-    req.asset_roots = crate::docs::root_strings(&roots);
-    req.skip_if_evaluated = true;
-    req.render =
-        a.cluster.render_workers > 0 || a.cluster.roles.split(',').any(|r| r.trim() == "render");
-    let (response, status) = rt.block_on(async {
-        let mut c = super::client(addr).await?;
-        let r = c.submit_batch(req).await?.into_inner();
-        super::print_rejected(&r.rejected);
-        if !r.duplicate_of.is_empty() {
-            return anyhow::Ok((r, None));
-        }
+    /// Polls `batch_id` until it is no longer running; a coordinator that cannot be reached is
+    /// tried again for two minutes (a local one is being started again).
+    async fn wait(
+        &mut self,
+        c: &mut crate::client::Client,
+        batch_id: &str,
+    ) -> anyhow::Result<pb::BatchStatus> {
         let started = Instant::now();
-        // Set while the coordinator cannot be reached (a local one is started again).
         let mut lost_since: Option<Instant> = None;
         loop {
-            supervise()?;
-            let st = match c
+            self.supervise()?;
+            let asked = c
                 .get_batch(pb::GetBatchRequest {
-                    batch_id: r.batch_id.clone(),
+                    batch_id: batch_id.to_owned(),
                 })
-                .await
-            {
+                .await;
+            let st = match asked {
                 Ok(st) => {
                     lost_since = None;
                     st.into_inner()
@@ -505,87 +396,62 @@ fn evaluate(
                     let since = *lost_since.get_or_insert_with(Instant::now);
                     if since.elapsed() > Duration::from_secs(120) {
                         anyhow::bail!(
-                            "lost the coordinator while batch {} ran: {}",
-                            r.batch_id,
+                            "lost the coordinator while batch {batch_id} ran: {}",
                             e.message()
                         );
                     }
                     tokio::time::sleep(Duration::from_millis(500)).await;
-                    if let Ok(again) = super::client(addr).await {
-                        c = again;
+                    if let Ok(again) = crate::client::connect(&self.addr).await {
+                        *c = again;
                     }
                     continue;
                 }
             };
             if st.state != pb::BatchState::Running as i32 {
-                return Ok((r, Some(st)));
+                return Ok(st);
             }
-            if stop.load(std::sync::atomic::Ordering::Relaxed) {
+            if self.stopped() {
                 anyhow::bail!(
-                    "stopped while batch {} ran (on a running coordinator it carries on)",
-                    r.batch_id
+                    "stopped while batch {batch_id} ran (on a running coordinator it carries on)"
                 );
             }
             if started.elapsed() > Duration::from_secs(10) && st.workers_connected == 0 {
-                tracing::warn!(batch = %r.batch_id, "no worker is connected to the coordinator");
+                tracing::warn!(batch = %batch_id, "no worker is connected to the coordinator");
             }
             tokio::time::sleep(Duration::from_millis(300)).await;
         }
-    })?;
-    entry.batch_id = response.batch_id.clone();
-    entry.content_hash = response.content_hash.clone();
-    entry.tasks = response.accepted_tasks;
-    entry.invalid_tasks = response.rejected.len() as u32;
-    let Some(status) = status else {
-        entry.outcome = "skipped".into();
-        entry.duplicate_of = Some(response.duplicate_of);
-        return Ok(());
-    };
-    entry.episodes = status.shards_done;
-    entry.successes = status.successes;
-    let report = rt.block_on(async {
-        let mut c = super::client(addr).await?;
-        anyhow::Ok(
-            c.get_report(pb::GetReportRequest {
-                batch_id: response.batch_id.clone(),
-            })
-            .await?
-            .into_inner(),
-        )
-    })?;
-    let report = super::report::parse(&report)?;
-    super::report::write(&a.out.join("batches").join(name), &report, artifacts, None)?;
-    entry.outcome = "evaluated".into();
-    // Marginal diversity against every batch evaluated before this one.
-    let base: Vec<String> = corpus
-        .batches
-        .iter()
-        .filter(|b| b.outcome == "evaluated")
-        .flat_map(|b| b.texts.iter().cloned())
-        .collect();
-    for m in &a.marginal_models {
-        let measured = (|| -> anyhow::Result<(Option<Marginal>, f64)> {
-            let new = embedders.embed(m, &texts)?;
-            if base.is_empty() {
-                return Ok((None, text_diversity(&new, &texts)?));
-            }
-            let old = embedders.embed(m, &base)?;
-            let x = marginal_diversity(&old, &base, &new, &texts)?;
-            let union = x.union_div;
-            Ok((Some(x), union))
-        })();
-        match measured {
-            Ok((x, union)) => {
-                entry.marginal.insert(m.clone(), x);
-                entry.corpus_diversity.insert(m.clone(), Some(union));
-            }
-            Err(e) => {
-                entry.marginal.insert(m.clone(), None);
-                entry.corpus_diversity.insert(m.clone(), None);
-                entry.diversity_errors.insert(m.clone(), format!("{e:#}"));
+    }
+
+    /// Marginal diversity against every batch evaluated before this one, per model.
+    fn marginal(&mut self, corpus: &Corpus, texts: &[String], entry: &mut Entry) {
+        let base: Vec<String> = corpus
+            .batches
+            .iter()
+            .filter(|b| b.outcome == "evaluated")
+            .flat_map(|b| b.texts.iter().cloned())
+            .collect();
+        for m in &self.a.marginal_models {
+            let measured = (|| -> anyhow::Result<(Option<Marginal>, f64)> {
+                let new = self.embedders.embed(m, texts)?;
+                if base.is_empty() {
+                    return Ok((None, text_diversity(&new, texts)?));
+                }
+                let old = self.embedders.embed(m, &base)?;
+                let x = marginal_diversity(&old, &base, &new, texts)?;
+                let union = x.union_div;
+                Ok((Some(x), union))
+            })();
+            match measured {
+                Ok((x, union)) => {
+                    entry.marginal.insert(m.clone(), x);
+                    entry.corpus_diversity.insert(m.clone(), Some(union));
+                }
+                Err(e) => {
+                    entry.marginal.insert(m.clone(), None);
+                    entry.corpus_diversity.insert(m.clone(), None);
+                    entry.diversity_errors.insert(m.clone(), format!("{e:#}"));
+                }
             }
         }
     }
-    entry.texts = texts;
-    Ok(())
 }

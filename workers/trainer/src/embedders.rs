@@ -165,6 +165,16 @@ impl Embedders {
         }
     }
 
+    /// Embedders that load their models on the CPU.
+    pub fn on_cpu(config: Config) -> Self {
+        Self::new(config, tch::Device::Cpu)
+    }
+
+    /// Embedders that load their models on the trainer's device ([`crate::default_device`]).
+    pub fn on_default_device(config: Config) -> Self {
+        Self::new(config, crate::default_device())
+    }
+
     fn load(&mut self, name: &str) -> Result<&Loaded, EmbedderError> {
         if !self.loaded.contains_key(name) {
             let cfg = self.config.get(name).ok_or_else(|| {

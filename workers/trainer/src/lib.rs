@@ -26,3 +26,30 @@ pub fn libtorch_version() -> String {
         .filter(|v| !v.is_empty())
         .unwrap_or_else(|| "unknown (LIBTORCH is not set)".into())
 }
+
+/// What libtorch does on this machine (`assay doctor`): its version, the trainer's device, the
+/// sum 1² + 2² + 3² computed there, and whether CUDA is available.
+pub struct Probe {
+    pub version: String,
+    pub device: String,
+    pub sum: f64,
+    pub cuda: bool,
+}
+
+/// Runs one small computation on the trainer's device.
+pub fn probe() -> Probe {
+    let device = default_device();
+    let t = tch::Tensor::from_slice(&[1.0f32, 2.0, 3.0]).to_device(device);
+    let sum = f64::try_from((&t * &t).sum(tch::Kind::Float)).unwrap_or(f64::NAN);
+    Probe {
+        version: libtorch_version(),
+        device: world_model::device_name(device),
+        sum,
+        cuda: tch::Cuda::is_available(),
+    }
+}
+
+/// libtorch's intra-op threads for this process (at least 1).
+pub fn set_threads(n: usize) {
+    tch::set_num_threads(n.max(1) as i32);
+}

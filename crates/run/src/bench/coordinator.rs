@@ -1,4 +1,4 @@
-//! `assay bench coordinator`: the coordinator at scale, on paper. Two measurements, one JSON line:
+//! `assay bench coordinator` and `assay bench scaling`: the coordinator at scale. Two measurements, one JSON line:
 //!
 //! - `store`: the job store alone (the coordinator's single-threaded core): a batch of N shards
 //!   planned, then leased in grants of `capacity` and completed one by one, as workers would, in
@@ -21,7 +21,7 @@ use tokio_stream::wrappers::ReceiverStream;
 
 use super::cpu_s;
 
-const SPEC: &str = include_str!("../../tests/fixtures/small/small-stack-two-blocks.yaml");
+const SPEC: &str = include_str!("../../../../tests/fixtures/small/small-stack-two-blocks.yaml");
 
 /// A line of /proc/self/status in MiB (`VmHWM`: peak resident, `VmRSS`: resident now).
 fn status_mib(key: &str) -> f64 {
@@ -56,15 +56,15 @@ fn outcome_json() -> String {
     .expect("outcome serialises")
 }
 
-fn docs() -> Vec<pb::TaskDocument> {
-    vec![pb::TaskDocument {
+fn docs() -> Vec<assay_plan::TaskDocument> {
+    vec![assay_plan::TaskDocument {
         origin: "bench.yaml".into(),
         format: String::new(),
         content: SPEC.into(),
     }]
 }
 
-fn bench_batch(tasks: Vec<assay_coordinator::store::PlannedTask>, shards: u64) -> NewBatch {
+fn bench_batch(tasks: Vec<assay_plan::PlannedTask>, shards: u64) -> NewBatch {
     NewBatch {
         name: "bench".into(),
         tasks,
@@ -93,7 +93,7 @@ fn store_bench(
 ) -> anyhow::Result<serde_json::Value> {
     let path = dir.join("store-bench.db");
     let mut store = Store::open(&path)?;
-    let (tasks, invalid) = assay_coordinator::service::plan_tasks(&docs(), &[]);
+    let (tasks, invalid) = assay_plan::plan_tasks(&docs(), &[]);
     anyhow::ensure!(invalid.is_empty(), "the bench spec is invalid: {invalid:?}");
     let batch = bench_batch(tasks, shards);
     let t = Instant::now();
@@ -147,7 +147,7 @@ async fn actor_bench(
 ) -> anyhow::Result<serde_json::Value> {
     let path = dir.join("actor-bench.db");
     let handle = assay_coordinator::actor::StoreHandle::spawn(&path)?;
-    let (tasks, _) = assay_coordinator::service::plan_tasks(&docs(), &[]);
+    let (tasks, _) = assay_plan::plan_tasks(&docs(), &[]);
     let batch = bench_batch(tasks, shards);
     handle.call(move |s| s.submit(&batch, 0)).await?;
     let outcome: Arc<str> = outcome_json().into();
@@ -300,12 +300,12 @@ async fn grpc_bench(
         },
     ));
     let rss_idle = status_mib("VmRSS");
-    let mut c = super::client(&addr).await?;
+    let mut c = crate::client::connect(&addr).await?;
     let t = Instant::now();
     let sub = c
         .submit_batch(pb::SubmitBatchRequest {
             name: "bench".into(),
-            tasks: docs(),
+            tasks: docs().into_iter().map(pb::TaskDocument::from).collect(),
             seeds: (0..shards).collect(),
             ..Default::default()
         })
@@ -386,22 +386,29 @@ async fn grpc_bench(
     }))
 }
 
-pub fn run(workers: u32, shards: u64, capacity: u32) -> anyhow::Result<std::process::ExitCode> {
+/// Both measurements, as one JSON value; each part is also told to `progress` as it finishes.
+pub fn run(
+    workers: u32,
+    shards: u64,
+    capacity: u32,
+    progress: &mut dyn FnMut(String),
+) -> anyhow::Result<serde_json::Value> {
     let dir = std::env::temp_dir().join(format!("assay-bench-coordinator-{}", std::process::id()));
     std::fs::create_dir_all(&dir)?;
     let result = (|| -> anyhow::Result<serde_json::Value> {
         let store = store_bench(&dir, shards, capacity.max(1))?;
-        eprintln!("store: {store}");
-        let actor = super::block_on(actor_bench(&dir, shards, workers.max(1), capacity.max(1)))?;
-        eprintln!("store actor: {actor}");
-        let grpc = super::block_on(grpc_bench(
+        progress(format!("store: {store}"));
+        let actor =
+            crate::rt::block_on(actor_bench(&dir, shards, workers.max(1), capacity.max(1)))?;
+        progress(format!("store actor: {actor}"));
+        let grpc = crate::rt::block_on(grpc_bench(
             &dir,
             workers,
             shards,
             capacity.max(1),
             Duration::ZERO,
         ))?;
-        eprintln!("grpc: {grpc}");
+        progress(format!("grpc: {grpc}"));
         Ok(json!({
             "measure": "coordinator",
             "cpus": std::thread::available_parallelism().map_or(1, |n| n.get()),
@@ -411,8 +418,7 @@ pub fn run(workers: u32, shards: u64, capacity: u32) -> anyhow::Result<std::proc
         }))
     })();
     let _ = std::fs::remove_dir_all(&dir);
-    println!("{}", result?);
-    Ok(std::process::ExitCode::SUCCESS)
+    result
 }
 
 /// `assay bench scaling`: does throughput follow the number of workers? Fake workers whose
@@ -425,7 +431,8 @@ pub fn scaling(
     max_shards: u64,
     capacity: u32,
     work: Duration,
-) -> anyhow::Result<std::process::ExitCode> {
+    progress: &mut dyn FnMut(String),
+) -> anyhow::Result<serde_json::Value> {
     anyhow::ensure!(!work.is_zero(), "--work-ms must be at least 1");
     let dir = std::env::temp_dir().join(format!("assay-bench-scaling-{}", std::process::id()));
     std::fs::create_dir_all(&dir)?;
@@ -441,11 +448,11 @@ pub fn scaling(
             let shards = ((ideal * 2.0) as u64).clamp(200, max_shards.max(200));
             let run_dir = dir.join(format!("run-{i}"));
             std::fs::create_dir_all(&run_dir)?;
-            let mut r = super::block_on(grpc_bench(&run_dir, workers, shards, capacity, work))?;
+            let mut r = crate::rt::block_on(grpc_bench(&run_dir, workers, shards, capacity, work))?;
             let measured = r["shards_per_s"].as_f64().unwrap_or(0.0);
             r["ideal_shards_per_s"] = json!(ideal);
             r["of_ideal"] = json!(measured / ideal);
-            eprintln!("scaling: {r}");
+            progress(format!("scaling: {r}"));
             runs.push(r);
         }
         Ok(json!({
@@ -457,6 +464,5 @@ pub fn scaling(
         }))
     })();
     let _ = std::fs::remove_dir_all(&dir);
-    println!("{}", result?);
-    Ok(std::process::ExitCode::SUCCESS)
+    result
 }

@@ -1,12 +1,20 @@
 //! A local cluster of real processes on loopback: a coordinator, sim workers, and a judge and a
-//! trainer worker when the batch needs them (`assay eval`, `assay watch`).
+//! trainer worker when the batch needs them (`assay eval`, `assay watch`). Each process is the
+//! `assay` binary itself (or [`Plan::exe`]) started with `coordinator` or `worker` arguments, its
+//! log in the run folder; one that exits is started again a few times ([`LocalCluster::supervise`]).
+//!
+//! Owns: which processes a plan starts and with what arguments, their supervision and their stop.
+//! Never: the batch (the caller submits and follows it) or the terminal (the caller prints
+//! [`LocalCluster::description`]).
+
+mod proc;
 
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use anyhow::Context;
 
-use crate::proc::{ChildProc, wait_for_file};
+pub use proc::{ChildProc, PARENT_VAR, die_with_parent, wait_for_file};
 
 /// The local cluster's options, shared by `assay eval` and `assay watch` (flattened into both,
 /// so their flags, defaults and configuration keys are the same).
@@ -47,8 +55,42 @@ pub struct ClusterArgs {
     pub no_judge: bool,
 }
 
+impl ClusterArgs {
+    /// Whether episodes get pictures: the sim workers render, or render workers do.
+    pub fn rendering(&self) -> bool {
+        self.render_workers > 0 || self.roles.split(',').any(|r| r.trim() == "render")
+    }
+
+    /// The plan of a local cluster for a batch with `judges`, a trainer when `training`.
+    pub fn plan(
+        &self,
+        judges: &[String],
+        training: bool,
+        trainer_capacity: Option<u32>,
+        asset_roots: Vec<PathBuf>,
+    ) -> Plan {
+        Plan {
+            exe: None,
+            workers: self.workers,
+            capacity: self.capacity,
+            roles: self.roles.clone(),
+            render_workers: self.render_workers,
+            image_size: self.image_size.clone(),
+            video: self.video,
+            config: self.config.clone(),
+            judges: judges.to_vec(),
+            judge_capacity: self.judge_capacity,
+            training,
+            trainer_capacity,
+            asset_roots,
+        }
+    }
+}
+
 /// What to start.
 pub struct Plan {
+    /// The `assay` binary to start (default: this process's own executable).
+    pub exe: Option<PathBuf>,
     /// Sim worker processes.
     pub workers: u32,
     /// Shards each sim worker runs at once.
@@ -85,14 +127,15 @@ struct Supervised {
 }
 
 impl Supervised {
-    fn new(proc: ChildProc, args: Vec<String>, log: PathBuf) -> Self {
-        Self {
+    fn start(exe: &Path, name: &str, args: Vec<String>, log: PathBuf) -> anyhow::Result<Self> {
+        let proc = ChildProc::spawn(exe, name, &args, &log)?;
+        Ok(Self {
             proc,
             args,
             log,
             restarts: 0,
             due: None,
-        }
+        })
     }
 }
 
@@ -103,9 +146,20 @@ pub struct LocalCluster {
     pub addr: String,
     /// The telemetry endpoint, when on.
     pub telemetry: Option<String>,
+    /// One line saying what runs where (`local cluster: coordinator at …`).
+    pub description: String,
+    exe: PathBuf,
     coordinator: Supervised,
     workers: Vec<Supervised>,
     addr_file: PathBuf,
+}
+
+/// What the coordinator announced in its address file.
+struct Announced {
+    /// `host:port` of its gRPC listener.
+    bound: String,
+    telemetry: Option<String>,
+    metrics: Option<String>,
 }
 
 impl LocalCluster {
@@ -114,150 +168,22 @@ impl LocalCluster {
     pub fn start(plan: &Plan, run_dir: &Path, artifacts: &Path) -> anyhow::Result<Self> {
         std::fs::create_dir_all(run_dir)
             .with_context(|| format!("creating {}", run_dir.display()))?;
+        let exe = match &plan.exe {
+            Some(exe) => exe.clone(),
+            None => std::env::current_exe().context("locating the assay binary")?,
+        };
         let addr_file = run_dir.join("coordinator.addr");
         let _ = std::fs::remove_file(&addr_file);
-        let s = |p: PathBuf| p.display().to_string();
-        let mut coordinator_args: Vec<String> = vec![
-            "coordinator".into(),
-            "--listen".into(),
-            "127.0.0.1:0".into(),
-            "--store".into(),
-            s(run_dir.join("jobs.db")),
-            "--artifacts".into(),
-            s(artifacts.to_path_buf()),
-            "--addr-file".into(),
-            s(addr_file.clone()),
-            "--metrics-listen".into(),
-            "127.0.0.1:0".into(),
-        ];
-        let coordinator_log = run_dir.join("coordinator.log");
-        let mut coordinator = ChildProc::spawn("coordinator", &coordinator_args, &coordinator_log)?;
-        let announced = wait_for_file(&addr_file, Duration::from_secs(30), &mut coordinator)?;
-        let mut lines = announced.lines().map(str::trim);
-        let bound = lines.next().unwrap_or_default().to_owned();
-        let addr = format!("http://{bound}");
-        // A restarted coordinator listens where the workers and this process look for it.
-        coordinator_args[2] = bound;
-        let on = |l: Option<&str>| {
-            l.filter(|l| !l.is_empty() && *l != "off")
-                .map(str::to_owned)
-        };
-        let telemetry = on(lines.next());
-        let metrics = on(lines.next());
-        let mut workers = Vec::new();
-        // A worker of `roles` drawing pictures at the run's size, named `local/<name>`.
-        let drawing = |roles: &str, name: String| -> Vec<String> {
-            vec![
-                "worker".into(),
-                "--coordinator".into(),
-                addr.clone(),
-                "--roles".into(),
-                roles.to_owned(),
-                "--image-size".into(),
-                plan.image_size.clone(),
-                "--capacity".into(),
-                plan.capacity.to_string(),
-                "--node-id".into(),
-                "local".into(),
-                "--worker-id".into(),
-                format!("local/{name}"),
-            ]
-        };
-        for i in 0..plan.workers.max(1) {
-            let mut args = drawing(&plan.roles, format!("worker-{i}"));
-            if plan.video {
-                args.push("--video".into());
-            }
-            for r in &plan.asset_roots {
-                args.push("--asset-root".into());
-                args.push(s(r.clone()));
-            }
-            let log = run_dir.join(format!("worker-{i}.log"));
-            let proc = ChildProc::spawn(&format!("worker {i}"), &args, &log)?;
-            workers.push(Supervised::new(proc, args, log));
-        }
-        let sim_workers = workers.len();
-        for i in 0..plan.render_workers {
-            let args = drawing("render", format!("render-{i}"));
-            let log = run_dir.join(format!("render-{i}.log"));
-            let proc = ChildProc::spawn(&format!("render worker {i}"), &args, &log)?;
-            workers.push(Supervised::new(proc, args, log));
-        }
-
-        if !plan.judges.is_empty() {
-            let mut args: Vec<String> = vec![
-                "worker".into(),
-                "--coordinator".into(),
-                addr.clone(),
-                "--roles".into(),
-                "judge".into(),
-                "--capacity".into(),
-                plan.judge_capacity.max(1).to_string(),
-                "--node-id".into(),
-                "local".into(),
-                "--worker-id".into(),
-                "local/judge-0".into(),
-            ];
-            if let Some(path) = &plan.config {
-                args.push("--config".into());
-                args.push(s(path.clone()));
-            }
-            let log = run_dir.join("judge-0.log");
-            let proc = ChildProc::spawn("judge worker", &args, &log)?;
-            workers.push(Supervised::new(proc, args, log));
-        }
-        if plan.training {
-            let mut args: Vec<String> = vec![
-                "worker".into(),
-                "--coordinator".into(),
-                addr.clone(),
-                "--roles".into(),
-                "trainer".into(),
-                "--node-id".into(),
-                "local".into(),
-                "--worker-id".into(),
-                "local/trainer-0".into(),
-                "--capacity".into(),
-                plan.trainer_capacity
-                    .unwrap_or_else(|| {
-                        std::thread::available_parallelism().map_or(1, |n| n.get() as u32)
-                    })
-                    .max(1)
-                    .to_string(),
-            ];
-            if let Some(path) = &plan.config {
-                args.push("--config".into());
-                args.push(s(path.clone()));
-            }
-            let log = run_dir.join("trainer-0.log");
-            let proc = ChildProc::spawn("trainer worker", &args, &log)?;
-            workers.push(Supervised::new(proc, args, log));
-        }
-        eprintln!(
-            "local cluster: coordinator at {addr}, {sim_workers} sim workers{}{}{}; metrics at {}; logs in {}",
-            match plan.render_workers {
-                0 => String::new(),
-                n => format!(", {n} render workers"),
-            },
-            if plan.judges.is_empty() {
-                String::new()
-            } else {
-                format!(", a judge worker ({})", plan.judges.join(", "))
-            },
-            if plan.training {
-                ", a trainer worker"
-            } else {
-                ""
-            },
-            metrics
-                .as_deref()
-                .map_or_else(|| "(off)".into(), |m| format!("http://{m}/metrics")),
-            run_dir.display()
-        );
+        let (coordinator, announced) = start_coordinator(&exe, run_dir, artifacts, &addr_file)?;
+        let addr = format!("http://{}", announced.bound);
+        let workers = start_workers(&exe, plan, &addr, run_dir)?;
+        let description = describe(plan, &addr, announced.metrics.as_deref(), run_dir);
         Ok(Self {
             addr,
-            telemetry,
-            coordinator: Supervised::new(coordinator, coordinator_args, coordinator_log),
+            telemetry: announced.telemetry,
+            description,
+            exe,
+            coordinator,
             workers,
             addr_file,
         })
@@ -271,6 +197,7 @@ impl LocalCluster {
     pub fn supervise(&mut self) -> anyhow::Result<Vec<String>> {
         let mut events = Vec::new();
         let addr_file = self.addr_file.clone();
+        let exe = self.exe.clone();
         for (is_coordinator, p) in std::iter::once((true, &mut self.coordinator))
             .chain(self.workers.iter_mut().map(|w| (false, w)))
         {
@@ -302,7 +229,7 @@ impl LocalCluster {
                 if is_coordinator {
                     let _ = std::fs::remove_file(&addr_file);
                 }
-                let mut proc = ChildProc::respawn(&p.proc.name, &p.args, &p.log)?;
+                let mut proc = ChildProc::respawn(&exe, &p.proc.name, &p.args, &p.log)?;
                 if is_coordinator {
                     wait_for_file(&addr_file, Duration::from_secs(30), &mut proc)?;
                 }
@@ -320,4 +247,163 @@ impl LocalCluster {
         }
         self.coordinator.proc.stop(Duration::from_secs(5));
     }
+}
+
+/// Starts the coordinator on a free loopback port and waits for its address file; a restart
+/// listens on the same address (the arguments are rewritten to it).
+fn start_coordinator(
+    exe: &Path,
+    run_dir: &Path,
+    artifacts: &Path,
+    addr_file: &Path,
+) -> anyhow::Result<(Supervised, Announced)> {
+    let s = |p: &Path| p.display().to_string();
+    let mut args: Vec<String> = vec![
+        "coordinator".into(),
+        "--listen".into(),
+        "127.0.0.1:0".into(),
+        "--store".into(),
+        s(&run_dir.join("jobs.db")),
+        "--artifacts".into(),
+        s(artifacts),
+        "--addr-file".into(),
+        s(addr_file),
+        "--metrics-listen".into(),
+        "127.0.0.1:0".into(),
+    ];
+    let log = run_dir.join("coordinator.log");
+    let mut proc = ChildProc::spawn(exe, "coordinator", &args, &log)?;
+    let announced = wait_for_file(addr_file, Duration::from_secs(30), &mut proc)?;
+    let mut lines = announced.lines().map(str::trim);
+    let bound = lines.next().unwrap_or_default().to_owned();
+    // A restarted coordinator listens where the workers and this process look for it.
+    args[2] = bound.clone();
+    let on = |l: Option<&str>| {
+        l.filter(|l| !l.is_empty() && *l != "off")
+            .map(str::to_owned)
+    };
+    let announced = Announced {
+        bound,
+        telemetry: on(lines.next()),
+        metrics: on(lines.next()),
+    };
+    let coordinator = Supervised {
+        proc,
+        args,
+        log,
+        restarts: 0,
+        due: None,
+    };
+    Ok((coordinator, announced))
+}
+
+/// The arguments of a worker process joining `addr` on node `local` as `local/<name>`.
+fn worker_args(addr: &str, roles: &str, name: &str) -> Vec<String> {
+    vec![
+        "worker".into(),
+        "--coordinator".into(),
+        addr.to_owned(),
+        "--roles".into(),
+        roles.to_owned(),
+        "--node-id".into(),
+        "local".into(),
+        "--worker-id".into(),
+        format!("local/{name}"),
+    ]
+}
+
+/// The sim workers, render workers, judge worker and trainer worker of `plan`.
+fn start_workers(
+    exe: &Path,
+    plan: &Plan,
+    addr: &str,
+    run_dir: &Path,
+) -> anyhow::Result<Vec<Supervised>> {
+    let mut workers = Vec::new();
+    let mut start = |name: &str, args: Vec<String>, log: &str| -> anyhow::Result<()> {
+        workers.push(Supervised::start(exe, name, args, run_dir.join(log))?);
+        Ok(())
+    };
+    // A worker of `roles` drawing pictures at the run's size.
+    let drawing = |roles: &str, name: String| -> Vec<String> {
+        let mut args = worker_args(addr, roles, &name);
+        args.splice(
+            5..5,
+            [
+                "--image-size".into(),
+                plan.image_size.clone(),
+                "--capacity".into(),
+                plan.capacity.to_string(),
+            ],
+        );
+        args
+    };
+    for i in 0..plan.workers.max(1) {
+        let mut args = drawing(&plan.roles, format!("worker-{i}"));
+        if plan.video {
+            args.push("--video".into());
+        }
+        for r in &plan.asset_roots {
+            args.push("--asset-root".into());
+            args.push(r.display().to_string());
+        }
+        start(&format!("worker {i}"), args, &format!("worker-{i}.log"))?;
+    }
+    for i in 0..plan.render_workers {
+        let args = drawing("render", format!("render-{i}"));
+        start(
+            &format!("render worker {i}"),
+            args,
+            &format!("render-{i}.log"),
+        )?;
+    }
+    let with_config = |mut args: Vec<String>| {
+        if let Some(path) = &plan.config {
+            args.push("--config".into());
+            args.push(path.display().to_string());
+        }
+        args
+    };
+    if !plan.judges.is_empty() {
+        let mut args = worker_args(addr, "judge", "judge-0");
+        args.splice(
+            5..5,
+            ["--capacity".into(), plan.judge_capacity.max(1).to_string()],
+        );
+        start("judge worker", with_config(args), "judge-0.log")?;
+    }
+    if plan.training {
+        let capacity = plan
+            .trainer_capacity
+            .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get() as u32))
+            .max(1);
+        let mut args = worker_args(addr, "trainer", "trainer-0");
+        args.extend(["--capacity".into(), capacity.to_string()]);
+        start("trainer worker", with_config(args), "trainer-0.log")?;
+    }
+    Ok(workers)
+}
+
+/// `local cluster: coordinator at …, N sim workers…; metrics at …; logs in …`.
+fn describe(plan: &Plan, addr: &str, metrics: Option<&str>, run_dir: &Path) -> String {
+    let sim_workers = plan.workers.max(1);
+    format!(
+        "local cluster: coordinator at {addr}, {sim_workers} sim workers{}{}{}; metrics at {}; logs in {}",
+        match plan.render_workers {
+            0 => String::new(),
+            n => format!(", {n} render workers"),
+        },
+        if plan.judges.is_empty() {
+            String::new()
+        } else {
+            format!(", a judge worker ({})", plan.judges.join(", "))
+        },
+        if plan.training {
+            ", a trainer worker"
+        } else {
+            ""
+        },
+        metrics.map_or_else(|| "(off)".into(), |m| format!("http://{m}/metrics")),
+        run_dir.display()
+    )
 }

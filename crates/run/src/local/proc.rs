@@ -18,7 +18,7 @@ pub const PARENT_VAR: &str = "ASSAY_LOCAL_PARENT";
 ///
 /// The kernel's "parent" is the thread that spawned the child: local clusters start and restart
 /// their processes from the command's main thread (`block_on` drives its future there), never
-/// from a runtime worker thread that could end first.
+/// from a runtime worker thread that could end first. The `assay` binary calls this first thing.
 pub fn die_with_parent() {
     let Some(parent) = std::env::var(PARENT_VAR)
         .ok()
@@ -41,22 +41,23 @@ pub struct ChildProc {
 }
 
 impl ChildProc {
-    pub fn spawn(name: &str, args: &[String], log: &Path) -> anyhow::Result<Self> {
-        Self::spawn_logging(name, args, log, false)
+    /// Starts `exe` with `args`, its output in `log` (replaced).
+    pub fn spawn(exe: &Path, name: &str, args: &[String], log: &Path) -> anyhow::Result<Self> {
+        Self::spawn_logging(exe, name, args, log, false)
     }
 
     /// Starts the process again after it exited: its log is appended to, not replaced.
-    pub fn respawn(name: &str, args: &[String], log: &Path) -> anyhow::Result<Self> {
-        Self::spawn_logging(name, args, log, true)
+    pub fn respawn(exe: &Path, name: &str, args: &[String], log: &Path) -> anyhow::Result<Self> {
+        Self::spawn_logging(exe, name, args, log, true)
     }
 
     fn spawn_logging(
+        exe: &Path,
         name: &str,
         args: &[String],
         log: &Path,
         append: bool,
     ) -> anyhow::Result<Self> {
-        let exe = std::env::current_exe().context("locating the assay binary")?;
         let log_file = std::fs::OpenOptions::new()
             .create(true)
             .write(true)

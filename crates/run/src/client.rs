@@ -1,0 +1,28 @@
+//! A client of a coordinator: its address, the cluster token, the message limits.
+
+use anyhow::Context;
+use assay_proto::v1 as pb;
+
+/// The default coordinator address, also read from ASSAY_COORDINATOR.
+pub const DEFAULT_COORDINATOR: &str = "http://127.0.0.1:7878";
+
+/// The generated client over a channel that carries the cluster token.
+pub type Client = pb::coordinator_client::CoordinatorClient<assay_proto::auth::Channel>;
+
+/// A client of the coordinator at `addr`, carrying the cluster token when one is set
+/// (`assay_proto::auth`).
+pub async fn connect(addr: &str) -> anyhow::Result<Client> {
+    let token = assay_proto::auth::Token::from_env().map_err(anyhow::Error::msg)?;
+    let channel = tonic::transport::Endpoint::from_shared(addr.to_owned())
+        .with_context(|| format!("bad coordinator address '{addr}'"))?
+        .connect_timeout(std::time::Duration::from_secs(5))
+        .connect()
+        .await
+        .with_context(|| format!("no coordinator at {addr}"))?;
+    Ok(pb::coordinator_client::CoordinatorClient::with_interceptor(
+        channel,
+        assay_proto::auth::AttachToken::new(token),
+    )
+    .max_decoding_message_size(assay_proto::MAX_MESSAGE_BYTES)
+    .max_encoding_message_size(assay_proto::MAX_MESSAGE_BYTES))
+}

@@ -1,0 +1,87 @@
+//! What the command line prints of a cluster's answers: a batch's status line, a state's name,
+//! the tasks a coordinator rejected.
+
+use assay_proto::v1 as pb;
+
+/// The name of a batch state.
+pub fn state_name(state: i32) -> &'static str {
+    match pb::BatchState::try_from(state).unwrap_or(pb::BatchState::Unspecified) {
+        pb::BatchState::Running => "running",
+        pb::BatchState::Completed => "completed",
+        pb::BatchState::Cancelled => "cancelled",
+        pb::BatchState::Skipped => "skipped",
+        pb::BatchState::Unspecified => "unknown",
+    }
+}
+
+/// Prints the task errors a coordinator reported for a submission.
+pub fn rejected(rejected: &[pb::SpecError]) {
+    for e in rejected {
+        let task = if e.task_id.is_empty() {
+            "<no id>"
+        } else {
+            &e.task_id
+        };
+        let path = if e.path.is_empty() {
+            "<document>"
+        } else {
+            &e.path
+        };
+        eprintln!("invalid task {task} ({}): {path}: {}", e.origin, e.reason);
+    }
+}
+
+/// One batch's status on a line (and the work no connected worker can take on lines of their
+/// own).
+pub fn status_line(s: &pb::BatchStatus) -> String {
+    if !s.duplicate_of.is_empty() {
+        return format!(
+            "{}  {:<9}  repeats {} (content {})  {}",
+            s.batch_id,
+            state_name(s.state),
+            s.duplicate_of,
+            s.content_hash.get(..12).unwrap_or(&s.content_hash),
+            s.name
+        );
+    }
+    let judged = if s.judge_total > 0 {
+        format!(
+            "  {}/{} judged (${:.4})",
+            s.judge_done + s.judge_failed,
+            s.judge_total,
+            s.judge_cost_usd
+        )
+    } else {
+        String::new()
+    };
+    let judged = if s.trainer_total > 0 {
+        format!(
+            "{judged}  {}/{} trained",
+            s.trainer_done + s.trainer_failed,
+            s.trainer_total
+        )
+    } else {
+        judged
+    };
+    // Work no connected worker can take, on lines of their own.
+    let waiting: String = s
+        .waiting
+        .iter()
+        .map(|w| format!("\n  waiting: {w}"))
+        .collect();
+    format!(
+        "{}  {:<9}  {}/{} done  {} ok  {} failed  {} running  {} queued  {} cancelled  {} invalid tasks{judged}  {} workers  {}{waiting}",
+        s.batch_id,
+        state_name(s.state),
+        s.shards_done + s.shards_failed + s.shards_cancelled,
+        s.shards_total,
+        s.successes,
+        s.shards_failed,
+        s.shards_running,
+        s.shards_queued,
+        s.shards_cancelled,
+        s.invalid_tasks,
+        s.workers_connected,
+        s.name
+    )
+}
