@@ -15,7 +15,9 @@ use assay_spec::spec::{
     EndEffector, PhysicsSettings, SPEC_VERSION, Scene, Source, Surface, TaskSpec, Variations,
 };
 
-/// The Python that runs GenSim task code: `ASSAY_PYTHON`, else `python3` on the `PATH`.
+/// The Python that runs GenSim task code: `ASSAY_PYTHON`, else Assay's own environment
+/// (`~/.cache/assay/python`, made by `scripts/setup-python`) when it is there, else `python3` on
+/// the `PATH`.
 pub fn python() -> String {
     sandbox::python()
 }

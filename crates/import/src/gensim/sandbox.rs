@@ -107,12 +107,27 @@ impl Refused {
     }
 }
 
-/// The Python that runs task code: `ASSAY_PYTHON`, else `python3` on the `PATH`.
+/// The Python that runs task code: `ASSAY_PYTHON`, else the environment `scripts/setup-python`
+/// installs (`~/.cache/assay/python`, numpy in it) when it is there, else `python3` on the
+/// `PATH`.
 pub(crate) fn python() -> String {
-    std::env::var("ASSAY_PYTHON")
-        .ok()
-        .filter(|p| !p.is_empty())
-        .unwrap_or_else(|| "python3".into())
+    python_from(
+        std::env::var("ASSAY_PYTHON").ok(),
+        std::env::var_os("HOME").map(std::path::PathBuf::from),
+    )
+}
+
+/// Where Assay's own Python environment lives under a home folder.
+pub const PYTHON_ENV: &str = ".cache/assay/python";
+
+/// [`python`] given the value of `ASSAY_PYTHON` and the home folder.
+pub(crate) fn python_from(named: Option<String>, home: Option<std::path::PathBuf>) -> String {
+    if let Some(p) = named.filter(|p| !p.is_empty()) {
+        return p;
+    }
+    home.map(|h| h.join(PYTHON_ENV).join("bin/python"))
+        .filter(|p| p.is_file())
+        .map_or_else(|| "python3".into(), |p| p.display().to_string())
 }
 
 /// Records `reset()` of the task in `task_file` for each of `seeds`.
@@ -225,5 +240,25 @@ pub(crate) fn record(
             };
             Err(Refused::new("reset", why))
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_python_named_wins_then_assay_s_own_environment_then_python3() {
+        let home = tempfile::tempdir().unwrap();
+        let at =
+            |named: Option<&str>| python_from(named.map(str::to_owned), Some(home.path().into()));
+        assert_eq!(at(None), "python3", "no environment yet");
+        let bin = home.path().join(PYTHON_ENV).join("bin");
+        std::fs::create_dir_all(&bin).unwrap();
+        std::fs::write(bin.join("python"), "").unwrap();
+        assert_eq!(at(None), bin.join("python").display().to_string());
+        assert_eq!(at(Some("")), bin.join("python").display().to_string());
+        assert_eq!(at(Some("/opt/py/bin/python3")), "/opt/py/bin/python3");
+        assert_eq!(python_from(None, None), "python3");
     }
 }
