@@ -55,7 +55,7 @@ pub fn summary(r: &Results) -> Table {
 /// Ground-truth success of each policy over every task.
 pub fn success_per_policy(r: &Results) -> Table {
     let mut table = Table::new(["policy", "#episodes", "#success (Wilson 95 %)"]);
-    for p in &r.by_policy {
+    for p in r.shown(&r.by_policy, |p| &p.policy) {
         table.row(vec![
             Cell::policy(&p.policy, r.policy_labels()),
             n(p.success.trials),
@@ -70,8 +70,8 @@ pub fn success_per_policy(r: &Results) -> Table {
 fn policy_columns(r: &Results) -> Vec<String> {
     if r.policies.len() > 1 {
         let labels = r.policy_labels();
-        r.policies
-            .iter()
+        r.policies_shown()
+            .into_iter()
             .map(|p| {
                 format!(
                     "#{}",
@@ -86,8 +86,8 @@ fn policy_columns(r: &Results) -> Vec<String> {
 
 fn policy_cells(r: &Results, all: &crate::view::Cell, by: &[PolicySuccess]) -> Vec<Cell> {
     if r.policies.len() > 1 {
-        r.policies
-            .iter()
+        r.policies_shown()
+            .into_iter()
             .map(|p| {
                 by.iter()
                     .find(|x| &x.policy == p)

@@ -11,7 +11,7 @@ pub(super) fn header(report: &Report) -> Markup {
         header {
             h1 { (r.batch_name) }
             p {
-                "Policies " (cell(&Cell::policies(r.policies.iter().map(String::as_str), r.policy_labels())))
+                "Policies " (cell(&Cell::policies(r.policies_shown().into_iter().map(String::as_str), r.policy_labels())))
                 ", seeds "
                 (r.seeds.iter().map(u64::to_string).collect::<Vec<_>>().join(", "))
                 ". Success rates read rate (successes/trials) [95 % Wilson interval]; success is \
@@ -34,8 +34,8 @@ pub(super) fn overview(report: &Report) -> Markup {
     let mut categories: Vec<String> = r.groups.iter().map(|g| g.group.clone()).collect();
     categories.push("All".into());
     let series: Vec<Bars> = r
-        .policies
-        .iter()
+        .policies_shown()
+        .into_iter()
         .map(|p| {
             let of = |by: &[crate::report::PolicySuccess]| {
                 by.iter()

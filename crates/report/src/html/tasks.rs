@@ -66,7 +66,7 @@ pub(super) fn task_page(inputs: &HtmlInputs<'_>, t: &TaskResult) -> Markup {
             @if t.by_policy.len() > 1 {
                 h3 { "Success by policy" }
                 table {
-                    @for p in &t.by_policy {
+                    @for p in inputs.report.results.shown(&t.by_policy, |p| &p.policy) {
                         tr { td { (policy(&p.policy)) } td.n { (cell(&proportion(&p.success))) } }
                     }
                 }

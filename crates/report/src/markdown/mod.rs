@@ -29,7 +29,7 @@ impl Report {
              rates read `rate (successes/trials) [95 % Wilson interval]`.\n",
             crate::view::md_cell(
                 &crate::view::Cell::policies(
-                    r.policies.iter().map(String::as_str),
+                    r.policies_shown().into_iter().map(String::as_str),
                     r.policy_labels()
                 ),
                 false
