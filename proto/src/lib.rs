@@ -1,7 +1,9 @@
 //! `assay-proto`: the gRPC contract between the coordinator, its clients and its workers.
 //!
-//! Owns: `assay/v1/*.proto`, the generated types, and the one place where domain errors become
-//! gRPC status codes. Never holds logic beyond conversions.
+//! Owns: `assay/v1/*.proto`, the generated types, the one place where domain errors become
+//! gRPC status codes, the cluster token ([`auth`]) and how a client opens a channel
+//! ([`channel`]). Never holds logic beyond conversions and connection set-up; never links
+//! anything heavier than tonic.
 
 #[allow(clippy::all, clippy::pedantic, rust_2018_idioms)]
 pub mod v1 {
@@ -11,6 +13,7 @@ pub mod v1 {
 pub use v1::*;
 
 pub mod auth;
+pub mod channel;
 
 /// Message size limit for every Assay channel (frames and reports exceed tonic's 4 MiB default).
 pub const MAX_MESSAGE_BYTES: usize = 64 * 1024 * 1024;
