@@ -1,8 +1,9 @@
 //! `assay-proto`: the gRPC contract between the coordinator, its clients and its workers.
 //!
-//! Owns: `assay/v1/*.proto`, the generated types, and their conversions to and from the domain's
-//! types (`convert`: task documents, batch settings, spec errors). Never holds logic beyond
-//! conversions.
+//! Owns: `assay/v1/*.proto`, the generated types and their conversions to and from the domain's
+//! types (`convert`: task documents, batch settings, spec errors), the cluster token ([`auth`])
+//! and how a client opens a channel ([`channel`]). Never holds logic beyond conversions and
+//! connection set-up; never links physics, rendering or torch.
 
 #[allow(clippy::all, clippy::pedantic, rust_2018_idioms)]
 pub mod v1 {
@@ -12,6 +13,7 @@ pub mod v1 {
 pub use v1::*;
 
 pub mod auth;
+pub mod channel;
 mod convert;
 
 /// Message size limit for every Assay channel (frames and reports exceed tonic's 4 MiB default).

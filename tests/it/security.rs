@@ -4,7 +4,7 @@
 use std::time::{Duration, Instant};
 
 use crate::common::*;
-use assay_proto::auth::{AttachToken, Token};
+use assay_proto::auth::Token;
 use assay_proto::v1 as pb;
 
 const TOKEN: &str = "s3cr3t-cluster-token-0123456789";
@@ -13,14 +13,13 @@ async fn client_with(
     addr: &str,
     token: Option<&str>,
 ) -> pb::coordinator_client::CoordinatorClient<assay_proto::auth::Channel> {
-    let channel = tonic::transport::Endpoint::from_shared(addr.to_owned())
-        .unwrap()
-        .connect()
+    let channel = assay_proto::channel::connect("coordinator", addr, &Default::default())
         .await
         .unwrap();
-    pb::coordinator_client::CoordinatorClient::with_interceptor(
+    assay_proto::channel::client(
         channel,
-        AttachToken::new(token.map(|t| Token::new(t).unwrap())),
+        token.map(|t| Token::new(t).unwrap()),
+        assay_proto::MAX_MESSAGE_BYTES,
     )
 }
 

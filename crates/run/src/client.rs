@@ -1,6 +1,5 @@
 //! A client of a coordinator: its address, the cluster token, the message limits.
 
-use anyhow::Context;
 use assay_proto::v1 as pb;
 
 /// The default coordinator address, also read from ASSAY_COORDINATOR.
@@ -13,16 +12,14 @@ pub type Client = pb::coordinator_client::CoordinatorClient<assay_proto::auth::C
 /// (`assay_proto::auth`).
 pub async fn connect(addr: &str) -> anyhow::Result<Client> {
     let token = assay_proto::auth::Token::from_env().map_err(anyhow::Error::msg)?;
-    let channel = tonic::transport::Endpoint::from_shared(addr.to_owned())
-        .with_context(|| format!("bad coordinator address '{addr}'"))?
-        .connect_timeout(std::time::Duration::from_secs(5))
-        .connect()
-        .await
-        .with_context(|| format!("no coordinator at {addr}"))?;
-    Ok(pb::coordinator_client::CoordinatorClient::with_interceptor(
+    let options = assay_proto::channel::ChannelOptions {
+        connect_timeout: Some(std::time::Duration::from_secs(5)),
+        ..Default::default()
+    };
+    let channel = assay_proto::channel::connect("coordinator", addr, &options).await?;
+    Ok(assay_proto::channel::client(
         channel,
-        assay_proto::auth::AttachToken::new(token),
-    )
-    .max_decoding_message_size(assay_proto::MAX_MESSAGE_BYTES)
-    .max_encoding_message_size(assay_proto::MAX_MESSAGE_BYTES))
+        token,
+        assay_proto::MAX_MESSAGE_BYTES,
+    ))
 }

@@ -18,6 +18,7 @@ use std::sync::Arc;
 use assay_model::policy::{Policy, PolicyError, PolicySpec};
 use tokio::runtime::Handle;
 
+mod grpc;
 pub mod openpi;
 pub mod random;
 pub mod remote;

@@ -5,13 +5,14 @@
 //! `grpc-timeout` and enforced here as well, so a server that accepts a connection but never
 //! answers fails the episode after the deadline instead of hanging the shard thread. A server that
 //! cannot be reached or answers late is [`PolicyError::Unavailable`] (the shard is retried); an
-//! answer that is not a chunk of finite 4-float actions is [`PolicyError::BadAnswer`].
+//! answer that is not a chunk of finite 4-float actions is [`PolicyError::BadAnswer`]. The
+//! connection, the deadline and the status mapping are shared with the world-model client
+//! ([`crate::grpc`]).
 //!
 //! The client blocks on the runtime [`Handle`] it is given: call it from plain threads, never from
 //! inside that runtime (tokio panics if `block_on` is called on one of its own threads).
 
-use std::future::Future;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use assay_model::clip::{ACTION_DIMS, PROPRIO_DIMS};
 use assay_model::policy::{
@@ -19,16 +20,32 @@ use assay_model::policy::{
 };
 use assay_proto::v1 as pb;
 use tokio::runtime::Handle;
-use tonic::transport::Endpoint;
+use tonic::Code;
 use tracing::debug;
 
+use crate::grpc::{Connection, ServiceClient, new_episode_id};
 use crate::server::{MAX_CHUNK, MAX_MESSAGE_BYTES, ServerInfo};
-use crate::status::{
-    CallError, block_on_call, error_chain, from_status, missed_deadline, new_episode_id,
-};
 
-/// Longest a client waits for `End` (sent best-effort when an episode is over).
-const END_TIMEOUT: Duration = Duration::from_millis(500);
+/// The generated client of the `assay.v1.Policy` service.
+pub(crate) type Client = pb::policy_client::PolicyClient<assay_proto::auth::Channel>;
+
+impl ServiceClient for Client {
+    const SERVER: &'static str = "policy server";
+    const MAX_MESSAGE_BYTES: usize = MAX_MESSAGE_BYTES;
+    type Error = PolicyError;
+
+    fn unavailable(message: String) -> PolicyError {
+        PolicyError::Unavailable(message)
+    }
+
+    fn bad_address(message: String) -> PolicyError {
+        PolicyError::Load(message)
+    }
+
+    fn answered(code: Code, message: String) -> PolicyError {
+        crate::status::from_code(code, message)
+    }
+}
 
 /// What a policy server said in `Health`.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -40,10 +57,7 @@ pub struct Health {
 
 /// A connection to one policy server, for one episode at a time.
 pub struct RemotePolicy {
-    url: String,
-    timeout: Duration,
-    rt: Handle,
-    client: pb::policy_client::PolicyClient<assay_proto::auth::Channel>,
+    connection: Connection<Client>,
     info: ServerInfo,
     /// The episode being played, once reset.
     episode: Option<String>,
@@ -54,8 +68,8 @@ pub struct RemotePolicy {
 impl std::fmt::Debug for RemotePolicy {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("RemotePolicy")
-            .field("url", &self.url)
-            .field("timeout", &self.timeout)
+            .field("url", &self.connection.url())
+            .field("timeout", &self.connection.timeout())
             .field("info", &self.info)
             .field("episode", &self.episode)
             .finish()
@@ -85,58 +99,14 @@ impl RemotePolicy {
         rt: Handle,
         token: Option<assay_proto::auth::Token>,
     ) -> Result<RemotePolicy, PolicyError> {
-        let start = Instant::now();
-        let endpoint = Endpoint::from_shared(url.to_owned())
-            .map_err(|e| PolicyError::Load(format!("bad policy server address '{url}': {e}")))?
-            .connect_timeout(timeout)
-            .tcp_nodelay(true);
-        let down = |reason: String| {
-            PolicyError::Unavailable(format!(
-                "policy server at {url} is down: {reason} (after {} ms)",
-                start.elapsed().as_millis()
-            ))
-        };
-        let silent = || {
-            down(format!(
-                "no answer to Health within the {} ms deadline",
-                timeout.as_millis()
-            ))
-        };
-        let (client, health) = rt
-            .block_on(async {
-                tokio::time::timeout(timeout, async {
-                    let channel = endpoint
-                        .connect()
-                        .await
-                        .map_err(|e| down(error_chain(&e)))?;
-                    let mut client = pb::policy_client::PolicyClient::with_interceptor(
-                        channel,
-                        assay_proto::auth::AttachToken::new(token.clone()),
-                    )
-                    .max_decoding_message_size(MAX_MESSAGE_BYTES)
-                    .max_encoding_message_size(MAX_MESSAGE_BYTES);
-                    let answer = client.health(health_request(timeout)).await.map_err(|s| {
-                        if missed_deadline(&s, start.elapsed(), timeout) {
-                            return silent();
-                        }
-                        match from_status(&format!("policy server at {url} failed Health"), &s) {
-                            PolicyError::Unavailable(_) => {
-                                down(format!("Health: {} ({:?})", s.message(), s.code()))
-                            }
-                            other => other,
-                        }
-                    })?;
-                    Ok((client, health_from(url, answer.into_inner())?))
-                })
-                .await
-            })
-            .map_err(|_| silent())??;
+        let (connection, answer) =
+            Connection::<Client>::connect(url, timeout, rt, token, |mut client| async move {
+                client.health(health_request(timeout)).await
+            })?;
+        let health = health_from(url, answer)?;
         debug!(%url, name = %health.info.name, version = %health.info.version, "policy server connected");
         Ok(RemotePolicy {
-            url: url.to_owned(),
-            timeout,
-            rt,
-            client,
+            connection,
             info: health.info,
             episode: None,
             instruction: String::new(),
@@ -146,9 +116,9 @@ impl RemotePolicy {
     /// Feeds the server through `interface` (declared in the policy's spec) instead of the one
     /// its `Health` declared.
     pub fn with_interface(mut self, interface: Interface) -> Result<Self, PolicyError> {
-        interface
-            .validate()
-            .map_err(|e| PolicyError::Load(format!("policy server at {}: {e}", self.url)))?;
+        interface.validate().map_err(|e| {
+            PolicyError::Load(format!("policy server at {}: {e}", self.connection.url()))
+        })?;
         self.info.interface = interface;
         Ok(self)
     }
@@ -159,63 +129,29 @@ impl RemotePolicy {
     }
 
     pub fn url(&self) -> &str {
-        &self.url
+        self.connection.url()
     }
 
     /// Asks the server's `Health` again (blocks for at most the deadline).
     pub fn health(&self) -> Result<Health, PolicyError> {
-        let mut client = self.client.clone();
-        let request = health_request(self.timeout);
-        let answer = self.call("Health", async move { client.health(request).await })?;
-        health_from(&self.url, answer)
+        let request = health_request(self.connection.timeout());
+        let answer = self.connection.call("Health", |mut client| async move {
+            client.health(request).await
+        })?;
+        health_from(self.url(), answer)
     }
 
-    /// Runs one call on the runtime with the deadline. A late answer is `Unavailable`; a failed
-    /// one is mapped by its status code; both errors name the server, the call (`what`), the
-    /// deadline and the time waited.
-    fn call<T>(
-        &self,
-        what: &str,
-        f: impl Future<Output = Result<tonic::Response<T>, tonic::Status>>,
-    ) -> Result<T, PolicyError> {
-        let start = Instant::now();
-        let deadline_ms = self.timeout.as_millis();
-        block_on_call(&self.rt, self.timeout, f).map_err(|e| match e {
-            CallError::Late => PolicyError::Unavailable(format!(
-                "policy server at {} did not answer {what} within the {deadline_ms} ms deadline \
-                 (waited {} ms)",
-                self.url,
-                start.elapsed().as_millis()
-            )),
-            CallError::Failed(status) => from_status(
-                &format!(
-                    "policy server at {} failed {what} after {} ms (deadline {deadline_ms} ms)",
-                    self.url,
-                    start.elapsed().as_millis()
-                ),
-                &status,
-            ),
-        })
-    }
-
-    /// Sends `End` for the current episode, if any, without waiting long: from a plain thread it
-    /// waits at most [`END_TIMEOUT`]; from inside a runtime it only spawns the call.
+    /// Sends `End` for the current episode, if any, without waiting long
+    /// ([`Connection::end`]).
     fn end_episode(&mut self) {
         let Some(episode_id) = self.episode.take() else {
             return;
         };
-        let mut client = self.client.clone();
-        let wait = self.timeout.min(END_TIMEOUT);
-        let end = async move {
+        self.connection.end(|mut client, wait| {
             let mut request = tonic::Request::new(pb::PolicyEndRequest { episode_id });
             request.set_timeout(wait);
-            let _ = tokio::time::timeout(wait, client.end(request)).await;
-        };
-        if Handle::try_current().is_ok() {
-            self.rt.spawn(end);
-        } else {
-            self.rt.block_on(end);
-        }
+            async move { client.end(request).await }
+        });
     }
 }
 
@@ -320,11 +256,10 @@ impl Policy for RemotePolicy {
             seed: episode.seed,
             instruction: episode.instruction.clone(),
         });
-        request.set_timeout(self.timeout);
-        let mut client = self.client.clone();
-        self.call(
+        request.set_timeout(self.connection.timeout());
+        self.connection.call(
             &format!("Reset (task {}, seed {})", episode.task_id, episode.seed),
-            async move { client.reset(request).await },
+            |mut client| async move { client.reset(request).await },
         )?;
         self.episode = Some(episode_id);
         self.instruction = episode.instruction.clone();
@@ -338,7 +273,7 @@ impl Policy for RemotePolicy {
                 a.try_into().map_err(|_| {
                     PolicyError::BadAnswer(format!(
                         "policy server at {}: actions are not {ACTION_DIMS} floats",
-                        self.url
+                        self.url()
                     ))
                 })
             })
@@ -350,7 +285,7 @@ impl Policy for RemotePolicy {
         let Some(episode_id) = self.episode.clone() else {
             return Err(PolicyError::Load(format!(
                 "remote policy at {}: act before reset (no episode)",
-                self.url
+                self.url()
             )));
         };
         let info = &self.info;
@@ -359,7 +294,12 @@ impl Policy for RemotePolicy {
         {
             return Err(PolicyError::Load(format!(
                 "policy server at {} ({}) expects {}×{} frames, the episode has {}×{}",
-                self.url, info.name, info.image_width, info.image_height, obs.width, obs.height
+                self.url(),
+                info.name,
+                info.image_width,
+                info.image_height,
+                obs.width,
+                obs.height
             )));
         }
         let mut request = tonic::Request::new(pb::PolicyActRequest {
@@ -373,11 +313,11 @@ impl Policy for RemotePolicy {
             state: obs.state.clone(),
             instruction: self.instruction.clone(),
         });
-        request.set_timeout(self.timeout);
-        let mut client = self.client.clone();
-        let answer = self.call(&format!("Act at step {}", obs.step), async move {
-            client.act(request).await
-        })?;
+        request.set_timeout(self.connection.timeout());
+        let answer = self.connection.call(
+            &format!("Act at step {}", obs.step),
+            |mut client| async move { client.act(request).await },
+        )?;
         let dims = self
             .info
             .interface
@@ -387,14 +327,16 @@ impl Policy for RemotePolicy {
         crate::wire::chunk(answer, dims, MAX_CHUNK).map_err(|reason| {
             PolicyError::BadAnswer(format!(
                 "policy server at {} at step {}: {reason}",
-                self.url, obs.step
+                self.url(),
+                obs.step
             ))
         })
     }
 }
 
 impl Drop for RemotePolicy {
-    /// Frees the server's episode state (best effort, waiting at most [`END_TIMEOUT`]).
+    /// Frees the server's episode state (best effort, waiting at most
+    /// [`crate::grpc::END_TIMEOUT`]).
     fn drop(&mut self) {
         // A runtime that is already shut down panics in its timer: nothing to free then.
         let _ = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| self.end_episode()));

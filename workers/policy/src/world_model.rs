@@ -3,31 +3,29 @@
 //! imagine policies' episodes in any lab's model (the Python kit serves one in a few lines:
 //! `serve_world_model`, `python/assay-policy-kit/README.md`).
 //!
-//! It behaves as the remote policy client ([`crate::remote`]) does: a health check at connect (a
-//! server that is down is [`WorldError::Unavailable`] naming its address), a deadline on every
-//! call, sent as `grpc-timeout` and enforced here too (a late answer is `Unavailable` naming the
-//! call and the wait), and the cluster's token, when this process has one, presented as a secret
-//! derived from it ([`TOKEN_PURPOSE`]). An answer that is not one frame of the episode's size per
-//! action, with finite states if any, is [`WorldError::BadAnswer`]; a request the server declared
-//! it does not take (frame size, action width) is refused here before it is sent
-//! ([`WorldError::Refused`]).
+//! It shares its connection with the remote policy client ([`crate::remote`]) through
+//! [`crate::grpc`]: a health check at connect (a server that is down is
+//! [`WorldError::Unavailable`] naming its address), a deadline on every call, sent as
+//! `grpc-timeout` and enforced here too (a late answer is `Unavailable` naming the call and the
+//! wait), and the cluster's token, when this process has one, presented as a secret derived from
+//! it ([`TOKEN_PURPOSE`]). An answer that is not one frame of the episode's size per action, with
+//! finite states if any, is [`WorldError::BadAnswer`]; a request the server declared it does not
+//! take (frame size, action width) is refused here before it is sent ([`WorldError::Refused`]).
 //!
 //! The client blocks on the runtime [`Handle`] it is given: call it from plain threads, never from
 //! inside that runtime (tokio panics if `block_on` is called on one of its own threads).
 
-use std::future::Future;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use assay_model::world::{ImaginedEpisode, WorldError, WorldFrame, WorldModelService, WorldStart};
-use assay_proto::auth::{AttachToken, Token};
+use assay_proto::auth::Token;
 use assay_proto::v1 as pb;
 use tokio::runtime::Handle;
-use tonic::transport::Endpoint;
-use tonic::{Code, Status};
+use tonic::Code;
 use tracing::debug;
 
+use crate::grpc::{Connection, ServiceClient, new_episode_id};
 use crate::server::MAX_FRAME_SIDE;
-use crate::status::{CallError, block_on_call, error_chain, missed_deadline, new_episode_id};
 
 /// What the token a world-model server checks is derived for: calls carry
 /// [`Token::for_service`]`("world-model")` of the cluster token, so a world-model server sees
@@ -39,9 +37,6 @@ pub const MAX_STEP_ACTIONS: usize = 1024;
 
 /// Largest message either side sends or accepts: a `Step` answer is one frame per action.
 pub const MAX_MESSAGE_BYTES: usize = 256 * 1024 * 1024;
-
-/// Longest a client waits for `End` (sent best-effort when an imagined episode is dropped).
-const END_TIMEOUT: Duration = Duration::from_millis(500);
 
 /// What a world-model server said in `Health`.
 #[derive(Debug, Clone, PartialEq, Eq, Default)]
@@ -68,22 +63,38 @@ impl From<pb::WorldModelHealthResponse> for WorldModelHealth {
     }
 }
 
-type Client = pb::world_model_client::WorldModelClient<assay_proto::auth::Channel>;
+/// The generated client of the `assay.v1.WorldModel` service.
+pub(crate) type Client = pb::world_model_client::WorldModelClient<assay_proto::auth::Channel>;
+
+impl ServiceClient for Client {
+    const SERVER: &'static str = "world model server";
+    const MAX_MESSAGE_BYTES: usize = MAX_MESSAGE_BYTES;
+    type Error = WorldError;
+
+    fn unavailable(message: String) -> WorldError {
+        WorldError::Unavailable(message)
+    }
+
+    fn bad_address(message: String) -> WorldError {
+        WorldError::Refused(message)
+    }
+
+    fn answered(code: Code, message: String) -> WorldError {
+        from_code(code, message)
+    }
+}
 
 /// A connection to one world-model server; any number of imagined episodes at a time.
 pub struct RemoteWorldModel {
-    url: String,
-    timeout: Duration,
-    rt: Handle,
-    client: Client,
+    connection: Connection<Client>,
     info: WorldModelHealth,
 }
 
 impl std::fmt::Debug for RemoteWorldModel {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("RemoteWorldModel")
-            .field("url", &self.url)
-            .field("timeout", &self.timeout)
+            .field("url", &self.connection.url())
+            .field("timeout", &self.connection.timeout())
             .field("info", &self.info)
             .finish()
     }
@@ -127,65 +138,15 @@ impl RemoteWorldModel {
         rt: Handle,
         token: Option<Token>,
     ) -> Result<Self, WorldError> {
-        let start = Instant::now();
-        let endpoint = Endpoint::from_shared(url.to_owned())
-            .map_err(|e| {
-                WorldError::Refused(format!("bad world model server address '{url}': {e}"))
-            })?
-            .connect_timeout(timeout)
-            .tcp_nodelay(true);
-        let down = |reason: String| {
-            WorldError::Unavailable(format!(
-                "world model server at {url} is down: {reason} (after {} ms)",
-                start.elapsed().as_millis()
-            ))
-        };
-        let silent = || {
-            down(format!(
-                "no answer to Health within the {} ms deadline",
-                timeout.as_millis()
-            ))
-        };
-        let (client, info) = rt
-            .block_on(async {
-                tokio::time::timeout(timeout, async {
-                    let channel = endpoint
-                        .connect()
-                        .await
-                        .map_err(|e| down(error_chain(&e)))?;
-                    let mut client = pb::world_model_client::WorldModelClient::with_interceptor(
-                        channel,
-                        AttachToken::new(token),
-                    )
-                    .max_decoding_message_size(MAX_MESSAGE_BYTES)
-                    .max_encoding_message_size(MAX_MESSAGE_BYTES);
-                    let mut request = tonic::Request::new(pb::WorldModelHealthRequest {});
-                    request.set_timeout(timeout);
-                    let answer = client.health(request).await.map_err(|s| {
-                        if missed_deadline(&s, start.elapsed(), timeout) {
-                            return silent();
-                        }
-                        match from_status(&format!("world model server at {url} failed Health"), &s)
-                        {
-                            WorldError::Unavailable(_) => {
-                                down(format!("Health: {} ({:?})", s.message(), s.code()))
-                            }
-                            other => other,
-                        }
-                    })?;
-                    Ok((client, WorldModelHealth::from(answer.into_inner())))
-                })
-                .await
-            })
-            .map_err(|_| silent())??;
+        let (connection, answer) =
+            Connection::<Client>::connect(url, timeout, rt, token, |mut client| async move {
+                let mut request = tonic::Request::new(pb::WorldModelHealthRequest {});
+                request.set_timeout(timeout);
+                client.health(request).await
+            })?;
+        let info = WorldModelHealth::from(answer);
         debug!(%url, name = %info.name, "world model server connected");
-        Ok(Self {
-            url: url.to_owned(),
-            timeout,
-            rt,
-            client,
-            info,
-        })
+        Ok(Self { connection, info })
     }
 
     /// What the server said about its model when this client connected.
@@ -194,15 +155,16 @@ impl RemoteWorldModel {
     }
 
     pub fn url(&self) -> &str {
-        &self.url
+        self.connection.url()
     }
 
     /// Asks the server's `Health` again (blocks for at most the deadline).
     pub fn health(&self) -> Result<WorldModelHealth, WorldError> {
-        let mut client = self.client.clone();
         let mut request = tonic::Request::new(pb::WorldModelHealthRequest {});
-        request.set_timeout(self.timeout);
-        let answer = self.call("Health", async move { client.health(request).await })?;
+        request.set_timeout(self.connection.timeout());
+        let answer = self.connection.call("Health", |mut client| async move {
+            client.health(request).await
+        })?;
         Ok(answer.into())
     }
 
@@ -241,11 +203,10 @@ impl RemoteWorldModel {
             }],
             state: start.state.clone(),
         });
-        request.set_timeout(self.timeout);
-        let mut client = self.client.clone();
-        self.call(
+        request.set_timeout(self.connection.timeout());
+        self.connection.call(
             &format!("Reset (task {}, seed {})", start.task_id, start.seed),
-            async move { client.reset(request).await },
+            |mut client| async move { client.reset(request).await },
         )?;
         Ok(RemoteEpisode {
             model: self,
@@ -261,36 +222,9 @@ impl RemoteWorldModel {
     fn refused(&self, what: String) -> WorldError {
         WorldError::Refused(format!(
             "world model server at {} ({}) does not take {what}",
-            self.url, self.info.name
+            self.url(),
+            self.info.name
         ))
-    }
-
-    /// Runs one call on the runtime with the deadline. A late answer is `Unavailable`; a failed
-    /// one is mapped by its status code; both errors name the server, the call (`what`), the
-    /// deadline and the time waited.
-    fn call<T>(
-        &self,
-        what: &str,
-        f: impl Future<Output = Result<tonic::Response<T>, Status>>,
-    ) -> Result<T, WorldError> {
-        let start = Instant::now();
-        let deadline_ms = self.timeout.as_millis();
-        block_on_call(&self.rt, self.timeout, f).map_err(|e| match e {
-            CallError::Late => WorldError::Unavailable(format!(
-                "world model server at {} did not answer {what} within the {deadline_ms} ms \
-                 deadline (waited {} ms)",
-                self.url,
-                start.elapsed().as_millis()
-            )),
-            CallError::Failed(status) => from_status(
-                &format!(
-                    "world model server at {} failed {what} after {} ms (deadline {deadline_ms} ms)",
-                    self.url,
-                    start.elapsed().as_millis()
-                ),
-                &status,
-            ),
-        })
     }
 }
 
@@ -298,9 +232,9 @@ impl WorldModelService for RemoteWorldModel {
     /// The server's declared name and its address.
     fn name(&self) -> String {
         if self.info.name.is_empty() {
-            format!("world model at {}", self.url)
+            format!("world model at {}", self.url())
         } else {
-            format!("{} at {}", self.info.name, self.url)
+            format!("{} at {}", self.info.name, self.url())
         }
     }
 
@@ -324,7 +258,7 @@ pub struct RemoteEpisode<'a> {
 impl std::fmt::Debug for RemoteEpisode<'_> {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("RemoteEpisode")
-            .field("url", &self.model.url)
+            .field("url", &self.model.url())
             .field("episode_id", &self.episode_id)
             .field("size", &(self.width, self.height))
             .field("steps", &self.steps)
@@ -379,17 +313,21 @@ impl ImaginedEpisode for RemoteEpisode<'_> {
             actions: actions.iter().flatten().copied().collect(),
             action_dims: dims as u32,
         });
-        request.set_timeout(model.timeout);
-        let mut client = model.client.clone();
+        request.set_timeout(model.connection.timeout());
         let what = format!(
             "Step of {k} actions from imagined step {} (task {}, seed {})",
             self.steps, self.task_id, self.seed
         );
-        let answer = model.call(&what, async move { client.step(request).await })?;
+        let answer =
+            model.connection.call(
+                &what,
+                |mut client| async move { client.step(request).await },
+            )?;
         let frames = frames_from(answer, k, self.width, self.height).map_err(|reason| {
             WorldError::BadAnswer(format!(
                 "world model server at {} ({}) answered {what}: {reason}",
-                model.url, model.info.name
+                model.url(),
+                model.info.name
             ))
         })?;
         self.steps += k;
@@ -398,27 +336,20 @@ impl ImaginedEpisode for RemoteEpisode<'_> {
 }
 
 impl RemoteEpisode<'_> {
-    /// Sends `End` without waiting long: from a plain thread it waits at most [`END_TIMEOUT`];
-    /// from inside a runtime it only spawns the call.
+    /// Sends `End` without waiting long ([`Connection::end`]).
     fn end(&mut self) {
         let episode_id = std::mem::take(&mut self.episode_id);
-        let mut client = self.model.client.clone();
-        let wait = self.model.timeout.min(END_TIMEOUT);
-        let end = async move {
+        self.model.connection.end(|mut client, wait| {
             let mut request = tonic::Request::new(pb::WorldModelEndRequest { episode_id });
             request.set_timeout(wait);
-            let _ = tokio::time::timeout(wait, client.end(request)).await;
-        };
-        if Handle::try_current().is_ok() {
-            self.model.rt.spawn(end);
-        } else {
-            self.model.rt.block_on(end);
-        }
+            async move { client.end(request).await }
+        });
     }
 }
 
 impl Drop for RemoteEpisode<'_> {
-    /// Frees the server's episode state (best effort, waiting at most [`END_TIMEOUT`]).
+    /// Frees the server's episode state (best effort, waiting at most
+    /// [`crate::grpc::END_TIMEOUT`]).
     fn drop(&mut self) {
         // A runtime that is already shut down panics in its timer: nothing to free then.
         let _ = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| self.end()));
@@ -494,24 +425,12 @@ fn frames_from(
 }
 
 /// The one place where a world-model call's gRPC status becomes a [`WorldError`], as the service
-/// documents its codes: `what` names the server and the call. Errors of the connection itself
-/// and the retryable codes are `Unavailable`; a request the server will not take (a missing
-/// token included) is `Refused`; a model that failed is `BadAnswer`.
-fn from_status(what: &str, s: &Status) -> WorldError {
-    // A status made by the client from a transport error carries that error as its source; one
-    // answered by a server does not.
-    if let Some(source) = std::error::Error::source(s) {
-        return WorldError::Unavailable(format!("{what}: {}", error_chain(source)));
-    }
-    let message = format!("{what}: {} ({:?})", s.message(), s.code());
-    match s.code() {
-        Code::Unavailable
-        | Code::DeadlineExceeded
-        | Code::Cancelled
-        | Code::ResourceExhausted
-        | Code::Aborted
-        | Code::Unknown
-        | Code::NotFound => WorldError::Unavailable(message),
+/// documents its codes, for the codes that are not retryable ([`crate::grpc::from_status`] makes
+/// the retryable ones and errors of the connection itself `Unavailable`): a request the server
+/// will not take (a missing token included) is `Refused`; a model that failed is `BadAnswer`.
+/// `message` names the server, the call and the status.
+fn from_code(code: Code, message: String) -> WorldError {
+    match code {
         Code::Unauthenticated | Code::PermissionDenied => WorldError::Refused(format!(
             "{message}; the server wants the cluster's world-model token: set \
              ASSAY_CLUSTER_TOKEN or ASSAY_CLUSTER_TOKEN_FILE to the cluster's token"
@@ -523,13 +442,19 @@ fn from_status(what: &str, s: &Status) -> WorldError {
         | Code::FailedPrecondition
         | Code::OutOfRange
         | Code::AlreadyExists => WorldError::Refused(message),
-        Code::Ok | Code::Internal | Code::DataLoss => WorldError::BadAnswer(message),
+        // Ok, Internal, DataLoss (the retryable codes never come here).
+        _ => WorldError::BadAnswer(message),
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use tonic::Status;
+
+    fn from_status(what: &str, s: &Status) -> WorldError {
+        crate::grpc::from_status::<Client>(what, s)
+    }
 
     fn frame(w: u32, h: u32) -> pb::Image {
         pb::Image {

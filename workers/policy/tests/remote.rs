@@ -349,11 +349,11 @@ fn unknown_episodes_are_not_found_and_retryable() {
     let rt = runtime();
     let server = Server::start(&rt, echo(Duration::ZERO, false));
     let channel = rt
-        .block_on(
-            tonic::transport::Endpoint::from_shared(server.url.clone())
-                .unwrap()
-                .connect(),
-        )
+        .block_on(assay_proto::channel::connect(
+            "policy server",
+            &server.url,
+            &Default::default(),
+        ))
         .unwrap();
     let mut client = pb::policy_client::PolicyClient::new(channel);
     let status = rt

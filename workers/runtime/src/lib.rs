@@ -14,6 +14,7 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
+use assay_proto::channel::{ChannelOptions, KeepAlive};
 use assay_proto::v1 as pb;
 use pb::worker_message::Msg as Out;
 use tokio::sync::mpsc;
@@ -99,12 +100,16 @@ pub async fn run_worker(
     handler: Arc<dyn ShardHandler>,
     shutdown: impl Future<Output = ()>,
 ) -> Result<(), WorkerError> {
-    let endpoint = tonic::transport::Endpoint::from_shared(config.coordinator.clone())
-        .map_err(|e| WorkerError::Address(config.coordinator.clone(), e.to_string()))?
-        .connect_timeout(Duration::from_secs(2))
-        .tcp_nodelay(true)
-        .http2_keep_alive_interval(Duration::from_secs(5))
-        .keep_alive_timeout(Duration::from_secs(10));
+    let options = ChannelOptions {
+        connect_timeout: Some(Duration::from_secs(2)),
+        keep_alive: Some(KeepAlive {
+            interval: Duration::from_secs(5),
+            timeout: Duration::from_secs(10),
+        }),
+        ..ChannelOptions::default()
+    };
+    let endpoint = assay_proto::channel::endpoint("coordinator", &config.coordinator, &options)
+        .map_err(|e| WorkerError::Address(e.address, e.source.to_string()))?;
     let (done_tx, mut done_rx) = mpsc::channel::<Done>(256);
     // Leases being worked on, and finished results the coordinator has not acknowledged yet.
     let mut running: HashMap<u64, u64> = HashMap::new();
@@ -135,12 +140,12 @@ pub async fn run_worker(
                 continue;
             }
         };
-        let mut client = pb::worker_session_client::WorkerSessionClient::with_interceptor(
-            channel,
-            assay_proto::auth::AttachToken::new(config.token.clone()),
-        )
-        .max_decoding_message_size(assay_proto::MAX_MESSAGE_BYTES)
-        .max_encoding_message_size(assay_proto::MAX_MESSAGE_BYTES);
+        let mut client: pb::worker_session_client::WorkerSessionClient<_> =
+            assay_proto::channel::client(
+                channel,
+                config.token.clone(),
+                assay_proto::MAX_MESSAGE_BYTES,
+            );
         let (out_tx, out_rx) = mpsc::channel::<pb::WorkerMessage>(256);
         let send = |m: Out| pb::WorkerMessage { msg: Some(m) };
         let register = pb::Register {

@@ -98,21 +98,15 @@ impl pb::frames_server::Frames for FrameHub {
 /// registered the subscription (frames published from then on arrive).
 pub async fn subscribe(url: &str, stream: &str) -> anyhow::Result<tonic::Streaming<pb::Frame>> {
     use anyhow::Context;
-    let channel = tonic::transport::Endpoint::from_shared(url.to_owned())
-        .with_context(|| format!("bad frame relay address '{url}'"))?
-        .connect_timeout(std::time::Duration::from_secs(5))
-        .tcp_nodelay(true)
-        .initial_stream_window_size(WINDOW_BYTES)
-        .initial_connection_window_size(WINDOW_BYTES)
-        .connect()
-        .await
-        .with_context(|| format!("no frame relay at {url}"))?;
+    let options = assay_proto::channel::ChannelOptions {
+        connect_timeout: Some(std::time::Duration::from_secs(5)),
+        window_bytes: Some(WINDOW_BYTES),
+        ..Default::default()
+    };
+    let channel = assay_proto::channel::connect("frame relay", url, &options).await?;
     let token = assay_proto::auth::Token::from_env().map_err(anyhow::Error::msg)?;
-    let mut client = pb::frames_client::FramesClient::with_interceptor(
-        channel,
-        assay_proto::auth::AttachToken::new(token),
-    )
-    .max_decoding_message_size(assay_proto::MAX_MESSAGE_BYTES);
+    let mut client: pb::frames_client::FramesClient<_> =
+        assay_proto::channel::client(channel, token, assay_proto::MAX_MESSAGE_BYTES);
     Ok(client
         .subscribe(pb::SubscribeFrames {
             stream: stream.to_owned(),

@@ -323,12 +323,9 @@ async fn grpc_bench(
     });
     // Workers share a few HTTP/2 connections, as many sessions over each as a node would have.
     let mut channels = Vec::new();
+    let options = assay_proto::channel::ChannelOptions::default();
     for _ in 0..workers.clamp(1, 16) {
-        channels.push(
-            tonic::transport::Endpoint::from_shared(addr.clone())?
-                .connect()
-                .await?,
-        );
+        channels.push(assay_proto::channel::connect("coordinator", &addr, &options).await?);
     }
     let cpu = cpu_s();
     let mut tasks = Vec::new();
