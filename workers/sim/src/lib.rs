@@ -282,68 +282,144 @@ pub fn simulate_with(
             "policy '{policy}' sees through a camera: it needs a worker with the render role (--roles sim,render)"
         )));
     }
-    let mut learned = match (parsed.is_oracle(), policy_object) {
-        (true, _) => None,
+    let mut learned = learned_policy(policy, &parsed, spec, policy_object, frame_size)?;
+    let camera = assay_model::policy::observation_camera();
+    let mut run = Rollout::new(spec, seed, noise, sense, learned.is_some())?;
+    let request = Request {
+        spec_hash,
+        seed,
+        policy,
+        max_steps: u64::from(
+            horizon.map_or(spec.physics.max_steps, |h| h.min(spec.physics.max_steps)),
+        ),
+        video_frames,
+        clip,
+    };
+    run.settle_in();
+    let acted = run.act(&request, learned.as_mut(), &mut observer, &camera)?;
+    run.release(acted.truncated);
+    run.settle_out();
+    run.episode(&request, &acted)
+}
+
+/// The driver of a policy object for `policy` (`parsed`) on `spec`, its frames `frame_size`
+/// pixels (0: [`DEFAULT_FRAME_SIZE`]); `None` for the built-in oracle.
+fn learned_policy<'p>(
+    policy: &str,
+    parsed: &PolicySpec,
+    spec: &TaskSpec,
+    policy_object: Option<&'p mut dyn Policy>,
+    frame_size: u32,
+) -> Result<Option<learned::Learned<'p>>, SimError> {
+    match (parsed.is_oracle(), policy_object) {
+        (true, _) => Ok(None),
         (false, Some(p)) => {
             let size = if frame_size == 0 {
                 DEFAULT_FRAME_SIZE
             } else {
                 frame_size
             };
-            Some(learned::Learned::new(p, policy, spec, size)?)
+            Ok(Some(learned::Learned::new(p, policy, spec, size)?))
         }
-        (false, None) => {
-            return Err(SimError::Policy(format!(
-                "policy '{policy}' is not built into the simulator and no policy object was given"
-            )));
-        }
-    };
-    let camera = assay_model::policy::observation_camera();
-    let mut scene = scene::build_scene(spec, seed)?;
-    check_joints(spec, &scene)?;
-    let start = scene.gripper_position();
-    let tracker = (sense == Sense::Camera).then(|| Tracker::new(scene.objects.len()));
-    let mut ctl = Controller::new(spec, start, noise, seed, tracker);
-    if learned.is_some() {
-        // The policy object decides every move: the oracle's plan is not run.
-        ctl.clear_plan();
+        (false, None) => Err(SimError::Policy(format!(
+            "policy '{policy}' is not built into the simulator and no policy object was given"
+        ))),
     }
-    let look = |observer: &mut Option<&mut dyn Observer>,
-                scene: &SimScene,
-                ctl: &mut Controller,
-                step: u64|
-     -> Result<(), SimError> {
-        if let (Some(obs), Some(tracker)) = (observer.as_deref_mut(), ctl.tracker.as_mut()) {
-            let seen = obs
-                .observe(record::live_snapshot(scene, spec), step, &camera)
-                .map_err(|e| SimError::internal(format!("policy camera at step {step}: {e}")))?;
-            tracker.update(&seen, step);
-        }
-        Ok(())
-    };
-    let dt = f64::from(scene.world.integration_parameters.dt);
-    let mut rec = Recorder::new(scene.objects.len());
-    let settle = u64::from(spec.physics.settle_steps);
-    let max_steps =
-        u64::from(horizon.map_or(spec.physics.max_steps, |h| h.min(spec.physics.max_steps)));
-    let mut step: u64 = 0;
+}
 
-    // Goals holding at each recorded row, for the keyframes' ground truth.
-    let goals_met = |scene: &SimScene| {
-        predicates::evaluate(&spec.goals, scene)
-            .iter()
-            .filter(|p| p.holds)
-            .count() as u32
-    };
-    let mut met: Vec<u32> = Vec::new();
-    // One physics step: the tool goes to `act`'s command and its event follows the step; with
-    // `None` the tool holds its last command (the settles).
-    let advance = |scene: &mut SimScene,
-                   ctl: &mut Controller,
-                   rec: &mut Recorder,
-                   met: &mut Vec<u32>,
-                   step: &mut u64,
-                   act: Option<(rapier3d::prelude::Vec3, controller::Event)>| {
+/// What an episode was asked for: the task as submitted (its hash), the seed, the policy and
+/// its step limit, and what to keep besides the episode.
+struct Request<'p> {
+    spec_hash: String,
+    seed: u64,
+    policy: &'p str,
+    /// Physics steps the policy may act (the policy's horizon, at most `physics.max_steps`).
+    max_steps: u64,
+    video_frames: usize,
+    clip: bool,
+}
+
+/// How the policy's part of an episode went.
+struct Acted {
+    /// The recorded row the policy started from (the last of the initial settle).
+    first_policy_row: usize,
+    /// The oracle's plan was cut off at the step limit.
+    truncated: bool,
+    /// A policy object used up the step limit before its goals held.
+    ran_out: bool,
+    /// Camera frames the policy looked at.
+    observations: u64,
+}
+
+/// Goal predicates that hold in `scene`.
+fn goals_met(spec: &TaskSpec, scene: &SimScene) -> u32 {
+    predicates::evaluate(&spec.goals, scene)
+        .iter()
+        .filter(|p| p.holds)
+        .count() as u32
+}
+
+/// One episode as it runs: this seed's variation of the task, its scene and controller, what is
+/// recorded, and the physics step reached.
+struct Rollout<'s> {
+    spec: &'s TaskSpec,
+    scene: SimScene,
+    ctl: Controller,
+    rec: Recorder,
+    /// Goals holding at each recorded row, for the keyframes' ground truth.
+    met: Vec<u32>,
+    step: u64,
+    dt: f64,
+    /// Physics steps of each settle, before the policy acts and after.
+    settle: u64,
+}
+
+impl<'s> Rollout<'s> {
+    /// The scene of `spec` built for `seed`, and the controller at the tool: it runs the
+    /// oracle's plan (with `noise`, seeing as `sense` says) unless a policy object acts
+    /// (`learned`).
+    fn new(
+        spec: &'s TaskSpec,
+        seed: u64,
+        noise: f64,
+        sense: Sense,
+        learned: bool,
+    ) -> Result<Self, SimError> {
+        let scene = scene::build_scene(spec, seed)?;
+        check_joints(spec, &scene)?;
+        let start = scene.gripper_position();
+        let tracker = (sense == Sense::Camera).then(|| Tracker::new(scene.objects.len()));
+        let mut ctl = Controller::new(spec, start, noise, seed, tracker);
+        if learned {
+            // The policy object decides every move: the oracle's plan is not run.
+            ctl.clear_plan();
+        }
+        let dt = f64::from(scene.world.integration_parameters.dt);
+        let rec = Recorder::new(scene.objects.len());
+        Ok(Rollout {
+            spec,
+            scene,
+            ctl,
+            rec,
+            met: Vec::new(),
+            step: 0,
+            dt,
+            settle: u64::from(spec.physics.settle_steps),
+        })
+    }
+
+    /// A recorded row (physics step `step`, time `time`, holding `held`) of the scene as it is,
+    /// with the goals that hold in it.
+    fn record(&mut self, step: u32, time: f64, held: Option<usize>) {
+        self.rec
+            .record(&self.scene, step, time, self.ctl.command, held);
+        self.met.push(goals_met(self.spec, &self.scene));
+    }
+
+    /// One physics step: the tool goes to `act`'s command and its event follows the step; with
+    /// `None` the tool holds its last command (the settles).
+    fn advance(&mut self, act: Option<(rapier3d::prelude::Vec3, controller::Event)>) {
+        let scene = &mut self.scene;
         let ev = match act {
             Some((cmd, ev)) => {
                 let at = scene.drive_arm(cmd);
@@ -351,7 +427,7 @@ pub fn simulate_with(
                 ev
             }
             None => {
-                let at = scene.drive_arm(ctl.command);
+                let at = scene.drive_arm(self.ctl.command);
                 scene.world.bodies[scene.gripper].set_next_kinematic_position(at);
                 controller::Event::None
             }
@@ -359,207 +435,289 @@ pub fn simulate_with(
         scene.hold_joints();
         scene.drive_fingers();
         scene.world.step();
-        ctl.apply(ev, scene, *step);
-        *step += 1;
-        if step.is_multiple_of(RECORD_STRIDE) {
-            rec.record(
-                scene,
-                *step as u32,
-                *step as f64 * dt,
-                ctl.command,
-                ctl.held.map(|h| h.object),
-            );
-            met.push(goals_met(scene));
+        self.ctl.apply(ev, scene, self.step);
+        self.step += 1;
+        if self.step.is_multiple_of(RECORD_STRIDE) {
+            let held = self.ctl.held.map(|h| h.object);
+            self.record(self.step as u32, self.step as f64 * self.dt, held);
         }
-    };
-    rec.record(&scene, 0, 0.0, ctl.command, None);
-    met.push(goals_met(&scene));
-    for _ in 0..settle {
-        advance(&mut scene, &mut ctl, &mut rec, &mut met, &mut step, None);
-    }
-    let first_policy_row = rec.rows() - 1;
-    let mut truncated = false;
-    look(&mut observer, &scene, &mut ctl, step)?;
-    if let Some(l) = learned.as_mut() {
-        l.reset(&mut scene, spec, seed, step)?;
-    }
-    let dt32 = dt as f32;
-    // A policy object that used up `physics.max_steps` before its goals held.
-    let mut ran_out = false;
-    loop {
-        let act = match learned.as_mut() {
-            None => {
-                if ctl.done() {
-                    break;
-                }
-                if step >= settle + max_steps {
-                    truncated = true;
-                    break;
-                }
-                ctl.step(&scene, step)
-            }
-            Some(l) => {
-                // A policy object acts until the goals hold with nothing held (checked at its
-                // control steps), or for `physics.max_steps`; running out of steps is its
-                // failure, not a truncated plan.
-                let since = step - settle;
-                if step >= settle + max_steps {
-                    ran_out = true;
-                    break;
-                }
-                if since > 0
-                    && since.is_multiple_of(assay_model::policy::CONTROL_STRIDE_STEPS)
-                    && ctl.held.is_none_or(|h| lifts(spec, &scene, h.object))
-                    && predicates::evaluate(&spec.goals, &scene)
-                        .iter()
-                        .all(|p| p.holds)
-                {
-                    break;
-                }
-                let obs = observer.as_deref_mut().expect("checked above");
-                l.step(&mut scene, spec, &mut ctl, obs, step, dt32)?
-            }
-        };
-        advance(
-            &mut scene,
-            &mut ctl,
-            &mut rec,
-            &mut met,
-            &mut step,
-            Some(act),
-        );
-        if learned.is_none() && step.is_multiple_of(OBSERVE_EVERY_STEPS) {
-            look(&mut observer, &scene, &mut ctl, step)?;
-        }
-    }
-    let observations = match &learned {
-        Some(l) => l.frames,
-        None => ctl.tracker.as_ref().map_or(0, |t| t.frames),
-    };
-    // A truncated plan may still hold something: let it go before the final settle. What a
-    // `lifted` goal wants held up stays held to the end.
-    if let Some(h) = ctl.held
-        && (truncated || !lifts(spec, &scene, h.object))
-    {
-        ctl.held = None;
-        if let Some(j) = h.joint {
-            scene.world.remove_impulse_joint(j);
-        }
-        if let Some(max) = scene.fingers.as_ref().map(|f| f.max_opening) {
-            scene.set_finger_target(max);
-        }
-    }
-    for _ in 0..settle {
-        advance(&mut scene, &mut ctl, &mut rec, &mut met, &mut step, None);
-    }
-    if !step.is_multiple_of(RECORD_STRIDE) {
-        rec.record(&scene, step as u32, step as f64 * dt, ctl.command, None);
-        met.push(goals_met(&scene));
     }
 
-    // Numbers a spec may still combine badly (a heavy body on a tiny one, a stiff joint) can
-    // blow the physics up: that episode measured nothing, so it is an error of the shard, never
-    // a policy's failure.
-    if let Some(id) = blown_up(&scene) {
-        return Err(SimError::spec(
-            "scene",
-            format!(
-                "the physics state of object '{id}' became non-finite (NaN or infinite) by step \
-                 {step}: the episode measured nothing and is not scored"
-            ),
-        ));
+    /// The first row, then the initial settle.
+    fn settle_in(&mut self) {
+        self.record(0, 0.0, None);
+        for _ in 0..self.settle {
+            self.advance(None);
+        }
     }
-    let predicates = predicates::evaluate(&spec.goals, &scene);
-    let success = !truncated && predicates.iter().all(|p| p.holds);
-    let cutoff = if truncated {
-        Some(format!(
-            "step limit: the plan was cut off at physics.max_steps = {max_steps}"
-        ))
-    } else if ran_out {
-        Some(format!(
-            "step limit: the policy used all physics.max_steps = {max_steps} steps before its \
-             goals held"
-        ))
-    } else {
-        None
-    };
-    let mut notes: Vec<String> = ctl
-        .notes
-        .iter()
-        .map(|n| format!("step {}: {}", n.step, n.text))
-        .collect();
-    if truncated {
-        notes.push(format!("plan cut off at physics.max_steps = {max_steps}"));
+
+    /// A camera frame for an oracle that sees (none for one that reads the sim's state).
+    fn look(
+        &mut self,
+        observer: &mut Option<&mut dyn Observer>,
+        camera: &Camera,
+    ) -> Result<(), SimError> {
+        if let (Some(obs), Some(tracker)) = (observer.as_deref_mut(), self.ctl.tracker.as_mut()) {
+            let step = self.step;
+            let seen = obs
+                .observe(record::live_snapshot(&self.scene, self.spec), step, camera)
+                .map_err(|e| SimError::internal(format!("policy camera at step {step}: {e}")))?;
+            tracker.update(&seen, step);
+        }
+        Ok(())
     }
-    let versions = versions();
-    let object_ids: Vec<String> = scene.objects.iter().map(|o| o.id.clone()).collect();
-    let metadata = HashMap::from([
+
+    /// The policy's part, after the initial settle: the oracle's plan through the controller
+    /// (looking through `camera` when it sees), or the policy object `learned`.
+    fn act(
+        &mut self,
+        request: &Request<'_>,
+        learned: Option<&mut learned::Learned<'_>>,
+        observer: &mut Option<&mut dyn Observer>,
+        camera: &Camera,
+    ) -> Result<Acted, SimError> {
+        let first_policy_row = self.rec.rows() - 1;
+        self.look(observer, camera)?;
+        let (truncated, ran_out, observations) = match learned {
+            None => {
+                let truncated = self.run_plan(request.max_steps, observer, camera)?;
+                let frames = self.ctl.tracker.as_ref().map_or(0, |t| t.frames);
+                (truncated, false, frames)
+            }
+            Some(l) => {
+                l.reset(&mut self.scene, self.spec, request.seed, self.step)?;
+                let ran_out = self.run_policy(l, observer, request.max_steps)?;
+                (false, ran_out, l.frames)
+            }
+        };
+        Ok(Acted {
+            first_policy_row,
+            truncated,
+            ran_out,
+            observations,
+        })
+    }
+
+    /// The oracle's plan, step by step, until it is done; whether `max_steps` cut it off.
+    fn run_plan(
+        &mut self,
+        max_steps: u64,
+        observer: &mut Option<&mut dyn Observer>,
+        camera: &Camera,
+    ) -> Result<bool, SimError> {
+        loop {
+            if self.ctl.done() {
+                return Ok(false);
+            }
+            if self.step >= self.settle + max_steps {
+                return Ok(true);
+            }
+            let act = self.ctl.step(&self.scene, self.step);
+            self.advance(Some(act));
+            if self.step.is_multiple_of(OBSERVE_EVERY_STEPS) {
+                self.look(observer, camera)?;
+            }
+        }
+    }
+
+    /// Policy object `l` acts until the goals hold with nothing held (checked at its control
+    /// steps), or for `max_steps`; whether it ran out of steps (its failure, not a truncated
+    /// plan).
+    fn run_policy(
+        &mut self,
+        l: &mut learned::Learned<'_>,
+        observer: &mut Option<&mut dyn Observer>,
+        max_steps: u64,
+    ) -> Result<bool, SimError> {
+        let dt32 = self.dt as f32;
+        loop {
+            let since = self.step - self.settle;
+            if self.step >= self.settle + max_steps {
+                return Ok(true);
+            }
+            if since > 0
+                && since.is_multiple_of(assay_model::policy::CONTROL_STRIDE_STEPS)
+                && self
+                    .ctl
+                    .held
+                    .is_none_or(|h| lifts(self.spec, &self.scene, h.object))
+                && predicates::evaluate(&self.spec.goals, &self.scene)
+                    .iter()
+                    .all(|p| p.holds)
+            {
+                return Ok(false);
+            }
+            let obs = observer.as_deref_mut().expect("checked above");
+            let act = l.step(
+                &mut self.scene,
+                self.spec,
+                &mut self.ctl,
+                obs,
+                self.step,
+                dt32,
+            )?;
+            self.advance(Some(act));
+        }
+    }
+
+    /// A truncated plan may still hold something: let it go before the final settle. What a
+    /// `lifted` goal wants held up stays held to the end.
+    fn release(&mut self, truncated: bool) {
+        if let Some(h) = self.ctl.held
+            && (truncated || !lifts(self.spec, &self.scene, h.object))
+        {
+            self.ctl.held = None;
+            if let Some(j) = h.joint {
+                self.scene.world.remove_impulse_joint(j);
+            }
+            if let Some(max) = self.scene.fingers.as_ref().map(|f| f.max_opening) {
+                self.scene.set_finger_target(max);
+            }
+        }
+    }
+
+    /// The final settle, and a last row of the final state where the stride left none.
+    fn settle_out(&mut self) {
+        for _ in 0..self.settle {
+            self.advance(None);
+        }
+        if !self.step.is_multiple_of(RECORD_STRIDE) {
+            self.record(self.step as u32, self.step as f64 * self.dt, None);
+        }
+    }
+
+    /// The outcome of the final state, the episode file, and the states kept besides.
+    fn episode(self, request: &Request<'_>, acted: &Acted) -> Result<Episode, SimError> {
+        // Numbers a spec may still combine badly (a heavy body on a tiny one, a stiff joint) can
+        // blow the physics up: that episode measured nothing, so it is an error of the shard,
+        // never a policy's failure.
+        if let Some(id) = blown_up(&self.scene) {
+            return Err(SimError::spec(
+                "scene",
+                format!(
+                    "the physics state of object '{id}' became non-finite (NaN or infinite) by \
+                     step {}: the episode measured nothing and is not scored",
+                    self.step
+                ),
+            ));
+        }
+        let outcome = self.outcome(request, acted);
+        let mut notes: Vec<String> = self
+            .ctl
+            .notes
+            .iter()
+            .map(|n| format!("step {}: {}", n.step, n.text))
+            .collect();
+        if acted.truncated {
+            notes.push(format!(
+                "plan cut off at physics.max_steps = {}",
+                request.max_steps
+            ));
+        }
+        let object_ids: Vec<String> = self.scene.objects.iter().map(|o| o.id.clone()).collect();
+        let metadata = metadata(&outcome, &notes, &object_ids, self.dt, acted.observations);
+        let (rec, spec, first) = (&self.rec, self.spec, acted.first_policy_row);
+        let file = rec.encode(&object_ids, metadata)?;
+        let keyframe_rows = evenly_spaced(first, rec.rows() - 1, KEYFRAMES);
+        Ok(Episode {
+            outcome,
+            file,
+            notes,
+            initial: rec.snapshot(first, spec),
+            initial_step: u64::from(rec.step_at(first)),
+            keyframes: keyframe_rows
+                .iter()
+                .map(|&row| (u64::from(rec.step_at(row)), rec.snapshot(row, spec)))
+                .collect(),
+            keyframe_goals: keyframe_rows.iter().map(|&row| self.met[row]).collect(),
+            video: evenly_spaced(first, rec.rows() - 1, request.video_frames)
+                .into_iter()
+                .map(|row| (u64::from(rec.step_at(row)), rec.snapshot(row, spec)))
+                .collect(),
+            observations: acted.observations,
+            clip: request
+                .clip
+                .then(|| clip_states(rec, spec, first, self.dt, CLIP_STRIDE_STEPS)),
+        })
+    }
+
+    /// The goal predicates on the final state, and what else an episode's outcome says.
+    fn outcome(&self, request: &Request<'_>, acted: &Acted) -> EpisodeOutcome {
+        let max_steps = request.max_steps;
+        let predicates = predicates::evaluate(&self.spec.goals, &self.scene);
+        let success = !acted.truncated && predicates.iter().all(|p| p.holds);
+        let cutoff = if acted.truncated {
+            Some(format!(
+                "step limit: the plan was cut off at physics.max_steps = {max_steps}"
+            ))
+        } else if acted.ran_out {
+            Some(format!(
+                "step limit: the policy used all physics.max_steps = {max_steps} steps before its \
+                 goals held"
+            ))
+        } else {
+            None
+        };
+        EpisodeOutcome {
+            task_id: self.spec.id.clone(),
+            seed: request.seed,
+            policy: request.policy.to_owned(),
+            success,
+            label_source: LabelSource::Sim,
+            predicates,
+            steps: self.step,
+            sim_time_s: self.step as f64 * self.dt,
+            // Filled in by whoever stores `file` (the worker, in its artifact store).
+            artifact: String::new(),
+            spec_hash: request.spec_hash.clone(),
+            versions: versions(),
+            imagery: None,
+            cutoff,
+            scenes: None,
+        }
+    }
+}
+
+/// The metadata of an episode file: what the outcome says, the notes, the objects (in the order
+/// of the file's columns), the time step and the frames the policy looked at.
+fn metadata(
+    outcome: &EpisodeOutcome,
+    notes: &[String],
+    object_ids: &[String],
+    dt: f64,
+    observations: u64,
+) -> HashMap<String, String> {
+    HashMap::from([
         (
             "assay.episode_format".to_owned(),
             record::EPISODE_FORMAT_VERSION.to_owned(),
         ),
-        ("assay.task_id".to_owned(), spec.id.clone()),
-        ("assay.seed".to_owned(), seed.to_string()),
-        ("assay.policy".to_owned(), policy.to_owned()),
-        ("assay.success".to_owned(), success.to_string()),
+        ("assay.task_id".to_owned(), outcome.task_id.clone()),
+        ("assay.seed".to_owned(), outcome.seed.to_string()),
+        ("assay.policy".to_owned(), outcome.policy.clone()),
+        ("assay.success".to_owned(), outcome.success.to_string()),
         ("assay.label_source".to_owned(), "sim".to_owned()),
         (
             "assay.predicates".to_owned(),
-            serde_json::to_string(&predicates).unwrap_or_default(),
+            serde_json::to_string(&outcome.predicates).unwrap_or_default(),
         ),
         (
             "assay.notes".to_owned(),
-            serde_json::to_string(&notes).unwrap_or_default(),
+            serde_json::to_string(notes).unwrap_or_default(),
         ),
-        ("assay.spec_hash".to_owned(), spec_hash.clone()),
+        ("assay.spec_hash".to_owned(), outcome.spec_hash.clone()),
         (
             "assay.versions".to_owned(),
-            serde_json::to_string(&versions).unwrap_or_default(),
+            serde_json::to_string(&outcome.versions).unwrap_or_default(),
         ),
         (
             "assay.objects".to_owned(),
-            serde_json::to_string(&object_ids).unwrap_or_default(),
+            serde_json::to_string(object_ids).unwrap_or_default(),
         ),
         ("assay.dt".to_owned(), dt.to_string()),
         ("assay.record_stride".to_owned(), RECORD_STRIDE.to_string()),
         ("assay.observations".to_owned(), observations.to_string()),
-    ]);
-    let file = rec.encode(&object_ids, metadata)?;
-    let keyframe_rows = evenly_spaced(first_policy_row, rec.rows() - 1, KEYFRAMES);
-    Ok(Episode {
-        outcome: EpisodeOutcome {
-            task_id: spec.id.clone(),
-            seed,
-            policy: policy.to_owned(),
-            success,
-            label_source: LabelSource::Sim,
-            predicates,
-            steps: step,
-            sim_time_s: step as f64 * dt,
-            // Filled in by whoever stores `file` (the worker, in its artifact store).
-            artifact: String::new(),
-            spec_hash,
-            versions,
-            imagery: None,
-            cutoff,
-            scenes: None,
-        },
-        file,
-        notes,
-        initial: rec.snapshot(first_policy_row, spec),
-        initial_step: u64::from(rec.step_at(first_policy_row)),
-        keyframes: keyframe_rows
-            .iter()
-            .map(|&row| (u64::from(rec.step_at(row)), rec.snapshot(row, spec)))
-            .collect(),
-        keyframe_goals: keyframe_rows.iter().map(|&row| met[row]).collect(),
-        video: evenly_spaced(first_policy_row, rec.rows() - 1, video_frames)
-            .into_iter()
-            .map(|row| (u64::from(rec.step_at(row)), rec.snapshot(row, spec)))
-            .collect(),
-        observations,
-        clip: clip.then(|| clip_states(&rec, spec, first_policy_row, dt, CLIP_STRIDE_STEPS)),
-    })
+    ])
 }
 
 /// A recorded episode's states every `stride_steps` physics steps from its first policy step to

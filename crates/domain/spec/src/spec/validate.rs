@@ -13,361 +13,349 @@ use crate::error::SpecError;
 /// Semantic checks that parsing cannot make: finite numbers, positive sizes, references that
 /// resolve, unique ids, a plan the controller can execute.
 pub fn validate(spec: &TaskSpec, origin: &str) -> Vec<SpecError> {
-    let mut v = Validator {
-        task: Some(spec.id.clone()),
-        origin,
-        errors: Vec::new(),
+    let mut check = Check {
+        spec,
+        v: Validator {
+            task: Some(spec.id.clone()),
+            origin,
+            errors: Vec::new(),
+        },
+        object_ids: BTreeSet::new(),
+        pile_ids: BTreeSet::new(),
+        zone_ids: BTreeSet::new(),
     };
-    if spec.spec_version != SPEC_VERSION {
-        v.err(
-            "spec_version",
-            format!(
-                "unsupported version {}; this build reads {SPEC_VERSION}",
-                spec.spec_version
-            ),
-        );
-    }
-    let id_ok = !spec.id.is_empty()
-        && spec
-            .id
-            .chars()
-            .all(|c| c.is_ascii_lowercase() || c.is_ascii_digit() || c == '-' || c == '_');
-    if !id_ok {
-        v.err(
-            "id",
-            "must be non-empty: lowercase letters, digits, '-' and '_'".into(),
-        );
-    }
-    if spec.name.trim().is_empty() {
-        v.err("name", "must not be empty".into());
-    }
-    if spec.description.trim().is_empty() {
-        v.err("description", "must not be empty".into());
-    }
-    if spec.group.trim().is_empty() {
-        v.err("group", "must not be empty".into());
-    }
+    // Section by section, in the order of the spec: the errors come out in this order.
+    check.header();
+    check.objects();
+    check.piles();
+    check.zones();
+    check.arm_and_end_effector();
+    check.goals();
+    check.variations();
+    check.plan();
+    check.cameras_and_physics();
+    check.v.errors
+}
 
-    let mut object_ids = BTreeSet::new();
-    if spec.scene.objects.is_empty() && spec.scene.piles.is_empty() {
-        v.err("scene.objects", "a task needs at least one object".into());
-    }
-    for (i, o) in spec.scene.objects.iter().enumerate() {
-        let p = format!("scene.objects[{i}]");
-        if o.id.is_empty() {
-            v.err(&format!("{p}.id"), "must not be empty".into());
-        } else if !object_ids.insert(o.id.as_str()) {
-            v.err(
-                &format!("{p}.id"),
-                format!("duplicate object id '{}'", o.id),
-            );
-        }
-        v.shape(&format!("{p}.shape"), &o.shape);
-        if let Some(m) = o.mass {
-            v.mass(&format!("{p}.mass"), m);
-        }
-        v.color(&format!("{p}.color"), &o.color);
-        match (&o.pose, &o.pose_range) {
-            (Some(pose), None) => {
-                v.finite3(&format!("{p}.pose.position"), &pose.position);
-                v.finite(&format!("{p}.pose.yaw_deg"), pose.yaw_deg);
-            }
-            (None, Some(r)) => v.range(&format!("{p}.pose_range"), r),
-            (Some(_), Some(_)) => v.err(&p, "give either pose or pose_range, not both".into()),
-            (None, None) => v.err(&p, "missing pose (or pose_range)".into()),
-        }
-    }
-    let mut pile_ids = BTreeSet::new();
-    for (i, pile) in spec.scene.piles.iter().enumerate() {
-        let p = format!("scene.piles[{i}]");
-        if pile.id.is_empty() {
-            v.err(&format!("{p}.id"), "must not be empty".into());
-        } else if object_ids.contains(pile.id.as_str()) || !pile_ids.insert(pile.id.as_str()) {
-            v.err(&format!("{p}.id"), format!("duplicate id '{}'", pile.id));
-        }
-        if !(1..=MAX_PILE).contains(&pile.count) {
-            v.err(
-                &format!("{p}.count"),
-                format!("must lie in 1..={MAX_PILE}, got {}", pile.count),
-            );
-        }
-        if !matches!(
-            pile.shape,
-            Shape::Box { .. } | Shape::Sphere { .. } | Shape::Cylinder { .. }
-        ) {
-            v.err(
-                &format!("{p}.shape"),
-                "a pile is made of boxes, spheres or cylinders".into(),
-            );
-        }
-        v.shape(&format!("{p}.shape"), &pile.shape);
-        v.color(&format!("{p}.color"), &pile.color);
-        if let Some(m) = pile.mass {
-            v.mass(&format!("{p}.mass"), m);
-        }
-        v.finite2(&format!("{p}.region.min"), &pile.region.min);
-        v.finite2(&format!("{p}.region.max"), &pile.region.max);
-        for k in 0..2 {
-            if pile.region.min[k] >= pile.region.max[k] {
-                v.err(
-                    &format!("{p}.region"),
-                    format!(
-                        "min {} is not below max {}",
-                        pile.region.min[k], pile.region.max[k]
-                    ),
-                );
-            }
-        }
-        for k in 0..pile.count {
-            let copy = format!("{}_{k}", pile.id);
-            if object_ids.contains(copy.as_str()) {
-                v.err(
-                    &format!("{p}.id"),
-                    format!("copy '{copy}' has the id of an object"),
-                );
-            }
-        }
-    }
-    let mut zone_ids = BTreeSet::new();
-    for (i, z) in spec.scene.zones.iter().enumerate() {
-        let p = format!("scene.zones[{i}]");
-        if !zone_ids.insert(z.id.as_str()) || object_ids.contains(z.id.as_str()) {
-            v.err(&format!("{p}.id"), format!("duplicate id '{}'", z.id));
-        }
-        v.finite2(&format!("{p}.center"), &z.center);
-        for (k, h) in z.half_extents.iter().enumerate() {
-            v.positive(&format!("{p}.half_extents[{k}]"), *h);
-        }
-    }
+/// One spec under validation: the errors so far, and the ids the sections before declared (the
+/// goals and the plan refer to them).
+struct Check<'a> {
+    spec: &'a TaskSpec,
+    v: Validator<'a>,
+    object_ids: BTreeSet<&'a str>,
+    pile_ids: BTreeSet<&'a str>,
+    zone_ids: BTreeSet<&'a str>,
+}
 
-    if let Some(arm) = &spec.arm {
-        if !ARM_MODELS.contains(&arm.model.as_str()) {
+impl<'a> Check<'a> {
+    /// The version, the id and the names.
+    fn header(&mut self) {
+        let (spec, v) = (self.spec, &mut self.v);
+        if spec.spec_version != SPEC_VERSION {
             v.err(
-                "arm.model",
+                "spec_version",
                 format!(
-                    "unknown arm '{}' (built in: {})",
-                    arm.model,
-                    ARM_MODELS.join(", ")
+                    "unsupported version {}; this build reads {SPEC_VERSION}",
+                    spec.spec_version
                 ),
             );
         }
-        v.finite3("arm.base", &arm.base);
-        v.finite("arm.base_yaw_deg", arm.base_yaw_deg);
-    }
-    match spec.end_effector {
-        EndEffector::Suction => {}
-        EndEffector::ParallelGripper { max_opening, .. } => {
-            v.positive("end_effector.max_opening", max_opening)
+        let id_ok = !spec.id.is_empty()
+            && spec
+                .id
+                .chars()
+                .all(|c| c.is_ascii_lowercase() || c.is_ascii_digit() || c == '-' || c == '_');
+        if !id_ok {
+            v.err(
+                "id",
+                "must be non-empty: lowercase letters, digits, '-' and '_'".into(),
+            );
+        }
+        if spec.name.trim().is_empty() {
+            v.err("name", "must not be empty".into());
+        }
+        if spec.description.trim().is_empty() {
+            v.err("description", "must not be empty".into());
+        }
+        if spec.group.trim().is_empty() {
+            v.err("group", "must not be empty".into());
         }
     }
 
-    let is_container = |id: &str| {
-        spec.scene
+    /// `scene.objects`: unique ids, shapes, masses, colours, a pose or a pose range each.
+    fn objects(&mut self) {
+        let (spec, v) = (self.spec, &mut self.v);
+        if spec.scene.objects.is_empty() && spec.scene.piles.is_empty() {
+            v.err("scene.objects", "a task needs at least one object".into());
+        }
+        for (i, o) in spec.scene.objects.iter().enumerate() {
+            let p = format!("scene.objects[{i}]");
+            if o.id.is_empty() {
+                v.err(&format!("{p}.id"), "must not be empty".into());
+            } else if !self.object_ids.insert(o.id.as_str()) {
+                v.err(
+                    &format!("{p}.id"),
+                    format!("duplicate object id '{}'", o.id),
+                );
+            }
+            v.shape(&format!("{p}.shape"), &o.shape);
+            if let Some(m) = o.mass {
+                v.mass(&format!("{p}.mass"), m);
+            }
+            v.color(&format!("{p}.color"), &o.color);
+            match (&o.pose, &o.pose_range) {
+                (Some(pose), None) => {
+                    v.finite3(&format!("{p}.pose.position"), &pose.position);
+                    v.finite(&format!("{p}.pose.yaw_deg"), pose.yaw_deg);
+                }
+                (None, Some(r)) => v.range(&format!("{p}.pose_range"), r),
+                (Some(_), Some(_)) => v.err(&p, "give either pose or pose_range, not both".into()),
+                (None, None) => v.err(&p, "missing pose (or pose_range)".into()),
+            }
+        }
+    }
+
+    /// `scene.piles`: ids unique among piles and objects (their copies' too), counts, shapes,
+    /// regions.
+    fn piles(&mut self) {
+        let (spec, v) = (self.spec, &mut self.v);
+        for (i, pile) in spec.scene.piles.iter().enumerate() {
+            let p = format!("scene.piles[{i}]");
+            if pile.id.is_empty() {
+                v.err(&format!("{p}.id"), "must not be empty".into());
+            } else if self.object_ids.contains(pile.id.as_str())
+                || !self.pile_ids.insert(pile.id.as_str())
+            {
+                v.err(&format!("{p}.id"), format!("duplicate id '{}'", pile.id));
+            }
+            if !(1..=MAX_PILE).contains(&pile.count) {
+                v.err(
+                    &format!("{p}.count"),
+                    format!("must lie in 1..={MAX_PILE}, got {}", pile.count),
+                );
+            }
+            if !matches!(
+                pile.shape,
+                Shape::Box { .. } | Shape::Sphere { .. } | Shape::Cylinder { .. }
+            ) {
+                v.err(
+                    &format!("{p}.shape"),
+                    "a pile is made of boxes, spheres or cylinders".into(),
+                );
+            }
+            v.shape(&format!("{p}.shape"), &pile.shape);
+            v.color(&format!("{p}.color"), &pile.color);
+            if let Some(m) = pile.mass {
+                v.mass(&format!("{p}.mass"), m);
+            }
+            v.finite2(&format!("{p}.region.min"), &pile.region.min);
+            v.finite2(&format!("{p}.region.max"), &pile.region.max);
+            for k in 0..2 {
+                if pile.region.min[k] >= pile.region.max[k] {
+                    v.err(
+                        &format!("{p}.region"),
+                        format!(
+                            "min {} is not below max {}",
+                            pile.region.min[k], pile.region.max[k]
+                        ),
+                    );
+                }
+            }
+            for k in 0..pile.count {
+                let copy = format!("{}_{k}", pile.id);
+                if self.object_ids.contains(copy.as_str()) {
+                    v.err(
+                        &format!("{p}.id"),
+                        format!("copy '{copy}' has the id of an object"),
+                    );
+                }
+            }
+        }
+    }
+
+    /// `scene.zones`: unique ids, centres, positive half extents.
+    fn zones(&mut self) {
+        let (spec, v) = (self.spec, &mut self.v);
+        for (i, z) in spec.scene.zones.iter().enumerate() {
+            let p = format!("scene.zones[{i}]");
+            if !self.zone_ids.insert(z.id.as_str()) || self.object_ids.contains(z.id.as_str()) {
+                v.err(&format!("{p}.id"), format!("duplicate id '{}'", z.id));
+            }
+            v.finite2(&format!("{p}.center"), &z.center);
+            for (k, h) in z.half_extents.iter().enumerate() {
+                v.positive(&format!("{p}.half_extents[{k}]"), *h);
+            }
+        }
+    }
+
+    /// `arm` (a built-in model, its base) and `end_effector`.
+    fn arm_and_end_effector(&mut self) {
+        let (spec, v) = (self.spec, &mut self.v);
+        if let Some(arm) = &spec.arm {
+            if !ARM_MODELS.contains(&arm.model.as_str()) {
+                v.err(
+                    "arm.model",
+                    format!(
+                        "unknown arm '{}' (built in: {})",
+                        arm.model,
+                        ARM_MODELS.join(", ")
+                    ),
+                );
+            }
+            v.finite3("arm.base", &arm.base);
+            v.finite("arm.base_yaw_deg", arm.base_yaw_deg);
+        }
+        match spec.end_effector {
+            EndEffector::Suction => {}
+            EndEffector::ParallelGripper { max_opening, .. } => {
+                v.positive("end_effector.max_opening", max_opening)
+            }
+        }
+    }
+
+    /// Whether `id` is a container object.
+    fn is_container(&self, id: &str) -> bool {
+        self.spec
+            .scene
             .objects
             .iter()
             .any(|o| o.id == id && matches!(o.shape, Shape::Container { .. }))
-    };
-    let obj = |v: &mut Validator<'_>, path: &str, id: &str| {
-        if !object_ids.contains(id) {
-            v.err(path, format!("refers to unknown object '{id}'"));
-        }
-    };
-    // Joint goals and `actuate` need an articulated URDF object (its joint names are checked
-    // when the URDF is read).
-    let articulated = |v: &mut Validator<'_>, path: &str, id: &str| match spec.object(id) {
-        None => v.err(path, format!("refers to unknown object '{id}'")),
-        Some(o)
-            if !matches!(
-                o.shape,
-                Shape::Urdf {
-                    articulated: true,
-                    ..
-                }
-            ) =>
-        {
-            v.err(
-                path,
-                format!("'{id}' is not an articulated URDF object (urdf with articulated: true)"),
-            )
-        }
-        Some(_) => {}
-    };
-    if spec.goals.is_empty() {
-        v.err("goals", "a task needs at least one goal predicate".into());
     }
-    // `any_of` holds goals checked like the others, one level deep.
-    let mut flat: Vec<(String, &Goal)> = Vec::new();
-    for (i, g) in spec.goals.iter().enumerate() {
-        match g {
-            Goal::AnyOf { any } => {
-                if any.is_empty() {
-                    v.err(
-                        &format!("goals[{i}].any_of.any"),
-                        "needs at least one goal".into(),
-                    );
-                }
-                for (k, inner) in any.iter().enumerate() {
-                    flat.push((format!("goals[{i}].any_of.any[{k}]"), inner));
-                }
+
+    /// A reference to an object at `path`.
+    fn object_ref(&mut self, path: &str, id: &str) {
+        if !self.object_ids.contains(id) {
+            self.v.err(path, format!("refers to unknown object '{id}'"));
+        }
+    }
+
+    /// A reference to a zone at `path`.
+    fn zone_ref(&mut self, path: &str, zone: &str) {
+        if !self.zone_ids.contains(zone) {
+            self.v.err(path, format!("refers to unknown zone '{zone}'"));
+        }
+    }
+
+    /// A reference to a pile at `path`.
+    fn pile_ref(&mut self, path: &str, pile: &str) {
+        if !self.pile_ids.contains(pile) {
+            self.v.err(path, format!("refers to unknown pile '{pile}'"));
+        }
+    }
+
+    /// Joint goals and `actuate` need an articulated URDF object (its joint names are checked
+    /// when the URDF is read).
+    fn articulated_ref(&mut self, path: &str, id: &str) {
+        match self.spec.object(id) {
+            None => self.v.err(path, format!("refers to unknown object '{id}'")),
+            Some(o)
+                if !matches!(
+                    o.shape,
+                    Shape::Urdf {
+                        articulated: true,
+                        ..
+                    }
+                ) =>
+            {
+                self.v.err(
+                    path,
+                    format!(
+                        "'{id}' is not an articulated URDF object (urdf with articulated: true)"
+                    ),
+                )
             }
-            g => flat.push((format!("goals[{i}]"), g)),
+            Some(_) => {}
         }
     }
-    for (p, g) in &flat {
+
+    /// `goals`: at least one; `any_of` holds goals checked like the others, one level deep.
+    fn goals(&mut self) {
+        let spec = self.spec;
+        if spec.goals.is_empty() {
+            self.v
+                .err("goals", "a task needs at least one goal predicate".into());
+        }
+        let mut flat: Vec<(String, &Goal)> = Vec::new();
+        for (i, g) in spec.goals.iter().enumerate() {
+            match g {
+                Goal::AnyOf { any } => {
+                    if any.is_empty() {
+                        self.v.err(
+                            &format!("goals[{i}].any_of.any"),
+                            "needs at least one goal".into(),
+                        );
+                    }
+                    for (k, inner) in any.iter().enumerate() {
+                        flat.push((format!("goals[{i}].any_of.any[{k}]"), inner));
+                    }
+                }
+                g => flat.push((format!("goals[{i}]"), g)),
+            }
+        }
+        for (p, g) in &flat {
+            self.goal(p, g);
+        }
+    }
+
+    /// One goal at path `p`.
+    fn goal(&mut self, p: &str, g: &Goal) {
         match g {
-            Goal::AnyOf { .. } => v.err(
+            Goal::AnyOf { .. } => self.v.err(
                 &format!("{p}.any_of"),
                 "an any_of goal cannot hold another any_of".into(),
             ),
             Goal::InZone { object, zone } => {
-                obj(&mut v, &format!("{p}.in_zone.object"), object);
-                if !zone_ids.contains(zone.as_str()) {
-                    v.err(
-                        &format!("{p}.in_zone.zone"),
-                        format!("refers to unknown zone '{zone}'"),
-                    );
-                }
+                self.object_ref(&format!("{p}.in_zone.object"), object);
+                self.zone_ref(&format!("{p}.in_zone.zone"), zone);
             }
             Goal::InContainer { object, container } => {
-                obj(&mut v, &format!("{p}.in_container.object"), object);
-                obj(&mut v, &format!("{p}.in_container.container"), container);
-                if object_ids.contains(container.as_str()) && !is_container(container) {
-                    v.err(
-                        &format!("{p}.in_container.container"),
-                        format!("'{container}' is not a container"),
-                    );
-                }
+                self.in_container_goal(&format!("{p}.in_container"), object, container)
             }
             Goal::OnTopOf { object, support } => {
-                obj(&mut v, &format!("{p}.on_top_of.object"), object);
-                obj(&mut v, &format!("{p}.on_top_of.support"), support);
+                self.object_ref(&format!("{p}.on_top_of.object"), object);
+                self.object_ref(&format!("{p}.on_top_of.support"), support);
                 if object == support {
-                    v.err(
+                    self.v.err(
                         &format!("{p}.on_top_of"),
                         "an object cannot rest on itself".into(),
                     );
                 }
             }
-            Goal::Stacked { order } => {
-                if order.len() < 2 {
-                    v.err(
-                        &format!("{p}.stacked.order"),
-                        "needs at least two objects".into(),
-                    );
-                }
-                let mut seen = BTreeSet::new();
-                for (k, o) in order.iter().enumerate() {
-                    obj(&mut v, &format!("{p}.stacked.order[{k}]"), o);
-                    if !seen.insert(o) {
-                        v.err(
-                            &format!("{p}.stacked.order[{k}]"),
-                            format!("'{o}' appears twice"),
-                        );
-                    }
-                }
-            }
+            Goal::Stacked { order } => self.stacked_goal(&format!("{p}.stacked.order"), order),
             Goal::WithinDistance {
                 object,
                 target,
                 point,
                 distance,
-            } => {
-                obj(&mut v, &format!("{p}.within_distance.object"), object);
-                match (target, point) {
-                    (Some(t), None) => obj(&mut v, &format!("{p}.within_distance.target"), t),
-                    (None, Some(pt)) => v.finite3(&format!("{p}.within_distance.point"), pt),
-                    _ => v.err(
-                        &format!("{p}.within_distance"),
-                        "give exactly one of target and point".into(),
-                    ),
-                }
-                v.positive(&format!("{p}.within_distance.distance"), *distance);
-            }
-            Goal::PoseWithin {
+            } => self.within_distance_goal(
+                &format!("{p}.within_distance"),
                 object,
-                position,
-                tolerance,
-                yaw_deg,
-                yaw_tolerance_deg,
-                relative_to,
-                planar: _,
-                yaw_symmetry_deg,
-            } => {
-                obj(&mut v, &format!("{p}.pose_within.object"), object);
-                if let Some(anchor) = relative_to {
-                    obj(&mut v, &format!("{p}.pose_within.relative_to"), anchor);
-                    if anchor == object {
-                        v.err(
-                            &format!("{p}.pose_within.relative_to"),
-                            "a target cannot be measured from the object itself".into(),
-                        );
-                    }
-                }
-                if let Some(s) = yaw_symmetry_deg {
-                    v.within(
-                        &format!("{p}.pose_within.yaw_symmetry_deg"),
-                        *s,
-                        1.0,
-                        360.0,
-                        "°",
-                    );
-                }
-                v.finite3(&format!("{p}.pose_within.position"), position);
-                v.positive(&format!("{p}.pose_within.tolerance"), *tolerance);
-                if yaw_deg.is_some() != yaw_tolerance_deg.is_some() {
-                    v.err(
-                        &format!("{p}.pose_within"),
-                        "yaw_deg and yaw_tolerance_deg go together".into(),
-                    );
-                }
-            }
+                target.as_deref(),
+                point.as_ref(),
+                *distance,
+            ),
+            Goal::PoseWithin { .. } => self.pose_within_goal(&format!("{p}.pose_within"), g),
             Goal::JointPosition {
                 object,
                 joint,
                 min,
                 max,
             } => {
-                let path = format!("{p}.joint_position");
-                articulated(&mut v, &format!("{path}.object"), object);
-                if joint.is_empty() {
-                    v.err(&format!("{path}.joint"), "must not be empty".into());
-                }
-                match (min, max) {
-                    (None, None) => v.err(&path, "give min, max or both".into()),
-                    (Some(lo), Some(hi)) if lo > hi => {
-                        v.err(&path, format!("min {lo} exceeds max {hi}"))
-                    }
-                    _ => {}
-                }
-                for (k, x) in [("min", min), ("max", max)] {
-                    if let Some(x) = x {
-                        v.finite(&format!("{path}.{k}"), *x);
-                    }
-                }
+                self.joint_position_goal(&format!("{p}.joint_position"), object, joint, *min, *max)
             }
             Goal::Lifted { object, height } => {
-                obj(&mut v, &format!("{p}.lifted.object"), object);
-                v.positive(&format!("{p}.lifted.height"), *height);
+                self.object_ref(&format!("{p}.lifted.object"), object);
+                self.v.positive(&format!("{p}.lifted.height"), *height);
             }
             Goal::PileInZone {
                 pile,
                 zone,
                 fraction,
             } => {
-                if !pile_ids.contains(pile.as_str()) {
-                    v.err(
-                        &format!("{p}.pile_in_zone.pile"),
-                        format!("refers to unknown pile '{pile}'"),
-                    );
-                }
-                if !zone_ids.contains(zone.as_str()) {
-                    v.err(
-                        &format!("{p}.pile_in_zone.zone"),
-                        format!("refers to unknown zone '{zone}'"),
-                    );
-                }
+                self.pile_ref(&format!("{p}.pile_in_zone.pile"), pile);
+                self.zone_ref(&format!("{p}.pile_in_zone.zone"), zone);
                 if !(fraction.is_finite() && *fraction > 0.0 && *fraction <= 1.0) {
-                    v.err(
+                    self.v.err(
                         &format!("{p}.pile_in_zone.fraction"),
                         format!("must lie in (0, 1], got {fraction}"),
                     );
@@ -376,161 +364,245 @@ pub fn validate(spec: &TaskSpec, origin: &str) -> Vec<SpecError> {
         }
     }
 
-    v.within(
-        "variations.position_jitter",
-        spec.variations.position_jitter,
-        0.0,
-        MAX_JITTER_M,
-        "m",
-    );
-    v.within(
-        "variations.yaw_jitter_deg",
-        spec.variations.yaw_jitter_deg,
-        0.0,
-        180.0,
-        "degrees",
-    );
-    if let Some(r) = &spec.variations.ee_start {
-        v.range("variations.ee_start", r);
-    }
-    for (i, c) in spec.variations.colors.iter().enumerate() {
-        v.color(&format!("variations.colors[{i}]"), c);
-    }
-    match (
-        spec.variations.colors.is_empty(),
-        spec.variations.recolor.is_empty(),
-    ) {
-        (false, true) => v.err(
-            "variations.colors",
-            "no object is recoloured: name the objects that draw from this palette in variations.recolor".into(),
-        ),
-        (true, false) => v.err(
-            "variations.recolor",
-            "needs a palette to draw from in variations.colors".into(),
-        ),
-        _ => {}
-    }
-    for (i, id) in spec.variations.recolor.iter().enumerate() {
-        obj(&mut v, &format!("variations.recolor[{i}]"), id);
+    /// An `in_container` goal at path `p`: both objects known, the container one.
+    fn in_container_goal(&mut self, p: &str, object: &str, container: &str) {
+        self.object_ref(&format!("{p}.object"), object);
+        self.object_ref(&format!("{p}.container"), container);
+        if self.object_ids.contains(container) && !self.is_container(container) {
+            self.v.err(
+                &format!("{p}.container"),
+                format!("'{container}' is not a container"),
+            );
+        }
     }
 
-    // The plan must be executable: pick before place, one object held at a time.
-    let mut held: Option<&str> = None;
-    for (i, step) in spec.oracle.iter().enumerate() {
-        let p = format!("oracle[{i}]");
+    /// A `stacked` goal's `order` at path `p`: two objects or more, each known and there once.
+    fn stacked_goal(&mut self, p: &str, order: &[String]) {
+        if order.len() < 2 {
+            self.v.err(p, "needs at least two objects".into());
+        }
+        let mut seen = BTreeSet::new();
+        for (k, o) in order.iter().enumerate() {
+            self.object_ref(&format!("{p}[{k}]"), o);
+            if !seen.insert(o) {
+                self.v
+                    .err(&format!("{p}[{k}]"), format!("'{o}' appears twice"));
+            }
+        }
+    }
+
+    /// A `within_distance` goal at path `p`: a known object, exactly one of a known target and a
+    /// point, a positive distance.
+    fn within_distance_goal(
+        &mut self,
+        p: &str,
+        object: &str,
+        target: Option<&str>,
+        point: Option<&[f64; 3]>,
+        distance: f64,
+    ) {
+        self.object_ref(&format!("{p}.object"), object);
+        match (target, point) {
+            (Some(t), None) => self.object_ref(&format!("{p}.target"), t),
+            (None, Some(pt)) => self.v.finite3(&format!("{p}.point"), pt),
+            _ => self.v.err(p, "give exactly one of target and point".into()),
+        }
+        self.v.positive(&format!("{p}.distance"), distance);
+    }
+
+    /// A `pose_within` goal `g` at path `p` (another goal is not looked at): known objects, a
+    /// finite target, a positive tolerance, yaw and its tolerance together.
+    fn pose_within_goal(&mut self, p: &str, g: &Goal) {
+        let Goal::PoseWithin {
+            object,
+            position,
+            tolerance,
+            yaw_deg,
+            yaw_tolerance_deg,
+            relative_to,
+            planar: _,
+            yaw_symmetry_deg,
+        } = g
+        else {
+            return;
+        };
+        self.object_ref(&format!("{p}.object"), object);
+        if let Some(anchor) = relative_to {
+            self.object_ref(&format!("{p}.relative_to"), anchor);
+            if anchor == object {
+                self.v.err(
+                    &format!("{p}.relative_to"),
+                    "a target cannot be measured from the object itself".into(),
+                );
+            }
+        }
+        if let Some(s) = yaw_symmetry_deg {
+            self.v
+                .within(&format!("{p}.yaw_symmetry_deg"), *s, 1.0, 360.0, "°");
+        }
+        self.v.finite3(&format!("{p}.position"), position);
+        self.v.positive(&format!("{p}.tolerance"), *tolerance);
+        if yaw_deg.is_some() != yaw_tolerance_deg.is_some() {
+            self.v
+                .err(p, "yaw_deg and yaw_tolerance_deg go together".into());
+        }
+    }
+
+    /// A `joint_position` goal at path `p`: an articulated object, a joint name, finite bounds
+    /// in order.
+    fn joint_position_goal(
+        &mut self,
+        p: &str,
+        object: &str,
+        joint: &str,
+        min: Option<f64>,
+        max: Option<f64>,
+    ) {
+        self.articulated_ref(&format!("{p}.object"), object);
+        if joint.is_empty() {
+            self.v
+                .err(&format!("{p}.joint"), "must not be empty".into());
+        }
+        match (min, max) {
+            (None, None) => self.v.err(p, "give min, max or both".into()),
+            (Some(lo), Some(hi)) if lo > hi => self.v.err(p, format!("min {lo} exceeds max {hi}")),
+            _ => {}
+        }
+        for (k, x) in [("min", min), ("max", max)] {
+            if let Some(x) = x {
+                self.v.finite(&format!("{p}.{k}"), x);
+            }
+        }
+    }
+
+    /// `variations`: jitter bounds, the start range, a palette with objects to recolour.
+    fn variations(&mut self) {
+        let (spec, v) = (self.spec, &mut self.v);
+        v.within(
+            "variations.position_jitter",
+            spec.variations.position_jitter,
+            0.0,
+            MAX_JITTER_M,
+            "m",
+        );
+        v.within(
+            "variations.yaw_jitter_deg",
+            spec.variations.yaw_jitter_deg,
+            0.0,
+            180.0,
+            "degrees",
+        );
+        if let Some(r) = &spec.variations.ee_start {
+            v.range("variations.ee_start", r);
+        }
+        for (i, c) in spec.variations.colors.iter().enumerate() {
+            v.color(&format!("variations.colors[{i}]"), c);
+        }
+        match (
+            spec.variations.colors.is_empty(),
+            spec.variations.recolor.is_empty(),
+        ) {
+            (false, true) => v.err(
+                "variations.colors",
+                "no object is recoloured: name the objects that draw from this palette in variations.recolor".into(),
+            ),
+            (true, false) => v.err(
+                "variations.recolor",
+                "needs a palette to draw from in variations.colors".into(),
+            ),
+            _ => {}
+        }
+        for (i, id) in spec.variations.recolor.iter().enumerate() {
+            self.object_ref(&format!("variations.recolor[{i}]"), id);
+        }
+    }
+
+    /// `oracle`: the plan must be executable: pick before place, one object held at a time.
+    fn plan(&mut self) {
+        let spec = self.spec;
+        let mut held: Option<&str> = None;
+        for (i, step) in spec.oracle.iter().enumerate() {
+            self.step(&format!("oracle[{i}]"), step, &mut held);
+        }
+        // A plan may end holding what a `lifted` goal wants held up; nothing else.
+        if let Some(h) = held
+            && !spec
+                .goals
+                .iter()
+                .any(|g| matches!(g, Goal::Lifted { object, .. } if object == h))
+        {
+            self.v.err(
+                "oracle",
+                "the plan ends holding an object: add a place (or a lifted goal on it)".into(),
+            );
+        }
+    }
+
+    /// One step of the plan at path `p`, with `held` what the plan holds before it (after it,
+    /// once it returns).
+    fn step(&mut self, p: &str, step: &'a Primitive, held: &mut Option<&'a str>) {
         match step {
             Primitive::Pick { object } => {
-                obj(&mut v, &format!("{p}.pick.object"), object);
+                self.object_ref(&format!("{p}.pick.object"), object);
                 if held.is_some() {
-                    v.err(
+                    self.v.err(
                         &format!("{p}.pick"),
                         "already holding an object; place it first".into(),
                     );
                 }
-                if spec
+                if self
+                    .spec
                     .scene
                     .objects
                     .iter()
                     .any(|o| &o.id == object && o.is_fixed)
                 {
-                    v.err(
+                    self.v.err(
                         &format!("{p}.pick.object"),
                         format!("'{object}' is fixed and cannot be picked"),
                     );
                 }
-                held = Some(object);
+                *held = Some(object);
             }
             Primitive::Place { target } => {
                 let Some(h) = held.take() else {
-                    v.err(
+                    self.v.err(
                         &format!("{p}.place"),
                         "nothing is held: pick an object first".into(),
                     );
-                    continue;
+                    return;
                 };
-                match target {
-                    PlaceTarget::On(o) => {
-                        obj(&mut v, &format!("{p}.place.target.on"), o);
-                        if o == h {
-                            v.err(
-                                &format!("{p}.place.target.on"),
-                                "cannot place an object on itself".into(),
-                            );
-                        }
-                    }
-                    PlaceTarget::Into(o) => {
-                        obj(&mut v, &format!("{p}.place.target.into"), o);
-                        if object_ids.contains(o.as_str()) && !is_container(o) {
-                            v.err(
-                                &format!("{p}.place.target.into"),
-                                format!("'{o}' is not a container"),
-                            );
-                        }
-                    }
-                    PlaceTarget::Zone(z) => {
-                        if !zone_ids.contains(z.as_str()) {
-                            v.err(
-                                &format!("{p}.place.target.zone"),
-                                format!("refers to unknown zone '{z}'"),
-                            );
-                        }
-                    }
-                    PlaceTarget::At(xy) => v.finite2(&format!("{p}.place.target.at"), xy),
-                    PlaceTarget::AtPoint(xyz) => {
-                        v.finite3(&format!("{p}.place.target.at_point"), xyz)
-                    }
-                    PlaceTarget::Spot { xy, relative_to } => {
-                        v.finite2(&format!("{p}.place.target.spot.xy"), xy);
-                        if let Some(o) = relative_to {
-                            obj(&mut v, &format!("{p}.place.target.spot.relative_to"), o);
-                            if o == h {
-                                v.err(
-                                    &format!("{p}.place.target.spot.relative_to"),
-                                    "cannot place an object beside itself".into(),
-                                );
-                            }
-                        }
-                    }
-                }
+                self.place_target(&format!("{p}.place.target"), target, h);
             }
             Primitive::Push { object, to } => {
-                obj(&mut v, &format!("{p}.push.object"), object);
-                v.finite2(&format!("{p}.push.to"), to);
+                self.object_ref(&format!("{p}.push.object"), object);
+                self.v.finite2(&format!("{p}.push.to"), to);
                 if held.is_some() {
-                    v.err(
+                    self.v.err(
                         &format!("{p}.push"),
                         "cannot push while holding an object".into(),
                     );
                 }
             }
             Primitive::Sweep { pile, zone } => {
-                if !pile_ids.contains(pile.as_str()) {
-                    v.err(
-                        &format!("{p}.sweep.pile"),
-                        format!("refers to unknown pile '{pile}'"),
-                    );
-                }
-                if !zone_ids.contains(zone.as_str()) {
-                    v.err(
-                        &format!("{p}.sweep.zone"),
-                        format!("refers to unknown zone '{zone}'"),
-                    );
-                }
+                self.pile_ref(&format!("{p}.sweep.pile"), pile);
+                self.zone_ref(&format!("{p}.sweep.zone"), zone);
                 if held.is_some() {
-                    v.err(
+                    self.v.err(
                         &format!("{p}.sweep"),
                         "cannot sweep while holding an object".into(),
                     );
                 }
             }
             Primitive::Actuate { object, joint, to } => {
-                articulated(&mut v, &format!("{p}.actuate.object"), object);
+                self.articulated_ref(&format!("{p}.actuate.object"), object);
                 if joint.is_empty() {
-                    v.err(&format!("{p}.actuate.joint"), "must not be empty".into());
+                    self.v
+                        .err(&format!("{p}.actuate.joint"), "must not be empty".into());
                 }
-                v.finite(&format!("{p}.actuate.to"), *to);
+                self.v.finite(&format!("{p}.actuate.to"), *to);
                 if held.is_some() {
-                    v.err(
+                    self.v.err(
                         &format!("{p}.actuate"),
                         "cannot actuate a joint while holding an object".into(),
                     );
@@ -538,41 +610,69 @@ pub fn validate(spec: &TaskSpec, origin: &str) -> Vec<SpecError> {
             }
         }
     }
-    // A plan may end holding what a `lifted` goal wants held up; nothing else.
-    if let Some(h) = held
-        && !spec
-            .goals
-            .iter()
-            .any(|g| matches!(g, Goal::Lifted { object, .. } if object == h))
-    {
-        v.err(
-            "oracle",
-            "the plan ends holding an object: add a place (or a lifted goal on it)".into(),
-        );
+
+    /// The target of a place at path `p`, while the plan holds `h`.
+    fn place_target(&mut self, p: &str, target: &PlaceTarget, h: &str) {
+        match target {
+            PlaceTarget::On(o) => {
+                self.object_ref(&format!("{p}.on"), o);
+                if o == h {
+                    self.v.err(
+                        &format!("{p}.on"),
+                        "cannot place an object on itself".into(),
+                    );
+                }
+            }
+            PlaceTarget::Into(o) => {
+                self.object_ref(&format!("{p}.into"), o);
+                if self.object_ids.contains(o.as_str()) && !self.is_container(o) {
+                    self.v
+                        .err(&format!("{p}.into"), format!("'{o}' is not a container"));
+                }
+            }
+            PlaceTarget::Zone(z) => self.zone_ref(&format!("{p}.zone"), z),
+            PlaceTarget::At(xy) => self.v.finite2(&format!("{p}.at"), xy),
+            PlaceTarget::AtPoint(xyz) => self.v.finite3(&format!("{p}.at_point"), xyz),
+            PlaceTarget::Spot { xy, relative_to } => {
+                self.v.finite2(&format!("{p}.spot.xy"), xy);
+                if let Some(o) = relative_to {
+                    self.object_ref(&format!("{p}.spot.relative_to"), o);
+                    if o == h {
+                        self.v.err(
+                            &format!("{p}.spot.relative_to"),
+                            "cannot place an object beside itself".into(),
+                        );
+                    }
+                }
+            }
+        }
     }
 
-    for (i, c) in spec.cameras.iter().enumerate() {
-        let p = format!("cameras[{i}]");
-        v.finite3(&format!("{p}.eye"), &c.eye);
-        v.finite3(&format!("{p}.target"), &c.target);
-        if !(c.fovy_deg > 1.0 && c.fovy_deg < 179.0) {
+    /// `cameras` (finite eye and target, a field of view, a size) and `physics.dt`.
+    fn cameras_and_physics(&mut self) {
+        let (spec, v) = (self.spec, &mut self.v);
+        for (i, c) in spec.cameras.iter().enumerate() {
+            let p = format!("cameras[{i}]");
+            v.finite3(&format!("{p}.eye"), &c.eye);
+            v.finite3(&format!("{p}.target"), &c.target);
+            if !(c.fovy_deg > 1.0 && c.fovy_deg < 179.0) {
+                v.err(
+                    &format!("{p}.fovy_deg"),
+                    "must lie between 1 and 179 degrees".into(),
+                );
+            }
+            if c.width == 0 || c.height == 0 {
+                v.err(&p, "width and height must be positive".into());
+            }
+        }
+        let ph = &spec.physics;
+        if !(ph.dt.is_finite() && ph.dt > 0.0 && ph.dt <= 0.05) {
             v.err(
-                &format!("{p}.fovy_deg"),
-                "must lie between 1 and 179 degrees".into(),
+                "physics.dt",
+                format!("must lie in (0, 0.05] s, got {}", ph.dt),
             );
         }
-        if c.width == 0 || c.height == 0 {
-            v.err(&p, "width and height must be positive".into());
-        }
     }
-    let ph = &spec.physics;
-    if !(ph.dt.is_finite() && ph.dt > 0.0 && ph.dt <= 0.05) {
-        v.err(
-            "physics.dt",
-            format!("must lie in (0, 0.05] s, got {}", ph.dt),
-        );
-    }
-    v.errors
 }
 
 /// Positions (m) lie within this distance of the table's origin on every axis: the robot's
