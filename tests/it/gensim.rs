@@ -127,3 +127,48 @@ fn gensim_library_tasks_start_at_rest() {
     assert!(checked > 0);
     assert!(shoved.is_empty(), "{shoved:#?}");
 }
+
+/// `assay import gensim` with no `ASSAY_PYTHON` and no `python3` on the `PATH` runs GenSim's
+/// task code in the environment `scripts/setup-python` makes under the home folder
+/// (`~/.cache/assay/python`; here a home whose environment is the test virtual environment, which
+/// has numpy): nothing to set up by hand. Without that environment the same command imports
+/// nothing.
+#[test]
+fn gensim_import_finds_assay_s_own_python_without_settings() {
+    let root = repo().join("../shared/corpora/gensim-library");
+    let python = std::env::var("ASSAY_TEST_PYTHON")
+        .expect("ASSAY_TEST_PYTHON names a Python with numpy (scripts/test sets it up)");
+    // The virtual environment itself (a Python finds its environment from where it is run).
+    let venv = std::path::Path::new(&python)
+        .parent()
+        .and_then(std::path::Path::parent)
+        .expect("ASSAY_TEST_PYTHON is ENV/bin/python");
+    let home = tempfile::tempdir().unwrap();
+    let import = |home: &std::path::Path| {
+        let run = std::process::Command::new(bin())
+            .args(["import", "gensim"])
+            .arg(&root)
+            .env_remove("ASSAY_PYTHON")
+            .env("PATH", "/nonexistent")
+            .env("HOME", home)
+            .output()
+            .unwrap();
+        let text = String::from_utf8_lossy(&run.stdout).into_owned();
+        let head = text.lines().next().unwrap_or_default().to_owned();
+        let imported: usize = head
+            .rsplit_once(", ")
+            .and_then(|(_, n)| n.strip_suffix(" imported"))
+            .and_then(|n| n.parse().ok())
+            .unwrap_or_else(|| panic!("no import count in {head:?}\n{text}"));
+        (imported, text)
+    };
+    let (none, _) = import(home.path());
+    assert_eq!(
+        none, 0,
+        "without Assay's Python and no python3, no task code can run"
+    );
+    std::fs::create_dir_all(home.path().join(".cache/assay")).unwrap();
+    std::os::unix::fs::symlink(venv, home.path().join(".cache/assay/python")).unwrap();
+    let (imported, text) = import(home.path());
+    assert!(imported >= 90, "{imported} imported:\n{text}");
+}
