@@ -31,14 +31,16 @@ mod schema;
 #[cfg(test)]
 mod tests;
 
-/// States a shard moves through: queued → leased → done | failed | cancelled; an expired or
-/// returned lease goes back to queued.
+/// States a shard moves through, as stored (`assay_model::job::ShardState`): queued → leased →
+/// done | failed | cancelled; an expired or returned lease goes back to queued.
 pub mod shard_state {
-    pub const QUEUED: &str = "queued";
-    pub const LEASED: &str = "leased";
-    pub const DONE: &str = "done";
-    pub const FAILED: &str = "failed";
-    pub const CANCELLED: &str = "cancelled";
+    use assay_model::job::ShardState;
+
+    pub const QUEUED: &str = ShardState::Queued.as_str();
+    pub const LEASED: &str = ShardState::Leased.as_str();
+    pub const DONE: &str = ShardState::Done.as_str();
+    pub const FAILED: &str = ShardState::Failed.as_str();
+    pub const CANCELLED: &str = ShardState::Cancelled.as_str();
 }
 
 pub mod batch_state {

@@ -15,7 +15,6 @@ use assay_report::report::{self, Report, RunInfo};
 use assay_spec::SpecError;
 use rusqlite::OptionalExtension;
 
-use super::planner::ladder_policy_name;
 use super::shard_state::{CANCELLED, DONE, FAILED, LEASED, QUEUED};
 use super::{BatchCounts, Store, role};
 use crate::error::CoordError;
@@ -506,7 +505,7 @@ impl Store {
                 });
                 let several = ladder.iter().any(|(g, ..)| *g != ladder[0].0);
                 for (group, episodes, step, key) in &ladder {
-                    let name = ladder_policy_name(plan, key);
+                    let name = plan.policy_name(key);
                     if !ranking.labels.iter().any(|(p, _)| *p == name) {
                         let group = several.then_some(group.as_str());
                         ranking
