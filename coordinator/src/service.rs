@@ -533,7 +533,6 @@ impl pb::coordinator_server::Coordinator for CoordinatorService {
         let final_ = report.run.state != batch_state::RUNNING;
         Ok(Response::new(pb::GetReportResponse {
             report_json: serde_json::to_string_pretty(&report).map_err(CoordError::from)?,
-            report_markdown: report.to_markdown(),
             r#final: final_,
         }))
     }
