@@ -8,7 +8,8 @@
 //! group commit, and the helpers several concerns share. The rest is split by concern, each file
 //! adding its own `impl Store` block: `schema` (tables and migrations), `planner` (which shards a
 //! batch has, at submission and as its groups finish), `leases` (the shard state machine),
-//! `read_model` (counts, batch lists, reports) and `metrics` (the figures `/metrics` shows).
+//! `read_model` (counts, batch lists, the rows a report is assembled from) and `metrics` (the
+//! figures `/metrics` shows).
 //! Never: gRPC, scheduling or threads (the service and the store actor), nor formatting text.
 
 use std::path::Path;
@@ -27,6 +28,7 @@ mod metrics;
 pub use metrics::{SHARD_SECONDS_BUCKETS, Snapshot};
 mod planner;
 mod read_model;
+pub use read_model::REPORT_GENERATOR;
 mod schema;
 #[cfg(test)]
 mod tests;

@@ -1,8 +1,45 @@
-//! Shards' kinds: a store from before them gets them from its job names.
+//! Shards' kinds: a store from before them gets them from its job names, and the planner writes
+//! the kinds that backfill would give. Also the report the tests ask a store for, selected then
+//! assembled as `GetReport` does.
 
 use assay_model::job::JobKind;
+use assay_report::report::Report;
 
 use super::*;
+
+impl Store {
+    /// The batch's report as `GetReport` builds it: the rows, then their assembly. Every report a
+    /// test asks for also checks that the shards' kinds are those the backfill would give them.
+    pub(crate) fn report(&self, batch_id: &str) -> Result<Report, CoordError> {
+        self.assert_kinds_backfill_alike();
+        let rows = self.batch_rows(batch_id)?;
+        Ok(assay_report::assemble::report(&rows, REPORT_GENERATOR))
+    }
+
+    /// The kinds the planner wrote equal those `backfill_kinds` gives the same rows without one.
+    fn assert_kinds_backfill_alike(&self) {
+        let kinds = || -> Vec<(i64, Option<String>)> {
+            let mut stmt = self
+                .conn
+                .prepare("SELECT id, kind FROM shards ORDER BY id")
+                .unwrap();
+            stmt.query_map([], |r| Ok((r.get(0)?, r.get(1)?)))
+                .unwrap()
+                .collect::<Result<_, _>>()
+                .unwrap()
+        };
+        let written = kinds();
+        self.conn
+            .execute_batch("SAVEPOINT kinds; UPDATE shards SET kind = NULL;")
+            .unwrap();
+        super::super::schema::backfill_kinds(&self.conn).unwrap();
+        let backfilled = kinds();
+        self.conn
+            .execute_batch("ROLLBACK TO kinds; RELEASE kinds;")
+            .unwrap();
+        assert_eq!(written, backfilled, "(shard id, kind): written, backfilled");
+    }
+}
 
 /// Every job name an earlier version wrote, by role, with the kind it meant.
 const LEGACY: &[(&str, Option<&str>, JobKind)] = &[
