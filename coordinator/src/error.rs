@@ -6,6 +6,10 @@ pub enum CoordError {
     Store(#[from] rusqlite::Error),
     #[error("stored data is not valid JSON: {0}")]
     Json(#[from] serde_json::Error),
+    #[error("job store: {0}")]
+    JobKind(#[from] assay_model::job::UnknownJobKind),
+    #[error("job store: {0}")]
+    ShardState(#[from] assay_model::job::UnknownShardState),
     #[error("not found: {0}")]
     NotFound(String),
     #[error("invalid request: {0}")]

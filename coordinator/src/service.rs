@@ -355,11 +355,17 @@ impl pb::coordinator_server::Coordinator for CoordinatorService {
         req: Request<pb::GetReportRequest>,
     ) -> Result<Response<pb::GetReportResponse>, Status> {
         let id = req.into_inner().batch_id;
-        let report = self.shared.store.call(move |s| s.report(&id)).await?;
-        let final_ = report.run.state != batch_state::RUNNING;
+        let rows = self.shared.store.call(move |s| s.batch_rows(&id)).await?;
+        let final_ = rows.batch.state != batch_state::RUNNING;
+        // Assembled off the store's thread and the executor: a ranking's bootstrap takes a while.
+        let report_json = tokio::task::spawn_blocking(move || {
+            let report = assay_report::assemble::report(&rows, crate::store::REPORT_GENERATOR);
+            serde_json::to_string_pretty(&report).map_err(CoordError::from)
+        })
+        .await
+        .map_err(|e| Status::internal(format!("assembling the report: {e}")))??;
         Ok(Response::new(pb::GetReportResponse {
-            report_json: serde_json::to_string_pretty(&report).map_err(CoordError::from)?,
-            report_markdown: report.to_markdown(),
+            report_json,
             r#final: final_,
         }))
     }

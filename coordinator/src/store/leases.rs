@@ -6,6 +6,7 @@
 //! shards a batch has: completion and finishing call the planner inside the same savepoint.
 
 use assay_model::episode::EpisodeOutcome;
+use assay_model::job::JobKind;
 use assay_model::quality::JudgeOutcome;
 use assay_model::trainer::TrainerOutcome;
 use rusqlite::{Connection, OptionalExtension, params};
@@ -59,9 +60,9 @@ impl Store {
         // waits for them, while a proxy, a ladder or a generalization policy has episodes or a
         // proxy after it (a proxy queued after the fits still runs before them).
         let order = if capabilities.iter().any(|c| c == role::TRAINER) {
-            "(s.role = 'trainer' AND s.job LIKE 'dynamics %'), s.id"
+            format!("(s.kind = '{}'), s.id", JobKind::DynamicsFit)
         } else {
-            "s.id"
+            "s.id".to_owned()
         };
         let sql = format!(
             "SELECT s.id, s.batch_id, s.seed, s.policy, s.role, s.attempts, COALESCE(t.spec_json, ''),
@@ -214,9 +215,9 @@ impl Store {
     ) -> Result<(bool, Changed), CoordError> {
         let tx = self.conn.savepoint()?;
         #[allow(clippy::type_complexity)]
-        let current: Option<(String, String, String, i64, String, Option<String>, Option<String>)> = tx
+        let current: Option<(String, String, String, i64, String, String, Option<String>)> = tx
             .prepare_cached(
-                "SELECT s.role, s.batch_id, s.task_id, s.seed, s.policy, s.job, s.stage FROM shards s
+                "SELECT s.role, s.batch_id, s.task_id, s.seed, s.policy, s.kind, s.stage FROM shards s
                  WHERE s.id = ?1 AND s.lease_id = ?2 AND s.state = 'leased'",
             )?
             .query_row(params![shard_id as i64, lease_id as i64], |r| {
@@ -231,9 +232,10 @@ impl Store {
                 ))
             })
             .optional()?;
-        let Some((shard_role, batch, task, seed, policy, job, stage)) = current else {
+        let Some((shard_role, batch, task, seed, policy, kind, stage)) = current else {
             return Ok((false, Changed::default()));
         };
+        let kind: JobKind = kind.parse()?;
         // What to queue after it: judge shards for a rendered episode of a judged batch.
         let judges: Vec<String> = match shard_role.as_str() {
             role::JUDGE => match serde_json::from_str::<JudgeOutcome>(outcome_json) {
@@ -318,7 +320,7 @@ impl Store {
                     ..
                 }) => {
                     // A ladder's policies are ranked; a generalization policy is evaluated.
-                    queued += if job.as_deref().is_some_and(|j| j.starts_with("ladder ")) {
+                    queued += if kind == JobKind::LadderTraining {
                         Self::queue_ladder_episodes(&tx, &batch, &group, &model, &checkpoints)?
                     } else {
                         Self::queue_generalization_episodes(&tx, &batch, &group, &model)?

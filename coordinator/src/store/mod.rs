@@ -8,7 +8,8 @@
 //! group commit, and the helpers several concerns share. The rest is split by concern, each file
 //! adding its own `impl Store` block: `schema` (tables and migrations), `planner` (which shards a
 //! batch has, at submission and as its groups finish), `leases` (the shard state machine),
-//! `read_model` (counts, batch lists, reports) and `metrics` (the figures `/metrics` shows).
+//! `read_model` (counts, batch lists, the rows a report is assembled from) and `metrics` (the
+//! figures `/metrics` shows).
 //! Never: gRPC, scheduling or threads (the service and the store actor), nor formatting text.
 
 use std::path::Path;
@@ -25,18 +26,21 @@ mod metrics;
 pub use metrics::{SHARD_SECONDS_BUCKETS, Snapshot};
 mod planner;
 mod read_model;
+pub use read_model::REPORT_GENERATOR;
 mod schema;
 #[cfg(test)]
 mod tests;
 
-/// States a shard moves through: queued → leased → done | failed | cancelled; an expired or
-/// returned lease goes back to queued.
+/// States a shard moves through, as stored (`assay_model::job::ShardState`): queued → leased →
+/// done | failed | cancelled; an expired or returned lease goes back to queued.
 pub mod shard_state {
-    pub const QUEUED: &str = "queued";
-    pub const LEASED: &str = "leased";
-    pub const DONE: &str = "done";
-    pub const FAILED: &str = "failed";
-    pub const CANCELLED: &str = "cancelled";
+    use assay_model::job::ShardState;
+
+    pub const QUEUED: &str = ShardState::Queued.as_str();
+    pub const LEASED: &str = ShardState::Leased.as_str();
+    pub const DONE: &str = ShardState::Done.as_str();
+    pub const FAILED: &str = ShardState::Failed.as_str();
+    pub const CANCELLED: &str = ShardState::Cancelled.as_str();
 }
 
 pub mod batch_state {

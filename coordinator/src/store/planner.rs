@@ -11,8 +11,9 @@
 
 use assay_model::episode::{EpisodeImagery, EpisodeOutcome};
 use assay_model::generalization::{GeneralizationPlan, HELD_OUT_VARIATIONS, TRAIN_VARIATIONS};
+use assay_model::job::JobKind;
 use assay_model::policy::PolicySpec;
-use assay_model::proxy::{IMAGINED_JUDGING, LadderPlan, ProxyEpisode, ProxyResult, RankingPlan};
+use assay_model::proxy::{IMAGINED_JUDGING, ProxyEpisode, ProxyResult, RankingPlan};
 use assay_model::quality::DEFAULT_REPEATS;
 use assay_model::trainer::{TrainerJob, TrainerOutcome};
 use assay_spec::spec::PhysicsSettings;
@@ -116,7 +117,8 @@ impl Store {
         let mut n = 0u32;
         {
             let mut ins = tx.prepare(
-                "INSERT INTO shards (batch_id, task_id, seed, policy, role, state) VALUES (?1, ?2, ?3, ?4, ?5, ?6)",
+                "INSERT INTO shards (batch_id, task_id, seed, policy, role, state, kind)
+                 VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7)",
             )?;
             for seed in &batch.seeds {
                 for policy in &batch.policies {
@@ -127,7 +129,8 @@ impl Store {
                             *seed as i64,
                             policy,
                             batch.role,
-                            QUEUED
+                            QUEUED,
+                            JobKind::Episode.as_str(),
                         ])?;
                         n += 1;
                     }
@@ -157,9 +160,15 @@ impl Store {
                 groups: batch.text_groups.clone(),
             };
             tx.execute(
-                "INSERT INTO shards (batch_id, task_id, seed, policy, role, state, job, input_json)
-                 VALUES (?1, '', 0, '', ?2, ?3, 'text', ?4)",
-                params![id, role::TRAINER, QUEUED, serde_json::to_string(&job)?],
+                "INSERT INTO shards (batch_id, task_id, seed, policy, role, state, job, input_json, kind)
+                 VALUES (?1, '', 0, '', ?2, ?3, 'text', ?4, ?5)",
+                params![
+                    id,
+                    role::TRAINER,
+                    QUEUED,
+                    serde_json::to_string(&job)?,
+                    JobKind::TextDiversity.as_str()
+                ],
             )?;
         }
         tx.commit()?;
@@ -179,8 +188,8 @@ impl Store {
     ) -> Result<u32, CoordError> {
         for judge in judges {
             conn.execute(
-                "INSERT INTO shards (batch_id, task_id, seed, policy, role, state, judge, input_json, needs)
-                 VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9)",
+                "INSERT INTO shards (batch_id, task_id, seed, policy, role, state, judge, input_json, needs, kind)
+                 VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10)",
                 params![
                     batch_id,
                     task_id,
@@ -190,7 +199,8 @@ impl Store {
                     QUEUED,
                     judge,
                     outcome_json,
-                    judge_needs(judge)?
+                    judge_needs(judge)?,
+                    JobKind::EpisodeJudging.as_str(),
                 ],
             )?;
         }
@@ -228,22 +238,21 @@ impl Store {
         Ok(groups)
     }
 
-    /// Whether `group`'s episodes are all finished and it has no trainer shard whose job starts
-    /// with `job` yet: the moment to queue one.
+    /// Whether `group`'s episodes are all finished and it has no trainer shard of `kind` yet: the
+    /// moment to queue one.
     fn group_ready(
         conn: &Connection,
         batch_id: &str,
         group: &str,
-        job: &str,
+        kind: JobKind,
     ) -> Result<bool, CoordError> {
         let (started, open): (i64, i64) = conn.query_row(
             "SELECT
-               (SELECT COUNT(*) FROM shards WHERE batch_id = ?1 AND role = 'trainer' AND grp = ?2
-                  AND job LIKE ?3 || '%'),
+               (SELECT COUNT(*) FROM shards WHERE batch_id = ?1 AND kind = ?3 AND grp = ?2),
                (SELECT COUNT(*) FROM shards s JOIN tasks t ON t.batch_id = s.batch_id AND t.task_id = s.task_id
                 WHERE s.batch_id = ?1 AND t.grp = ?2 AND s.role NOT IN ('judge', 'trainer')
                   AND s.state IN ('queued', 'leased'))",
-            params![batch_id, group, job],
+            params![batch_id, group, kind.as_str()],
             |r| Ok((r.get(0)?, r.get(1)?)),
         )?;
         Ok(started == 0 && open == 0)
@@ -254,8 +263,8 @@ impl Store {
     fn ladder_settled(conn: &Connection, batch_id: &str, group: &str) -> Result<bool, CoordError> {
         let (shards, open): (i64, i64) = conn.query_row(
             "SELECT COUNT(*), COUNT(CASE WHEN state IN ('queued', 'leased') THEN 1 END) FROM shards
-             WHERE batch_id = ?1 AND role = 'trainer' AND grp = ?2 AND job LIKE 'ladder %'",
-            params![batch_id, group],
+             WHERE batch_id = ?1 AND kind = ?3 AND grp = ?2",
+            params![batch_id, group, JobKind::LadderTraining.as_str()],
             |r| Ok((r.get(0)?, r.get(1)?)),
         )?;
         Ok(shards > 0 && open == 0)
@@ -272,12 +281,14 @@ impl Store {
         let mut stmt = conn.prepare_cached(
             "SELECT json_extract(s.outcome_json, '$.imagery.clip') AS clip
              FROM shards s JOIN tasks t ON t.batch_id = s.batch_id AND t.task_id = s.task_id
-             WHERE s.batch_id = ?1 AND t.grp = ?2 AND s.role NOT IN ('judge', 'trainer')
-               AND s.policy = ?3 AND s.job IS NULL
+             WHERE s.batch_id = ?1 AND t.grp = ?2 AND s.kind = ?4 AND s.policy = ?3
                AND s.state = 'done' AND clip IS NOT NULL ORDER BY s.id",
         )?;
         let clips = stmt
-            .query_map(params![batch_id, group, policy], |r| r.get(0))?
+            .query_map(
+                params![batch_id, group, policy, JobKind::Episode.as_str()],
+                |r| r.get(0),
+            )?
             .collect::<Result<_, _>>()?;
         Ok(clips)
     }
@@ -285,8 +296,8 @@ impl Store {
     /// The role of the batch's own episodes (what its policies' shards run on).
     fn episode_role(conn: &Connection, batch_id: &str) -> Result<String, CoordError> {
         Ok(conn.query_row(
-            "SELECT role FROM shards WHERE batch_id = ?1 AND job IS NULL AND role NOT IN ('judge', 'trainer') LIMIT 1",
-            [batch_id],
+            "SELECT role FROM shards WHERE batch_id = ?1 AND kind = ?2 LIMIT 1",
+            [batch_id, JobKind::Episode.as_str()],
             |r| r.get(0),
         )?)
     }
@@ -299,34 +310,37 @@ impl Store {
         )
     }
 
-    /// Records a trainer shard of `group` that cannot run, with the reason.
+    /// Records a trainer shard of `kind` of `group`, named `job`, that cannot run, with the
+    /// reason.
     fn insert_failed_trainer_shard(
         conn: &Connection,
         batch_id: &str,
+        kind: JobKind,
         job: &str,
         group: &str,
         error: &str,
     ) -> Result<(), CoordError> {
         conn.execute(
-            "INSERT INTO shards (batch_id, task_id, seed, policy, role, state, job, grp, error)
-             VALUES (?1, '', 0, '', 'trainer', 'failed', ?2, ?3, ?4)",
-            params![batch_id, job, group, error],
+            "INSERT INTO shards (batch_id, task_id, seed, policy, role, state, job, grp, error, kind)
+             VALUES (?1, '', 0, '', 'trainer', 'failed', ?2, ?3, ?4, ?5)",
+            params![batch_id, job, group, error, kind.as_str()],
         )?;
         Ok(())
     }
 
-    /// Queues a trainer shard of `group` running `job`.
+    /// Queues a trainer shard of `kind` of `group`, named `name`, running `job`.
     fn insert_trainer_shard(
         conn: &Connection,
         batch_id: &str,
+        kind: JobKind,
         name: &str,
         group: &str,
         job: &TrainerJob,
     ) -> Result<(), CoordError> {
         conn.execute(
-            "INSERT INTO shards (batch_id, task_id, seed, policy, role, state, job, grp, input_json)
-             VALUES (?1, '', 0, '', 'trainer', 'queued', ?2, ?3, ?4)",
-            params![batch_id, name, group, serde_json::to_string(job)?],
+            "INSERT INTO shards (batch_id, task_id, seed, policy, role, state, job, grp, input_json, kind)
+             VALUES (?1, '', 0, '', 'trainer', 'queued', ?2, ?3, ?4, ?5)",
+            params![batch_id, name, group, serde_json::to_string(job)?, kind.as_str()],
         )?;
         Ok(())
     }
@@ -344,24 +358,27 @@ impl Store {
         let groups = Self::groups(conn, batch_id)?;
         let eval = plan.budgets.iter().copied().max().unwrap_or(0) as usize;
         for group in groups {
-            if !Self::group_ready(conn, batch_id, &group, "dynamics")? {
+            if !Self::group_ready(conn, batch_id, &group, JobKind::DynamicsFit)? {
                 continue;
             }
             let clips: Vec<String> = {
                 let mut stmt = conn.prepare(
                     "SELECT json_extract(s.outcome_json, '$.imagery.clip') AS clip
                      FROM shards s JOIN tasks t ON t.batch_id = s.batch_id AND t.task_id = s.task_id
-                     WHERE s.batch_id = ?1 AND t.grp = ?2 AND s.role NOT IN ('judge', 'trainer')
-                       AND s.job IS NULL AND s.state = 'done' AND clip IS NOT NULL ORDER BY s.id",
+                     WHERE s.batch_id = ?1 AND t.grp = ?2 AND s.kind = ?3
+                       AND s.state = 'done' AND clip IS NOT NULL ORDER BY s.id",
                 )?;
-                stmt.query_map(params![batch_id, group], |r| r.get(0))?
-                    .take(eval)
-                    .collect::<Result<_, _>>()?
+                stmt.query_map(params![batch_id, group, JobKind::Episode.as_str()], |r| {
+                    r.get(0)
+                })?
+                .take(eval)
+                .collect::<Result<_, _>>()?
             };
             if clips.len() < 2 {
                 Self::insert_failed_trainer_shard(
                     conn,
                     batch_id,
+                    JobKind::DynamicsFit,
                     &format!("dynamics {group}"),
                     &group,
                     &format!(
@@ -389,6 +406,7 @@ impl Store {
                 Self::insert_trainer_shard(
                     conn,
                     batch_id,
+                    JobKind::DynamicsFit,
                     &format!("dynamics {group} @ {budget}"),
                     &group,
                     &job,
@@ -415,10 +433,15 @@ impl Store {
                     COALESCE(json_extract(t.spec_json, '$.description'), ''),
                     COALESCE(json_extract(t.spec_json, '$.physics.max_steps'), ?3)
              FROM shards s JOIN tasks t ON t.batch_id = s.batch_id AND t.task_id = s.task_id
-             WHERE s.batch_id = ?1 AND t.grp = ?2 AND s.role NOT IN ('judge', 'trainer')
-               AND s.job IS NULL AND s.state = 'done' AND clip IS NOT NULL ORDER BY s.id",
+             WHERE s.batch_id = ?1 AND t.grp = ?2 AND s.kind = ?4
+               AND s.state = 'done' AND clip IS NOT NULL ORDER BY s.id",
         )?;
-        let mut rows = stmt.query(params![batch_id, group, default_budget])?;
+        let mut rows = stmt.query(params![
+            batch_id,
+            group,
+            default_budget,
+            JobKind::Episode.as_str()
+        ])?;
         while let Some(r) = rows.next()? {
             let policy: String = r.get(1)?;
             let training = plan.train_policies.contains(&policy);
@@ -464,7 +487,9 @@ impl Store {
             return Ok(());
         }
         for group in Self::groups(conn, batch_id)? {
-            if !plan.covers(&group) || !Self::group_ready(conn, batch_id, &group, "world model")? {
+            if !plan.covers(&group)
+                || !Self::group_ready(conn, batch_id, &group, JobKind::ProxyWorldModel)?
+            {
                 continue;
             }
             let (train, _) = Self::proxy_episodes(conn, batch_id, &group, &plan)?;
@@ -476,13 +501,9 @@ impl Store {
                 train,
                 config: plan.config.clone(),
             };
-            Self::insert_trainer_shard(
-                conn,
-                batch_id,
-                &Self::proxy_world_job(&group),
-                &group,
-                &job,
-            )?;
+            let name = Self::proxy_world_job(&group);
+            let kind = JobKind::ProxyWorldModel;
+            Self::insert_trainer_shard(conn, batch_id, kind, &name, &group, &job)?;
         }
         Ok(())
     }
@@ -497,9 +518,8 @@ impl Store {
     ) -> Result<Result<Option<String>, ()>, CoordError> {
         let row: Option<(String, Option<String>)> = conn
             .query_row(
-                "SELECT state, outcome_json FROM shards
-                 WHERE batch_id = ?1 AND role = 'trainer' AND grp = ?2 AND job = ?3",
-                params![batch_id, group, Self::proxy_world_job(group)],
+                "SELECT state, outcome_json FROM shards WHERE batch_id = ?1 AND kind = ?3 AND grp = ?2",
+                params![batch_id, group, JobKind::ProxyWorldModel.as_str()],
                 |r| Ok((r.get(0)?, r.get(1)?)),
             )
             .optional()?;
@@ -524,7 +544,7 @@ impl Store {
         };
         for group in Self::groups(conn, batch_id)? {
             if !plan.covers(&group)
-                || !Self::group_ready(conn, batch_id, &group, "proxy")?
+                || !Self::group_ready(conn, batch_id, &group, JobKind::Proxy)?
                 || (plan.ladder.is_some() && !Self::ladder_settled(conn, batch_id, &group)?)
             {
                 continue;
@@ -538,6 +558,7 @@ impl Store {
                 Self::insert_failed_trainer_shard(
                     conn,
                     batch_id,
+                    JobKind::Proxy,
                     &job_name,
                     &group,
                     &format!(
@@ -556,7 +577,8 @@ impl Store {
                 config: plan.config.clone(),
                 world_model,
             };
-            Self::insert_trainer_shard(conn, batch_id, &job_name, &group, &job)?;
+            let kind = JobKind::Proxy;
+            Self::insert_trainer_shard(conn, batch_id, kind, &job_name, &group, &job)?;
         }
         Ok(())
     }
@@ -573,12 +595,17 @@ impl Store {
         };
         let groups = Self::groups(conn, batch_id)?;
         for group in groups {
-            if !plan.covers(&group) || !Self::group_ready(conn, batch_id, &group, "diffusion")? {
+            if !plan.covers(&group)
+                || !Self::group_ready(conn, batch_id, &group, JobKind::GeneralizationTraining)?
+            {
                 continue;
             }
             let mut clips = Self::policy_clips(conn, batch_id, &group, &plan.train_policy)?;
             clips.truncate(plan.episodes as usize);
-            let job_name = format!("diffusion {group}");
+            let (kind, job_name) = (
+                JobKind::GeneralizationTraining,
+                format!("diffusion {group}"),
+            );
             if clips.len() < 2 {
                 let why = Self::too_few_clips(
                     &group,
@@ -586,7 +613,7 @@ impl Store {
                     &plan.train_policy,
                     "a diffusion policy",
                 );
-                Self::insert_failed_trainer_shard(conn, batch_id, &job_name, &group, &why)?;
+                Self::insert_failed_trainer_shard(conn, batch_id, kind, &job_name, &group, &why)?;
                 continue;
             }
             let job = TrainerJob::Diffusion {
@@ -595,7 +622,7 @@ impl Store {
                 config: plan.config.clone(),
                 checkpoints: Vec::new(),
             };
-            Self::insert_trainer_shard(conn, batch_id, &job_name, &group, &job)?;
+            Self::insert_trainer_shard(conn, batch_id, kind, &job_name, &group, &job)?;
         }
         Ok(())
     }
@@ -622,7 +649,9 @@ impl Store {
         checkpoints.dedup();
         let steps = checkpoints.last().copied().unwrap_or(ladder.config.steps);
         for group in Self::groups(conn, batch_id)? {
-            if !plan.covers(&group) || !Self::group_ready(conn, batch_id, &group, "ladder")? {
+            if !plan.covers(&group)
+                || !Self::group_ready(conn, batch_id, &group, JobKind::LadderTraining)?
+            {
                 continue;
             }
             let clips = Self::policy_clips(conn, batch_id, &group, &ladder.train_policy)?;
@@ -636,6 +665,7 @@ impl Store {
                 Self::insert_failed_trainer_shard(
                     conn,
                     batch_id,
+                    JobKind::LadderTraining,
                     &format!("ladder {group}"),
                     &group,
                     &why,
@@ -657,7 +687,8 @@ impl Store {
                     checkpoints: checkpoints.clone(),
                 };
                 let name = format!("ladder {group} @ {n}");
-                Self::insert_trainer_shard(conn, batch_id, &name, &group, &job)?;
+                let kind = JobKind::LadderTraining;
+                Self::insert_trainer_shard(conn, batch_id, kind, &name, &group, &job)?;
             }
         }
         Ok(())
@@ -665,8 +696,8 @@ impl Store {
 
     /// Queues the episodes of the policies one ladder training of `group` kept (each checkpoint
     /// and the final model, each key once): every (task, seed) of the group the batch planned
-    /// for its own policies, as ordinary episodes of the batch (`job` NULL: they count in its
-    /// success tables and are ranked by the proxy). Returns how many.
+    /// for its own policies, as ordinary episodes of the batch (kind `Episode`, no job name: they
+    /// count in its success tables and are ranked by the proxy). Returns how many.
     pub(super) fn queue_ladder_episodes(
         conn: &Connection,
         batch_id: &str,
@@ -693,12 +724,15 @@ impl Store {
         kept.push((u64::MAX, model));
         let mut policies: Vec<String> = Vec::new();
         for (_, key) in kept {
-            let name = ladder_policy_name(&ladder, key);
+            let name = ladder.policy_name(key);
             let exists: bool = conn
                 .prepare_cached(
-                    "SELECT EXISTS (SELECT 1 FROM shards WHERE batch_id = ?1 AND policy = ?2 AND job IS NULL)",
+                    "SELECT EXISTS (SELECT 1 FROM shards WHERE batch_id = ?1 AND policy = ?2 AND kind = ?3)",
                 )?
-                .query_row(params![batch_id, name], |r| r.get(0))?;
+                .query_row(
+                    params![batch_id, name, JobKind::Episode.as_str()],
+                    |r| r.get(0),
+                )?;
             if !exists && !policies.contains(&name) {
                 policies.push(name);
             }
@@ -712,13 +746,15 @@ impl Store {
         };
         let role = Self::episode_role(conn, batch_id)?;
         let mut ins = conn.prepare(
-            "INSERT INTO shards (batch_id, task_id, seed, policy, role, state) VALUES (?1, ?2, ?3, ?4, ?5, 'queued')",
+            "INSERT INTO shards (batch_id, task_id, seed, policy, role, state, kind)
+             VALUES (?1, ?2, ?3, ?4, ?5, 'queued', ?6)",
         )?;
         let mut n = 0;
         for seed in &seeds {
             for policy in &policies {
                 for task in &tasks {
-                    ins.execute(params![batch_id, task, *seed as i64, policy, role])?;
+                    let kind = JobKind::Episode.as_str();
+                    ins.execute(params![batch_id, task, *seed as i64, policy, role, kind])?;
                     n += 1;
                 }
             }
@@ -748,11 +784,11 @@ impl Store {
         }
         let mut real = conn.prepare(
             "SELECT outcome_json FROM shards WHERE batch_id = ?1 AND task_id = ?2 AND seed = ?3
-               AND policy = ?4 AND role NOT IN ('judge', 'trainer') AND job IS NULL AND state = 'done'",
+               AND policy = ?4 AND kind = ?5 AND state = 'done'",
         )?;
         let mut ins = conn.prepare(
-            "INSERT INTO shards (batch_id, task_id, seed, policy, role, state, judge, input_json, job, grp, needs)
-             VALUES (?1, ?2, ?3, ?4, ?5, 'queued', ?6, ?7, ?8, ?9, ?10)",
+            "INSERT INTO shards (batch_id, task_id, seed, policy, role, state, judge, input_json, job, grp, needs, kind)
+             VALUES (?1, ?2, ?3, ?4, ?5, 'queued', ?6, ?7, ?8, ?9, ?10, ?11)",
         )?;
         let mut n = 0;
         for p in result
@@ -760,10 +796,12 @@ impl Store {
             .iter()
             .filter(|p| !p.imagined_keyframes.is_empty())
         {
+            let episode_kind = JobKind::Episode.as_str();
             let Some(json) = real
-                .query_row(params![batch_id, p.task_id, p.seed as i64, p.policy], |r| {
-                    r.get::<_, String>(0)
-                })
+                .query_row(
+                    params![batch_id, p.task_id, p.seed as i64, p.policy, episode_kind],
+                    |r| r.get::<_, String>(0),
+                )
                 .optional()?
             else {
                 continue;
@@ -791,6 +829,7 @@ impl Store {
                     IMAGINED_JUDGING,
                     result.group,
                     judge_needs(judge)?,
+                    JobKind::ImaginedJudging.as_str(),
                 ])?;
                 n += 1;
             }
@@ -821,11 +860,11 @@ impl Store {
             let mut stmt = conn.prepare(
                 "SELECT s.task_id, s.seed, json_extract(s.outcome_json, '$.imagery.clip') AS clip
                  FROM shards s JOIN tasks t ON t.batch_id = s.batch_id AND t.task_id = s.task_id
-                 WHERE s.batch_id = ?1 AND t.grp = ?2 AND s.role NOT IN ('judge', 'trainer')
-                   AND s.policy = ?3 AND s.job IS NULL
+                 WHERE s.batch_id = ?1 AND t.grp = ?2 AND s.kind = ?4 AND s.policy = ?3
                    AND s.state = 'done' AND clip IS NOT NULL ORDER BY s.id",
             )?;
-            stmt.query_map(params![batch_id, group, plan.train_policy], |r| {
+            let episode = JobKind::Episode.as_str();
+            stmt.query_map(params![batch_id, group, plan.train_policy, episode], |r| {
                 Ok((r.get(0)?, r.get(1)?))
             })?
             .take(plan.episodes as usize)
@@ -840,8 +879,8 @@ impl Store {
         };
         let role = Self::episode_role(conn, batch_id)?;
         let mut ins = conn.prepare(
-            "INSERT INTO shards (batch_id, task_id, seed, policy, role, state, job, grp)
-             VALUES (?1, ?2, ?3, ?4, ?5, 'queued', ?6, ?7)",
+            "INSERT INTO shards (batch_id, task_id, seed, policy, role, state, job, grp, kind)
+             VALUES (?1, ?2, ?3, ?4, ?5, 'queued', ?6, ?7, ?8)",
         )?;
         let mut n = 0;
         for (task, seed) in &trained {
@@ -852,7 +891,8 @@ impl Store {
                 policy,
                 role,
                 TRAIN_VARIATIONS,
-                group
+                group,
+                JobKind::GeneralizationTrainEpisode.as_str(),
             ])?;
             n += 1;
         }
@@ -866,7 +906,8 @@ impl Store {
                     policy,
                     role,
                     HELD_OUT_VARIATIONS,
-                    group
+                    group,
+                    JobKind::GeneralizationHeldOutEpisode.as_str(),
                 ])?;
                 n += 1;
             }
@@ -913,10 +954,4 @@ fn judge_needs(judge: &str) -> Result<String, CoordError> {
         role::JUDGE.to_owned(),
         format!("judge:{judge}"),
     ])?)
-}
-
-/// The policy name of a ladder policy's episodes (its horizon is the ladder's); the read model
-/// names the report's ladder labels by it.
-pub(super) fn ladder_policy_name(ladder: &LadderPlan, model: &str) -> String {
-    format!("diffusion:model={model},max_steps={}", ladder.max_steps)
 }

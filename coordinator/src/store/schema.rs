@@ -1,8 +1,12 @@
 //! The job store's schema: tables and indexes, and the columns added since the first release.
 //!
-//! Owns: every `CREATE` statement and the migration of an older store file when it is opened.
-//! Never reads or changes rows.
+//! Owns: every `CREATE` statement and the migration of an older store file when it is opened,
+//! with the backfill of the one added column older rows cannot do without (a shard's kind, from
+//! its job name). Never reads rows, nor changes them otherwise.
 
+use assay_model::generalization::HELD_OUT_VARIATIONS;
+use assay_model::job::JobKind;
+use assay_model::proxy::IMAGINED_JUDGING;
 use rusqlite::Connection;
 
 use crate::error::CoordError;
@@ -85,6 +89,9 @@ const ADDED_COLUMNS: &[(&str, &str, &str)] = &[
     ("batches", "render", "INTEGER NOT NULL DEFAULT 0"),
     ("shards", "needs", "TEXT"),
     ("shards", "stage", "TEXT"),
+    // What a shard does (`assay_model::job::JobKind`): what the store selects shards by. A row
+    // written before it gets its kind from its role and job name (`backfill_kinds`).
+    ("shards", "kind", "TEXT"),
 ];
 
 /// Creates what is missing: the tables and indexes of a new store, the columns an older one lacks.
@@ -100,5 +107,49 @@ pub(super) fn migrate(conn: &Connection) -> Result<(), CoordError> {
             conn.execute_batch(&format!("ALTER TABLE {table} ADD COLUMN {column} {decl}"))?;
         }
     }
+    backfill_kinds(conn)?;
+    Ok(())
+}
+
+/// Gives every shard without a kind (written by a version before kinds, even after this one
+/// migrated the file) the kind its role and job name meant to that version, as its read model and
+/// planner told them apart. Job names start with their kind's word: "ladder G @ N", "ladder G"
+/// (failed), "world model G", "proxy G", "diffusion G", "dynamics G @ B", "dynamics G" (failed),
+/// "text"; an episode's job is NULL or a generalization's variations ("generalization train",
+/// [`HELD_OUT_VARIATIONS`]), a judge's NULL or [`IMAGINED_JUDGING`]. GLOB, unlike LIKE, minds
+/// case, as the `starts_with` of that version's read model did.
+pub(super) fn backfill_kinds(conn: &Connection) -> Result<(), CoordError> {
+    use JobKind as K;
+    let sql = format!(
+        "UPDATE shards SET kind = CASE
+           WHEN role = 'trainer' THEN CASE
+             WHEN job GLOB 'diffusion*' THEN '{generalization}'
+             WHEN job GLOB 'ladder*' THEN '{ladder}'
+             WHEN job GLOB 'world model*' THEN '{world}'
+             WHEN job GLOB 'proxy*' THEN '{proxy}'
+             WHEN job GLOB 'dynamics*' THEN '{dynamics}'
+             ELSE '{text}' END
+           WHEN role = 'judge' THEN CASE
+             WHEN job IS '{imagined_job}' THEN '{imagined}'
+             ELSE '{judging}' END
+           WHEN job IS '{held_out_job}' THEN '{held_out}'
+           WHEN job GLOB 'generalization*' THEN '{train}'
+           ELSE '{episode}' END
+         WHERE kind IS NULL",
+        generalization = K::GeneralizationTraining,
+        ladder = K::LadderTraining,
+        world = K::ProxyWorldModel,
+        proxy = K::Proxy,
+        dynamics = K::DynamicsFit,
+        text = K::TextDiversity,
+        imagined_job = IMAGINED_JUDGING,
+        imagined = K::ImaginedJudging,
+        judging = K::EpisodeJudging,
+        held_out_job = HELD_OUT_VARIATIONS,
+        held_out = K::GeneralizationHeldOutEpisode,
+        train = K::GeneralizationTrainEpisode,
+        episode = K::Episode,
+    );
+    conn.execute_batch(&sql)?;
     Ok(())
 }

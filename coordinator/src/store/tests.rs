@@ -1001,3 +1001,4 @@ fn a_store_from_before_judges_gains_their_columns() {
 }
 
 mod groups;
+mod kinds;

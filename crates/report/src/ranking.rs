@@ -222,8 +222,8 @@ pub const RANKING_RESAMPLES: usize = 2000;
 
 /// Builds the ranking section: `episodes` are the finished episodes of the ranked policies,
 /// `groups` the finished proxy jobs, `imagined` the judge role's verdicts on their imagined
-/// rollouts, `task_groups` (task id, group) in report order. Its `labels` are left empty: the
-/// store, which knows the ladder's trainings, fills them.
+/// rollouts, `task_groups` (task id, group) in report order. Its `labels` are left empty:
+/// assembly, which knows the ladder's trainings, fills them (`assemble`).
 pub fn ranking_results(
     plan: &RankingPlan,
     ranked_policies: &[String],

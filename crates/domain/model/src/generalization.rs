@@ -73,6 +73,8 @@ impl GeneralizationPlan {
     }
 }
 
-/// Which variations an evaluation episode of a trained policy runs on.
+/// The job names of a trained policy's evaluation episodes, by the variations they run on; their
+/// kinds are [`crate::job::JobKind::GeneralizationTrainEpisode`] and
+/// [`crate::job::JobKind::GeneralizationHeldOutEpisode`].
 pub const TRAIN_VARIATIONS: &str = "generalization train";
 pub const HELD_OUT_VARIATIONS: &str = "generalization held-out";

@@ -185,6 +185,12 @@ impl LadderPlan {
             .validate()
             .map_err(|e| format!("ladder.config.{e}"))
     }
+
+    /// The policy name of a kept model's episodes (its horizon is the ladder's); the report's
+    /// ladder labels name the policies by it.
+    pub fn policy_name(&self, model: &str) -> String {
+        format!("diffusion:model={model},max_steps={}", self.max_steps)
+    }
 }
 
 /// One episode the proxy uses: its dynamics clip in the artifact store and, for a training
@@ -262,7 +268,8 @@ pub struct ActionTest {
 /// Keyframes of an imagined rollout: as many as the completion prompt shows of a real one.
 pub const IMAGINED_KEYFRAMES: usize = 8;
 
-/// The `job` of a judge shard that judges an imagined rollout (not a real episode).
+/// The job name of a judge shard that judges an imagined rollout (not a real episode); its kind
+/// is [`crate::job::JobKind::ImaginedJudging`].
 pub const IMAGINED_JUDGING: &str = "proxy imagined";
 
 /// A judge's verdict on one ranked episode's imagined rollout.
