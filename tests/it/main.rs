@@ -18,6 +18,7 @@ mod gensim;
 mod import;
 mod judge;
 mod layout;
+mod library;
 mod netns;
 mod operations;
 mod policies;

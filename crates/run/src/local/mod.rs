@@ -53,6 +53,10 @@ pub struct ClusterArgs {
     /// or by the judges given with --judge).
     #[arg(long, conflicts_with = "judges")]
     pub no_judge: bool,
+    /// The `assay` binary the cluster's processes run (not a flag: the running executable, unless
+    /// a caller that is not `assay` itself — a test — names it).
+    #[arg(skip)]
+    pub exe: Option<PathBuf>,
 }
 
 impl ClusterArgs {
@@ -70,7 +74,7 @@ impl ClusterArgs {
         asset_roots: Vec<PathBuf>,
     ) -> Plan {
         Plan {
-            exe: None,
+            exe: self.exe.clone(),
             workers: self.workers,
             capacity: self.capacity,
             roles: self.roles.clone(),
