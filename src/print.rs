@@ -1,5 +1,5 @@
 //! What the command line prints of a cluster's answers: a batch's status line, a state's name,
-//! the tasks a coordinator rejected.
+//! the tasks a coordinator rejected, a report's ranking in a line per comparison.
 
 use assay_proto::v1 as pb;
 
@@ -84,4 +84,37 @@ pub fn status_line(s: &pb::BatchStatus) -> String {
         s.workers_connected,
         s.name
     )
+}
+
+/// One line per ranking comparison of `report` (for a terminal), empty without a ranking.
+pub fn ranking_lines(report: &assay_report::report::Report) -> Vec<String> {
+    let Some(ranking) = report
+        .results
+        .ranking
+        .as_ref()
+        .and_then(|k| k.ranking.as_ref())
+    else {
+        return Vec::new();
+    };
+    let est = |e: &assay_stats::agreement::Estimate| match (e.value, e.ci95) {
+        (Some(v), Some([lo, hi])) => format!("{v:.3} [{lo:.3}, {hi:.3}]"),
+        (Some(v), None) => format!("{v:.3}"),
+        (None, _) => "undefined".into(),
+    };
+    ranking
+        .comparisons
+        .iter()
+        .map(|c| {
+            format!(
+                "policy ranking, {} against {} ({} policies): Pearson r {}, MMRV {}, Spearman {}, Kendall {}",
+                c.proxy,
+                c.real,
+                c.policies.len(),
+                est(&c.pearson),
+                est(&c.mmrv),
+                est(&c.spearman),
+                est(&c.kendall)
+            )
+        })
+        .collect()
 }

@@ -51,12 +51,7 @@ pub enum Cmd {
 }
 
 pub fn run(a: Args) -> anyhow::Result<ExitCode> {
-    let rt = tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(2)
-        .enable_all()
-        .thread_name("assay-policy")
-        .build()
-        .context("tokio runtime")?;
+    let rt = assay_run::rt::runtime("assay-policy");
     match a.cmd {
         Cmd::Serve {
             policy,

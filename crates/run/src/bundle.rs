@@ -101,39 +101,6 @@ pub fn parse(r: &pb::GetReportResponse) -> anyhow::Result<Report> {
     serde_json::from_str(&r.report_json).context("the coordinator's report")
 }
 
-/// One line per ranking comparison of `report` (for a terminal), empty without a ranking.
-pub fn ranking_lines(report: &Report) -> Vec<String> {
-    let Some(ranking) = report
-        .results
-        .ranking
-        .as_ref()
-        .and_then(|k| k.ranking.as_ref())
-    else {
-        return Vec::new();
-    };
-    let est = |e: &assay_stats::agreement::Estimate| match (e.value, e.ci95) {
-        (Some(v), Some([lo, hi])) => format!("{v:.3} [{lo:.3}, {hi:.3}]"),
-        (Some(v), None) => format!("{v:.3}"),
-        (None, _) => "undefined".into(),
-    };
-    ranking
-        .comparisons
-        .iter()
-        .map(|c| {
-            format!(
-                "policy ranking, {} against {} ({} policies): Pearson r {}, MMRV {}, Spearman {}, Kendall {}",
-                c.proxy,
-                c.real,
-                c.policies.len(),
-                est(&c.pearson),
-                est(&c.mmrv),
-                est(&c.spearman),
-                est(&c.kendall)
-            )
-        })
-        .collect()
-}
-
 /// Refuses to write `report` into `out` when `out` holds the report of another batch.
 pub fn check_out(out: &Path, report: &Report, force: bool) -> anyhow::Result<()> {
     let existing = out.join("report.json");

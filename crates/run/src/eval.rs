@@ -123,11 +123,10 @@ struct Prepared {
 /// Runs the batch; `resolved` is the run's resolved configuration, written to OUT/config.toml
 /// once the folder is claimed.
 pub fn run(
-    a: EvalArgs,
+    mut a: EvalArgs,
     resolved: Option<String>,
     observer: &mut dyn Observer,
 ) -> anyhow::Result<Outcome> {
-    let mut a = a;
     let prepared = prepare(&mut a)?;
     let claim = outdir::claim(&a.out, &outdir::batch_key(&prepared.req), a.force)?;
     if let Some(resolved) = resolved {

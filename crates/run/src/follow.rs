@@ -75,11 +75,6 @@ pub trait Observer {
     fn event(&mut self, _event: Event<'_>) {}
 }
 
-/// An observer that ignores everything.
-pub struct Silent;
-
-impl Observer for Silent {}
-
 /// How following ended.
 pub struct Followed {
     /// The last status seen (none if the coordinator never answered).

@@ -176,12 +176,7 @@ impl<'o> Watcher<'o> {
             (None, Some(c)) => c.addr.clone(),
             (None, None) => unreachable!("a local cluster starts without --coordinator"),
         };
-        let rt = std::sync::Arc::new(
-            tokio::runtime::Builder::new_multi_thread()
-                .worker_threads(2)
-                .enable_all()
-                .build()?,
-        );
+        let rt = std::sync::Arc::new(crate::rt::runtime("assay-watch"));
         let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
         {
             let stop = stop.clone();
