@@ -64,11 +64,23 @@ pub fn status_line(s: &pb::BatchStatus) -> String {
         judged
     };
     // Work no connected worker can take, on lines of their own.
-    let waiting: String = s
+    let mut waiting: String = s
         .waiting
         .iter()
         .map(|w| format!("\n  waiting: {w}"))
         .collect();
+    if s.state == pb::BatchState::Running as i32 && !s.priority.is_empty() {
+        waiting.push_str("\n  share: ");
+        waiting.push_str(&share_line(
+            &s.priority,
+            s.workers_holding,
+            s.fair_share,
+            s.holds,
+        ));
+        if s.max_workers > 0 {
+            waiting.push_str(&format!(", at most {} workers", s.max_workers));
+        }
+    }
     format!(
         "{}  {:<9}  {}/{} done  {} ok  {} failed  {} running  {} queued  {} cancelled  {} invalid tasks{judged}  {} workers  {}{waiting}",
         s.batch_id,
@@ -83,6 +95,16 @@ pub fn status_line(s: &pb::BatchStatus) -> String {
         s.invalid_tasks,
         s.workers_connected,
         s.name
+    )
+}
+
+/// A batch's share of the cluster, as `status` and `top` show it.
+pub fn share_line(priority: &str, workers: u32, fair_share: f64, holds: f64) -> String {
+    format!(
+        "{priority} priority, {workers} worker{} holding its shards, {:.0}% of the leases held (fair share {:.0}%)",
+        if workers == 1 { "" } else { "s" },
+        holds * 100.0,
+        fair_share * 100.0
     )
 }
 

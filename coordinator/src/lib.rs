@@ -266,6 +266,10 @@ async fn publish_progress(
                 .workers_connected
                 .load(std::sync::atomic::Ordering::Relaxed),
             waiting: crate::capability::waiting(&queued, &shared.capabilities.offered()),
+            priority: c.share.share.priority.to_string(),
+            workers_holding: c.share.workers,
+            fair_share: c.share.fair_share,
+            holds: c.share.holds,
         };
         if let Err(e) = publishers[&batch].put(&progress).await {
             warn!(error = %e, "telemetry put");

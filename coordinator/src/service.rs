@@ -18,7 +18,7 @@ use tracing::{debug, info, warn};
 use crate::actor::StoreHandle;
 use crate::config::CoordinatorConfig;
 use crate::error::CoordError;
-use crate::store::{BatchCounts, Changed, NewBatch, batch_state};
+use crate::store::{BatchCounts, Changed, NewBatch, Priority, Share, batch_state};
 
 pub fn now_ms() -> i64 {
     std::time::SystemTime::now()
@@ -98,7 +98,36 @@ fn counts_to_pb(c: &BatchCounts, workers: u32) -> pb::BatchStatus {
         content_hash: c.content_hash.clone(),
         duplicate_of: c.duplicate_of.clone().unwrap_or_default(),
         waiting: Vec::new(),
+        priority: c.share.share.priority.to_string(),
+        submitter: c.share.share.submitter.clone(),
+        max_workers: c.share.share.max_workers,
+        workers_holding: c.share.workers,
+        fair_share: c.share.fair_share,
+        holds: c.share.holds,
     }
+}
+
+/// How a submitted batch asks to share the cluster: a known priority (empty: normal), a
+/// submitter name of printable characters.
+fn share_of(req: &pb::SubmitBatchRequest) -> Result<Share, Status> {
+    let priority = if req.priority.is_empty() {
+        Priority::default()
+    } else {
+        req.priority
+            .parse()
+            .map_err(|e| Status::invalid_argument(format!("priority: {e}")))?
+    };
+    let submitter = req.submitter.trim();
+    if submitter.len() > 128 || submitter.chars().any(char::is_control) {
+        return Err(Status::invalid_argument(
+            "submitter: expected at most 128 printable characters",
+        ));
+    }
+    Ok(Share {
+        priority,
+        submitter: submitter.to_owned(),
+        max_workers: req.max_workers,
+    })
 }
 
 pub struct CoordinatorService {
@@ -166,6 +195,7 @@ impl pb::coordinator_server::Coordinator for CoordinatorService {
                 req.judge_budget_usd
             )));
         }
+        let share = share_of(&req)?;
         let mut text_models: Vec<String> = Vec::new();
         for m in &req.text_models {
             if !text_models.contains(m) {
@@ -217,6 +247,7 @@ impl pb::coordinator_server::Coordinator for CoordinatorService {
             dynamics,
             ranking,
             generalization,
+            share,
         };
         let accepted = batch.tasks.len() as u32;
         let now = now_ms();

@@ -60,7 +60,7 @@ fn table(
     out.push('\n');
     for b in batches.values() {
         out.push_str(&format!(
-            "batch {} {:<10} {}/{} done, {} ok, {} failed, {} running  {}\n",
+            "batch {} {:<10} {}/{} done, {} ok, {} failed, {} running  {}\n  share: {}\n",
             b.batch,
             b.state,
             b.done + b.failed,
@@ -68,7 +68,8 @@ fn table(
             b.successes,
             b.failed,
             b.running,
-            b.name
+            b.name,
+            crate::print::share_line(&b.priority, b.workers_holding, b.fair_share, b.holds)
         ));
         for w in &b.waiting {
             out.push_str(&format!("  waiting: {w}\n"));

@@ -66,6 +66,16 @@ pub struct BatchProgress {
     /// Work that waits for a capability no connected worker offers, one line each.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub waiting: Vec<String>,
+    /// Its share of the cluster: its priority, the workers holding its shards, its fair share
+    /// and what it holds of every lease now (fractions; see the coordinator's `BatchStatus`).
+    #[serde(default)]
+    pub priority: String,
+    #[serde(default)]
+    pub workers_holding: u32,
+    #[serde(default)]
+    pub fair_share: f64,
+    #[serde(default)]
+    pub holds: f64,
 }
 
 #[derive(Debug, thiserror::Error)]

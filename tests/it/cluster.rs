@@ -2,6 +2,8 @@
 
 use std::time::Duration;
 
+use assay_proto::v1 as pb;
+
 use crate::common::*;
 
 const STACKING: &str = "examples/tasks/stacking";
@@ -109,5 +111,105 @@ fn a_worker_stopped_with_sigterm_hands_its_leases_back() {
             r.run.extra_attempts, 0,
             "handed-back leases must not count as attempts"
         );
+    });
+}
+
+/// A batch of `seeds` seeds of the stacking tasks from `submitter`.
+async fn submit_as(addr: &str, seeds: u64, submitter: &str) -> pb::SubmitBatchResponse {
+    client(addr)
+        .await
+        .submit_batch(pb::SubmitBatchRequest {
+            name: submitter.into(),
+            tasks: documents(&[STACKING]),
+            policies: vec![pb::PolicyRef {
+                name: "oracle".into(),
+            }],
+            seeds: (0..seeds).collect(),
+            submitter: submitter.into(),
+            ..Default::default()
+        })
+        .await
+        .unwrap()
+        .into_inner()
+}
+
+#[test]
+fn a_short_batch_submitted_behind_a_long_one_starts_at_once_and_ends_first() {
+    let dir = tempfile::tempdir().unwrap();
+    let (_coord, addr) = coordinator(dir.path(), "127.0.0.1:0", &["--heartbeat-ms", "300"]);
+    let _w0 = worker(dir.path(), &addr, 0, 1);
+    let _w1 = worker(dir.path(), &addr, 1, 1);
+    runtime().block_on(async {
+        let long = submit_as(&addr, 40, "ann").await;
+        let long_id = long.batch_id.clone();
+        wait_for(&addr, &long_id, Duration::from_secs(120), |s| {
+            s.shards_done >= 2 && s.shards_running == 2
+        })
+        .await;
+        let mut c = client(&addr).await;
+        // The store, read beside the coordinator (WAL): the last lease before the short batch.
+        let store = rusqlite::Connection::open_with_flags(
+            dir.path().join("jobs.db"),
+            rusqlite::OpenFlags::SQLITE_OPEN_READ_ONLY,
+        )
+        .unwrap();
+        let last_lease = |store: &rusqlite::Connection| -> i64 {
+            store
+                .query_row("SELECT COALESCE(MAX(lease_id), 0) FROM shards", [], |r| r.get(0))
+                .unwrap()
+        };
+        let before = last_lease(&store);
+        let short = submit_as(&addr, 1, "bob").await;
+        let started = wait_for(&addr, &short.batch_id, Duration::from_secs(120), |s| {
+            s.shards_running + s.shards_done > 0
+        })
+        .await;
+        // Its first episode starts within two lease rounds: of the leases granted after it was
+        // submitted, at most two per worker went to the long batch before its first.
+        let first_short: i64 = store
+            .query_row(
+                "SELECT MIN(lease_id) FROM shards WHERE batch_id = ?1",
+                [&short.batch_id],
+                |r| r.get(0),
+            )
+            .unwrap();
+        let long_between: i64 = store
+            .query_row(
+                "SELECT COUNT(*) FROM shards WHERE batch_id = ?1 AND lease_id > ?2 AND lease_id < ?3",
+                rusqlite::params![long_id, before, first_short],
+                |r| r.get(0),
+            )
+            .unwrap();
+        assert!(
+            long_between <= 4,
+            "{long_between} leases of the long batch went before the short batch's first"
+        );
+        assert_eq!(started.priority, "normal");
+        assert_eq!(started.submitter, "bob");
+        assert!((started.fair_share - 0.5).abs() < 1e-9, "{started:?}");
+        // It finishes before the long one.
+        let done = wait_for(&addr, &short.batch_id, Duration::from_secs(300), finished).await;
+        assert_eq!(done.shards_done, done.shards_total);
+        let long_now = c
+            .get_batch(pb::GetBatchRequest {
+                batch_id: long_id.clone(),
+            })
+            .await
+            .unwrap()
+            .into_inner();
+        assert_eq!(
+            long_now.state,
+            pb::BatchState::Running as i32,
+            "the long batch ended first: {long_now:?}"
+        );
+        // `assay status` shows each running batch's share.
+        let out = ok(&assay(&["status", "--coordinator", &addr]));
+        assert!(
+            out.contains("share: normal priority") && out.contains("fair share 100%"),
+            "{out}"
+        );
+        c.cancel_batch(pb::GetBatchRequest { batch_id: long_id })
+            .await
+            .unwrap();
     });
 }

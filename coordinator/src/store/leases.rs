@@ -33,12 +33,10 @@ type QueuedShard = (
     Option<String>,
 );
 
-/// What a shard needs of its worker, in SQL: its `needs` (a JSON array), else its role.
-const NEEDS: &str = "COALESCE(s.needs, json_array(s.role))";
-
 impl Store {
     /// Leases up to `n` queued shards of running batches to a worker offering `capabilities`
-    /// (its roles and what else it can do): only shards that need nothing else.
+    /// (its roles and what else it can do): only shards that need nothing else, shared between
+    /// the running batches by weight (`fair::pick` chooses them).
     pub fn lease(
         &mut self,
         worker: &str,
@@ -51,54 +49,41 @@ impl Store {
             return Ok(Vec::new());
         }
         let tx = self.conn.savepoint()?;
-        let placeholders = capabilities
-            .iter()
-            .map(|_| "?")
-            .collect::<Vec<_>>()
-            .join(",");
-        // Queue order, except that a trainer takes the dynamics-diversity fits last: nothing
-        // waits for them, while a proxy, a ladder or a generalization policy has episodes or a
-        // proxy after it (a proxy queued after the fits still runs before them).
-        let order = if capabilities.iter().any(|c| c == role::TRAINER) {
-            format!("(s.kind = '{}'), s.id", JobKind::DynamicsFit)
-        } else {
-            "s.id".to_owned()
-        };
-        let sql = format!(
-            "SELECT s.id, s.batch_id, s.seed, s.policy, s.role, s.attempts, COALESCE(t.spec_json, ''),
-                    s.judge, s.input_json, b.judge_repeats, b.judge_budget_usd,
-                    COALESCE(json_extract(b.dynamics_json, '$.config.image_size'),
-                             json_extract(b.ranking_json, '$.config.world_model.image_size'),
-                             json_extract(b.generalization_json, '$.config.image_size')),
-                    b.render, s.stage
-             FROM shards s LEFT JOIN tasks t ON t.batch_id = s.batch_id AND t.task_id = s.task_id
-                           JOIN batches b ON b.id = s.batch_id
-             WHERE s.state = 'queued'
-               AND NOT EXISTS (SELECT 1 FROM json_each({NEEDS}) WHERE value NOT IN ({placeholders}))
-             ORDER BY {order} LIMIT {n}"
-        );
-        let rows: Vec<QueuedShard> = {
-            let mut stmt = tx.prepare_cached(&sql)?;
-            let it = stmt.query_map(rusqlite::params_from_iter(capabilities.iter()), |r| {
-                Ok((
-                    r.get(0)?,
-                    r.get(1)?,
-                    r.get(2)?,
-                    r.get(3)?,
-                    r.get(4)?,
-                    r.get(5)?,
-                    r.get(6)?,
-                    r.get(7)?,
-                    r.get(8)?,
-                    r.get(9)?,
-                    r.get(10)?,
-                    r.get(11)?,
-                    r.get(12)?,
-                    r.get(13)?,
-                ))
-            })?;
-            it.collect::<Result<_, _>>()?
-        };
+        let picked = super::fair::pick(&tx, worker, capabilities, n)?;
+        let mut rows: Vec<QueuedShard> = Vec::with_capacity(picked.len());
+        {
+            let mut stmt = tx.prepare_cached(
+                "SELECT s.id, s.batch_id, s.seed, s.policy, s.role, s.attempts, COALESCE(t.spec_json, ''),
+                        s.judge, s.input_json, b.judge_repeats, b.judge_budget_usd,
+                        COALESCE(json_extract(b.dynamics_json, '$.config.image_size'),
+                                 json_extract(b.ranking_json, '$.config.world_model.image_size'),
+                                 json_extract(b.generalization_json, '$.config.image_size')),
+                        b.render, s.stage
+                 FROM shards s LEFT JOIN tasks t ON t.batch_id = s.batch_id AND t.task_id = s.task_id
+                               JOIN batches b ON b.id = s.batch_id
+                 WHERE s.id = ?1",
+            )?;
+            for id in picked {
+                rows.push(stmt.query_row([id], |r| {
+                    Ok((
+                        r.get(0)?,
+                        r.get(1)?,
+                        r.get(2)?,
+                        r.get(3)?,
+                        r.get(4)?,
+                        r.get(5)?,
+                        r.get(6)?,
+                        r.get(7)?,
+                        r.get(8)?,
+                        r.get(9)?,
+                        r.get(10)?,
+                        r.get(11)?,
+                        r.get(12)?,
+                        r.get(13)?,
+                    ))
+                })?);
+            }
+        }
         let first = Self::next_counter(&tx, "lease_seq", rows.len() as u64)?;
         let mut out = Vec::with_capacity(rows.len());
         for (

@@ -15,12 +15,15 @@
 use std::path::Path;
 
 use assay_model::generalization::GeneralizationPlan;
+pub use assay_model::job::Priority;
 use assay_model::proxy::RankingPlan;
 use assay_spec::SpecError;
 use rusqlite::{Connection, OptionalExtension, params};
 
 use crate::error::CoordError;
 
+mod fair;
+pub use fair::BatchShare;
 mod leases;
 mod metrics;
 pub use metrics::{SHARD_SECONDS_BUCKETS, Snapshot};
@@ -93,6 +96,18 @@ pub struct NewBatch {
     /// Generalization (None: none): every episode renders a clip; each group's diffusion policy
     /// is trained once its episodes are finished, then run on training and held-out variations.
     pub generalization: Option<GeneralizationPlan>,
+    /// Its share of the cluster beside other running batches, who submitted it (one submitter's
+    /// batches of a class share the class's weight) and the most workers it may hold at once
+    /// (0: no cap). See `fair`.
+    pub share: Share,
+}
+
+/// How a batch shares the cluster with the other running batches.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Share {
+    pub priority: Priority,
+    pub submitter: String,
+    pub max_workers: u32,
 }
 
 /// A shard handed to a worker.
@@ -154,6 +169,8 @@ pub struct BatchCounts {
     pub content_hash: String,
     /// A skipped batch: the batch it repeats.
     pub duplicate_of: Option<String>,
+    /// Its share of the cluster: as submitted, and what it holds now.
+    pub share: BatchShare,
 }
 
 /// What a state change did, so the caller knows whom to wake.

@@ -138,8 +138,16 @@ impl Store {
             }
         }
         tx.execute(
-            "UPDATE batches SET content_hash = ?1, render = ?2 WHERE id = ?3",
-            params![batch.content_hash, batch.render, id],
+            "UPDATE batches SET content_hash = ?1, render = ?2, priority = ?3, submitter = ?4,
+             max_workers = ?5 WHERE id = ?6",
+            params![
+                batch.content_hash,
+                batch.render,
+                batch.share.priority.as_str(),
+                batch.share.submitter,
+                batch.share.max_workers,
+                id
+            ],
         )?;
         Self::mark_rendering_in_loop(&tx, &id)?;
         if let Some(plan) = &batch.ranking {

@@ -114,6 +114,7 @@ impl Store {
             |r| r.get(0),
         )?;
         c.judge_cost_usd = Self::judge_spent(&self.conn, batch_id)?;
+        c.share = super::fair::share(&self.conn, batch_id)?;
         Ok(c)
     }
 

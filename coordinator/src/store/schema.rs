@@ -1,8 +1,9 @@
 //! The job store's schema: tables and indexes, and the columns added since the first release.
 //!
-//! Owns: every `CREATE` statement and the migration of an older store file when it is opened,
-//! with the backfill of the one added column older rows cannot do without (a shard's kind, from
-//! its job name). Never reads rows, nor changes them otherwise.
+//! Owns: every `CREATE` statement (tables, indexes, the triggers that keep each batch's load)
+//! and the migration of an older store file when it is opened, with the backfill of the one
+//! added column older rows cannot do without (a shard's kind, from its job name) and the
+//! recount of the loads. Never reads rows, nor changes them otherwise.
 
 use assay_model::generalization::HELD_OUT_VARIATIONS;
 use assay_model::job::JobKind;
@@ -92,7 +93,55 @@ const ADDED_COLUMNS: &[(&str, &str, &str)] = &[
     // What a shard does (`assay_model::job::JobKind`): what the store selects shards by. A row
     // written before it gets its kind from its role and job name (`backfill_kinds`).
     ("shards", "kind", "TEXT"),
+    // Sharing the cluster (issue 42): the batch's priority class, who submitted it (one
+    // submitter's batches of a class share that class's weight) and the most workers it may
+    // hold at once (0: no cap).
+    ("batches", "priority", "TEXT NOT NULL DEFAULT 'normal'"),
+    ("batches", "submitter", "TEXT NOT NULL DEFAULT ''"),
+    ("batches", "max_workers", "INTEGER NOT NULL DEFAULT 0"),
 ];
+
+/// What leasing reads, made after the added columns exist (an older store gains them first).
+///
+/// - `shards_queue`: the queued shards of a batch by what they need (`needs`, else the role),
+///   in id order — a lease reads the few shards it takes from it, however long the queue (the
+///   earlier lease query ordered every queued shard by id, a cost in the queue's length).
+/// - `batch_load`: per batch with open shards, how many are queued and how many leased, kept by
+///   triggers on every change of a shard's state (whichever statement makes it), so the fair
+///   share reads the running batches' loads without counting shards. A batch leaves it when
+///   nothing of it is open. Rebuilt from the shards on every open ([`rebuild_load`]).
+const LEASING: &str = r#"
+CREATE INDEX IF NOT EXISTS shards_queue ON shards (batch_id, COALESCE(needs, role), id)
+    WHERE state = 'queued';
+CREATE TABLE IF NOT EXISTS batch_load (
+    batch_id TEXT PRIMARY KEY,
+    queued INTEGER NOT NULL,
+    leased INTEGER NOT NULL
+);
+CREATE TRIGGER IF NOT EXISTS batch_load_insert AFTER INSERT ON shards
+WHEN new.state IN ('queued', 'leased') BEGIN
+    INSERT OR IGNORE INTO batch_load (batch_id, queued, leased) VALUES (new.batch_id, 0, 0);
+    UPDATE batch_load SET queued = queued + (new.state = 'queued'),
+                          leased = leased + (new.state = 'leased')
+     WHERE batch_id = new.batch_id;
+END;
+CREATE TRIGGER IF NOT EXISTS batch_load_update AFTER UPDATE OF state ON shards
+WHEN old.state IS NOT new.state
+ AND (old.state IN ('queued', 'leased') OR new.state IN ('queued', 'leased')) BEGIN
+    INSERT OR IGNORE INTO batch_load (batch_id, queued, leased) VALUES (new.batch_id, 0, 0);
+    UPDATE batch_load SET queued = queued + (new.state = 'queued') - (old.state = 'queued'),
+                          leased = leased + (new.state = 'leased') - (old.state = 'leased')
+     WHERE batch_id = new.batch_id;
+    DELETE FROM batch_load WHERE batch_id = new.batch_id AND queued = 0 AND leased = 0;
+END;
+CREATE TRIGGER IF NOT EXISTS batch_load_delete AFTER DELETE ON shards
+WHEN old.state IN ('queued', 'leased') BEGIN
+    UPDATE batch_load SET queued = queued - (old.state = 'queued'),
+                          leased = leased - (old.state = 'leased')
+     WHERE batch_id = old.batch_id;
+    DELETE FROM batch_load WHERE batch_id = old.batch_id AND queued = 0 AND leased = 0;
+END;
+"#;
 
 /// Creates what is missing: the tables and indexes of a new store, the columns an older one lacks.
 pub(super) fn migrate(conn: &Connection) -> Result<(), CoordError> {
@@ -108,6 +157,20 @@ pub(super) fn migrate(conn: &Connection) -> Result<(), CoordError> {
         }
     }
     backfill_kinds(conn)?;
+    conn.execute_batch(LEASING)?;
+    rebuild_load(conn)?;
+    Ok(())
+}
+
+/// Counts `batch_load` afresh from the shards: a store written by a version without the
+/// triggers, or a file changed by hand, is right again once opened.
+pub(super) fn rebuild_load(conn: &Connection) -> Result<(), CoordError> {
+    conn.execute_batch(
+        "DELETE FROM batch_load;
+         INSERT INTO batch_load (batch_id, queued, leased)
+         SELECT batch_id, SUM(state = 'queued'), SUM(state = 'leased') FROM shards
+          WHERE state IN ('queued', 'leased') GROUP BY batch_id;",
+    )?;
     Ok(())
 }
 

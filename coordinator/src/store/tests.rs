@@ -15,6 +15,8 @@ use super::*;
 const TTL: i64 = 1_000;
 
 mod capability;
+mod fair;
+mod scale;
 
 fn batch(tasks: &[&str], seeds: &[u64], max_attempts: u32) -> NewBatch {
     NewBatch {
@@ -48,6 +50,7 @@ fn batch(tasks: &[&str], seeds: &[u64], max_attempts: u32) -> NewBatch {
         dynamics: None,
         ranking: None,
         generalization: None,
+        share: Default::default(),
     }
 }
 

@@ -129,6 +129,34 @@ pub struct BatchArgs {
         help_heading = "Generalization"
     )]
     pub generalization: Option<String>,
+    /// The batch's share of the cluster beside other running batches: low, normal or high
+    /// (weights 1, 4, 16; workers go to running batches in proportion). Default: normal
+    /// (`assay watch`: low).
+    #[arg(long, help_heading = "Sharing")]
+    pub priority: Option<assay_model::job::Priority>,
+    /// The most workers that may hold the batch's shards at once (0: no cap).
+    #[arg(long, default_value_t = 0, help_heading = "Sharing")]
+    pub max_workers: u32,
+    /// Who submits, for the fair share between submitters (default: $ASSAY_SUBMITTER, else
+    /// user@host).
+    #[arg(long, help_heading = "Sharing")]
+    pub submitter: Option<String>,
+}
+
+/// Who submits when not told: `$ASSAY_SUBMITTER`, else `$USER@<host name>`.
+pub fn default_submitter() -> String {
+    if let Ok(s) = std::env::var("ASSAY_SUBMITTER") {
+        return s;
+    }
+    let user = std::env::var("USER").unwrap_or_else(|_| "unknown".into());
+    let host = std::fs::read_to_string("/proc/sys/kernel/hostname")
+        .map(|h| h.trim().to_owned())
+        .unwrap_or_default();
+    if host.is_empty() {
+        user
+    } else {
+        format!("{user}@{host}")
+    }
 }
 
 /// A nested setting of a batch, with the coordinator's own check of it.
@@ -237,6 +265,9 @@ impl BatchArgs {
             skip_if_evaluated: false,
             asset_roots: Vec::new(),
             render: self.render,
+            priority: self.priority.unwrap_or_default().to_string(),
+            max_workers: self.max_workers,
+            submitter: self.submitter.clone().unwrap_or_else(default_submitter),
         }
     }
 }

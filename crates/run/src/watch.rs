@@ -21,6 +21,7 @@ use crate::follow::{Event, Observer};
 use crate::local::{ClusterArgs, LocalCluster};
 use crate::{bundle, docs};
 use anyhow::Context;
+use assay_model::job::Priority;
 use assay_proto::v1 as pb;
 use assay_stats::diversity::{Marginal, marginal_diversity, text_diversity};
 
@@ -314,6 +315,8 @@ impl<'o> Watcher<'o> {
         let mut req = self.a.batch.request(docs, name);
         req.asset_roots = docs::root_strings(&roots);
         req.skip_if_evaluated = true;
+        // Continuous evaluation yields to a person's batch unless told otherwise.
+        req.priority = self.a.batch.priority.unwrap_or(Priority::Low).to_string();
         req.render = self.a.cluster.rendering();
         let (response, status) = self.submit_and_wait(req)?;
         entry.batch_id = response.batch_id.clone();

@@ -1,7 +1,7 @@
 //! What a shard of a batch does, and the states it moves through: the words the job store keeps
 //! for them (`shards.kind`, `shards.state`).
 //!
-//! Owns: [`JobKind`] and [`ShardState`], and the one conversion of each to and from its stored
+//! Owns: [`JobKind`], [`ShardState`] and a batch's [`Priority`], and the one conversion of each to and from its stored
 //! text. Never decides which shards a batch has, never reads a store, never names a job for
 //! people (the store's `job` column does: "ladder kitchen @ 10").
 
@@ -172,6 +172,65 @@ impl FromStr for ShardState {
     }
 }
 
+/// How much of the cluster a batch asks for, beside the other running batches: workers are
+/// shared between batches in proportion to their class's weight (a weighted fair share, not a
+/// strict order: a low batch still moves while a high one runs).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Default)]
+pub enum Priority {
+    /// Continuous evaluation (`assay watch`) by default: weight 1.
+    Low,
+    /// A person's batch by default: weight 4.
+    #[default]
+    Normal,
+    /// Weight 16: a batch someone waits on.
+    High,
+}
+
+impl Priority {
+    pub const ALL: [Priority; 3] = [Priority::Low, Priority::Normal, Priority::High];
+
+    /// The priority as the job store and the protocol keep it.
+    pub const fn as_str(self) -> &'static str {
+        match self {
+            Priority::Low => "low",
+            Priority::Normal => "normal",
+            Priority::High => "high",
+        }
+    }
+
+    /// The class's weight in the fair share: one submitter's running batches of a class share
+    /// it between them.
+    pub const fn weight(self) -> f64 {
+        match self {
+            Priority::Low => 1.0,
+            Priority::Normal => 4.0,
+            Priority::High => 16.0,
+        }
+    }
+}
+
+impl fmt::Display for Priority {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+/// A priority this version does not know.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("unknown priority {0:?} (low, normal or high)")]
+pub struct UnknownPriority(pub String);
+
+impl FromStr for Priority {
+    type Err = UnknownPriority;
+
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        Priority::ALL
+            .into_iter()
+            .find(|k| k.as_str() == s)
+            .ok_or_else(|| UnknownPriority(s.to_owned()))
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -197,5 +256,17 @@ mod tests {
             Err(UnknownJobKind("ladder".into()))
         );
         assert!("running".parse::<ShardState>().is_err());
+        for p in Priority::ALL {
+            assert_eq!(p.as_str().parse::<Priority>(), Ok(p));
+        }
+        assert!(
+            "urgent"
+                .parse::<Priority>()
+                .unwrap_err()
+                .to_string()
+                .contains("low, normal or high")
+        );
+        assert!(Priority::Low.weight() < Priority::Normal.weight());
+        assert!(Priority::Normal.weight() < Priority::High.weight());
     }
 }

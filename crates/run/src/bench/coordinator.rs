@@ -83,6 +83,7 @@ fn bench_batch(tasks: Vec<assay_plan::PlannedTask>, shards: u64) -> NewBatch {
         dynamics: None,
         ranking: None,
         generalization: None,
+        share: Default::default(),
     }
 }
 
