@@ -10,9 +10,10 @@ use assay_run::bench;
 
 #[derive(clap::Args)]
 pub struct Args {
-    /// physics | render | rollout | handoff | coordinator | scaling
+    /// physics | render | rollout | handoff | coordinator | scaling | churn
     pub measure: String,
-    /// `coordinator`: fake workers (sessions over loopback gRPC); `scaling`: the most of them.
+    /// `coordinator`, `churn`: fake workers (sessions over loopback gRPC); `scaling`: the most
+    /// of them.
     #[arg(long, default_value_t = 1000)]
     pub workers: u32,
     /// `coordinator`: shards in the batch.
@@ -21,9 +22,16 @@ pub struct Args {
     /// `coordinator`: shards each fake worker holds at once (and the store bench's lease grant).
     #[arg(long, default_value_t = 1)]
     pub capacity: u32,
-    /// `scaling`: how long each fake episode takes, in milliseconds.
+    /// `scaling`, `churn`: how long each fake episode takes, in milliseconds.
     #[arg(long, default_value_t = 20)]
     pub work_ms: u64,
+    /// `churn`: milliseconds between two events (a worker joins or leaves, in turn).
+    #[arg(long, default_value_t = 100)]
+    pub every_ms: u64,
+    /// `churn`: the coordinator's lease TTL, in milliseconds (how long a stalled worker's shard
+    /// waits before it runs elsewhere).
+    #[arg(long, default_value_t = 2_000)]
+    pub lease_ttl_ms: u64,
     /// The scene contract.
     #[arg(long, default_value = "bench/reference-scene.json")]
     pub scene: PathBuf,
@@ -61,6 +69,17 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
             a.shards,
             a.capacity,
             Duration::from_millis(a.work_ms),
+            &mut progress,
+        )?,
+        "churn" => bench::churn::run(
+            &bench::churn::Churn {
+                exe: std::env::current_exe()?,
+                workers: a.workers,
+                shards: a.shards,
+                every: Duration::from_millis(a.every_ms.max(1)),
+                work: Duration::from_millis(a.work_ms),
+                lease_ttl: Duration::from_millis(a.lease_ttl_ms.max(1)),
+            },
             &mut progress,
         )?,
         measure => bench::peers(

@@ -409,3 +409,52 @@ fn configuration_and_environment_stay_where_they_belong() {
         "{err}"
     );
 }
+
+/// `assay bench churn` at small scale: workers killed, leaving gracefully and stalling while a
+/// batch runs; nothing lost, every re-run explained by a leave, no result counted twice, every
+/// stalled worker's late result refused.
+#[test]
+fn the_churn_benchmark_loses_nothing_while_workers_come_and_go() {
+    let v = bench_json(&[
+        "bench",
+        "churn",
+        "--workers",
+        "20",
+        "--shards",
+        "1500",
+        "--every-ms",
+        "20",
+        "--lease-ttl-ms",
+        "400",
+    ]);
+    assert_eq!(v["batch_state"], "BATCH_STATE_COMPLETED", "{v:#}");
+    assert_eq!(v["lost"], 0, "{v:#}");
+    assert_eq!(v["failed"], 0, "{v:#}");
+    assert_eq!(v["reruns_unexplained"], 0, "{v:#}");
+    assert_eq!(v["results_accepted_twice"], 0, "{v:#}");
+    assert_eq!(v["late_results_accepted"], 0, "{v:#}");
+    for kind in ["kills", "graceful", "stalls"] {
+        assert!(v["events"][kind].as_u64().unwrap() >= 2, "{v:#}");
+    }
+    // Each kind of leave interrupted a running shard at least once, and each was run again.
+    let explained = &v["reruns_explained"];
+    assert!(explained["killed"].as_u64().unwrap() >= 1, "{v:#}");
+    assert!(explained["expired"].as_u64().unwrap() >= 1, "{v:#}");
+    // A killed worker's unacknowledged result may have arrived (then nothing runs again).
+    let interrupted =
+        |keys: &[&str]| -> u64 { keys.iter().map(|k| explained[k].as_u64().unwrap()).sum() };
+    let reruns = v["reruns"].as_u64().unwrap();
+    assert!(
+        reruns >= interrupted(&["killed", "handed_back", "expired"])
+            && reruns
+                <= interrupted(&[
+                    "killed",
+                    "handed_back",
+                    "expired",
+                    "expired_while_running",
+                    "killed_with_result_unacknowledged"
+                ]),
+        "{v:#}"
+    );
+    assert!(v["coordinator_cpu_s"].as_f64().unwrap() > 0.0, "{v:#}");
+}

@@ -36,7 +36,7 @@ fn status_mib(key: &str) -> f64 {
 }
 
 /// One valid episode outcome, sent for every shard.
-fn outcome_json() -> String {
+pub(super) fn outcome_json() -> String {
     serde_json::to_string(&assay_model::episode::EpisodeOutcome {
         task_id: "small-stack-two-blocks".into(),
         seed: 0,
@@ -56,7 +56,7 @@ fn outcome_json() -> String {
     .expect("outcome serialises")
 }
 
-fn docs() -> Vec<assay_plan::TaskDocument> {
+pub(super) fn docs() -> Vec<assay_plan::TaskDocument> {
     vec![assay_plan::TaskDocument {
         origin: "bench.yaml".into(),
         format: String::new(),

@@ -4,6 +4,7 @@
 //!
 //! Owns: what each measurement times and the line it returns. Never prints.
 
+pub mod churn;
 pub mod coordinator;
 
 use std::path::PathBuf;
