@@ -57,6 +57,8 @@ enum Command {
     Cancel(cmd::status::CancelArgs),
     /// Live view of a cluster: workers' rates and batches' progress, from telemetry.
     Top(cmd::top::Args),
+    /// Keys derived from the cluster token: a role's (worker, submitter, viewer) or a service's.
+    Token(cmd::token::Args),
     /// Check task specs without running them.
     Validate(cmd::validate::Args),
     /// Read a GenSim, RoboGen or BBSEA batch as task specs, with the per-task mapping report.
@@ -138,6 +140,7 @@ fn main() -> std::process::ExitCode {
         Command::Export(a) => cmd::export::run(a),
         Command::Cancel(a) => cmd::status::cancel(a),
         Command::Top(a) => cmd::top::run(a),
+        Command::Token(a) => cmd::token::run(a),
         Command::Validate(a) => cmd::validate::run(a),
         Command::Import(a) => cmd::import::run(a),
         Command::Agreement(a) => cmd::agreement::run(a),

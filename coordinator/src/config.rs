@@ -18,8 +18,11 @@ pub struct CoordinatorConfig {
     pub telemetry: Option<String>,
     /// Cluster name in telemetry key expressions.
     pub cluster: String,
-    /// The cluster token every call must carry (None: calls are not checked).
-    pub token: Option<assay_proto::auth::Token>,
+    /// The credentials calls must carry, and which role each grants (None: calls are not
+    /// checked). Re-read every `credentials_refresh` when some come from files.
+    pub keyring: Option<std::sync::Arc<assay_proto::auth::Keyring>>,
+    /// How often the keyring's files are read again (a rotated Secret is taken this soon).
+    pub credentials_refresh: Duration,
 }
 
 impl CoordinatorConfig {
@@ -32,7 +35,8 @@ impl CoordinatorConfig {
             max_attempts: 3,
             telemetry: None,
             cluster: "local".into(),
-            token: None,
+            keyring: None,
+            credentials_refresh: Duration::from_secs(2),
         }
     }
 }

@@ -1,9 +1,11 @@
 //! `assay-coordinator`: one per cluster. Accepts batches, plans them into shards, keeps every
 //! state change in its SQLite job store, leases shards to workers by role and capacity, re-queues
-//! what expires, retries what fails a bounded number of times, and builds reports.
+//! what expires, retries what fails a bounded number of times, and builds reports. Checks every
+//! call's credential against the method it calls (`access`), re-reading rotated credential files.
 //!
 //! Never links physics, rendering or torch (checked by `tests/forbidden_dependencies.rs`).
 
+pub mod access;
 pub mod actor;
 pub mod capability;
 pub mod config;
@@ -92,9 +94,9 @@ pub async fn serve(
             &endpoint,
             shared
                 .config
-                .token
+                .keyring
                 .as_ref()
-                .map(|t| t.derive("zenoh"))
+                .map(|k| k.zenoh_users())
                 .as_deref(),
         )
         .await
@@ -117,32 +119,45 @@ pub async fn serve(
         info!(addr = ?l.local_addr().ok(), "metrics at /metrics");
         tokio::spawn(serve_metrics(shared.clone(), l, stop_rx.clone()))
     });
+    let refresher = shared
+        .config
+        .keyring
+        .clone()
+        .filter(|k| k.has_files())
+        .map(|k| {
+            tokio::spawn(refresh_credentials(
+                k,
+                shared.config.credentials_refresh,
+                stop_rx.clone(),
+            ))
+        });
     let addr = listener.local_addr().ok();
+    let keyring = shared.config.keyring.clone();
     info!(
         addr = ?addr,
-        token = if shared.config.token.is_some() { "required" } else { "not required" },
+        credentials = keyring.as_ref().map_or("none required".into(), |k| k.describe()),
         "coordinator listening"
     );
+    // Every call's credential is checked against the method it calls (`access`).
     let server = tonic::transport::Server::builder()
-        .layer(tonic::service::InterceptorLayer::new(
-            assay_proto::auth::RequireToken::new(shared.config.token.clone()),
-        ))
         .http2_keepalive_interval(Some(Duration::from_secs(5)))
         .http2_keepalive_timeout(Some(Duration::from_secs(10)))
-        .add_service(
+        .add_service(access::Guarded::new(
             pb::coordinator_server::CoordinatorServer::new(CoordinatorService {
                 shared: shared.clone(),
             })
             .max_decoding_message_size(assay_proto::MAX_MESSAGE_BYTES)
             .max_encoding_message_size(assay_proto::MAX_MESSAGE_BYTES),
-        )
-        .add_service(
+            keyring.clone(),
+        ))
+        .add_service(access::Guarded::new(
             pb::worker_session_server::WorkerSessionServer::new(WorkerSessionService {
                 shared: shared.clone(),
             })
             .max_decoding_message_size(assay_proto::MAX_MESSAGE_BYTES)
             .max_encoding_message_size(assay_proto::MAX_MESSAGE_BYTES),
-        );
+            keyring,
+        ));
     let mut stop_for_server = stop_rx.clone();
     // Every connection without Nagle's delay: an assignment, a result and its ack are small
     // messages, and with Nagle and delayed ACKs each waited ~40 ms (`assay bench coordinator`:
@@ -159,6 +174,9 @@ pub async fn serve(
     let out = result.await;
     trigger.abort();
     let _ = sweeper.await;
+    if let Some(r) = refresher {
+        let _ = r.await;
+    }
     if let Some(m) = metrics {
         let _ = m.await;
     }
@@ -167,6 +185,45 @@ pub async fn serve(
         assay_telemetry::close(session).await;
     }
     out.map_err(|e| CoordError::InvalidRequest(format!("server: {e}")))
+}
+
+/// Reads the keyring's files every `every` until `stop` changes: a rotated key is accepted, and
+/// the old one refused, from the next call on. A failed read keeps the keys and is logged once
+/// (not every `every`), until it reads again.
+async fn refresh_credentials(
+    keyring: Arc<assay_proto::auth::Keyring>,
+    every: Duration,
+    mut stop: watch::Receiver<bool>,
+) {
+    let mut tick = tokio::time::interval(every);
+    tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    let mut failing: Option<String> = None;
+    loop {
+        tokio::select! {
+            _ = tick.tick() => {}
+            _ = stop.changed() => return,
+        }
+        let k = keyring.clone();
+        let Ok(read) = tokio::task::spawn_blocking(move || k.reload()).await else {
+            return;
+        };
+        match read {
+            Ok(changed) => {
+                if changed {
+                    info!(credentials = %keyring.describe(), "credentials changed: the new keys are taken, the old refused");
+                }
+                if failing.take().is_some() {
+                    info!("credential files read again");
+                }
+            }
+            Err(e) => {
+                if failing.as_deref() != Some(e.as_str()) {
+                    warn!(error = %e, "credential files unreadable: the keys read before stay");
+                }
+                failing = Some(e);
+            }
+        }
+    }
 }
 
 /// `GET /metrics` and `GET /healthz` until `stop` changes.

@@ -1,9 +1,10 @@
 //! `assay-proto`: the gRPC contract between the coordinator, its clients and its workers.
 //!
 //! Owns: `assay/v1/*.proto`, the generated types and their conversions to and from the domain's
-//! types (`convert`: task documents, batch settings, spec errors), the cluster token ([`auth`])
-//! and how a client opens a channel ([`channel`]). Never holds logic beyond conversions and
-//! connection set-up; never links physics, rendering or torch.
+//! types (`convert`: task documents, batch settings, spec errors), the credentials (cluster
+//! token, role keys, the coordinator's keyring: [`auth`]) and how a client opens a channel
+//! ([`channel`]). Never holds logic beyond conversions and connection set-up; never links physics,
+//! rendering or torch.
 
 #[allow(clippy::all, clippy::pedantic, rust_2018_idioms)]
 pub mod v1 {

@@ -48,7 +48,9 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     config.heartbeat_interval = Duration::from_millis(a.heartbeat_ms);
     config.max_attempts = a.max_attempts.max(1);
     config.cluster = a.cluster.clone();
-    config.token = assay_proto::auth::Token::from_env().map_err(anyhow::Error::msg)?;
+    config.keyring = assay_proto::auth::Keyring::from_env()
+        .map_err(anyhow::Error::msg)?
+        .map(std::sync::Arc::new);
     config.telemetry = match a.telemetry.as_str() {
         "off" => None,
         "loopback" => {
@@ -62,11 +64,12 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
             .await
             .with_context(|| format!("binding {}", a.listen))?;
         let addr = listener.local_addr()?;
-        if !addr.ip().is_loopback() && config.token.is_none() {
+        if !addr.ip().is_loopback() && config.keyring.is_none() {
             let warning = format!(
                 "WARNING: listening on {addr}, beyond loopback, without a cluster token: anyone \
                  who can reach this address can submit batches and lease work. Set \
-                 ASSAY_CLUSTER_TOKEN (or ASSAY_CLUSTER_TOKEN_FILE) on every process of the cluster."
+                 ASSAY_CLUSTER_TOKEN (or ASSAY_CLUSTER_TOKEN_FILE) here, and give each process \
+                 the cluster token or its role's key (assay token derive --role worker)."
             );
             eprintln!("{warning}");
             tracing::warn!("{warning}");

@@ -17,6 +17,7 @@ pub mod rank;
 pub mod report;
 pub mod status;
 pub mod submit;
+pub mod token;
 pub mod top;
 pub mod validate;
 #[cfg(feature = "trainer")]

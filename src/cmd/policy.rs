@@ -102,10 +102,10 @@ fn serve(
             writeln!(out, "listening on http://{addr}")?;
             out.flush()?;
         }
-        // With the cluster token, only callers with the cluster's policy token get in.
-        let token = assay_proto::auth::Token::from_env()
-            .map_err(anyhow::Error::msg)?
-            .map(|t| t.for_service("policy"));
+        // With the cluster's policy token (ASSAY_POLICY_TOKEN[_FILE], or derived from the
+        // cluster token), only callers that present it get in.
+        let token =
+            assay_proto::auth::Token::service_from_env("policy").map_err(anyhow::Error::msg)?;
         assay_policy::serve(listener, factory, info, token, assay_run::rt::terminated())
             .await
             .context("policy server")

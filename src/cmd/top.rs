@@ -80,22 +80,28 @@ fn table(
 
 pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     assay_run::rt::block_on(async move {
-        let password = assay_proto::auth::Token::from_env()
+        // Any credential watches: a viewer's key, a submitter's, a worker's or the cluster token.
+        use assay_proto::auth::{Access, Credential};
+        let login = Credential::from_env(&[Access::Viewer, Access::Submitter, Access::Worker])
             .map_err(anyhow::Error::msg)?
-            .map(|t| t.derive("zenoh"));
-        let session = assay_telemetry::open_client(&a.telemetry, password.as_deref())
-            .await
-            .with_context(|| {
-                format!(
-                    "could not join the telemetry router at {}{}",
-                    a.telemetry,
-                    if password.is_none() {
-                        " (a cluster with a token admits only its members: set ASSAY_CLUSTER_TOKEN or ASSAY_CLUSTER_TOKEN_FILE)"
-                    } else {
-                        " (is it running, and is this the cluster's token?)"
-                    }
-                )
-            })?;
+            .map(|c| c.zenoh_login());
+        let session = assay_telemetry::open_client(
+            &a.telemetry,
+            login.as_ref().map(|(u, p)| (*u, p.as_str())),
+        )
+        .await
+        .with_context(|| {
+            format!(
+                "could not join the telemetry router at {}{}",
+                a.telemetry,
+                if login.is_none() {
+                    " (a cluster with a token admits only its members: set ASSAY_CLUSTER_TOKEN, \
+                     ASSAY_VIEWER_TOKEN or another role's key, or its _FILE variant)"
+                } else {
+                    " (is it running, and is this key the cluster's?)"
+                }
+            )
+        })?;
         let sub = ClusterSubscriber::new(&session, &a.cluster).await?;
         let deadline = a
             .duration

@@ -125,27 +125,31 @@ fn base_config(mode: &str) -> Result<zenoh::Config, TelemetryError> {
     Ok(c)
 }
 
-/// The user name every member of a cluster presents to its router.
+/// The user name the cluster token's holders present to its router; a role key's holders
+/// present their role's name (`worker`, `submitter`, `viewer`: `assay_proto::auth::Access`).
 pub const ZENOH_USER: &str = "assay";
 
-/// The router the coordinator runs, listening on `endpoint` (e.g. `tcp/127.0.0.1:7447`). With a
-/// `password` (derived from the cluster token), the router admits only sessions that prove they
-/// know it (zenoh's user-password authentication: an HMAC of a fresh nonce, the password never
-/// sent); without one, it admits anyone who can reach it.
+/// The router the coordinator runs, listening on `endpoint` (e.g. `tcp/127.0.0.1:7447`). With
+/// `users` (user names and passwords, derived from the cluster's credentials), the router admits
+/// only sessions that prove they know one user's password (zenoh's user-password authentication:
+/// an HMAC of a fresh nonce, the password never sent); without, it admits anyone who can reach
+/// it. The users are read once, when the router opens: a credential rotated later joins
+/// telemetry after the coordinator restarts (gRPC takes it at once).
 pub async fn open_router(
     endpoint: &str,
-    password: Option<&str>,
+    users: Option<&[(&str, String)]>,
 ) -> Result<zenoh::Session, TelemetryError> {
     let mut c = base_config("router")?;
     c.insert_json5("listen/endpoints", &format!("[\"{endpoint}\"]"))
         .map_err(err)?;
     c.insert_json5("connect/endpoints", "[]").map_err(err)?;
-    let Some(password) = password else {
+    let Some(users) = users else {
         return zenoh::open(c).await.map_err(err);
     };
     // zenoh reads the accepted users from a file, once, while the session opens: a private file
     // that lives only that long.
-    let dict = PrivateFile::create(&format!("{ZENOH_USER}:{password}\n")).map_err(err)?;
+    let lines: String = users.iter().map(|(u, p)| format!("{u}:{p}\n")).collect();
+    let dict = PrivateFile::create(&lines).map_err(err)?;
     c.insert_json5(
         "transport/auth/usrpwd/dictionary_file",
         &serde_json::to_string(&dict.path.display().to_string()).map_err(err)?,
@@ -157,18 +161,21 @@ pub async fn open_router(
 }
 
 /// A client session on the router at `endpoint` (workers, `assay top`, `assay eval`), presenting
-/// `password` when the cluster has one.
+/// `login` (user name and password) when the cluster has credentials.
 pub async fn open_client(
     endpoint: &str,
-    password: Option<&str>,
+    login: Option<(&str, &str)>,
 ) -> Result<zenoh::Session, TelemetryError> {
     let mut c = base_config("client")?;
     c.insert_json5("connect/endpoints", &format!("[\"{endpoint}\"]"))
         .map_err(err)?;
     c.insert_json5("listen/endpoints", "[]").map_err(err)?;
-    if let Some(password) = password {
-        c.insert_json5("transport/auth/usrpwd/user", &format!("\"{ZENOH_USER}\""))
-            .map_err(err)?;
+    if let Some((user, password)) = login {
+        c.insert_json5(
+            "transport/auth/usrpwd/user",
+            &serde_json::to_string(user).map_err(err)?,
+        )
+        .map_err(err)?;
         c.insert_json5(
             "transport/auth/usrpwd/password",
             &serde_json::to_string(password).map_err(err)?,
@@ -363,7 +370,13 @@ mod tests {
                 .collect()
         };
         let before = users_files();
-        let router = open_router(&endpoint, Some(password)).await.unwrap();
+        // Two users: the cluster token's holders, and a role's (a viewer) with its own password.
+        let viewer_password = "the-viewers-own-password";
+        let users = [
+            (ZENOH_USER, password.to_owned()),
+            ("viewer", viewer_password.to_owned()),
+        ];
+        let router = open_router(&endpoint, Some(&users)).await.unwrap();
         // The users file lived only while the router opened.
         let after: Vec<_> = users_files()
             .into_iter()
@@ -371,9 +384,13 @@ mod tests {
             .collect();
         assert!(after.is_empty(), "left behind: {after:?}");
 
-        let viewer = open_client(&endpoint, Some(password)).await.unwrap();
+        let viewer = open_client(&endpoint, Some(("viewer", viewer_password)))
+            .await
+            .unwrap();
         let sub = ClusterSubscriber::new(&viewer, "t").await.unwrap();
-        let member = open_client(&endpoint, Some(password)).await.unwrap();
+        let member = open_client(&endpoint, Some((ZENOH_USER, password)))
+            .await
+            .unwrap();
         let publisher = JsonPublisher::new(&member, worker_key("t", "member"))
             .await
             .unwrap();
@@ -385,11 +402,18 @@ mod tests {
             delivered(&publisher, &sub, &stats, std::time::Duration::from_secs(20)).await,
             "a member's sample did not arrive"
         );
-        // Without the password, or with another, a client is not let in: either opening fails, or
-        // what it publishes reaches nobody.
-        for wrong in [None, Some("not-the-password-of-this-cluster")] {
+        // Without a password, with another, or with one user's password under another's name, a
+        // client is not let in: either opening fails, or what it publishes reaches nobody.
+        for wrong in [
+            None,
+            Some((ZENOH_USER, "not-the-password-of-this-cluster")),
+            Some(("viewer", password)),
+        ] {
             match open_client(&endpoint, wrong).await {
-                Err(e) => assert!(!e.to_string().contains(password), "{e}"),
+                Err(e) => assert!(
+                    !e.to_string().contains(password) && !e.to_string().contains(viewer_password),
+                    "{e}"
+                ),
                 Ok(outsider) => {
                     let p = JsonPublisher::new(&outsider, worker_key("t", "outsider"))
                         .await

@@ -33,7 +33,11 @@ fn the_kubernetes_manifests_validate_against_the_kubernetes_schemas() {
         "HorizontalPodAutoscaler/assay-worker-sim",
         "HorizontalPodAutoscaler/assay-worker-render",
         "ConfigMap/assay-config",
-        "Secret/assay-secrets",
+        "Secret/assay-cluster-token",
+        "Secret/assay-worker-key",
+        "Secret/assay-submitter-key",
+        "Secret/assay-viewer-key",
+        "Secret/assay-judge-keys",
         "PersistentVolumeClaim/assay-artifacts",
         "NetworkPolicy/assay-coordinator",
     ] {

@@ -1,4 +1,5 @@
-//! A client of a coordinator: its address, the cluster token, the message limits.
+//! A client of a coordinator: its address, its credential (the cluster token or a role key), the
+//! message limits.
 
 use assay_proto::v1 as pb;
 
@@ -11,7 +12,11 @@ pub type Client = pb::coordinator_client::CoordinatorClient<assay_proto::auth::C
 /// A client of the coordinator at `addr`, carrying the cluster token when one is set
 /// (`assay_proto::auth`).
 pub async fn connect(addr: &str) -> anyhow::Result<Client> {
-    let token = assay_proto::auth::Token::from_env().map_err(anyhow::Error::msg)?;
+    use assay_proto::auth::{Access, Credential};
+    // The cluster token, else a submitter's key, else a viewer's (who reads, and is refused
+    // the rest with PERMISSION_DENIED).
+    let token = Credential::token_from_env(&[Access::Submitter, Access::Viewer])
+        .map_err(anyhow::Error::msg)?;
     let options = assay_proto::channel::ChannelOptions {
         connect_timeout: Some(std::time::Duration::from_secs(5)),
         ..Default::default()

@@ -183,8 +183,13 @@ fn zenoh() -> (Verdict, String, String) {
         crate::rt::block_on(async {
             // With the user-password check zenoh runs when the cluster has a token.
             let password = "assay-doctor-check";
-            let router = assay_telemetry::open_router(&endpoint, Some(password)).await?;
-            let client = assay_telemetry::open_client(&endpoint, Some(password)).await?;
+            let users = [(assay_telemetry::ZENOH_USER, password.to_owned())];
+            let router = assay_telemetry::open_router(&endpoint, Some(&users)).await?;
+            let client = assay_telemetry::open_client(
+                &endpoint,
+                Some((assay_telemetry::ZENOH_USER, password)),
+            )
+            .await?;
             assay_telemetry::close(client).await;
             assay_telemetry::close(router).await;
             anyhow::Ok(())

@@ -230,14 +230,18 @@ impl Telemetry {
         let rates = Rates::default();
         let session = match endpoint {
             Some(endpoint) => {
-                // The local cluster's processes inherit this process's token, if any.
-                let password = assay_proto::auth::Token::from_env()
+                // The local cluster's processes inherit this process's credential, if any.
+                use assay_proto::auth::{Access, Credential};
+                let login = Credential::from_env(&[Access::Submitter, Access::Viewer])
                     .ok()
                     .flatten()
-                    .map(|t| t.derive("zenoh"));
-                assay_telemetry::open_client(endpoint, password.as_deref())
-                    .await
-                    .ok()
+                    .map(|c| c.zenoh_login());
+                assay_telemetry::open_client(
+                    endpoint,
+                    login.as_ref().map(|(u, p)| (*u, p.as_str())),
+                )
+                .await
+                .ok()
             }
             None => None,
         };

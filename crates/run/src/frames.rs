@@ -303,7 +303,10 @@ pub fn relay(
             std::fs::write(&tmp, bound.to_string())?;
             std::fs::rename(&tmp, &f)?;
         }
-        let token = assay_proto::auth::Token::from_env().map_err(anyhow::Error::msg)?;
+        // The relay is worker-side: it takes the cluster token or a worker key.
+        let token =
+            assay_proto::auth::Credential::token_from_env(&[assay_proto::auth::Access::Worker])
+                .map_err(anyhow::Error::msg)?;
         assay_worker::relay::server_builder()
             .add_service(hub.server(token))
             .serve_with_incoming_shutdown(

@@ -82,13 +82,12 @@ impl RemotePolicy {
     /// or silent is `Unavailable`; one whose action or proprioception dims are not Assay's (4 and
     /// 4) is `Load`. Blocks on `rt`: do not call it from inside that runtime.
     ///
-    /// When this process has the cluster token (`ASSAY_CLUSTER_TOKEN` or
-    /// `ASSAY_CLUSTER_TOKEN_FILE`), every call carries the cluster's policy token derived from it
-    /// ([`assay_proto::auth::Token::for_service`]`("policy")`), never the token itself.
+    /// When this process has the cluster's policy token, every call carries it: the one in
+    /// `ASSAY_POLICY_TOKEN[_FILE]`, else the one derived from the cluster token
+    /// ([`assay_proto::auth::Token::service_from_env`]`("policy")`), never the token itself.
     pub fn connect(url: &str, timeout: Duration, rt: Handle) -> Result<RemotePolicy, PolicyError> {
-        let token = assay_proto::auth::Token::from_env()
-            .map_err(PolicyError::Load)?
-            .map(|t| t.for_service("policy"));
+        let token =
+            assay_proto::auth::Token::service_from_env("policy").map_err(PolicyError::Load)?;
         Self::connect_with(url, timeout, rt, token)
     }
 

@@ -120,13 +120,12 @@ impl RemoteWorldModel {
     /// also the deadline of every later call. A server that is down or silent is `Unavailable`;
     /// one that refuses the call (no or a wrong token, not a world-model server) is `Refused`.
     ///
-    /// When this process has the cluster token (`ASSAY_CLUSTER_TOKEN` or
-    /// `ASSAY_CLUSTER_TOKEN_FILE`), every call carries the secret derived from it for
-    /// [`TOKEN_PURPOSE`], never the token itself.
+    /// When this process has the cluster's world-model token, every call carries it: the one
+    /// in `ASSAY_WORLD_MODEL_TOKEN[_FILE]`, else the secret derived from the cluster token
+    /// for [`TOKEN_PURPOSE`] ([`Token::service_from_env`]), never the token itself.
     pub fn connect(url: &str, timeout: Duration, rt: Handle) -> Result<Self, WorldError> {
-        let token = Token::from_env()
-            .map_err(|e| WorldError::Refused(format!("world model server at {url}: {e}")))?
-            .map(|t| t.for_service(TOKEN_PURPOSE));
+        let token = Token::service_from_env(TOKEN_PURPOSE)
+            .map_err(|e| WorldError::Refused(format!("world model server at {url}: {e}")))?;
         Self::connect_with(url, timeout, rt, token)
     }
 
@@ -433,7 +432,8 @@ fn from_code(code: Code, message: String) -> WorldError {
     match code {
         Code::Unauthenticated | Code::PermissionDenied => WorldError::Refused(format!(
             "{message}; the server wants the cluster's world-model token: set \
-             ASSAY_CLUSTER_TOKEN or ASSAY_CLUSTER_TOKEN_FILE to the cluster's token"
+             ASSAY_CLUSTER_TOKEN or ASSAY_CLUSTER_TOKEN_FILE to the cluster's token (or \
+             ASSAY_WORLD_MODEL_TOKEN[_FILE] to its world-model token)"
         )),
         Code::Unimplemented => {
             WorldError::Refused(format!("{message}; is it an assay.v1.WorldModel server?"))

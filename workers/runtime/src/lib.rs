@@ -70,7 +70,8 @@ pub struct WorkerConfig {
     pub give_up_after: Option<Duration>,
     /// Called after every (re)registration with what the coordinator announced.
     pub on_registered: Option<RegisteredHook>,
-    /// The cluster token sent with every call (`assay_proto::auth`); None: no token.
+    /// The credential sent with every call: the cluster token or a worker key
+    /// (`assay_proto::auth`); None: none.
     pub token: Option<assay_proto::auth::Token>,
 }
 
@@ -80,8 +81,8 @@ pub enum WorkerError {
     Address(String, String),
     #[error("no coordinator at {0} for {1:?}")]
     GaveUp(String, Duration),
-    /// The coordinator refused this worker (a missing or wrong cluster token): retrying would
-    /// not help.
+    /// The coordinator refused this worker (a missing or wrong credential, or one that is not
+    /// a worker's): retrying would not help.
     #[error("the coordinator at {0} refused this worker: {1}")]
     Refused(String, String),
 }
@@ -160,7 +161,12 @@ pub async fn run_worker(
         let _ = out_tx.send(send(Out::Register(register))).await;
         let mut inbound = match client.session(ReceiverStream::new(out_rx)).await {
             Ok(r) => r.into_inner(),
-            Err(e) if e.code() == tonic::Code::Unauthenticated => {
+            Err(e)
+                if matches!(
+                    e.code(),
+                    tonic::Code::Unauthenticated | tonic::Code::PermissionDenied
+                ) =>
+            {
                 return Err(WorkerError::Refused(
                     config.coordinator.clone(),
                     e.message().to_owned(),

@@ -317,6 +317,9 @@ impl Worker {
         let (announce, announced) = tokio::sync::watch::channel(None::<(String, String)>);
         let mut versions = assay_sim::versions();
         versions.insert("assay".into(), env!("CARGO_PKG_VERSION").into());
+        let credential =
+            assay_proto::auth::Credential::from_env(&[assay_proto::auth::Access::Worker])
+                .map_err(anyhow::Error::msg)?;
         let config = WorkerConfig {
             coordinator: parts.coordinator,
             worker_id: parts.worker_id,
@@ -327,14 +330,14 @@ impl Worker {
             versions,
             max_backoff: Duration::from_secs(2),
             give_up_after: None,
-            token: assay_proto::auth::Token::from_env().map_err(anyhow::Error::msg)?,
+            token: credential.as_ref().map(|c| c.token.clone()),
             on_registered: Some(Arc::new(move |r: &pb::Registered| {
                 let _ = announce.send(Some((r.telemetry_endpoint.clone(), r.cluster.clone())));
             })),
         };
         let stats = tokio::spawn(telemetry::publish_stats(
             announced,
-            config.token.as_ref().map(|t| t.derive("zenoh")),
+            credential.map(|c| c.zenoh_login()),
             roles.counters.clone(),
             config.worker_id.clone(),
             config.node_id.clone(),

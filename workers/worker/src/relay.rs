@@ -43,7 +43,8 @@ impl FrameHub {
             .clone()
     }
 
-    /// The Frames service; with `token`, every subscription must carry the cluster token.
+    /// The Frames service; with `token` (the cluster token or a worker key: the relay is
+    /// worker-side), every subscription must carry it.
     pub fn server(
         self,
         token: Option<assay_proto::auth::Token>,
@@ -104,7 +105,8 @@ pub async fn subscribe(url: &str, stream: &str) -> anyhow::Result<tonic::Streami
         ..Default::default()
     };
     let channel = assay_proto::channel::connect("frame relay", url, &options).await?;
-    let token = assay_proto::auth::Token::from_env().map_err(anyhow::Error::msg)?;
+    let token = assay_proto::auth::Credential::token_from_env(&[assay_proto::auth::Access::Worker])
+        .map_err(anyhow::Error::msg)?;
     let mut client: pb::frames_client::FramesClient<_> =
         assay_proto::channel::client(channel, token, assay_proto::MAX_MESSAGE_BYTES);
     Ok(client

@@ -26,7 +26,7 @@ pub struct Counters {
 /// once the coordinator has announced where its telemetry router is.
 pub(crate) async fn publish_stats(
     mut announced: tokio::sync::watch::Receiver<Option<(String, String)>>,
-    password: Option<String>,
+    login: Option<(&'static str, String)>,
     counters: Arc<Counters>,
     worker: String,
     node: String,
@@ -43,7 +43,8 @@ pub(crate) async fn publish_stats(
             return;
         }
     };
-    let session = match assay_telemetry::open_client(&endpoint, password.as_deref()).await {
+    let login = login.as_ref().map(|(u, p)| (*u, p.as_str()));
+    let session = match assay_telemetry::open_client(&endpoint, login).await {
         Ok(s) => s,
         Err(e) => {
             tracing::warn!(%endpoint, error = %e, "telemetry is off for this worker");
