@@ -38,10 +38,16 @@ pub struct Args {
     /// judges read them over shared memory (0: none; they read the artifact store).
     #[arg(long, default_value_t = 256)]
     pub keep_mib: usize,
-    /// A folder tasks may read asset files (URDF, meshes) from (repeatable): this worker
-    /// opens no asset file outside them, whatever a task says. None: each task's own asset
-    /// root confines it.
-    #[arg(long = "asset-root", value_name = "DIR")]
+    /// A folder tasks may read asset files (URDF, meshes) from (repeatable; in
+    /// ASSAY_ASSET_ROOTS, colon-separated): this worker opens no asset file outside them,
+    /// whatever a task says — a task's `source.asset_root` may only narrow them. None: the
+    /// working folder.
+    #[arg(
+        long = "asset-root",
+        value_name = "DIR",
+        env = "ASSAY_ASSET_ROOTS",
+        value_delimiter = ':'
+    )]
     pub asset_roots: Vec<std::path::PathBuf>,
 }
 
@@ -60,9 +66,6 @@ pub fn parse_size(s: &str) -> Result<(u32, u32), String> {
 }
 
 pub fn run(a: Args) -> anyhow::Result<ExitCode> {
-    if !a.asset_roots.is_empty() {
-        assay_spec::assets::set_roots(&a.asset_roots).map_err(anyhow::Error::msg)?;
-    }
     let worker = assay_worker::Worker::new(assay_worker::Options {
         coordinator: a.coordinator,
         roles: a.roles,
@@ -73,6 +76,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         node_id: a.node_id,
         worker_id: a.worker_id,
         keep_mib: a.keep_mib,
+        asset_roots: a.asset_roots,
     })?;
     assay_run::rt::block_on(async move { worker.serve(assay_run::rt::terminated()).await })?;
     Ok(ExitCode::SUCCESS)

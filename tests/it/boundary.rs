@@ -1,6 +1,7 @@
 //! One trust boundary, set by the operator: a task spec cannot make Assay read asset files from
 //! outside the folders the command line allows, neither at validation (the coordinator's
-//! planner, `assay validate`) nor at a worker started with `--asset-root`.
+//! planner, `assay validate`) nor at a worker, whose `--asset-root` folders (its working folder
+//! when it is given none) bound every asset file it opens.
 
 use std::path::Path;
 use std::process::Command;
@@ -92,26 +93,56 @@ fn a_spec_cannot_widen_the_operators_asset_roots() {
 }
 
 /// A client that sends no roots (an older one, or a hostile one) gets past the planner; a worker
-/// started with `--asset-root` still opens nothing outside it: the episode fails, naming why.
+/// started with `--asset-root` still opens nothing outside it: the episodes of the tasks whose
+/// asset root lies outside fail, naming the task, the field and why, and the rest of the batch
+/// runs. The URDF outside is a valid one: had the worker opened it, those episodes would have
+/// run.
 #[test]
 fn a_worker_with_asset_roots_opens_nothing_outside_them() {
     let dir = tempfile::tempdir().unwrap();
     let (project, _outside) = layout(dir.path());
     let tasks = project.join("tasks");
-    let (_coordinator, addr) = coordinator(dir.path(), "127.0.0.1:0", &[]);
-    let _worker = Proc::spawn(
-        "worker",
-        &[
-            "worker",
-            "--coordinator",
-            &addr,
-            "--roles",
-            "sim",
-            "--asset-root",
-            tasks.to_str().unwrap(),
-        ],
-        dir.path(),
-    );
+    let worker = ["--asset-root", tasks.to_str().unwrap()];
+    escapes_fail_and_the_rest_runs(dir.path(), &tasks, &worker, dir.path(), &[]);
+}
+
+/// The same with the roots in `ASSAY_ASSET_ROOTS` (colon-separated), as a manifest sets them.
+#[test]
+fn a_worker_takes_its_asset_roots_from_the_environment() {
+    let dir = tempfile::tempdir().unwrap();
+    let (project, _outside) = layout(dir.path());
+    let tasks = project.join("tasks");
+    let elsewhere = dir.path().join("elsewhere");
+    std::fs::create_dir_all(&elsewhere).unwrap();
+    let roots = format!("{}:{}", elsewhere.display(), tasks.display());
+    let env = [("ASSAY_ASSET_ROOTS", roots.as_str())];
+    escapes_fail_and_the_rest_runs(dir.path(), &tasks, &[], dir.path(), &env);
+}
+
+/// Closed by default: a worker given no roots opens asset files below its working folder only,
+/// never below the root a task names.
+#[test]
+fn a_worker_without_asset_roots_opens_below_its_working_folder_only() {
+    let dir = tempfile::tempdir().unwrap();
+    let (project, _outside) = layout(dir.path());
+    let tasks = project.join("tasks");
+    escapes_fail_and_the_rest_runs(dir.path(), &tasks, &[], &tasks, &[]);
+}
+
+/// Submits the four tasks of [`layout`] to a coordinator and one sim worker started with
+/// `worker_args` in `cwd` with `env`, and checks the report: the three whose asset root lies
+/// outside `tasks/` fail, the one inside runs.
+fn escapes_fail_and_the_rest_runs(
+    dir: &Path,
+    tasks: &Path,
+    worker_args: &[&str],
+    cwd: &Path,
+    env: &[(&str, &str)],
+) {
+    let (_coordinator, addr) = coordinator(dir, "127.0.0.1:0", &[]);
+    let mut args = vec!["worker", "--coordinator", &addr, "--roles", "sim"];
+    args.extend_from_slice(worker_args);
+    let _worker = Proc::spawn_in("worker", &args, dir, cwd, env);
     let rt = runtime();
     let doc = |id: &str| {
         let f = tasks.join(format!("{id}.yaml"));
@@ -154,12 +185,17 @@ fn a_worker_with_asset_roots_opens_nothing_outside_them() {
             .find(|t| t.id == id)
             .unwrap_or_else(|| panic!("{id}"))
     };
-    for id in ["by-asset-root", "by-origin", "by-climbing"] {
+    for (id, field) in [
+        ("by-asset-root", "source.asset_root"),
+        ("by-origin", "source.origin"),
+        ("by-climbing", "source.asset_root"),
+    ] {
         let escaped = task(id);
         assert!(escaped.episodes.is_empty(), "{id}: {:?}", escaped.episodes);
         let error = &escaped.failures[0].error;
         assert!(
-            error.contains("outside the asset roots the operator allowed"),
+            error.contains(&format!("task {id}: {field}: "))
+                && error.contains("outside the folders the operator allowed"),
             "{id}: {error}"
         );
     }

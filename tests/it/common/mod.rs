@@ -121,6 +121,20 @@ impl Proc {
         Self::start(name, Command::new(bin()), args, dir, env)
     }
 
+    /// [`Proc::spawn_env`] in the working folder `cwd`.
+    #[allow(dead_code)]
+    pub fn spawn_in(
+        name: &str,
+        args: &[&str],
+        dir: &Path,
+        cwd: &Path,
+        env: &[(&str, &str)],
+    ) -> Proc {
+        let mut cmd = Command::new(bin());
+        cmd.current_dir(cwd);
+        Self::start(name, cmd, args, dir, env)
+    }
+
     /// Starts `cmd args` with JSON logs at info into `dir/<name>.log`.
     fn start(
         name: &str,

@@ -788,6 +788,12 @@ fn is_ball(a: &assay_spec::urdf::Assembled) -> bool {
 /// Samples the initial state for `seed` and builds the world. Every random draw comes from one
 /// stream per (seed, task id), in spec order.
 pub fn build_scene(spec: &TaskSpec, seed: u64) -> Result<SimScene, SimError> {
+    // In a worker, the operator's folders bound where asset files come from: a task whose own
+    // asset root lies outside them fails here, naming the field, before any file is opened.
+    if let Some(roots) = assay_spec::assets::roots() {
+        spec.check_asset_roots(&roots)
+            .map_err(|(field, reason)| SimError::spec(field, reason))?;
+    }
     let mut rng = Rng::new(seed, &spec.id);
     let mut world = new_world(spec.physics.dt as f32);
 

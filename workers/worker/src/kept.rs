@@ -68,7 +68,12 @@ impl NodeArtifacts {
             counters.frames_shared.fetch_add(1, Ordering::Relaxed);
             return Ok(bytes);
         }
-        let bytes = std::fs::read(root.join(key))?;
+        // A key from a shard is opened below the store's folder, never beside it.
+        let mut bytes = Vec::new();
+        std::io::Read::read_to_end(
+            &mut assay_spec::assets::open_beneath(root, Path::new(key))?,
+            &mut bytes,
+        )?;
         counters.frames_stored.fetch_add(1, Ordering::Relaxed);
         Ok(bytes)
     }

@@ -55,6 +55,9 @@ pub struct Options {
     pub worker_id: Option<String>,
     /// MiB of drawn pictures the render role keeps in memory for the node's judges (0: none).
     pub keep_mib: usize,
+    /// The folders the roles open asset files (URDF, meshes) from; none: the working folder.
+    /// Never a folder a task names (`assay_spec::assets::set_roots`).
+    pub asset_roots: Vec<PathBuf>,
 }
 
 impl Default for Options {
@@ -69,6 +72,7 @@ impl Default for Options {
             node_id: None,
             worker_id: None,
             keep_mib: 256,
+            asset_roots: Vec::new(),
         }
     }
 }
@@ -171,6 +175,8 @@ impl Worker {
     /// configuration or no graphics adapter for the render role fail here, before any
     /// connection.
     pub fn new(o: Options) -> anyhow::Result<Self> {
+        let roots = assay_spec::assets::set_roots(&o.asset_roots).map_err(anyhow::Error::msg)?;
+        tracing::info!(roots = ?roots, "asset files are opened below these folders only");
         let mut roles = Vec::new();
         for r in &o.roles {
             match pb::Role::parse(r) {

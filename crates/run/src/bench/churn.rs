@@ -483,7 +483,7 @@ async fn drive(
         if st.state != pb::BatchState::Running as i32 || Instant::now() > deadline {
             break st;
         }
-        if event % 2 == 0 && !pool.is_empty() {
+        if event.is_multiple_of(2) && !pool.is_empty() {
             rng ^= rng << 13;
             rng ^= rng >> 7;
             rng ^= rng << 17;
@@ -497,7 +497,7 @@ async fn drive(
             joins += 1;
         }
         event += 1;
-        if event % 50 == 0 {
+        if event.is_multiple_of(50) {
             progress(format!(
                 "churn: {} of {} done, {} workers, {joins} joins, {} leaves",
                 st.shards_done,

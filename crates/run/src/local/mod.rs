@@ -113,7 +113,8 @@ pub struct Plan {
     /// Start a trainer worker.
     pub training: bool,
     pub trainer_capacity: Option<u32>,
-    /// The folders the sim workers may read asset files from (their `--asset-root`).
+    /// The folders the sim and render workers may read asset files from (their
+    /// `--asset-root`): the folders of the task paths and the run's own `--asset-root`.
     pub asset_roots: Vec<PathBuf>,
 }
 
@@ -342,19 +343,28 @@ fn start_workers(
         );
         args
     };
+    // Workers open asset files below the folders given here only (a worker given none
+    // would use its working folder): the task paths' folders and the run's --asset-root.
+    let with_roots = |mut args: Vec<String>| {
+        for r in &plan.asset_roots {
+            args.push("--asset-root".into());
+            args.push(r.display().to_string());
+        }
+        args
+    };
     for i in 0..plan.workers.max(1) {
         let mut args = drawing(&plan.roles, format!("worker-{i}"));
         if plan.video {
             args.push("--video".into());
         }
-        for r in &plan.asset_roots {
-            args.push("--asset-root".into());
-            args.push(r.display().to_string());
-        }
-        start(&format!("worker {i}"), args, &format!("worker-{i}.log"))?;
+        start(
+            &format!("worker {i}"),
+            with_roots(args),
+            &format!("worker-{i}.log"),
+        )?;
     }
     for i in 0..plan.render_workers {
-        let args = drawing("render", format!("render-{i}"));
+        let args = with_roots(drawing("render", format!("render-{i}")));
         start(
             &format!("render worker {i}"),
             args,
