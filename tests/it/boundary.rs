@@ -1,7 +1,8 @@
 //! One trust boundary, set by the operator: a task spec cannot make Assay read asset files from
 //! outside the folders the command line allows, neither at validation (the coordinator's
 //! planner, `assay validate`) nor at a worker, whose `--asset-root` folders (its working folder
-//! when it is given none) bound every asset file it opens.
+//! when it is given none) bound every asset file it opens; nor can a batch's policy names make a
+//! worker load a model from elsewhere.
 
 use std::path::Path;
 use std::process::Command;
@@ -200,6 +201,96 @@ fn escapes_fail_and_the_rest_runs(
         );
     }
     assert_eq!(task("inside").episodes.len(), 1, "a task inside runs");
+}
+
+/// A batch's policy names cannot widen the roots either: a worker started with `--asset-root`
+/// loads a TorchScript module below them (or its artifact store) only. An absolute path to a
+/// module outside and a `..` climb to it fail that policy's episodes, naming the policy, the
+/// argument and why, while the module inside acts. The module outside is the same valid module:
+/// had the worker opened it, its episodes would have run.
+#[cfg(feature = "trainer")]
+#[test]
+fn a_worker_loads_no_policy_model_outside_its_roots() {
+    let dir = tempfile::tempdir().unwrap();
+    let root = dir.path().canonicalize().unwrap();
+    let (tasks, outside) = (root.join("project/tasks"), root.join("outside"));
+    std::fs::create_dir_all(&tasks).unwrap();
+    std::fs::create_dir_all(&outside).unwrap();
+    let inside = crate::common::torchscript::torchscript(&tasks);
+    let escaped = crate::common::torchscript::torchscript(&outside);
+    let task = tasks.join("task.yaml");
+    std::fs::write(&task, assay_testkit::tasks::put_block_in_zone_within(240)).unwrap();
+    let (_coordinator, addr) = coordinator(&root, "127.0.0.1:0", &[]);
+    let _worker = Proc::spawn_in(
+        "worker",
+        &[
+            "worker",
+            "--coordinator",
+            &addr,
+            "--roles",
+            "sim,render",
+            "--asset-root",
+            tasks.to_str().unwrap(),
+        ],
+        &root,
+        &root,
+        &[],
+    );
+    let by_path = format!("torchscript:path={}", escaped.display());
+    let by_climbing = "torchscript:path=project/tasks/../../outside/controller.pt".to_owned();
+    let allowed = format!("torchscript:path={}", inside.display());
+    let report = runtime().block_on(async {
+        let mut c = client(&addr).await;
+        let r = c
+            .submit_batch(pb::SubmitBatchRequest {
+                name: "policy-boundary".into(),
+                tasks: vec![pb::TaskDocument {
+                    origin: task.display().to_string(),
+                    format: String::new(),
+                    content: std::fs::read_to_string(&task).unwrap(),
+                }],
+                policies: [&by_path, &by_climbing, &allowed]
+                    .into_iter()
+                    .map(|p| pb::PolicyRef { name: p.clone() })
+                    .collect(),
+                seeds: vec![0],
+                max_attempts: 1,
+                ..Default::default()
+            })
+            .await
+            .unwrap()
+            .into_inner();
+        assert!(r.rejected.is_empty(), "{:?}", r.rejected);
+        wait_for(&addr, &r.batch_id, Duration::from_secs(120), finished).await;
+        report(&addr, &r.batch_id).await
+    });
+    let t = &report.results.tasks[0];
+    for policy in [&by_path, &by_climbing] {
+        assert!(
+            t.episodes.iter().all(|e| &e.policy != policy),
+            "{policy} ran"
+        );
+        let failure = t
+            .failures
+            .iter()
+            .find(|f| &f.policy == policy)
+            .unwrap_or_else(|| panic!("{policy}: no failure in {:#?}", t.failures));
+        assert!(
+            failure.error.contains(&format!("policy '{policy}'"))
+                && failure.error.contains("path=")
+                && failure
+                    .error
+                    .contains("outside the folders the operator allowed"),
+            "{policy}: {}",
+            failure.error
+        );
+    }
+    assert_eq!(
+        t.episodes.iter().filter(|e| e.policy == allowed).count(),
+        1,
+        "the module inside acts: {:#?}",
+        t.failures
+    );
 }
 
 /// A coordinator that anyone on the network can reach without a token says so at start.

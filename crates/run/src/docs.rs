@@ -1,5 +1,5 @@
-//! Reading task documents from files and folders, and the asset roots a batch's tasks are
-//! confined to.
+//! Reading task documents from files and folders, the asset roots a batch's tasks are confined
+//! to, and the roots a local cluster gives its workers.
 //!
 //! Owns: the walk (sorted, confined to each root given, skipping Assay's own output folders).
 //! Never parses a document (the planner does).
@@ -88,6 +88,36 @@ pub fn asset_roots(paths: &[PathBuf], extra: &[PathBuf]) -> anyhow::Result<Vec<P
     Ok(roots)
 }
 
+/// The folders the workers of a local cluster may read files from: the batch's asset roots
+/// (`task_roots`, [`asset_roots`]) and the folder of each model file the user's own `--policy`
+/// values name as a file that exists here (`torchscript:path=bc.pt`, a `diffusion:model=` that
+/// is a file rather than an artifact key). A worker opens a policy's model only below its roots
+/// or its artifact store; the user's command line is the operator's, so a local run reaches its
+/// own models wherever they lie. Canonical. A name that does not parse is left to the planner
+/// to refuse.
+pub fn worker_roots(task_roots: &[PathBuf], policies: &[String]) -> Vec<PathBuf> {
+    use assay_model::policy::PolicySpec;
+    let mut roots = task_roots.to_vec();
+    for name in policies {
+        let path = match PolicySpec::parse(name) {
+            Ok(PolicySpec::TorchScript { path, .. }) => path,
+            Ok(PolicySpec::Diffusion { model }) => model,
+            _ => continue,
+        };
+        if let Some(folder) = Path::new(&path)
+            .canonicalize()
+            .ok()
+            .filter(|p| p.is_file())
+            .and_then(|p| p.parent().map(Path::to_path_buf))
+        {
+            roots.push(folder);
+        }
+    }
+    roots.sort();
+    roots.dedup();
+    roots
+}
+
 /// As strings, for a batch request.
 pub fn root_strings(roots: &[PathBuf]) -> Vec<String> {
     roots.iter().map(|r| r.display().to_string()).collect()
@@ -137,6 +167,49 @@ mod tests {
 
     fn origins(docs: &[TaskDocument]) -> Vec<String> {
         docs.iter().map(|d| d.origin.clone()).collect()
+    }
+
+    /// The folders of model files the user's own policy names give are added to the workers'
+    /// roots; artifact keys, servers and names that do not parse add nothing.
+    #[test]
+    fn worker_roots_add_the_folders_of_named_model_files() {
+        let dir = tempfile::tempdir().unwrap();
+        let (models, checkpoints, tasks) = (
+            dir.path().join("models"),
+            dir.path().join("ckpt"),
+            dir.path().join("tasks"),
+        );
+        for d in [&models, &checkpoints, &tasks] {
+            std::fs::create_dir_all(d).unwrap();
+        }
+        std::fs::write(models.join("bc.pt"), "m").unwrap();
+        std::fs::write(checkpoints.join("d.ckpt"), "m").unwrap();
+        let canonical = |p: &Path| p.canonicalize().unwrap();
+        let roots = worker_roots(
+            &[canonical(&tasks)],
+            &[
+                format!(
+                    "torchscript:path={},max_steps=480",
+                    models.join("bc.pt").display()
+                ),
+                format!("diffusion:model={}", checkpoints.join("d.ckpt").display()),
+                "diffusion:model=policies/abc.ckpt".into(),
+                format!(
+                    "torchscript:path={}",
+                    dir.path().join("missing.pt").display()
+                ),
+                "remote:url=http://127.0.0.1:9".into(),
+                "oracle".into(),
+                "torchscript:".into(),
+            ],
+        );
+        let mut want = vec![
+            canonical(&tasks),
+            canonical(&models),
+            canonical(&checkpoints),
+        ];
+        want.sort();
+        assert_eq!(roots, want);
     }
 
     #[test]

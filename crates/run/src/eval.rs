@@ -139,7 +139,7 @@ pub fn run(
         &a.batch.judges,
         prepared.training,
         a.trainer_capacity,
-        prepared.roots.clone(),
+        docs::worker_roots(&prepared.roots, &a.batch.policies),
     );
     let mut cluster = LocalCluster::start(&plan, &run_dir, &a.out.join(ARTIFACTS_LINK))?;
     observer.event(Event::ClusterStarted {

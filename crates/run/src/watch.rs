@@ -164,6 +164,7 @@ impl<'o> Watcher<'o> {
             Some(_) => None,
             None => {
                 let roots = docs::asset_roots(std::slice::from_ref(&a.dir), &a.batch.asset_roots)?;
+                let roots = docs::worker_roots(&roots, &a.batch.policies);
                 let plan = a.cluster.plan(&a.batch.judges, true, None, roots);
                 let cluster = LocalCluster::start(&plan, &a.out.join("run"), &artifacts)?;
                 observer.event(Event::ClusterStarted {

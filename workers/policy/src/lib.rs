@@ -5,13 +5,17 @@
 //! over the `assay.v1.WorldModel` gRPC service ([`world_model`]), which the proxy imagines in.
 //!
 //! Owns: the policy client and server, the TorchScript calling convention (`docs/policies.md`),
-//! the mapping between [`PolicyError`] and gRPC status codes. Never: physics, rendering, the job
-//! store; never links libtorch without the `torch` feature (a sim-only node builds without it).
+//! the mapping between [`PolicyError`] and gRPC status codes, where a model file a spec names may
+//! be opened ([`open_model`]). Never: physics, rendering, the job store; never links libtorch
+//! without the `torch` feature (a sim-only node builds without it); never hands libtorch a path
+//! (models are read from a descriptor opened below the operator's folders, then loaded from
+//! memory).
 //!
 //! Policies are called synchronously from the simulator's shard threads (plain threads, not
 //! tokio tasks), once per control step; the remote client blocks on a runtime [`Handle`] it is
 //! given, so it must never be called from inside that runtime.
 
+use std::io::Read;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
@@ -43,7 +47,8 @@ pub type DiffusionLoader = fn(&[u8]) -> Result<Box<dyn Policy>, PolicyError>;
 /// trainer crate: see [`load_with`].
 ///
 /// - `torchscript:path=…` — a TorchScript module on this worker (feature `torch`; without it a
-///   `Load` error), on the GPU when there is one.
+///   `Load` error), on the GPU when there is one; in a worker, only below its artifact store or
+///   its asset roots ([`open_model`]).
 /// - `remote:url=…` — connects and checks the server's Health (blocks on `rt` for at most the
 ///   spec's timeout: call it from a thread outside the runtime).
 /// - `diffusion:model=…` — `Load` error here.
@@ -57,7 +62,9 @@ pub fn load(
 }
 
 /// [`load`], with the loader of diffusion checkpoints (HOOK(diffusion), see [`DiffusionLoader`]).
-/// A diffusion model is an artifact key under `artifact_root` or a path on the worker.
+/// A model (`diffusion:model=…`, `torchscript:path=…`) is an artifact key under
+/// `artifact_root` or a path on the worker, which a worker opens only below its artifact store
+/// or its asset roots ([`open_model`]).
 pub fn load_with(
     spec: &PolicySpec,
     artifact_root: &Path,
@@ -69,7 +76,7 @@ pub fn load_with(
             "the oracle is not a learned policy: it runs inside the simulator".into(),
         )),
         PolicySpec::TorchScript { path, interface } => {
-            load_torchscript(Path::new(path), interface.clone())
+            load_torchscript(artifact_root, path, interface.clone())
         }
         PolicySpec::Remote {
             url,
@@ -102,10 +109,12 @@ pub fn load_with(
         }
         PolicySpec::Diffusion { model } => match diffusion {
             Some(loader) => {
-                let path = artifact_path(artifact_root, model);
-                let bytes = std::fs::read(&path).map_err(|e| {
+                let (path, mut file) = open_model(artifact_root, "model", model)
+                    .map_err(|e| PolicyError::Load(format!("diffusion policy {e}")))?;
+                let mut bytes = Vec::new();
+                file.read_to_end(&mut bytes).map_err(|e| {
                     PolicyError::Load(format!(
-                        "diffusion model '{model}': cannot read {}: {e}",
+                        "diffusion policy model={model}: cannot read {}: {e}",
                         path.display()
                     ))
                 })?;
@@ -129,8 +138,7 @@ pub fn factory(
 ) -> Result<PolicyFactory, PolicyError> {
     #[cfg(feature = "torch")]
     if let PolicySpec::TorchScript { path, interface } = spec {
-        let mut module =
-            torchscript::TorchScriptPolicy::load(path, tch::Device::cuda_if_available())?;
+        let mut module = open_torchscript(artifact_root, path)?;
         if let Some(i) = interface {
             module = module.with_interface(i.clone())?;
         }
@@ -143,23 +151,64 @@ pub fn factory(
     Ok(Arc::new(move || load_with(&spec, &root, &rt, diffusion)))
 }
 
-/// Where an artifact key or a path names a file: absolute paths and paths that exist as given are
-/// themselves, anything else is a key under the artifact root.
-fn artifact_path(artifact_root: &Path, key: &str) -> PathBuf {
-    let path = Path::new(key);
-    if path.is_absolute() || path.exists() {
-        path.to_owned()
-    } else {
-        artifact_root.join(path)
+/// Opens the model file a policy's spec names — `arg` is the spec's argument (`path`, `model`),
+/// `value` its value — and says where it was found. A relative value is a path from the working
+/// folder, else an artifact key under `artifact_root`.
+///
+/// In a worker (a process that set asset roots, `assay_spec::assets::set_roots`) the file must
+/// lie below the artifact store or below the operator's asset roots, and is opened by
+/// descriptor below the folder that holds it ([`assay_spec::assets::open_in`]): an absolute path
+/// elsewhere, or one that climbs out with `..` or a link, is refused unopened — a batch's policy
+/// names cannot make a worker read a file the operator did not put there. Elsewhere (`assay
+/// policy serve` and `check`, whose operator names the policy) any path is opened.
+///
+/// The error names the argument and the value (`path=/etc/x: … is outside the folders the
+/// operator allowed (…)`); callers name the policy's kind.
+pub fn open_model(
+    artifact_root: &Path,
+    arg: &str,
+    value: &str,
+) -> Result<(PathBuf, std::fs::File), String> {
+    let also = [artifact_root.to_owned()];
+    let given = Path::new(value);
+    let open = |p: &Path| assay_spec::assets::open_in(p, &also);
+    if given.is_absolute() {
+        return open(given)
+            .map(|f| (given.to_owned(), f))
+            .map_err(|e| format!("{arg}={value}: {e}"));
     }
+    let as_path = match open(given) {
+        Ok(f) => return Ok((given.to_owned(), f)),
+        Err(e) => e,
+    };
+    let key = artifact_root.join(given);
+    let as_key = match open(&key) {
+        Ok(f) => return Ok((key, f)),
+        Err(e) => e,
+    };
+    Err(format!(
+        "{arg}={value}: from the working folder: {as_path}; as an artifact key under {}: {as_key}",
+        artifact_root.display()
+    ))
+}
+
+#[cfg(feature = "torch")]
+fn open_torchscript(
+    artifact_root: &Path,
+    value: &str,
+) -> Result<torchscript::TorchScriptPolicy, PolicyError> {
+    let (path, mut file) = open_model(artifact_root, "path", value)
+        .map_err(|e| PolicyError::Load(format!("TorchScript policy {e}")))?;
+    torchscript::TorchScriptPolicy::from_reader(&path, &mut file, tch::Device::cuda_if_available())
 }
 
 #[cfg(feature = "torch")]
 fn load_torchscript(
-    path: &Path,
+    artifact_root: &Path,
+    path: &str,
     interface: Option<assay_model::policy::Interface>,
 ) -> Result<Box<dyn Policy>, PolicyError> {
-    let module = torchscript::TorchScriptPolicy::load(path, tch::Device::cuda_if_available())?;
+    let module = open_torchscript(artifact_root, path)?;
     Ok(Box::new(match interface {
         Some(i) => module.with_interface(i)?,
         None => module,
@@ -168,12 +217,12 @@ fn load_torchscript(
 
 #[cfg(not(feature = "torch"))]
 fn load_torchscript(
-    path: &Path,
+    _: &Path,
+    path: &str,
     _: Option<assay_model::policy::Interface>,
 ) -> Result<Box<dyn Policy>, PolicyError> {
     Err(PolicyError::Load(format!(
-        "TorchScript policy {}: this binary was built without libtorch (assay-policy feature `torch`, \
-         the assay binary's `trainer` feature)",
-        path.display()
+        "TorchScript policy {path}: this binary was built without libtorch (assay-policy feature `torch`, \
+         the assay binary's `trainer` feature)"
     )))
 }

@@ -44,16 +44,32 @@ pub struct TorchScriptPolicy {
 
 impl TorchScriptPolicy {
     /// Loads the module at `path` onto `device`, in eval mode. A missing file or one that is not
-    /// TorchScript is `Load` naming the path.
+    /// TorchScript is `Load` naming the path. Opens `path` as given: for a path the operator
+    /// names; a worker opens the file a spec names with [`crate::open_model`] and loads it with
+    /// [`TorchScriptPolicy::from_reader`].
     pub fn load(path: impl AsRef<Path>, device: Device) -> Result<TorchScriptPolicy, PolicyError> {
         let path = path.as_ref();
-        if !path.is_file() {
-            return Err(PolicyError::Load(format!(
-                "TorchScript policy {}: no such file",
-                path.display()
-            )));
-        }
-        let mut module = CModule::load_on_device(path, device).map_err(|e| {
+        let mut file = std::fs::File::open(path)
+            .ok()
+            .filter(|f| f.metadata().is_ok_and(|m| m.is_file()))
+            .ok_or_else(|| {
+                PolicyError::Load(format!(
+                    "TorchScript policy {}: no such file",
+                    path.display()
+                ))
+            })?;
+        Self::from_reader(path, &mut file, device)
+    }
+
+    /// Loads the module whose bytes `reader` gives (the file at `path`, already open) onto
+    /// `device`, in eval mode: libtorch never opens a path itself. One that is not TorchScript is
+    /// `Load` naming `path`.
+    pub fn from_reader(
+        path: &Path,
+        reader: &mut impl std::io::Read,
+        device: Device,
+    ) -> Result<TorchScriptPolicy, PolicyError> {
+        let mut module = CModule::load_data_on_device(reader, device).map_err(|e| {
             PolicyError::Load(format!(
                 "TorchScript policy {}: not a TorchScript module: {}",
                 path.display(),

@@ -10,9 +10,13 @@
 //! only relative links and never climbs above the root. What a path check said before the open
 //! does not matter: a link swapped in between cannot lead the open outside.
 //!
-//! Owns: the process's asset roots, every open of a file a task names, the size bound.
-//! Never: takes a root from a task; opens a task's file by its path alone in a process that set
-//! roots; reads more than [`MAX_ASSET_BYTES`] of one file.
+//! A policy's model file (`torchscript:path=…`, `diffusion:model=…`) is opened the same way
+//! ([`open_in`]), below these roots or the worker's artifact store.
+//!
+//! Owns: the process's asset roots, every open of a file a task or a policy's spec names, the
+//! size bound of asset files. Never: takes a root from a task or a batch; opens a task's or a
+//! policy's file by its path alone in a process that set roots; reads more than
+//! [`MAX_ASSET_BYTES`] of one asset file.
 
 use std::fs::File;
 use std::io::Read;
@@ -83,13 +87,17 @@ pub fn check_within(path: &Path, roots: &[PathBuf]) -> Result<(), String> {
     if roots.iter().any(|r| canonical.starts_with(r)) {
         Ok(())
     } else {
-        Err(outside(&canonical.display().to_string(), roots))
+        Err(outside(
+            &canonical.display().to_string(),
+            roots,
+            "asset roots",
+        ))
     }
 }
 
-fn outside(what: &str, roots: &[PathBuf]) -> String {
+fn outside(what: &str, roots: &[PathBuf], noun: &str) -> String {
     format!(
-        "{what} is outside the asset roots the operator allowed ({})",
+        "{what} is outside the {noun} the operator allowed ({})",
         roots
             .iter()
             .map(|r| r.display().to_string())
@@ -144,14 +152,46 @@ pub fn open_beneath(root: &Path, rel: &Path) -> std::io::Result<File> {
     dir.open(rel)
 }
 
+/// Opens `path` for reading below the process's roots or below one of `also` — further
+/// folders of the operator's own, such as a worker's artifact store — by descriptor as [`read`]
+/// does: a path below none of them is refused unopened, and neither `..` nor a link leads the
+/// open out of the folder it starts from. Refuses anything but a regular file; no size bound (a
+/// policy's model may be large). A process that set no roots opens `path` as given. The error
+/// is the reason only, "… is outside the folders the operator allowed (…)" for a refusal;
+/// callers name the file and the field.
+pub fn open_in(path: &Path, also: &[PathBuf]) -> Result<File, String> {
+    let Some(roots) = ROOTS.get() else {
+        return open_plain(path);
+    };
+    let extra: Vec<Root> = also
+        .iter()
+        .filter_map(|p| {
+            let path = p.canonicalize().ok()?;
+            let dir = beneath::Dir::at(&path).ok()?;
+            Some(Root { path, dir })
+        })
+        .collect();
+    let all: Vec<&Root> = extra.iter().chain(roots).collect();
+    open_below(path, &all, "folders")
+}
+
 /// Opens `path` below the first root that holds it, spelled as given or as its canonical
 /// form (a root reached through a link). A path below no root is refused unopened.
 fn open_confined(path: &Path) -> Result<File, String> {
     let Some(roots) = ROOTS.get() else {
-        let file = File::open(path).map_err(|e| e.to_string())?;
-        check_regular(&file)?;
-        return Ok(file);
+        return open_plain(path);
     };
+    open_below(path, &roots.iter().collect::<Vec<_>>(), "asset roots")
+}
+
+fn open_plain(path: &Path) -> Result<File, String> {
+    let file = File::open(path).map_err(|e| e.to_string())?;
+    check_regular(&file)?;
+    Ok(file)
+}
+
+/// [`open_confined`] below `roots`; `noun` names them in a refusal.
+fn open_below(path: &Path, roots: &[&Root], noun: &str) -> Result<File, String> {
     let abs = std::path::absolute(path).map_err(|e| e.to_string())?;
     let canonical = abs.canonicalize().ok();
     for spelled in std::iter::once(&abs).chain(canonical.as_ref()) {
@@ -163,6 +203,7 @@ fn open_confined(path: &Path) -> Result<File, String> {
                 Some(code) if code == beneath::ESCAPED => outside(
                     &format!("{} (by `..` or a link)", abs.display()),
                     std::slice::from_ref(&root.path),
+                    noun,
                 ),
                 _ => e.to_string(),
             })?;
@@ -171,7 +212,7 @@ fn open_confined(path: &Path) -> Result<File, String> {
         }
     }
     let paths: Vec<PathBuf> = roots.iter().map(|r| r.path.clone()).collect();
-    Err(outside(&abs.display().to_string(), &paths))
+    Err(outside(&abs.display().to_string(), &paths, noun))
 }
 
 /// Refuses a device, a FIFO, a socket or a folder: an asset is a regular file.

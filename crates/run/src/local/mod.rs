@@ -113,8 +113,9 @@ pub struct Plan {
     /// Start a trainer worker.
     pub training: bool,
     pub trainer_capacity: Option<u32>,
-    /// The folders the sim and render workers may read asset files from (their
-    /// `--asset-root`): the folders of the task paths and the run's own `--asset-root`.
+    /// The folders the sim, render and trainer workers may read files from (their
+    /// `--asset-root`): the folders of the task paths, the run's own `--asset-root` and the
+    /// folders of the model files its `--policy` values name (`docs::worker_roots`).
     pub asset_roots: Vec<PathBuf>,
 }
 
@@ -343,8 +344,9 @@ fn start_workers(
         );
         args
     };
-    // Workers open asset files below the folders given here only (a worker given none
-    // would use its working folder): the task paths' folders and the run's --asset-root.
+    // Workers open asset files and policy models below the folders given here only (a worker
+    // given none would use its working folder): the task paths' folders, the run's
+    // --asset-root and its policies' model folders.
     let with_roots = |mut args: Vec<String>| {
         for r in &plan.asset_roots {
             args.push("--asset-root".into());
@@ -393,7 +395,12 @@ fn start_workers(
             .max(1);
         let mut args = worker_args(addr, "trainer", "trainer-0");
         args.extend(["--capacity".into(), capacity.to_string()]);
-        start("trainer worker", with_config(args), "trainer-0.log")?;
+        // The trainer loads the policies a proxy ranks, as a sim worker does.
+        start(
+            "trainer worker",
+            with_roots(with_config(args)),
+            "trainer-0.log",
+        )?;
     }
     Ok(workers)
 }
