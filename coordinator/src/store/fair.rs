@@ -85,7 +85,7 @@ pub(super) fn pick(
     let rows: Vec<(String, String, String, u32, i64)> = {
         let mut stmt = conn.prepare_cached(
             "SELECT l.batch_id, b.priority, b.submitter, b.max_workers, l.leased
-             FROM batch_load l JOIN batches b ON b.id = l.batch_id
+             FROM batch_load l CROSS JOIN batches b ON b.id = l.batch_id
              WHERE l.queued > 0 AND b.state = 'running' ORDER BY b.seq",
         )?;
         let it = stmt.query_map([], |r| {
@@ -232,7 +232,8 @@ pub(super) fn share(conn: &Connection, batch: &str) -> Result<BatchShare, CoordE
     let open: Vec<(String, String, String, i64)> = {
         let mut stmt = conn.prepare_cached(
             "SELECT l.batch_id, b.priority, b.submitter, l.leased
-             FROM batch_load l JOIN batches b ON b.id = l.batch_id WHERE b.state = 'running'",
+             FROM batch_load l CROSS JOIN batches b ON b.id = l.batch_id
+             WHERE (l.queued > 0 OR l.leased > 0) AND b.state = 'running'",
         )?;
         let it = stmt.query_map([], |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?, r.get(3)?)))?;
         it.collect::<Result<_, _>>()?

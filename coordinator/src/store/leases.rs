@@ -532,11 +532,20 @@ impl Store {
         // Trainer shards lease in the order they are queued (the dynamics fits last): the
         // longest chain first — the proxy's world model, then the ladder whose policies'
         // episodes the proxy also waits for, then the generalization policy.
-        Self::queue_proxy_world(conn, batch_id)?;
-        Self::queue_ladder(conn, batch_id)?;
-        Self::queue_diffusion(conn, batch_id)?;
-        Self::queue_dynamics(conn, batch_id)?;
-        Self::queue_proxy(conn, batch_id)?;
+        // Only a batch with a plan after its episodes has anything to queue: one read tells.
+        let planned: bool = conn
+            .prepare_cached(
+                "SELECT dynamics_json IS NOT NULL OR ranking_json IS NOT NULL
+                        OR generalization_json IS NOT NULL FROM batches WHERE id = ?1",
+            )?
+            .query_row([batch_id], |r| r.get(0))?;
+        if planned {
+            Self::queue_proxy_world(conn, batch_id)?;
+            Self::queue_ladder(conn, batch_id)?;
+            Self::queue_diffusion(conn, batch_id)?;
+            Self::queue_dynamics(conn, batch_id)?;
+            Self::queue_proxy(conn, batch_id)?;
+        }
         // EXISTS, not COUNT: this runs on every completion, and counting the open shards made
         // each one O(open shards) — quadratic over a batch (`assay bench coordinator` found it).
         let open: bool = conn

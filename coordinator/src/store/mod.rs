@@ -237,15 +237,18 @@ impl Store {
     /// Takes the next `n` values of the counter `key` (batch numbers, lease ids); returns the
     /// first.
     fn next_counter(tx: &Connection, key: &str, n: u64) -> Result<u64, CoordError> {
-        let cur: Option<i64> = tx
-            .prepare_cached("SELECT value FROM meta WHERE key = ?1")?
-            .query_row([key], |r| r.get(0))
+        // One statement where the counter exists (every lease but the store's first).
+        let taken: Option<i64> = tx
+            .prepare_cached(
+                "UPDATE meta SET value = value + ?2 WHERE key = ?1 RETURNING value - ?2",
+            )?
+            .query_row(params![key, n as i64], |r| r.get(0))
             .optional()?;
-        let first = cur.unwrap_or(1) as u64;
-        tx.prepare_cached(
-            "INSERT INTO meta (key, value) VALUES (?1, ?2) ON CONFLICT(key) DO UPDATE SET value = excluded.value",
-        )?
-        .execute(params![key, (first + n) as i64])?;
-        Ok(first)
+        if let Some(first) = taken {
+            return Ok(first as u64);
+        }
+        tx.prepare_cached("INSERT INTO meta (key, value) VALUES (?1, ?2)")?
+            .execute(params![key, (1 + n) as i64])?;
+        Ok(1)
     }
 }
