@@ -11,7 +11,7 @@
 //!
 //! Every read here costs the same whatever the queue's length: the running batches' loads come
 //! from `batch_load` (kept by triggers), a batch's kinds of queued work from a skip-scan of the
-//! `shards_queue` index (one seek per kind: sim, render, a judge, trainer), and its next shards
+//! `shards_queued` index (one seek per kind: sim, render, a judge, trainer), and its next shards
 //! from the same index in id order.
 //!
 //! Owns: the fair share and the choice of the shards a lease takes, and each batch's share as
@@ -47,7 +47,7 @@ struct Candidate {
     next: Option<std::collections::VecDeque<i64>>,
 }
 
-/// What a key of `shards_queue` (a shard's `needs`, else its role) asks of a worker.
+/// What a key of `shards_queued` (a shard's `needs`, else its role) asks of a worker.
 fn needs_of(key: &str) -> Vec<String> {
     if key.starts_with('[') {
         serde_json::from_str(key).unwrap_or_else(|_| vec![key.to_owned()])
@@ -233,7 +233,7 @@ pub(super) fn share(conn: &Connection, batch: &str) -> Result<BatchShare, CoordE
         let mut stmt = conn.prepare_cached(
             "SELECT l.batch_id, b.priority, b.submitter, l.leased
              FROM batch_load l CROSS JOIN batches b ON b.id = l.batch_id
-             WHERE (l.queued > 0 OR l.leased > 0) AND b.state = 'running'",
+             WHERE b.state = 'running'",
         )?;
         let it = stmt.query_map([], |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?, r.get(3)?)))?;
         it.collect::<Result<_, _>>()?

@@ -198,6 +198,10 @@ impl Store {
     }
 
     fn init(conn: Connection) -> Result<Self, CoordError> {
+        // Every statement a lease, a completion and the planner prepare stays prepared: with
+        // rusqlite's default of 16, a lease and its completion evicted each other's statements
+        // and parsed them again on every call.
+        conn.set_prepared_statement_cache_capacity(256);
         schema::migrate(&conn)?;
         Ok(Self { conn })
     }

@@ -15,6 +15,7 @@ use crate::error::CoordError;
 pub(super) const SCHEMA: &str = r#"
 PRAGMA journal_mode = WAL;
 PRAGMA synchronous = NORMAL;
+PRAGMA temp_store = MEMORY;
 CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value INTEGER NOT NULL);
 CREATE TABLE IF NOT EXISTS batches (
     id TEXT PRIMARY KEY,
@@ -101,46 +102,63 @@ const ADDED_COLUMNS: &[(&str, &str, &str)] = &[
     ("batches", "max_workers", "INTEGER NOT NULL DEFAULT 0"),
 ];
 
-/// What leasing reads, made after the added columns exist (an older store gains them first).
+/// What leasing reads, made after the added columns exist (an older store gains them first);
+/// the triggers are made afresh on every open, so a store keeps this version's.
 ///
-/// - `shards_queue`: the queued shards of a batch by what they need (`needs`, else the role),
-///   in id order — a lease reads the few shards it takes from it, however long the queue (the
+/// - `shards_queued`: shards by state, batch and what they need (`needs`, else the role), in id
+///   order — a lease reads the few queued shards it takes from it, however long the queue (the
 ///   earlier lease query ordered every queued shard by id, a cost in the queue's length).
 /// - `batch_load`: per batch with open shards, how many are queued and how many leased, kept by
-///   triggers on every change of a shard's state (whichever statement makes it: one `UPDATE` by
-///   key), so the fair share reads the running batches' loads without counting shards; the
-///   partial index `batch_load_queued` finds those with queued work. A batch whose shards have
-///   all finished keeps a row of zeros until the store is next opened: rebuilt from the shards
-///   on every open ([`rebuild_load`]), it holds only batches with open shards.
+///   triggers on every change of a shard's state (whichever statement makes it), so the fair
+///   share reads the running batches' loads without counting shards. A batch leaves it when
+///   nothing of it is open. Rebuilt from the shards on every open ([`rebuild_load`]).
 const LEASING: &str = r#"
-CREATE INDEX IF NOT EXISTS shards_queue ON shards (batch_id, COALESCE(needs, role), id)
-    WHERE state = 'queued';
+DROP INDEX IF EXISTS shards_queue;
+DROP INDEX IF EXISTS batch_load_queued;
+CREATE INDEX IF NOT EXISTS shards_queued ON shards (state, batch_id, COALESCE(needs, role), id);
 CREATE TABLE IF NOT EXISTS batch_load (
     batch_id TEXT PRIMARY KEY,
     queued INTEGER NOT NULL,
     leased INTEGER NOT NULL
 );
-CREATE INDEX IF NOT EXISTS batch_load_queued ON batch_load (batch_id) WHERE queued > 0;
+DROP TRIGGER IF EXISTS batch_load_insert;
+DROP TRIGGER IF EXISTS batch_load_update;
+DROP TRIGGER IF EXISTS batch_load_reopen;
 DROP TRIGGER IF EXISTS batch_load_delete;
-CREATE TRIGGER IF NOT EXISTS batch_load_insert AFTER INSERT ON shards
+CREATE TRIGGER batch_load_insert AFTER INSERT ON shards
 WHEN new.state IN ('queued', 'leased') BEGIN
     INSERT OR IGNORE INTO batch_load (batch_id, queued, leased) VALUES (new.batch_id, 0, 0);
     UPDATE batch_load SET queued = queued + (new.state = 'queued'),
                           leased = leased + (new.state = 'leased')
      WHERE batch_id = new.batch_id;
 END;
-CREATE TRIGGER IF NOT EXISTS batch_load_update AFTER UPDATE OF state ON shards
-WHEN old.state IS NOT new.state AND old.state IN ('queued', 'leased') BEGIN
+CREATE TRIGGER batch_load_move AFTER UPDATE OF state ON shards
+WHEN old.state IS NOT new.state AND old.state IN ('queued', 'leased')
+ AND new.state IN ('queued', 'leased') BEGIN
     UPDATE batch_load SET queued = queued + (new.state = 'queued') - (old.state = 'queued'),
                           leased = leased + (new.state = 'leased') - (old.state = 'leased')
      WHERE batch_id = new.batch_id;
 END;
-CREATE TRIGGER IF NOT EXISTS batch_load_reopen AFTER UPDATE OF state ON shards
+CREATE TRIGGER batch_load_close AFTER UPDATE OF state ON shards
+WHEN old.state IN ('queued', 'leased') AND new.state NOT IN ('queued', 'leased') BEGIN
+    UPDATE batch_load SET queued = queued - (old.state = 'queued'),
+                          leased = leased - (old.state = 'leased')
+     WHERE batch_id = new.batch_id;
+    DELETE FROM batch_load WHERE batch_id = new.batch_id AND queued = 0 AND leased = 0;
+END;
+CREATE TRIGGER batch_load_reopen AFTER UPDATE OF state ON shards
 WHEN old.state NOT IN ('queued', 'leased') AND new.state IN ('queued', 'leased') BEGIN
     INSERT OR IGNORE INTO batch_load (batch_id, queued, leased) VALUES (new.batch_id, 0, 0);
     UPDATE batch_load SET queued = queued + (new.state = 'queued'),
                           leased = leased + (new.state = 'leased')
      WHERE batch_id = new.batch_id;
+END;
+CREATE TRIGGER batch_load_delete AFTER DELETE ON shards
+WHEN old.state IN ('queued', 'leased') BEGIN
+    UPDATE batch_load SET queued = queued - (old.state = 'queued'),
+                          leased = leased - (old.state = 'leased')
+     WHERE batch_id = old.batch_id;
+    DELETE FROM batch_load WHERE batch_id = old.batch_id AND queued = 0 AND leased = 0;
 END;
 "#;
 
