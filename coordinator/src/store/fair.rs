@@ -44,7 +44,7 @@ struct Candidate {
     leased: f64,
     weight: f64,
     /// The shards this worker can do, next first (filled on first use); `None`: not read yet.
-    next: Option<std::collections::VecDeque<i64>>,
+    next: Option<std::collections::VecDeque<QueuedShard>>,
 }
 
 /// What a key of `shards_queued` (a shard's `needs`, else its role) asks of a worker.
@@ -73,14 +73,14 @@ fn weights(rows: &[(String, Priority, String)]) -> BTreeMap<String, f64> {
         .collect()
 }
 
-/// The ids of up to `n` queued shards for a worker offering `capabilities`, in the order they
-/// are to be leased: shared between the running batches by weight.
+/// Up to `n` queued shards for a worker offering `capabilities`, in the order they are to be
+/// leased: shared between the running batches by weight.
 pub(super) fn pick(
     conn: &Connection,
     worker: &str,
     capabilities: &[String],
     n: u32,
-) -> Result<Vec<i64>, CoordError> {
+) -> Result<Vec<QueuedShard>, CoordError> {
     #[allow(clippy::type_complexity)]
     let rows: Vec<(String, String, String, u32, i64)> = {
         let mut stmt = conn.prepare_cached(
@@ -149,6 +149,74 @@ fn below_cap(conn: &Connection, batch: &str, worker: &str, cap: u32) -> Result<b
     Ok(mine || workers < cap)
 }
 
+/// id, batch, seed, policy, role, attempts, spec JSON, judge, input JSON, repeats, budget,
+/// clip size (of the batch's dynamics or ranking world model), whether the batch renders, stage:
+/// what a lease hands out, read with the shard it takes.
+pub(super) type QueuedShard = (
+    i64,
+    String,
+    i64,
+    String,
+    String,
+    u32,
+    String,
+    Option<String>,
+    Option<String>,
+    u32,
+    Option<f64>,
+    Option<i64>,
+    bool,
+    Option<String>,
+);
+
+/// A batch's next queued shards of one kind of work (`?1` batch, `?2` its `shards_queued` key,
+/// `?3` the dynamics-fit kind, `?4` how many), with everything a lease hands out: `(is a fit,
+/// QueuedShard)`. One statement for the choice and the rows, its parameters the same from one
+/// lease of a batch to the next: this SQLite (STAT4) prepares a statement again whenever a
+/// parameter compared with an indexed column changes, so a per-shard read by id cost a parse
+/// and a plan per lease.
+macro_rules! queued_shards {
+    ($order:literal) => {
+        concat!(
+            "SELECT s.kind = ?3, s.id, s.batch_id, s.seed, s.policy, s.role, s.attempts,
+                    COALESCE(t.spec_json, ''), s.judge, s.input_json, b.judge_repeats,
+                    b.judge_budget_usd,
+                    COALESCE(json_extract(b.dynamics_json, '$.config.image_size'),
+                             json_extract(b.ranking_json, '$.config.world_model.image_size'),
+                             json_extract(b.generalization_json, '$.config.image_size')),
+                    b.render, s.stage
+             FROM shards s LEFT JOIN tasks t ON t.batch_id = s.batch_id AND t.task_id = s.task_id
+                           JOIN batches b ON b.id = s.batch_id
+             WHERE s.state = 'queued' AND s.batch_id = ?1 AND COALESCE(s.needs, s.role) = ?2
+             ORDER BY ",
+            $order,
+            " LIMIT ?4"
+        )
+    };
+}
+
+fn read_queued(r: &rusqlite::Row<'_>) -> rusqlite::Result<(bool, QueuedShard)> {
+    Ok((
+        r.get(0)?,
+        (
+            r.get(1)?,
+            r.get(2)?,
+            r.get(3)?,
+            r.get(4)?,
+            r.get(5)?,
+            r.get(6)?,
+            r.get(7)?,
+            r.get(8)?,
+            r.get(9)?,
+            r.get(10)?,
+            r.get(11)?,
+            r.get(12)?,
+            r.get(13)?,
+            r.get(14)?,
+        ),
+    ))
+}
+
 /// Up to `n` queued shards of `batch` a worker offering `capabilities` can do, in lease order:
 /// by id, except that a trainer takes the dynamics-diversity fits last (nothing waits for them,
 /// while a proxy, a ladder or a generalization policy has episodes or a proxy after it).
@@ -157,34 +225,32 @@ fn next_shards(
     batch: &str,
     capabilities: &[String],
     n: u32,
-) -> Result<Vec<i64>, CoordError> {
-    // The batch's kinds of queued work: one index seek each, past the previous kind.
-    let mut keys = Vec::new();
-    let mut after = String::new();
-    let mut seek = conn.prepare_cached(
-        "SELECT COALESCE(needs, role) AS k FROM shards
+) -> Result<Vec<QueuedShard>, CoordError> {
+    // The batch's kinds of queued work: one index seek each, past the previous kind (the first
+    // seek a statement of its own, so its parameters stay the same from lease to lease).
+    let mut keys: Vec<String> = Vec::new();
+    let mut first = conn.prepare_cached(
+        "SELECT COALESCE(needs, role) FROM shards WHERE state = 'queued' AND batch_id = ?1
+         ORDER BY COALESCE(needs, role) LIMIT 1",
+    )?;
+    let mut next = conn.prepare_cached(
+        "SELECT COALESCE(needs, role) FROM shards
          WHERE state = 'queued' AND batch_id = ?1 AND COALESCE(needs, role) > ?2
          ORDER BY COALESCE(needs, role) LIMIT 1",
     )?;
-    while let Some(key) = seek
-        .query_row(params![batch, after], |r| r.get::<_, String>(0))
-        .optional()?
-    {
-        after.clone_from(&key);
-        keys.push(key);
+    let mut key = first
+        .query_row([batch], |r| r.get::<_, String>(0))
+        .optional()?;
+    while let Some(k) = key {
+        key = next
+            .query_row(params![batch, k], |r| r.get::<_, String>(0))
+            .optional()?;
+        keys.push(k);
     }
     let trainer = capabilities.iter().any(|c| c == role::TRAINER);
-    let mut found: Vec<(bool, i64)> = Vec::new();
-    let mut ids = conn.prepare_cached(
-        "SELECT kind = ?3, id FROM shards
-         WHERE state = 'queued' AND batch_id = ?1 AND COALESCE(needs, role) = ?2
-         ORDER BY id LIMIT ?4",
-    )?;
-    let mut fits_last = conn.prepare_cached(
-        "SELECT kind = ?3, id FROM shards
-         WHERE state = 'queued' AND batch_id = ?1 AND COALESCE(needs, role) = ?2
-         ORDER BY kind = ?3, id LIMIT ?4",
-    )?;
+    let mut found: Vec<(bool, QueuedShard)> = Vec::new();
+    let mut by_id = conn.prepare_cached(queued_shards!("s.id"))?;
+    let mut fits_last = conn.prepare_cached(queued_shards!("s.kind = ?3, s.id"))?;
     for key in keys {
         let needs = needs_of(&key);
         if !needs.iter().all(|need| capabilities.contains(need)) {
@@ -194,25 +260,22 @@ fn next_shards(
         let stmt = if trainer && needs.iter().any(|x| x == role::TRAINER) {
             &mut fits_last
         } else {
-            &mut ids
+            &mut by_id
         };
-        let rows = stmt.query_map(params![batch, key, JobKind::DynamicsFit.as_str(), n], |r| {
-            Ok((r.get::<_, bool>(0)?, r.get::<_, i64>(1)?))
-        })?;
+        let rows = stmt.query_map(
+            params![batch, key, JobKind::DynamicsFit.as_str(), n],
+            read_queued,
+        )?;
         for row in rows {
             found.push(row?);
         }
     }
     if trainer {
-        found.sort_unstable();
+        found.sort_unstable_by_key(|(fit, q)| (*fit, q.0));
     } else {
-        found.sort_unstable_by_key(|&(_, id)| id);
+        found.sort_unstable_by_key(|(_, q)| q.0);
     }
-    Ok(found
-        .into_iter()
-        .take(n as usize)
-        .map(|(_, id)| id)
-        .collect())
+    Ok(found.into_iter().take(n as usize).map(|(_, q)| q).collect())
 }
 
 /// A batch's share of the cluster now: its priority, submitter and cap, the workers and leases

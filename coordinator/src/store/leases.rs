@@ -14,25 +14,6 @@ use rusqlite::{Connection, OptionalExtension, params};
 use super::{Changed, JudgeLease, Lease, Store, batch_state, role};
 use crate::error::CoordError;
 
-/// id, batch, seed, policy, role, attempts, spec JSON, judge, input JSON, repeats, budget,
-/// clip size (of the batch's dynamics or ranking world model), whether the batch renders, stage.
-type QueuedShard = (
-    i64,
-    String,
-    i64,
-    String,
-    String,
-    u32,
-    String,
-    Option<String>,
-    Option<String>,
-    u32,
-    Option<f64>,
-    Option<i64>,
-    bool,
-    Option<String>,
-);
-
 impl Store {
     /// Leases up to `n` queued shards of running batches to a worker offering `capabilities`
     /// (its roles and what else it can do): only shards that need nothing else, shared between
@@ -49,41 +30,7 @@ impl Store {
             return Ok(Vec::new());
         }
         let tx = self.conn.savepoint()?;
-        let picked = super::fair::pick(&tx, worker, capabilities, n)?;
-        let mut rows: Vec<QueuedShard> = Vec::with_capacity(picked.len());
-        {
-            let mut stmt = tx.prepare_cached(
-                "SELECT s.id, s.batch_id, s.seed, s.policy, s.role, s.attempts, COALESCE(t.spec_json, ''),
-                        s.judge, s.input_json, b.judge_repeats, b.judge_budget_usd,
-                        COALESCE(json_extract(b.dynamics_json, '$.config.image_size'),
-                                 json_extract(b.ranking_json, '$.config.world_model.image_size'),
-                                 json_extract(b.generalization_json, '$.config.image_size')),
-                        b.render, s.stage
-                 FROM shards s LEFT JOIN tasks t ON t.batch_id = s.batch_id AND t.task_id = s.task_id
-                               JOIN batches b ON b.id = s.batch_id
-                 WHERE s.id = ?1",
-            )?;
-            for id in picked {
-                rows.push(stmt.query_row([id], |r| {
-                    Ok((
-                        r.get(0)?,
-                        r.get(1)?,
-                        r.get(2)?,
-                        r.get(3)?,
-                        r.get(4)?,
-                        r.get(5)?,
-                        r.get(6)?,
-                        r.get(7)?,
-                        r.get(8)?,
-                        r.get(9)?,
-                        r.get(10)?,
-                        r.get(11)?,
-                        r.get(12)?,
-                        r.get(13)?,
-                    ))
-                })?);
-            }
-        }
+        let rows = super::fair::pick(&tx, worker, capabilities, n)?;
         let first = Self::next_counter(&tx, "lease_seq", rows.len() as u64)?;
         let mut out = Vec::with_capacity(rows.len());
         for (

@@ -123,6 +123,8 @@ CREATE TABLE IF NOT EXISTS batch_load (
 );
 DROP TRIGGER IF EXISTS batch_load_insert;
 DROP TRIGGER IF EXISTS batch_load_update;
+DROP TRIGGER IF EXISTS batch_load_move;
+DROP TRIGGER IF EXISTS batch_load_close;
 DROP TRIGGER IF EXISTS batch_load_reopen;
 DROP TRIGGER IF EXISTS batch_load_delete;
 CREATE TRIGGER batch_load_insert AFTER INSERT ON shards
