@@ -11,7 +11,7 @@
 //!
 //! Every read here costs the same whatever the queue's length: the running batches' loads come
 //! from `batch_load` (kept by triggers), a batch's kinds of queued work from a skip-scan of the
-//! `shards_queued` index (one seek per kind: sim, render, a judge, trainer), and its next shards
+//! `shards_by_needs` index (one seek per kind: sim, render, a judge, trainer), and its next shards
 //! from the same index in id order.
 //!
 //! Owns: the fair share and the choice of the shards a lease takes, and each batch's share as
@@ -47,7 +47,8 @@ struct Candidate {
     next: Option<std::collections::VecDeque<QueuedShard>>,
 }
 
-/// What a key of `shards_queued` (a shard's `needs`, else its role) asks of a worker.
+/// What a key of `shards_by_needs` (a shard's `needs`, a JSON array; a bare role in a store
+/// written before `needs` was always set) asks of a worker.
 fn needs_of(key: &str) -> Vec<String> {
     if key.starts_with('[') {
         serde_json::from_str(key).unwrap_or_else(|_| vec![key.to_owned()])
@@ -169,16 +170,20 @@ pub(super) type QueuedShard = (
     Option<String>,
 );
 
-/// A batch's next queued shards of one kind of work (`?1` batch, `?2` its `shards_queued` key,
+/// A batch's next queued shards of one kind of work (`?1` batch, `?2` its `shards_by_needs` key,
 /// `?3` the dynamics-fit kind, `?4` how many), with everything a lease hands out: `(is a fit,
-/// QueuedShard)`. One statement for the choice and the rows, its parameters the same from one
-/// lease of a batch to the next: this SQLite (STAT4) prepares a statement again whenever a
-/// parameter compared with an indexed column changes, so a per-shard read by id cost a parse
-/// and a plan per lease.
+/// QueuedShard)`. One statement for the choice and the rows.
+///
+/// Every parameter of a statement here is `CAST` to its type: this SQLite (libsqlite3-sys's
+/// bundle, built with STAT4) otherwise marks a statement that compares a parameter with an
+/// indexed column under an `ORDER BY` to be prepared again on its next run after the parameter
+/// is bound, and rusqlite clears the bindings of every cached statement — so each lease parsed
+/// and planned these statements again (`SQLITE_STMTSTATUS_REPREPARE`: one per run; with the
+/// casts, none).
 macro_rules! queued_shards {
     ($order:literal) => {
         concat!(
-            "SELECT s.kind = ?3, s.id, s.batch_id, s.seed, s.policy, s.role, s.attempts,
+            "SELECT s.kind = CAST(?3 AS TEXT), s.id, s.batch_id, s.seed, s.policy, s.role, s.attempts,
                     COALESCE(t.spec_json, ''), s.judge, s.input_json, b.judge_repeats,
                     b.judge_budget_usd,
                     COALESCE(json_extract(b.dynamics_json, '$.config.image_size'),
@@ -187,10 +192,11 @@ macro_rules! queued_shards {
                     b.render, s.stage
              FROM shards s LEFT JOIN tasks t ON t.batch_id = s.batch_id AND t.task_id = s.task_id
                            JOIN batches b ON b.id = s.batch_id
-             WHERE s.state = 'queued' AND s.batch_id = ?1 AND COALESCE(s.needs, s.role) = ?2
+             WHERE s.state = 'queued' AND s.batch_id = CAST(?1 AS TEXT)
+               AND s.needs = CAST(?2 AS TEXT)
              ORDER BY ",
             $order,
-            " LIMIT ?4"
+            " LIMIT CAST(?4 AS INTEGER)"
         )
     };
 }
@@ -230,13 +236,13 @@ fn next_shards(
     // seek a statement of its own, so its parameters stay the same from lease to lease).
     let mut keys: Vec<String> = Vec::new();
     let mut first = conn.prepare_cached(
-        "SELECT COALESCE(needs, role) FROM shards WHERE state = 'queued' AND batch_id = ?1
-         ORDER BY COALESCE(needs, role) LIMIT 1",
+        "SELECT needs FROM shards WHERE state = 'queued' AND batch_id = CAST(?1 AS TEXT)
+         ORDER BY needs LIMIT 1",
     )?;
     let mut next = conn.prepare_cached(
-        "SELECT COALESCE(needs, role) FROM shards
-         WHERE state = 'queued' AND batch_id = ?1 AND COALESCE(needs, role) > ?2
-         ORDER BY COALESCE(needs, role) LIMIT 1",
+        "SELECT needs FROM shards
+         WHERE state = 'queued' AND batch_id = CAST(?1 AS TEXT) AND needs > CAST(?2 AS TEXT)
+         ORDER BY needs LIMIT 1",
     )?;
     let mut key = first
         .query_row([batch], |r| r.get::<_, String>(0))
@@ -250,7 +256,7 @@ fn next_shards(
     let trainer = capabilities.iter().any(|c| c == role::TRAINER);
     let mut found: Vec<(bool, QueuedShard)> = Vec::new();
     let mut by_id = conn.prepare_cached(queued_shards!("s.id"))?;
-    let mut fits_last = conn.prepare_cached(queued_shards!("s.kind = ?3, s.id"))?;
+    let mut fits_last = conn.prepare_cached(queued_shards!("s.kind = CAST(?3 AS TEXT), s.id"))?;
     for key in keys {
         let needs = needs_of(&key);
         if !needs.iter().all(|need| capabilities.contains(need)) {

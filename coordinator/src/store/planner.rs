@@ -926,12 +926,14 @@ impl Store {
 
     /// Queued episodes of a policy that may see while it runs need a worker that renders beside
     /// its simulator (`PolicySpec::renders_in_loop`): frames in the loop cannot wait for a
-    /// render shard.
+    /// render shard. (An episode that needs only its role has `needs` = `[role]`, or NULL in a
+    /// store not yet opened by this version.)
     fn mark_rendering_in_loop(conn: &Connection, batch_id: &str) -> Result<(), CoordError> {
         let policies: Vec<(String, String)> = {
             let mut stmt = conn.prepare(
                 "SELECT DISTINCT policy, role FROM shards WHERE batch_id = ?1 AND state = 'queued'
-                 AND needs IS NULL AND stage IS NULL AND role NOT IN ('judge', 'trainer')",
+                 AND (needs IS NULL OR needs = json_array(role)) AND stage IS NULL
+                 AND role NOT IN ('judge', 'trainer')",
             )?;
             stmt.query_map([batch_id], |r| Ok((r.get(0)?, r.get(1)?)))?
                 .collect::<Result<_, _>>()?
@@ -942,7 +944,7 @@ impl Store {
             if sees {
                 conn.execute(
                     "UPDATE shards SET needs = ?1 WHERE batch_id = ?2 AND policy = ?3 AND state = 'queued'
-                     AND needs IS NULL AND stage IS NULL AND role = ?4",
+                     AND (needs IS NULL OR needs = json_array(role)) AND stage IS NULL AND role = ?4",
                     params![
                         serde_json::to_string(&[role.as_str(), super::role::RENDER])?,
                         batch_id,

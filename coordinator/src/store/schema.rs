@@ -105,17 +105,26 @@ const ADDED_COLUMNS: &[(&str, &str, &str)] = &[
 /// What leasing reads, made after the added columns exist (an older store gains them first);
 /// the triggers are made afresh on every open, so a store keeps this version's.
 ///
-/// - `shards_queued`: shards by state, batch and what they need (`needs`, else the role), in id
-///   order — a lease reads the few queued shards it takes from it, however long the queue (the
-///   earlier lease query ordered every queued shard by id, a cost in the queue's length).
+/// - `shards_by_needs`: shards by state, batch and what they need of a worker, in id order — a
+///   lease reads the few queued shards it takes from it, however long the queue (the earlier
+///   lease query ordered every queued shard by id, a cost in the queue's length). `needs` is
+///   always set now (a shard that needs only its role gets `json_array(role)`: backfilled here,
+///   and by the `shards_needs` trigger for every new row), so the index is on plain columns and
+///   the lease's statements compare columns, not `COALESCE(needs, role)`.
 /// - `batch_load`: per batch with open shards, how many are queued and how many leased, kept by
 ///   triggers on every change of a shard's state (whichever statement makes it), so the fair
 ///   share reads the running batches' loads without counting shards. A batch leaves it when
 ///   nothing of it is open. Rebuilt from the shards on every open ([`rebuild_load`]).
 const LEASING: &str = r#"
 DROP INDEX IF EXISTS shards_queue;
+DROP INDEX IF EXISTS shards_queued;
 DROP INDEX IF EXISTS batch_load_queued;
-CREATE INDEX IF NOT EXISTS shards_queued ON shards (state, batch_id, COALESCE(needs, role), id);
+UPDATE shards SET needs = json_array(role) WHERE needs IS NULL;
+DROP TRIGGER IF EXISTS shards_needs;
+CREATE TRIGGER shards_needs AFTER INSERT ON shards WHEN new.needs IS NULL BEGIN
+    UPDATE shards SET needs = json_array(new.role) WHERE id = new.id;
+END;
+CREATE INDEX IF NOT EXISTS shards_by_needs ON shards (state, batch_id, needs, id);
 CREATE TABLE IF NOT EXISTS batch_load (
     batch_id TEXT PRIMARY KEY,
     queued INTEGER NOT NULL,
