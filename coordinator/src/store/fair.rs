@@ -233,7 +233,7 @@ fn next_shards(
     n: u32,
 ) -> Result<Vec<QueuedShard>, CoordError> {
     // The batch's kinds of queued work: one index seek each, past the previous kind (the first
-    // seek a statement of its own, so its parameters stay the same from lease to lease).
+    // has no kind to start past).
     let mut keys: Vec<String> = Vec::new();
     let mut first = conn.prepare_cached(
         "SELECT needs FROM shards WHERE state = 'queued' AND batch_id = CAST(?1 AS TEXT)
