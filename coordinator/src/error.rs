@@ -18,6 +18,9 @@ pub enum CoordError {
     GroupCommit(String),
     #[error("the job store has stopped")]
     StoreStopped,
+    /// The store's checkpointing thread could not start.
+    #[error("job store: starting its checkpoint thread: {0}")]
+    Checkpointer(std::io::Error),
     /// A batch the planner refuses (its documents, settings, templates or interfaces).
     #[error(transparent)]
     Plan(#[from] assay_plan::PlanError),

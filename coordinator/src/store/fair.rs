@@ -11,7 +11,7 @@
 //!
 //! Every read here costs the same whatever the queue's length: the running batches' loads come
 //! from `batch_load` (kept by triggers), a batch's kinds of queued work from a skip-scan of the
-//! `shards_by_needs` index (one seek per kind: sim, render, a judge, trainer), and its next shards
+//! `shards_waiting` index (one seek per kind: sim, render, a judge, trainer), and its next shards
 //! from the same index in id order.
 //!
 //! Owns: the fair share and the choice of the shards a lease takes, and each batch's share as
@@ -22,6 +22,7 @@ use std::collections::BTreeMap;
 use assay_model::job::{JobKind, Priority};
 use rusqlite::{Connection, OptionalExtension, params};
 
+use super::cache::Cache;
 use super::{Share, role};
 use crate::error::CoordError;
 
@@ -47,7 +48,7 @@ struct Candidate {
     next: Option<std::collections::VecDeque<QueuedShard>>,
 }
 
-/// What a key of `shards_by_needs` (a shard's `needs`, a JSON array; a bare role in a store
+/// What a key of `shards_waiting` (a shard's `needs`, a JSON array; a bare role in a store
 /// written before `needs` was always set) asks of a worker.
 fn needs_of(key: &str) -> Vec<String> {
     if key.starts_with('[') {
@@ -78,29 +79,36 @@ fn weights(rows: &[(String, Priority, String)]) -> BTreeMap<String, f64> {
 /// leased: shared between the running batches by weight.
 pub(super) fn pick(
     conn: &Connection,
+    cache: &mut Cache,
     worker: &str,
     capabilities: &[String],
     n: u32,
 ) -> Result<Vec<QueuedShard>, CoordError> {
-    #[allow(clippy::type_complexity)]
-    let rows: Vec<(String, String, String, u32, i64)> = {
+    // The running batches with queued work and what they hold now; their share settings from
+    // the cache (they follow the seeds in the batch's row: a walk of its overflow pages).
+    let rows: Vec<(String, i64)> = {
         let mut stmt = conn.prepare_cached(
-            "SELECT l.batch_id, b.priority, b.submitter, b.max_workers, l.leased
+            "SELECT l.batch_id, l.leased
              FROM batch_load l CROSS JOIN batches b ON b.id = l.batch_id
              WHERE l.queued > 0 AND b.state = 'running' ORDER BY b.seq",
         )?;
-        let it = stmt.query_map([], |r| {
-            Ok((r.get(0)?, r.get(1)?, r.get(2)?, r.get(3)?, r.get(4)?))
-        })?;
+        let it = stmt.query_map([], |r| Ok((r.get(0)?, r.get(1)?)))?;
         it.collect::<Result<_, _>>()?
     };
-    let keyed: Vec<(String, Priority, String)> = rows
-        .iter()
-        .map(|(id, p, who, _, _)| (id.clone(), p.parse().unwrap_or_default(), who.clone()))
-        .collect();
+    let mut keyed: Vec<(String, Priority, String)> = Vec::with_capacity(rows.len());
+    let mut caps = Vec::with_capacity(rows.len());
+    for (id, _) in &rows {
+        let info = cache.batch(conn, id)?;
+        keyed.push((
+            id.clone(),
+            info.share.priority,
+            info.share.submitter.clone(),
+        ));
+        caps.push(info.share.max_workers);
+    }
     let weight = weights(&keyed);
     let mut candidates = Vec::with_capacity(rows.len());
-    for (id, _, _, cap, leased) in rows {
+    for ((id, leased), cap) in rows.into_iter().zip(caps) {
         if cap > 0 && !below_cap(conn, &id, worker, cap)? {
             continue;
         }
@@ -139,40 +147,37 @@ pub(super) fn pick(
 }
 
 /// Whether `worker` may take a shard of a batch capped at `cap` workers: it holds one of its
-/// shards already, or fewer than `cap` workers do. Reads the batch's leased shards only.
+/// shards already, or fewer than `cap` workers do. Reads the leased shards only (`INDEXED BY`:
+/// SQLite would rather seek the batch's shards by `shards_in_batch`, all of them).
 fn below_cap(conn: &Connection, batch: &str, worker: &str, cap: u32) -> Result<bool, CoordError> {
     let (workers, mine): (u32, bool) = conn
         .prepare_cached(
-            "SELECT COUNT(DISTINCT lease_worker), COALESCE(MAX(lease_worker = ?2), 0) FROM shards
+            "SELECT COUNT(DISTINCT lease_worker), COALESCE(MAX(lease_worker = ?2), 0) FROM shards INDEXED BY shards_leased
              WHERE batch_id = ?1 AND state = 'leased'",
         )?
         .query_row(params![batch, worker], |r| Ok((r.get(0)?, r.get(1)?)))?;
     Ok(mine || workers < cap)
 }
 
-/// id, batch, seed, policy, role, attempts, spec JSON, judge, input JSON, repeats, budget,
-/// clip size (of the batch's dynamics or ranking world model), whether the batch renders, stage:
-/// what a lease hands out, read with the shard it takes.
-pub(super) type QueuedShard = (
-    i64,
-    String,
-    i64,
-    String,
-    String,
-    u32,
-    String,
-    Option<String>,
-    Option<String>,
-    u32,
-    Option<f64>,
-    Option<i64>,
-    bool,
-    Option<String>,
-);
+/// A queued shard as a lease reads it; the rest of what the lease hands out is the batch's and
+/// its task's ([`Cache`]).
+#[derive(Debug, Clone)]
+pub(super) struct QueuedShard {
+    pub id: i64,
+    pub batch_id: String,
+    pub task_id: String,
+    pub seed: i64,
+    pub policy: String,
+    pub role: String,
+    pub attempts: u32,
+    pub judge: Option<String>,
+    pub input_json: Option<String>,
+    pub stage: Option<String>,
+}
 
-/// A batch's next queued shards of one kind of work (`?1` batch, `?2` its `shards_by_needs` key,
-/// `?3` the dynamics-fit kind, `?4` how many), with everything a lease hands out: `(is a fit,
-/// QueuedShard)`. One statement for the choice and the rows.
+/// A batch's next queued shards of one kind of work (`?1` batch, `?2` its `shards_waiting` key,
+/// `?3` the dynamics-fit kind, `?4` how many): `(is a fit, QueuedShard)`, read from the index
+/// and the shards' rows alone.
 ///
 /// Every parameter of a statement here is `CAST` to its type: this SQLite (libsqlite3-sys's
 /// bundle, built with STAT4) otherwise marks a statement that compares a parameter with an
@@ -183,15 +188,9 @@ pub(super) type QueuedShard = (
 macro_rules! queued_shards {
     ($order:literal) => {
         concat!(
-            "SELECT s.kind = CAST(?3 AS TEXT), s.id, s.batch_id, s.seed, s.policy, s.role, s.attempts,
-                    COALESCE(t.spec_json, ''), s.judge, s.input_json, b.judge_repeats,
-                    b.judge_budget_usd,
-                    COALESCE(json_extract(b.dynamics_json, '$.config.image_size'),
-                             json_extract(b.ranking_json, '$.config.world_model.image_size'),
-                             json_extract(b.generalization_json, '$.config.image_size')),
-                    b.render, s.stage
-             FROM shards s LEFT JOIN tasks t ON t.batch_id = s.batch_id AND t.task_id = s.task_id
-                           JOIN batches b ON b.id = s.batch_id
+            "SELECT s.kind = CAST(?3 AS TEXT), s.id, s.batch_id, s.task_id, s.seed, s.policy,
+                    s.role, s.attempts, s.judge, s.input_json, s.stage
+             FROM shards s
              WHERE s.state = 'queued' AND s.batch_id = CAST(?1 AS TEXT)
                AND s.needs = CAST(?2 AS TEXT)
              ORDER BY ",
@@ -204,22 +203,18 @@ macro_rules! queued_shards {
 fn read_queued(r: &rusqlite::Row<'_>) -> rusqlite::Result<(bool, QueuedShard)> {
     Ok((
         r.get(0)?,
-        (
-            r.get(1)?,
-            r.get(2)?,
-            r.get(3)?,
-            r.get(4)?,
-            r.get(5)?,
-            r.get(6)?,
-            r.get(7)?,
-            r.get(8)?,
-            r.get(9)?,
-            r.get(10)?,
-            r.get(11)?,
-            r.get(12)?,
-            r.get(13)?,
-            r.get(14)?,
-        ),
+        QueuedShard {
+            id: r.get(1)?,
+            batch_id: r.get(2)?,
+            task_id: r.get(3)?,
+            seed: r.get(4)?,
+            policy: r.get(5)?,
+            role: r.get(6)?,
+            attempts: r.get(7)?,
+            judge: r.get(8)?,
+            input_json: r.get(9)?,
+            stage: r.get(10)?,
+        },
     ))
 }
 
@@ -277,9 +272,9 @@ fn next_shards(
         }
     }
     if trainer {
-        found.sort_unstable_by_key(|(fit, q)| (*fit, q.0));
+        found.sort_unstable_by_key(|(fit, q)| (*fit, q.id));
     } else {
-        found.sort_unstable_by_key(|(_, q)| q.0);
+        found.sort_unstable_by_key(|(_, q)| q.id);
     }
     Ok(found.into_iter().take(n as usize).map(|(_, q)| q).collect())
 }
@@ -292,7 +287,7 @@ pub(super) fn share(conn: &Connection, batch: &str) -> Result<BatchShare, CoordE
         .query_row([batch], |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?)))?;
     let (workers, leased): (u32, u32) = conn
         .prepare_cached(
-            "SELECT COUNT(DISTINCT lease_worker), COUNT(*) FROM shards
+            "SELECT COUNT(DISTINCT lease_worker), COUNT(*) FROM shards INDEXED BY shards_leased
              WHERE batch_id = ?1 AND state = 'leased'",
         )?
         .query_row([batch], |r| Ok((r.get(0)?, r.get(1)?)))?;

@@ -11,6 +11,7 @@ use assay_model::quality::JudgeOutcome;
 use assay_model::trainer::TrainerOutcome;
 use rusqlite::{Connection, OptionalExtension, params};
 
+use super::cache::Cache;
 use super::{Changed, JudgeLease, Lease, Store, batch_state, role};
 use crate::error::CoordError;
 
@@ -29,54 +30,62 @@ impl Store {
         if n == 0 || capabilities.is_empty() {
             return Ok(Vec::new());
         }
-        let tx = self.conn.savepoint()?;
-        let rows = super::fair::pick(&tx, worker, capabilities, n)?;
-        let first = Self::next_counter(&tx, "lease_seq", rows.len() as u64)?;
+        let leased = self.lease_in(worker, capabilities, n, now_ms, ttl_ms);
+        if leased.is_err() {
+            // Its savepoint rolled back, with any lease ids it took from the counter.
+            self.lease_ids = None;
+        }
+        leased
+    }
+
+    fn lease_in(
+        &mut self,
+        worker: &str,
+        capabilities: &[String],
+        n: u32,
+        now_ms: i64,
+        ttl_ms: i64,
+    ) -> Result<Vec<Lease>, CoordError> {
+        let Store {
+            conn,
+            cache,
+            lease_ids,
+            ..
+        } = self;
+        let tx = conn.savepoint()?;
+        let rows = super::fair::pick(&tx, cache, worker, capabilities, n)?;
+        if rows.is_empty() {
+            return Ok(Vec::new());
+        }
+        let first = Self::next_lease_ids(&tx, lease_ids, rows.len() as u64)?;
         let mut out = Vec::with_capacity(rows.len());
-        for (
-            k,
-            (
-                shard_id,
-                batch_id,
-                seed,
-                policy,
-                shard_role,
-                attempts,
-                spec,
-                judge,
-                input,
-                repeats,
-                budget,
-                dynamics,
-                renders,
-                stage,
-            ),
-        ) in rows.into_iter().enumerate()
-        {
+        for (k, q) in rows.into_iter().enumerate() {
+            let batch = cache.batch(&tx, &q.batch_id)?;
+            let spec = cache.spec(&tx, &q.batch_id, &q.task_id)?;
             // An episode waiting for its pictures goes to a render worker with its scenes.
-            let (shard_role, render_input, input) = if stage.as_deref() == Some(role::RENDER) {
-                (role::RENDER.to_owned(), input, None)
+            let (shard_role, render_input, input) = if q.stage.as_deref() == Some(role::RENDER) {
+                (role::RENDER.to_owned(), q.input_json, None)
             } else {
-                (shard_role, None, input)
+                (q.role, None, q.input_json)
             };
             let trainer_job = if shard_role == role::TRAINER {
                 input.clone()
             } else {
                 None
             };
-            let clip_size = match (dynamics, shard_role.as_str()) {
+            let clip_size = match (batch.clip_size, shard_role.as_str()) {
                 (Some(size), r) if r != role::JUDGE && r != role::TRAINER => size as u32,
                 _ => 0,
             };
-            let judge = match (judge, input) {
+            let judge = match (q.judge, input) {
                 (Some(judge), Some(episode_json)) => Some(JudgeLease {
                     judge,
-                    budget_left_usd: match budget {
-                        Some(b) => Some(b - Self::judge_spent(&tx, &batch_id)?),
+                    budget_left_usd: match batch.judge_budget_usd {
+                        Some(b) => Some(b - Self::judge_spent(&tx, &q.batch_id)?),
                         None => None,
                     },
                     episode_json,
-                    repeats,
+                    repeats: batch.judge_repeats,
                 }),
                 _ => None,
             };
@@ -85,20 +94,20 @@ impl Store {
                 "UPDATE shards SET state = 'leased', attempts = attempts + 1, lease_id = ?1, lease_worker = ?2,
                  lease_expires_ms = ?3 WHERE id = ?4 AND state = 'queued'",
             )?
-            .execute(params![lease_id as i64, worker, now_ms + ttl_ms, shard_id])?;
+            .execute(params![lease_id as i64, worker, now_ms + ttl_ms, q.id])?;
             out.push(Lease {
                 lease_id,
-                shard_id: shard_id as u64,
-                batch_id,
-                task_spec_json: spec,
-                seed: seed as u64,
-                policy,
+                shard_id: q.id as u64,
+                batch_id: q.batch_id,
+                task_spec_json: spec.to_string(),
+                seed: q.seed as u64,
+                policy: q.policy,
                 role: shard_role,
-                attempt: attempts + 1,
+                attempt: q.attempts + 1,
                 judge,
                 trainer_job,
                 clip_size,
-                render: renders || clip_size > 0,
+                render: batch.render || clip_size > 0,
                 render_input,
             });
         }
@@ -264,7 +273,7 @@ impl Store {
                 _ => {}
             }
         }
-        Self::finish_if_done(&tx, &batch, now_ms)?;
+        Self::finish_if_done(&tx, &mut self.cache, &batch, now_ms)?;
         tx.commit()?;
         Ok((
             true,
@@ -312,7 +321,7 @@ impl Store {
                     "UPDATE shards SET state = 'failed', error = ?1, lease_expires_ms = NULL WHERE id = ?2",
                     params![msg, shard_id as i64],
                 )?;
-                Self::finish_if_done(&tx, &batch, now_ms)?;
+                Self::finish_if_done(&tx, &mut self.cache, &batch, now_ms)?;
             }
             changed.batches.push(batch);
         }
@@ -398,7 +407,7 @@ impl Store {
                     "UPDATE shards SET state = 'failed', error = ?1, lease_expires_ms = NULL WHERE id = ?2",
                     params![format!("{why} (after {attempts} attempts)"), id],
                 )?;
-                Self::finish_if_done(&tx, &batch, now_ms)?;
+                Self::finish_if_done(&tx, &mut self.cache, &batch, now_ms)?;
             }
             if !changed.batches.contains(&batch) {
                 changed.batches.push(batch);
@@ -453,6 +462,7 @@ impl Store {
             params![batch_state::CANCELLED, now_ms, batch_id, batch_state::RUNNING],
         )?;
         tx.commit()?;
+        self.cache.forget(batch_id);
         Ok(Changed {
             batches: vec![batch_id.to_owned()],
             requeued: 0,
@@ -461,7 +471,7 @@ impl Store {
 
     /// A batch with no shards (every task invalid) is complete as soon as it is stored.
     pub fn finish_if_empty(&mut self, batch_id: &str, now_ms: i64) -> Result<(), CoordError> {
-        Self::finish_if_done(&self.conn, batch_id, now_ms)
+        Self::finish_if_done(&self.conn, &mut self.cache, batch_id, now_ms)
     }
 
     fn require_batch(conn: &Connection, batch_id: &str) -> Result<(), CoordError> {
@@ -475,17 +485,17 @@ impl Store {
         }
     }
 
-    fn finish_if_done(conn: &Connection, batch_id: &str, now_ms: i64) -> Result<(), CoordError> {
+    fn finish_if_done(
+        conn: &Connection,
+        cache: &mut Cache,
+        batch_id: &str,
+        now_ms: i64,
+    ) -> Result<(), CoordError> {
         // Trainer shards lease in the order they are queued (the dynamics fits last): the
         // longest chain first — the proxy's world model, then the ladder whose policies'
         // episodes the proxy also waits for, then the generalization policy.
-        // Only a batch with a plan after its episodes has anything to queue: one read tells.
-        let planned: bool = conn
-            .prepare_cached(
-                "SELECT dynamics_json IS NOT NULL OR ranking_json IS NOT NULL
-                        OR generalization_json IS NOT NULL FROM batches WHERE id = ?1",
-            )?
-            .query_row([batch_id], |r| r.get(0))?;
+        // Only a batch with a plan after its episodes has anything to queue.
+        let planned = cache.batch(conn, batch_id)?.planned;
         if planned {
             Self::queue_proxy_world(conn, batch_id)?;
             Self::queue_ladder(conn, batch_id)?;
@@ -493,11 +503,12 @@ impl Store {
             Self::queue_dynamics(conn, batch_id)?;
             Self::queue_proxy(conn, batch_id)?;
         }
-        // EXISTS, not COUNT: this runs on every completion, and counting the open shards made
-        // each one O(open shards) — quadratic over a batch (`assay bench coordinator` found it).
+        // From `batch_load`, which holds the batches with open shards (kept by triggers): this
+        // runs on every completion, and counting the open shards made each one O(open shards) —
+        // quadratic over a batch (`assay bench coordinator` found it).
         let open: bool = conn
             .prepare_cached(
-                "SELECT EXISTS (SELECT 1 FROM shards WHERE batch_id = ?1 AND state IN ('queued', 'leased'))",
+                "SELECT EXISTS (SELECT 1 FROM batch_load WHERE batch_id = ?1 AND queued + leased > 0)",
             )?
             .query_row([batch_id], |r| r.get(0))?;
         if !open {
@@ -510,6 +521,8 @@ impl Store {
                     batch_state::RUNNING
                 ],
             )?;
+            // Nothing of it is leased again: what the cache holds of it goes.
+            cache.forget(batch_id);
         }
         Ok(())
     }

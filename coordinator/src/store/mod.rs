@@ -22,6 +22,8 @@ use rusqlite::{Connection, OptionalExtension, params};
 
 use crate::error::CoordError;
 
+mod cache;
+mod checkpoint;
 mod fair;
 pub use fair::BatchShare;
 mod leases;
@@ -183,14 +185,30 @@ pub struct Changed {
 }
 
 pub struct Store {
+    /// Copies the write-ahead log into the file beside the store's thread (a store in a file;
+    /// first, so that it stops before the connection closes).
+    checkpointer: Option<checkpoint::Checkpointer>,
     conn: Connection,
+    /// What leasing and completion read of a batch that never changes once submitted.
+    cache: cache::Cache,
+    /// Lease ids taken from the file's counter and not yet handed out: `next..end`.
+    lease_ids: Option<std::ops::Range<u64>>,
 }
+
+/// Lease ids the store takes from its counter at once: a lease writes the counter's page once
+/// per this many leases instead of every time. Ids left when the store closes are never used.
+const LEASE_ID_BLOCK: u64 = 1024;
 
 impl Store {
     pub fn open(path: &Path) -> Result<Self, CoordError> {
         let conn = Connection::open(path)?;
         conn.busy_timeout(std::time::Duration::from_secs(5))?;
-        Self::init(conn)
+        let mut store = Self::init(conn)?;
+        store
+            .conn
+            .pragma_update(None, "wal_autocheckpoint", checkpoint::WAL_AUTOCHECKPOINT)?;
+        store.checkpointer = Some(checkpoint::Checkpointer::start(path)?);
+        Ok(store)
     }
 
     pub fn open_in_memory() -> Result<Self, CoordError> {
@@ -203,7 +221,12 @@ impl Store {
         // and parsed them again on every call.
         conn.set_prepared_statement_cache_capacity(256);
         schema::migrate(&conn)?;
-        Ok(Self { conn })
+        Ok(Self {
+            checkpointer: None,
+            conn,
+            cache: Default::default(),
+            lease_ids: None,
+        })
     }
 
     /// Opens a group: the store calls until [`Store::commit_group`] share one transaction. Each
@@ -217,6 +240,10 @@ impl Store {
     pub fn commit_group(&mut self) -> Result<(), CoordError> {
         if let Err(e) = self.conn.execute_batch("COMMIT") {
             let _ = self.conn.execute_batch("ROLLBACK");
+            // What the group's calls read of batches it submitted is gone with them, and so
+            // are the lease ids they took from the counter.
+            self.cache.clear();
+            self.lease_ids = None;
             return Err(e.into());
         }
         Ok(())
@@ -236,6 +263,29 @@ impl Store {
             [batch_id],
             |r| r.get(0),
         )?)
+    }
+
+    /// `n` consecutive lease ids; returns the first. Taken from the block the store holds, or a
+    /// new block from the counter (in `tx`: a caller whose transaction does not commit must drop
+    /// the block, see [`Store::lease`]).
+    fn next_lease_ids(
+        tx: &Connection,
+        block: &mut Option<std::ops::Range<u64>>,
+        n: u64,
+    ) -> Result<u64, CoordError> {
+        match block {
+            Some(ids) if ids.end - ids.start >= n => {
+                let first = ids.start;
+                ids.start += n;
+                Ok(first)
+            }
+            _ => {
+                let take = n.max(LEASE_ID_BLOCK);
+                let first = Self::next_counter(tx, "lease_seq", take)?;
+                *block = Some(first + n..first + take);
+                Ok(first)
+            }
+        }
     }
 
     /// Takes the next `n` values of the counter `key` (batch numbers, lease ids); returns the

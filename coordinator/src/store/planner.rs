@@ -63,6 +63,8 @@ impl Store {
         let tx = self.conn.savepoint()?;
         let seq = Self::next_counter(&tx, "batch_seq", 1)?;
         let id = format!("b{seq:05}-{:x}", now_ms & 0xff_ffff);
+        // An id is taken again only after the submission that took it was rolled back.
+        self.cache.forget(&id);
         tx.execute(
             "INSERT INTO batches (id, seq, name, state, policies_json, seeds_json, max_attempts, invalid_json, submitted_ms,
              finished_ms, content_hash, duplicate_of)
@@ -92,6 +94,8 @@ impl Store {
         let tx = self.conn.savepoint()?;
         let seq = Self::next_counter(&tx, "batch_seq", 1)?;
         let id = format!("b{seq:05}-{:x}", now_ms & 0xff_ffff);
+        // An id is taken again only after the submission that took it was rolled back.
+        self.cache.forget(&id);
         tx.execute(
             "INSERT INTO batches (id, seq, name, state, policies_json, seeds_json, max_attempts, invalid_json, submitted_ms,
              judges_json, judge_repeats, judge_budget_usd, text_models_json, dynamics_json)
@@ -254,12 +258,18 @@ impl Store {
         group: &str,
         kind: JobKind,
     ) -> Result<bool, CoordError> {
+        // The open shards from the partial indexes of the queued and the leased shards (SQLite
+        // would rather seek the batch's leased ones by `shards_in_batch`, all of its shards).
         let (started, open): (i64, i64) = conn.query_row(
             "SELECT
                (SELECT COUNT(*) FROM shards WHERE batch_id = ?1 AND kind = ?3 AND grp = ?2),
-               (SELECT COUNT(*) FROM shards s JOIN tasks t ON t.batch_id = s.batch_id AND t.task_id = s.task_id
-                WHERE s.batch_id = ?1 AND t.grp = ?2 AND s.role NOT IN ('judge', 'trainer')
-                  AND s.state IN ('queued', 'leased'))",
+               EXISTS (SELECT 1 FROM shards s JOIN tasks t ON t.batch_id = s.batch_id AND t.task_id = s.task_id
+                WHERE s.state = 'queued' AND s.batch_id = ?1 AND t.grp = ?2
+                  AND s.role NOT IN ('judge', 'trainer'))
+               OR EXISTS (SELECT 1 FROM shards s INDEXED BY shards_leased
+                JOIN tasks t ON t.batch_id = s.batch_id AND t.task_id = s.task_id
+                WHERE s.state = 'leased' AND s.batch_id = ?1 AND t.grp = ?2
+                  AND s.role NOT IN ('judge', 'trainer'))",
             params![batch_id, group, kind.as_str()],
             |r| Ok((r.get(0)?, r.get(1)?)),
         )?;

@@ -25,9 +25,10 @@ impl Store {
         batch_id: Option<&str>,
     ) -> Result<Vec<(Vec<String>, u32)>, CoordError> {
         let mut stmt = self.conn.prepare_cached(
-            "SELECT COALESCE(s.needs, json_array(s.role)) AS nd, COUNT(*) FROM shards s
-             JOIN batches b ON b.id = s.batch_id
-             WHERE s.state = 'queued' AND b.state = 'running' AND (?1 IS NULL OR s.batch_id = ?1)
+            // The running batches first, then each one's queued shards from `shards_of_batch`.
+            "SELECT COALESCE(s.needs, json_array(s.role)) AS nd, COUNT(*)
+             FROM batches b CROSS JOIN shards s ON s.batch_id = b.id
+             WHERE s.state = 'queued' AND b.state = 'running' AND (?1 IS NULL OR b.id = ?1)
              GROUP BY nd ORDER BY nd",
         )?;
         let rows = stmt.query_map([batch_id], |r| {

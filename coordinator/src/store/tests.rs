@@ -1005,3 +1005,4 @@ fn a_store_from_before_judges_gains_their_columns() {
 
 mod groups;
 mod kinds;
+mod writes;
