@@ -334,10 +334,15 @@ impl pb::coordinator_server::Coordinator for CoordinatorService {
             let svc = CoordinatorService {
                 shared: shared.clone(),
             };
+            let mut read = tokio::time::Instant::now();
             loop {
                 if pb::BatchState::try_from(last.state).is_ok_and(pb::BatchState::is_final) {
                     return;
                 }
+                // A status reads the batch's counts (every shard of it): at most one per
+                // `PROGRESS_EVERY`, however many shards complete — one per completion took the
+                // store thread from leasing. Changes meanwhile wait in `events`.
+                tokio::time::sleep_until(read + crate::PROGRESS_EVERY).await;
                 // Wake on a change of this batch, or every second (worker counts, lost events).
                 let _ = tokio::time::timeout(Duration::from_secs(1), async {
                     loop {
@@ -350,6 +355,7 @@ impl pb::coordinator_server::Coordinator for CoordinatorService {
                     }
                 })
                 .await;
+                read = tokio::time::Instant::now();
                 let next = match svc.status(id.clone()).await {
                     Ok(s) => s,
                     Err(e) => {
