@@ -49,6 +49,16 @@ pub struct Args {
         value_delimiter = ':'
     )]
     pub asset_roots: Vec<std::path::PathBuf>,
+    /// An environment variable an openpi policy's `api_key_env` may name, its value sent to the
+    /// server the policy string gives (repeatable; in ASSAY_POLICY_KEY_ENVS, comma-separated).
+    /// Policy strings come with batches, from their submitters: no other variable is sent.
+    #[arg(
+        long = "policy-key-env",
+        value_name = "VAR",
+        env = "ASSAY_POLICY_KEY_ENVS",
+        value_delimiter = ','
+    )]
+    pub policy_key_envs: Vec<String>,
 }
 
 pub fn parse_size(s: &str) -> Result<(u32, u32), String> {
@@ -77,6 +87,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         worker_id: a.worker_id,
         keep_mib: a.keep_mib,
         asset_roots: a.asset_roots,
+        policy_key_envs: a.policy_key_envs,
     })?;
     assay_run::rt::block_on(async move { worker.serve(assay_run::rt::terminated()).await })?;
     Ok(ExitCode::SUCCESS)

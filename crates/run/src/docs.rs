@@ -118,6 +118,23 @@ pub fn worker_roots(task_roots: &[PathBuf], policies: &[String]) -> Vec<PathBuf>
     roots
 }
 
+/// The environment variables the `api_key_env` of `policies` name (`openpi:…,api_key_env=VAR`):
+/// a local run's workers may send them, since the user's command line is the operator's. A
+/// worker sends no other (`assay worker --policy-key-env`).
+pub fn policy_key_envs(policies: &[String]) -> Vec<String> {
+    use assay_model::policy::PolicySpec;
+    let mut vars: Vec<String> = policies
+        .iter()
+        .filter_map(|name| match PolicySpec::parse(name) {
+            Ok(PolicySpec::OpenPi { api_key_env, .. }) => api_key_env,
+            _ => None,
+        })
+        .collect();
+    vars.sort();
+    vars.dedup();
+    vars
+}
+
 /// As strings, for a batch request.
 pub fn root_strings(roots: &[PathBuf]) -> Vec<String> {
     roots.iter().map(|r| r.display().to_string()).collect()

@@ -18,9 +18,15 @@
 //! [`PolicyError::Unavailable`] (the shard is retried); an error text or an answer that is not a
 //! chunk of finite actions is [`PolicyError::BadAnswer`]. With `api_key_env=VAR` the key in that
 //! environment variable goes as `Authorization: Api-Key <key>` (openpi_client's header).
+//!
+//! The policy string comes with a batch, from its submitter, and so do the URL and the variable
+//! it names: in a worker only the variables its operator allowed ([`allow_key_vars`]) may be
+//! sent, or a submitter could have any secret in a worker's environment sent to a server of
+//! their choosing.
 
 use std::io::Cursor;
 use std::net::{TcpStream, ToSocketAddrs};
+use std::sync::OnceLock;
 use std::time::{Duration, Instant};
 
 use assay_model::policy::{EpisodeContext, Interface, Policy, PolicyError, PolicyObservation};
@@ -33,6 +39,48 @@ use crate::server::MAX_CHUNK;
 
 /// Largest message read from a server (an answer is a few kilobytes; metadata may be larger).
 const MAX_MESSAGE_BYTES: usize = 64 << 20;
+
+/// The environment variables an `api_key_env` may name in this process, set once by a worker's
+/// operator ([`allow_key_vars`]). Unset, the process is no worker (a user's own tool, a test,
+/// `assay policy serve`): the policy string is its user's own, and any variable may be named.
+static KEY_VARS: OnceLock<Vec<String>> = OnceLock::new();
+
+/// Allows `api_key_env` to name only `vars` in this process (a worker: none given, no variable).
+/// Set once, at start: the same list again is harmless, another is an error.
+pub fn allow_key_vars(vars: &[String]) -> Result<(), String> {
+    let mut vars = vars.to_vec();
+    vars.sort();
+    vars.dedup();
+    if let Some(bad) = vars
+        .iter()
+        .find(|v| v.is_empty() || v.contains(['=', '\0']))
+    {
+        return Err(format!("policy key variable {bad:?}: not a variable name"));
+    }
+    match KEY_VARS.set(vars.clone()) {
+        Ok(()) => Ok(()),
+        Err(_) if KEY_VARS.get() == Some(&vars) => Ok(()),
+        Err(_) => Err("the policy key variables are already set, to others".to_owned()),
+    }
+}
+
+/// Whether `api_key_env=var` may be used here: any variable outside a worker, the operator's in
+/// one.
+fn key_var_allowed(var: &str) -> Result<(), String> {
+    match KEY_VARS.get() {
+        None => Ok(()),
+        Some(allowed) if allowed.iter().any(|v| v == var) => Ok(()),
+        Some(allowed) if allowed.is_empty() => Err(format!(
+            "api_key_env={var}: this worker sends no key from its environment (its operator \
+             allows variables with --policy-key-env VAR or ASSAY_POLICY_KEY_ENVS)"
+        )),
+        Some(allowed) => Err(format!(
+            "api_key_env={var}: not one of the variables this worker's operator allows \
+             policies to send ({})",
+            allowed.join(", ")
+        )),
+    }
+}
 
 pub struct OpenPiPolicy {
     url: String,
@@ -69,6 +117,11 @@ impl OpenPiPolicy {
         interface
             .validate()
             .map_err(|e| PolicyError::Load(format!("openpi policy at {url}: {e}")))?;
+        if let Some(var) = api_key_env {
+            // Before the variable is read: a refused name tells nothing of its value.
+            key_var_allowed(var)
+                .map_err(|e| PolicyError::Load(format!("openpi policy at {url}: {e}")))?;
+        }
         let api_key = match api_key_env {
             Some(var) => Some(std::env::var(var).map_err(|_| {
                 PolicyError::Load(format!(

@@ -58,6 +58,9 @@ pub struct Options {
     /// The folders the roles open asset files (URDF, meshes) from; none: the working folder.
     /// Never a folder a task names (`assay_spec::assets::set_roots`).
     pub asset_roots: Vec<PathBuf>,
+    /// The environment variables an openpi policy's `api_key_env` may name (a key this worker
+    /// may send to the server a policy string gives); none: no variable.
+    pub policy_key_envs: Vec<String>,
 }
 
 impl Default for Options {
@@ -73,6 +76,7 @@ impl Default for Options {
             worker_id: None,
             keep_mib: 256,
             asset_roots: Vec::new(),
+            policy_key_envs: Vec::new(),
         }
     }
 }
@@ -177,6 +181,7 @@ impl Worker {
     pub fn new(o: Options) -> anyhow::Result<Self> {
         let roots = assay_spec::assets::set_roots(&o.asset_roots).map_err(anyhow::Error::msg)?;
         tracing::info!(roots = ?roots, "asset files are opened below these folders only");
+        assay_policy::openpi::allow_key_vars(&o.policy_key_envs).map_err(anyhow::Error::msg)?;
         let mut roles = Vec::new();
         for r in &o.roles {
             match pb::Role::parse(r) {

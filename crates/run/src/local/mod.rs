@@ -87,6 +87,7 @@ impl ClusterArgs {
             training,
             trainer_capacity,
             asset_roots,
+            policy_key_envs: Vec::new(),
         }
     }
 }
@@ -117,6 +118,9 @@ pub struct Plan {
     /// `--asset-root`): the folders of the task paths, the run's own `--asset-root` and the
     /// folders of the model files its `--policy` values name (`docs::worker_roots`).
     pub asset_roots: Vec<PathBuf>,
+    /// The variables its `--policy` values' `api_key_env` name, which the workers may send
+    /// (their `--policy-key-env`, `docs::policy_key_envs`).
+    pub policy_key_envs: Vec<String>,
 }
 
 /// Times a local process is started again after it exits before the run gives up on it.
@@ -346,11 +350,16 @@ fn start_workers(
     };
     // Workers open asset files and policy models below the folders given here only (a worker
     // given none would use its working folder): the task paths' folders, the run's
-    // --asset-root and its policies' model folders.
+    // --asset-root and its policies' model folders. They send the keys the run's own policies
+    // name, and no other.
     let with_roots = |mut args: Vec<String>| {
         for r in &plan.asset_roots {
             args.push("--asset-root".into());
             args.push(r.display().to_string());
+        }
+        for var in &plan.policy_key_envs {
+            args.push("--policy-key-env".into());
+            args.push(var.clone());
         }
         args
     };
