@@ -172,3 +172,143 @@ fn gensim_import_finds_assay_s_own_python_without_settings() {
     let (imported, text) = import(home.path());
     assert!(imported >= 90, "{imported} imported:\n{text}");
 }
+
+/// Whether `px` is `color` under the renderer's shading (`color · k`, k the light on the face):
+/// the pixel's deviation from the best `k · color` is small beside its brightness.
+fn shade_of(px: &[u8; 3], color: [f32; 3]) -> bool {
+    let p = px.map(|c| f32::from(c) / 255.0);
+    let cc: f32 = color.iter().map(|c| c * c).sum();
+    if cc < 1e-4 {
+        return p.iter().all(|c| *c < 0.25);
+    }
+    let k = p.iter().zip(color).map(|(p, c)| p * c).sum::<f32>() / cc;
+    let off: f32 = p
+        .iter()
+        .zip(color)
+        .map(|(p, c)| (p - k * c).powi(2))
+        .sum::<f32>()
+        .sqrt();
+    let norm: f32 = p.iter().map(|c| c * c).sum::<f32>().sqrt().max(0.05);
+    (0.15..=1.4).contains(&k) && off / norm < 0.15
+}
+
+/// Every imported task is drawn in the colours its code gave (`add_object(..., color=...)`,
+/// which PyBullet draws over the base link's material, the other links keeping theirs): in seed
+/// 0's first frame, seen by the observation camera, of the pixels of each object the task
+/// coloured, at least 80 % show that colour or a material of one of its other links under
+/// shading, and of those at least one in four the task's colour (all of them for a one-link
+/// asset) — not the base link's own material (GenSim's block, ball and zone assets are red and
+/// green whatever the task says; its stand is five links, one recoloured).
+#[test]
+fn gensim_library_tasks_are_drawn_in_the_colours_their_code_gave() {
+    use assay_spec::scene::FIRST_OBJECT_SEGMENT;
+    let root = repo().join("../shared/corpora/gensim-library");
+    let imp = assay_import::import(
+        assay_import::Pipeline::Gensim,
+        &root,
+        &assay_import::ImportOptions::default(),
+    );
+    let mut renderer = assay_render::Renderer::new().expect("an adapter");
+    let camera = assay_spec::spec::Camera {
+        width: 320,
+        height: 240,
+        ..assay_model::policy::observation_camera()
+    };
+    let (mut tasks, mut objects, mut hidden, mut uncoloured) = (0, 0, 0, 0);
+    let mut wrong = Vec::new();
+    for t in &imp.tasks {
+        let Some(spec) = &t.spec else { continue };
+        let spec = spec.for_seed(0);
+        let scene = assay_sim::scene::build_scene(&spec, 0).unwrap();
+        let snap = assay_sim::record::live_snapshot(&scene, &spec);
+        let f = renderer
+            .render_with(&snap, &camera, assay_render::Outputs::ALL)
+            .unwrap();
+        tasks += 1;
+        // ASSAY_GENSIM_FRAMES=DIR keeps each task's frame, to look at.
+        if let Some(dir) = std::env::var_os("ASSAY_GENSIM_FRAMES") {
+            let png = assay_render::image::Rgb::from_frame(&f).png();
+            std::fs::write(
+                std::path::Path::new(&dir).join(format!("{}.png", t.id)),
+                png,
+            )
+            .unwrap();
+        }
+        for (k, o) in snap.objects.iter().enumerate() {
+            if !o.color_given {
+                uncoloured += 1;
+                continue;
+            }
+            let seg = FIRST_OBJECT_SEGMENT + k as u32;
+            let px: Vec<[u8; 3]> = (0..f.segments.len())
+                .filter(|&i| f.segments[i] == seg)
+                .map(|i| [f.rgba[i * 4], f.rgba[i * 4 + 1], f.rgba[i * 4 + 2]])
+                .collect();
+            if px.len() < 30 {
+                hidden += 1;
+                continue;
+            }
+            objects += 1;
+            // The materials of the base link (which the task's colour replaces) and of the
+            // other links (which keep theirs).
+            let (mut base, mut others): (Vec<[f32; 3]>, Vec<[f32; 3]>) = (Vec::new(), Vec::new());
+            if let assay_spec::spec::Shape::Urdf {
+                path, fill, joints, ..
+            } = &o.shape
+            {
+                let a = assay_spec::urdf::assemble_filled(
+                    std::path::Path::new(path),
+                    fill,
+                    joints,
+                    joints,
+                )
+                .unwrap();
+                for (p, _) in &a.visuals {
+                    if let Some(c) = p.color {
+                        let to = if p.link == a.urdf.root() {
+                            &mut base
+                        } else {
+                            &mut others
+                        };
+                        to.push([c[0], c[1], c[2]]);
+                    }
+                }
+            }
+            let (mut like, mut theirs, mut own) = (0, 0, 0);
+            for p in &px {
+                if shade_of(p, o.color) {
+                    like += 1;
+                } else if others.iter().any(|c| shade_of(p, *c)) {
+                    theirs += 1;
+                } else if base.iter().any(|c| shade_of(p, *c)) {
+                    own += 1;
+                }
+            }
+            let need = if others.is_empty() {
+                like
+            } else {
+                like + theirs
+            };
+            if need * 10 < px.len() * 8 || own * 20 > px.len() {
+                let mut seen = px.clone();
+                seen.sort_unstable();
+                wrong.push(format!(
+                    "{} '{}' ({:?}): {like} of {} pixels its colour {:?}, {theirs} its other \
+                     links', {own} its base link's own; e.g. {:?}",
+                    t.id,
+                    o.id,
+                    o.shape,
+                    px.len(),
+                    o.color,
+                    seen[seen.len() / 2]
+                ));
+            }
+        }
+    }
+    println!(
+        "{tasks} tasks: {objects} coloured objects checked, {hidden} hidden from the camera, \
+         {uncoloured} given no colour by their task"
+    );
+    assert!(objects > 100, "only {objects} coloured objects seen");
+    assert!(wrong.is_empty(), "{wrong:#?}");
+}

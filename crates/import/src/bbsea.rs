@@ -392,7 +392,7 @@ fn import_task(
         objects.push(Object {
             id: inst.id.clone(),
             shape: inst.shape.clone(),
-            color: inst.color.clone(),
+            color: Some(inst.color.clone()),
             mass: None,
             is_fixed: false,
             pose: Some(Pose {

@@ -205,6 +205,9 @@ struct UrdfPart {
     pose: assay_spec::urdf::Pose,
     scale: [f32; 3],
     color: Option<[f32; 3]>,
+    /// A part of the base link (the URDF's root): drawn in the object's colour where the task
+    /// gave one (PyBullet's `changeVisualShape(body, -1, rgbaColor)`).
+    base: bool,
 }
 
 /// Which unit mesh an instance uses.
@@ -582,6 +585,7 @@ impl Renderer {
                 pose: part.pose,
                 scale,
                 color: part.color.map(|c| [c[0], c[1], c[2]]),
+                base: part.link == a.urdf.root(),
             });
         }
         self.urdfs.insert(key.clone(), parts);
@@ -728,7 +732,10 @@ impl Renderer {
                                 world.rotation.map(|x| x as f32),
                                 part.scale,
                             ),
-                            part.color.unwrap_or(o.color),
+                            match part.color {
+                                Some(own) if !(part.base && o.color_given) => own,
+                                _ => o.color,
+                            },
                             seg,
                         );
                     }

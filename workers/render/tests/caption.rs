@@ -13,6 +13,7 @@ use common::task;
 
 fn object(id: &str, shape: Shape, color: [f64; 3], position: [f32; 3]) -> SnapshotObject {
     SnapshotObject {
+        color_given: true,
         id: id.into(),
         shape,
         color: color.map(|c| c as f32),

@@ -18,6 +18,7 @@ fn object(
 ) -> SnapshotObject {
     let h = (yaw_deg.to_radians() / 2.0).sin_cos();
     SnapshotObject {
+        color_given: true,
         id: id.into(),
         shape,
         color,

@@ -51,6 +51,7 @@ fn the_camera_sees_a_box_where_it_is() {
     let scene = SceneSnapshot {
         surface: Surface::Table,
         objects: vec![SnapshotObject {
+            color_given: true,
             id: "box".into(),
             shape: Shape::Box {
                 half_extents: [0.03, 0.02, 0.025],

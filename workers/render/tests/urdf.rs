@@ -9,6 +9,11 @@ use assay_spec::scene::{FIRST_OBJECT_SEGMENT, Observation, SceneSnapshot, Snapsh
 use assay_spec::spec::{Camera, Shape, Surface};
 
 fn cabinet(drawer: f64) -> (SceneSnapshot, [f64; 3]) {
+    cabinet_coloured(drawer, false)
+}
+
+/// The cabinet in magenta, given by its task (`color_given`) or not.
+fn cabinet_coloured(drawer: f64, color_given: bool) -> (SceneSnapshot, [f64; 3]) {
     let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("../../examples/assets/cabinet/cabinet.urdf")
         .canonicalize()
@@ -26,6 +31,7 @@ fn cabinet(drawer: f64) -> (SceneSnapshot, [f64; 3]) {
                 fill: Default::default(),
             },
             color: [1.0, 0.0, 1.0],
+            color_given,
             position: [0.5, 0.0, half[2] as f32],
             rotation: [0.0, 0.0, 0.0, 1.0],
             joints: Default::default(),
@@ -109,4 +115,36 @@ fn the_cabinet_is_drawn_from_its_urdf_and_its_drawer_shows_where_the_joint_puts_
         .filter(|p| p.1[0].abs_diff(p.1[1]) < 12 && p.1[1].abs_diff(p.1[2]) < 12)
         .count();
     assert!(grey * 2 > a.len(), "{grey} of {} grey", a.len());
+}
+
+#[test]
+fn a_colour_the_task_gives_is_drawn_over_the_base_link_only_as_pybullet_does() {
+    let mut r = Renderer::new().expect("an adapter");
+    let camera = Camera {
+        width: 640,
+        height: 480,
+        ..observation_camera()
+    };
+    let magenta = |c: &[u8; 3]| c[0] > 120 && c[2] > 120 && c[1] < 40;
+    let (shut, _) = cabinet_coloured(0.0, true);
+    let (open, _) = cabinet_coloured(0.12, true);
+    let a = seen(&mut r, &shut, &camera);
+    let b = seen(&mut r, &open, &camera);
+    // The body (the root link, the top panel at 0.20 m among its parts) in the task's colour.
+    let top: Vec<_> = a.iter().filter(|p| (p.0[2] - 0.20).abs() < 0.003).collect();
+    assert!(top.len() > 1000, "{} top pixels", top.len());
+    let on_top = top.iter().filter(|p| magenta(&p.1)).count();
+    assert!(
+        on_top * 10 > top.len() * 9,
+        "{on_top} of {} top pixels magenta",
+        top.len()
+    );
+    // The drawer, a child link, keeps its wood: the pixels past the shut cabinet's front.
+    let front = a.iter().map(|p| p.0[0]).fold(f64::MIN, f64::max);
+    let drawer: Vec<_> = b.iter().filter(|p| p.0[0] > front + 0.01).collect();
+    assert!(drawer.len() > 200, "{} drawer pixels", drawer.len());
+    assert!(
+        drawer.iter().all(|p| !magenta(&p.1)),
+        "the drawer took the base link's colour"
+    );
 }

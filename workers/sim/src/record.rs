@@ -422,7 +422,13 @@ fn snapshot_of(
         .map(|(i, (o, (position, rotation)))| SnapshotObject {
             id: o.id.clone(),
             shape: spec.resolved_shape(&o.shape),
-            color: o.color.rgb().unwrap_or([0.5; 3]).map(|x| x as f32),
+            color: o
+                .color
+                .as_ref()
+                .and_then(|c| c.rgb())
+                .unwrap_or([0.5; 3])
+                .map(|x| x as f32),
+            color_given: o.color.is_some(),
             position,
             rotation,
             joints: joints(i),

@@ -248,6 +248,7 @@ pub fn snapshot(scene: &SimScene) -> SceneSnapshot {
                     half_extents: [h; 3],
                 },
                 color: PALETTE[i % PALETTE.len()],
+                color_given: true,
                 position: p.translation.into(),
                 rotation: [p.rotation.x, p.rotation.y, p.rotation.z, p.rotation.w],
                 joints: Default::default(),

@@ -20,6 +20,11 @@ pub struct SnapshotObject {
     pub id: String,
     pub shape: Shape,
     pub color: [f32; 3],
+    /// The task gave the object its colour (the spec's `color`): drawn over a URDF's base link
+    /// materials, as PyBullet's `changeVisualShape(-1)`. False in episodes recorded before it
+    /// was kept, drawn as they were.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub color_given: bool,
     pub position: [f32; 3],
     /// Unit quaternion (x, y, z, w).
     pub rotation: [f32; 4],

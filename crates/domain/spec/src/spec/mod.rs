@@ -104,8 +104,9 @@ pub struct Pile {
     pub id: String,
     pub count: u32,
     pub shape: Shape,
-    #[serde(default)]
-    pub color: Color,
+    /// The copies' colour, as an object's `color`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub color: Option<Color>,
     /// Mass of each copy (kg); default 0.01.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub mass: Option<f64>,
@@ -142,9 +143,12 @@ pub struct Object {
     /// Unique within the task; goals and the oracle refer to it.
     pub id: String,
     pub shape: Shape,
-    /// A colour name (`red`) or `[r, g, b]` in 0..1.
-    #[serde(default)]
-    pub color: Color,
+    /// A colour name (`red`) or `[r, g, b]` in 0..1. On a URDF object it is drawn over the
+    /// materials of its base link (the root), as PyBullet's `changeVisualShape(body, -1,
+    /// rgbaColor)` does for GenSim's `add_object(..., color=...)`; its other links keep theirs.
+    /// Absent: gray for a primitive shape, a URDF's own materials.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub color: Option<Color>,
     /// Mass in kg (dynamic objects only); default 0.1.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub mass: Option<f64>,
@@ -955,7 +959,8 @@ impl TaskSpec {
             let palette = &self.variations.colors;
             for o in &mut spec.scene.objects {
                 if self.variations.recolor.contains(&o.id) {
-                    o.color = palette[(rng.next_u64() % palette.len() as u64) as usize].clone();
+                    o.color =
+                        Some(palette[(rng.next_u64() % palette.len() as u64) as usize].clone());
                 }
             }
         }
@@ -1146,7 +1151,7 @@ mod tests {
                 let mut rest = s.clone().into_owned();
                 rest.scene.objects[1].color = spec.scene.objects[1].color.clone();
                 assert_eq!(rest, spec);
-                s.scene.objects[1].color.clone()
+                s.scene.objects[1].color.clone().expect("a drawn colour")
             })
             .collect();
         for c in ["orange", "purple", "cyan"] {

@@ -102,7 +102,9 @@ impl<'a> Check<'a> {
             if let Some(m) = o.mass {
                 v.mass(&format!("{p}.mass"), m);
             }
-            v.color(&format!("{p}.color"), &o.color);
+            if let Some(c) = &o.color {
+                v.color(&format!("{p}.color"), c);
+            }
             match (&o.pose, &o.pose_range) {
                 (Some(pose), None) => {
                     v.finite3(&format!("{p}.pose.position"), &pose.position);
@@ -144,7 +146,9 @@ impl<'a> Check<'a> {
                 );
             }
             v.shape(&format!("{p}.shape"), &pile.shape);
-            v.color(&format!("{p}.color"), &pile.color);
+            if let Some(c) = &pile.color {
+                v.color(&format!("{p}.color"), c);
+            }
             if let Some(m) = pile.mass {
                 v.mass(&format!("{p}.mass"), m);
             }

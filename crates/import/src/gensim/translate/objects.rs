@@ -18,19 +18,19 @@ fn tilt_of(q: &[f64; 4]) -> f64 {
     roll.abs().max(pitch.abs())
 }
 
-fn color_of(o: &ObjectRecord) -> Color {
+/// The colour the task gave the object (`add_object(..., color=...)`, a template's colour, a
+/// `changeVisualShape`), by name where it is one of the palette's; None where it gave none (the
+/// URDF keeps its own materials, as in PyBullet).
+fn color_of(o: &ObjectRecord) -> Option<Color> {
     if let Some(name) = &o.color_name {
         if let Some((_, rgb)) = EXTRA_COLORS.iter().find(|(k, _)| k == name) {
-            return Color::Rgb(*rgb);
+            return Some(Color::Rgb(*rgb));
         }
         if assay_spec::spec::COLORS.iter().any(|(k, _)| k == name) {
-            return Color::Named(name.clone());
+            return Some(Color::Named(name.clone()));
         }
     }
-    match o.color {
-        Some(rgb) => Color::Rgb(rgb.map(r6)),
-        None => Color::default(),
-    }
+    o.color.map(|rgb| Color::Rgb(rgb.map(r6)))
 }
 
 fn fill_text(v: &serde_json::Value) -> Option<String> {
@@ -221,7 +221,7 @@ impl Translation<'_> {
             id: id.clone(),
             center: [r6(pos[0] + c[0]), r6(pos[1] + c[1])],
             half_extents: [r6(half[0].max(0.005)), r6(half[1].max(0.005))],
-            color: color_of(o),
+            color: color_of(o).unwrap_or_default(),
         });
         self.notes.mapped(
             field,
