@@ -66,6 +66,9 @@ struct Placed {
     half: [f64; 3],
     /// GenSim's yaw (rad).
     yaw: f64,
+    /// The colour of the asset's base link (its first visual with a material): what PyBullet
+    /// draws where the task gives none. A zone or a container, drawn in one colour, takes it.
+    own: Option<[f64; 3]>,
 }
 
 impl Translation<'_> {
@@ -127,11 +130,19 @@ impl Translation<'_> {
             let xy = rot_z(yaw, [assembled.centre[0], assembled.centre[1]]);
             [xy[0], xy[1], assembled.centre[2]]
         };
+        let root = assembled.urdf.root();
+        let own = assembled
+            .visuals
+            .iter()
+            .filter(|(p, _)| p.link == root)
+            .find_map(|(p, _)| p.color)
+            .map(|c| [c[0], c[1], c[2]].map(|x| r6(f64::from(x))));
         let placed = Placed {
             pos,
             c,
             half: assembled.half,
             yaw,
+            own,
         };
         let base = base_name(o);
         let marker = assembled.urdf.links.iter().all(|l| l.collisions.is_empty());
@@ -216,12 +227,19 @@ impl Translation<'_> {
 
     /// A flat marker with nothing to collide (a zone, a line): drawn, not simulated.
     fn zone(&mut self, field: &str, id: String, o: &ObjectRecord, placed: &Placed) -> Made {
-        let Placed { pos, c, half, yaw } = *placed;
+        let Placed {
+            pos,
+            c,
+            half,
+            yaw,
+            own,
+        } = *placed;
         self.zones.push(Zone {
             id: id.clone(),
             center: [r6(pos[0] + c[0]), r6(pos[1] + c[1])],
             half_extents: [r6(half[0].max(0.005)), r6(half[1].max(0.005))],
-            color: color_of(o).unwrap_or_default(),
+            // No colour from the task: the asset's own (GenSim's zone.urdf is green).
+            color: color_of(o).or(own.map(Color::Rgb)).unwrap_or_default(),
         });
         self.notes.mapped(
             field,
@@ -250,7 +268,13 @@ impl Translation<'_> {
         placed: &Placed,
         reach: [f64; 3],
     ) -> Made {
-        let Placed { pos, c, half, yaw } = *placed;
+        let Placed {
+            pos,
+            c,
+            half,
+            yaw,
+            own,
+        } = *placed;
         let container = o.urdf.ends_with("bowl/bowl.urdf");
         let shape = if container {
             Shape::Container {
@@ -286,7 +310,13 @@ impl Translation<'_> {
         self.objects.push(Object {
             id: id.clone(),
             shape,
-            color: color_of(o),
+            // A container is drawn in one colour: the asset's own where the task gave none
+            // (GenSim's bowl.urdf is green); a URDF keeps its materials itself.
+            color: if container {
+                color_of(o).or(own.map(Color::Rgb))
+            } else {
+                color_of(o)
+            },
             mass: None,
             is_fixed: o.category == "fixed",
             pose: Some(Pose {
