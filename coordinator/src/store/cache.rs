@@ -9,7 +9,8 @@
 //!
 //! Only what no statement changes after the batch's submission is kept (its state and counts
 //! are always read from the file). A batch id is taken again only if the submission that took
-//! it was rolled back, so [`Cache::forget`] runs at every submission for the id it takes.
+//! it was rolled back — a group that failed to commit, after which the store clears the cache
+//! ([`Cache::clear`]). A batch is forgotten when it ends ([`Cache::forget`]).
 //!
 //! Owns: the cached values and reading them on first use. Never: anything that changes.
 
@@ -44,7 +45,7 @@ pub(super) struct Cache {
 }
 
 impl Cache {
-    /// Forgets what was read of `batch` (its id is being taken by a new submission).
+    /// Forgets what was read of `batch` (it ended: nothing of it is leased again).
     pub fn forget(&mut self, batch: &str) {
         self.batches.remove(batch);
         self.specs.remove(batch);

@@ -42,9 +42,9 @@ impl Checkpointer {
             .name("assay-checkpoint".into())
             .spawn(move || {
                 while let Err(mpsc::RecvTimeoutError::Timeout) = stopped.recv_timeout(INTERVAL) {
-                    let copied = conn
+                    let checked = conn
                         .query_row("PRAGMA wal_checkpoint(PASSIVE)", [], |r| r.get::<_, i64>(0));
-                    if let Err(e) = copied {
+                    if let Err(e) = checked {
                         tracing::warn!(error = %e, "store: checkpoint failed");
                     }
                 }

@@ -63,8 +63,6 @@ impl Store {
         let tx = self.conn.savepoint()?;
         let seq = Self::next_counter(&tx, "batch_seq", 1)?;
         let id = format!("b{seq:05}-{:x}", now_ms & 0xff_ffff);
-        // An id is taken again only after the submission that took it was rolled back.
-        self.cache.forget(&id);
         tx.execute(
             "INSERT INTO batches (id, seq, name, state, policies_json, seeds_json, max_attempts, invalid_json, submitted_ms,
              finished_ms, content_hash, duplicate_of)
@@ -94,8 +92,6 @@ impl Store {
         let tx = self.conn.savepoint()?;
         let seq = Self::next_counter(&tx, "batch_seq", 1)?;
         let id = format!("b{seq:05}-{:x}", now_ms & 0xff_ffff);
-        // An id is taken again only after the submission that took it was rolled back.
-        self.cache.forget(&id);
         tx.execute(
             "INSERT INTO batches (id, seq, name, state, policies_json, seeds_json, max_attempts, invalid_json, submitted_ms,
              judges_json, judge_repeats, judge_budget_usd, text_models_json, dynamics_json)

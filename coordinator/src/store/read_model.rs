@@ -25,7 +25,7 @@ impl Store {
         batch_id: Option<&str>,
     ) -> Result<Vec<(Vec<String>, u32)>, CoordError> {
         let mut stmt = self.conn.prepare_cached(
-            // The running batches first, then each one's queued shards from `shards_of_batch`.
+            // The running batches first, then each one's queued shards from `shards_waiting`.
             "SELECT COALESCE(s.needs, json_array(s.role)) AS nd, COUNT(*)
              FROM batches b CROSS JOIN shards s ON s.batch_id = b.id
              WHERE s.state = 'queued' AND b.state = 'running' AND (?1 IS NULL OR b.id = ?1)

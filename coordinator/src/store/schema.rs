@@ -141,7 +141,6 @@ DROP INDEX IF EXISTS shards_by_needs;
 DROP INDEX IF EXISTS shards_by_batch;
 DROP INDEX IF EXISTS shards_by_lease;
 DROP INDEX IF EXISTS shards_by_state;
-DROP INDEX IF EXISTS shards_of_batch;
 UPDATE shards SET needs = json_array(role) WHERE needs IS NULL;
 DROP TRIGGER IF EXISTS shards_needs;
 CREATE TRIGGER shards_needs AFTER INSERT ON shards WHEN new.needs IS NULL BEGIN

@@ -186,6 +186,22 @@ mod tests {
         docs.iter().map(|d| d.origin.clone()).collect()
     }
 
+    /// A local run's workers may send the key variables its own openpi policies name, each
+    /// once; other policies and names that do not parse name none.
+    #[test]
+    fn policy_key_envs_are_those_the_run_s_openpi_policies_name() {
+        let policies = [
+            "openpi:url=ws://127.0.0.1:8000,api_key_env=PI_KEY".to_owned(),
+            "openpi:url=ws://127.0.0.1:8001,api_key_env=PI_KEY".to_owned(),
+            "openpi:url=ws://127.0.0.1:8002,api_key_env=OTHER_KEY".to_owned(),
+            "openpi:url=ws://127.0.0.1:8003".to_owned(),
+            "remote:url=http://127.0.0.1:9000".to_owned(),
+            "oracle".to_owned(),
+            "not a policy".to_owned(),
+        ];
+        assert_eq!(policy_key_envs(&policies), vec!["OTHER_KEY", "PI_KEY"]);
+    }
+
     /// The folders of model files the user's own policy names give are added to the workers'
     /// roots; artifact keys, servers and names that do not parse add nothing.
     #[test]

@@ -135,13 +135,13 @@ pub fn run(
     }
     write_imports(&a, &prepared.imported, observer)?;
     let run_dir = a.out.join("run");
-    let mut plan = a.cluster.plan(
+    let plan = a.cluster.plan(
         &a.batch.judges,
+        &a.batch.policies,
         prepared.training,
         a.trainer_capacity,
         docs::worker_roots(&prepared.roots, &a.batch.policies),
     );
-    plan.policy_key_envs = docs::policy_key_envs(&a.batch.policies);
     let mut cluster = LocalCluster::start(&plan, &run_dir, &a.out.join(ARTIFACTS_LINK))?;
     observer.event(Event::ClusterStarted {
         description: &cluster.description,

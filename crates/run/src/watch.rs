@@ -165,8 +165,9 @@ impl<'o> Watcher<'o> {
             None => {
                 let roots = docs::asset_roots(std::slice::from_ref(&a.dir), &a.batch.asset_roots)?;
                 let roots = docs::worker_roots(&roots, &a.batch.policies);
-                let mut plan = a.cluster.plan(&a.batch.judges, true, None, roots);
-                plan.policy_key_envs = docs::policy_key_envs(&a.batch.policies);
+                let plan = a
+                    .cluster
+                    .plan(&a.batch.judges, &a.batch.policies, true, None, roots);
                 let cluster = LocalCluster::start(&plan, &a.out.join("run"), &artifacts)?;
                 observer.event(Event::ClusterStarted {
                     description: &cluster.description,

@@ -65,10 +65,12 @@ impl ClusterArgs {
         self.render_workers > 0 || self.roles.split(',').any(|r| r.trim() == "render")
     }
 
-    /// The plan of a local cluster for a batch with `judges`, a trainer when `training`.
+    /// The plan of a local cluster for a batch with `judges` and `policies`, a trainer when
+    /// `training`.
     pub fn plan(
         &self,
         judges: &[String],
+        policies: &[String],
         training: bool,
         trainer_capacity: Option<u32>,
         asset_roots: Vec<PathBuf>,
@@ -87,7 +89,7 @@ impl ClusterArgs {
             training,
             trainer_capacity,
             asset_roots,
-            policy_key_envs: Vec::new(),
+            policy_key_envs: crate::docs::policy_key_envs(policies),
         }
     }
 }

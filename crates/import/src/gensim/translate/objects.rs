@@ -228,18 +228,16 @@ impl Translation<'_> {
     /// A flat marker with nothing to collide (a zone, a line): drawn, not simulated.
     fn zone(&mut self, field: &str, id: String, o: &ObjectRecord, placed: &Placed) -> Made {
         let Placed {
-            pos,
-            c,
-            half,
-            yaw,
-            own,
+            pos, c, half, yaw, ..
         } = *placed;
         self.zones.push(Zone {
             id: id.clone(),
             center: [r6(pos[0] + c[0]), r6(pos[1] + c[1])],
             half_extents: [r6(half[0].max(0.005)), r6(half[1].max(0.005))],
             // No colour from the task: the asset's own (GenSim's zone.urdf is green).
-            color: color_of(o).or(own.map(Color::Rgb)).unwrap_or_default(),
+            color: color_of(o)
+                .or(placed.own.map(Color::Rgb))
+                .unwrap_or_default(),
         });
         self.notes.mapped(
             field,
@@ -269,11 +267,7 @@ impl Translation<'_> {
         reach: [f64; 3],
     ) -> Made {
         let Placed {
-            pos,
-            c,
-            half,
-            yaw,
-            own,
+            pos, c, half, yaw, ..
         } = *placed;
         let container = o.urdf.ends_with("bowl/bowl.urdf");
         let shape = if container {
@@ -313,7 +307,7 @@ impl Translation<'_> {
             // A container is drawn in one colour: the asset's own where the task gave none
             // (GenSim's bowl.urdf is green); a URDF keeps its materials itself.
             color: if container {
-                color_of(o).or(own.map(Color::Rgb))
+                color_of(o).or(placed.own.map(Color::Rgb))
             } else {
                 color_of(o)
             },
