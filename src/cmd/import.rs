@@ -30,10 +30,30 @@ pub struct Args {
     /// where it does.
     #[arg(long, value_name = "N", default_value_t = 0)]
     pub check_oracle: u64,
+    /// GenSim: the seeds the task's own reset() lays out, each a layout in the spec (its
+    /// scene, goals and plan on that seed): `A..B` ranges and single seeds, comma-separated, or
+    /// `none` (every seed starts from seed 0's scene with position jitter). A seed without a
+    /// layout is an error of its episode. Default: 0..20,1000000..1000003 (a batch's first 20
+    /// seeds and the generalization plan's default held-out seeds).
+    #[arg(long, value_name = "SEEDS", value_parser = layout_seeds)]
+    pub layout_seeds: Option<Seeds>,
+}
+
+/// Seeds as `--layout-seeds` gives them.
+#[derive(Debug, Clone)]
+pub struct Seeds(pub Vec<u64>);
+
+fn layout_seeds(text: &str) -> Result<Seeds, String> {
+    assay_import::parse_seeds(text).map(Seeds)
 }
 
 pub fn run(a: Args) -> anyhow::Result<ExitCode> {
-    let mut batch = imports::read(a.pipeline, &a.path, a.asset_root.clone())?;
+    let mut batch = imports::read(
+        a.pipeline,
+        &a.path,
+        a.asset_root.clone(),
+        a.layout_seeds.clone().map(|s| s.0),
+    )?;
     if a.check_oracle > 0 {
         imports::check_oracles(&mut batch, a.check_oracle);
     }

@@ -15,6 +15,7 @@ mod forbidden_dependencies;
 mod framebus;
 mod generalization;
 mod gensim;
+mod gensim_seeds;
 mod import;
 mod judge;
 mod layout;

@@ -684,6 +684,44 @@ def limit():
         resource.setrlimit(res, (value, value))
 
 
+def run_seed(cls, seed):
+    """reset() of a fresh task on `seed`: what it built."""
+    global ENV
+    random.seed(seed)
+    np.random.seed(seed)
+    ENV = Env()
+    TEMPLATES.clear()
+    task = cls()
+    ENV.task = task
+    task.reset(ENV)
+    return {
+        'seed': seed, 'class': cls.__name__, 'objects': ENV.objects, 'goals': task.goals,
+        'lang_goals': [str(s) for s in task.lang_goals],
+        'lang_template': str(getattr(task, 'lang_template', '') or ''),
+        'pos_eps': float(task.pos_eps), 'rot_eps': float(task.rot_eps),
+        'ee': str(task.ee), 'primitive': str(task.primitive),
+        'max_steps': jsonable(vars(task).get('max_steps')),
+    }
+
+
+def explain(e):
+    """(field, reason) of what stopped a task's code."""
+    if isinstance(e, Refused):
+        return e.field, e.reason
+    if isinstance(e, MemoryError):
+        return 'reset', 'allocates beyond the memory limit'
+    if isinstance(e, RecursionError):
+        return 'reset', 'recursion too deep'
+    tb = e.__traceback__
+    line = None
+    while tb is not None:
+        if tb.tb_frame.f_code.co_filename == TASK_FILE:
+            line = tb.tb_lineno
+        tb = tb.tb_next
+    where = f" (line {line})" if line else ''
+    return 'reset', f"raised {type(e).__name__}: {e}"[:300] + where
+
+
 def main():
     global ENV
     limit()
@@ -711,37 +749,18 @@ def main():
         if not classes:
             raise Refused('code', 'no subclass of cliport.tasks.task.Task')
         cls = classes[-1]
-        for seed in SEEDS:
-            random.seed(seed)
-            np.random.seed(seed)
-            ENV = Env()
-            TEMPLATES.clear()
-            task = cls()
-            ENV.task = task
-            task.reset(ENV)
-            seeds.append({
-                'seed': seed, 'class': cls.__name__, 'objects': ENV.objects, 'goals': task.goals,
-                'lang_goals': [str(s) for s in task.lang_goals],
-                'lang_template': str(getattr(task, 'lang_template', '') or ''),
-                'pos_eps': float(task.pos_eps), 'rot_eps': float(task.rot_eps),
-                'ee': str(task.ee), 'primitive': str(task.primitive),
-                'max_steps': jsonable(vars(task).get('max_steps')),
-            })
-    except Refused as e:
-        _answer({'refused': {'field': e.field, 'reason': e.reason}})
-    except MemoryError:
-        _answer({'refused': {'field': 'reset', 'reason': 'allocates beyond the memory limit'}})
-    except RecursionError:
-        _answer({'refused': {'field': 'reset', 'reason': 'recursion too deep'}})
+        for k, seed in enumerate(SEEDS):
+            try:
+                seeds.append(run_seed(cls, seed))
+            except (Refused, MemoryError, RecursionError, Exception) as e:
+                # The first seed is the task's: it fails the task. Another seed fails alone.
+                if k == 0:
+                    raise
+                field, reason = explain(e)
+                seeds.append({'seed': seed, 'refused': {'field': field, 'reason': reason}})
     except BaseException as e:
-        tb = e.__traceback__
-        line = None
-        while tb is not None:
-            if tb.tb_frame.f_code.co_filename == TASK_FILE:
-                line = tb.tb_lineno
-            tb = tb.tb_next
-        where = f" (line {line})" if line else ''
-        _answer({'refused': {'field': 'reset', 'reason': f"raised {type(e).__name__}: {e}"[:300] + where}})
+        field, reason = explain(e)
+        _answer({'refused': {'field': field, 'reason': reason}})
     _answer({'seeds': jsonable(seeds)})
 
 

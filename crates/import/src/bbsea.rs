@@ -526,6 +526,7 @@ fn import_task(
         oracle,
         cameras: Vec::new(),
         physics: PhysicsSettings::default(),
+        layouts: Vec::new(),
     };
     notes.settle(&mut task, Some(spec));
     task

@@ -64,6 +64,53 @@ pub struct ImportOptions {
     pub asset_root: Option<PathBuf>,
     /// What generated task code may use when it runs (GenSim's `reset()`).
     pub limits: CodeLimits,
+    /// The seeds GenSim's `reset()` lays out, one layout each in the spec: `None` is
+    /// [`default_layout_seeds`]; empty, none (seed 0's scene with position jitter on every
+    /// seed, as before layouts).
+    pub layout_seeds: Option<Vec<u64>>,
+}
+
+/// Seeds as a command line gives them: `A..B` ranges (B excluded) and single seeds,
+/// comma-separated, or `none`.
+pub fn parse_seeds(text: &str) -> Result<Vec<u64>, String> {
+    const MOST: u64 = spec::MAX_LAYOUTS as u64;
+    if text.trim() == "none" {
+        return Ok(Vec::new());
+    }
+    let mut seeds: Vec<u64> = Vec::new();
+    for part in text.split(',').map(str::trim).filter(|p| !p.is_empty()) {
+        let number = |s: &str| {
+            s.trim()
+                .parse::<u64>()
+                .map_err(|_| format!("'{s}' is not a seed (a whole number)"))
+        };
+        match part.split_once("..") {
+            Some((a, b)) => {
+                let (a, b) = (number(a)?, number(b)?);
+                if b <= a {
+                    return Err(format!("'{part}' is empty (A..B runs A to B-1)"));
+                }
+                if b - a > MOST {
+                    return Err(format!("'{part}': at most {MOST} seeds"));
+                }
+                seeds.extend(a..b);
+            }
+            None => seeds.push(number(part)?),
+        }
+    }
+    seeds.sort_unstable();
+    seeds.dedup();
+    if seeds.len() as u64 > MOST {
+        return Err(format!("{} seeds: at most {MOST}", seeds.len()));
+    }
+    Ok(seeds)
+}
+
+/// The seeds a GenSim task is laid out on unless told: a batch's first 20 (`assay import
+/// --check-oracle` runs 20; a batch runs 5 unless told) and the generalization plan's
+/// default held-out seeds (1,000,000 to 1,000,002).
+pub fn default_layout_seeds() -> Vec<u64> {
+    (0..20).chain(1_000_000..1_000_003).collect()
 }
 
 /// Bounds on one task's generated code, run in a sandboxed subprocess for all its seeds.
@@ -177,7 +224,15 @@ pub fn import(pipeline: Pipeline, root: &Path, options: &ImportOptions) -> Impor
         }
     };
     let (tasks, errors) = match pipeline {
-        Pipeline::Gensim => gensim::import(root, &asset_root, options.limits),
+        Pipeline::Gensim => gensim::import(
+            root,
+            &asset_root,
+            options.limits,
+            &options
+                .layout_seeds
+                .clone()
+                .unwrap_or_else(default_layout_seeds),
+        ),
         Pipeline::Robogen => robogen::import(root, &asset_root),
         Pipeline::Bbsea => bbsea::import(root, &asset_root),
     };
@@ -459,4 +514,22 @@ impl Placer {
 /// Half-diagonal of a footprint.
 pub(crate) fn radius(half: [f64; 3]) -> f64 {
     (half[0] * half[0] + half[1] * half[1]).sqrt()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn seeds_are_read_as_ranges_and_single_seeds_or_none() {
+        assert_eq!(parse_seeds("0..3,7, 5").unwrap(), vec![0, 1, 2, 5, 7]);
+        assert_eq!(parse_seeds("none").unwrap(), Vec::<u64>::new());
+        assert_eq!(
+            parse_seeds("0..20,1000000..1000003").unwrap(),
+            default_layout_seeds()
+        );
+        for bad in ["3..3", "x", "0..2000", "-1"] {
+            assert!(parse_seeds(bad).is_err(), "{bad}");
+        }
+    }
 }

@@ -131,6 +131,7 @@ fn hostile_task_code_is_stopped_and_the_rest_imports() {
             wall_seconds: 10,
             memory_bytes: 1 << 30,
         },
+        ..ImportOptions::default()
     };
     let tmp = tempfile::tempdir().unwrap();
     let out = tmp.path().join("written");

@@ -212,7 +212,7 @@ fn documents(a: &EvalArgs) -> anyhow::Result<(Vec<TaskDocument>, Imported)> {
     let mut docs = Vec::new();
     let mut imported = Vec::new();
     for path in &a.paths {
-        let batch = imports::read(pipeline, path, None)?;
+        let batch = imports::read(pipeline, path, None, None)?;
         docs.extend(imports::documents(&batch));
         imported.push((path.clone(), batch));
     }

@@ -81,6 +81,7 @@ pub fn read(
     pipeline: Pipeline,
     path: &Path,
     asset_root: Option<PathBuf>,
+    layout_seeds: Option<Vec<u64>>,
 ) -> anyhow::Result<Import> {
     anyhow::ensure!(path.exists(), "{}: no such file or folder", path.display());
     let batch = import(
@@ -88,6 +89,7 @@ pub fn read(
         path,
         &ImportOptions {
             asset_root,
+            layout_seeds,
             ..ImportOptions::default()
         },
     );

@@ -19,6 +19,8 @@ const SWEEP_SPEED: f32 = 0.12;
 const MAX_STROKES: u32 = 8;
 const MIN_SEGMENT_STEPS: u32 = 20;
 const DWELL_STEPS: u32 = 8;
+/// How fast the tool turns what it holds (rad/s).
+const TURN_SPEED: f32 = 2.0;
 /// Gap left under a placed object before release (m).
 const PLACE_CLEARANCE: f32 = 0.004;
 /// How far the tool's face may be from an object's top and still grasp it (m).
@@ -196,13 +198,23 @@ struct Segment {
     from: Vec3,
     to: Vec3,
     steps: u32,
+    /// How far the suction cup has turned what it holds about the tool's axis over the move
+    /// (from, to; rad), where it turns it.
+    yaw: Option<(f32, f32)>,
 }
 
 impl Segment {
     fn at(&self, k: u32) -> Vec3 {
+        self.from.lerp(self.to, self.ease(k))
+    }
+
+    fn ease(&self, k: u32) -> f32 {
         let t = ((k + 1) as f32 / self.steps as f32).min(1.0);
-        let s = t * t * (3.0 - 2.0 * t);
-        self.from.lerp(self.to, s)
+        t * t * (3.0 - 2.0 * t)
+    }
+
+    fn yaw_at(&self, k: u32) -> Option<f32> {
+        self.yaw.map(|(a, b)| a + (b - a) * self.ease(k))
     }
 }
 
@@ -269,6 +281,26 @@ pub struct Held {
     pub offset: Vec3,
     /// The joint that welds it to the tool (`None`: finger pads hold it by friction).
     pub joint: Option<ImpulseJointHandle>,
+    /// Its pose in the tool's frame at the grasp (the weld's frame on the tool).
+    pub grasped: Pose,
+    /// How far the tool has turned it about its axis since the grasp (rad).
+    pub turned: f32,
+}
+
+impl Held {
+    /// Turns the weld to [`Held::turned`] (a suction grasp; nothing for one by friction or a
+    /// link's ball joint).
+    pub fn spin(&self, scene: &mut SimScene) {
+        let Some(j) = self.joint else { return };
+        if self.turned == 0.0 {
+            return;
+        }
+        if let Some(joint) = scene.world.impulse_joints.get_mut(j, true) {
+            joint.data.set_local_frame1(
+                Pose::from_rotation(Rotation::from_rotation_z(self.turned)) * self.grasped,
+            );
+        }
+    }
 }
 
 impl Controller {
@@ -323,6 +355,9 @@ impl Controller {
             return (self.command, Event::None);
         };
         self.command = seg.at(self.k);
+        if let (Some(yaw), Some(h)) = (seg.yaw_at(self.k), self.held.as_mut()) {
+            h.turned = yaw;
+        }
         self.k += 1;
         if self.k >= seg.steps {
             self.queue.pop_front();
@@ -348,7 +383,15 @@ impl Controller {
         let from = self.queue.back().map(|(s, _)| s.to).unwrap_or(self.command);
         let dist = from.distance(to);
         let steps = ((dist / speed / dt).ceil() as u32).max(MIN_SEGMENT_STEPS);
-        self.queue.push_back((Segment { from, to, steps }, ev));
+        self.queue.push_back((
+            Segment {
+                from,
+                to,
+                steps,
+                yaw: None,
+            },
+            ev,
+        ));
     }
 
     /// Rises to `z_safe` where the tool is, then travels level to above `xy`.
@@ -375,6 +418,7 @@ impl Controller {
                 from: at,
                 to: at,
                 steps: 1,
+                yaw: None,
             },
             Event::Turn(yaw),
         ));
@@ -387,6 +431,7 @@ impl Controller {
                 from: at,
                 to: at,
                 steps: DWELL_STEPS,
+                yaw: None,
             },
             ev,
         ));
@@ -450,6 +495,48 @@ impl Controller {
             .map(|h| 2.0 * scene.objects[h.object].half.z)
             .unwrap_or(0.0);
         (top + held_height + GRIPPER_HALF_EXTENTS[2] + 0.04).max(0.25)
+    }
+
+    /// Turns what the tool holds about the tool's axis, where it is, until it comes to
+    /// `yaw_deg` (modulo `symmetry_deg`) the shorter way round: the suction cup spins (the weld
+    /// turns, [`Held::turned`]), the arm's wrist stays. The held object's offset from the tool
+    /// turns with it. The object's yaw now is read from the world, also by a seeing oracle (its
+    /// camera tracks positions, not turns).
+    fn turn(&mut self, scene: &SimScene, step: u64, yaw_deg: f64, symmetry_deg: Option<f64>) {
+        let Some(mut h) = self.held else {
+            self.notes.push(Note {
+                step,
+                text: "turn with nothing held (the grasp failed)".into(),
+            });
+            return;
+        };
+        let now = crate::tabletop::yaw_of(&scene.pose(&scene.objects[h.object]).rotation);
+        let period = symmetry_deg
+            .map_or(std::f32::consts::TAU, |s| (s as f32).to_radians())
+            .max(1e-3);
+        let d = (yaw_deg as f32).to_radians() - now;
+        let d = d - period * (d / period).round();
+        if d.abs() < 1e-4 {
+            return;
+        }
+        let from = h.turned;
+        let at = self.queue.back().map(|(s, _)| s.to).unwrap_or(self.command);
+        let dt = scene.world.integration_parameters.dt;
+        let steps = ((d.abs() / TURN_SPEED / dt).ceil() as u32).max(MIN_SEGMENT_STEPS);
+        self.queue.push_back((
+            Segment {
+                from: at,
+                to: at,
+                steps,
+                yaw: Some((from, from + d)),
+            },
+            Event::None,
+        ));
+        let (sin, cos) = d.sin_cos();
+        let o = h.offset;
+        h.offset = Vec3::new(cos * o.x - sin * o.y, sin * o.x + cos * o.y, o.z);
+        self.held = Some(h);
+        self.dwell(Event::None);
     }
 
     fn expand(&mut self, p: &Primitive, scene: &SimScene, step: u64) {
@@ -601,6 +688,10 @@ impl Controller {
             Primitive::Actuate { object, joint, to } => {
                 self.actuate(scene, object, joint, *to);
             }
+            Primitive::Turn {
+                yaw_deg,
+                symmetry_deg,
+            } => self.turn(scene, step, *yaw_deg, *symmetry_deg),
             Primitive::Sweep { pile, zone } => {
                 // Two passes: the second is planned from where the first left the pile.
                 let current = self.next - 1;
@@ -911,6 +1002,8 @@ impl Controller {
             object: i,
             offset: believed - tool,
             joint: None,
+            grasped: Pose::IDENTITY,
+            turned: 0.0,
         });
         // A policy that grasps without turning the pads first: turn them (they are open). The
         // pads' yaw is on the tool, which a policy may have turned.
@@ -984,6 +1077,8 @@ impl Controller {
                     object: i,
                     offset: believed - tool,
                     joint: Some(handle),
+                    grasped: rel,
+                    turned: 0.0,
                 });
             }
             Event::GraspLink { object, joint } => {
@@ -1019,6 +1114,8 @@ impl Controller {
                     object,
                     offset: Vec3::ZERO,
                     joint: Some(handle),
+                    grasped: Pose::IDENTITY,
+                    turned: 0.0,
                 });
             }
             Event::Release => {

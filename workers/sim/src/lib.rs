@@ -420,6 +420,10 @@ impl<'s> Rollout<'s> {
     /// `None` the tool holds its last command (the settles).
     fn advance(&mut self, act: Option<(rapier3d::prelude::Vec3, controller::Event)>) {
         let scene = &mut self.scene;
+        // The oracle's plan turns what it holds: the weld follows.
+        if let Some(h) = self.ctl.held {
+            h.spin(scene);
+        }
         let ev = match act {
             Some((cmd, ev)) => {
                 let at = scene.drive_arm(cmd);

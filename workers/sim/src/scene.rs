@@ -788,6 +788,11 @@ fn is_ball(a: &assay_spec::urdf::Assembled) -> bool {
 /// Samples the initial state for `seed` and builds the world. Every random draw comes from one
 /// stream per (seed, task id), in spec order.
 pub fn build_scene(spec: &TaskSpec, seed: u64) -> Result<SimScene, SimError> {
+    // A task laid out per seed by its generator's code, on a seed it has no layout for (a
+    // spec from `for_seed` keeps its layouts only then).
+    if let Some(why) = spec.seed_unavailable(seed) {
+        return Err(SimError::spec("layouts", why));
+    }
     // In a worker, the operator's folders bound where asset files come from: a task whose own
     // asset root lies outside them fails here, naming the field, before any file is opened.
     if let Some(roots) = assay_spec::assets::roots() {

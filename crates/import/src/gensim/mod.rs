@@ -5,6 +5,7 @@
 
 use std::path::Path;
 
+mod layouts;
 mod repair;
 mod sandbox;
 mod translate;
@@ -35,6 +36,7 @@ pub(crate) fn import(
     root: &Path,
     asset_root: &Path,
     limits: crate::CodeLimits,
+    layout_seeds: &[u64],
 ) -> (Vec<ImportedTask>, Vec<SpecError>) {
     let lib_path = root.join("generated_tasks.json");
     let origin = lib_path.display().to_string();
@@ -75,7 +77,15 @@ pub(crate) fn import(
                         };
                         out.push((
                             k,
-                            import_one(root, asset_root, &lib_path, key, entry, limits),
+                            import_one(
+                                root,
+                                asset_root,
+                                &lib_path,
+                                key,
+                                entry,
+                                limits,
+                                layout_seeds,
+                            ),
                         ));
                     }
                     out
@@ -108,6 +118,7 @@ fn import_one(
     key: &str,
     entry: &serde_json::Value,
     limits: crate::CodeLimits,
+    layout_seeds: &[u64],
 ) -> ImportedTask {
     let name = entry
         .get("task-name")
@@ -210,11 +221,27 @@ fn import_one(
         notes.mapped("assets-used", "checked against the asset root");
     }
     drop(code);
-    let spec = match sandbox::record(asset_root, root, &code_path, &SEEDS, limits) {
-        Ok(seeds) if !seeds.is_empty() => {
-            build(&id, &name, &description, &seeds, asset_root, &mut notes)
+    // Seeds 0, 1 and 2 show which targets follow which object; the layouts' seeds follow.
+    let mut asked: Vec<u64> = BASE_SEEDS.to_vec();
+    for s in layout_seeds {
+        if !asked.contains(s) {
+            asked.push(*s);
         }
-        Ok(_) => None,
+    }
+    let spec = match sandbox::record(asset_root, root, &code_path, &asked, limits)
+        .and_then(|outcomes| answered(&asked, outcomes))
+    {
+        Ok(outcomes) => build(
+            &Task {
+                id: &id,
+                name: &name,
+                description: &description,
+            },
+            &outcomes,
+            layout_seeds,
+            asset_root,
+            &mut notes,
+        ),
         Err(refused) => {
             notes.error(&refused.field, refused.reason);
             None
@@ -234,24 +261,58 @@ fn import_one(
     task
 }
 
-/// The seeds `reset()` is recorded on: seed 0 gives the layout, the others show which targets
-/// follow which object.
-const SEEDS: [u64; 3] = [0, 1, 2];
+/// The seeds `reset()` is always recorded on: seed 0 gives the spec's own scene, and with the
+/// others it shows which targets follow which object.
+const BASE_SEEDS: [u64; 3] = [0, 1, 2];
+
+/// The recorder's answer, checked against the seeds asked (in order; the first built).
+fn answered(
+    asked: &[u64],
+    outcomes: Vec<sandbox::SeedOutcome>,
+) -> Result<Vec<sandbox::SeedOutcome>, sandbox::Refused> {
+    let got: Vec<u64> = outcomes.iter().map(sandbox::SeedOutcome::seed).collect();
+    if got != asked || !matches!(outcomes.first(), Some(sandbox::SeedOutcome::Built(_))) {
+        return Err(sandbox::Refused {
+            field: "reset".into(),
+            reason: "the recording answered other seeds than those asked".into(),
+        });
+    }
+    Ok(outcomes)
+}
+
+/// The task's names.
+struct Task<'a> {
+    id: &'a str,
+    name: &'a str,
+    description: &'a str,
+}
 
 fn build(
-    id: &str,
-    name: &str,
-    description: &str,
-    seeds: &[sandbox::SeedRecord],
+    task: &Task<'_>,
+    outcomes: &[sandbox::SeedOutcome],
+    layout_seeds: &[u64],
     asset_root: &Path,
     notes: &mut Notes,
 ) -> Option<TaskSpec> {
+    let &Task {
+        id,
+        name,
+        description,
+    } = task;
+    let seeds: Vec<sandbox::SeedRecord> = outcomes
+        .iter()
+        .filter_map(|o| match o {
+            sandbox::SeedOutcome::Built(r) => Some((**r).clone()),
+            sandbox::SeedOutcome::Failed { .. } => None,
+        })
+        .collect();
     let s0 = &seeds[0];
     notes.mapped(
         "reset",
         format!(
-            "class {} run in the sandbox on seeds {SEEDS:?}: {} objects, {} goals on seed 0",
+            "class {} run in the sandbox on seeds {}: {} objects, {} goals on seed 0",
             s0.class,
+            assay_spec::spec::seed_ranges(outcomes.iter().map(sandbox::SeedOutcome::seed)),
             s0.objects.len(),
             s0.goals.len()
         ),
@@ -265,7 +326,7 @@ fn build(
     if !s0.lang_goals.is_empty() {
         notes.not_mapped("language_goal", "not part of spec v1 (the description is)");
     }
-    let t = translate::translate(seeds, asset_root, notes)?;
+    let t = translate::translate(&seeds, asset_root, notes, false)?;
     notes.inferred(
         "oracle",
         "per goal, lowest target first: pick, then place at the target (on what lies under it), into the bowl, or in the zone; a pile is swept",
@@ -311,5 +372,69 @@ fn build(
         oracle: t.oracle,
         cameras: Vec::new(),
         physics: PhysicsSettings::default(),
+        layouts: Vec::new(),
     })
+    .map(|mut spec| {
+        spec.layouts = layouts::lay_out(&spec, outcomes, &seeds, layout_seeds, asset_root, notes);
+        spec
+    })
+}
+
+/// One object a task's `reset()` placed, as the recorder saw it: its asset, the template values
+/// it was filled with (as the importer writes them), and GenSim's base pose.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ResetObject {
+    pub urdf: String,
+    pub fill: std::collections::BTreeMap<String, String>,
+    pub position: [f64; 3],
+    /// Quaternion x, y, z, w.
+    pub rotation: [f64; 4],
+    /// A copy in a pile (`make_piles`).
+    pub pile: bool,
+}
+
+/// Runs the `reset()` of task `name` of the GenSim library at `library` on each of `seeds`, in
+/// the same sandbox and under the same limits as the import, and gives what it placed on each
+/// (or why that seed failed): for checking an import against the task's own code.
+pub fn reset_objects(
+    library: &Path,
+    asset_root: &Path,
+    name: &str,
+    seeds: &[u64],
+) -> Result<Vec<Result<Vec<ResetObject>, String>>, String> {
+    if !is_plain_name(name) {
+        return Err(format!("'{name}' is not a plain task name"));
+    }
+    let code = library.join(format!("generated_tasks/{}.py", name.replace('-', "_")));
+    let outcomes = sandbox::record(
+        asset_root,
+        library,
+        &code,
+        seeds,
+        crate::CodeLimits::default(),
+    )
+    .map_err(|r| format!("{}: {}", r.field, r.reason))?;
+    Ok(outcomes
+        .into_iter()
+        .map(|o| match o {
+            sandbox::SeedOutcome::Failed { refused, .. } => {
+                Err(format!("{}: {}", refused.field, refused.reason))
+            }
+            sandbox::SeedOutcome::Built(r) => Ok(r
+                .objects
+                .iter()
+                .map(|o| ResetObject {
+                    urdf: o.urdf.clone(),
+                    fill: o
+                        .fill
+                        .iter()
+                        .filter_map(|(k, v)| translate::fill_text(v).map(|t| (k.clone(), t)))
+                        .collect(),
+                    position: o.pose.0,
+                    rotation: o.pose.1,
+                    pile: o.pile,
+                })
+                .collect()),
+        })
+        .collect())
 }

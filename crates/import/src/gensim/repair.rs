@@ -181,7 +181,7 @@ pub(super) struct PoseGoal {
 /// carries an object with several pose goals once, to its last goal's target.
 pub(super) fn supersede(
     pose_goals: &[PoseGoal],
-    pose_steps: &[(usize, String, usize)],
+    pose_steps: &[(usize, usize, String, usize)],
     pos_eps: f64,
     goals: &mut Vec<Goal>,
     oracle: &mut Vec<Primitive>,
@@ -219,12 +219,12 @@ pub(super) fn supersede(
     // it would only stand in the way of what is built later.
     let skip: BTreeSet<usize> = pose_steps
         .iter()
-        .filter(|(_, object, gi)| {
+        .filter(|(_, _, object, gi)| {
             pose_steps
                 .iter()
-                .any(|(_, other, later)| other == object && later > gi)
+                .any(|(_, _, other, later)| other == object && later > gi)
         })
-        .flat_map(|(at, ..)| [*at, *at + 1])
+        .flat_map(|(at, n, ..)| *at..*at + n)
         .collect();
     let mut k = 0;
     oracle.retain(|_| {

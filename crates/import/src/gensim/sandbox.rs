@@ -27,6 +27,7 @@ const MAX_ANSWER: u64 = 16 << 20;
 /// What `reset()` built for one seed.
 #[derive(Debug, Clone, Deserialize)]
 pub(crate) struct SeedRecord {
+    pub seed: u64,
     pub class: String,
     pub objects: Vec<ObjectRecord>,
     pub goals: Vec<GoalRecord>,
@@ -69,17 +70,35 @@ pub(crate) struct GoalRecord {
     pub matches_shape: Option<Vec<usize>>,
 }
 
+/// What one seed's `reset()` gave: a recording, or why there is none (a seed after the first
+/// fails alone).
+#[derive(Debug, Clone, Deserialize)]
+#[serde(untagged)]
+pub(crate) enum SeedOutcome {
+    Failed { seed: u64, refused: Refusal },
+    Built(Box<SeedRecord>),
+}
+
+impl SeedOutcome {
+    pub fn seed(&self) -> u64 {
+        match self {
+            SeedOutcome::Failed { seed, .. } => *seed,
+            SeedOutcome::Built(r) => r.seed,
+        }
+    }
+}
+
 #[derive(Debug, Deserialize)]
 struct Answer {
-    seeds: Option<Vec<SeedRecord>>,
+    seeds: Option<Vec<SeedOutcome>>,
     refused: Option<Refusal>,
     error: Option<String>,
 }
 
-#[derive(Debug, Deserialize)]
-struct Refusal {
-    field: String,
-    reason: String,
+#[derive(Debug, Clone, Deserialize)]
+pub(crate) struct Refusal {
+    pub field: String,
+    pub reason: String,
 }
 
 /// Why a task's code could not be recorded: the field (a call, `import`, `open`, `reset`) and
@@ -130,14 +149,15 @@ pub(crate) fn python_from(named: Option<String>, home: Option<std::path::PathBuf
         .map_or_else(|| "python3".into(), |p| p.display().to_string())
 }
 
-/// Records `reset()` of the task in `task_file` for each of `seeds`.
+/// Records `reset()` of the task in `task_file` for each of `seeds`: the first seed's failure
+/// is the task's (`Err`), another's is that seed's alone.
 pub(crate) fn record(
     assets: &Path,
     library: &Path,
     task_file: &Path,
     seeds: &[u64],
     limits: crate::CodeLimits,
-) -> Result<Vec<SeedRecord>, Refused> {
+) -> Result<Vec<SeedOutcome>, Refused> {
     let crate::CodeLimits {
         cpu_seconds,
         wall_seconds,

@@ -333,6 +333,7 @@ impl TaskYaml<'_> {
             oracle,
             cameras: Vec::new(),
             physics: PhysicsSettings::default(),
+            layouts: Vec::new(),
         };
         if spec.scene.objects.iter().any(|o| !o.is_fixed) {
             spec.variations.position_jitter = super::JITTER;

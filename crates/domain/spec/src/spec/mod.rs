@@ -54,7 +54,37 @@ pub struct TaskSpec {
     /// Physics settings; defaults suit tabletop manipulation.
     #[serde(default)]
     pub physics: PhysicsSettings,
+    /// The scene, goals and plan of each seed as the generator's own code built them (GenSim's
+    /// `reset()` run on that seed): on a seed listed here they replace `scene`, `goals` and
+    /// `oracle`, and `variations` moves nothing. With layouts, a seed without one (or whose
+    /// layout is an `error`) is an error of its episode, naming the seed and the reason.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub layouts: Vec<Layout>,
 }
+
+/// One seed's initial scene, goals and plan, recorded from the generator's code; or why that
+/// seed has none.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct Layout {
+    pub seed: u64,
+    /// Why the generator's code built no scene a spec can take on this seed (its `reset()`
+    /// raised, or built what the importer refuses): the episode on this seed fails with it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub error: Option<String>,
+    /// The scene on this seed (absent with an `error`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub scene: Option<Scene>,
+    /// The goals on this seed.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub goals: Vec<Goal>,
+    /// The oracle's plan on this seed.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub oracle: Vec<Primitive>,
+}
+
+/// The most layouts a spec may carry.
+pub const MAX_LAYOUTS: usize = 1000;
 
 /// Provenance of a task.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize, JsonSchema)]
@@ -522,6 +552,14 @@ pub enum Primitive {
     Pick { object: String },
     /// Carry the grasped object over the target, lower it, release, retreat.
     Place { target: PlaceTarget },
+    /// Turn the grasped object about z, where it is held up, until its yaw is `yaw_deg` (world,
+    /// degrees) — modulo `symmetry_deg` where it looks the same turned by that much — the
+    /// shorter way round.
+    Turn {
+        yaw_deg: f64,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        symmetry_deg: Option<f64>,
+    },
     /// Sweep the object along the table to `to` (x, y).
     Push { object: String, to: [f64; 2] },
     /// Sweep a pile into a zone: strokes of the tool along the table from behind the pile to the
@@ -949,6 +987,13 @@ impl TaskSpec {
     /// colour drawn from `variations.colors`. The draw has a stream of its own, so a palette
     /// never moves the poses a seed draws. Borrowed when nothing is recoloured.
     pub fn for_seed(&self, seed: u64) -> std::borrow::Cow<'_, TaskSpec> {
+        // A seed the generator's code laid out: its scene, goals and plan, nothing jittered.
+        if let Some(laid) = self.with_layout(seed) {
+            return match laid.for_seed(seed) {
+                std::borrow::Cow::Owned(s) => std::borrow::Cow::Owned(s),
+                std::borrow::Cow::Borrowed(_) => std::borrow::Cow::Owned(laid),
+            };
+        }
         let recolour = !self.variations.recolor.is_empty() && !self.variations.colors.is_empty();
         if !recolour && self.scene.piles.is_empty() {
             return std::borrow::Cow::Borrowed(self);
@@ -1004,6 +1049,88 @@ impl TaskSpec {
         std::borrow::Cow::Owned(spec)
     }
 
+    /// The layout of `seed`, if the spec has one without an error.
+    pub fn layout(&self, seed: u64) -> Option<&Layout> {
+        self.layouts
+            .iter()
+            .find(|l| l.seed == seed && l.error.is_none() && l.scene.is_some())
+    }
+
+    /// The spec on `seed` with its layout in place (no layouts left, no position or yaw
+    /// jitter); `None` where the spec has no layout for `seed`.
+    pub fn with_layout(&self, seed: u64) -> Option<TaskSpec> {
+        let l = self.layout(seed)?;
+        let mut spec = TaskSpec {
+            layouts: Vec::new(),
+            scene: l.scene.clone()?,
+            goals: l.goals.clone(),
+            oracle: l.oracle.clone(),
+            ..self.clone_without_layouts()
+        };
+        spec.variations.position_jitter = 0.0;
+        spec.variations.yaw_jitter_deg = 0.0;
+        Some(spec)
+    }
+
+    /// A copy without the layouts (they may be large).
+    fn clone_without_layouts(&self) -> TaskSpec {
+        let layouts = Vec::new();
+        let TaskSpec {
+            spec_version,
+            id,
+            name,
+            description,
+            source,
+            group,
+            scene,
+            end_effector,
+            arm,
+            goals,
+            variations,
+            oracle,
+            cameras,
+            physics,
+            layouts: _,
+        } = self;
+        TaskSpec {
+            spec_version: *spec_version,
+            id: id.clone(),
+            name: name.clone(),
+            description: description.clone(),
+            source: source.clone(),
+            group: group.clone(),
+            scene: scene.clone(),
+            end_effector: end_effector.clone(),
+            arm: arm.clone(),
+            goals: goals.clone(),
+            variations: variations.clone(),
+            oracle: oracle.clone(),
+            cameras: cameras.clone(),
+            physics: physics.clone(),
+            layouts,
+        }
+    }
+
+    /// Why an episode on `seed` cannot run: the spec has layouts, and none for `seed`, or the
+    /// one it has is an error. `None` when it can.
+    pub fn seed_unavailable(&self, seed: u64) -> Option<String> {
+        if self.layouts.is_empty() || self.layout(seed).is_some() {
+            return None;
+        }
+        if let Some(e) = self
+            .layouts
+            .iter()
+            .find(|l| l.seed == seed)
+            .and_then(|l| l.error.as_ref())
+        {
+            return Some(format!("seed {seed}: {e}"));
+        }
+        Some(format!(
+            "seed {seed} has no layout: the task's layouts were recorded from its code on seeds {} only (import it again with those seeds)",
+            seed_ranges(self.layouts.iter().map(|l| l.seed))
+        ))
+    }
+
     /// The ids of pile `id`'s copies (objects of a spec from [`TaskSpec::for_seed`]).
     pub fn pile_copies(&self, id: &str) -> Vec<String> {
         self.scene
@@ -1023,6 +1150,30 @@ impl TaskSpec {
     }
 }
 
+/// Seeds as ranges: `0–19, 1000000–1000002`.
+pub fn seed_ranges(seeds: impl IntoIterator<Item = u64>) -> String {
+    let mut seeds: Vec<u64> = seeds.into_iter().collect();
+    seeds.sort_unstable();
+    seeds.dedup();
+    let mut parts: Vec<String> = Vec::new();
+    let mut k = 0;
+    while k < seeds.len() {
+        let start = seeds[k];
+        let mut end = start;
+        while k + 1 < seeds.len() && seeds[k + 1] == end + 1 {
+            k += 1;
+            end = seeds[k];
+        }
+        parts.push(if end == start {
+            start.to_string()
+        } else {
+            format!("{start}–{end}")
+        });
+        k += 1;
+    }
+    parts.join(", ")
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -1039,6 +1190,85 @@ mod tests {
         let again = parse_task(&spec.canonical_json(), Format::Json, "t.json").unwrap();
         assert_eq!(spec, again);
         assert_eq!(spec.spec_hash(), again.spec_hash());
+    }
+
+    /// A spec laid out per seed: a laid-out seed runs its own scene, goals and plan with no
+    /// jitter; a seed whose layout is an error, or that has none, cannot run and says why; a
+    /// layout validates as the spec does, its errors under `layouts[i]`.
+    #[test]
+    fn a_seed_laid_out_runs_its_own_scene_and_others_say_why_they_cannot_run() {
+        let mut spec = parse_task(MINIMAL, Format::Yaml, "t.yaml").unwrap();
+        spec.variations.position_jitter = 0.01;
+        let mut scene = spec.scene.clone();
+        scene.objects[0].pose.as_mut().unwrap().position = [0.4, 0.2, 0.02];
+        spec.layouts = vec![
+            Layout {
+                seed: 3,
+                error: None,
+                scene: Some(scene.clone()),
+                goals: spec.goals.clone(),
+                oracle: spec.oracle.clone(),
+            },
+            Layout {
+                seed: 4,
+                error: Some("the task's reset() on this seed: reset: raised ValueError".into()),
+                scene: None,
+                goals: Vec::new(),
+                oracle: Vec::new(),
+            },
+        ];
+        assert!(validate(&spec, "t.yaml").is_empty());
+        let laid = spec.for_seed(3);
+        assert_eq!(laid.scene, scene);
+        assert_eq!(laid.variations.position_jitter, 0.0);
+        assert!(laid.layouts.is_empty());
+        assert_eq!(laid.seed_unavailable(3), None);
+        assert_eq!(spec.seed_unavailable(3), None);
+        let failed = spec.seed_unavailable(4).unwrap();
+        assert!(
+            failed.starts_with("seed 4: ") && failed.contains("ValueError"),
+            "{failed}"
+        );
+        let missing = spec.seed_unavailable(7).unwrap();
+        assert!(
+            missing.contains("seed 7 has no layout") && missing.contains("seeds 3–4"),
+            "{missing}"
+        );
+        // Not laid out at all: every seed runs.
+        assert_eq!(
+            parse_task(MINIMAL, Format::Yaml, "t.yaml")
+                .unwrap()
+                .seed_unavailable(7),
+            None
+        );
+        // The layouts are part of what is hashed.
+        let mut other = spec.clone();
+        other.layouts[0].scene.as_mut().unwrap().objects[0]
+            .pose
+            .as_mut()
+            .unwrap()
+            .position[0] = 0.41;
+        assert_ne!(other.spec_hash(), spec.spec_hash());
+
+        let mut bad = spec.clone();
+        bad.layouts[0].goals = vec![Goal::InZone {
+            object: "ghost".into(),
+            zone: "goal".into(),
+        }];
+        bad.layouts[1].scene = Some(scene);
+        bad.layouts.push(bad.layouts[0].clone());
+        let es = validate(&bad, "t.yaml");
+        for path in [
+            "layouts[0].goals[0].in_zone.object",
+            "layouts[1]",
+            "layouts[2].seed",
+        ] {
+            assert!(es.iter().any(|e| e.path == path), "{path}: {es:?}");
+        }
+        assert_eq!(
+            seed_ranges([0, 1, 2, 5, 1_000_000, 1_000_001]),
+            "0–2, 5, 1000000–1000001"
+        );
     }
 
     /// Finite but absurd numbers that used to validate and give plausible wrong statistics.

@@ -34,6 +34,7 @@ pub fn validate(spec: &TaskSpec, origin: &str) -> Vec<SpecError> {
     check.variations();
     check.plan();
     check.cameras_and_physics();
+    check.layouts();
     check.v.errors
 }
 
@@ -521,6 +522,54 @@ impl<'a> Check<'a> {
         }
     }
 
+    /// `layouts`: at most [`MAX_LAYOUTS`], one per seed; each an error with nothing else, or a
+    /// scene with its goals and plan that validate as the spec's own do (its errors under
+    /// `layouts[i]`).
+    fn layouts(&mut self) {
+        let spec = self.spec;
+        if spec.layouts.len() > MAX_LAYOUTS {
+            self.v.err(
+                "layouts",
+                format!("{} layouts: at most {MAX_LAYOUTS}", spec.layouts.len()),
+            );
+            return;
+        }
+        let mut seen = BTreeSet::new();
+        for (i, l) in spec.layouts.iter().enumerate() {
+            let p = format!("layouts[{i}]");
+            if !seen.insert(l.seed) {
+                self.v.err(
+                    &format!("{p}.seed"),
+                    format!("seed {} laid out twice", l.seed),
+                );
+            }
+            match (&l.error, &l.scene) {
+                (Some(e), _) if e.trim().is_empty() || e.len() > 2000 => self.v.err(
+                    &format!("{p}.error"),
+                    "must say why, in at most 2000 bytes".into(),
+                ),
+                (Some(_), scene) => {
+                    if scene.is_some() || !l.goals.is_empty() || !l.oracle.is_empty() {
+                        self.v.err(
+                            &p,
+                            "a layout with an error has no scene, goals or oracle".into(),
+                        );
+                    }
+                }
+                (None, None) => self.v.err(
+                    &format!("{p}.scene"),
+                    "a layout needs a scene (or an error)".into(),
+                ),
+                (None, Some(_)) => {
+                    let laid = spec.with_layout(l.seed).expect("a layout with a scene");
+                    for e in validate(&laid, self.v.origin) {
+                        self.v.err(&format!("{p}.{}", e.path), e.reason);
+                    }
+                }
+            }
+        }
+    }
+
     /// `oracle`: the plan must be executable: pick before place, one object held at a time.
     fn plan(&mut self) {
         let spec = self.spec;
@@ -577,6 +626,28 @@ impl<'a> Check<'a> {
                     return;
                 };
                 self.place_target(&format!("{p}.place.target"), target, h);
+            }
+            Primitive::Turn {
+                yaw_deg,
+                symmetry_deg,
+            } => {
+                self.v.within(
+                    &format!("{p}.turn.yaw_deg"),
+                    *yaw_deg,
+                    -360.0,
+                    360.0,
+                    "degrees",
+                );
+                if let Some(s) = symmetry_deg {
+                    self.v
+                        .within(&format!("{p}.turn.symmetry_deg"), *s, 1.0, 360.0, "degrees");
+                }
+                if held.is_none() {
+                    self.v.err(
+                        &format!("{p}.turn"),
+                        "nothing is held: pick an object first".into(),
+                    );
+                }
             }
             Primitive::Push { object, to } => {
                 self.object_ref(&format!("{p}.push.object"), object);

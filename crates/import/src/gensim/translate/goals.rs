@@ -165,13 +165,12 @@ impl Translation<'_> {
             (p[0] - t[0]).hypot(p[1] - t[1])
         };
         let chosen = assign(g, &per_object, &distance);
-        let mut plan: Vec<(f64, f64, String, PlaceTarget)> = Vec::new();
+        let mut plan: Vec<(f64, f64, String, Option<Primitive>, PlaceTarget)> = Vec::new();
         for (i, options) in per_object.iter().enumerate() {
             let (_, m) = &ids[i];
             let pick = &options[chosen[i].unwrap_or(0)];
             // GenSim's oracle turns what it carries to the target's yaw where the goal has
-            // `rotations` (or the match tests yaw); Assay's does not turn it, so the object
-            // starts turned as its target.
+            // `rotations` (or the match tests yaw): so does Assay's, while it holds it up.
             let checks_yaw = matches!(
                 &pick.1,
                 Goal::PoseWithin {
@@ -179,11 +178,21 @@ impl Translation<'_> {
                     ..
                 }
             );
-            if g.rotations || checks_yaw {
-                self.start_yaw
-                    .insert(m.id.clone(), yaw_of(&g.targets[pick.0].1).to_degrees());
-            }
-            plan.push((pick.3, distance(i, pick.0), m.id.clone(), pick.2.clone()));
+            let turn = (g.rotations || checks_yaw).then(|| {
+                let symmetry = g.symmetries.get(i).copied().unwrap_or(0.0);
+                Primitive::Turn {
+                    yaw_deg: r6(yaw_of(&g.targets[pick.0].1).to_degrees()),
+                    symmetry_deg: (symmetry > 1e-3 && symmetry < 2.0 * std::f64::consts::PI - 1e-3)
+                        .then(|| r6(symmetry.to_degrees())),
+                }
+            });
+            plan.push((
+                pick.3,
+                distance(i, pick.0),
+                m.id.clone(),
+                turn,
+                pick.2.clone(),
+            ));
             let mut any: Vec<Goal> = options.iter().map(|(_, goal, ..)| goal.clone()).collect();
             self.pose_goals.push(PoseGoal {
                 object: m.id.clone(),
@@ -201,11 +210,15 @@ impl Translation<'_> {
             });
         }
         plan.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.total_cmp(&b.1)));
-        for (_, _, object, target) in plan {
-            self.pose_steps
-                .push((self.oracle.len(), object.clone(), gi));
-            self.oracle.push(Primitive::Pick { object });
+        for (_, _, object, turn, target) in plan {
+            let at = self.oracle.len();
+            self.oracle.push(Primitive::Pick {
+                object: object.clone(),
+            });
+            self.oracle.extend(turn);
             self.oracle.push(Primitive::Place { target });
+            self.pose_steps
+                .push((at, self.oracle.len() - at, object, gi));
         }
         self.pose_goal_notes(g, field);
         Some(())
@@ -258,13 +271,13 @@ impl Translation<'_> {
         if g.rotations {
             self.notes.inferred(
                 &format!("{field}.rotations"),
-                "the objects start turned as their targets: GenSim's oracle turns what it places, Assay's carries it as it lies",
+                "the oracle turns each object to its target's yaw while it holds it up, as GenSim's oracle turns what it places",
             );
         }
         if g.symmetries.iter().any(|s| *s > 0.0) {
             self.notes.mapped(
                 &format!("{field}.symmetries"),
-                format!("yaw within rot_eps {rot_eps:.0}° modulo the symmetry; the object starts turned as its target (Assay's oracle does not turn what it carries)"),
+                format!("yaw within rot_eps {rot_eps:.0}° modulo the symmetry; the oracle turns the object to its target's yaw"),
             );
         }
     }

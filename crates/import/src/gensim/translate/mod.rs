@@ -10,6 +10,7 @@
 
 mod goals;
 mod objects;
+pub(crate) use objects::fill_text;
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;
@@ -17,7 +18,7 @@ use std::path::Path;
 use super::Notes;
 use super::repair::{PoseGoal, declutter, supersede};
 use super::sandbox::SeedRecord;
-use crate::{JITTER, r6};
+use crate::JITTER;
 use assay_spec::spec::{Goal, Object, Pile, Primitive, Zone};
 
 /// How closely a target's offset from an object must repeat over the seeds to tie it (m).
@@ -66,10 +67,14 @@ fn rot_z(a: f64, v: [f64; 2]) -> [f64; 2] {
     [c * v[0] - s * v[1], s * v[0] + c * v[1]]
 }
 
+/// The first of `seeds` as a spec's scene, goals and plan (the others tell ties apart). `laid`:
+/// for a per-seed layout, which no jitter moves (objects are kept clear of each other by no
+/// more than they are drawn).
 pub(crate) fn translate(
     seeds: &[SeedRecord],
     asset_root: &Path,
     notes: &mut Notes,
+    laid: bool,
 ) -> Option<Translated> {
     within_bounds(seeds, notes)?;
     let same = same_scene(seeds, notes);
@@ -92,11 +97,10 @@ pub(crate) fn translate(
         zones: Vec::new(),
         piles: Vec::new(),
         halves: BTreeMap::new(),
-        jitter: JITTER,
+        jitter: if laid { 0.0 } else { JITTER },
         tied_pairs: BTreeSet::new(),
         goals: Vec::new(),
         oracle: Vec::new(),
-        start_yaw: BTreeMap::new(),
         pose_goals: Vec::new(),
         pose_steps: Vec::new(),
     };
@@ -157,9 +161,11 @@ fn same_scene(seeds: &[SeedRecord], notes: &mut Notes) -> Vec<SeedRecord> {
         notes.not_mapped(
             "reset",
             format!(
-                "the task builds a different scene on some seeds ({} of {} seeds match seed 0): seed 0's scene is imported",
+                "the task builds a different scene on some seeds ({} of {} seeds match seed {}): the spec's scene is seed {}'s (a laid-out seed has its own)",
                 same.len(),
-                seeds.len()
+                seeds.len(),
+                s0.seed,
+                s0.seed
             ),
         );
     }
@@ -187,11 +193,10 @@ struct Translation<'a> {
     tied_pairs: BTreeSet<(String, String)>,
     goals: Vec<Goal>,
     oracle: Vec<Primitive>,
-    /// The yaw (degrees) an object starts at: its target's.
-    start_yaw: BTreeMap<String, f64>,
     pose_goals: Vec<PoseGoal>,
-    /// (index of the pick in `oracle`, object, add_goal) of each pick-and-place of a pose goal.
-    pose_steps: Vec<(usize, String, usize)>,
+    /// (index of the pick in `oracle`, its steps to the place, object, add_goal) of each
+    /// pick-and-place of a pose goal.
+    pose_steps: Vec<(usize, usize, String, usize)>,
 }
 
 impl Translation<'_> {
@@ -201,7 +206,7 @@ impl Translation<'_> {
         self.fatal = true;
     }
 
-    /// The repairs (`repair`), the start yaws, and the spec's parts; `None` without a goal.
+    /// The repairs (`repair`) and the spec's parts; `None` without a goal.
     fn finish(self) -> Option<Translated> {
         let Translation {
             seeds,
@@ -214,7 +219,6 @@ impl Translation<'_> {
             tied_pairs,
             mut goals,
             mut oracle,
-            start_yaw,
             pose_goals,
             pose_steps,
             ..
@@ -227,12 +231,6 @@ impl Translation<'_> {
             &mut oracle,
             notes,
         );
-        // Objects with a yaw to match start at it (mod nothing: the same yaw).
-        for o in &mut objects {
-            if let (Some(y), Some(p)) = (start_yaw.get(&o.id), o.pose.as_mut()) {
-                p.yaw_deg = r6(*y);
-            }
-        }
         declutter(&mut objects, &zones, &halves, &tied_pairs, jitter, notes);
         if goals.is_empty() {
             notes.error("add_goal", "the task adds no goal");

@@ -33,7 +33,7 @@ fn color_of(o: &ObjectRecord) -> Option<Color> {
     o.color.map(|rgb| Color::Rgb(rgb.map(r6)))
 }
 
-fn fill_text(v: &serde_json::Value) -> Option<String> {
+pub(crate) fn fill_text(v: &serde_json::Value) -> Option<String> {
     match v {
         serde_json::Value::Number(n) => n.as_f64().map(|x| format!("{}", r6(x))),
         serde_json::Value::String(s) => Some(s.clone()),
