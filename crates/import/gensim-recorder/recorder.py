@@ -9,7 +9,8 @@ kills it after a wall-clock timeout; here, before the task's code is read:
     no core file (`limit()`: hard, so that nothing can raise them again);
   - the task module gets its own builtins: no open, exec, eval, compile, input or breakpoint, and
     an __import__ that gives numpy, the standard modules a task computes with, the Ravens stand-ins
-    (cliport, pybullet) and a stand-in `os` that has only `os.path`; any other import is refused;
+    (cliport, pybullet) and a stand-in `os` that has only `os.path`; any other import gives an
+    inert stub (no module is loaded), and using it refuses the task (`Unused`);
   - an audit hook (it cannot be removed) stops the process on any file write, any read outside the
     library and Python's own files, any process, socket, signal or ctypes call, and any import of a
     module that could reach them, whatever path the code found to it;
@@ -620,6 +621,66 @@ def audit(event, args):
                              "processes, sockets, signals, files or the interpreter"}}, 3)
 
 
+# Imports outside the allow-list the task made (stubbed: see Unused).
+STUBBED = []
+
+
+def allowed_text():
+    return ', '.join(sorted(ALLOWED | {'os (os.path)', 'pybullet', 'cliport'}))
+
+
+class Unused:
+    """What an import outside the allow-list gives (a debugger, a plotting library left in the
+    code): nothing at all. Reaching into it gives more of the same; using it — calling,
+    iterating, indexing, testing, entering — refuses the task, naming the module and the use.
+    No real module is loaded."""
+    __slots__ = ('_name',)
+
+    def __init__(self, name):
+        object.__setattr__(self, '_name', name)
+
+    def _refuse(self, what):
+        name = object.__getattribute__(self, '_name')
+        top = name.split('.')[0]
+        raise Refused('import', f"imports '{top}' and uses {what}: task code may import only "
+                                f"{allowed_text()} (an import outside the list is stubbed, and "
+                                "refused where it is used)")
+
+    def __getattr__(self, attr):
+        if attr.startswith('__') and attr.endswith('__'):
+            raise AttributeError(attr)
+        return Unused(f"{object.__getattribute__(self, '_name')}.{attr}")
+
+    def __setattr__(self, attr, value):
+        self._refuse(f"'{object.__getattribute__(self, '_name')}.{attr}' (set)")
+
+    def __call__(self, *a, **k):
+        self._refuse(f"'{object.__getattribute__(self, '_name')}(...)'")
+
+    def __iter__(self):
+        self._refuse(f"'{object.__getattribute__(self, '_name')}' (iterated)")
+
+    def __getitem__(self, key):
+        self._refuse(f"'{object.__getattribute__(self, '_name')}[...]'")
+
+    def __enter__(self):
+        self._refuse(f"'{object.__getattribute__(self, '_name')}' (with)")
+
+    def __exit__(self, *a):
+        return False
+
+    def __bool__(self):
+        self._refuse(f"'{object.__getattribute__(self, '_name')}' (tested)")
+
+    def __len__(self):
+        self._refuse(f"'{object.__getattribute__(self, '_name')}' (len)")
+
+    def __index__(self):
+        self._refuse(f"'{object.__getattribute__(self, '_name')}' (as a number)")
+
+    __int__ = __float__ = __index__
+
+
 def guarded_import(stand_ins):
     real_import = __import__
 
@@ -635,8 +696,10 @@ def guarded_import(stand_ins):
             return stand_ins[name.split('.')[0]]
         top = name.split('.')[0]
         if top not in ALLOWED:
-            raise Refused('import', f"imports '{name}': task code may import only "
-                                    f"{', '.join(sorted(ALLOWED | {'os (os.path)', 'pybullet', 'cliport'}))}")
+            # Left in the code, unused (a debugger, plots): a stub, refused where it is used.
+            if name not in STUBBED and len(STUBBED) < 50:
+                STUBBED.append(str(name)[:100])
+            return Unused(name if fromlist else top)
         return real_import(name, globals, locals, fromlist, level)
     return imp
 
@@ -761,7 +824,7 @@ def main():
     except BaseException as e:
         field, reason = explain(e)
         _answer({'refused': {'field': field, 'reason': reason}})
-    _answer({'seeds': jsonable(seeds)})
+    _answer({'seeds': jsonable(seeds), 'stubbed': list(STUBBED)})
 
 
 if __name__ == '__main__':

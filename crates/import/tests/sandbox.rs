@@ -176,3 +176,68 @@ fn hostile_task_code_is_stopped_and_the_rest_imports() {
     let written: Vec<_> = std::fs::read_dir(&out).unwrap().collect();
     assert!(written.is_empty(), "task code wrote {written:?}");
 }
+
+/// A leftover debug or plotting import that `reset()` never uses is stubbed (no module is
+/// loaded) and noted in the mapping report; the same import used is refused, naming the
+/// module and the use.
+#[test]
+fn unused_imports_outside_the_list_are_stubbed_and_used_ones_refused() {
+    let corpus = corpus();
+    let code =
+        std::fs::read_to_string(corpus.join("generated_tasks/align_boxes_on_line.py")).unwrap();
+    let leftover = format!(
+        "import IPython\nimport matplotlib.pyplot as plt\nfrom pdb import set_trace\n{code}"
+    );
+    let used = leftover.replace(
+        "super().reset(env)",
+        "super().reset(env)\n        plt.figure()",
+    );
+    assert_ne!(used, leftover, "the task calls super().reset(env)");
+    let tmp = tempfile::tempdir().unwrap();
+    write_library(
+        tmp.path(),
+        &[
+            ("leftover-imports".into(), leftover),
+            ("used-import".into(), used),
+        ],
+    );
+    let imp = import(
+        Pipeline::Gensim,
+        tmp.path(),
+        &ImportOptions {
+            asset_root: Some(corpus.join("assets")),
+            layout_seeds: Some(vec![0, 1]),
+            ..ImportOptions::default()
+        },
+    );
+    let leftover = imp
+        .tasks
+        .iter()
+        .find(|t| t.name == "leftover-imports")
+        .unwrap();
+    assert!(leftover.spec.is_some(), "{:?}", leftover.errors);
+    let stubbed: Vec<&str> = leftover
+        .mapping
+        .iter()
+        .filter(|m| m.field == "import")
+        .map(|m| m.note.as_str())
+        .collect();
+    for m in ["'IPython'", "'matplotlib.pyplot'", "'pdb'"] {
+        assert!(
+            stubbed
+                .iter()
+                .any(|n| n.starts_with(m) && n.contains("stubbed")),
+            "{m}: {stubbed:?}"
+        );
+    }
+    let used = imp.tasks.iter().find(|t| t.name == "used-import").unwrap();
+    assert!(used.spec.is_none());
+    let e = &used.errors[0];
+    assert_eq!(e.path, "import");
+    assert!(
+        e.reason
+            .contains("imports 'matplotlib' and uses 'matplotlib.pyplot.figure(...)'"),
+        "{}",
+        e.reason
+    );
+}

@@ -228,9 +228,17 @@ fn import_one(
             asked.push(*s);
         }
     }
-    let spec = match sandbox::record(asset_root, root, &code_path, &asked, limits)
-        .and_then(|outcomes| answered(&asked, outcomes))
-    {
+    let spec = match sandbox::record(asset_root, root, &code_path, &asked, limits).and_then(|r| {
+        for m in &r.stubbed {
+            notes.not_mapped(
+                "import",
+                format!(
+                    "'{m}' is outside the allow-list and reset() never used it: stubbed (a use refuses the task)"
+                ),
+            );
+        }
+        answered(&asked, r.seeds)
+    }) {
         Ok(outcomes) => build(
             &Task {
                 id: &id,
@@ -406,7 +414,7 @@ pub fn reset_objects(
         return Err(format!("'{name}' is not a plain task name"));
     }
     let code = library.join(format!("generated_tasks/{}.py", name.replace('-', "_")));
-    let outcomes = sandbox::record(
+    let recording = sandbox::record(
         asset_root,
         library,
         &code,
@@ -414,7 +422,8 @@ pub fn reset_objects(
         crate::CodeLimits::default(),
     )
     .map_err(|r| format!("{}: {}", r.field, r.reason))?;
-    Ok(outcomes
+    Ok(recording
+        .seeds
         .into_iter()
         .map(|o| match o {
             sandbox::SeedOutcome::Failed { refused, .. } => {

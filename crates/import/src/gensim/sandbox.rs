@@ -91,6 +91,8 @@ impl SeedOutcome {
 #[derive(Debug, Deserialize)]
 struct Answer {
     seeds: Option<Vec<SeedOutcome>>,
+    #[serde(default)]
+    stubbed: Vec<String>,
     refused: Option<Refusal>,
     error: Option<String>,
 }
@@ -149,6 +151,14 @@ pub(crate) fn python_from(named: Option<String>, home: Option<std::path::PathBuf
         .map_or_else(|| "python3".into(), |p| p.display().to_string())
 }
 
+/// What the recorder answered: each seed asked, and the imports outside the allow-list the
+/// code made and never used (stubbed).
+#[derive(Debug, Clone)]
+pub(crate) struct Recording {
+    pub seeds: Vec<SeedOutcome>,
+    pub stubbed: Vec<String>,
+}
+
 /// Records `reset()` of the task in `task_file` for each of `seeds`: the first seed's failure
 /// is the task's (`Err`), another's is that seed's alone.
 pub(crate) fn record(
@@ -157,7 +167,7 @@ pub(crate) fn record(
     task_file: &Path,
     seeds: &[u64],
     limits: crate::CodeLimits,
-) -> Result<Vec<SeedOutcome>, Refused> {
+) -> Result<Recording, Refused> {
     let crate::CodeLimits {
         cpu_seconds,
         wall_seconds,
@@ -242,8 +252,17 @@ pub(crate) fn record(
         }) => Err(Refused::new(&r.field, r.reason)),
         Some(Answer { error: Some(e), .. }) => Err(Refused::new("python", e)),
         Some(Answer {
-            seeds: Some(seeds), ..
-        }) if status.success() => Ok(seeds),
+            seeds: Some(seeds),
+            stubbed,
+            ..
+        }) if status.success() => Ok(Recording {
+            seeds,
+            stubbed: stubbed
+                .into_iter()
+                .take(50)
+                .map(|s| s.chars().take(100).collect())
+                .collect(),
+        }),
         _ => {
             use std::os::unix::process::ExitStatusExt;
             let why = match status.signal() {
