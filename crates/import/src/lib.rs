@@ -7,6 +7,7 @@
 
 pub mod bbsea;
 pub mod gensim;
+mod groups;
 pub mod robogen;
 
 use std::path::{Path, PathBuf};

@@ -10,7 +10,7 @@ mod repair;
 mod sandbox;
 mod translate;
 
-use super::{ImportedTask, Notes, Pipeline, check_asset, group_for, hash_parts};
+use super::{ImportedTask, Notes, Pipeline, check_asset, hash_parts};
 use assay_spec::error::SpecError;
 use assay_spec::spec::{
     EndEffector, PhysicsSettings, SPEC_VERSION, Scene, Source, Surface, TaskSpec, Variations,
@@ -288,6 +288,24 @@ fn answered(
     Ok(outcomes)
 }
 
+/// How far one pose target of `s` stands above another within 10 cm of it (2 cm or more):
+/// objects go on others.
+fn above(s: &sandbox::SeedRecord) -> Option<f64> {
+    let targets: Vec<[f64; 3]> = s
+        .goals
+        .iter()
+        .filter(|g| g.metric == "pose")
+        .flat_map(|g| g.targets.iter().map(|t| t.0))
+        .collect();
+    targets
+        .iter()
+        .flat_map(|a| targets.iter().map(move |b| (a, b)))
+        .filter(|(a, b)| (b[0] - a[0]).hypot(b[1] - a[1]) < 0.1)
+        .map(|(a, b)| b[2] - a[2])
+        .filter(|dz| *dz >= 0.02)
+        .max_by(f64::total_cmp)
+}
+
 /// The task's names.
 struct Task<'a> {
     id: &'a str,
@@ -352,14 +370,13 @@ fn build(
         "arm",
         "ur5 at the origin (Ravens' UR5 stands at (0, 0, 0) facing +x; its workspace x 0.25-0.75 m)",
     );
-    let group = group_for(name, Pipeline::Gensim, notes);
     Some(TaskSpec {
         spec_version: SPEC_VERSION,
         id: id.into(),
         name: name.into(),
         description: description.into(),
         source: Source::default(),
-        group,
+        group: String::new(),
         scene: Scene {
             surface: Surface::Table,
             objects: t.objects,
@@ -383,6 +400,12 @@ fn build(
         layouts: Vec::new(),
     })
     .map(|mut spec| {
+        let (group, why) = crate::groups::group_of(&spec, above(s0));
+        notes.inferred(
+            "group",
+            format!("'{group}': {why} (docs/gensim.md has the rule)"),
+        );
+        spec.group = group;
         spec.layouts = layouts::lay_out(&spec, outcomes, &seeds, layout_seeds, asset_root, notes);
         spec
     })
