@@ -20,6 +20,10 @@ use std::collections::BTreeSet;
 
 use assay_spec::spec::{Goal, TaskSpec};
 
+/// A place a goal may send its object: what it is measured from (`None`: the table) and the
+/// spot there, if it names one.
+type Place = (Option<String>, Option<[f64; 2]>);
+
 /// Two spots closer than this (m) are the same spot.
 const SAME_SPOT: f64 = 0.01;
 
@@ -77,7 +81,7 @@ pub(crate) fn group_of(spec: &TaskSpec, above: Option<f64>) -> (String, String) 
         );
     }
     // Each goal's object and every place it may go to (all of an any_of's alternatives).
-    let alternatives = |g: &Goal| -> Vec<(Option<String>, Option<[f64; 2]>)> {
+    let alternatives = |g: &Goal| -> Vec<Place> {
         let one = |g: &Goal| destination(g).map(|(a, at)| (a.map(str::to_owned), at));
         match g {
             Goal::AnyOf { any } => any.iter().filter_map(one).collect(),
@@ -85,8 +89,7 @@ pub(crate) fn group_of(spec: &TaskSpec, above: Option<f64>) -> (String, String) 
         }
     };
     let moved: BTreeSet<String> = goals.iter().filter_map(goal_object).collect();
-    let places: Vec<Vec<(Option<String>, Option<[f64; 2]>)>> =
-        goals.iter().map(alternatives).collect();
+    let places: Vec<Vec<Place>> = goals.iter().map(alternatives).collect();
     let on_spot = |at: &Option<[f64; 2]>| at.is_none_or(|p| p[0].hypot(p[1]) < SAME_SPOT);
     // On top of an object a goal also moves: a tower.
     if let Some(a) = places.iter().flatten().find_map(|(a, at)| {
@@ -99,7 +102,7 @@ pub(crate) fn group_of(spec: &TaskSpec, above: Option<f64>) -> (String, String) 
         );
     }
     // Two objects that may go only to the same spot: one on the other.
-    let single: Vec<&(Option<String>, Option<[f64; 2]>)> = places
+    let single: Vec<&Place> = places
         .iter()
         .filter(|p| p.len() == 1)
         .map(|p| &p[0])
