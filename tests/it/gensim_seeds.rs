@@ -348,3 +348,68 @@ class UnluckyBlock(Task):
     };
     assert!(e.to_string().contains("seed 40 has no layout"), "{e}");
 }
+
+/// GenSim's reward beside success: a task whose second goal supersedes its first (the block to
+/// one spot, then to another) succeeds when the block ends at the second spot (spec v1 checks
+/// the final state), while GenSim — which checks its goals in order, counting a goal met once
+/// for good — scores that episode 0: the first spot was never reached. A task whose goals the
+/// oracle meets in order scores in full.
+#[test]
+fn gensim_s_reward_and_success_disagree_where_gensim_s_goals_supersede_each_other() {
+    let (_, assets) = library();
+    let lib = tempfile::tempdir().unwrap();
+    std::fs::create_dir_all(lib.path().join("generated_tasks")).unwrap();
+    std::fs::write(
+        lib.path().join("generated_tasks.json"),
+        r#"{"move-block-twice": {"task-name": "move-block-twice", "task-description": "put the block on the left spot, then on the right one", "assets-used": ["block/block.urdf"]},
+            "two-blocks-in-order": {"task-name": "two-blocks-in-order", "task-description": "put the red block on its spot, then the blue one", "assets-used": ["block/block.urdf"]}}"#,
+    )
+    .unwrap();
+    let header = "import numpy as np\nfrom cliport.tasks.task import Task\nfrom cliport.utils import utils\n\n\n";
+    std::fs::write(
+        lib.path().join("generated_tasks/move_block_twice.py"),
+        format!(
+            "{header}class MoveBlockTwice(Task):\n    def reset(self, env):\n        super().reset(env)\n        block = env.add_object('block/block.urdf', ((0.5, 0.0, 0.02), (0, 0, 0, 1)), color=utils.COLORS['red'])\n        for y in (0.2, -0.2):\n            self.add_goal(objs=[block], matches=np.ones((1, 1)), targ_poses=[((0.45, y, 0.02), (0, 0, 0, 1))], replace=False, rotations=False, metric='pose', params=None, step_max_reward=0.5)\n"
+        ),
+    )
+    .unwrap();
+    std::fs::write(
+        lib.path().join("generated_tasks/two_blocks_in_order.py"),
+        format!(
+            "{header}class TwoBlocksInOrder(Task):\n    def reset(self, env):\n        super().reset(env)\n        for k, (c, y) in enumerate((('red', 0.2), ('blue', -0.2))):\n            block = env.add_object('block/block.urdf', ((0.6, y / 2, 0.02), (0, 0, 0, 1)), color=utils.COLORS[c])\n            self.add_goal(objs=[block], matches=np.ones((1, 1)), targ_poses=[((0.4, y, 0.02), (0, 0, 0, 1))], replace=False, rotations=False, metric='pose', params=None, step_max_reward=0.5)\n"
+        ),
+    )
+    .unwrap();
+    let imp = assay_import::import(
+        assay_import::Pipeline::Gensim,
+        lib.path(),
+        &assay_import::ImportOptions {
+            asset_root: Some(assets),
+            layout_seeds: Some(vec![0]),
+            ..assay_import::ImportOptions::default()
+        },
+    );
+    let run = |name: &str| {
+        let t = imp.tasks.iter().find(|t| t.name == name).unwrap();
+        let spec = t.spec.as_ref().unwrap_or_else(|| panic!("{:?}", t.errors));
+        assert_eq!(spec.reward_steps.len(), 2, "{name}");
+        let Ok(ep) = assay_sim::simulate(spec, 0, "oracle") else {
+            panic!("{name} did not run")
+        };
+        let g = ep.outcome.generator_reward.clone().unwrap();
+        assert_eq!(g.by, "gensim");
+        assert!((g.max - 1.0).abs() < 1e-9, "{g:?}");
+        (ep.outcome.success, g)
+    };
+    let (success, reward) = run("move-block-twice");
+    assert!(success, "the block ends on the second spot");
+    assert_eq!(
+        (reward.steps_met, reward.value),
+        (0, 0.0),
+        "GenSim waits for the first spot: {reward:?}"
+    );
+    let (success, reward) = run("two-blocks-in-order");
+    assert!(success);
+    assert_eq!(reward.steps_met, 2, "{reward:?}");
+    assert!((reward.value - 1.0).abs() < 1e-9, "{reward:?}");
+}

@@ -198,6 +198,23 @@ fn eval_runs_imported_gensim_and_robogen_batches() {
                 "{pipeline}: {} {:?}",
                 t.id, t.failures
             );
+            // GenSim's own reward beside success, in report.json, for every GenSim episode.
+            for e in &t.episodes {
+                match (pipeline, &e.generator_reward) {
+                    ("gensim", Some(g)) => {
+                        assert_eq!(g.by, "gensim");
+                        assert!(g.value >= 0.0 && g.value <= g.max + 1e-9, "{g:?}");
+                        // The oracle meets every goal: GenSim counts them all.
+                        assert_eq!(g.steps_met, g.steps, "{}: {g:?}", t.id);
+                    }
+                    ("gensim", None) => panic!("{}: no GenSim reward", t.id),
+                    (_, Some(g)) => panic!("{pipeline} has no staged reward: {g:?}"),
+                    _ => {}
+                }
+            }
+        }
+        if pipeline == "gensim" {
+            assert!(md.contains("generator's reward"), "{md}");
         }
     }
 }

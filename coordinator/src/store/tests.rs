@@ -73,6 +73,7 @@ fn episode(l: &Lease) -> EpisodeOutcome {
         versions: BTreeMap::new(),
         imagery: None,
         cutoff: None,
+        generator_reward: None,
         scenes: None,
     }
 }

@@ -527,6 +527,7 @@ fn import_task(
         cameras: Vec::new(),
         physics: PhysicsSettings::default(),
         layouts: Vec::new(),
+        reward_steps: Vec::new(),
     };
     notes.settle(&mut task, Some(spec));
     task

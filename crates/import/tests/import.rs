@@ -141,14 +141,10 @@ fn gensim_imports_the_library() {
         ),
         ["add_goal[0].rotations", "oracle", "group"]
     );
-    // Several goals: GenSim's order of goals is not Assay's (all must hold at the end).
+    // GenSim's staged reward: mapped, one reward step per add_goal, beside success.
     assert!(
-        fields(
-            &imp,
-            "stack-blocks-in-color-order",
-            MappingStatus::NotMapped
-        )
-        .contains(&"add_goal.step_max_reward".to_string())
+        fields(&imp, "stack-blocks-in-color-order", MappingStatus::Mapped)
+            .contains(&"add_goal.step_max_reward".to_string())
     );
 }
 

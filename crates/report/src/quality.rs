@@ -468,6 +468,7 @@ mod tests {
             versions: BTreeMap::new(),
             imagery: None,
             cutoff: None,
+            generator_reward: None,
             scenes: None,
         }
     }

@@ -393,6 +393,9 @@ pub struct EpisodeRow {
     /// Why it stopped early (the step limit), when it did.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub cutoff: Option<String>,
+    /// The generator's own staged reward (GenSim's), beside success, where the task has one.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub generator_reward: Option<assay_model::episode::GeneratorReward>,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
@@ -488,6 +491,7 @@ pub fn build_results(
                         unmet: o.predicates.iter().filter(|p| !p.holds).cloned().collect(),
                         imagery: o.imagery.clone(),
                         cutoff: o.cutoff.clone(),
+                        generator_reward: o.generator_reward.clone(),
                     });
                 }
                 None => failures.push(FailureRow {
@@ -608,6 +612,7 @@ mod tests {
             versions: BTreeMap::new(),
             imagery: None,
             cutoff: None,
+            generator_reward: None,
             scenes: None,
         }
     }

@@ -129,6 +129,14 @@ pub fn success_per_task(r: &Results) -> Table {
     ];
     columns.extend(policy_columns(r));
     columns.push("most often unmet".into());
+    // The generators' own rewards (GenSim's), beside success, where any task has one.
+    let rewarded = r
+        .tasks
+        .iter()
+        .any(|t| t.episodes.iter().any(|e| e.generator_reward.is_some()));
+    if rewarded {
+        columns.push("generator's reward".into());
+    }
     let mut table = Table::new(columns);
     for task in &r.tasks {
         let unmet = task
@@ -157,9 +165,33 @@ pub fn success_per_task(r: &Results) -> Table {
         ];
         cells.extend(policy_cells(r, &proportion(&task.success), &task.by_policy));
         cells.push(unmet);
+        if rewarded {
+            cells.push(generator_reward(&task.episodes).map_or_else(Cell::default, Cell::text));
+        }
         table.row(cells);
     }
     table
+}
+
+/// The mean of the episodes' generator rewards, of their most, and whose: `0.83 of 1
+/// (GenSim's, 12 episodes)`; `None` where no episode has one.
+pub fn generator_reward(episodes: &[crate::report::EpisodeRow]) -> Option<String> {
+    let rewards: Vec<&assay_model::episode::GeneratorReward> = episodes
+        .iter()
+        .filter_map(|e| e.generator_reward.as_ref())
+        .collect();
+    let first = rewards.first()?;
+    let n = rewards.len() as f64;
+    let mean = rewards.iter().map(|r| r.value).sum::<f64>() / n;
+    let max = rewards.iter().map(|r| r.max).sum::<f64>() / n;
+    let whose = match first.by.as_str() {
+        "gensim" => "GenSim's".to_string(),
+        other => format!("{other}'s"),
+    };
+    Some(format!(
+        "{mean:.2} of {max:.2} ({whose}, {} episodes)",
+        rewards.len()
+    ))
 }
 
 /// Episodes that ran out of attempts or were cancelled.

@@ -57,6 +57,7 @@ fn episode(root: &Path) -> EpisodeOutcome {
             clip: None,
         }),
         cutoff: None,
+        generator_reward: None,
         scenes: None,
     }
 }

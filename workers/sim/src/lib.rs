@@ -368,6 +368,9 @@ struct Rollout<'s> {
     rec: Recorder,
     /// Goals holding at each recorded row, for the keyframes' ground truth.
     met: Vec<u32>,
+    /// The generator's staged reward (`reward_steps`), checked at each recorded row where
+    /// nothing is held (GenSim checks after each action, once the object is let go).
+    reward: predicates::StagedReward,
     step: u64,
     dt: f64,
     /// Physics steps of each settle, before the policy acts and after.
@@ -402,6 +405,7 @@ impl<'s> Rollout<'s> {
             ctl,
             rec,
             met: Vec::new(),
+            reward: predicates::StagedReward::default(),
             step: 0,
             dt,
             settle: u64::from(spec.physics.settle_steps),
@@ -414,6 +418,9 @@ impl<'s> Rollout<'s> {
         self.rec
             .record(&self.scene, step, time, self.ctl.command, held);
         self.met.push(goals_met(self.spec, &self.scene));
+        if held.is_none() && !self.spec.reward_steps.is_empty() {
+            self.reward.check(&self.spec.reward_steps, &self.scene);
+        }
     }
 
     /// One physics step: the tool goes to `act`'s command and its event follows the step; with
@@ -677,8 +684,31 @@ impl<'s> Rollout<'s> {
             versions: versions(),
             imagery: None,
             cutoff,
+            generator_reward: self.generator_reward(),
             scenes: None,
         }
+    }
+
+    /// The generator's staged reward at the end, where the task has one: its last check
+    /// (the final state, nothing held, is the last recorded row).
+    fn generator_reward(&self) -> Option<assay_model::episode::GeneratorReward> {
+        let steps = &self.spec.reward_steps;
+        if steps.is_empty() {
+            return None;
+        }
+        let mut last = self.reward.clone();
+        last.check(steps, &self.scene);
+        Some(assay_model::episode::GeneratorReward {
+            by: if self.spec.source.pipeline.is_empty() {
+                "generator".into()
+            } else {
+                self.spec.source.pipeline.clone()
+            },
+            value: last.value(),
+            max: steps.iter().map(|s| s.max_reward).sum(),
+            steps_met: last.met as u32,
+            steps: steps.len() as u32,
+        })
     }
 }
 

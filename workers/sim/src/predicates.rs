@@ -243,3 +243,68 @@ fn holds(goal: &Goal, scene: &SimScene) -> (bool, String) {
         }
     }
 }
+
+/// A generator's staged reward as the generator computes it (GenSim: Ravens' `Task.reward`),
+/// followed over an episode: [`StagedReward::check`] on a state evaluates the current step;
+/// a step whose goals all hold (its reward within 0.01 of its worth) is counted for good and
+/// the next one is checked from then on, one step per check, as Ravens pops one goal per
+/// `reward()` call.
+#[derive(Debug, Clone, Default)]
+pub struct StagedReward {
+    /// Steps completed.
+    pub met: usize,
+    /// Their worth.
+    pub progress: f64,
+    /// The current step's reward at the last check.
+    pub partial: f64,
+}
+
+impl StagedReward {
+    /// Checks the current step of `steps` on `scene`.
+    pub fn check(&mut self, steps: &[assay_spec::spec::RewardStep], scene: &SimScene) {
+        let Some(step) = steps.get(self.met) else {
+            self.partial = 0.0;
+            return;
+        };
+        let n = step.goals.len().max(1) as f64;
+        let share: f64 = step
+            .goals
+            .iter()
+            .map(|g| match g {
+                // GenSim's zone metric: the share of the pile's points over the zone.
+                Goal::PileInZone { pile, zone, .. } => pile_share(scene, pile, zone),
+                g => f64::from(u8::from(holds(g, scene).0)),
+            })
+            .sum::<f64>()
+            / n;
+        let reward = step.max_reward * share;
+        if (step.max_reward - reward).abs() < 0.01 {
+            self.met += 1;
+            self.progress += step.max_reward;
+            self.partial = 0.0;
+        } else {
+            self.partial = reward;
+        }
+    }
+
+    /// The reward so far.
+    pub fn value(&self) -> f64 {
+        self.progress + self.partial
+    }
+}
+
+/// The share of pile `pile`'s copies over zone `zone`.
+fn pile_share(scene: &SimScene, pile: &str, zone: &str) -> f64 {
+    let Some((_, c, h)) = scene.zones.iter().find(|z| z.0 == zone) else {
+        return 0.0;
+    };
+    let copies = pile_copies(scene, pile);
+    let inside = copies
+        .iter()
+        .filter(|&&i| {
+            let p = scene.pose(&scene.objects[i]).translation;
+            (p.x - c.x).abs() <= h.x && (p.y - c.y).abs() <= h.y && p.z > -0.02
+        })
+        .count();
+    inside as f64 / copies.len().max(1) as f64
+}

@@ -54,12 +54,30 @@ pub struct EpisodeOutcome {
     /// (`physics.max_steps`). Such an episode is unsuccessful whatever its predicates say.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub cutoff: Option<String>,
+    /// The generator's own staged reward for the episode (GenSim's), where the task has one
+    /// (`reward_steps`): reported beside success, never instead of it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub generator_reward: Option<GeneratorReward>,
     /// An episode waiting for its pictures: the scene states a render worker draws them from
     /// (set by a sim worker without a renderer of its own, taken by the render worker; never
     /// part of a finished episode or a report).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     #[schemars(skip)]
     pub scenes: Option<EpisodeScenes>,
+}
+
+/// A generator's own score of an episode, as the generator computes it.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+pub struct GeneratorReward {
+    /// Whose reward it is: the task's pipeline (`gensim`).
+    pub by: String,
+    /// The reward: the completed steps' worth plus the current step's share.
+    pub value: f64,
+    /// The most it can be: every step's worth.
+    pub max: f64,
+    /// Steps completed, of how many.
+    pub steps_met: u32,
+    pub steps: u32,
 }
 
 /// What an episode's pictures are drawn from, as plain data: small beside the pictures (poses,

@@ -63,6 +63,7 @@ pub(super) fn lay_out(
                     scene: None,
                     goals: Vec::new(),
                     oracle: Vec::new(),
+                    reward_steps: Vec::new(),
                 }
             }
         });
@@ -137,6 +138,7 @@ fn one(
         }),
         goals: t.goals,
         oracle: t.oracle,
+        reward_steps: t.reward_steps,
     };
     // It must validate as the spec's own scene does.
     let alone = TaskSpec {

@@ -398,6 +398,7 @@ fn build(
         cameras: Vec::new(),
         physics: PhysicsSettings::default(),
         layouts: Vec::new(),
+        reward_steps: t.reward_steps,
     })
     .map(|mut spec| {
         let (group, why) = crate::groups::group_of(&spec, above(s0));

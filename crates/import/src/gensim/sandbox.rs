@@ -68,6 +68,13 @@ pub(crate) struct GoalRecord {
     pub zones: Vec<(RecordedPose, Vec<f64>)>,
     #[serde(default)]
     pub matches_shape: Option<Vec<usize>>,
+    /// What the goal is worth in GenSim's reward (a missing or unreadable value: 1).
+    #[serde(default = "one")]
+    pub step_max_reward: f64,
+}
+
+fn one() -> f64 {
+    1.0
 }
 
 /// What one seed's `reset()` gave: a recording, or why there is none (a seed after the first

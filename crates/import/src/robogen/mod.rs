@@ -334,6 +334,7 @@ impl TaskYaml<'_> {
             cameras: Vec::new(),
             physics: PhysicsSettings::default(),
             layouts: Vec::new(),
+            reward_steps: Vec::new(),
         };
         if spec.scene.objects.iter().any(|o| !o.is_fixed) {
             spec.variations.position_jitter = super::JITTER;

@@ -319,6 +319,7 @@ mod tests {
             versions: BTreeMap::new(),
             imagery: pictures.then(imagery),
             cutoff: None,
+            generator_reward: None,
             scenes: None,
         }
     }

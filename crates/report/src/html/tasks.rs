@@ -122,6 +122,25 @@ pub(super) fn task_page(inputs: &HtmlInputs<'_>, t: &TaskResult) -> Markup {
                     }
                 }
             }
+            @if let Some(reward) = crate::tables::generator_reward(&t.episodes) {
+                h3 { "The generator's own reward" }
+                p {
+                    "Mean " (reward) ", beside success: its goals checked in order, each met once counted for good, partial reward for the share of a goal's objects in place."
+                }
+                table {
+                    tr { th { "seed" } th { "policy" } th { "success" } th { "reward" } th { "steps met" } }
+                    @for e in t.episodes.iter().filter(|e| e.generator_reward.is_some()) {
+                        @let g = e.generator_reward.as_ref().expect("filtered");
+                        tr {
+                            td.n { (e.seed) }
+                            td { (policy(&e.policy)) }
+                            td { @if e.success { "yes" } @else { "no" } }
+                            td.n { (format!("{:.3} of {:.3}", g.value, g.max)) }
+                            td.n { (g.steps_met) " of " (g.steps) }
+                        }
+                    }
+                }
+            }
             @if !failed.is_empty() {
                 h3 { "Unsuccessful episodes" }
                 table {

@@ -51,6 +51,7 @@ pub(super) fn outcome_json() -> String {
         versions: Default::default(),
         imagery: None,
         cutoff: None,
+        generator_reward: None,
         scenes: None,
     })
     .expect("outcome serialises")

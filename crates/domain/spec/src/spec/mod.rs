@@ -60,6 +60,22 @@ pub struct TaskSpec {
     /// layout is an `error`) is an error of its episode, naming the seed and the reason.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub layouts: Vec<Layout>,
+    /// The generator's own staged reward, reported beside success (GenSim's: Ravens'
+    /// `Task.reward`, one step per `add_goal`): the steps are checked in order whenever
+    /// nothing is held, a step whose goals all hold is counted for good, and the episode's
+    /// reward is the steps completed plus the share of the current one's goals that hold.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub reward_steps: Vec<RewardStep>,
+}
+
+/// One step of a generator's staged reward.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct RewardStep {
+    /// What the step is worth when all its goals hold (GenSim's `step_max_reward`).
+    pub max_reward: f64,
+    /// Its goals, one per object (a `pile_in_zone` counts the share of the pile over the zone).
+    pub goals: Vec<Goal>,
 }
 
 /// One seed's initial scene, goals and plan, recorded from the generator's code; or why that
@@ -81,6 +97,9 @@ pub struct Layout {
     /// The oracle's plan on this seed.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub oracle: Vec<Primitive>,
+    /// The generator's staged reward on this seed.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub reward_steps: Vec<RewardStep>,
 }
 
 /// The most layouts a spec may carry.
@@ -1065,6 +1084,7 @@ impl TaskSpec {
             scene: l.scene.clone()?,
             goals: l.goals.clone(),
             oracle: l.oracle.clone(),
+            reward_steps: l.reward_steps.clone(),
             ..self.clone_without_layouts()
         };
         spec.variations.position_jitter = 0.0;
@@ -1091,6 +1111,7 @@ impl TaskSpec {
             cameras,
             physics,
             layouts: _,
+            reward_steps,
         } = self;
         TaskSpec {
             spec_version: *spec_version,
@@ -1108,6 +1129,7 @@ impl TaskSpec {
             cameras: cameras.clone(),
             physics: physics.clone(),
             layouts,
+            reward_steps: reward_steps.clone(),
         }
     }
 
@@ -1208,6 +1230,7 @@ mod tests {
                 scene: Some(scene.clone()),
                 goals: spec.goals.clone(),
                 oracle: spec.oracle.clone(),
+                reward_steps: Vec::new(),
             },
             Layout {
                 seed: 4,
@@ -1215,6 +1238,7 @@ mod tests {
                 scene: None,
                 goals: Vec::new(),
                 oracle: Vec::new(),
+                reward_steps: Vec::new(),
             },
         ];
         assert!(validate(&spec, "t.yaml").is_empty());

@@ -300,6 +300,27 @@ impl<'a> Check<'a> {
         for (p, g) in &flat {
             self.goal(p, g);
         }
+        for (i, step) in spec.reward_steps.iter().enumerate() {
+            let p = format!("reward_steps[{i}]");
+            self.v
+                .within(&format!("{p}.max_reward"), step.max_reward, 0.0, 1e6, "");
+            if step.goals.is_empty() {
+                self.v.err(
+                    &format!("{p}.goals"),
+                    "a step needs at least one goal".into(),
+                );
+            }
+            for (k, g) in step.goals.iter().enumerate() {
+                match g {
+                    Goal::AnyOf { any } => {
+                        for (j, inner) in any.iter().enumerate() {
+                            self.goal(&format!("{p}.goals[{k}].any_of.any[{j}]"), inner);
+                        }
+                    }
+                    g => self.goal(&format!("{p}.goals[{k}]"), g),
+                }
+            }
+        }
     }
 
     /// One goal at path `p`.
@@ -549,7 +570,11 @@ impl<'a> Check<'a> {
                     "must say why, in at most 2000 bytes".into(),
                 ),
                 (Some(_), scene) => {
-                    if scene.is_some() || !l.goals.is_empty() || !l.oracle.is_empty() {
+                    if scene.is_some()
+                        || !l.goals.is_empty()
+                        || !l.oracle.is_empty()
+                        || !l.reward_steps.is_empty()
+                    {
                         self.v.err(
                             &p,
                             "a layout with an error has no scene, goals or oracle".into(),

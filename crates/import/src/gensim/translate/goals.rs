@@ -7,7 +7,7 @@ use super::{Kind, Made, TIED, Translation, rot_z, yaw_of};
 use crate::gensim::repair::PoseGoal;
 use crate::gensim::sandbox::{GoalRecord, RecordedPose, SeedRecord};
 use crate::r6;
-use assay_spec::spec::{Color, Goal, PlaceTarget, Primitive, Zone};
+use assay_spec::spec::{Color, Goal, PlaceTarget, Primitive, RewardStep, Zone};
 
 /// An offset shorter than this (m, in x and y) puts the target on the object's spot.
 const ON_SPOT: f64 = 0.005;
@@ -90,14 +90,22 @@ impl Translation<'_> {
     pub(super) fn goals(&mut self) -> Option<()> {
         let seeds = self.seeds;
         let s0 = &seeds[0];
-        if s0.goals.len() > 1 {
-            self.notes.not_mapped(
-                "add_goal.step_max_reward",
-                "goal order and partial reward: GenSim checks goals one after another (a goal met once stays counted), Assay requires all of them at the end",
-            );
-        }
+        self.notes.mapped(
+            "add_goal.step_max_reward",
+            "GenSim's reward, reported beside success: one reward step per add_goal, checked in order whenever nothing is held, a step met once counted for good, partial reward for the share of its objects that match (success still requires every goal at the end)",
+        );
         for (gi, g) in s0.goals.iter().enumerate() {
+            let start = self.goals.len();
             self.goal(gi, g)?;
+            let max = g.step_max_reward;
+            self.reward_steps.push(RewardStep {
+                max_reward: if max.is_finite() {
+                    r6(max.clamp(0.0, 1e6))
+                } else {
+                    1.0
+                },
+                goals: self.goals[start..].to_vec(),
+            });
         }
         Some(())
     }

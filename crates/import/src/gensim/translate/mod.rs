@@ -19,7 +19,7 @@ use super::Notes;
 use super::repair::{PoseGoal, declutter, supersede};
 use super::sandbox::SeedRecord;
 use crate::JITTER;
-use assay_spec::spec::{Goal, Object, Pile, Primitive, Zone};
+use assay_spec::spec::{Goal, Object, Pile, Primitive, RewardStep, Zone};
 
 /// How closely a target's offset from an object must repeat over the seeds to tie it (m).
 const TIED: f64 = 1e-4;
@@ -28,6 +28,7 @@ const TIED: f64 = 1e-4;
 const MAX_RECORDED: usize = 500;
 
 pub(crate) struct Translated {
+    pub reward_steps: Vec<RewardStep>,
     pub objects: Vec<Object>,
     pub zones: Vec<Zone>,
     pub piles: Vec<Pile>,
@@ -101,6 +102,7 @@ pub(crate) fn translate(
         tied_pairs: BTreeSet::new(),
         goals: Vec::new(),
         oracle: Vec::new(),
+        reward_steps: Vec::new(),
         pose_goals: Vec::new(),
         pose_steps: Vec::new(),
     };
@@ -193,6 +195,8 @@ struct Translation<'a> {
     tied_pairs: BTreeSet<(String, String)>,
     goals: Vec<Goal>,
     oracle: Vec<Primitive>,
+    /// GenSim's reward: each `add_goal`'s goals as they were made (before any is superseded).
+    reward_steps: Vec<RewardStep>,
     pose_goals: Vec<PoseGoal>,
     /// (index of the pick in `oracle`, its steps to the place, object, add_goal) of each
     /// pick-and-place of a pose goal.
@@ -219,6 +223,7 @@ impl Translation<'_> {
             tied_pairs,
             mut goals,
             mut oracle,
+            reward_steps,
             pose_goals,
             pose_steps,
             ..
@@ -237,6 +242,7 @@ impl Translation<'_> {
             return None;
         }
         Some(Translated {
+            reward_steps,
             objects,
             zones,
             piles,
