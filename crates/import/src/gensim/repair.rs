@@ -88,7 +88,17 @@ pub(super) fn declutter(
         let Some((mine, bottom)) = footprint(o) else {
             continue;
         };
-        if bottom > 0.005 {
+        // Above the table with something under it (on a pallet, in a container): where the
+        // code put it. Above the table with nothing under it, it drops onto the table: so it is
+        // kept clear as one standing there.
+        let supported = objects.iter().enumerate().any(|(q, other)| {
+            q != k
+                && footprint(other).is_some_and(|(f, b)| {
+                    let top = b + 2.0 * halves.get(&other.id).map_or(0.0, |h| h[2]);
+                    top <= bottom + 0.01 && mine.overlaps(&f, 0.0)
+                })
+        });
+        if bottom > 0.005 && supported {
             continue;
         }
         // What it must keep clear of: every fixed object, and the movable ones before it. Each

@@ -91,13 +91,13 @@ pub struct Layout {
     /// The scene on this seed (absent with an `error`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub scene: Option<Scene>,
-    /// The goals on this seed.
+    /// The goals on this seed; absent, the spec's own.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub goals: Vec<Goal>,
-    /// The oracle's plan on this seed.
+    /// The oracle's plan on this seed; absent, the spec's own.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub oracle: Vec<Primitive>,
-    /// The generator's staged reward on this seed.
+    /// The generator's staged reward on this seed; absent, the spec's own.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub reward_steps: Vec<RewardStep>,
 }
@@ -1082,9 +1082,22 @@ impl TaskSpec {
         let mut spec = TaskSpec {
             layouts: Vec::new(),
             scene: l.scene.clone()?,
-            goals: l.goals.clone(),
-            oracle: l.oracle.clone(),
-            reward_steps: l.reward_steps.clone(),
+            // Left out where they are the spec's own.
+            goals: if l.goals.is_empty() {
+                self.goals.clone()
+            } else {
+                l.goals.clone()
+            },
+            oracle: if l.oracle.is_empty() {
+                self.oracle.clone()
+            } else {
+                l.oracle.clone()
+            },
+            reward_steps: if l.reward_steps.is_empty() {
+                self.reward_steps.clone()
+            } else {
+                l.reward_steps.clone()
+            },
             ..self.clone_without_layouts()
         };
         spec.variations.position_jitter = 0.0;
@@ -1242,6 +1255,13 @@ mod tests {
             },
         ];
         assert!(validate(&spec, "t.yaml").is_empty());
+        // Goals, plan and reward left out of a layout are the spec's own.
+        let mut bare = spec.clone();
+        bare.layouts[0].goals.clear();
+        bare.layouts[0].oracle.clear();
+        assert_eq!(bare.for_seed(3).goals, spec.goals);
+        assert_eq!(bare.for_seed(3).oracle, spec.oracle);
+        assert!(validate(&bare, "t.yaml").is_empty());
         let laid = spec.for_seed(3);
         assert_eq!(laid.scene, scene);
         assert_eq!(laid.variations.position_jitter, 0.0);
