@@ -621,8 +621,10 @@ def audit(event, args):
                              "processes, sockets, signals, files or the interpreter"}}, 3)
 
 
-# Imports outside the allow-list the task made (stubbed: see Unused).
+# Imports outside the allow-list the task made (stubbed: see Unused), and the first use of one
+# (kept: code that catches the refusal is refused all the same).
 STUBBED = []
+USED = []
 
 
 def allowed_text():
@@ -642,9 +644,12 @@ class Unused:
     def _refuse(self, what):
         name = object.__getattribute__(self, '_name')
         top = name.split('.')[0]
-        raise Refused('import', f"imports '{top}' and uses {what}: task code may import only "
-                                f"{allowed_text()} (an import outside the list is stubbed, and "
-                                "refused where it is used)")
+        refusal = Refused('import', f"imports '{top}' and uses {what}: task code may import only "
+                                    f"{allowed_text()} (an import outside the list is stubbed, "
+                                    "and refused where it is used)")
+        if not USED:
+            USED.append(refusal)
+        raise refusal
 
     def __getattr__(self, attr):
         if attr.startswith('__') and attr.endswith('__'):
@@ -824,6 +829,8 @@ def main():
     except BaseException as e:
         field, reason = explain(e)
         _answer({'refused': {'field': field, 'reason': reason}})
+    if USED:
+        _answer({'refused': {'field': USED[0].field, 'reason': USED[0].reason}})
     _answer({'seeds': jsonable(seeds), 'stubbed': list(STUBBED)})
 
 

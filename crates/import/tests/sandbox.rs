@@ -193,12 +193,18 @@ fn unused_imports_outside_the_list_are_stubbed_and_used_ones_refused() {
         "super().reset(env)\n        plt.figure()",
     );
     assert_ne!(used, leftover, "the task calls super().reset(env)");
+    // A use the code catches is refused all the same.
+    let caught = leftover.replace(
+        "super().reset(env)",
+        "super().reset(env)\n        try:\n            IPython.embed()\n        except Exception:\n            pass",
+    );
     let tmp = tempfile::tempdir().unwrap();
     write_library(
         tmp.path(),
         &[
             ("leftover-imports".into(), leftover),
             ("used-import".into(), used),
+            ("caught-use".into(), caught),
         ],
     );
     let imp = import(
