@@ -803,6 +803,10 @@ def main():
         if p:
             READ_ROOTS.append(_os.path.realpath(p))
     try:
+        netns = _os.readlink('/proc/self/ns/net')
+    except OSError:
+        netns = None
+    try:
         code = compile(source, TASK_FILE, 'exec')
     except SyntaxError as e:
         _answer({'refused': {'field': 'code', 'reason': f"not Python: {e.msg} (line {e.lineno})"}})
@@ -831,7 +835,7 @@ def main():
         _answer({'refused': {'field': field, 'reason': reason}})
     if USED:
         _answer({'refused': {'field': USED[0].field, 'reason': USED[0].reason}})
-    _answer({'seeds': jsonable(seeds), 'stubbed': list(STUBBED)})
+    _answer({'seeds': jsonable(seeds), 'stubbed': list(STUBBED), 'netns': netns})
 
 
 if __name__ == '__main__':

@@ -247,3 +247,55 @@ fn unused_imports_outside_the_list_are_stubbed_and_used_ones_refused() {
         e.reason
     );
 }
+
+/// Where the kernel allows it, task code runs in a network namespace of its own (no interface
+/// but a loopback that is down), under the Python guards, and the mapping report says so; where
+/// it does not, the report says why.
+#[test]
+fn task_code_runs_in_a_network_namespace_of_its_own_where_the_kernel_allows() {
+    let corpus = corpus();
+    let code =
+        std::fs::read_to_string(corpus.join("generated_tasks/align_boxes_on_line.py")).unwrap();
+    let tmp = tempfile::tempdir().unwrap();
+    write_library(tmp.path(), &[("align-boxes-on-line".into(), code)]);
+    let imp = import(
+        Pipeline::Gensim,
+        tmp.path(),
+        &ImportOptions {
+            asset_root: Some(corpus.join("assets")),
+            layout_seeds: Some(vec![0]),
+            ..ImportOptions::default()
+        },
+    );
+    let t = &imp.tasks[0];
+    assert!(t.spec.is_some(), "{:?}", t.errors);
+    let note = t
+        .mapping
+        .iter()
+        .find(|m| m.field == "sandbox")
+        .expect("the mapping report says how the code ran");
+    let own = std::fs::read_link("/proc/self/ns/net").unwrap();
+    match assay_import::gensim::boundary() {
+        Ok(()) => {
+            assert!(
+                note.note.contains("network namespace of its own"),
+                "{}",
+                note.note
+            );
+            assert!(note.note.contains("net:["), "{}", note.note);
+            assert!(
+                !note.note.contains(&own.display().to_string()),
+                "{}: the import's own namespace",
+                note.note
+            );
+        }
+        Err(why) => {
+            println!("no OS boundary here: {why}");
+            assert!(
+                note.note.contains("Python guards and rlimits only"),
+                "{}",
+                note.note
+            );
+        }
+    }
+}

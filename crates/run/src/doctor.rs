@@ -355,6 +355,23 @@ fn ffmpeg() -> (Verdict, String, String) {
     }
 }
 
+/// GenSim's task code runs in a network namespace of its own where the kernel allows it, under
+/// the recorder's Python guards; where it does not, the guards and rlimits alone.
+fn sandbox_boundary() -> (Verdict, String, String) {
+    match assay_import::gensim::boundary() {
+        Ok(()) => (
+            Verdict::Ok,
+            "task code runs in a network namespace of its own (util-linux unshare), under the Python guards".into(),
+            String::new(),
+        ),
+        Err(why) => (
+            Verdict::Warn,
+            format!("task code runs behind the Python guards and rlimits only: {why}"),
+            "allow user namespaces (sysctl kernel.unprivileged_userns_clone=1, or a container with them), or run the import as root".into(),
+        ),
+    }
+}
+
 /// GenSim's task code runs in a Python 3 with numpy (`assay import gensim`).
 fn python_numpy() -> (Verdict, String, String) {
     let python = assay_import::gensim::python();
@@ -402,6 +419,11 @@ pub fn checks(config: Option<&Path>, coordinator: Option<&str>) -> Vec<Check> {
         check("shared memory (iceoryx2)", "sim, render", shared_memory),
         check("ffmpeg", "render (videos)", ffmpeg),
         check("Python with numpy", "import gensim", python_numpy),
+        check(
+            "OS boundary of GenSim task code",
+            "import gensim",
+            sandbox_boundary,
+        ),
     ];
     if let Some(path) = config {
         checks.extend(judges(path));

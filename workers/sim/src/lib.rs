@@ -689,8 +689,8 @@ impl<'s> Rollout<'s> {
         }
     }
 
-    /// The generator's staged reward at the end, where the task has one: its last check
-    /// (the final state, nothing held, is the last recorded row).
+    /// The generator's staged reward at the end, where the task has one: the checks made at the
+    /// recorded rows, and one more on the final state.
     fn generator_reward(&self) -> Option<assay_model::episode::GeneratorReward> {
         let steps = &self.spec.reward_steps;
         if steps.is_empty() {

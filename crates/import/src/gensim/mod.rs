@@ -23,6 +23,12 @@ pub fn python() -> String {
     sandbox::python()
 }
 
+/// Whether GenSim task code runs behind the OS boundary here (a network namespace of its own,
+/// under the Python guards), and why not where it cannot.
+pub fn boundary() -> Result<(), String> {
+    sandbox::boundary()
+}
+
 /// GenSim colours missing from Assay's named palette (`utils.COLORS`, 0..1).
 pub(crate) const EXTRA_COLORS: &[(&str, [f64; 3])] = &[
     ("indigo", [0.29, 0.0, 0.51]),
@@ -229,6 +235,23 @@ fn import_one(
         }
     }
     let spec = match sandbox::record(asset_root, root, &code_path, &asked, limits).and_then(|r| {
+        let own = std::fs::read_link("/proc/self/ns/net")
+            .ok()
+            .map(|p| p.display().to_string());
+        match (&r.netns, sandbox::boundary()) {
+            (Some(ns), Ok(())) if Some(ns) != own.as_ref() => notes.mapped(
+                "sandbox",
+                format!("reset() ran in a network namespace of its own ({ns}), under the Python guards"),
+            ),
+            (_, Err(why)) => notes.not_mapped(
+                "sandbox",
+                format!("reset() ran behind the Python guards and rlimits only: {why}"),
+            ),
+            _ => notes.not_mapped(
+                "sandbox",
+                "reset() ran behind the Python guards and rlimits only: its network namespace is Assay's",
+            ),
+        }
         for m in &r.stubbed {
             notes.not_mapped(
                 "import",

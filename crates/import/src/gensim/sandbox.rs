@@ -100,6 +100,9 @@ struct Answer {
     seeds: Option<Vec<SeedOutcome>>,
     #[serde(default)]
     stubbed: Vec<String>,
+    /// The network namespace the recorder ran in (`net:[…]`).
+    #[serde(default)]
+    netns: Option<String>,
     refused: Option<Refusal>,
     error: Option<String>,
 }
@@ -164,6 +167,71 @@ pub(crate) fn python_from(named: Option<String>, home: Option<std::path::PathBuf
 pub(crate) struct Recording {
     pub seeds: Vec<SeedOutcome>,
     pub stubbed: Vec<String>,
+    /// The network namespace the recorder ran in, as it said.
+    pub netns: Option<String>,
+}
+
+/// The OS boundary the recorder runs behind where the kernel allows it: util-linux's
+/// `unshare` gives it a network namespace of its own (no interface but a loopback that is
+/// down), in a user namespace of its own where the process is not root (an unprivileged user
+/// may make one there; no ids are mapped, so its files stay its files). Then it executes the
+/// recorder in place.
+fn unshare_args() -> &'static [&'static str] {
+    // Root may make a network namespace directly.
+    let root = std::fs::metadata("/proc/self").is_ok_and(|m| {
+        use std::os::unix::fs::MetadataExt;
+        m.uid() == 0
+    });
+    if root {
+        &["--net", "--"]
+    } else {
+        &["--user", "--net", "--"]
+    }
+}
+
+/// `program` with its folder: as found on the `PATH` where it names none (the recorder runs
+/// with an empty environment, behind `unshare`).
+fn absolute(program: &str) -> String {
+    if program.contains('/') {
+        return program.to_owned();
+    }
+    std::env::var_os("PATH")
+        .iter()
+        .flat_map(std::env::split_paths)
+        .map(|d| d.join(program))
+        .find(|p| p.is_file())
+        .map_or_else(|| program.to_owned(), |p| p.display().to_string())
+}
+
+/// Whether the recorder can run behind the OS boundary here (probed once: `unshare` runs
+/// `true` in a network namespace of its own). `Err` says why not (no `unshare`, or a kernel or
+/// container that refuses namespaces to this user); the recorder then runs behind its Python
+/// guards and rlimits only, and `assay doctor` says so.
+pub fn boundary() -> Result<(), String> {
+    static ANSWER: std::sync::OnceLock<Result<(), String>> = std::sync::OnceLock::new();
+    ANSWER
+        .get_or_init(|| {
+            let out = Command::new("unshare")
+                .args(unshare_args())
+                .arg("true")
+                .env_clear()
+                .stdin(Stdio::null())
+                .stdout(Stdio::null())
+                .stderr(Stdio::piped())
+                .output();
+            match out {
+                Ok(o) if o.status.success() => Ok(()),
+                Ok(o) => Err(format!(
+                    "unshare {} true: {} ({}): the kernel or the container refuses a network \
+                     namespace to this user",
+                    unshare_args().join(" "),
+                    o.status,
+                    String::from_utf8_lossy(&o.stderr).trim()
+                )),
+                Err(e) => Err(format!("cannot run unshare (util-linux): {e}")),
+            }
+        })
+        .clone()
 }
 
 /// Records `reset()` of the task in `task_file` for each of `seeds`: the first seed's failure
@@ -196,8 +264,16 @@ pub(crate) fn record(
             format!("{} leads out of the library", task_file.display()),
         ));
     }
-    let python = python();
-    let mut cmd = Command::new(&python);
+    let python = absolute(&python());
+    // Under the Python guards, the OS boundary where the kernel allows it (`boundary`): no
+    // socket reaches anything, whatever path the code finds to one.
+    let mut cmd = if boundary().is_ok() {
+        let mut c = Command::new("unshare");
+        c.args(unshare_args()).arg(&python);
+        c
+    } else {
+        Command::new(&python)
+    };
     cmd.arg("-I")
         .arg("-c")
         .arg(RECORDER)
@@ -217,6 +293,7 @@ pub(crate) fn record(
         .stdin(Stdio::null())
         .stdout(Stdio::piped())
         .stderr(Stdio::null());
+
     let mut child = cmd.spawn().map_err(|e| {
         Refused::new(
             "python",
@@ -261,8 +338,10 @@ pub(crate) fn record(
         Some(Answer {
             seeds: Some(seeds),
             stubbed,
+            netns,
             ..
         }) if status.success() => Ok(Recording {
+            netns: netns.map(|n| n.chars().take(40).collect()),
             seeds,
             stubbed: stubbed
                 .into_iter()
