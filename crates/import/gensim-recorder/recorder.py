@@ -791,7 +791,6 @@ def explain(e):
 
 
 def main():
-    global ENV
     limit()
     with open(TASK_FILE, 'rb') as f:
         source = f.read()

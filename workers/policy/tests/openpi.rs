@@ -3,6 +3,8 @@
 //! (retryable), and the API key goes in openpi's header. (The real `openpi-client` package's
 //! msgpack-numpy is checked end to end in `tests/it/real_policies.rs`.)
 
+mod common;
+
 use std::net::TcpListener;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
@@ -48,8 +50,6 @@ struct Seen {
 }
 
 /// A server that answers `answer(observation)` (None: an error text) on each connection.
-// tungstenite's handshake callback has its HTTP response as the error type: not ours to shrink.
-#[allow(clippy::result_large_err)]
 fn server(answer: fn(&Value) -> Option<Value>) -> (String, Arc<Mutex<Seen>>) {
     let listener = TcpListener::bind("127.0.0.1:0").unwrap();
     let url = format!("ws://{}", listener.local_addr().unwrap());
@@ -60,18 +60,7 @@ fn server(answer: fn(&Value) -> Option<Value>) -> (String, Arc<Mutex<Seen>>) {
             let Ok(stream) = stream else { return };
             let log = log.clone();
             std::thread::spawn(move || {
-                let mut auth = None;
-                let mut ws = tungstenite::accept_hdr(
-                    stream,
-                    |req: &tungstenite::handshake::server::Request, resp| {
-                        auth = req
-                            .headers()
-                            .get("authorization")
-                            .map(|h| h.to_str().unwrap().to_owned());
-                        Ok(resp)
-                    },
-                )
-                .unwrap();
+                let (mut ws, auth) = common::accept_with_auth(stream);
                 let index = {
                     let mut s = log.lock().unwrap();
                     s.connections.push((auth, Vec::new()));

@@ -2,6 +2,8 @@
 //! policy string is a submitter's, and so is the URL the key would go to. A test binary of its
 //! own: the allowed variables are the process's, set once, as a worker sets them.
 
+mod common;
+
 use std::net::TcpListener;
 use std::sync::mpsc;
 use std::time::Duration;
@@ -11,7 +13,6 @@ use assay_policy::openpi::{OpenPiPolicy, allow_key_vars};
 
 /// A server that takes one connection, reports its Authorization header, sends openpi's
 /// metadata and closes.
-#[allow(clippy::result_large_err)] // tungstenite's handshake callback's error type
 fn server() -> (String, mpsc::Receiver<Option<String>>) {
     let listener = TcpListener::bind("127.0.0.1:0").unwrap();
     let url = format!("ws://{}", listener.local_addr().unwrap());
@@ -19,18 +20,7 @@ fn server() -> (String, mpsc::Receiver<Option<String>>) {
     std::thread::spawn(move || {
         for stream in listener.incoming() {
             let Ok(stream) = stream else { return };
-            let mut auth = None;
-            let mut ws = tungstenite::accept_hdr(
-                stream,
-                |req: &tungstenite::handshake::server::Request, resp| {
-                    auth = req
-                        .headers()
-                        .get("authorization")
-                        .map(|h| h.to_str().unwrap().to_owned());
-                    Ok(resp)
-                },
-            )
-            .unwrap();
+            let (mut ws, auth) = common::accept_with_auth(stream);
             let mut metadata = Vec::new();
             rmpv::encode::write_value(&mut metadata, &rmpv::Value::Map(Vec::new())).unwrap();
             ws.send(tungstenite::Message::Binary(metadata.into()))

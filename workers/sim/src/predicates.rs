@@ -209,25 +209,12 @@ fn holds(goal: &Goal, scene: &SimScene) -> (bool, String) {
             zone,
             fraction,
         } => {
-            let (_, c, h) = scene
-                .zones
-                .iter()
-                .find(|z| &z.0 == zone)
-                .expect("validated: zone exists");
-            let copies = pile_copies(scene, pile);
-            let inside = copies
-                .iter()
-                .filter(|&&i| {
-                    let p = scene.pose(&scene.objects[i]).translation;
-                    (p.x - c.x).abs() <= h.x && (p.y - c.y).abs() <= h.y && p.z > -0.02
-                })
-                .count();
-            let share = inside as f64 / copies.len().max(1) as f64;
+            let (inside, copies) = pile_over_zone(scene, pile, zone);
+            let share = inside as f64 / copies.max(1) as f64;
             (
-                !copies.is_empty() && share >= *fraction,
+                copies > 0 && share >= *fraction,
                 format!(
-                    "{inside} of {} over the zone ({:.0} %, wanted {:.0} %)",
-                    copies.len(),
+                    "{inside} of {copies} over the zone ({:.0} %, wanted {:.0} %)",
                     share * 100.0,
                     fraction * 100.0
                 ),
@@ -272,7 +259,10 @@ impl StagedReward {
             .iter()
             .map(|g| match g {
                 // GenSim's zone metric: the share of the pile's points over the zone.
-                Goal::PileInZone { pile, zone, .. } => pile_share(scene, pile, zone),
+                Goal::PileInZone { pile, zone, .. } => {
+                    let (inside, copies) = pile_over_zone(scene, pile, zone);
+                    inside as f64 / copies.max(1) as f64
+                }
                 g => f64::from(u8::from(holds(g, scene).0)),
             })
             .sum::<f64>()
@@ -293,11 +283,14 @@ impl StagedReward {
     }
 }
 
-/// The share of pile `pile`'s copies over zone `zone`.
-fn pile_share(scene: &SimScene, pile: &str, zone: &str) -> f64 {
-    let Some((_, c, h)) = scene.zones.iter().find(|z| z.0 == zone) else {
-        return 0.0;
-    };
+/// How many of pile `pile`'s copies lie over zone `zone` (their centres, not fallen off the
+/// table), and how many copies there are.
+fn pile_over_zone(scene: &SimScene, pile: &str, zone: &str) -> (usize, usize) {
+    let (_, c, h) = scene
+        .zones
+        .iter()
+        .find(|z| z.0 == zone)
+        .expect("validated: zone exists");
     let copies = pile_copies(scene, pile);
     let inside = copies
         .iter()
@@ -306,5 +299,5 @@ fn pile_share(scene: &SimScene, pile: &str, zone: &str) -> f64 {
             (p.x - c.x).abs() <= h.x && (p.y - c.y).abs() <= h.y && p.z > -0.02
         })
         .count();
-    inside as f64 / copies.len().max(1) as f64
+    (inside, copies.len())
 }
