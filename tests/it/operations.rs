@@ -235,9 +235,12 @@ fn doctor_checks_the_machine_for_real_and_names_the_fix() {
     );
     // GenSim's task code behind the OS boundary: said either way, never a failure.
     let b = verdict(&checks, "OS boundary of GenSim task code");
-    match assay_import::gensim::boundary() {
-        Ok(()) => assert_eq!(b["verdict"], "ok", "{b:#}"),
-        Err(_) => assert_eq!(b["verdict"], "warn", "{b:#}"),
+    match assay_import::gensim::boundary().missing() {
+        None => assert_eq!(b["verdict"], "ok", "{b:#}"),
+        Some(why) => {
+            assert_eq!(b["verdict"], "warn", "{b:#}");
+            assert!(b["detail"].as_str().unwrap().contains(&why), "{b:#}");
+        }
     }
     let (_, bare) = doctor(&[], &[("ASSAY_PYTHON", "/nonexistent/python3")]);
     let p = verdict(&bare, "Python with numpy");

@@ -2,6 +2,7 @@
 built, as JSON on standard output, for `assay import gensim` (crates/import/src/gensim/).
 
     python -I recorder.py ASSETS LIBRARY TASK_FILE SEED [SEED ...]   (run by the importer, sandboxed)
+    python -I recorder.py --probe     (assay doctor: sets the limits and the boundary, says what held)
 
 Nothing of the task is trusted. The importer starts this script with an empty environment and
 kills it after a wall-clock timeout; here, before the task's code is read:
@@ -14,7 +15,13 @@ kills it after a wall-clock timeout; here, before the task's code is read:
   - an audit hook (it cannot be removed) stops the process on any file write, any read outside the
     library and Python's own files, any process, socket, signal or ctypes call, and any import of a
     module that could reach them, whatever path the code found to it;
-  - what the task prints is dropped, so that only this script writes the answer.
+  - what the task prints is dropped, so that only this script writes the answer;
+  - and under all of that, the OS boundary, where the kernel allows it (`confine()`): a Landlock
+    domain that reads the library, the assets, Python and the system libraries only, writes
+    nowhere and makes no TCP connection, and a seccomp filter that answers EPERM to processes,
+    program execution, sockets, tracing, mounts and namespaces; the importer also starts this
+    script in a network namespace of its own. These hold whatever path the code finds around the
+    guards (ctypes, numpy's C paths): the importer's tests run hostile code with the guards off.
 
 The stand-in follows GenSim's own `cliport/tasks/task.py`, `environments/environment.py` and
 `utils/utils.py` (the library's `reference/`): templates are filled as `fill_template` and
@@ -62,10 +69,18 @@ except ImportError:
     _answer({'error': f"numpy is not installed for {sys.executable or _os.environ.get('ASSAY_RECORDER_PYTHON', 'python')} (GenSim task code needs it: "
                       "pip install numpy, or point ASSAY_PYTHON at a Python that has it)"}, 2)
 
-ASSETS = _os.path.realpath(sys.argv[1])
-LIBRARY = _os.path.realpath(sys.argv[2])
-TASK_FILE = _os.path.realpath(sys.argv[3])
-SEEDS = [int(s) for s in sys.argv[4:]]
+# `--probe`: set the limits and the OS boundary, and say what held (assay doctor).
+PROBE = sys.argv[1:2] == ['--probe']
+if not PROBE:
+    ASSETS = _os.path.realpath(sys.argv[1])
+    LIBRARY = _os.path.realpath(sys.argv[2])
+    TASK_FILE = _os.path.realpath(sys.argv[3])
+    SEEDS = [int(s) for s in sys.argv[4:]]
+# Only the importer's own tests set these (the importer clears the environment and sets neither):
+# one runs task code without the Python guards, to show the OS boundary holds alone; the other
+# without the OS boundary too, to show that the test can tell.
+UNGUARDED = _os.environ.get('ASSAY_RECORDER_TEST_UNGUARDED') == '1'
+NO_BOUNDARY = _os.environ.get('ASSAY_RECORDER_TEST_NO_BOUNDARY') == '1'
 # What task code sees as self.assets_root: paths built from it are recorded relative to the assets.
 ASSETS_TOKEN = "assets"
 
@@ -737,6 +752,180 @@ def jsonable(x):
     return x if isinstance(x, (str, type(None))) else repr(x)[:200]
 
 
+# ---------------------------------------------------------------------------------------------
+# The OS boundary: what the kernel enforces under the guards above, set before the task's code is
+# read. Neither can be undone by the process; both outlive anything the code finds (ctypes,
+# numpy's C paths, a native library), and both hold where the Python guards do not.
+
+# Landlock (linux/landlock.h): filesystem rights by ABI, TCP rights (ABI 4), scopes (ABI 6).
+_LL_FS = {1: (1 << 13) - 1, 2: (1 << 14) - 1, 3: (1 << 15) - 1, 5: (1 << 16) - 1}
+_LL_READ_FILE, _LL_READ_DIR = 1 << 2, 1 << 3
+_LL_TCP = (1 << 0) | (1 << 1)            # bind, connect
+_LL_SCOPES = (1 << 0) | (1 << 1)         # abstract UNIX sockets, signals outside the domain
+_NR_LANDLOCK = (444, 445, 446)           # create_ruleset, add_rule, restrict_self: every arch
+_PR_SET_NO_NEW_PRIVS, _PR_SET_SECCOMP, _SECCOMP_MODE_FILTER = 38, 22, 2
+
+# seccomp: the system calls stopped, by architecture (audit arch, calls answered EPERM, clone,
+# clone3). Processes (fork, vfork, clone without CLONE_THREAD: threads stay), program execution,
+# sockets, tracing and other processes' memory, mounts and namespaces, kernel modules and
+# keyrings, io_uring (which would bypass this filter), BPF, perf, and signals by pid.
+_SECCOMP = {
+    'x86_64': (0xC000003E, {
+        'fork': 57, 'vfork': 58, 'execve': 59, 'execveat': 322, 'socket': 41, 'socketpair': 53,
+        'ptrace': 101, 'process_vm_readv': 310, 'process_vm_writev': 311, 'mount': 165,
+        'umount2': 166, 'pivot_root': 155, 'chroot': 161, 'unshare': 272, 'setns': 308,
+        'bpf': 321, 'perf_event_open': 298, 'userfaultfd': 323, 'io_uring_setup': 425,
+        'io_uring_enter': 426, 'io_uring_register': 427, 'keyctl': 250, 'add_key': 248,
+        'request_key': 249, 'init_module': 175, 'finit_module': 313, 'delete_module': 176,
+        'kexec_load': 246, 'kexec_file_load': 320, 'reboot': 169, 'swapon': 167, 'swapoff': 168,
+        'acct': 163, 'settimeofday': 164, 'clock_settime': 227, 'open_by_handle_at': 304,
+        'name_to_handle_at': 303, 'mknod': 133, 'mknodat': 259, 'kill': 62, 'pidfd_open': 434,
+        'pidfd_send_signal': 424, 'pidfd_getfd': 438, 'personality': 135, 'iopl': 172,
+        'ioperm': 173, 'fanotify_init': 300, 'open_tree': 428, 'move_mount': 429, 'fsopen': 430,
+        'fsconfig': 431, 'fsmount': 432, 'fspick': 433, 'mount_setattr': 442}, 56, 435),
+    'aarch64': (0xC00000B7, {
+        'execve': 221, 'execveat': 281, 'socket': 198, 'socketpair': 199, 'ptrace': 117,
+        'process_vm_readv': 270, 'process_vm_writev': 271, 'mount': 40, 'umount2': 39,
+        'pivot_root': 41, 'chroot': 51, 'unshare': 97, 'setns': 268, 'bpf': 280,
+        'perf_event_open': 241, 'userfaultfd': 282, 'io_uring_setup': 425, 'io_uring_enter': 426,
+        'io_uring_register': 427, 'keyctl': 219, 'add_key': 217, 'request_key': 218,
+        'init_module': 105, 'finit_module': 273, 'delete_module': 106, 'kexec_load': 104,
+        'kexec_file_load': 294, 'reboot': 142, 'swapon': 224, 'swapoff': 225, 'acct': 89,
+        'settimeofday': 170, 'clock_settime': 112, 'open_by_handle_at': 265,
+        'name_to_handle_at': 264, 'mknodat': 33, 'kill': 129, 'pidfd_open': 434,
+        'pidfd_send_signal': 424, 'pidfd_getfd': 438, 'personality': 92, 'fanotify_init': 262,
+        'open_tree': 428, 'move_mount': 429, 'fsopen': 430, 'fsconfig': 431, 'fsmount': 432,
+        'fspick': 433, 'mount_setattr': 442}, 220, 435),
+}
+# Where the shared libraries a lazily imported extension module needs may be read from.
+SYSTEM_LIBS = ('/lib', '/lib64', '/usr/lib', '/usr/lib64', '/usr/local/lib', '/etc/ld.so.cache')
+
+
+def _failed(call):
+    """The OSError of a failed libc call (errno kept by ctypes)."""
+    import ctypes
+    e = ctypes.get_errno()
+    return OSError(e, f'{call}: {_os.strerror(e)}')
+
+
+def _landlock(libc, roots):
+    """A Landlock domain: the roots (and system libraries) readable, nothing else readable or
+    writable anywhere, no TCP, no abstract UNIX socket or signal outside it. Returns what it set,
+    or raises OSError with why not."""
+    import ctypes, errno, struct
+    abi = libc.syscall(_NR_LANDLOCK[0], None, 0, 1)  # LANDLOCK_CREATE_RULESET_VERSION
+    if abi < 1:
+        e = ctypes.get_errno()
+        raise OSError(e, 'Landlock is not enabled in this kernel' if e == errno.EOPNOTSUPP
+                      else 'this kernel has no Landlock' if e == errno.ENOSYS
+                      else f'Landlock: {_os.strerror(e)}')
+    fs = _LL_FS[max(k for k in _LL_FS if k <= abi)]
+    attr = struct.pack('<Q', fs)
+    if abi >= 4:
+        attr += struct.pack('<Q', _LL_TCP)
+    if abi >= 6:
+        attr += struct.pack('<Q', _LL_SCOPES)
+    buf = ctypes.create_string_buffer(attr, len(attr))
+    ruleset = libc.syscall(_NR_LANDLOCK[0], buf, ctypes.c_size_t(len(attr)), 0)
+    if ruleset < 0:
+        raise _failed('landlock_create_ruleset')
+    try:
+        readable = _landlock_rules(libc, ruleset, roots)
+        if libc.prctl(_PR_SET_NO_NEW_PRIVS, 1, 0, 0, 0) != 0:
+            raise _failed('no_new_privs')
+        if libc.syscall(_NR_LANDLOCK[2], ruleset, 0) < 0:
+            raise _failed('landlock_restrict_self')
+    finally:
+        _os.close(ruleset)
+    return (f"Landlock ABI {abi}: reads {len(readable)} folders (the library, the assets, Python, "
+            "system libraries), writes nowhere" + (", no TCP" if abi >= 4 else "")
+            + (", no abstract socket or signal outside" if abi >= 6 else ""))
+
+
+def _landlock_rules(libc, ruleset, roots):
+    """Each root readable (files: read; folders: read and list), as far as it exists."""
+    import ctypes, struct
+    readable = []
+    for root in roots:
+        try:
+            fd = _os.open(root, _os.O_PATH | _os.O_CLOEXEC)
+        except OSError:
+            continue  # not on this machine
+        try:
+            access = _LL_READ_FILE | (_LL_READ_DIR if _os.path.isdir(root) else 0)
+            rule = ctypes.create_string_buffer(struct.pack('<Qi', access, fd), 12)
+            if libc.syscall(_NR_LANDLOCK[1], ruleset, 1, rule, 0) < 0:  # PATH_BENEATH
+                raise _failed(f'landlock_add_rule {root}')
+            readable.append(root)
+        finally:
+            _os.close(fd)
+    return readable
+
+
+def _seccomp(libc):
+    """A seccomp filter that answers the calls of `_SECCOMP` with EPERM (clone3 with ENOSYS, so
+    that threads are made by clone, whose flags a filter can read) and kills the process on a
+    foreign ABI. Returns what it set, or raises OSError with why not."""
+    import ctypes, errno, platform, struct
+    machine = platform.machine()
+    if machine not in _SECCOMP:
+        raise OSError(errno.ENOSYS, f'no seccomp filter written for {machine}')
+    arch, denied, clone, clone3 = _SECCOMP[machine]
+    allow, kill = 0x7FFF0000, 0x80000000
+    eperm, enosys = 0x00050000 | errno.EPERM, 0x00050000 | errno.ENOSYS
+    # (code, k, jump-if-true label, jump-if-false label); labels resolve to relative offsets.
+    prog = [(0x20, 4, None, None),                          # A = arch
+            (0x15, arch, None, 'kill'),                     # foreign ABI: kill
+            (0x20, 0, None, None)]                          # A = nr
+    if machine == 'x86_64':
+        prog.append((0x35, 0x40000000, 'eperm', None))     # x32 calls
+    prog += [(0x15, clone, 'clone', None), (0x15, clone3, 'enosys', None)]
+    prog += [(0x15, nr, 'eperm', None) for nr in sorted(set(denied.values()))]
+    prog += [(0x06, allow, None, None),
+             ('clone', 0x20, 16, None, None),               # A = low word of the flags
+             (0x45, 0x00010000, 'allow', 'eperm'),          # CLONE_THREAD: a thread
+             ('allow', 0x06, allow, None, None),
+             ('eperm', 0x06, eperm, None, None),
+             ('enosys', 0x06, enosys, None, None),
+             ('kill', 0x06, kill, None, None)]
+    labels, flat = {}, []
+    for ins in prog:
+        if isinstance(ins[0], str):
+            labels[ins[0]] = len(flat)
+            ins = ins[1:]
+        flat.append(ins)
+    code = b''
+    for i, (op, k, jt, jf) in enumerate(flat):
+        off = lambda label: 0 if label is None else labels[label] - i - 1
+        code += struct.pack('<HBBI', op, off(jt), off(jf), k)
+
+    class Prog(ctypes.Structure):
+        _fields_ = [('len', ctypes.c_ushort), ('filter', ctypes.c_void_p)]
+    filt = ctypes.create_string_buffer(code, len(code))
+    fprog = Prog(len(flat), ctypes.cast(filt, ctypes.c_void_p))
+    if libc.prctl(_PR_SET_NO_NEW_PRIVS, 1, 0, 0, 0) != 0:
+        raise _failed('no_new_privs')
+    if libc.prctl(_PR_SET_SECCOMP, _SECCOMP_MODE_FILTER, ctypes.byref(fprog), 0, 0) != 0:
+        raise _failed('seccomp')
+    return (f"seccomp ({machine}): no processes, program execution, sockets, tracing, mounts, "
+            f"namespaces, modules, io_uring or signals by pid ({len(denied) + 1} calls)")
+
+
+def confine(roots):
+    """Sets the OS boundary: {'landlock': ..., 'seccomp': ...}, each {'on': bool, 'note': str}."""
+    import ctypes
+    libc = ctypes.CDLL(None, use_errno=True)
+    applied = {}
+    for name, apply in (('landlock', lambda: _landlock(libc, list(roots) + list(SYSTEM_LIBS))),
+                        ('seccomp', lambda: _seccomp(libc))):
+        try:
+            applied[name] = {'on': True, 'note': apply()}
+        except (OSError, AttributeError, ValueError) as e:
+            why = e.strerror if isinstance(e, OSError) and e.strerror else str(e)
+            applied[name] = {'on': False, 'note': f"{why}"[:200]}
+    return applied
+
+
 ENV = None
 
 
@@ -790,28 +979,63 @@ def explain(e):
     return 'reset', f"raised {type(e).__name__}: {e}"[:300] + where
 
 
-def main():
+def python_roots():
+    """Where this Python and numpy live: what they read after the boundary is set."""
+    roots = {_os.path.realpath(p) for p in
+             (sys.prefix, sys.base_prefix, sys.exec_prefix, _os.path.dirname(np.__file__),
+              _os.path.dirname(_os.__file__))}
+    roots |= {_os.path.realpath(p) for p in sys.path if p}
+    return sorted(roots)
+
+
+def probe():
+    """What the boundary gives here, for `assay doctor`: the limits, then the OS boundary."""
     limit()
-    with open(TASK_FILE, 'rb') as f:
-        source = f.read()
-    stand_ins = install()
-    READ_ROOTS.extend(sorted({_os.path.realpath(p) for p in
-                              (LIBRARY, ASSETS, sys.prefix, sys.base_prefix, sys.exec_prefix,
-                               _os.path.dirname(np.__file__), _os.path.dirname(_os.__file__))}))
-    for p in sys.path:
-        if p:
-            READ_ROOTS.append(_os.path.realpath(p))
     try:
         netns = _os.readlink('/proc/self/ns/net')
     except OSError:
         netns = None
+    _answer({'boundary': confine(python_roots()), 'netns': netns})
+
+
+def unguarded_builtins(stand_ins):
+    """Test runs only: every builtin and every module, the Ravens stand-ins for cliport."""
+    import builtins
+    b = dict(vars(builtins))
+    real_import = __import__
+
+    def imp(name, globals=None, locals=None, fromlist=(), level=0):
+        if name in stand_ins and name != 'os':
+            return stand_ins[name] if fromlist else stand_ins[name.split('.')[0]]
+        return real_import(name, globals, locals, fromlist, level)
+    b['__import__'] = imp
+    return b
+
+
+def main():
+    if PROBE:
+        probe()
+    limit()
+    stand_ins = install()
+    READ_ROOTS.extend([_os.path.realpath(LIBRARY), _os.path.realpath(ASSETS)] + python_roots())
+    try:
+        netns = _os.readlink('/proc/self/ns/net')
+    except OSError:
+        netns = None
+    boundary = {} if NO_BOUNDARY else confine(READ_ROOTS)
+    with open(TASK_FILE, 'rb') as f:
+        source = f.read()
     try:
         code = compile(source, TASK_FILE, 'exec')
     except SyntaxError as e:
         _answer({'refused': {'field': 'code', 'reason': f"not Python: {e.msg} (line {e.lineno})"}})
-    sys.addaudithook(audit)
+    if UNGUARDED:
+        builtins = unguarded_builtins(stand_ins)
+    else:
+        sys.addaudithook(audit)
+        builtins = safe_builtins(stand_ins)
     module = {'__name__': 'gensim_task', '__file__': _os.path.basename(TASK_FILE),
-              '__builtins__': safe_builtins(stand_ins)}
+              '__builtins__': builtins}
     seeds = []
     try:
         exec(code, module)
@@ -834,7 +1058,8 @@ def main():
         _answer({'refused': {'field': field, 'reason': reason}})
     if USED:
         _answer({'refused': {'field': USED[0].field, 'reason': USED[0].reason}})
-    _answer({'seeds': jsonable(seeds), 'stubbed': list(STUBBED), 'netns': netns})
+    _answer({'seeds': jsonable(seeds), 'stubbed': list(STUBBED), 'netns': netns,
+             'boundary': boundary})
 
 
 if __name__ == '__main__':

@@ -248,11 +248,11 @@ fn unused_imports_outside_the_list_are_stubbed_and_used_ones_refused() {
     );
 }
 
-/// Where the kernel allows it, task code runs in a network namespace of its own (no interface
-/// but a loopback that is down), under the Python guards, and the mapping report says so; where
-/// it does not, the report says why.
+/// Where the kernel allows it, task code runs behind the OS boundary — a network namespace of its
+/// own (no interface but a loopback that is down), Landlock, seccomp — under the Python guards,
+/// and the mapping report says so; where a part does not hold, the report says which and why.
 #[test]
-fn task_code_runs_in_a_network_namespace_of_its_own_where_the_kernel_allows() {
+fn task_code_runs_behind_the_os_boundary_where_the_kernel_allows() {
     let corpus = corpus();
     let code =
         std::fs::read_to_string(corpus.join("generated_tasks/align_boxes_on_line.py")).unwrap();
@@ -275,24 +275,36 @@ fn task_code_runs_in_a_network_namespace_of_its_own_where_the_kernel_allows() {
         .find(|m| m.field == "sandbox")
         .expect("the mapping report says how the code ran");
     let own = std::fs::read_link("/proc/self/ns/net").unwrap();
-    match assay_import::gensim::boundary() {
-        Ok(()) => {
+    let b = assay_import::gensim::boundary();
+    if b.network.is_ok() {
+        assert!(
+            note.note.contains("network namespace of its own"),
+            "{}",
+            note.note
+        );
+        assert!(note.note.contains("net:["), "{}", note.note);
+        assert!(
+            !note.note.contains(&own.display().to_string()),
+            "{}: the import's own namespace",
+            note.note
+        );
+    }
+    if b.filesystem.is_ok() {
+        assert!(note.note.contains("Landlock ABI"), "{}", note.note);
+    }
+    if b.syscalls.is_ok() {
+        assert!(note.note.contains("seccomp ("), "{}", note.note);
+    }
+    match b.missing() {
+        None => assert!(
+            note.note.contains("ran behind the OS boundary"),
+            "{}",
+            note.note
+        ),
+        Some(why) => {
+            println!("part of the OS boundary is missing here: {why}");
             assert!(
-                note.note.contains("network namespace of its own"),
-                "{}",
-                note.note
-            );
-            assert!(note.note.contains("net:["), "{}", note.note);
-            assert!(
-                !note.note.contains(&own.display().to_string()),
-                "{}: the import's own namespace",
-                note.note
-            );
-        }
-        Err(why) => {
-            println!("no OS boundary here: {why}");
-            assert!(
-                note.note.contains("Python guards and rlimits only"),
+                note.note.contains("behind part of the OS boundary"),
                 "{}",
                 note.note
             );

@@ -355,19 +355,28 @@ fn ffmpeg() -> (Verdict, String, String) {
     }
 }
 
-/// GenSim's task code runs in a network namespace of its own where the kernel allows it, under
-/// the recorder's Python guards; where it does not, the guards and rlimits alone.
+/// GenSim's task code runs behind an OS boundary where the kernel allows it (a network namespace
+/// of its own, Landlock, seccomp), under the recorder's Python guards; what does not hold here is
+/// said, with how to get it.
 fn sandbox_boundary() -> (Verdict, String, String) {
-    match assay_import::gensim::boundary() {
-        Ok(()) => (
+    let b = assay_import::gensim::boundary();
+    match b.missing() {
+        None => (
             Verdict::Ok,
-            "task code runs in a network namespace of its own (util-linux unshare), under the Python guards".into(),
+            "task code runs in a network namespace of its own (util-linux unshare), in a Landlock \
+             domain that reads the library only, under a seccomp filter, under the Python guards"
+                .into(),
             String::new(),
         ),
-        Err(why) => (
+        Some(why) => (
             Verdict::Warn,
-            format!("task code runs behind the Python guards and rlimits only: {why}"),
-            "allow user namespaces (sysctl kernel.unprivileged_userns_clone=1, or a container with them), or run the import as root".into(),
+            format!(
+                "task code runs behind part of the OS boundary, under the Python guards: {why}"
+            ),
+            "a Linux kernel with Landlock enabled (5.13 or later, landlock in the lsm= list) and \
+             user namespaces (sysctl kernel.unprivileged_userns_clone=1, a container that allows \
+             them, or the import run as root)"
+                .into(),
         ),
     }
 }

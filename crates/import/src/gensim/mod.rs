@@ -23,9 +23,11 @@ pub fn python() -> String {
     sandbox::python()
 }
 
-/// Whether GenSim task code runs behind the OS boundary here (a network namespace of its own,
-/// under the Python guards), and why not where it cannot.
-pub fn boundary() -> Result<(), String> {
+pub use sandbox::Boundary;
+
+/// The OS boundary GenSim task code runs behind here, under the recorder's Python guards (a
+/// network namespace, Landlock, seccomp), and why a part does not hold where it cannot.
+pub fn boundary() -> &'static Boundary {
     sandbox::boundary()
 }
 
@@ -238,19 +240,41 @@ fn import_one(
         let own = std::fs::read_link("/proc/self/ns/net")
             .ok()
             .map(|p| p.display().to_string());
-        match (&r.netns, sandbox::boundary()) {
-            (Some(ns), Ok(())) if Some(ns) != own.as_ref() => notes.mapped(
+        let network = match (&r.netns, &sandbox::boundary().network) {
+            (Some(ns), Ok(())) if Some(ns) != own.as_ref() => {
+                Ok(format!("a network namespace of its own ({ns})"))
+            }
+            (_, Err(why)) => Err(format!("no network namespace ({why})")),
+            _ => Err("no network namespace (its namespace is Assay's)".to_string()),
+        };
+        let parts = [
+            network,
+            r.filesystem.clone().map_err(|e| format!("no Landlock ({e})")),
+            r.syscalls.clone().map_err(|e| format!("no seccomp ({e})")),
+        ];
+        let held: Vec<&str> = parts.iter().filter_map(|p| p.as_deref().ok()).collect();
+        let missing: Vec<&str> = parts
+            .iter()
+            .filter_map(|p| p.as_ref().err().map(String::as_str))
+            .collect();
+        let held = if held.is_empty() {
+            "rlimits".to_string()
+        } else {
+            held.join("; ")
+        };
+        if missing.is_empty() {
+            notes.mapped(
                 "sandbox",
-                format!("reset() ran in a network namespace of its own ({ns}), under the Python guards"),
-            ),
-            (_, Err(why)) => notes.not_mapped(
+                format!("reset() ran behind the OS boundary: {held}; under the Python guards"),
+            );
+        } else {
+            notes.not_mapped(
                 "sandbox",
-                format!("reset() ran behind the Python guards and rlimits only: {why}"),
-            ),
-            _ => notes.not_mapped(
-                "sandbox",
-                "reset() ran behind the Python guards and rlimits only: its network namespace is Assay's",
-            ),
+                format!(
+                    "reset() ran behind part of the OS boundary: {held}; under the Python guards; {}",
+                    missing.join("; ")
+                ),
+            );
         }
         for m in &r.stubbed {
             notes.not_mapped(

@@ -7,6 +7,11 @@
 //!   before the task's code is read: CPU time and address space ([`crate::CodeLimits`]), file
 //!   size 0 (no byte can be written to a file), no new processes, no core file;
 //! - killed after the limits' wall-clock time, its answer read up to [`MAX_ANSWER`] bytes;
+//! - behind an OS boundary where the kernel allows it ([`boundary`]): a network namespace of its
+//!   own (util-linux `unshare`), a Landlock domain that reads the library, the assets, Python and
+//!   the system libraries only and writes nowhere, and a seccomp filter that stops processes,
+//!   program execution, sockets, tracing, mounts and namespaces; the recorder sets the last two
+//!   on itself before the task's code is read (`confine` in the recorder);
 //! - and, inside, behind the recorder's own guards (builtins without `open`/`exec`/`eval`, an
 //!   import allow-list, an audit hook that stops the process on any write, process, socket or
 //!   native call): see the recorder's docstring.
@@ -103,8 +108,43 @@ struct Answer {
     /// The network namespace the recorder ran in (`net:[…]`).
     #[serde(default)]
     netns: Option<String>,
+    /// What of Landlock and seccomp the recorder set on itself.
+    #[serde(default)]
+    boundary: Option<Applied>,
     refused: Option<Refusal>,
     error: Option<String>,
+}
+
+/// What the recorder set of the kernel's confinement, as it said.
+#[derive(Debug, Clone, Default, Deserialize)]
+pub(crate) struct Applied {
+    pub landlock: Option<Part>,
+    pub seccomp: Option<Part>,
+}
+
+/// One part of the OS boundary: whether it holds, and what it stops (or why it does not).
+#[derive(Debug, Clone, Deserialize)]
+pub(crate) struct Part {
+    pub on: bool,
+    pub note: String,
+}
+
+impl Part {
+    fn result(part: Option<&Part>) -> Result<String, String> {
+        match part {
+            Some(p) if p.on => Ok(cut(&p.note, 300)),
+            Some(p) => Err(cut(&p.note, 300)),
+            None => Err("the recorder did not say".into()),
+        }
+    }
+}
+
+fn cut(s: &str, n: usize) -> String {
+    if s.chars().count() <= n {
+        s.to_owned()
+    } else {
+        format!("{}…", s.chars().take(n).collect::<String>())
+    }
 }
 
 #[derive(Debug, Clone, Deserialize)]
@@ -124,13 +164,6 @@ pub(crate) struct Refused {
 impl Refused {
     /// The field and reason, cut to a readable length (they may come from the task's code).
     fn new(field: &str, reason: impl Into<String>) -> Self {
-        let cut = |s: &str, n: usize| -> String {
-            if s.chars().count() <= n {
-                s.to_owned()
-            } else {
-                format!("{}…", s.chars().take(n).collect::<String>())
-            }
-        };
         Refused {
             field: cut(field, 120),
             reason: cut(&reason.into(), 600),
@@ -169,6 +202,10 @@ pub(crate) struct Recording {
     pub stubbed: Vec<String>,
     /// The network namespace the recorder ran in, as it said.
     pub netns: Option<String>,
+    /// Landlock's domain over the files, as the recorder set it (or why not).
+    pub filesystem: Result<String, String>,
+    /// The seccomp filter over the system calls, as the recorder set it (or why not).
+    pub syscalls: Result<String, String>,
 }
 
 /// The OS boundary the recorder runs behind where the kernel allows it: util-linux's
@@ -203,35 +240,141 @@ fn absolute(program: &str) -> String {
         .map_or_else(|| program.to_owned(), |p| p.display().to_string())
 }
 
-/// Whether the recorder can run behind the OS boundary here (probed once: `unshare` runs
-/// `true` in a network namespace of its own). `Err` says why not (no `unshare`, or a kernel or
-/// container that refuses namespaces to this user); the recorder then runs behind its Python
-/// guards and rlimits only, and `assay doctor` says so.
-pub fn boundary() -> Result<(), String> {
-    static ANSWER: std::sync::OnceLock<Result<(), String>> = std::sync::OnceLock::new();
-    ANSWER
-        .get_or_init(|| {
-            let out = Command::new("unshare")
-                .args(unshare_args())
-                .arg("true")
-                .env_clear()
-                .stdin(Stdio::null())
-                .stdout(Stdio::null())
-                .stderr(Stdio::piped())
-                .output();
-            match out {
-                Ok(o) if o.status.success() => Ok(()),
-                Ok(o) => Err(format!(
-                    "unshare {} true: {} ({}): the kernel or the container refuses a network \
-                     namespace to this user",
-                    unshare_args().join(" "),
-                    o.status,
-                    String::from_utf8_lossy(&o.stderr).trim()
-                )),
-                Err(e) => Err(format!("cannot run unshare (util-linux): {e}")),
+/// The OS boundary GenSim task code runs behind on this machine: each part, or why it does not
+/// hold here (the recorder then runs behind what does, its Python guards and rlimits always).
+#[derive(Debug, Clone)]
+pub struct Boundary {
+    /// A network namespace of its own (util-linux `unshare`).
+    pub network: Result<(), String>,
+    /// A Landlock domain: reads the library, the assets, Python and system libraries; writes
+    /// nowhere; no TCP.
+    pub filesystem: Result<String, String>,
+    /// A seccomp filter: no processes, program execution, sockets, tracing, mounts, namespaces.
+    pub syscalls: Result<String, String>,
+}
+
+impl Boundary {
+    /// Whether every part holds.
+    pub fn whole(&self) -> bool {
+        self.network.is_ok() && self.filesystem.is_ok() && self.syscalls.is_ok()
+    }
+
+    /// Why the parts that do not hold here do not, one line.
+    pub fn missing(&self) -> Option<String> {
+        let why: Vec<String> = [
+            ("network namespace", self.network.as_ref().err()),
+            ("Landlock", self.filesystem.as_ref().err()),
+            ("seccomp", self.syscalls.as_ref().err()),
+        ]
+        .into_iter()
+        .filter_map(|(part, e)| e.map(|e| format!("no {part} ({e})")))
+        .collect();
+        (!why.is_empty()).then(|| why.join("; "))
+    }
+}
+
+/// What the OS boundary gives on this machine, probed once: `unshare` runs `true` in a network
+/// namespace of its own, and the recorder (`--probe`) sets its limits, Landlock and seccomp on
+/// itself behind it and says what held.
+pub fn boundary() -> &'static Boundary {
+    static ANSWER: std::sync::OnceLock<Boundary> = std::sync::OnceLock::new();
+    ANSWER.get_or_init(|| {
+        let network = network_namespace();
+        let python = absolute(&python());
+        let mut cmd = if network.is_ok() {
+            let mut c = Command::new("unshare");
+            c.args(unshare_args()).arg(&python);
+            c
+        } else {
+            Command::new(&python)
+        };
+        let out = cmd
+            .args(["-I", "-c", RECORDER, "--probe"])
+            .env_clear()
+            .env("LC_ALL", "C.UTF-8")
+            .stdin(Stdio::null())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .output();
+        let applied = match out {
+            Ok(o) => match serde_json::from_slice::<Answer>(&o.stdout) {
+                Ok(Answer {
+                    boundary: Some(b), ..
+                }) => Ok(b),
+                Ok(Answer { error: Some(e), .. }) => Err(cut(&e, 300)),
+                _ => Err(format!("'{python} --probe' gave no answer ({})", o.status)),
+            },
+            Err(e) => Err(format!("cannot start '{python}': {e}")),
+        };
+        match applied {
+            Ok(a) => Boundary {
+                network,
+                filesystem: Part::result(a.landlock.as_ref()),
+                syscalls: Part::result(a.seccomp.as_ref()),
+            },
+            Err(why) => Boundary {
+                network,
+                filesystem: Err(why.clone()),
+                syscalls: Err(why),
+            },
+        }
+    })
+}
+
+/// Whether `unshare` can give a process a network namespace of its own here.
+fn network_namespace() -> Result<(), String> {
+    let out = Command::new("unshare")
+        .args(unshare_args())
+        .arg("true")
+        .env_clear()
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .output();
+    match out {
+        Ok(o) if o.status.success() => Ok(()),
+        Ok(o) => Err(format!(
+            "unshare {} true: {} ({}): the kernel or the container refuses a network namespace \
+             to this user",
+            unshare_args().join(" "),
+            o.status,
+            String::from_utf8_lossy(&o.stderr).trim()
+        )),
+        Err(e) => Err(format!("cannot run unshare (util-linux): {e}")),
+    }
+}
+
+/// Which of the recorder's defences a run leaves out: none, outside the importer's own tests
+/// (which show that the OS boundary holds without the Python guards, and that they can tell).
+#[derive(Debug, Clone, Copy, Default)]
+pub(crate) struct Defences {
+    #[cfg(test)]
+    pub without_python_guards: bool,
+    #[cfg(test)]
+    pub without_os_boundary: bool,
+}
+
+impl Defences {
+    fn os_boundary(self) -> bool {
+        #[cfg(test)]
+        if self.without_os_boundary {
+            return false;
+        }
+        true
+    }
+
+    fn apply(self, cmd: &mut Command) {
+        #[cfg(test)]
+        {
+            if self.without_python_guards {
+                cmd.env("ASSAY_RECORDER_TEST_UNGUARDED", "1");
             }
-        })
-        .clone()
+            if self.without_os_boundary {
+                cmd.env("ASSAY_RECORDER_TEST_NO_BOUNDARY", "1");
+            }
+        }
+        let _ = cmd;
+    }
 }
 
 /// Records `reset()` of the task in `task_file` for each of `seeds`: the first seed's failure
@@ -242,6 +385,24 @@ pub(crate) fn record(
     task_file: &Path,
     seeds: &[u64],
     limits: crate::CodeLimits,
+) -> Result<Recording, Refused> {
+    record_with(
+        assets,
+        library,
+        task_file,
+        seeds,
+        limits,
+        Defences::default(),
+    )
+}
+
+fn record_with(
+    assets: &Path,
+    library: &Path,
+    task_file: &Path,
+    seeds: &[u64],
+    limits: crate::CodeLimits,
+    defences: Defences,
 ) -> Result<Recording, Refused> {
     let crate::CodeLimits {
         cpu_seconds,
@@ -267,7 +428,7 @@ pub(crate) fn record(
     let python = absolute(&python());
     // Under the Python guards, the OS boundary where the kernel allows it (`boundary`): no
     // socket reaches anything, whatever path the code finds to one.
-    let mut cmd = if boundary().is_ok() {
+    let mut cmd = if defences.os_boundary() && boundary().network.is_ok() {
         let mut c = Command::new("unshare");
         c.args(unshare_args()).arg(&python);
         c
@@ -293,6 +454,7 @@ pub(crate) fn record(
         .stdin(Stdio::null())
         .stdout(Stdio::piped())
         .stderr(Stdio::null());
+    defences.apply(&mut cmd);
 
     let mut child = cmd.spawn().map_err(|e| {
         Refused::new(
@@ -339,9 +501,12 @@ pub(crate) fn record(
             seeds: Some(seeds),
             stubbed,
             netns,
+            boundary,
             ..
         }) if status.success() => Ok(Recording {
             netns: netns.map(|n| n.chars().take(40).collect()),
+            filesystem: Part::result(boundary.as_ref().and_then(|b| b.landlock.as_ref())),
+            syscalls: Part::result(boundary.as_ref().and_then(|b| b.seccomp.as_ref())),
             seeds,
             stubbed: stubbed
                 .into_iter()
@@ -371,6 +536,121 @@ pub(crate) fn record(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Task code that reaches for the world by paths the Python guards would stop: a socket to
+    /// a listener on loopback, a read outside the library with Python's open and with numpy's
+    /// C reader, a file written outside it, and a fork through ctypes. Each says how it went.
+    const HOSTILE: &str = r#"
+import json, os, socket, ctypes
+import numpy as np
+from cliport.tasks.task import Task
+
+def attempt(f):
+    try:
+        f()
+        return 'ok'
+    except BaseException as e:
+        return f"{type(e).__name__}({getattr(e, 'errno', None)})"
+
+class Hostile(Task):
+    def reset(self, env):
+        out = {}
+        def connect():
+            s = socket.socket()
+            s.settimeout(5)
+            s.connect(('127.0.0.1', PORT))
+            s.sendall(b'escaped')
+        out['socket'] = attempt(connect)
+        out['read'] = attempt(lambda: open(SECRET).read())
+        out['numpy'] = attempt(lambda: np.fromfile(SECRET, dtype=np.uint8))
+        out['write'] = attempt(lambda: open(WRITTEN, 'w').close())
+        libc = ctypes.CDLL(None, use_errno=True)
+        def fork():
+            pid = libc.fork()
+            if pid == 0:
+                libc._exit(0)
+            if pid < 0:
+                raise OSError(ctypes.get_errno(), 'fork')
+        out['fork'] = attempt(fork)
+        raise RuntimeError('OUTCOME ' + json.dumps(out))
+"#;
+
+    /// With the Python guards off (this test build only), the OS boundary alone stops every one
+    /// of them; with the boundary off too, the same code gets through — the test can tell.
+    #[test]
+    fn the_os_boundary_stops_hostile_code_without_the_python_guards() {
+        if let Some(why) = boundary().missing() {
+            if std::env::var("ASSAY_TEST_WITHOUT_OS_BOUNDARY").as_deref() == Ok("1") {
+                println!("skipped, as asked: {why}");
+                return;
+            }
+            panic!(
+                "part of the OS boundary is missing on this machine: {why} (set \
+                 ASSAY_TEST_WITHOUT_OS_BOUNDARY=1 to skip this test where the kernel lacks it)"
+            );
+        }
+        let library = tempfile::tempdir().unwrap();
+        let outside = tempfile::tempdir().unwrap();
+        let secret = outside.path().join("secret.txt");
+        std::fs::write(&secret, "not for task code").unwrap();
+        let written = outside.path().join("written");
+        let listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+        listener.set_nonblocking(true).unwrap();
+        let code = HOSTILE
+            .replace("PORT", &listener.local_addr().unwrap().port().to_string())
+            .replace("SECRET", &format!("{:?}", secret.display().to_string()))
+            .replace("WRITTEN", &format!("{:?}", written.display().to_string()));
+        let tasks = library.path().join("generated_tasks");
+        std::fs::create_dir_all(&tasks).unwrap();
+        std::fs::write(tasks.join("hostile.py"), code).unwrap();
+        let run = |defences: Defences| -> BTreeMap<String, String> {
+            let refused = record_with(
+                library.path(),
+                library.path(),
+                &tasks.join("hostile.py"),
+                &[0],
+                crate::CodeLimits::default(),
+                defences,
+            )
+            .expect_err("the task raises what it saw");
+            let json = refused
+                .reason
+                .split_once("OUTCOME ")
+                .and_then(|(_, r)| r.rsplit_once('}'))
+                .map(|(j, _)| format!("{j}}}"))
+                .unwrap_or_else(|| panic!("{refused:?}"));
+            serde_json::from_str(&json).unwrap_or_else(|e| panic!("{e}: {refused:?}"))
+        };
+
+        let bounded = run(Defences {
+            without_python_guards: true,
+            without_os_boundary: false,
+        });
+        // seccomp answers EPERM (the rlimit on processes would say EAGAIN); Landlock EACCES.
+        assert_eq!(bounded["socket"], "PermissionError(1)", "{bounded:?}");
+        assert_eq!(bounded["fork"], "PermissionError(1)", "{bounded:?}");
+        assert_eq!(bounded["read"], "PermissionError(13)", "{bounded:?}");
+        assert_eq!(bounded["numpy"], "PermissionError(13)", "{bounded:?}");
+        assert_eq!(bounded["write"], "PermissionError(13)", "{bounded:?}");
+        assert!(!written.exists());
+        assert!(
+            listener.accept().is_err(),
+            "nothing reached the listener through the boundary"
+        );
+
+        let open = run(Defences {
+            without_python_guards: true,
+            without_os_boundary: true,
+        });
+        for reach in ["socket", "read", "numpy", "write"] {
+            assert_eq!(open[reach], "ok", "{reach} without any boundary: {open:?}");
+        }
+        assert!(written.exists());
+        assert!(
+            listener.accept().is_ok(),
+            "the same code reaches it unbounded"
+        );
+    }
 
     #[test]
     fn the_python_named_wins_then_assay_s_own_environment_then_python3() {
