@@ -11,8 +11,13 @@ use anyhow::Context;
 use assay_import::{Import, ImportOptions, Pipeline, import, spec_to_yaml};
 use assay_plan::TaskDocument;
 
+/// How a failed seed is marked where a goal that fails at the end had held before
+/// ([`assay_sim::Episode::goals_last_held`]): the plan knocked off what it had placed.
+const UNDONE: &str = "a goal met earlier came undone";
+
 /// Runs every imported task's oracle on seeds `0..seeds` and adds what happened to its mapping
-/// report: a plan that fails on some seed is reported, not hidden.
+/// report: a plan that fails on some seed is reported, not hidden, and a seed where a goal held
+/// before the plan undid it says so.
 pub fn check_oracles(batch: &mut Import, seeds: u64) {
     use assay_import::{Mapping, MappingStatus};
     let specs: Vec<(usize, assay_spec::spec::TaskSpec)> = batch
@@ -37,14 +42,24 @@ pub fn check_oracles(batch: &mut Import, seeds: u64) {
                     };
                     let why = match assay_sim::simulate(&specs[k].1, seed, "oracle") {
                         Ok(ep) if ep.outcome.success => None,
-                        Ok(ep) => Some(
-                            ep.outcome
-                                .predicates
-                                .iter()
-                                .find(|p| !p.holds)
-                                .map(|p| format!("{}: {}", p.label, p.detail))
-                                .unwrap_or_else(|| "the plan did not finish".into()),
-                        ),
+                        Ok(ep) => {
+                            let preds = &ep.outcome.predicates;
+                            let failed = preds.iter().position(|p| !p.holds);
+                            let mut why = failed
+                                .map(|k| format!("{}: {}", preds[k].label, preds[k].detail))
+                                .unwrap_or_else(|| "the plan did not finish".into());
+                            let undone =
+                                preds.iter().zip(&ep.goals_last_held).find_map(|(p, last)| {
+                                    (!p.holds).then_some(*last).flatten().map(|s| (p, s))
+                                });
+                            if let Some((p, step)) = undone {
+                                why.push_str(&format!(
+                                    " ({UNDONE}: {} held at step {step}, not at the end)",
+                                    p.label
+                                ));
+                            }
+                            Some(why)
+                        }
                         Err(e) => Some(format!("cannot simulate: {e}")),
                     };
                     results.lock().expect("not poisoned")[k].push((seed, why));
@@ -61,10 +76,20 @@ pub fn check_oracles(batch: &mut Import, seeds: u64) {
             .filter(|r| r.1.is_some())
             .map(|r| r.0.to_string())
             .collect();
+        let undone: Vec<String> = rs
+            .iter()
+            .filter(|r| r.1.as_ref().is_some_and(|w| w.contains(UNDONE)))
+            .map(|r| r.0.to_string())
+            .collect();
+        let undone = if undone.is_empty() {
+            String::new()
+        } else {
+            format!(" (on {}, {UNDONE})", undone.join(", "))
+        };
         let note = match rs.iter().find_map(|r| r.1.as_ref().map(|w| (r.0, w))) {
             None => format!("checked in the simulator: solves {solved} of {seeds} seeds"),
             Some((seed, why)) => format!(
-                "checked in the simulator: solves {solved} of {seeds} seeds; fails on seed(s) {}; seed {seed}: {why}",
+                "checked in the simulator: solves {solved} of {seeds} seeds; fails on seed(s) {}{undone}; seed {seed}: {why}",
                 failed.join(", ")
             ),
         };

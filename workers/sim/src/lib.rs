@@ -86,6 +86,10 @@ pub struct Episode {
     /// How many of the task's goal predicates held at each keyframe (the ground truth an offline
     /// judge reads; the last keyframe is the final state, so it matches `outcome.predicates`).
     pub keyframe_goals: Vec<u32>,
+    /// Per goal (in the spec's order), the last physics step at a recorded row where it held
+    /// with nothing in the tool, or `None` where it never did: a goal that fails at the end but
+    /// held before was undone (the plan knocked off what it had placed).
+    pub goals_last_held: Vec<Option<u64>>,
     /// States evenly spaced over the same span for an episode video (empty unless asked for).
     pub video: Vec<(u64, SceneSnapshot)>,
     /// Camera frames the policy looked at (0 for a policy that reads the sim's state).
@@ -351,14 +355,6 @@ struct Acted {
     observations: u64,
 }
 
-/// Goal predicates that hold in `scene`.
-fn goals_met(spec: &TaskSpec, scene: &SimScene) -> u32 {
-    predicates::evaluate(&spec.goals, scene)
-        .iter()
-        .filter(|p| p.holds)
-        .count() as u32
-}
-
 /// One episode as it runs: this seed's variation of the task, its scene and controller, what is
 /// recorded, and the physics step reached.
 struct Rollout<'s> {
@@ -368,6 +364,8 @@ struct Rollout<'s> {
     rec: Recorder,
     /// Goals holding at each recorded row, for the keyframes' ground truth.
     met: Vec<u32>,
+    /// Per goal, the last step at a recorded row where it held with nothing in the tool.
+    last_held: Vec<Option<u64>>,
     /// The generator's staged reward (`reward_steps`), checked at each recorded row where
     /// nothing is held (GenSim checks after each action, once the object is let go).
     reward: predicates::StagedReward,
@@ -405,6 +403,7 @@ impl<'s> Rollout<'s> {
             ctl,
             rec,
             met: Vec::new(),
+            last_held: vec![None; spec.goals.len()],
             reward: predicates::StagedReward::default(),
             step: 0,
             dt,
@@ -417,7 +416,14 @@ impl<'s> Rollout<'s> {
     fn record(&mut self, step: u32, time: f64, held: Option<usize>) {
         self.rec
             .record(&self.scene, step, time, self.ctl.command, held);
-        self.met.push(goals_met(self.spec, &self.scene));
+        let goals = predicates::evaluate(&self.spec.goals, &self.scene);
+        self.met
+            .push(goals.iter().filter(|p| p.holds).count() as u32);
+        for (last, p) in self.last_held.iter_mut().zip(&goals) {
+            if p.holds && held.is_none() {
+                *last = Some(u64::from(step));
+            }
+        }
         if held.is_none() && !self.spec.reward_steps.is_empty() {
             self.reward.check(&self.spec.reward_steps, &self.scene);
         }
@@ -641,6 +647,7 @@ impl<'s> Rollout<'s> {
                 .map(|&row| (u64::from(rec.step_at(row)), rec.snapshot(row, spec)))
                 .collect(),
             keyframe_goals: keyframe_rows.iter().map(|&row| self.met[row]).collect(),
+            goals_last_held: self.last_held.clone(),
             video: evenly_spaced(first, rec.rows() - 1, request.video_frames)
                 .into_iter()
                 .map(|row| (u64::from(rec.step_at(row)), rec.snapshot(row, spec)))
