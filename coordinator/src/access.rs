@@ -25,6 +25,7 @@ const READER: &[Access] = &[Access::Submitter, Access::Viewer];
 const TABLE: &[(&str, &[Access])] = &[
     ("/assay.v1.WorkerSession/Session", WORKER),
     ("/assay.v1.Coordinator/SubmitBatch", SUBMITTER),
+    ("/assay.v1.Coordinator/SubmitBatchStream", SUBMITTER),
     ("/assay.v1.Coordinator/CancelBatch", SUBMITTER),
     ("/assay.v1.Coordinator/GetBatch", READER),
     ("/assay.v1.Coordinator/ListBatches", READER),
@@ -119,6 +120,7 @@ mod tests {
     use assay_proto::auth::Token;
 
     const SUBMIT: &str = "/assay.v1.Coordinator/SubmitBatch";
+    const SUBMIT_STREAM: &str = "/assay.v1.Coordinator/SubmitBatchStream";
     const CANCEL: &str = "/assay.v1.Coordinator/CancelBatch";
     const SESSION: &str = "/assay.v1.WorkerSession/Session";
     const READS: [&str; 4] = [
@@ -134,6 +136,7 @@ mod tests {
         for (path, may) in [
             (SESSION, vec![Admin, Worker]),
             (SUBMIT, vec![Admin, Submitter]),
+            (SUBMIT_STREAM, vec![Admin, Submitter]),
             (CANCEL, vec![Admin, Submitter]),
         ]
         .into_iter()

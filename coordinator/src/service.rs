@@ -138,25 +138,9 @@ type StatusStream = Pin<Box<dyn Stream<Item = Result<pb::BatchStatus, Status>> +
 type SessionStream = Pin<Box<dyn Stream<Item = Result<pb::CoordinatorMessage, Status>> + Send>>;
 
 impl CoordinatorService {
-    async fn status(&self, id: String) -> Result<pb::BatchStatus, Status> {
-        let (c, queued) = self
-            .shared
-            .store
-            .call(move |s| Ok((s.counts(&id)?, s.queued_needs(Some(&id))?)))
-            .await?;
-        let mut status = counts_to_pb(&c, self.shared.workers_connected.load(Ordering::Relaxed));
-        status.waiting = crate::capability::waiting(&queued, &self.shared.capabilities.offered());
-        Ok(status)
-    }
-}
-
-#[tonic::async_trait]
-impl pb::coordinator_server::Coordinator for CoordinatorService {
-    async fn submit_batch(
-        &self,
-        req: Request<pb::SubmitBatchRequest>,
-    ) -> Result<Response<pb::SubmitBatchResponse>, Status> {
-        let req = req.into_inner();
+    /// Checks a batch's request, plans it into shards and stores it (`SubmitBatch`, and
+    /// `SubmitBatchStream` once its stream is read).
+    async fn submit(&self, req: pb::SubmitBatchRequest) -> Result<pb::SubmitBatchResponse, Status> {
         if req.tasks.is_empty() {
             return Err(Status::invalid_argument("the batch has no task documents"));
         }
@@ -271,14 +255,14 @@ impl pb::coordinator_server::Coordinator for CoordinatorService {
         if !duplicate_of.is_empty() {
             info!(batch = %batch_id, %duplicate_of, %content_hash, "batch skipped: the same tasks were evaluated before");
             let _ = self.shared.events.send(batch_id.clone());
-            return Ok(Response::new(pb::SubmitBatchResponse {
+            return Ok(pb::SubmitBatchResponse {
                 batch_id,
                 accepted_tasks: accepted,
                 shards: 0,
                 rejected: invalid.iter().map(pb::SpecError::from).collect(),
                 content_hash,
                 duplicate_of,
-            }));
+            });
         }
         info!(batch = %batch_id, accepted, rejected = invalid.len(), shards, "batch submitted");
         for e in &invalid {
@@ -286,14 +270,71 @@ impl pb::coordinator_server::Coordinator for CoordinatorService {
         }
         self.shared.work.notify_waiters();
         let _ = self.shared.events.send(batch_id.clone());
-        Ok(Response::new(pb::SubmitBatchResponse {
+        Ok(pb::SubmitBatchResponse {
             batch_id,
             accepted_tasks: accepted,
             shards,
             rejected: invalid.iter().map(pb::SpecError::from).collect(),
             content_hash,
             duplicate_of: String::new(),
-        }))
+        })
+    }
+
+    async fn status(&self, id: String) -> Result<pb::BatchStatus, Status> {
+        let (c, queued) = self
+            .shared
+            .store
+            .call(move |s| Ok((s.counts(&id)?, s.queued_needs(Some(&id))?)))
+            .await?;
+        let mut status = counts_to_pb(&c, self.shared.workers_connected.load(Ordering::Relaxed));
+        status.waiting = crate::capability::waiting(&queued, &self.shared.capabilities.offered());
+        Ok(status)
+    }
+}
+
+#[tonic::async_trait]
+impl pb::coordinator_server::Coordinator for CoordinatorService {
+    async fn submit_batch(
+        &self,
+        req: Request<pb::SubmitBatchRequest>,
+    ) -> Result<Response<pb::SubmitBatchResponse>, Status> {
+        self.submit(req.into_inner()).await.map(Response::new)
+    }
+
+    async fn submit_batch_stream(
+        &self,
+        req: Request<tonic::Streaming<pb::SubmitBatchRequest>>,
+    ) -> Result<Response<pb::SubmitBatchResponse>, Status> {
+        use prost::Message;
+        let mut stream = req.into_inner();
+        let mut batch = stream
+            .message()
+            .await?
+            .ok_or_else(|| Status::invalid_argument("the stream carried no request"))?;
+        let mut bytes = batch.encoded_len();
+        let mut n = 1;
+        while let Some(more) = stream.message().await? {
+            n += 1;
+            bytes += more.encoded_len();
+            if bytes > assay_proto::MAX_BATCH_BYTES {
+                return Err(Status::resource_exhausted(format!(
+                    "the batch is larger than {} MiB (message {n} of the stream)",
+                    assay_proto::MAX_BATCH_BYTES >> 20
+                )));
+            }
+            let only_tasks = pb::SubmitBatchRequest {
+                tasks: more.tasks.clone(),
+                ..Default::default()
+            };
+            if more != only_tasks {
+                return Err(Status::invalid_argument(format!(
+                    "message {n} of the stream carries more than task documents (only the first \
+                     carries the batch's settings)"
+                )));
+            }
+            batch.tasks.extend(more.tasks);
+        }
+        self.submit(batch).await.map(Response::new)
     }
 
     async fn get_batch(

@@ -20,6 +20,13 @@ mod convert;
 /// Message size limit for every Assay channel (frames and reports exceed tonic's 4 MiB default).
 pub const MAX_MESSAGE_BYTES: usize = 64 * 1024 * 1024;
 
+/// The largest batch `Coordinator/SubmitBatchStream` takes, all its messages together.
+pub const MAX_BATCH_BYTES: usize = 1024 * 1024 * 1024;
+
+/// The size of each message a client streams a large batch in; a batch whose request is larger
+/// goes by `SubmitBatchStream`, a smaller one by `SubmitBatch`.
+pub const SUBMIT_CHUNK_BYTES: usize = 32 * 1024 * 1024;
+
 impl Role {
     /// The lowercase role name used on the command line and in logs.
     pub fn name(self) -> &'static str {

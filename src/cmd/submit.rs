@@ -30,7 +30,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     req.skip_if_evaluated = a.skip_if_evaluated;
     assay_run::rt::block_on(async move {
         let mut c = assay_run::client::connect(&a.coordinator).await?;
-        let r = c.submit_batch(req).await?.into_inner();
+        let r = assay_run::client::submit(&mut c, req).await?;
         crate::print::rejected(&r.rejected);
         if !r.duplicate_of.is_empty() {
             eprintln!(

@@ -18,6 +18,7 @@ mod gensim;
 mod gensim_seeds;
 mod import;
 mod judge;
+mod large_batch;
 mod layout;
 mod library;
 mod netns;

@@ -390,7 +390,7 @@ async fn submit_and_follow(
             (batch_id.clone(), None)
         }
         Claim::Fresh => {
-            let r = c.submit_batch(req).await?.into_inner();
+            let r = crate::client::submit(&mut c, req).await?;
             outdir::submitted(out, &r.batch_id)?;
             observer.event(Event::Submitted { response: &r });
             (r.batch_id, Some(r.rejected.len()))

@@ -360,7 +360,7 @@ impl<'o> Watcher<'o> {
         let rt = self.rt.clone();
         rt.block_on(async {
             let mut c = crate::client::connect(&self.addr).await?;
-            let r = c.submit_batch(req).await?.into_inner();
+            let r = crate::client::submit(&mut c, req).await?;
             self.observer.event(Event::Rejected {
                 errors: &r.rejected,
             });
