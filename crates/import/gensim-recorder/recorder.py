@@ -26,7 +26,8 @@ kills it after a wall-clock timeout; here, before the task's code is read:
 The stand-in follows GenSim's own `cliport/tasks/task.py`, `environments/environment.py` and
 `utils/utils.py` (the library's `reference/`): templates are filled as `fill_template` and
 `fill_dummy_template` fill them (the values are recorded, not written to a file), random poses are
-drawn collision-free in the same workspace, goals are recorded with their matches, targets,
+drawn as `get_random_pose` draws them (a free pixel of a top-down grid of what the assets cover,
+eroded by the declared size, with the same numpy calls), goals are recorded with their matches, targets,
 symmetries and metric. The answer is one JSON object: {"seeds": [...]} or {"refused": {field,
 reason}}; the importer translates it into a task spec."""
 
@@ -63,6 +64,7 @@ sys.stdout = _Bounded()
 sys.stderr = _Bounded()
 
 import json, math, random, types, copy, itertools, functools, collections, string, re
+import xml.etree.ElementTree as _ET
 try:
     import numpy as np
 except ImportError:
@@ -186,7 +188,9 @@ class Env:
     def __init__(self):
         self.objects = []
         self.obj_ids = {'fixed': [], 'rigid': [], 'deformable': []}
-        self.footprints = []  # (x, y, radius) of what was placed or drawn
+        # What the objects cover seen from above, as GenSim's sampler reads it from the scene it
+        # rendered: (position, yaw, shapes in the object's frame) per object added.
+        self.footprints = []
         self.task = None
 
     def add_object(self, urdf, pose, category='rigid', color=None, **kwargs):
@@ -220,8 +224,10 @@ class Env:
                              'category': category, 'color': rgb, 'color_name': name,
                              'pile': False})
         self.obj_ids.setdefault(category, []).append(oid)
-        if not any(abs(f[0] - pos[0]) < 1e-9 and abs(f[1] - pos[1]) < 1e-9 for f in self.footprints):
-            self.footprints.append((pos[0], pos[1], 0.03))
+        # What later draws keep clear of: the asset as drawn, at the pose it was given.
+        yaw = euler_from_quat(rot)[2]
+        shapes = asset_shapes(path, fill) or [('disc', 0.0, 0.0, 0.03)]
+        self.footprints.append((pos[0], pos[1], yaw, shapes))
         return oid
 
     def __getattr__(self, name):
@@ -242,6 +248,150 @@ def assets_relative(path, field):
 
 
 TEMPLATES = {}
+# What an asset covers in x, y, in its own frame, as filled ((path, fill) → shapes, or None).
+SHAPES = {}
+
+
+def asset_shapes(path, fill):
+    """What a URDF collides with seen from above, in its own frame, as the task filled it: boxes
+    ('box', cx, cy, hx, hy: an OBJ mesh as the box about its vertices) and discs ('disc', cx, cy,
+    r: cylinders, spheres), each link placed by its joints' offsets (their turns are not
+    followed), its visuals where a link has no collision; None where the file cannot tell."""
+    key = (path, tuple(sorted((k, str(v)) for k, v in fill.items())))
+    if key not in SHAPES:
+        try:
+            SHAPES[key] = _shapes(path, fill)
+        except Exception:
+            SHAPES[key] = None
+    return SHAPES[key]
+
+
+def _xyz(element, attr='xyz'):
+    origin = element.find('origin') if element is not None else None
+    text = origin.get(attr, '0 0 0') if origin is not None else '0 0 0'
+    return [float(v) for v in text.split()]
+
+
+def _shapes(path, fill):
+    if not path.endswith('.urdf'):
+        return None
+    text = template_text(path)
+    for k, v in sorted(fill.items(), key=lambda kv: -len(kv[0])):
+        text = text.replace(k, str(v))
+    root = _ET.fromstring(text)
+    links = {l.get('name'): l for l in root.findall('link')}
+    offset = {name: None for name in links}
+    children = {j.find('child').get('link') for j in root.findall('joint')}
+    for name in links:
+        if name not in children:
+            offset[name] = (0.0, 0.0)
+    for _ in range(len(links)):
+        for j in root.findall('joint'):
+            parent, child = j.find('parent').get('link'), j.find('child').get('link')
+            if offset.get(parent) is not None and offset.get(child) is None:
+                x, y = _xyz(j)[:2]
+                offset[child] = (offset[parent][0] + x, offset[parent][1] + y)
+    shapes = []
+    for name, link in links.items():
+        ox, oy = offset[name] or (0.0, 0.0)
+        for shape in link.findall('collision') or link.findall('visual'):
+            x, y = _xyz(shape)[:2]
+            x, y = x + ox, y + oy
+            g = shape.find('geometry')
+            if g is None or len(g) == 0:
+                continue
+            g = g[0]
+            if g.tag == 'box':
+                sx, sy = [float(v) for v in g.get('size').split()][:2]
+                shapes.append(('box', x, y, sx / 2, sy / 2))
+            elif g.tag in ('cylinder', 'sphere'):
+                shapes.append(('disc', x, y, float(g.get('radius'))))
+            elif g.tag == 'mesh':
+                box = _mesh_box(path, g.get('filename'), g.get('scale', '1 1 1'))
+                if box is None:
+                    return None
+                (x0, x1), (y0, y1) = box
+                shapes.append(('box', x + (x0 + x1) / 2, y + (y0 + y1) / 2, (x1 - x0) / 2,
+                               (y1 - y0) / 2))
+            else:
+                return None
+    return shapes or None
+
+
+def _mesh_box(urdf, filename, scale):
+    """The box about an OBJ mesh's vertices in x, y, scaled."""
+    if not filename or not filename.lower().endswith('.obj'):
+        return None
+    full = _os.path.realpath(_os.path.join(ASSETS, _os.path.dirname(urdf), filename))
+    if not full.startswith(ASSETS + _os.sep):
+        return None
+    sx, sy = [float(v) for v in scale.split()][:2]
+    xs, ys = [], []
+    with open(full) as f:
+        for line in f:
+            if line.startswith('v '):
+                x, y = line.split()[1:3]
+                xs.append(float(x) * sx)
+                ys.append(float(y) * sy)
+    if not xs:
+        return None
+    return (min(xs), max(xs)), (min(ys), max(ys))
+
+
+def occupied(footprints, bounds, pix):
+    """The pixels of GenSim's top-down grid over `bounds` that the footprints cover (a pixel
+    (u, v) is y = bounds[1, 0] + u·pix, x = bounds[0, 0] + v·pix, as `utils.pix_to_xyz`)."""
+    h = int(np.round((bounds[1, 1] - bounds[1, 0]) / pix))
+    w = int(np.round((bounds[0, 1] - bounds[0, 0]) / pix))
+    mask = np.zeros((h, w), dtype=bool)
+    for x, y, yaw, shapes in footprints:
+        c, s = math.cos(yaw), math.sin(yaw)
+        for shape in shapes:
+            kind, cx, cy = shape[:3]
+            wx, wy = x + c * cx - s * cy, y + s * cx + c * cy
+            reach = shape[3] if kind == 'disc' else math.hypot(shape[3], shape[4])
+            v0 = max(int((wx - reach - bounds[0, 0]) / pix) - 1, 0)
+            v1 = min(int((wx + reach - bounds[0, 0]) / pix) + 2, w)
+            u0 = max(int((wy - reach - bounds[1, 0]) / pix) - 1, 0)
+            u1 = min(int((wy + reach - bounds[1, 0]) / pix) + 2, h)
+            if v0 >= v1 or u0 >= u1:
+                continue
+            px = bounds[0, 0] + (np.arange(v0, v1) + 0.5) * pix - wx
+            py = bounds[1, 0] + (np.arange(u0, u1) + 0.5) * pix - wy
+            dx, dy = np.meshgrid(px, py)
+            if kind == 'disc':
+                inside = dx * dx + dy * dy <= reach * reach
+            else:
+                lx, ly = c * dx + s * dy, -s * dx + c * dy
+                inside = (np.abs(lx) <= shape[3]) & (np.abs(ly) <= shape[4])
+            mask[u0:u1, v0:v1] |= inside
+    return mask
+
+
+def erode(free, k):
+    """cv2.erode(free, np.ones((k, k))): a pixel stays free where the k × k window about it
+    (anchored at k // 2, outside the image counting as free) is all free."""
+    if k <= 1:
+        return free
+    taken = (free == 0).astype(np.int64)
+    h, w = taken.shape
+    total = np.zeros((h + 1, w + 1), dtype=np.int64)
+    total[1:, 1:] = taken.cumsum(0).cumsum(1)
+    a = k // 2
+    r0 = np.clip(np.arange(h) - a, 0, h)
+    r1 = np.clip(np.arange(h) - a + k, 0, h)
+    c0 = np.clip(np.arange(w) - a, 0, w)
+    c1 = np.clip(np.arange(w) - a + k, 0, w)
+    window = (total[r1][:, c1] - total[r0][:, c1] - total[r1][:, c0] + total[r0][:, c0])
+    return (window == 0).astype(np.uint8)
+
+
+def sample_distribution(prob, n_samples=1):
+    """utils.sample_distribution, as GenSim's: the same draw from numpy's stream."""
+    flat_prob = prob.flatten() / np.sum(prob)
+    rand_ind = np.random.choice(np.arange(len(flat_prob)), n_samples, p=flat_prob, replace=False)
+    rand_ind_coords = np.array(np.unravel_index(rand_ind, prob.shape)).T
+    return np.int32(rand_ind_coords.squeeze())
 
 
 def template_text(path):
@@ -442,21 +592,26 @@ class Task:
             self.pos_eps = 0.02
 
     def get_random_pose(self, env, obj_size=0.1, **kw):
+        """task.py's get_random_pose: a free pixel of the top-down grid, drawn as GenSim draws
+        it (what the scene covers, the image's border, eroded by the object's diagonal; the
+        centre where nothing is free), then a yaw."""
         if np.isscalar(obj_size):
             obj_size = (obj_size, obj_size, obj_size)
         obj_size = [float(s) for s in obj_size]
-        max_size = math.sqrt(obj_size[0] ** 2 + obj_size[1] ** 2)
-        r = max_size / 2
-        lo_x, hi_x = float(self.bounds[0, 0]) + r, float(self.bounds[0, 1]) - r
-        lo_y, hi_y = float(self.bounds[1, 0]) + r, float(self.bounds[1, 1]) - r
-        x, y = float(np.mean(self.bounds[0, :2])), float(np.mean(self.bounds[1, :2]))
-        for _ in range(1000):
-            cx = float(np.random.uniform(lo_x, max(hi_x, lo_x)))
-            cy = float(np.random.uniform(lo_y, max(hi_y, lo_y)))
-            if all(math.hypot(cx - fx, cy - fy) > r + fr + 0.01 for fx, fy, fr in env.footprints):
-                x, y = cx, cy
-                break
-        env.footprints.append((x, y, r))
+        max_size = np.sqrt(obj_size[0] ** 2 + obj_size[1] ** 2)
+        erode_size = int(np.round(max_size / self.pix_size))
+        taken = occupied(env.footprints, self.bounds, self.pix_size)
+        free = np.ones(taken.shape, dtype=np.uint8)
+        free[taken] = 0
+        free[0, :], free[:, 0], free[-1, :], free[:, -1] = 0, 0, 0, 0
+        free = erode(free, erode_size)
+        if np.sum(free) == 0:
+            pix = (free.shape[0] // 2, free.shape[1] // 2)
+        else:
+            pix = sample_distribution(np.float32(free))
+        u, v = int(pix[0]), int(pix[1])
+        x = float(self.bounds[0, 0] + v * self.pix_size)
+        y = float(self.bounds[1, 0] + u * self.pix_size)
         z = 0.05 if len(obj_size) == 2 else obj_size[2] / 2
         theta = np.random.rand() * 2 * np.pi
         return [x, y, z], quat_from_euler((0, 0, theta))

@@ -311,3 +311,64 @@ fn task_code_runs_behind_the_os_boundary_where_the_kernel_allows() {
         }
     }
 }
+
+/// GenSim's `get_random_pose` keeps clear of what the scene shows, not of the size the code
+/// declared for it: a pallet declared 0.15 m across whose asset is 0.30 × 0.25 m, then blocks
+/// drawn with their 4 cm size, land clear of the pallet as drawn (by half their diagonal, less a
+/// pixel of GenSim's grid), on every seed.
+#[test]
+fn random_poses_keep_clear_of_the_assets_as_drawn() {
+    let code = r#"
+import numpy as np
+from cliport.tasks.task import Task
+from cliport.utils import utils
+
+class PalletThenBlocks(Task):
+    def reset(self, env):
+        super().reset(env)
+        pallet_pose = self.get_random_pose(env, (0.15, 0.15, 0.02))
+        env.add_object('pallet/pallet.urdf', pallet_pose, 'fixed')
+        for _ in range(3):
+            env.add_object('block/block.urdf', self.get_random_pose(env, (0.04, 0.04, 0.04)))
+        self.add_goal(objs=[1], matches=np.ones((1, 1)), targ_poses=[pallet_pose], replace=False,
+                      rotations=False, metric='pose', params=None, step_max_reward=1)
+"#;
+    let tmp = tempfile::tempdir().unwrap();
+    write_library(tmp.path(), &[("pallet-then-blocks".into(), code.into())]);
+    let seeds: Vec<u64> = (0..20).collect();
+    let placed = assay_import::gensim::reset_objects(
+        tmp.path(),
+        &corpus().join("assets"),
+        "pallet-then-blocks",
+        &seeds,
+    )
+    .unwrap();
+    // The pallet's mesh spans ±0.15 m in x and ±0.125 m in y about its origin.
+    let (hx, hy) = (0.15, 0.125);
+    let clear = (0.04f64.hypot(0.04)) / 2.0 - 0.003125;
+    for (seed, objects) in seeds.iter().zip(placed) {
+        let objects = objects.unwrap();
+        let pallet = &objects[0];
+        let q = pallet.rotation;
+        let yaw =
+            (2.0 * (q[3] * q[2] + q[0] * q[1])).atan2(1.0 - 2.0 * (q[1] * q[1] + q[2] * q[2]));
+        for block in &objects[1..] {
+            let (dx, dy) = (
+                block.position[0] - pallet.position[0],
+                block.position[1] - pallet.position[1],
+            );
+            let (lx, ly) = (
+                yaw.cos() * dx + yaw.sin() * dy,
+                -yaw.sin() * dx + yaw.cos() * dy,
+            );
+            // Distance from the block's centre to the pallet's rectangle.
+            let out = ((lx.abs() - hx).max(0.0)).hypot((ly.abs() - hy).max(0.0));
+            assert!(
+                out >= clear,
+                "seed {seed}: a block {:.1} mm from the pallet as drawn (at least {:.1})",
+                out * 1000.0,
+                clear * 1000.0
+            );
+        }
+    }
+}

@@ -167,7 +167,7 @@ pub(super) fn declutter(
         notes.inferred(
             &format!("scene.objects.{id}"),
             format!(
-                "moved {:.0} mm to the nearest free spot: it overlapped '{with}' (the asset is larger than the size its code declared; GenSim's sampler keeps clear of what is drawn, the recorder of the declared size)",
+                "moved {:.0} mm to the nearest free spot: it overlapped '{with}' (its asset is larger than the size its code drew it with: GenSim's sampler keeps that size clear of what is drawn, and PyBullet pushes overlapping bodies apart at the first step)",
                 moved * 1000.0
             ),
         );

@@ -447,6 +447,10 @@ fn record_with(
         .env("OMP_NUM_THREADS", "1")
         .env("MKL_NUM_THREADS", "1")
         .env("LC_ALL", "C.UTF-8")
+        // glibc's heap keeps what numpy frees (the sampler's grids, a few hundred KB each,
+        // every draw): mapped and unmapped each time, they tripled the import's time.
+        .env("MALLOC_MMAP_THRESHOLD_", "16777216")
+        .env("MALLOC_TRIM_THRESHOLD_", "67108864")
         .env("ASSAY_RECORDER_PYTHON", &python)
         .env("ASSAY_RECORDER_CPU_SECONDS", cpu_seconds.to_string())
         .env("ASSAY_RECORDER_MEMORY_BYTES", memory_bytes.to_string())
