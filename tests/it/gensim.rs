@@ -84,11 +84,11 @@ fn gensim_library_oracles_solve_what_imports() {
 
 /// Every imported task starts at rest: over the settle before a policy acts, no object on the
 /// table is shoved aside or turned by another it was drawn into (generated code declares sizes
-/// smaller than the assets it loads; the importer moves such objects clear, as GenSim's own
-/// sampler keeps clear of what it has drawn). Each seed starts where the task's code put its
-/// objects: one it put in the air (its bottom over 5 mm above the table) drops, and one with
-/// nothing within reach may rock on its mesh's pieces (GenSim's letter-shaped kit pieces); each
-/// may move up to 1 cm, and is counted.
+/// smaller than the assets it loads; the importer moves such objects clear, as PyBullet pushes
+/// overlapping bodies apart). Each seed starts where the task's code put its objects: one it put
+/// in the air (its bottom over 5 mm above the table) drops, and one with nothing within reach
+/// may rock on its mesh's pieces (GenSim's letter-shaped kit pieces); each may move up to 1 cm
+/// and turn up to 8°, and is counted.
 #[test]
 fn gensim_library_tasks_start_at_rest() {
     let root = repo().join("../shared/corpora/gensim-library");
@@ -133,10 +133,14 @@ fn gensim_library_tasks_start_at_rest() {
                 // larger than its code declared is shoved 1 to 3 cm.
                 let dropped = b.translation.z - o.half.z > 0.005;
                 let settling = if dropped || !near { 0.01 } else { 0.005 };
-                if moved > 0.005 && moved <= settling {
+                // A mesh alone rocks on its pieces: GenSim's letter-shaped kit pieces tilt 2-6°
+                // at most places on the table under rapier (measured), with nothing to shove
+                // them; beside another object, a turn is a shove.
+                let rocking = if near { 3.0 } else { 8.0 };
+                if (moved > 0.005 && moved <= settling) || (turned > 3.0 && turned <= rocking) {
                     settled += 1;
                 }
-                if moved > settling || turned > 3.0 {
+                if moved > settling || turned > rocking {
                     shoved.push(format!(
                         "{} seed {seed}: '{}' moved {:.1} mm, turned {turned:.1}°",
                         t.id,
@@ -149,7 +153,7 @@ fn gensim_library_tasks_start_at_rest() {
         }
     }
     println!(
-        "{checked} scenes settled; {settled} objects moved 5-10 mm alone (dropped or rocking); {} objects shoved",
+        "{checked} scenes settled; {settled} objects moved 5-10 mm or turned 3-8° alone (dropped or rocking); {} objects shoved",
         shoved.len()
     );
     assert!(checked > 0);
