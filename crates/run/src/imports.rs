@@ -12,7 +12,8 @@ use assay_import::{Import, ImportOptions, Pipeline, import, spec_to_yaml};
 use assay_plan::TaskDocument;
 
 /// How a failed seed is marked where a goal that fails at the end had held before
-/// ([`assay_sim::Episode::goals_last_held`]): the plan knocked off what it had placed.
+/// ([`assay_sim::Episode::goals_held`]): the plan knocked off what it had placed; the note says
+/// what the tool carried when it was lost.
 const UNDONE: &str = "a goal met earlier came undone";
 
 /// Runs every imported task's oracle on seeds `0..seeds` and adds what happened to its mapping
@@ -48,13 +49,23 @@ pub fn check_oracles(batch: &mut Import, seeds: u64) {
                             let mut why = failed
                                 .map(|k| format!("{}: {}", preds[k].label, preds[k].detail))
                                 .unwrap_or_else(|| "the plan did not finish".into());
-                            let undone =
-                                preds.iter().zip(&ep.goals_last_held).find_map(|(p, last)| {
-                                    (!p.holds).then_some(*last).flatten().map(|s| (p, s))
-                                });
-                            if let Some((p, step)) = undone {
+                            let undone = preds
+                                .iter()
+                                .zip(&ep.goals_held)
+                                .find(|(p, g)| !p.holds && g.last.is_some());
+                            if let Some((p, g)) = undone {
+                                let held = g.last.unwrap_or_default();
+                                let lost = match &g.lost {
+                                    Some((step, Some(carried))) => format!(
+                                        "lost at step {step} while the tool carried '{carried}'"
+                                    ),
+                                    Some((step, None)) => {
+                                        format!("lost at step {step} with nothing in the tool")
+                                    }
+                                    None => "not at the end".into(),
+                                };
                                 why.push_str(&format!(
-                                    " ({UNDONE}: {} held at step {step}, not at the end)",
+                                    " ({UNDONE}: {} held at step {held}, {lost})",
                                     p.label
                                 ));
                             }

@@ -86,10 +86,10 @@ pub struct Episode {
     /// How many of the task's goal predicates held at each keyframe (the ground truth an offline
     /// judge reads; the last keyframe is the final state, so it matches `outcome.predicates`).
     pub keyframe_goals: Vec<u32>,
-    /// Per goal (in the spec's order), the last physics step at a recorded row where it held
-    /// with nothing in the tool, or `None` where it never did: a goal that fails at the end but
-    /// held before was undone (the plan knocked off what it had placed).
-    pub goals_last_held: Vec<Option<u64>>,
+    /// Per goal (in the spec's order), when it last held with nothing in the tool and when it
+    /// then stopped holding: a goal that fails at the end but held before was undone (the plan
+    /// knocked off what it had placed).
+    pub goals_held: Vec<GoalHeld>,
     /// States evenly spaced over the same span for an episode video (empty unless asked for).
     pub video: Vec<(u64, SceneSnapshot)>,
     /// Camera frames the policy looked at (0 for a policy that reads the sim's state).
@@ -355,6 +355,17 @@ struct Acted {
     observations: u64,
 }
 
+/// When one goal last held with nothing in the tool, and when it then stopped holding.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct GoalHeld {
+    /// The last physics step at a recorded row where it held with nothing in the tool (`None`:
+    /// never).
+    pub last: Option<u64>,
+    /// The first recorded row after `last` where it no longer held: its step, and the object the
+    /// tool carried then (`None`: nothing). `None` where it held to the end.
+    pub lost: Option<(u64, Option<String>)>,
+}
+
 /// One episode as it runs: this seed's variation of the task, its scene and controller, what is
 /// recorded, and the physics step reached.
 struct Rollout<'s> {
@@ -364,8 +375,8 @@ struct Rollout<'s> {
     rec: Recorder,
     /// Goals holding at each recorded row, for the keyframes' ground truth.
     met: Vec<u32>,
-    /// Per goal, the last step at a recorded row where it held with nothing in the tool.
-    last_held: Vec<Option<u64>>,
+    /// Per goal, when it last held with nothing in the tool, and when it then stopped.
+    goals_held: Vec<GoalHeld>,
     /// The generator's staged reward (`reward_steps`), checked at each recorded row where
     /// nothing is held (GenSim checks after each action, once the object is let go).
     reward: predicates::StagedReward,
@@ -403,7 +414,7 @@ impl<'s> Rollout<'s> {
             ctl,
             rec,
             met: Vec::new(),
-            last_held: vec![None; spec.goals.len()],
+            goals_held: vec![GoalHeld::default(); spec.goals.len()],
             reward: predicates::StagedReward::default(),
             step: 0,
             dt,
@@ -419,9 +430,13 @@ impl<'s> Rollout<'s> {
         let goals = predicates::evaluate(&self.spec.goals, &self.scene);
         self.met
             .push(goals.iter().filter(|p| p.holds).count() as u32);
-        for (last, p) in self.last_held.iter_mut().zip(&goals) {
+        for (g, p) in self.goals_held.iter_mut().zip(&goals) {
             if p.holds && held.is_none() {
-                *last = Some(u64::from(step));
+                g.last = Some(u64::from(step));
+                g.lost = None;
+            } else if !p.holds && g.last.is_some() && g.lost.is_none() {
+                let carried = held.map(|k| self.scene.objects[k].id.clone());
+                g.lost = Some((u64::from(step), carried));
             }
         }
         if held.is_none() && !self.spec.reward_steps.is_empty() {
@@ -647,7 +662,7 @@ impl<'s> Rollout<'s> {
                 .map(|&row| (u64::from(rec.step_at(row)), rec.snapshot(row, spec)))
                 .collect(),
             keyframe_goals: keyframe_rows.iter().map(|&row| self.met[row]).collect(),
-            goals_last_held: self.last_held.clone(),
+            goals_held: self.goals_held.clone(),
             video: evenly_spaced(first, rec.rows() - 1, request.video_frames)
                 .into_iter()
                 .map(|row| (u64::from(rec.step_at(row)), rec.snapshot(row, spec)))

@@ -41,9 +41,15 @@ fn a_goal_met_and_then_undone_is_told_from_one_never_met() {
     let ep = assay_sim::simulate(&spec, 0, "oracle").unwrap();
     let holds: Vec<bool> = ep.outcome.predicates.iter().map(|p| p.holds).collect();
     assert_eq!(holds, [false, true, false], "{:?}", ep.outcome.predicates);
-    let last = &ep.goals_last_held;
-    assert_eq!(last.len(), 3);
-    let (zone, spot) = (last[0].expect("the zone held once"), last[1].unwrap());
-    assert!(zone < spot, "{last:?}");
-    assert_eq!(last[2], None, "never met");
+    let g = &ep.goals_held;
+    assert_eq!(g.len(), 3);
+    // The zone held until the block was picked up again and carried off.
+    let zone = g[0].last.expect("the zone held once");
+    let (lost, carried) = g[0].lost.clone().expect("and then no longer");
+    assert!(zone < lost, "{g:?}");
+    assert_eq!(carried.as_deref(), Some("red_block"), "{g:?}");
+    // The last spot held to the end; the other spot never did.
+    assert!(g[1].last.unwrap() > lost, "{g:?}");
+    assert_eq!(g[1].lost, None, "{g:?}");
+    assert_eq!(g[2], assay_sim::GoalHeld::default(), "never met");
 }
