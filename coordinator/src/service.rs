@@ -313,7 +313,7 @@ impl pb::coordinator_server::Coordinator for CoordinatorService {
             .ok_or_else(|| Status::invalid_argument("the stream carried no request"))?;
         let mut bytes = batch.encoded_len();
         let mut n = 1;
-        while let Some(more) = stream.message().await? {
+        while let Some(mut more) = stream.message().await? {
             n += 1;
             bytes += more.encoded_len();
             if bytes > assay_proto::MAX_BATCH_BYTES {
@@ -322,17 +322,14 @@ impl pb::coordinator_server::Coordinator for CoordinatorService {
                     assay_proto::MAX_BATCH_BYTES >> 20
                 )));
             }
-            let only_tasks = pb::SubmitBatchRequest {
-                tasks: more.tasks.clone(),
-                ..Default::default()
-            };
-            if more != only_tasks {
+            let tasks = std::mem::take(&mut more.tasks);
+            if more != pb::SubmitBatchRequest::default() {
                 return Err(Status::invalid_argument(format!(
                     "message {n} of the stream carries more than task documents (only the first \
                      carries the batch's settings)"
                 )));
             }
-            batch.tasks.extend(more.tasks);
+            batch.tasks.extend(tasks);
         }
         self.submit(batch).await.map(Response::new)
     }

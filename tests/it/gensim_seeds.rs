@@ -8,6 +8,7 @@ use std::collections::BTreeMap;
 use crate::common::*;
 use assay_import::gensim::{ResetObject, reset_objects};
 use assay_spec::spec::TaskSpec;
+use assay_testkit::gensim::{Task, write_library};
 
 /// Seeds whose poses are compared with the task's code.
 const CHECKED: u64 = 5;
@@ -19,15 +20,33 @@ fn library() -> (std::path::PathBuf, std::path::PathBuf) {
 }
 
 fn import(layout_seeds: Option<Vec<u64>>) -> assay_import::Import {
-    let (root, _) = library();
+    let (root, assets) = library();
+    import_at(&root, &assets, layout_seeds)
+}
+
+fn import_at(
+    root: &std::path::Path,
+    assets: &std::path::Path,
+    layout_seeds: Option<Vec<u64>>,
+) -> assay_import::Import {
     assay_import::import(
         assay_import::Pipeline::Gensim,
-        &root,
+        root,
         &assay_import::ImportOptions {
+            asset_root: Some(assets.to_owned()),
             layout_seeds,
             ..assay_import::ImportOptions::default()
         },
     )
+}
+
+/// A library of the test's own `tasks`, on the corpus's assets, imported laid out on
+/// `layout_seeds`.
+fn import_own(tasks: &[Task<'_>], layout_seeds: Vec<u64>) -> assay_import::Import {
+    let (_, assets) = library();
+    let lib = tempfile::tempdir().unwrap();
+    write_library(lib.path(), tasks);
+    import_at(lib.path(), &assets, Some(layout_seeds))
 }
 
 fn yaw_of(q: &[f64; 4]) -> f64 {
@@ -243,17 +262,12 @@ fn gensim_library_seeds_spread_over_the_workspace() {
 /// seeds that built run.
 #[test]
 fn a_seed_whose_reset_fails_is_an_error_of_its_episode_alone() {
-    let (_, assets) = library();
-    let lib = tempfile::tempdir().unwrap();
-    std::fs::create_dir_all(lib.path().join("generated_tasks")).unwrap();
-    std::fs::write(
-        lib.path().join("generated_tasks.json"),
-        r#"{"unlucky-block": {"task-name": "unlucky-block", "task-description": "put the block in the zone", "assets-used": ["block/block.urdf", "zone/zone.urdf"]}}"#,
-    )
-    .unwrap();
-    std::fs::write(
-        lib.path().join("generated_tasks/unlucky_block.py"),
-        r#"import numpy as np
+    let imp = import_own(
+        &[Task {
+            name: "unlucky-block",
+            description: "put the block in the zone",
+            assets: &["block/block.urdf", "zone/zone.urdf"],
+            code: r#"import numpy as np
 from cliport.tasks.task import Task
 from cliport.utils import utils
 
@@ -277,16 +291,8 @@ class UnluckyBlock(Task):
                       replace=True, rotations=False, metric='zone',
                       params=[(zone_pose, zone_size)], step_max_reward=1)
 "#,
-    )
-    .unwrap();
-    let imp = assay_import::import(
-        assay_import::Pipeline::Gensim,
-        lib.path(),
-        &assay_import::ImportOptions {
-            asset_root: Some(assets),
-            layout_seeds: Some((0..6).collect()),
-            ..assay_import::ImportOptions::default()
-        },
+        }],
+        (0..6).collect(),
     );
     let t = &imp.tasks[0];
     let spec = t.spec.as_ref().unwrap_or_else(|| panic!("{:?}", t.errors));
@@ -339,38 +345,29 @@ class UnluckyBlock(Task):
 /// oracle meets in order scores in full.
 #[test]
 fn gensim_s_reward_and_success_disagree_where_gensim_s_goals_supersede_each_other() {
-    let (_, assets) = library();
-    let lib = tempfile::tempdir().unwrap();
-    std::fs::create_dir_all(lib.path().join("generated_tasks")).unwrap();
-    std::fs::write(
-        lib.path().join("generated_tasks.json"),
-        r#"{"move-block-twice": {"task-name": "move-block-twice", "task-description": "put the block on the left spot, then on the right one", "assets-used": ["block/block.urdf"]},
-            "two-blocks-in-order": {"task-name": "two-blocks-in-order", "task-description": "put the red block on its spot, then the blue one", "assets-used": ["block/block.urdf"]}}"#,
-    )
-    .unwrap();
     let header = "import numpy as np\nfrom cliport.tasks.task import Task\nfrom cliport.utils import utils\n\n\n";
-    std::fs::write(
-        lib.path().join("generated_tasks/move_block_twice.py"),
-        format!(
-            "{header}class MoveBlockTwice(Task):\n    def reset(self, env):\n        super().reset(env)\n        block = env.add_object('block/block.urdf', ((0.5, 0.0, 0.02), (0, 0, 0, 1)), color=utils.COLORS['red'])\n        for y in (0.2, -0.2):\n            self.add_goal(objs=[block], matches=np.ones((1, 1)), targ_poses=[((0.45, y, 0.02), (0, 0, 0, 1))], replace=False, rotations=False, metric='pose', params=None, step_max_reward=0.5)\n"
-        ),
-    )
-    .unwrap();
-    std::fs::write(
-        lib.path().join("generated_tasks/two_blocks_in_order.py"),
-        format!(
-            "{header}class TwoBlocksInOrder(Task):\n    def reset(self, env):\n        super().reset(env)\n        for k, (c, y) in enumerate((('red', 0.2), ('blue', -0.2))):\n            block = env.add_object('block/block.urdf', ((0.6, y / 2, 0.02), (0, 0, 0, 1)), color=utils.COLORS[c])\n            self.add_goal(objs=[block], matches=np.ones((1, 1)), targ_poses=[((0.4, y, 0.02), (0, 0, 0, 1))], replace=False, rotations=False, metric='pose', params=None, step_max_reward=0.5)\n"
-        ),
-    )
-    .unwrap();
-    let imp = assay_import::import(
-        assay_import::Pipeline::Gensim,
-        lib.path(),
-        &assay_import::ImportOptions {
-            asset_root: Some(assets),
-            layout_seeds: Some(vec![0]),
-            ..assay_import::ImportOptions::default()
-        },
+    let move_block_twice = format!(
+        "{header}class MoveBlockTwice(Task):\n    def reset(self, env):\n        super().reset(env)\n        block = env.add_object('block/block.urdf', ((0.5, 0.0, 0.02), (0, 0, 0, 1)), color=utils.COLORS['red'])\n        for y in (0.2, -0.2):\n            self.add_goal(objs=[block], matches=np.ones((1, 1)), targ_poses=[((0.45, y, 0.02), (0, 0, 0, 1))], replace=False, rotations=False, metric='pose', params=None, step_max_reward=0.5)\n"
+    );
+    let two_blocks_in_order = format!(
+        "{header}class TwoBlocksInOrder(Task):\n    def reset(self, env):\n        super().reset(env)\n        for k, (c, y) in enumerate((('red', 0.2), ('blue', -0.2))):\n            block = env.add_object('block/block.urdf', ((0.6, y / 2, 0.02), (0, 0, 0, 1)), color=utils.COLORS[c])\n            self.add_goal(objs=[block], matches=np.ones((1, 1)), targ_poses=[((0.4, y, 0.02), (0, 0, 0, 1))], replace=False, rotations=False, metric='pose', params=None, step_max_reward=0.5)\n"
+    );
+    let imp = import_own(
+        &[
+            Task {
+                name: "move-block-twice",
+                description: "put the block on the left spot, then on the right one",
+                assets: &["block/block.urdf"],
+                code: &move_block_twice,
+            },
+            Task {
+                name: "two-blocks-in-order",
+                description: "put the red block on its spot, then the blue one",
+                assets: &["block/block.urdf"],
+                code: &two_blocks_in_order,
+            },
+        ],
+        vec![0],
     );
     let run = |name: &str| {
         let t = imp.tasks.iter().find(|t| t.name == name).unwrap();

@@ -81,26 +81,18 @@ fn hostile(out: &Path) -> Vec<(&'static str, String, &'static str)> {
     ]
 }
 
+/// A library of `(name, code)` entries ([`assay_testkit::gensim::write_library`]).
 fn write_library(root: &Path, entries: &[(String, String)]) {
-    std::fs::create_dir_all(root.join("generated_tasks")).unwrap();
-    let mut lib = serde_json::Map::new();
-    for (name, code) in entries {
-        lib.insert(
-            name.clone(),
-            serde_json::json!({"task-name": name, "task-description": "d", "assets-used": []}),
-        );
-        std::fs::write(
-            root.join("generated_tasks")
-                .join(format!("{}.py", name.replace('-', "_"))),
+    let tasks: Vec<assay_testkit::gensim::Task<'_>> = entries
+        .iter()
+        .map(|(name, code)| assay_testkit::gensim::Task {
+            name,
+            description: "d",
+            assets: &[],
             code,
-        )
-        .unwrap();
-    }
-    std::fs::write(
-        root.join("generated_tasks.json"),
-        serde_json::to_string_pretty(&lib).unwrap(),
-    )
-    .unwrap();
+        })
+        .collect();
+    assay_testkit::gensim::write_library(root, &tasks);
 }
 
 #[test]

@@ -52,14 +52,17 @@ pub async fn submit(
 fn chunks(mut req: pb::SubmitBatchRequest, limit: usize) -> Vec<pb::SubmitBatchRequest> {
     use prost::Message;
     let tasks = std::mem::take(&mut req.tasks);
+    let mut size = req.encoded_len();
     let mut out = vec![req];
     for t in tasks {
-        let last = out.last_mut().expect("one message at least");
+        // A repeated field's element: its bytes, their length and the field's tag.
         let grows = t.encoded_len() + 8;
-        if !last.tasks.is_empty() && last.encoded_len() + grows > limit {
+        if !out.last().expect("one message at least").tasks.is_empty() && size + grows > limit {
             out.push(pb::SubmitBatchRequest::default());
+            size = 0;
         }
-        out.last_mut().expect("just pushed").tasks.push(t);
+        size += grows;
+        out.last_mut().expect("one message at least").tasks.push(t);
     }
     out
 }

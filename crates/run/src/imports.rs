@@ -16,6 +16,46 @@ use assay_plan::TaskDocument;
 /// what the tool carried when it was lost.
 const UNDONE: &str = "a goal met earlier came undone";
 
+/// Why a seed's oracle episode failed, and whether a goal met in it came undone.
+#[derive(Debug, Clone)]
+struct Failure {
+    why: String,
+    undone: bool,
+}
+
+/// The first unmet goal of a failed episode, and the first goal that held before and came
+/// undone, with when it was lost and what the tool carried then.
+fn failure(ep: &assay_sim::Episode) -> Failure {
+    let preds = &ep.outcome.predicates;
+    let mut why = preds
+        .iter()
+        .find(|p| !p.holds)
+        .map(|p| format!("{}: {}", p.label, p.detail))
+        .unwrap_or_else(|| "the plan did not finish".into());
+    let undone = preds
+        .iter()
+        .zip(&ep.goals_held)
+        .find(|(p, g)| !p.holds && g.last.is_some());
+    if let Some((p, g)) = undone {
+        let held = g.last.unwrap_or_default();
+        let lost = match &g.lost {
+            Some((step, Some(carried))) => {
+                format!("lost at step {step} while the tool carried '{carried}'")
+            }
+            Some((step, None)) => format!("lost at step {step} with nothing in the tool"),
+            None => "not at the end".into(),
+        };
+        why.push_str(&format!(
+            " ({UNDONE}: {} held at step {held}, {lost})",
+            p.label
+        ));
+    }
+    Failure {
+        why,
+        undone: undone.is_some(),
+    }
+}
+
 /// Runs every imported task's oracle on seeds `0..seeds` and adds what happened to its mapping
 /// report: a plan that fails on some seed is reported, not hidden, and a seed where a goal held
 /// before the plan undid it says so.
@@ -43,35 +83,11 @@ pub fn check_oracles(batch: &mut Import, seeds: u64) {
                     };
                     let why = match assay_sim::simulate(&specs[k].1, seed, "oracle") {
                         Ok(ep) if ep.outcome.success => None,
-                        Ok(ep) => {
-                            let preds = &ep.outcome.predicates;
-                            let failed = preds.iter().position(|p| !p.holds);
-                            let mut why = failed
-                                .map(|k| format!("{}: {}", preds[k].label, preds[k].detail))
-                                .unwrap_or_else(|| "the plan did not finish".into());
-                            let undone = preds
-                                .iter()
-                                .zip(&ep.goals_held)
-                                .find(|(p, g)| !p.holds && g.last.is_some());
-                            if let Some((p, g)) = undone {
-                                let held = g.last.unwrap_or_default();
-                                let lost = match &g.lost {
-                                    Some((step, Some(carried))) => format!(
-                                        "lost at step {step} while the tool carried '{carried}'"
-                                    ),
-                                    Some((step, None)) => {
-                                        format!("lost at step {step} with nothing in the tool")
-                                    }
-                                    None => "not at the end".into(),
-                                };
-                                why.push_str(&format!(
-                                    " ({UNDONE}: {} held at step {held}, {lost})",
-                                    p.label
-                                ));
-                            }
-                            Some(why)
-                        }
-                        Err(e) => Some(format!("cannot simulate: {e}")),
+                        Ok(ep) => Some(failure(&ep)),
+                        Err(e) => Some(Failure {
+                            why: format!("cannot simulate: {e}"),
+                            undone: false,
+                        }),
                     };
                     results.lock().expect("not poisoned")[k].push((seed, why));
                 }
@@ -89,7 +105,7 @@ pub fn check_oracles(batch: &mut Import, seeds: u64) {
             .collect();
         let undone: Vec<String> = rs
             .iter()
-            .filter(|r| r.1.as_ref().is_some_and(|w| w.contains(UNDONE)))
+            .filter(|r| r.1.as_ref().is_some_and(|f| f.undone))
             .map(|r| r.0.to_string())
             .collect();
         let undone = if undone.is_empty() {
@@ -97,7 +113,7 @@ pub fn check_oracles(batch: &mut Import, seeds: u64) {
         } else {
             format!(" (on {}, {UNDONE})", undone.join(", "))
         };
-        let note = match rs.iter().find_map(|r| r.1.as_ref().map(|w| (r.0, w))) {
+        let note = match rs.iter().find_map(|r| r.1.as_ref().map(|f| (r.0, &f.why))) {
             None => format!("checked in the simulator: solves {solved} of {seeds} seeds"),
             Some((seed, why)) => format!(
                 "checked in the simulator: solves {solved} of {seeds} seeds; fails on seed(s) {}{undone}; seed {seed}: {why}",
