@@ -285,7 +285,7 @@ fn import_checks_the_oracles_it_infers() {
     ]);
     assert!(ok, "{stdout}\n{stderr}");
     assert!(
-        stdout.contains("checked in the simulator: solves 0 of 1 seeds; fails on seed(s) 0; seed 0: pose_within(red_block"),
+        stdout.contains("checked in the simulator: solves 0 of 1 seeds; GenSim's reward complete on 0 of 1; fails on seed(s) 0; seed 0: pose_within(red_block"),
         "{stdout}"
     );
 }

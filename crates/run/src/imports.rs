@@ -56,6 +56,12 @@ fn failure(ep: &assay_sim::Episode) -> Failure {
     }
 }
 
+/// Whether a generator's reward reached its most: GenSim keeps an episode as a demonstration when
+/// its reward is above 0.99 of 1.
+fn full_reward(r: &assay_model::episode::GeneratorReward) -> bool {
+    r.value > r.max - 0.01
+}
+
 /// Runs every imported task's oracle on seeds `0..seeds` and adds what happened to its mapping
 /// report: a plan that fails on some seed is reported, not hidden, and a seed where a goal held
 /// before the plan undid it says so.
@@ -81,15 +87,20 @@ pub fn check_oracles(batch: &mut Import, seeds: u64) {
                     let Some(&(k, seed)) = jobs.get(j) else {
                         return;
                     };
-                    let why = match assay_sim::simulate(&specs[k].1, seed, "oracle") {
-                        Ok(ep) if ep.outcome.success => None,
-                        Ok(ep) => Some(failure(&ep)),
-                        Err(e) => Some(Failure {
-                            why: format!("cannot simulate: {e}"),
-                            undone: false,
-                        }),
+                    let (why, scored) = match assay_sim::simulate(&specs[k].1, seed, "oracle") {
+                        Ok(ep) => (
+                            (!ep.outcome.success).then(|| failure(&ep)),
+                            ep.outcome.generator_reward.as_ref().map(full_reward),
+                        ),
+                        Err(e) => (
+                            Some(Failure {
+                                why: format!("cannot simulate: {e}"),
+                                undone: false,
+                            }),
+                            None,
+                        ),
                     };
-                    results.lock().expect("not poisoned")[k].push((seed, why));
+                    results.lock().expect("not poisoned")[k].push((seed, why, scored));
                 }
             });
         }
@@ -98,6 +109,18 @@ pub fn check_oracles(batch: &mut Import, seeds: u64) {
     for ((i, _), mut rs) in specs.into_iter().zip(results) {
         rs.sort_by_key(|r| r.0);
         let solved = rs.iter().filter(|r| r.1.is_none()).count();
+        // GenSim's own verdict where the task has its reward: a demonstration is kept when the
+        // episode's reward reaches its most (`total_reward > 0.99` in GenSim's `demos.py`).
+        let scored = rs.iter().filter_map(|r| r.2).collect::<Vec<bool>>();
+        let by_gensim = if scored.is_empty() {
+            String::new()
+        } else {
+            format!(
+                "; GenSim's reward complete on {} of {}",
+                scored.iter().filter(|&&b| b).count(),
+                scored.len()
+            )
+        };
         let failed: Vec<String> = rs
             .iter()
             .filter(|r| r.1.is_some())
@@ -114,9 +137,11 @@ pub fn check_oracles(batch: &mut Import, seeds: u64) {
             format!(" (on {}, {UNDONE})", undone.join(", "))
         };
         let note = match rs.iter().find_map(|r| r.1.as_ref().map(|f| (r.0, &f.why))) {
-            None => format!("checked in the simulator: solves {solved} of {seeds} seeds"),
+            None => {
+                format!("checked in the simulator: solves {solved} of {seeds} seeds{by_gensim}")
+            }
             Some((seed, why)) => format!(
-                "checked in the simulator: solves {solved} of {seeds} seeds; fails on seed(s) {}{undone}; seed {seed}: {why}",
+                "checked in the simulator: solves {solved} of {seeds} seeds{by_gensim}; fails on seed(s) {}{undone}; seed {seed}: {why}",
                 failed.join(", ")
             ),
         };

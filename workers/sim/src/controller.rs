@@ -97,12 +97,14 @@ fn colliders_besides(scene: &SimScene, held: usize) -> Vec<ColliderHandle> {
 /// hole or a slot between two blocks is found as it is, whatever the shapes. The shapes are the
 /// simulator's (a seeing oracle finds `relative_to` where its camera saw it, then lowers what
 /// it carries onto what is there): `spot` is an oracle's place, not a policy's observation.
-fn resting_height(scene: &SimScene, held: usize, x: f32, y: f32) -> f32 {
+/// `inset` (0–1] keeps the grid to that share of the footprint about its centre: below 1 it
+/// finds what the spot is meant to stand on, not a neighbour's edge under the rim.
+fn resting_height(scene: &SimScene, held: usize, x: f32, y: f32, inset: f32) -> f32 {
     const GRID: usize = 9;
     const ABOVE: f32 = 3.0;
     let o = &scene.objects[held];
     let c = scene.pose(o).translation;
-    let reach = o.half.x.max(o.half.y) * std::f32::consts::SQRT_2;
+    let reach = o.half.x.max(o.half.y) * std::f32::consts::SQRT_2 * inset;
     let cast = |colliders: &[ColliderHandle], from: Vec3, dir: Vec3| {
         colliders
             .iter()
@@ -132,6 +134,9 @@ fn resting_height(scene: &SimScene, held: usize, x: f32, y: f32) -> f32 {
     }
     centre
 }
+
+/// Share of a carried object's footprint that finds what a `spot` is meant to stand on.
+const CORE_INSET: f32 = 0.6;
 
 /// Gap (m) a `spot` place keeps from what stands beside the spot at the height it lands.
 const SIDE_CLEARANCE: f32 = 0.002;
@@ -185,6 +190,26 @@ fn clear_of_neighbours(scene: &SimScene, held: usize, at: Vec3) -> Vec3 {
         }
     }
     at + shift
+}
+
+/// Where to lower held object `held` for a `spot` at (`x`, `y`): where [`resting_height`]
+/// lands it, kept clear of its neighbours ([`clear_of_neighbours`]). Where only a neighbour's
+/// edge under its rim holds it up above what the spot's middle stands on (two 4 cm blocks
+/// asked 4 cm apart, the first set down a fraction of a millimetre off), the spot is cleared
+/// at the lower height instead and kept if that frees it: lowered as it was, the block would
+/// sit on that edge and tip.
+fn edge_free_spot(scene: &SimScene, held: usize, x: f32, y: f32) -> Vec3 {
+    const LOWER: f32 = 0.001;
+    let full = resting_height(scene, held, x, y, 1.0);
+    let core = resting_height(scene, held, x, y, CORE_INSET);
+    if core < full - LOWER {
+        let at = clear_of_neighbours(scene, held, Vec3::new(x, y, core));
+        let z = resting_height(scene, held, at.x, at.y, 1.0);
+        if z < full - LOWER {
+            return Vec3::new(at.x, at.y, z);
+        }
+    }
+    clear_of_neighbours(scene, held, Vec3::new(x, y, full))
 }
 
 /// Steps to wait for the pads of a friction gripper to travel `gap` (m) and settle.
@@ -654,8 +679,7 @@ impl Controller {
                         };
                         origin.map(|o| {
                             let (x, y) = (o.x + xy[0] as f32, o.y + xy[1] as f32);
-                            let z = resting_height(scene, h.object, x, y);
-                            clear_of_neighbours(scene, h.object, Vec3::new(x, y, z))
+                            edge_free_spot(scene, h.object, x, y)
                         })
                     }
                 };
