@@ -212,6 +212,87 @@ fn edge_free_spot(scene: &SimScene, held: usize, x: f32, y: f32) -> Vec3 {
     clear_of_neighbours(scene, held, Vec3::new(x, y, full))
 }
 
+/// A move of the plan: a pick of `object` at `pick`, its place at `place`, and the index after
+/// it.
+struct Move {
+    object: String,
+    pick: usize,
+    place: usize,
+    end: usize,
+}
+
+/// Where a place sets what it carries (its centre on the table), where that does not depend on
+/// an object the plan still moves (`moved`).
+fn place_xy(p: &Primitive, scene: &SimScene, moved: &[&str]) -> Option<Vec3> {
+    let Primitive::Place { target } = p else {
+        return None;
+    };
+    let centre_of = |id: &str| {
+        if moved.contains(&id) {
+            return None;
+        }
+        let i = scene.index_of(id)?;
+        Some(scene.pose(&scene.objects[i]).translation)
+    };
+    let xy = match target {
+        PlaceTarget::Spot { xy, relative_to } => {
+            let origin = match relative_to {
+                None => Vec3::ZERO,
+                Some(id) => centre_of(id)?,
+            };
+            origin + Vec3::new(xy[0] as f32, xy[1] as f32, 0.0)
+        }
+        PlaceTarget::At(xy) => Vec3::new(xy[0] as f32, xy[1] as f32, 0.0),
+        PlaceTarget::AtPoint(p) => Vec3::new(p[0] as f32, p[1] as f32, 0.0),
+        PlaceTarget::Zone(id) => scene_zone(scene, id)?.0,
+        PlaceTarget::On(id) | PlaceTarget::Into(id) => centre_of(id)?,
+    };
+    Some(Vec3::new(xy.x, xy.y, 0.0))
+}
+
+/// Whether object `i`, set down with its centre at `at` as it is turned now, would cover part
+/// of where object `k` stands (their boxes seen from above).
+fn footprints_overlap(scene: &SimScene, i: usize, at: Vec3, k: usize) -> bool {
+    let corners = |half: Vec3, pose: Pose, centre: Vec3| -> [[f32; 2]; 4] {
+        let ax = pose.rotation * Vec3::X * half.x;
+        let ay = pose.rotation * Vec3::Y * half.y;
+        [(1.0, 1.0), (1.0, -1.0), (-1.0, -1.0), (-1.0, 1.0)].map(|(u, v)| {
+            [
+                centre.x + u * ax.x + v * ay.x,
+                centre.y + u * ax.y + v * ay.y,
+            ]
+        })
+    };
+    let (a, b) = (&scene.objects[i], &scene.objects[k]);
+    let (pa, pb) = (scene.pose(a), scene.pose(b));
+    let ca = corners(a.half, pa, at);
+    let cb = corners(b.half, pb, pb.translation);
+    let edge =
+        |c: &[[f32; 2]; 4], from: usize, to: usize| [c[to][0] - c[from][0], c[to][1] - c[from][1]];
+    // Separating axes: the normals of both rectangles' edges.
+    let axes = [
+        edge(&ca, 0, 1),
+        edge(&ca, 0, 3),
+        edge(&cb, 0, 1),
+        edge(&cb, 0, 3),
+    ];
+    !axes.iter().any(|e| {
+        let n = [-e[1], e[0]];
+        if n[0] * n[0] + n[1] * n[1] < 1e-12 {
+            return false;
+        }
+        let span = |c: &[[f32; 2]; 4]| {
+            c.iter().fold((f32::MAX, f32::MIN), |(lo, hi), p| {
+                let d = p[0] * n[0] + p[1] * n[1];
+                (lo.min(d), hi.max(d))
+            })
+        };
+        let (a0, a1) = span(&ca);
+        let (b0, b1) = span(&cb);
+        a1 <= b0 || b1 <= a0
+    })
+}
+
 /// Steps to wait for the pads of a friction gripper to travel `gap` (m) and settle.
 fn finger_steps(gap: f32, dt: f32) -> u32 {
     (gap.abs() / (crate::scene::FINGER_SPEED * dt)).ceil() as u32 + 24
@@ -372,6 +453,9 @@ impl Controller {
     /// Advances one step: returns the commanded tool position and the event to apply after it.
     pub fn step(&mut self, scene: &SimScene, step: u64) -> (Vec3, Event) {
         while self.queue.is_empty() && self.next < self.plan.len() {
+            if self.tracker.is_none() {
+                self.clear_target_first(scene, step);
+            }
             let p = self.plan[self.next].clone();
             self.next += 1;
             self.expand(&p, scene, step);
@@ -390,6 +474,91 @@ impl Controller {
             return (self.command, ev);
         }
         (self.command, Event::None)
+    }
+
+    /// Where the next primitive starts a move (pick, turns, place) whose place would set the
+    /// object where another object stands that a later move of the plan carries away, that
+    /// move goes first (as a person clears a spot before using it): generated layouts draw
+    /// objects onto targets the code computed but never occupied, and set there, the object
+    /// is knocked off or lands on the other one. Only a later move that does not depend on the
+    /// moves it jumps (its target is not on or beside what they carry) is brought forward, and
+    /// each move at most once. Each reordering is noted in the episode.
+    fn clear_target_first(&mut self, scene: &SimScene, step: u64) {
+        let Some(first) = self.move_at(self.next) else {
+            return;
+        };
+        let moved: Vec<&str> = self.plan[self.next..]
+            .iter()
+            .filter_map(|p| match p {
+                Primitive::Pick { object } => Some(object.as_str()),
+                _ => None,
+            })
+            .collect();
+        let Some(i) = scene.index_of(&first.object) else {
+            return;
+        };
+        let Some(at) = place_xy(&self.plan[first.place], scene, &moved) else {
+            return;
+        };
+        let mut start = first.end;
+        while let Some(later) = self.move_at(start) {
+            let start_next = later.end;
+            let blocking = scene
+                .index_of(&later.object)
+                .filter(|&k| !scene.objects[k].fixed && footprints_overlap(scene, i, at, k));
+            let jumped: Vec<&str> = self.plan[self.next..later.pick]
+                .iter()
+                .filter_map(|p| match p {
+                    Primitive::Pick { object } => Some(object.as_str()),
+                    _ => None,
+                })
+                .collect();
+            let independent = match &self.plan[later.place] {
+                Primitive::Place { target } => match target {
+                    PlaceTarget::Spot { relative_to, .. } => {
+                        relative_to.as_deref().is_none_or(|r| !jumped.contains(&r))
+                    }
+                    PlaceTarget::On(r) | PlaceTarget::Into(r) => !jumped.contains(&r.as_str()),
+                    _ => true,
+                },
+                _ => false,
+            };
+            // Brought forward, it must not land where the first move's object stands now.
+            let clear = |k: usize| {
+                place_xy(&self.plan[later.place], scene, &jumped)
+                    .is_some_and(|to| !footprints_overlap(scene, k, to, i))
+            };
+            if let (Some(k), true) = (blocking, independent)
+                && clear(k)
+            {
+                let lifted = self.plan.drain(later.pick..later.end).collect::<Vec<_>>();
+                let text = format!(
+                    "moved '{}' first: it stood where '{}' goes",
+                    scene.objects[k].id, first.object
+                );
+                self.plan.splice(self.next..self.next, lifted);
+                self.notes.push(Note { step, text });
+                return;
+            }
+            start = start_next;
+        }
+    }
+
+    /// The move (a pick, any turns, a place) that starts at plan index `at`, if one does.
+    fn move_at(&self, at: usize) -> Option<Move> {
+        let Some(Primitive::Pick { object }) = self.plan.get(at) else {
+            return None;
+        };
+        let mut k = at + 1;
+        while let Some(Primitive::Turn { .. }) = self.plan.get(k) {
+            k += 1;
+        }
+        matches!(self.plan.get(k), Some(Primitive::Place { .. })).then(|| Move {
+            object: object.clone(),
+            pick: at,
+            place: k,
+            end: k + 1,
+        })
     }
 
     fn jitter(&mut self) -> Vec3 {
