@@ -392,25 +392,27 @@ fn to_pose(p: &assay_spec::urdf::Pose) -> Pose {
     Pose::from_parts(Vec3::new(x, y, z), Rotation::from_xyzw(qx, qy, qz, qw))
 }
 
-/// A URDF collision part as a rapier shape and its pose in the frame the part is placed in.
+/// A URDF collision part as rapier shapes and their poses in the frame the part is placed in
+/// (a mesh: its convex hull, as PyBullet takes a mesh of a moving body, and the hull's
+/// [`face_plates`]).
 fn urdf_part(
     part: &assay_spec::urdf::PlacedPart,
     mesh: Option<&assay_spec::scene::TriangleMesh>,
     k: usize,
     path: &str,
-) -> Result<(Pose, SharedShape), SimError> {
+) -> Result<Vec<(Pose, SharedShape)>, SimError> {
     let pose = to_pose(&part.pose);
     Ok(match &part.geometry {
         Geometry::Box { size } => {
             let h = v3(*size) / 2.0;
-            (pose, SharedShape::cuboid(h.x, h.y, h.z))
+            vec![(pose, SharedShape::cuboid(h.x, h.y, h.z))]
         }
-        Geometry::Sphere { radius } => (pose, SharedShape::ball(*radius as f32)),
+        Geometry::Sphere { radius } => vec![(pose, SharedShape::ball(*radius as f32))],
         // URDF cylinders stand on their local z; rapier's on y.
-        Geometry::Cylinder { radius, length } => (
+        Geometry::Cylinder { radius, length } => vec![(
             pose * Pose::new(Vec3::ZERO, Vec3::new(std::f32::consts::FRAC_PI_2, 0.0, 0.0)),
             SharedShape::cylinder(*length as f32 / 2.0, *radius as f32),
-        ),
+        )],
         Geometry::Mesh { scale, .. } => {
             let s = v3(*scale);
             let points: Vec<Vec3> = mesh
@@ -424,9 +426,99 @@ fn urdf_part(
                     format!("collision part {k}: the mesh has no usable hull"),
                 )
             })?;
-            (pose, hull)
+            let mut parts = face_plates(&hull);
+            parts.insert(0, (Pose::IDENTITY, hull));
+            parts.into_iter().map(|(p, s)| (pose * p, s)).collect()
         }
     })
+}
+
+/// Thickness (m) of a [`face_plates`] plate.
+const PLATE_THICKNESS: f32 = 0.0005;
+
+/// Thin boxes flush inside the faces of convex hull `hull` that have more than four corners.
+/// parry builds a contact between two faces from at most four corners of each, the first four
+/// in order (`ConvexPolyhedron::local_support_feature`, a TODO there): a hull resting on a
+/// many-sided face (a kit piece's 128-sided base) touches the table along one short stretch of
+/// its rim and rocks for ever (2-6°, measured on GenSim's kit pieces), where PyBullet clips the
+/// whole face and it rests. Each such face gets a plate, the largest rectangle about the
+/// middle of the face that fits in it (8 orientations tried) and 0.5 mm thick, whose four
+/// corners make the contact span the face. The plates lie inside the hull: the shape is
+/// unchanged.
+fn face_plates(hull: &SharedShape) -> Vec<(Pose, SharedShape)> {
+    let Some(poly) = hull.as_convex_polyhedron() else {
+        return Vec::new();
+    };
+    let mut plates = Vec::new();
+    for face in poly.faces() {
+        let (first, n) = (
+            face.first_vertex_or_edge as usize,
+            face.num_vertices_or_edges as usize,
+        );
+        if n <= 4 {
+            continue;
+        }
+        let corners: Vec<Vec3> = poly.vertices_adj_to_face()[first..first + n]
+            .iter()
+            .map(|&v| poly.points()[v as usize])
+            .collect();
+        let normal = face.normal;
+        // Which side of each edge the inside is.
+        let mean = corners.iter().copied().sum::<Vec3>() / n as f32;
+        let side = |q: Vec3, i: usize| {
+            let (a, b) = (corners[i], corners[(i + 1) % n]);
+            (b - a).cross(q - a).dot(normal)
+        };
+        let turn = (0..n).map(|i| side(mean, i)).sum::<f32>().signum();
+        let inside = |q: Vec3| (0..n).all(|i| side(q, i) * turn >= -1e-9);
+        let base = Rotation::from_rotation_arc(Vec3::Z, normal);
+        let mut best: Option<(f32, Pose, Vec3)> = None;
+        for k in 0..8 {
+            let frame =
+                base * Rotation::from_rotation_z(k as f32 * std::f32::consts::FRAC_PI_2 / 8.0);
+            let (u, v) = (frame * Vec3::X, frame * Vec3::Y);
+            let (mut lo, mut hi) = ([f32::MAX; 2], [f32::MIN; 2]);
+            for c in &corners {
+                let d = [(*c - mean).dot(u), (*c - mean).dot(v)];
+                for j in 0..2 {
+                    lo[j] = lo[j].min(d[j]);
+                    hi[j] = hi[j].max(d[j]);
+                }
+            }
+            let centre = mean + u * (lo[0] + hi[0]) / 2.0 + v * (lo[1] + hi[1]) / 2.0;
+            let half = [(hi[0] - lo[0]) / 2.0, (hi[1] - lo[1]) / 2.0];
+            let fits = |s: f32| {
+                [(1.0, 1.0), (1.0, -1.0), (-1.0, -1.0), (-1.0, 1.0)]
+                    .iter()
+                    .all(|(a, b)| inside(centre + u * (a * s * half[0]) + v * (b * s * half[1])))
+            };
+            let (mut s0, mut s1) = (0.0f32, 1.0f32);
+            if fits(1.0) {
+                s0 = 1.0;
+            } else {
+                for _ in 0..20 {
+                    let m = (s0 + s1) / 2.0;
+                    if fits(m) { s0 = m } else { s1 = m }
+                }
+            }
+            let area = s0 * s0 * half[0] * half[1];
+            if area > best.as_ref().map_or(0.0, |b| b.0) {
+                let pose = Pose::from_parts(centre - normal * (PLATE_THICKNESS / 2.0), frame);
+                best = Some((
+                    area,
+                    pose,
+                    Vec3::new(s0 * half[0], s0 * half[1], PLATE_THICKNESS / 2.0),
+                ));
+            }
+        }
+        if let Some((_, pose, h)) = best
+            && h.x > PLATE_THICKNESS
+            && h.y > PLATE_THICKNESS
+        {
+            plates.push((pose, SharedShape::cuboid(h.x, h.y, h.z)));
+        }
+    }
+    plates
 }
 
 /// One rigid body of an articulated object: its frame in the object's frame and its parts.
@@ -473,9 +565,10 @@ fn insert_articulated(
         }
     }
     for (k, (part, mesh)) in a.collisions.iter().enumerate() {
-        let (p, shape) = urdf_part(part, mesh.as_ref(), k, path)?;
         let b = &mut bodies[body_of[part.link]];
-        b.parts.push((b.frame.inverse() * p, shape));
+        for (p, shape) in urdf_part(part, mesh.as_ref(), k, path)? {
+            b.parts.push((b.frame.inverse() * p, shape));
+        }
     }
     let mut handles = vec![root];
     for (b, body) in bodies.iter().enumerate().skip(1) {
@@ -702,7 +795,7 @@ fn collider_for(shape: &Shape, spec: &TaskSpec, path: &str) -> Result<BuiltShape
                 if *articulated && !fixed_to(&a.urdf, part.link, root) {
                     continue;
                 }
-                parts.push(urdf_part(part, mesh.as_ref(), k, path)?);
+                parts.extend(urdf_part(part, mesh.as_ref(), k, path)?);
             }
             if parts.is_empty() {
                 return Err(SimError::spec(
@@ -740,7 +833,18 @@ fn collider_for(shape: &Shape, spec: &TaskSpec, path: &str) -> Result<BuiltShape
                 .map(|v| Vec3::new(v[0], v[1], v[2]) * s)
                 .collect();
             let shape = match collision {
-                MeshCollision::Hull => SharedShape::convex_hull(&points),
+                MeshCollision::Hull => SharedShape::convex_hull(&points).map(|hull| {
+                    let plates = face_plates(&hull);
+                    if plates.is_empty() {
+                        hull
+                    } else {
+                        SharedShape::compound(
+                            std::iter::once((Pose::IDENTITY, hull))
+                                .chain(plates)
+                                .collect(),
+                        )
+                    }
+                }),
                 MeshCollision::Decomposition if !mesh.triangles.is_empty() => {
                     Some(decomposition(&full, s, &points, &mesh.triangles))
                 }
