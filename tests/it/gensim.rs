@@ -3,11 +3,11 @@
 //! oracle of every imported task on 20 seeds — each seed the layout the task's own `reset()`
 //! built on it, its random poses drawn as GenSim draws them — and writes what it did into the
 //! mapping report; the table of it is printed here. The goal is 90 % of the imported tasks
-//! solved on at least 18 of the 20 seeds; 72 of 92 (78 %) are (on seed 0's scene with jitter, 73
-//! of 92). Most failures are a goal met and then undone: GenSim's sampler packs a scene as
-//! tightly as the sizes the code declares allow, and sometimes draws an object onto another's
-//! target. This test holds a floor of 75 % until the rest (docs/gensim.md lists them by cause)
-//! is fixed. `ASSAY_GENSIM_SEEDS=N` runs N seeds instead (the bar scales with it).
+//! solved (every goal holding at the end) on at least 18 of the 20 seeds; 81 of 92 (88 %) are
+//! (on seed 0's scene with jitter, 80 of 92), and GenSim's own reward is complete on at least 18
+//! seeds for 87 of 92. The rest is code that asks for what cannot stand and draws that put two
+//! structures in one place (docs/gensim.md lists them by cause). This test holds a floor of
+//! 85 %. `ASSAY_GENSIM_SEEDS=N` runs N seeds instead (the bar scales with it).
 
 use crate::common::*;
 
@@ -77,8 +77,8 @@ fn gensim_library_oracles_solve_what_imports() {
     println!("{solved} of {imported} imported tasks solved on at least {need} of {seeds} seeds");
     assert!(imported > 0, "nothing imported");
     assert!(
-        solved * 4 >= imported * 3,
-        "{solved} of {imported} imported tasks solved by their oracle on at least {need} of {seeds} seeds (the floor is 75 %, the goal 90 %)"
+        solved * 20 >= imported * 17,
+        "{solved} of {imported} imported tasks solved by their oracle on at least {need} of {seeds} seeds (the floor is 85 %, the goal 90 %)"
     );
 }
 

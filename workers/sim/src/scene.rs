@@ -872,11 +872,13 @@ fn collider_for(shape: &Shape, spec: &TaskSpec, path: &str) -> Result<BuiltShape
 
 /// Angular damping (1/s) of a URDF ball: rapier has no rolling resistance, and a ball released
 /// with the slightest spin rolls off its target, out of a shallow container or off the table.
-/// In PyBullet, where GenSim's tasks were written, Ravens' balls do not roll either: their URDF
-/// declares an inertia of 1 kg m² for 0.1 kg, which PyBullet uses as written. Taken as written
-/// here, that inertia makes a ball slide out of a container it lands in off-centre, where with
-/// this damping it rolls to the bottom and stops (measured on GenSim's library: 2 more tasks of
-/// 92 solved on ≥ 18 of 20 seeds, none fewer).
+/// GenSim's ball URDFs declare a rolling friction (0.0001) that PyBullet applies and rapier
+/// cannot. (Their inertia of 1 kg m² for 0.1 kg is not what PyBullet simulates: without
+/// `URDF_USE_INERTIA_FROM_FILE`, which Ravens does not pass, Bullet computes the inertia from the
+/// collision shapes' bounding box. Taken as written here, that inertia makes a ball slide out of
+/// a container it lands in off-centre.) This damping stands in for the rolling resistance: a
+/// ball rolls to the bottom of what it lands in and stops. Its value was chosen on GenSim's
+/// library (2 more tasks of 92 solved on ≥ 18 of 20 seeds, none fewer).
 const BALL_ROLLING_DAMPING: f32 = 5.0;
 
 /// Whether a URDF object is a ball: one link, every collision shape a sphere.

@@ -368,7 +368,7 @@ oracle:
 #[test]
 fn a_mesh_on_a_many_sided_face_rests_without_rocking() {
     let dir = tempfile::tempdir().unwrap();
-    let sides = 64;
+    let sides: u32 = 64;
     let mut text = String::new();
     for z in [0.0, 1.0] {
         for k in 0..sides {
@@ -382,7 +382,7 @@ fn a_mesh_on_a_many_sided_face_rests_without_rocking() {
             .collect::<Vec<_>>()
     };
     text.push_str(&format!("f {}\n", ring(0).join(" ")));
-    text.push_str(&format!("f {}\n", ring(sides as u32).join(" ")));
+    text.push_str(&format!("f {}\n", ring(sides).join(" ")));
     std::fs::write(dir.path().join("disc.obj"), text).unwrap();
     let spec = format!(
         r#"
