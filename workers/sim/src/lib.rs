@@ -9,6 +9,7 @@ pub mod arm;
 pub mod controller;
 pub mod learned;
 pub mod perception;
+mod placing;
 pub mod predicates;
 pub mod record;
 pub mod reference;
