@@ -39,7 +39,6 @@ const SQUEEZE: f32 = 0.005;
 /// rays cast towards each other along the closing axis, across the pads' width and height, find
 /// its widest part (a handle, not the ring it joins; the box when nothing is hit).
 fn grip(scene: &SimScene, i: usize, at: Vec3) -> (f32, f32) {
-    use rapier3d::parry::query::Ray;
     let o = &scene.objects[i];
     let x = scene.pose(o).rotation * Vec3::X;
     let yaw = x.y.atan2(x.x);
@@ -54,16 +53,7 @@ fn grip(scene: &SimScene, i: usize, at: Vec3) -> (f32, f32) {
     let centre = scene.pose(o).translation;
     let h = (0.8 * o.half.z).min(0.02);
     let colliders = scene.world.bodies[o.body].colliders();
-    let hit = |from: Vec3, dir: Vec3| {
-        colliders
-            .iter()
-            .filter_map(|c| {
-                let c = &scene.world.colliders[*c];
-                c.shape()
-                    .cast_ray(c.position(), &Ray::new(from, dir), 2.0 * reach, true)
-            })
-            .reduce(f32::min)
-    };
+    let hit = |from: Vec3, dir: Vec3| placing::first_hit(scene, colliders, from, dir, 2.0 * reach);
     let mut width: Option<f32> = None;
     for dz in [-h, 0.0, h] {
         for dx in [-0.9, 0.0, 0.9].map(|k| k * crate::scene::FINGER_HALF_EXTENTS[0]) {

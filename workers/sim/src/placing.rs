@@ -19,6 +19,25 @@ fn colliders_besides(scene: &SimScene, held: usize) -> Vec<ColliderHandle> {
         .collect()
 }
 
+/// How far along a ray from `from` in direction `dir` (at most `max`) it first meets one of
+/// `colliders`, if it does (a ray starting inside a shape meets it at 0).
+pub(crate) fn first_hit(
+    scene: &SimScene,
+    colliders: &[ColliderHandle],
+    from: Vec3,
+    dir: Vec3,
+    max: f32,
+) -> Option<f32> {
+    colliders
+        .iter()
+        .filter_map(|h| {
+            let col = &scene.world.colliders[*h];
+            col.shape()
+                .cast_ray(col.position(), &Ray::new(from, dir), max, true)
+        })
+        .reduce(f32::min)
+}
+
 /// The height at which held object `held`, carried as it is and lowered straight down with its
 /// centre over (`x`, `y`), first touches what lies below (another object, or the table at
 /// z = 0): on a grid over its footprint, a ray up from under it finds its own bottom there and a
@@ -35,14 +54,7 @@ fn resting_height(scene: &SimScene, held: usize, x: f32, y: f32, inset: f32) -> 
     let c = scene.pose(o).translation;
     let reach = o.half.x.max(o.half.y) * std::f32::consts::SQRT_2 * inset;
     let cast = |colliders: &[ColliderHandle], from: Vec3, dir: Vec3| {
-        colliders
-            .iter()
-            .filter_map(|h| {
-                let col = &scene.world.colliders[*h];
-                col.shape()
-                    .cast_ray(col.position(), &Ray::new(from, dir), 2.0 * ABOVE, true)
-            })
-            .reduce(f32::min)
+        first_hit(scene, colliders, from, dir, 2.0 * ABOVE)
     };
     let own = scene.world.bodies[o.body].colliders();
     let others = colliders_besides(scene, held);
