@@ -101,7 +101,7 @@ fn eval_ranks_a_ladder_by_the_world_model_proxy() {
             "--rank-ladder",
             LADDER,
             "--proxy",
-            r#"{"judge_steps": 30, "world_model": {"steps": 30}, "leak_ablation": true}"#,
+            r#"{"judge_steps": 30, "video": {"steps": 30}, "leak_ablation": true}"#,
             // A task of another group, evaluated but not ranked.
             STACKING,
             "--rank-groups",
@@ -150,15 +150,15 @@ fn eval_ranks_a_ladder_by_the_world_model_proxy() {
     assert_eq!(k.groups.len(), 1);
     let g = &k.groups[0];
     assert_eq!((g.group.as_str(), g.predictions.len()), ("placement", 12));
-    // The proxy started from the world model fitted while the ladder trained: at its last step,
-    // training no further.
-    assert_eq!(g.world_model.steps, 30);
+    // The proxy started from the world model (the default, the video model) fitted while the
+    // ladder trained: at its last step, training no further.
+    let video = g.video_model.as_ref().expect("the video model's fit");
     assert_eq!(
-        g.world_model.resumed_from_step,
-        Some(30),
-        "{:?}",
-        g.world_model
+        (video.steps, video.resumed_from_step),
+        (30, Some(30)),
+        "{video:?}"
     );
+    assert_eq!(g.world_model.steps, 30);
     // The stacking task ran the batch's five policies (the oracles and the TorchScript one) on
     // its 2 seeds, and nothing of the ranking: no ladder policy, no row.
     let stacking = report
@@ -170,13 +170,14 @@ fn eval_ranks_a_ladder_by_the_world_model_proxy() {
     assert_eq!(stacking.success.trials, 5 * 2, "{:?}", stacking.by_policy);
     assert!(k.rows.iter().all(|r| r.group == "placement"));
     assert!(
-        g.world_model_name.contains("RSSM"),
+        g.world_model_name.contains("video model"),
         "{}",
         g.world_model_name
     );
     let test = g.action_test.as_ref().expect("the action test");
-    assert_eq!(test.episodes, 12);
+    assert_eq!((test.episodes, test.horizon), (12, 16));
     assert!(test.true_actions_mse > 0.0 && test.shuffled_actions_mse > 0.0);
+    assert!(test.zero_actions_mse > 0.0 && test.psnr > 0.0 && test.ssim > 0.0);
     // The judge learned from the real and imagined last frames of every training episode (4
     // policies × 2 tasks × 2 seeds), and from earlier, not-yet-done frames of them.
     assert!(g.judge_examples >= 2 * 16, "{}", g.judge_examples);

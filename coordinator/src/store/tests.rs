@@ -682,6 +682,7 @@ fn proxy_done(predictions: Vec<assay_model::proxy::ProxyPrediction>) -> String {
             world_model_name: String::new(),
             action_test: None,
             world_model: fit,
+            video_model: None,
             judge_examples: 8,
             judge_positives: 5,
             judge_train_accuracy: 1.0,

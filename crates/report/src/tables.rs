@@ -723,27 +723,63 @@ pub fn ranking_per_policy(r: &RankingResults) -> Table {
     table
 }
 
-/// Per group: the world model's open-loop error with the episodes' true actions and with
-/// another episode's.
+/// Per group: the world model's open-loop error over windows of the ranked episodes' clips with
+/// their true actions, another episode's and zero actions, and the video figures (PSNR, SSIM)
+/// of the true-action predictions.
 pub fn action_test(r: &RankingResults) -> Table {
     let mut table = Table::new([
         "group",
         "world model",
         "#episodes",
+        "#frames per window",
         "#image MSE ×10³, true actions",
-        "#image MSE ×10³, shuffled actions",
+        "#shuffled actions",
+        "#zero actions",
         "#shuffled ÷ true",
+        "#zero ÷ true",
+        "#PSNR (dB)",
+        "#SSIM",
     ]);
     for g in &r.groups {
         let Some(a) = &g.action_test else { continue };
+        let ratio = |x: f64| {
+            if a.true_actions_mse > 0.0 && x > 0.0 {
+                Cell::text(num2(x / a.true_actions_mse))
+            } else {
+                Cell::missing()
+            }
+        };
+        // Figures a report from before issue 44 did not have are shown as missing.
+        let known = a.horizon > 0;
         table.row(vec![
             g.group.as_str().into(),
             Cell::or_missing(&g.world_model_name),
             n(a.episodes),
+            if known {
+                n(a.horizon)
+            } else {
+                Cell::text("whole episode")
+            },
             Cell::text(format!("{:.3}", a.true_actions_mse * 1e3)),
             Cell::text(format!("{:.3}", a.shuffled_actions_mse * 1e3)),
-            if a.true_actions_mse > 0.0 {
-                Cell::text(num2(a.shuffled_actions_mse / a.true_actions_mse))
+            if known {
+                Cell::text(format!("{:.3}", a.zero_actions_mse * 1e3))
+            } else {
+                Cell::missing()
+            },
+            ratio(a.shuffled_actions_mse),
+            if known {
+                ratio(a.zero_actions_mse)
+            } else {
+                Cell::missing()
+            },
+            if known {
+                Cell::text(format!("{:.2}", a.psnr))
+            } else {
+                Cell::missing()
+            },
+            if known {
+                Cell::text(format!("{:.3}", a.ssim))
             } else {
                 Cell::missing()
             },

@@ -150,6 +150,7 @@ pub(crate) fn ranking_fixture() -> crate::ranking::RankingResults {
         world_model_name: model.into(),
         action_test,
         world_model: fit(name),
+        video_model: None,
         judge_examples: 40,
         judge_positives: 12,
         judge_train_accuracy: 0.95,
@@ -168,8 +169,13 @@ pub(crate) fn ranking_fixture() -> crate::ranking::RankingResults {
             "assay RSSM",
             Some(ActionTest {
                 episodes: 4,
+                windows: 6,
+                horizon: 16,
                 true_actions_mse: 0.002,
                 shuffled_actions_mse: 0.005,
+                zero_actions_mse: 0.008,
+                psnr: 27.0,
+                ssim: 0.9,
             }),
         ),
     ];

@@ -1,6 +1,6 @@
 //! Rollouts in any world model ([`WorldModelService`]): replays of real actions (the frame
-//! judge's imagined examples and the action test) and a policy acting closed loop (the ranked
-//! episodes).
+//! judge's imagined examples; the action test is `video_eval`'s) and a policy acting closed loop
+//! (the ranked episodes).
 //!
 //! A ranked episode is imagined from what the world model is given at its start — the real first
 //! frame and state, the instruction — and nothing else of the real episode: it runs until the
@@ -13,7 +13,6 @@ use std::collections::VecDeque;
 
 use assay_model::clip::{ACTION_DIMS, Clip, PROPRIO_DIMS};
 use assay_model::policy::{EpisodeContext, Policy, PolicyError, PolicyObservation};
-use assay_model::proxy::ActionTest;
 use assay_model::world::{WorldError, WorldModelService, WorldStart};
 
 /// The start of `clip`'s episode: its first frame and state, nothing after.
@@ -83,45 +82,6 @@ pub fn mse(a: &[u8], b: &[u8]) -> f64 {
         })
         .sum::<f64>()
         / a.len().max(1) as f64
-}
-
-/// Whether the world model uses its actions: its open-loop error over every imagined frame of
-/// `clips` with their own actions, and with the actions of the next clip (cycled, cut or held
-/// at its last action to the length). Needs 2 clips or more of 2 frames or more.
-pub fn action_test(
-    world: &dyn WorldModelService,
-    clips: &[&Clip],
-    episodes: &[EpisodeContext],
-) -> Result<Option<ActionTest>, WorldError> {
-    if clips.len() < 2 {
-        return Ok(None);
-    }
-    let (mut own, mut other, mut n) = (0.0, 0.0, 0usize);
-    for (i, clip) in clips.iter().enumerate() {
-        let start = start_of(clip, &episodes[i]);
-        let actions = actions_of(clip);
-        let donor = actions_of(clips[(i + 1) % clips.len()]);
-        let shuffled: Vec<Vec<f32>> = (0..actions.len())
-            .map(|t| donor[t.min(donor.len().saturating_sub(1))].clone())
-            .collect();
-        if donor.is_empty() {
-            continue;
-        }
-        let frame = (clip.width * clip.height * 3) as usize;
-        let real = |t: usize| &clip.rgb[t * frame..(t + 1) * frame];
-        for (t, f) in replay(world, &start, &actions)?.iter().enumerate() {
-            own += mse(f, real(t + 1));
-        }
-        for (t, f) in replay(world, &start, &shuffled)?.iter().enumerate() {
-            other += mse(f, real(t + 1));
-        }
-        n += actions.len();
-    }
-    Ok((n > 0).then(|| ActionTest {
-        episodes: clips.len() as u32,
-        true_actions_mse: own / n as f64,
-        shuffled_actions_mse: other / n as f64,
-    }))
 }
 
 /// What to stop a closed-loop rollout on.

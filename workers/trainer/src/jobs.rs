@@ -9,6 +9,7 @@ use assay_model::clip::Clip;
 use assay_model::episode::Keyframe;
 use assay_model::proxy::ProxyEpisode;
 use assay_model::trainer::{TrainerJob, TrainerOutcome};
+use assay_model::video::WorldModelKind;
 use assay_spec::hash::sha256_hex;
 use assay_stats::diversity::TextDiversityTable;
 
@@ -99,24 +100,32 @@ pub fn run(
             let ckpt = checkpoint_path(artifacts, batch, job);
             let resume = std::fs::read(&ckpt).ok();
             let mut save = checkpoint_sink(&ckpt, group);
-            // Exactly the fit the proxy would run (its settings, its training clips), evaluated
-            // on one clip only: the proxy evaluates on the ranked ones.
-            let req = FitRequest {
-                config: &config.world_model,
-                group,
-                budget: clips.len() as u32,
-                train: &clips,
-                eval: &clips[..clips.len().min(1)],
-                eval_keys: &keys[..keys.len().min(1)],
-                device,
-                normalize_actions: config.normalize_actions,
+            // Exactly the fit the proxy would run (its settings, its training clips); the RSSM
+            // evaluated on one clip only: the proxy evaluates on the ranked ones.
+            let fitted = match config.model {
+                WorldModelKind::Rssm => {
+                    let req = FitRequest {
+                        config: &config.world_model,
+                        group,
+                        budget: clips.len() as u32,
+                        train: &clips,
+                        eval: &clips[..clips.len().min(1)],
+                        eval_keys: &keys[..keys.len().min(1)],
+                        device,
+                        normalize_actions: config.normalize_actions,
+                    };
+                    crate::world_model::fit_to_checkpoint(&req, resume.as_deref(), &mut save)
+                }
+                WorldModelKind::Video => crate::video_model::fit_to_checkpoint(
+                    &config.video,
+                    &clips,
+                    device,
+                    resume.as_deref(),
+                    &mut save,
+                )
+                .map(|(vfit, last)| (crate::proxy::video_summary(group, &vfit, config), last)),
             };
-            let (fit, last) = crate::world_model::fit_to_checkpoint(
-                &req,
-                resume.as_deref(),
-                &mut save,
-            )
-            .map_err(|e| {
+            let (fit, last) = fitted.map_err(|e| {
                 JobError::permanent(format!("the proxy's world model of group {group:?}: {e}"))
             })?;
             let key = format!(

@@ -8,6 +8,8 @@ pub mod embedders;
 pub mod imagination;
 pub mod jobs;
 pub mod proxy;
+pub mod video_eval;
+pub mod video_model;
 pub mod world_model;
 
 /// The device trainer work runs on: the first CUDA device when libtorch sees one (a binary built

@@ -30,15 +30,18 @@ use assay_model::clip::{CLIP_STRIDE_STEPS, Clip};
 use assay_model::dynamics::DynamicsFit;
 use assay_model::policy::{EpisodeContext, Policy, PolicyError, PolicySpec};
 use assay_model::proxy::{
-    ExternalWorldModel, IMAGINED_KEYFRAMES, LeakVerdict, ProxyConfig, ProxyEpisode,
+    ActionTest, ExternalWorldModel, IMAGINED_KEYFRAMES, LeakVerdict, ProxyConfig, ProxyEpisode,
     ProxyPrediction, ProxyResult, SERVED_DEVICE,
 };
+use assay_model::video::WorldModelKind;
 use assay_model::world::{WorldError, WorldModelService};
 use assay_spec::rng::Rng;
 use tch::{Device, Kind, Tensor};
 
 use crate::adam::Adam;
 use crate::imagination::{self, Stop};
+use crate::video_eval::{self, StartName};
+use crate::video_model;
 use crate::world_model::{Conv, FitRequest, Init, Linear, WorldModelError, fit_model};
 
 const JUDGE_BATCH: usize = 16;
@@ -206,6 +209,14 @@ pub struct ProxyRequest<'a> {
     pub device: Device,
 }
 
+fn start_name(e: &ProxyEpisode) -> StartName<'_> {
+    StartName {
+        task_id: &e.task_id,
+        seed: e.seed,
+        instruction: &e.instruction,
+    }
+}
+
 fn context(e: &ProxyEpisode) -> EpisodeContext {
     EpisodeContext {
         task_id: e.task_id.clone(),
@@ -219,6 +230,33 @@ fn context(e: &ProxyEpisode) -> EpisodeContext {
 /// first frame included (an episode of `n` physics steps has `n / 24 + 1` clip frames).
 pub fn horizon_frames(budget_steps: u32) -> usize {
     (u64::from(budget_steps) / CLIP_STRIDE_STEPS) as usize + 1
+}
+
+/// The video model's fit in the RSSM's terms (what the report's proxy table reads): its
+/// training figures, no evaluation yet, `config` the RSSM settings it did not use.
+pub(crate) fn video_summary(
+    group: &str,
+    vfit: &assay_model::video::VideoFit,
+    config: &ProxyConfig,
+) -> DynamicsFit {
+    DynamicsFit {
+        group: group.to_owned(),
+        budget: vfit.train_clips,
+        train_episodes: vfit.train_clips,
+        eval_episodes: 0,
+        eval_image_mse: 0.0,
+        eval_proprio_mse: 0.0,
+        per_episode: Vec::new(),
+        episodes: Vec::new(),
+        final_train_loss: vfit.final_train_loss,
+        steps: vfit.steps,
+        epochs: 0.0,
+        resumed_from_step: vfit.resumed_from_step,
+        steps_per_s: vfit.steps_per_s,
+        device: vfit.device.clone(),
+        libtorch: crate::libtorch_version(),
+        config: config.world_model.clone(),
+    }
 }
 
 /// Runs the proxy of one group. `resume` and `on_checkpoint` are the RSSM's (see
@@ -271,9 +309,12 @@ pub fn run_proxy(
     let eval_keys: Vec<String> = eval.iter().map(|e| e.clip.clone()).collect();
     let rssm_model;
     let rssm;
+    let video;
     let external;
-    let (world, fit): (&dyn WorldModelService, DynamicsFit) = match &config.external {
-        None => {
+    let mut video_fit = None;
+    let (world, fit): (&dyn WorldModelService, DynamicsFit) = match (&config.external, config.model)
+    {
+        (None, WorldModelKind::Rssm) => {
             let req = FitRequest {
                 config: &config.world_model,
                 group,
@@ -289,7 +330,23 @@ pub fn run_proxy(
             rssm = rssm_model.service();
             (&rssm, fit)
         }
-        Some(server) => {
+        (None, WorldModelKind::Video) => {
+            let (model, vfit) =
+                video_model::fit(&config.video, train_clips, device, resume, on_checkpoint)?;
+            video = model;
+            // The one-step error, as the RSSM's fit reports it: each next frame predicted from
+            // the real one before it, on the ranked episodes' clips.
+            let refs: Vec<&Clip> = eval_clips.iter().collect();
+            let names: Vec<StartName<'_>> = eval.iter().map(start_name).collect();
+            let one = tch::no_grad(|| video_eval::open_loop(&video, &refs, &names, 1))?;
+            let mut fit = video_summary(group, &vfit, config);
+            fit.eval_episodes = eval_clips.len() as u32;
+            fit.eval_image_mse = one.mse_true;
+            fit.episodes = eval_keys.clone();
+            video_fit = Some(vfit);
+            (&video, fit)
+        }
+        (Some(server), _) => {
             external = world_models(server)?;
             let fit = DynamicsFit {
                 group: group.to_owned(),
@@ -349,9 +406,26 @@ pub fn run_proxy(
     );
     let judge_one = |f: &[u8]| judge.probability_of(&[f])[0];
 
-    // The world model's use of its actions, on the ranked episodes' real clips (a diagnostic).
+    // The world model's use of its actions and its video prediction, open loop over windows
+    // of the ranked episodes' real clips (a diagnostic).
     let eval_refs: Vec<&Clip> = eval_clips.iter().collect();
-    let action_test = imagination::action_test(world, &eval_refs, &eval_ctx)?;
+    let names: Vec<StartName<'_>> = eval.iter().map(start_name).collect();
+    let action_test = if eval_refs.len() < 2 {
+        None
+    } else {
+        let o =
+            tch::no_grad(|| video_eval::open_loop(world, &eval_refs, &names, video_eval::HORIZON))?;
+        Some(ActionTest {
+            episodes: o.clips as u32,
+            windows: o.windows as u32,
+            horizon: o.horizon as u32,
+            true_actions_mse: o.mse_true,
+            shuffled_actions_mse: o.mse_shuffled,
+            zero_actions_mse: o.mse_zero,
+            psnr: o.psnr,
+            ssim: o.ssim,
+        })
+    };
 
     let mut predictions = Vec::with_capacity(eval.len());
     let mut imagined_frames = Vec::with_capacity(eval.len());
@@ -408,6 +482,7 @@ pub fn run_proxy(
         world_model_name: world.name(),
         action_test,
         world_model: fit,
+        video_model: video_fit,
         judge_examples: examples.len() as u32,
         judge_positives: examples.iter().filter(|e| e.1).count() as u32,
         judge_train_accuracy,

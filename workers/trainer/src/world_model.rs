@@ -90,7 +90,14 @@ pub struct FitRequest<'a> {
 mod checkpoint;
 mod service;
 
+pub(crate) use service::world_frame;
+
 use checkpoint::{config_hash, data_hash, load_checkpoint, save_checkpoint};
+
+/// A fast fingerprint of training clips (their shapes and contents), for checkpoints.
+pub(crate) fn clips_hash(clips: &[Clip]) -> u64 {
+    data_hash(clips)
+}
 
 #[derive(Debug, Error)]
 pub enum WorldModelError {
@@ -1046,7 +1053,7 @@ struct EvalClip {
     proprio_sse: f64,
 }
 
-fn lookup<'a>(
+pub(crate) fn lookup<'a>(
     saved: &'a HashMap<String, Tensor>,
     prefix: &str,
     name: &str,

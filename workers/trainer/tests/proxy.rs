@@ -7,10 +7,12 @@ use assay_model::clip::{ACTION_DIMS, Clip, PROPRIO_DIMS};
 use assay_model::dynamics::DynamicsConfig;
 use assay_model::policy::{Action, EpisodeContext, Policy, PolicyError, PolicyObservation};
 use assay_model::proxy::{ProxyConfig, ProxyEpisode, ProxyResult};
+use assay_model::video::{VideoModelConfig, WorldModelKind};
 use assay_model::world::{WorldModelService, WorldStart};
 use assay_spec::rng::Rng;
 use assay_trainer::imagination::{self, Stop};
 use assay_trainer::proxy::{ProxyRequest, run_proxy, train_frame_judge};
+use assay_trainer::video_eval::{StartName, open_loop};
 use assay_trainer::world_model::{FitRequest, WorldModel, fit_model};
 use tch::Device;
 
@@ -104,6 +106,15 @@ fn small_config(steps: u64) -> DynamicsConfig {
     }
 }
 
+fn small_video(steps: u64) -> VideoModelConfig {
+    VideoModelConfig {
+        depth: 4,
+        action_embed: 16,
+        steps,
+        ..Default::default()
+    }
+}
+
 fn train(clips: &[Clip], config: &DynamicsConfig) -> WorldModel {
     let keys: Vec<String> = (0..clips.len()).map(|i| format!("c{i}")).collect();
     let req = FitRequest {
@@ -188,16 +199,20 @@ fn the_trained_world_model_uses_its_actions() {
     );
     // Its error with the true actions is clearly below its error with another episode's.
     let refs: Vec<&Clip> = clips.iter().collect();
-    let ctx: Vec<EpisodeContext> = (0..12).map(context).collect();
-    let test = imagination::action_test(&world, &refs, &ctx)
-        .unwrap()
-        .unwrap();
-    assert_eq!(test.episodes, 12);
+    let names: Vec<StartName<'_>> = (0..12)
+        .map(|i| StartName {
+            task_id: "t",
+            seed: i,
+            instruction: "",
+        })
+        .collect();
+    let test = open_loop(&world, &refs, &names, 16).unwrap();
+    assert_eq!((test.clips, test.windows), (12, 12));
     assert!(
-        test.true_actions_mse * 4.0 < test.shuffled_actions_mse,
+        test.mse_true * 4.0 < test.mse_shuffled,
         "true actions {} against shuffled {}",
-        test.true_actions_mse,
-        test.shuffled_actions_mse
+        test.mse_true,
+        test.mse_shuffled
     );
 }
 
@@ -337,6 +352,11 @@ fn run(
 
 #[test]
 fn the_real_episodes_length_and_outcome_change_nothing_of_the_proxy() {
+    real_length_and_outcome_change_nothing(WorldModelKind::Video, "video model");
+    real_length_and_outcome_change_nothing(WorldModelKind::Rssm, "RSSM");
+}
+
+fn real_length_and_outcome_change_nothing(model: WorldModelKind, name: &str) {
     // Training episodes: the square ends on the right (success) or stays left (failure).
     let mut train_eps = Vec::new();
     let mut train_clips = Vec::new();
@@ -351,6 +371,8 @@ fn the_real_episodes_length_and_outcome_change_nothing_of_the_proxy() {
     let eval_clips: Vec<Clip> = (0..6).map(real).collect();
     let eval_eps: Vec<ProxyEpisode> = (0..6).map(|i| proxy_episode(RANKED, i, None)).collect();
     let config = ProxyConfig {
+        model,
+        video: small_video(150),
         world_model: small_config(150),
         judge_steps: 150,
         judge_lr: 3e-3,
@@ -359,8 +381,18 @@ fn the_real_episodes_length_and_outcome_change_nothing_of_the_proxy() {
     };
     let base = run(&train_eps, &train_clips, &eval_eps, &eval_clips, &config).unwrap();
     assert_eq!(base.predictions.len(), 6);
-    assert!(base.world_model_name.contains("RSSM"));
-    assert!(base.action_test.is_some());
+    assert!(
+        base.world_model_name.contains(name),
+        "{}",
+        base.world_model_name
+    );
+    assert_eq!(base.video_model.is_some(), model == WorldModelKind::Video);
+    let test = base.action_test.as_ref().unwrap();
+    assert_eq!((test.episodes, test.horizon), (6, 16));
+    assert!(
+        test.zero_actions_mse > 0.0 && test.psnr > 0.0 && test.ssim > 0.0,
+        "{test:?}"
+    );
     // Shuffled: each ranked episode's real clip keeps its first frame and state but gets
     // another length and another ending, and the episodes claim outcomes.
     let shuffled_clips: Vec<Clip> = (0..6u64)
@@ -413,6 +445,7 @@ fn a_scripted_oracle_is_refused_as_a_ranked_policy_and_a_dead_world_model_is_una
         .map(|i| proxy_episode("oracle:noise=0.01", i, Some(i == 0)))
         .collect();
     let config = ProxyConfig {
+        video: small_video(5),
         world_model: small_config(5),
         judge_steps: 5,
         ..Default::default()

@@ -20,4 +20,5 @@ pub mod policy;
 pub mod proxy;
 pub mod quality;
 pub mod trainer;
+pub mod video;
 pub mod world;

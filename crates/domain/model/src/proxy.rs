@@ -11,13 +11,20 @@ use serde::{Deserialize, Serialize};
 
 use crate::dynamics::{DynamicsConfig, DynamicsFit};
 use crate::episode::Keyframe;
+use crate::video::{VideoFit, VideoModelConfig, WorldModelKind};
 use assay_stats::stats::Proportion;
 
 /// Settings of the proxy: the world model and the frame judge.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct ProxyConfig {
-    /// The world model (the dynamics-diversity model and its settings).
+    /// Which world model the proxy trains: the action-conditioned video model (`video`, the
+    /// default) or the RSSM of dynamics diversity (`rssm`).
+    pub model: WorldModelKind,
+    /// The video model's settings (`model = "video"`).
+    pub video: VideoModelConfig,
+    /// The RSSM's settings (`model = "rssm"`; the dynamics-diversity model). Its `seed` also
+    /// seeds the frame judge, whichever model imagines.
     pub world_model: DynamicsConfig,
     /// Training steps of the frame judge (a small CNN on last frames, batch 16).
     pub judge_steps: u32,
@@ -64,6 +71,8 @@ fn default_world_timeout_ms() -> u64 {
 impl Default for ProxyConfig {
     fn default() -> Self {
         Self {
+            model: WorldModelKind::default(),
+            video: VideoModelConfig::default(),
             world_model: DynamicsConfig::default(),
             judge_steps: 600,
             judge_lr: 1e-3,
@@ -99,6 +108,9 @@ impl ProxyConfig {
         }
         if self.done_frames == 0 {
             return Err("done_frames: must be at least 1".into());
+        }
+        if self.external.is_none() && self.model == WorldModelKind::Video {
+            self.video.validate().map_err(|e| format!("video: {e}"))?;
         }
         if let Some(e) = &self.external {
             if !(e.url.starts_with("http://") || e.url.starts_with("https://")) {
@@ -254,15 +266,29 @@ pub struct LeakVerdict {
     pub success: bool,
 }
 
-/// Whether the world model uses its actions: its open-loop prediction error (MSE per
-/// pixel-channel over every imagined frame) on the ranked episodes' real clips with their true
-/// actions, and with the actions of another episode of the same length class (each episode's
-/// actions replaced by the next episode's, cycled and cut or held to length).
+/// Whether the world model uses its actions, and how well it predicts video: on the ranked
+/// episodes' real clips (policies the model never saw), cut into windows of `horizon` frames,
+/// each imagined open loop from its real first frame and state with the window's true actions,
+/// with the next episode's actions for the same window, and with zero actions. Errors are MSE
+/// per pixel-channel in [0, 1] units over every imagined frame; PSNR and SSIM are those of the
+/// true-action predictions (`assay_trainer::video_eval`). Reports before issue 44 imagined
+/// each whole episode at once and had no zero-action, PSNR or SSIM figures (0 here).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct ActionTest {
     pub episodes: u32,
+    #[serde(default)]
+    pub windows: u32,
+    /// Imagined frames per window (0: the whole episode, before issue 44).
+    #[serde(default)]
+    pub horizon: u32,
     pub true_actions_mse: f64,
     pub shuffled_actions_mse: f64,
+    #[serde(default)]
+    pub zero_actions_mse: f64,
+    #[serde(default)]
+    pub psnr: f64,
+    #[serde(default)]
+    pub ssim: f64,
 }
 
 /// Keyframes of an imagined rollout: as many as the completion prompt shows of a real one.
@@ -313,8 +339,13 @@ pub struct ProxyResult {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub action_test: Option<ActionTest>,
     /// The world model's fit (its one-step error measured on the ranked episodes); a served
-    /// model's is empty, with `device` [`SERVED_DEVICE`].
+    /// model's is empty, with `device` [`SERVED_DEVICE`]. For the video model, its training
+    /// figures and one-step error, with `config` the (unused) RSSM settings; its own settings
+    /// are in `video_model`.
     pub world_model: DynamicsFit,
+    /// The video model's fit, when it imagined.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub video_model: Option<VideoFit>,
     /// Frame-judge training examples (real and imagined last frames of the training episodes)
     /// and how many of them were successes.
     pub judge_examples: u32,

@@ -80,6 +80,26 @@ impl WorldModelService for Rssm<'_> {
     }
 }
 
+/// One imagined frame as the service answers it: the image `[1, 3, H, W]` in [0, 1] as RGB
+/// bytes (clamped, rounded), the state `[1, P]` with holding (its last value) rounded to 0 or 1.
+pub(crate) fn world_frame(image: &Tensor, state: &Tensor) -> Result<WorldFrame, tch::TchError> {
+    let pixels = (image.clamp(0.0, 1.0) * 255.0)
+        .round()
+        .to_kind(Kind::Uint8)
+        .permute([0, 2, 3, 1])
+        .contiguous()
+        .to_device(Device::Cpu);
+    let rgb = Vec::<u8>::try_from(pixels.flatten(0, -1))?;
+    let mut state = Vec::<f32>::try_from(state.to_device(Device::Cpu).flatten(0, -1))?;
+    if let Some(holding) = state.last_mut() {
+        *holding = if *holding >= 0.5 { 1.0 } else { 0.0 };
+    }
+    Ok(WorldFrame {
+        rgb,
+        state: Some(state),
+    })
+}
+
 impl ImaginedEpisode for Episode<'_> {
     fn step(&mut self, actions: &[Vec<f32>]) -> Result<Vec<WorldFrame>, WorldError> {
         let device = self.model.device;
@@ -97,22 +117,7 @@ impl ImaginedEpisode for Episode<'_> {
                 self.h = m.step_h(&self.h, &self.z, &a);
                 self.z = m.mode(&m.prior(&self.h));
                 let (img, prop) = m.decode(&Tensor::cat(&[&self.h, &self.z], -1));
-                let pixels = ((img.clamp(-0.5, 0.5) + 0.5) * 255.0)
-                    .round()
-                    .to_kind(Kind::Uint8)
-                    .permute([0, 2, 3, 1])
-                    .contiguous()
-                    .to_device(Device::Cpu);
-                let rgb = Vec::<u8>::try_from(pixels.flatten(0, -1))?;
-                let mut state = Vec::<f32>::try_from(prop.to_device(Device::Cpu).flatten(0, -1))?;
-                state.truncate(PROPRIO_DIMS);
-                if let Some(holding) = state.last_mut() {
-                    *holding = if *holding >= 0.5 { 1.0 } else { 0.0 };
-                }
-                Ok(WorldFrame {
-                    rgb,
-                    state: Some(state),
-                })
+                world_frame(&(img + 0.5), &prop.narrow(1, 0, PROPRIO_DIMS as i64))
             })
             .map_err(|e| WorldError::BadAnswer(format!("libtorch: {e}")))?;
             out.push(frame);

@@ -1,0 +1,928 @@
+//! An action-conditioned video world model (issue 44): from a real frame and state, it predicts
+//! the next frames and states open loop, one per action, the way the proxy imagines a policy's
+//! rollout. Built so that it cannot do well without its actions (the RSSM of `world_model.rs`,
+//! trained to filter observations one step ahead, scored the same with shuffled actions).
+//!
+//! # Model
+//! - **Encoder** of the start frame (scaled to [0, 1] then −0.5): three stride-2 convolutions
+//!   (kernel 4; channels `depth`, 2·`depth`, 4·`depth`; one-group GroupNorm and SiLU — the RSSM's
+//!   layers), giving a latent map `z₀` at 1/8 of the frame size. The normalised state enters
+//!   through a linear layer added to every position of `z₀`.
+//! - **Actions**: each dimension normalised (zero mean, unit deviation over the training clips),
+//!   then Fourier features `[a, sin(π·2^k·a), cos(π·2^k·a)]` for `k < fourier`, through
+//!   Linear → SiLU → Linear to an embedding of `action_embed` values — the paper's recipe, where
+//!   the embedding is added to the diffusion model's time embedding; here it conditions every
+//!   block of the latent dynamics.
+//! - **Latent dynamics**, one step per action: `blocks` residual blocks on the latent map, each
+//!   3×3 conv → GroupNorm → FiLM from the action embedding (`x·(1 + scale) + shift`) → SiLU →
+//!   3×3 conv, added to the map. The state moves by a delta from the pooled map and the
+//!   embedding (Linear → SiLU → Linear). Autoregressive in the latent: the next step starts
+//!   from this step's map, never from a re-encoded prediction.
+//! - **Decoder** per step: transposed convolutions back to the frame size with skip connections
+//!   from the *start frame's* encoder maps (a U-Net whose encoder side is the real start), ending
+//!   in an RGB image and a mask `α`; the frame is `α·rgb + (1 − α)·start`. What does not move is
+//!   copied from the real start, so the error left is where things moved — which only the
+//!   actions can tell (Finn et al. 2016's compositing, with the start frame as the source).
+//!
+//! # Training
+//! Windows of the training clips: every start `t₀` of a clip with a following frame, the next
+//! `horizon` frames (fewer at a clip's end; masked). Each step draws `batch` windows uniformly
+//! with replacement (stream `video-model/batch/{step}`) and rolls the model out **open loop**
+//! from the window's real first frame and state with the clip's actions. Loss: the mean absolute
+//! error of the predicted frames (in [0, 1]; `pixel_loss: l2` for the squared error), each pixel
+//! that differs from the window's first frame weighted `1 + motion_weight`, plus `state_weight`
+//! times the normalised state's squared error, over the window's real frames. Adam (`adam.rs`), its learning rate decayed from `lr` to a tenth
+//! of it over the fit's steps (cosine), gradients clipped at a global norm of 100.
+//! Initial weights come from the stream `video-model/init`; nothing draws from libtorch's global
+//! generator, so the same config and clips give the same weights (on one CPU thread, to the bit)
+//! and a fit resumed from a checkpoint ends where an uninterrupted one does.
+//!
+//! # Checkpoints
+//! The header `ASYVM001`, the hashes of the training settings and of the clips, the step and
+//! Adam's step count, then the parameters, Adam's moments and the normalisation statistics
+//! (libtorch's stream format). A checkpoint of another config or other clips is refused;
+//! [`VideoModel::from_checkpoint`] loads one to imagine in without the clips.
+
+use std::collections::HashMap;
+use std::io::Cursor;
+use std::time::Instant;
+
+use assay_model::clip::{ACTION_DIMS, Clip, PROPRIO_DIMS};
+use assay_model::video::{PixelLoss, VideoFit, VideoModelConfig};
+use assay_model::world::{ImaginedEpisode, WorldError, WorldFrame, WorldModelService, WorldStart};
+use assay_spec::rng::Rng;
+use tch::{Device, Kind, Tensor};
+
+use crate::adam::Adam;
+use crate::world_model::{Conv, Init, Linear, WorldModelError, device_name, lookup, world_frame};
+
+const MAGIC: &[u8; 8] = b"ASYVM001";
+const HEADER_LEN: usize = 8 + 8 * 4;
+const GRAD_CLIP: f64 = 100.0;
+/// Maps beside the latent at the decoder's input: the predicted normalised state, broadcast,
+/// and the x and y coordinates of each position in [−1, 1].
+const GUIDES: i64 = PROPRIO_DIMS as i64 + 2;
+
+/// A trained (or training) video world model.
+pub struct VideoModel {
+    net: Net,
+    size: i64,
+    device: Device,
+}
+
+/// Receives `(step, checkpoint bytes)`; an `Err` stops the fit.
+pub type CheckpointSink<'a> = dyn FnMut(u64, &[u8]) -> Result<(), String> + 'a;
+
+/// Trains the model on `train` (clips of the config's frame size, 4 state and 4 action dims).
+/// `resume`: a checkpoint of an earlier attempt of the same fit.
+pub fn fit(
+    cfg: &VideoModelConfig,
+    train: &[Clip],
+    device: Device,
+    resume: Option<&[u8]>,
+    on_checkpoint: &mut CheckpointSink<'_>,
+) -> Result<(VideoModel, VideoFit), WorldModelError> {
+    fit_keeping(cfg, train, device, resume, on_checkpoint, false).map(|(m, f, _)| (m, f))
+}
+
+/// [`fit`], also returning a checkpoint of its last step: resuming from it trains no further
+/// (the proxy's world model fitted ahead, while a ladder trains).
+pub fn fit_to_checkpoint(
+    cfg: &VideoModelConfig,
+    train: &[Clip],
+    device: Device,
+    resume: Option<&[u8]>,
+    on_checkpoint: &mut CheckpointSink<'_>,
+) -> Result<(VideoFit, Vec<u8>), WorldModelError> {
+    let (_, fit, last) = fit_keeping(cfg, train, device, resume, on_checkpoint, true)?;
+    Ok((fit, last.expect("asked for the last checkpoint")))
+}
+
+fn fit_keeping(
+    cfg: &VideoModelConfig,
+    train: &[Clip],
+    device: Device,
+    resume: Option<&[u8]>,
+    on_checkpoint: &mut CheckpointSink<'_>,
+    keep_last: bool,
+) -> Result<(VideoModel, VideoFit, Option<Vec<u8>>), WorldModelError> {
+    cfg.validate().map_err(WorldModelError::Request)?;
+    let size = train.first().map_or(0, |c| c.width);
+    if size == 0 || !size.is_multiple_of(8) {
+        return Err(WorldModelError::Request(format!(
+            "frames of {size} pixels: the video model needs a positive multiple of 8 (three stride-2 stages)"
+        )));
+    }
+    for (i, clip) in train.iter().enumerate() {
+        check_clip(clip, size).map_err(|reason| WorldModelError::BadClip {
+            clip: format!("train clip {i}"),
+            reason,
+        })?;
+    }
+    let windows = windows(train, cfg.horizon);
+    if windows.is_empty() {
+        return Err(WorldModelError::Request(format!(
+            "{} training clips hold no window of 2 frames or more",
+            train.len()
+        )));
+    }
+    if device == Device::Cpu {
+        tch::set_num_threads(cfg.threads.max(1) as i32);
+    }
+    let size = i64::from(size);
+    let mut net = Net::new(cfg, device);
+    net.stats = Stats::of(train, device);
+    let mut adam = Adam::new(&net.params, cfg.lr, GRAD_CLIP);
+    let (config_hash, data_hash) = (config_hash(cfg), crate::world_model::clips_hash(train));
+
+    let mut step = 0u64;
+    let mut resumed_from_step = None;
+    if let Some(bytes) = resume {
+        let saved = read_checkpoint(bytes, Some((config_hash, data_hash)), device)?;
+        if saved.step > cfg.steps {
+            return Err(WorldModelError::CheckpointRefused(format!(
+                "it is at step {}, beyond this fit's {} steps",
+                saved.step, cfg.steps
+            )));
+        }
+        net.restore(&saved.tensors, "p")?;
+        for (prefix, moments) in [("m", &mut adam.m), ("v", &mut adam.v)] {
+            for (name, m) in net.names.iter().zip(moments.iter_mut()) {
+                *m = lookup(&saved.tensors, prefix, name, m)?.copy();
+            }
+        }
+        adam.t = saved.adam_t;
+        step = saved.step;
+        resumed_from_step = Some(step);
+    }
+
+    let started = Instant::now();
+    let first_step = step;
+    let mut recent = (0.0f64, 0u64);
+    while step < cfg.steps {
+        let mut rng = Rng::new(cfg.seed, &format!("video-model/batch/{step}"));
+        let picked: Vec<&Window> = (0..cfg.batch)
+            .map(|_| &windows[(rng.next_u64() % windows.len() as u64) as usize])
+            .collect();
+        let batch = Batch::new(train, &picked, size, device);
+        let loss = net.loss(&batch, cfg);
+        loss.backward();
+        adam.lr = learning_rate(cfg, step);
+        adam.step(&mut net.params);
+        let value = loss.double_value(&[]);
+        if cfg.steps - step <= 100 {
+            recent.0 += value;
+            recent.1 += 1;
+        }
+        step += 1;
+        if cfg.checkpoint_every > 0
+            && step.is_multiple_of(cfg.checkpoint_every as u64)
+            && step < cfg.steps
+        {
+            let bytes = write_checkpoint(&net, &adam, config_hash, data_hash, step)?;
+            on_checkpoint(step, &bytes)
+                .map_err(|reason| WorldModelError::Checkpoint { step, reason })?;
+        }
+    }
+    let done = step - first_step;
+    let seconds = started.elapsed().as_secs_f64();
+    let last = if keep_last {
+        Some(write_checkpoint(&net, &adam, config_hash, data_hash, step)?)
+    } else {
+        None
+    };
+    let fit = VideoFit {
+        train_clips: train.len() as u32,
+        windows: windows.len() as u64,
+        steps: step,
+        resumed_from_step,
+        final_train_loss: if recent.1 > 0 {
+            recent.0 / recent.1 as f64
+        } else {
+            0.0
+        },
+        steps_per_s: if done > 0 && seconds > 0.0 {
+            done as f64 / seconds
+        } else {
+            0.0
+        },
+        device: device_name(device),
+        config: cfg.clone(),
+    };
+    tracing::info!(
+        steps = fit.steps,
+        loss = fit.final_train_loss,
+        steps_per_s = fit.steps_per_s,
+        "video world model fitted"
+    );
+    Ok((VideoModel { net, size, device }, fit, last))
+}
+
+impl VideoModel {
+    /// The model a checkpoint holds (of any fit, at `size`×`size` frames), to imagine in.
+    pub fn from_checkpoint(
+        cfg: &VideoModelConfig,
+        size: u32,
+        bytes: &[u8],
+        device: Device,
+    ) -> Result<Self, WorldModelError> {
+        cfg.validate().map_err(WorldModelError::Request)?;
+        let saved = read_checkpoint(bytes, None, device)?;
+        if saved.config_hash != config_hash(cfg) {
+            return Err(WorldModelError::CheckpointRefused(
+                "it was written for another video-model config".into(),
+            ));
+        }
+        let mut net = Net::new(cfg, device);
+        net.restore(&saved.tensors, "p")?;
+        net.stats = Stats::restore(&saved.tensors, device)?;
+        Ok(Self {
+            net,
+            size: i64::from(size),
+            device,
+        })
+    }
+
+    /// A checkpoint of the model as it is (Adam's moments zero): what
+    /// [`VideoModel::from_checkpoint`] reads.
+    pub fn to_checkpoint(&self, cfg: &VideoModelConfig) -> Result<Vec<u8>, WorldModelError> {
+        let adam = Adam::new(&self.net.params, cfg.lr, GRAD_CLIP);
+        write_checkpoint(&self.net, &adam, config_hash(cfg), 0, cfg.steps)
+    }
+
+    pub fn image_size(&self) -> u32 {
+        self.size as u32
+    }
+}
+
+/// Cosine decay from `lr` to a tenth of it over the fit's steps.
+fn learning_rate(cfg: &VideoModelConfig, step: u64) -> f64 {
+    let progress = step as f64 / cfg.steps.max(1) as f64;
+    cfg.lr * (0.1 + 0.9 * 0.5 * (1.0 + (std::f64::consts::PI * progress).cos()))
+}
+
+// ---------------------------------------------------------------------------------------------
+// Data.
+
+fn check_clip(clip: &Clip, size: u32) -> Result<(), String> {
+    if clip.width != size || clip.height != size {
+        return Err(format!(
+            "frames of {}x{}, the video model wants {size}x{size}",
+            clip.width, clip.height
+        ));
+    }
+    if clip.proprio_dims as usize != PROPRIO_DIMS || clip.action_dims as usize != ACTION_DIMS {
+        return Err(format!(
+            "{} state and {} action dims, the video model wants {PROPRIO_DIMS} and {ACTION_DIMS}",
+            clip.proprio_dims, clip.action_dims
+        ));
+    }
+    clip.validate().map_err(|e| e.to_string())?;
+    if !clip
+        .proprio
+        .iter()
+        .chain(&clip.actions)
+        .all(|v| v.is_finite())
+    {
+        return Err("non-finite state or action values".into());
+    }
+    Ok(())
+}
+
+struct Window {
+    clip: usize,
+    start: usize,
+    /// Predicted frames (1..=horizon).
+    len: usize,
+}
+
+fn windows(clips: &[Clip], horizon: usize) -> Vec<Window> {
+    let mut out = Vec::new();
+    for (i, clip) in clips.iter().enumerate() {
+        let t = clip.len();
+        for start in 0..t.saturating_sub(1) {
+            out.push(Window {
+                clip: i,
+                start,
+                len: horizon.min(t - 1 - start),
+            });
+        }
+    }
+    out
+}
+
+/// A batch of windows: first frames and states, then `len` steps, time-major.
+struct Batch {
+    /// `[B, 3, H, W]` in [0, 1].
+    first: Tensor,
+    /// `[B, P]`, raw.
+    state: Tensor,
+    /// `[L, B, A]`, raw.
+    actions: Tensor,
+    /// `[L, B, 3, H, W]` in [0, 1].
+    targets: Tensor,
+    /// `[L, B, P]`, raw.
+    target_states: Tensor,
+    /// `[L, B]`.
+    mask: Tensor,
+}
+
+impl Batch {
+    fn new(clips: &[Clip], picked: &[&Window], size: i64, device: Device) -> Self {
+        let b = picked.len();
+        let l = picked.iter().map(|w| w.len).max().unwrap_or(1);
+        let frame = (size * size * 3) as usize;
+        let (p, a) = (PROPRIO_DIMS, ACTION_DIMS);
+        let mut first = vec![0u8; b * frame];
+        let mut state = vec![0f32; b * p];
+        let mut actions = vec![0f32; l * b * a];
+        let mut targets = vec![0u8; l * b * frame];
+        let mut target_states = vec![0f32; l * b * p];
+        let mut mask = vec![0f32; l * b];
+        for (j, w) in picked.iter().enumerate() {
+            let c = &clips[w.clip];
+            first[j * frame..(j + 1) * frame]
+                .copy_from_slice(&c.rgb[w.start * frame..(w.start + 1) * frame]);
+            state[j * p..(j + 1) * p].copy_from_slice(&c.proprio[w.start * p..(w.start + 1) * p]);
+            for t in 0..w.len {
+                let (src, dst) = (w.start + t, t * b + j);
+                actions[dst * a..(dst + 1) * a].copy_from_slice(&c.actions[src * a..(src + 1) * a]);
+                targets[dst * frame..(dst + 1) * frame]
+                    .copy_from_slice(&c.rgb[(src + 1) * frame..(src + 2) * frame]);
+                target_states[dst * p..(dst + 1) * p]
+                    .copy_from_slice(&c.proprio[(src + 1) * p..(src + 2) * p]);
+                mask[dst] = 1.0;
+            }
+        }
+        let (l, b) = (l as i64, b as i64);
+        Self {
+            first: pixels(&first, b, size, device),
+            state: Tensor::from_slice(&state).view([b, -1]).to_device(device),
+            actions: Tensor::from_slice(&actions)
+                .view([l, b, -1])
+                .to_device(device),
+            targets: pixels(&targets, l * b, size, device).view([l, b, 3, size, size]),
+            target_states: Tensor::from_slice(&target_states)
+                .view([l, b, -1])
+                .to_device(device),
+            mask: Tensor::from_slice(&mask).view([l, b]).to_device(device),
+        }
+    }
+}
+
+/// `n` RGB frames (HWC bytes) as `[n, 3, H, W]` floats in [0, 1].
+fn pixels(rgb: &[u8], n: i64, size: i64, device: Device) -> Tensor {
+    Tensor::from_slice(rgb)
+        .view([n, size, size, 3])
+        .to_device(device)
+        .permute([0, 3, 1, 2])
+        .to_kind(Kind::Float)
+        / 255.0
+}
+
+/// Per-dimension shift and scale of actions and states, from the training clips (the last
+/// frame's action, all zeros by format, left out). A dimension that never changes maps to 0.
+struct Stats {
+    act_mean: Tensor,
+    act_dev: Tensor,
+    state_mean: Tensor,
+    state_dev: Tensor,
+}
+
+impl Stats {
+    fn identity(device: Device) -> Self {
+        let z = |n: usize| Tensor::zeros([n as i64], (Kind::Float, device));
+        let o = |n: usize| Tensor::ones([n as i64], (Kind::Float, device));
+        Self {
+            act_mean: z(ACTION_DIMS),
+            act_dev: o(ACTION_DIMS),
+            state_mean: z(PROPRIO_DIMS),
+            state_dev: o(PROPRIO_DIMS),
+        }
+    }
+
+    fn of(clips: &[Clip], device: Device) -> Self {
+        let moments = |rows: &mut dyn Iterator<Item = &[f32]>, d: usize| {
+            let (mut s, mut s2, mut n) = (vec![0f64; d], vec![0f64; d], 0f64);
+            for row in rows {
+                for k in 0..d {
+                    let v = f64::from(row[k]);
+                    s[k] += v;
+                    s2[k] += v * v;
+                }
+                n += 1.0;
+            }
+            let n = n.max(1.0);
+            let mean: Vec<f32> = s.iter().map(|v| (v / n) as f32).collect();
+            let dev: Vec<f32> = (0..d)
+                .map(|k| {
+                    let var = (s2[k] / n - (s[k] / n).powi(2)).max(0.0);
+                    if var.sqrt() < 1e-6 {
+                        1.0
+                    } else {
+                        var.sqrt() as f32
+                    }
+                })
+                .collect();
+            (
+                Tensor::from_slice(&mean).to_device(device),
+                Tensor::from_slice(&dev).to_device(device),
+            )
+        };
+        let (act_mean, act_dev) = moments(
+            &mut clips.iter().flat_map(|c| {
+                c.actions
+                    .chunks(ACTION_DIMS)
+                    .take(c.len().saturating_sub(1))
+            }),
+            ACTION_DIMS,
+        );
+        let (state_mean, state_dev) = moments(
+            &mut clips.iter().flat_map(|c| c.proprio.chunks(PROPRIO_DIMS)),
+            PROPRIO_DIMS,
+        );
+        Self {
+            act_mean,
+            act_dev,
+            state_mean,
+            state_dev,
+        }
+    }
+
+    fn named(&self) -> [(&'static str, &Tensor); 4] {
+        [
+            ("stats/act_mean", &self.act_mean),
+            ("stats/act_dev", &self.act_dev),
+            ("stats/state_mean", &self.state_mean),
+            ("stats/state_dev", &self.state_dev),
+        ]
+    }
+
+    fn restore(saved: &HashMap<String, Tensor>, device: Device) -> Result<Self, WorldModelError> {
+        let get = |k: &str| {
+            saved
+                .get(k)
+                .map(|t| t.to_device(device))
+                .ok_or_else(|| WorldModelError::CheckpointRefused(format!("it has no tensor {k}")))
+        };
+        Ok(Self {
+            act_mean: get("stats/act_mean")?,
+            act_dev: get("stats/act_dev")?,
+            state_mean: get("stats/state_mean")?,
+            state_dev: get("stats/state_dev")?,
+        })
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Model.
+
+/// 3×3 convolution, stride 1, with bias.
+struct Conv3 {
+    w: Tensor,
+    b: Tensor,
+}
+
+impl Conv3 {
+    fn new(init: &mut Init, name: &str, i: i64, o: i64) -> Self {
+        Self {
+            w: init.uniform(format!("{name}/w"), &[o, i, 3, 3], i * 9, o * 9),
+            b: init.constant(format!("{name}/b"), &[o], 0.0),
+        }
+    }
+
+    fn forward(&self, x: &Tensor) -> Tensor {
+        x.conv2d(&self.w, Some(&self.b), [1, 1], [1, 1], [1, 1], 1)
+    }
+}
+
+/// conv → GroupNorm → FiLM(action) → SiLU → conv, added to the input.
+struct Block {
+    c: i64,
+    groups: i64,
+    conv1: Conv3,
+    film: Linear,
+    conv2: Conv3,
+}
+
+impl Block {
+    fn new(init: &mut Init, name: &str, c: i64, embed: i64) -> Self {
+        Self {
+            c,
+            groups: (1..=8).rev().find(|g| c % g == 0).unwrap_or(1),
+            conv1: Conv3::new(init, &format!("{name}/conv1"), c, c),
+            film: Linear::new(init, &format!("{name}/film"), embed, 2 * c, true),
+            conv2: Conv3::new(init, &format!("{name}/conv2"), c, c),
+        }
+    }
+
+    fn forward(&self, z: &Tensor, emb: &Tensor) -> Tensor {
+        let h = self.conv1.forward(z).group_norm(
+            self.groups,
+            None::<Tensor>,
+            None::<Tensor>,
+            1e-5,
+            true,
+        );
+        let film = self.film.forward(emb).view([-1, 2, self.c, 1, 1]);
+        let h = (h * (film.select(1, 0) + 1.0) + film.select(1, 1)).silu();
+        z + self.conv2.forward(&h)
+    }
+}
+
+struct Net {
+    c: i64,
+    fourier: usize,
+    enc: Vec<Conv>,
+    state_in: Linear,
+    act_in: Linear,
+    act_out: Linear,
+    blocks: Vec<Block>,
+    head_hidden: Linear,
+    head_out: Linear,
+    /// The tool's place in the frame from the normalised state (learned): where the heat maps
+    /// beside the decoder's inputs peak.
+    proj: Option<Linear>,
+    /// Transposed convolutions: latent → 1/4, (1/4 + skip) → 1/2, (1/2 + skip) → RGB + mask.
+    dec: Vec<Conv>,
+    names: Vec<String>,
+    params: Vec<Tensor>,
+    stats: Stats,
+}
+
+impl Net {
+    fn new(cfg: &VideoModelConfig, device: Device) -> Self {
+        let mut init = Init {
+            rng: Rng::new(cfg.seed, "video-model/init"),
+            device,
+            names: Vec::new(),
+            params: Vec::new(),
+        };
+        let d = cfg.depth;
+        let c = 4 * d;
+        let e = cfg.action_embed;
+        let features = (ACTION_DIMS * (1 + 2 * cfg.fourier)) as i64;
+        let enc = vec![
+            Conv::new(&mut init, "enc0", 3, d, false, true),
+            Conv::new(&mut init, "enc1", d, 2 * d, false, true),
+            Conv::new(&mut init, "enc2", 2 * d, c, false, true),
+        ];
+        let state_in = Linear::new(&mut init, "state_in", PROPRIO_DIMS as i64, c, true);
+        let act_in = Linear::new(&mut init, "act_in", features, e, true);
+        let act_out = Linear::new(&mut init, "act_out", e, e, true);
+        let blocks = (0..cfg.blocks)
+            .map(|i| Block::new(&mut init, &format!("block{i}"), c, e))
+            .collect();
+        let head_hidden = Linear::new(&mut init, "head_hidden", c + e, 64, true);
+        let head_out = Linear::new(&mut init, "head_out", 64, PROPRIO_DIMS as i64, true);
+        let heat = if cfg.tool_heatmap { 2 } else { 0 };
+        let proj = cfg
+            .tool_heatmap
+            .then(|| Linear::new(&mut init, "proj", PROPRIO_DIMS as i64, 2, true));
+        let dec = vec![
+            Conv::new(&mut init, "dec0", c + GUIDES + heat, 2 * d, true, true),
+            Conv::new(&mut init, "dec1", 4 * d + heat, d, true, true),
+            Conv::new(&mut init, "dec2", 2 * d + heat, 4, true, false),
+        ];
+        Self {
+            c,
+            fourier: cfg.fourier,
+            enc,
+            state_in,
+            act_in,
+            act_out,
+            blocks,
+            head_hidden,
+            head_out,
+            proj,
+            dec,
+            names: init.names,
+            params: init.params,
+            stats: Stats::identity(device),
+        }
+    }
+
+    /// Raw actions `[..., A]` → embeddings `[..., E]`.
+    fn embed(&self, actions: &Tensor) -> Tensor {
+        let a = ((actions - &self.stats.act_mean) / &self.stats.act_dev).clamp(-10.0, 10.0);
+        let mut feats = vec![a.shallow_clone()];
+        for k in 0..self.fourier {
+            let x = &a * (std::f64::consts::PI * f64::from(1u32 << k));
+            feats.push(x.sin());
+            feats.push(x.cos());
+        }
+        let f = Tensor::cat(&feats, -1);
+        self.act_out.forward(&self.act_in.forward(&f).silu())
+    }
+
+    /// The start of a rollout: the first frame `[B, 3, H, W]` in [0, 1] and the raw state
+    /// `[B, P]`.
+    fn start(&self, first: &Tensor, state: &Tensor) -> Rollout {
+        let s1 = self.enc[0].forward(&(first - 0.5));
+        let s2 = self.enc[1].forward(&s1);
+        let sn = (state - &self.stats.state_mean) / &self.stats.state_dev;
+        let z = self.enc[2].forward(&s2) + self.state_in.forward(&sn).view([-1, self.c, 1, 1]);
+        let m = z.size()[2];
+        let line = Tensor::linspace(-1.0, 1.0, m, (Kind::Float, z.device()));
+        let coords = Tensor::stack(
+            &[
+                line.view([1, m]).expand([m, m], false),
+                line.view([m, 1]).expand([m, m], false),
+            ],
+            0,
+        )
+        .unsqueeze(0);
+        let uv0 = self.proj.as_ref().map(|p| p.forward(&sn));
+        Rollout {
+            coords,
+            uv0,
+            first: first.shallow_clone(),
+            skips: [s1, s2],
+            z,
+            state: sn,
+        }
+    }
+
+    /// One step with embedded actions `[B, E]`: the next frame in [0, 1] and the next
+    /// normalised state.
+    fn step(&self, r: &mut Rollout, emb: &Tensor) -> (Tensor, Tensor) {
+        let mut z = r.z.shallow_clone();
+        for block in &self.blocks {
+            z = block.forward(&z, emb);
+        }
+        let pooled = z.mean_dim([2i64, 3].as_slice(), false, Kind::Float);
+        let delta = self.head_out.forward(
+            &self
+                .head_hidden
+                .forward(&Tensor::cat(&[&pooled, emb], -1))
+                .silu(),
+        );
+        r.state = &r.state + delta;
+        let (b, m) = (z.size()[0], z.size()[2]);
+        let guides = Tensor::cat(
+            &[
+                r.state
+                    .view([b, -1, 1, 1])
+                    .expand([b, PROPRIO_DIMS as i64, m, m], false),
+                r.coords.expand([b, 2, m, m], false),
+            ],
+            1,
+        );
+        // The heat maps of the tool now and at the start, at a decoder input's size `m`.
+        let uv = self.proj.as_ref().map(|p| p.forward(&r.state));
+        let with_heat = |x: Tensor, parts: &[&Tensor]| -> Tensor {
+            let m = x.size()[2];
+            let mut all: Vec<Tensor> = vec![x];
+            all.extend(parts.iter().map(|t| t.shallow_clone()));
+            if let (Some(uv), Some(uv0)) = (&uv, &r.uv0) {
+                all.push(heat(uv, m));
+                all.push(heat(uv0, m));
+            }
+            Tensor::cat(&all, 1)
+        };
+        let u = self.dec[0].forward(&with_heat(z.shallow_clone(), &[&guides]));
+        let u = self.dec[1].forward(&with_heat(u, &[&r.skips[1]]));
+        let out = self.dec[2].forward(&with_heat(u, &[&r.skips[0]]));
+        let rgb = out.narrow(1, 0, 3).sigmoid();
+        let alpha = out.narrow(1, 3, 1).sigmoid();
+        let frame = &alpha * rgb + (1.0 - &alpha) * &r.first;
+        r.z = z;
+        (frame, r.state.shallow_clone())
+    }
+
+    fn loss(&self, batch: &Batch, cfg: &VideoModelConfig) -> Tensor {
+        let (state_weight, motion_weight, pixel_loss) =
+            (cfg.state_weight, cfg.motion_weight, cfg.pixel_loss);
+        let mut r = self.start(&batch.first, &batch.state);
+        let emb = self.embed(&batch.actions);
+        let target_sn = (&batch.target_states - &self.stats.state_mean) / &self.stats.state_dev;
+        let steps = batch.mask.size()[0];
+        let mut terms = Vec::with_capacity(steps as usize);
+        for t in 0..steps {
+            let (frame, sn) = self.step(&mut r, &emb.get(t));
+            let target = batch.targets.get(t);
+            let moved = (&target - &batch.first)
+                .abs()
+                .amax([1i64].as_slice(), true)
+                .gt(0.1)
+                .to_kind(Kind::Float);
+            let diff = frame - &target;
+            let err = match pixel_loss {
+                PixelLoss::L1 => diff.abs(),
+                PixelLoss::L2 => diff.square(),
+            };
+            let image = (err * (moved * motion_weight + 1.0)).mean_dim(
+                [1i64, 2, 3].as_slice(),
+                false,
+                Kind::Float,
+            );
+            let state =
+                (sn - target_sn.get(t))
+                    .square()
+                    .mean_dim([1i64].as_slice(), false, Kind::Float);
+            terms.push(((image + state * state_weight) * batch.mask.get(t)).sum(Kind::Float));
+        }
+        let zero = Tensor::zeros([], (Kind::Float, batch.first.device()));
+        terms.into_iter().fold(zero, |total, t| total + t)
+            / batch.mask.sum(Kind::Float).clamp_min(1.0)
+    }
+
+    fn restore(
+        &mut self,
+        saved: &HashMap<String, Tensor>,
+        prefix: &str,
+    ) -> Result<(), WorldModelError> {
+        tch::no_grad(|| {
+            for (name, p) in self.names.iter().zip(self.params.iter_mut()) {
+                let src = lookup(saved, prefix, name, p)?;
+                p.f_copy_(src)?;
+            }
+            Ok(())
+        })
+    }
+}
+
+/// A Gaussian bump `[B, 1, m, m]` at `uv` (`[B, 2]`, x and y in [−1, 1] across the map), one
+/// cell wide.
+fn heat(uv: &Tensor, m: i64) -> Tensor {
+    let line = Tensor::linspace(-1.0, 1.0, m, (Kind::Float, uv.device())).view([1, m]);
+    let sigma = 2.0 / m as f64;
+    let bump = |c: i64| {
+        (-(line.shallow_clone() - uv.narrow(1, c, 1)).square() / (2.0 * sigma * sigma)).exp()
+    };
+    let (x, y) = (bump(0), bump(1));
+    (y.unsqueeze(2) * x.unsqueeze(1)).unsqueeze(1)
+}
+
+struct Rollout {
+    /// `[1, 2, m, m]`: x and y of each latent position.
+    coords: Tensor,
+    /// The tool's place in the start frame (with `tool_heatmap`).
+    uv0: Option<Tensor>,
+    first: Tensor,
+    skips: [Tensor; 2],
+    z: Tensor,
+    state: Tensor,
+}
+
+// ---------------------------------------------------------------------------------------------
+// Checkpoints.
+
+fn config_hash(cfg: &VideoModelConfig) -> u64 {
+    let mut c = cfg.clone();
+    c.checkpoint_every = 0;
+    c.threads = 0;
+    let json = serde_json::to_vec(&c).unwrap_or_default();
+    let mut h = 0xcbf2_9ce4_8422_2325u64;
+    for b in b"video-model v1 ".iter().chain(&json) {
+        h ^= u64::from(*b);
+        h = h.wrapping_mul(0x0000_0100_0000_01b3);
+    }
+    h
+}
+
+fn write_checkpoint(
+    net: &Net,
+    adam: &Adam,
+    config_hash: u64,
+    data_hash: u64,
+    step: u64,
+) -> Result<Vec<u8>, WorldModelError> {
+    let mut out = Vec::from(&MAGIC[..]);
+    for v in [config_hash, data_hash, step, adam.t] {
+        out.extend_from_slice(&v.to_le_bytes());
+    }
+    let mut named: Vec<(String, &Tensor)> = Vec::new();
+    for (prefix, tensors) in [("p", &net.params), ("m", &adam.m), ("v", &adam.v)] {
+        for (name, t) in net.names.iter().zip(tensors.iter()) {
+            named.push((format!("{prefix}/{name}"), t));
+        }
+    }
+    for (name, t) in net.stats.named() {
+        named.push((name.to_string(), t));
+    }
+    let mut blob = Vec::new();
+    Tensor::save_multi_to_stream(&named, &mut blob)?;
+    out.extend_from_slice(&blob);
+    Ok(out)
+}
+
+struct Saved {
+    config_hash: u64,
+    step: u64,
+    adam_t: u64,
+    tensors: HashMap<String, Tensor>,
+}
+
+/// `expect`: the config and data hashes the checkpoint must carry (a resumed fit).
+fn read_checkpoint(
+    bytes: &[u8],
+    expect: Option<(u64, u64)>,
+    device: Device,
+) -> Result<Saved, WorldModelError> {
+    let refuse = |s: &str| Err(WorldModelError::CheckpointRefused(s.to_string()));
+    if bytes.len() < HEADER_LEN || &bytes[..8] != MAGIC {
+        return refuse("not a video-model checkpoint (no ASYVM001 header)");
+    }
+    let word = |k: usize| {
+        let mut b = [0u8; 8];
+        b.copy_from_slice(&bytes[8 + 8 * k..16 + 8 * k]);
+        u64::from_le_bytes(b)
+    };
+    if let Some((config, data)) = expect {
+        if word(0) != config {
+            return refuse("it was written for another video-model config");
+        }
+        if word(1) != data {
+            return refuse("it was written for other training clips");
+        }
+    }
+    let tensors =
+        Tensor::load_multi_from_stream_with_device(Cursor::new(&bytes[HEADER_LEN..]), device)
+            .map_err(|e| WorldModelError::CheckpointRefused(format!("unreadable tensors: {e}")))?;
+    Ok(Saved {
+        config_hash: word(0),
+        step: word(2),
+        adam_t: word(3),
+        tensors: tensors
+            .into_iter()
+            .map(|(k, v)| (k.replace('|', "."), v))
+            .collect(),
+    })
+}
+
+// ---------------------------------------------------------------------------------------------
+// As a world-model service.
+
+impl WorldModelService for VideoModel {
+    fn name(&self) -> String {
+        format!(
+            "Assay video model ({s}x{s} frames, latent {c}x{m}x{m}, {b} FiLM blocks)",
+            s = self.size,
+            c = self.net.c,
+            m = self.size / 8,
+            b = self.net.blocks.len(),
+        )
+    }
+
+    fn reset(&self, start: &WorldStart) -> Result<Box<dyn ImaginedEpisode + '_>, WorldError> {
+        let size = self.size;
+        if i64::from(start.width) != size
+            || i64::from(start.height) != size
+            || start.rgb.len() != (size * size * 3) as usize
+        {
+            return Err(WorldError::Refused(format!(
+                "a first frame of {}x{} ({} bytes): this video model was trained on {size}x{size} RGB",
+                start.width,
+                start.height,
+                start.rgb.len()
+            )));
+        }
+        if start.state.len() != PROPRIO_DIMS || start.state.iter().any(|v| !v.is_finite()) {
+            return Err(WorldError::Refused(format!(
+                "a first state of {} values: the video model takes {PROPRIO_DIMS} finite ones (tool x, y, z, holding)",
+                start.state.len()
+            )));
+        }
+        let rollout = tch::no_grad(|| {
+            let first = pixels(&start.rgb, 1, size, self.device);
+            let state = Tensor::from_slice(&start.state)
+                .view([1, -1])
+                .to_device(self.device);
+            self.net.start(&first, &state)
+        });
+        Ok(Box::new(Imagined {
+            model: self,
+            rollout,
+        }))
+    }
+}
+
+struct Imagined<'a> {
+    model: &'a VideoModel,
+    rollout: Rollout,
+}
+
+impl ImaginedEpisode for Imagined<'_> {
+    fn step(&mut self, actions: &[Vec<f32>]) -> Result<Vec<WorldFrame>, WorldError> {
+        let (net, device) = (&self.model.net, self.model.device);
+        let mut out = Vec::with_capacity(actions.len());
+        for a in actions {
+            if a.len() != ACTION_DIMS || a.iter().any(|v| !v.is_finite()) {
+                return Err(WorldError::Refused(format!(
+                    "an action of {} values: the video model takes {ACTION_DIMS} finite ones (tool velocity x, y, z, hold)",
+                    a.len()
+                )));
+            }
+            let frame = tch::no_grad(|| -> Result<WorldFrame, tch::TchError> {
+                let emb = net.embed(&Tensor::from_slice(a).view([1, -1]).to_device(device));
+                let (frame, sn) = net.step(&mut self.rollout, &emb);
+                let raw = sn * &net.stats.state_dev + &net.stats.state_mean;
+                world_frame(&frame, &raw)
+            })
+            .map_err(|e| WorldError::BadAnswer(format!("libtorch: {e}")))?;
+            out.push(frame);
+        }
+        Ok(out)
+    }
+}
