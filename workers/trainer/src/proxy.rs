@@ -1,5 +1,6 @@
-//! The world-model proxy of one task group (see `assay_model::proxy`): a world model — the RSSM
-//! fitted on the training policies' clips, or a lab's model served over `assay.v1.WorldModel` —,
+//! The world-model proxy of one task group (see `assay_model::proxy`): a world model — the video
+//! model (the default) or the RSSM fitted on the training policies' clips, or a lab's model served
+//! over `assay.v1.WorldModel` —,
 //! a frame judge that tells a finished task from an unfinished one, and every ranked policy
 //! acting closed loop inside the world model, judged frame by frame.
 //!
@@ -259,8 +260,9 @@ pub(crate) fn video_summary(
     }
 }
 
-/// Runs the proxy of one group. `resume` and `on_checkpoint` are the RSSM's (see
-/// [`crate::world_model::fit`]); a served world model is not trained.
+/// Runs the proxy of one group. `resume` and `on_checkpoint` are the trained world model's (the
+/// video model's, see [`crate::video_model::fit`], or the RSSM's, [`crate::world_model::fit`]);
+/// a served world model is not trained.
 pub fn run_proxy(
     req: &ProxyRequest<'_>,
     resume: Option<&[u8]>,
@@ -338,10 +340,10 @@ pub fn run_proxy(
             // the real one before it, on the ranked episodes' clips.
             let refs: Vec<&Clip> = eval_clips.iter().collect();
             let names: Vec<StartName<'_>> = eval.iter().map(start_name).collect();
-            let one = tch::no_grad(|| video_eval::open_loop(&video, &refs, &names, 1))?;
+            let one = tch::no_grad(|| video_eval::one_step_mse(&video, &refs, &names))?;
             let mut fit = video_summary(group, &vfit, config);
             fit.eval_episodes = eval_clips.len() as u32;
-            fit.eval_image_mse = one.mse_true;
+            fit.eval_image_mse = one;
             fit.episodes = eval_keys.clone();
             video_fit = Some(vfit);
             (&video, fit)

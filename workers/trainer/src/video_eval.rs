@@ -19,6 +19,7 @@
 
 use assay_model::clip::Clip;
 use assay_model::world::{WorldError, WorldModelService, WorldStart};
+use tch::{Kind, Tensor};
 
 use crate::imagination::replay;
 
@@ -60,57 +61,46 @@ pub fn psnr(a: &[u8], b: &[u8]) -> f64 {
     }
 }
 
-/// SSIM of two `width`×`height` RGB frames (module docs).
+/// SSIM of two `width`×`height` RGB frames (module docs). Computed with libtorch in double
+/// precision (a separable Gaussian as two depthwise convolutions), so it costs little in any
+/// build.
 pub fn ssim(a: &[u8], b: &[u8], width: usize, height: usize) -> f64 {
-    const R: usize = 5;
+    const R: i64 = 5;
+    if width as i64 <= 2 * R || height as i64 <= 2 * R {
+        return f64::NAN;
+    }
     let k: Vec<f64> = (0..=2 * R)
-        .map(|i| (-((i as f64 - R as f64).powi(2)) / (2.0 * 1.5 * 1.5)).exp())
+        .map(|i| (-(((i - R) as f64).powi(2)) / (2.0 * 1.5 * 1.5)).exp())
         .collect();
     let sum: f64 = k.iter().sum();
     let k: Vec<f64> = k.iter().map(|v| v / sum).collect();
-    if width <= 2 * R || height <= 2 * R {
-        return f64::NAN;
-    }
-    let (c1, c2) = (0.01f64.powi(2), 0.03f64.powi(2));
-    let (ow, oh) = (width - 2 * R, height - 2 * R);
-    let mut total = 0.0;
-    for ch in 0..3 {
-        let px = |f: &[u8], x: usize, y: usize| f64::from(f[(y * width + x) * 3 + ch]) / 255.0;
-        // Separable Gaussian: rows first (valid in x), then columns (valid in y).
-        let mut rows = vec![[0.0f64; 5]; ow * height];
-        for y in 0..height {
-            for x in 0..ow {
-                let mut acc = [0.0f64; 5];
-                for (i, w) in k.iter().enumerate() {
-                    let (u, v) = (px(a, x + i, y), px(b, x + i, y));
-                    acc[0] += w * u;
-                    acc[1] += w * v;
-                    acc[2] += w * u * u;
-                    acc[3] += w * v * v;
-                    acc[4] += w * u * v;
-                }
-                rows[y * ow + x] = acc;
-            }
-        }
-        for y in 0..oh {
-            for x in 0..ow {
-                let mut m = [0.0f64; 5];
-                for (i, w) in k.iter().enumerate() {
-                    let r = &rows[(y + i) * ow + x];
-                    for j in 0..5 {
-                        m[j] += w * r[j];
-                    }
-                }
-                let (mu_a, mu_b) = (m[0], m[1]);
-                let var_a = m[2] - mu_a * mu_a;
-                let var_b = m[3] - mu_b * mu_b;
-                let cov = m[4] - mu_a * mu_b;
-                total += ((2.0 * mu_a * mu_b + c1) * (2.0 * cov + c2))
-                    / ((mu_a * mu_a + mu_b * mu_b + c1) * (var_a + var_b + c2));
-            }
-        }
-    }
-    total / (3 * ow * oh) as f64
+    let kernel = Tensor::from_slice(&k);
+    let (kx, ky) = (
+        kernel.view([1, 1, 1, 2 * R + 1]).repeat([3, 1, 1, 1]),
+        kernel.view([1, 1, 2 * R + 1, 1]).repeat([3, 1, 1, 1]),
+    );
+    let image = |f: &[u8]| {
+        Tensor::from_slice(f)
+            .view([1, height as i64, width as i64, 3])
+            .permute([0, 3, 1, 2])
+            .to_kind(Kind::Double)
+            / 255.0
+    };
+    let blur = |x: &Tensor| {
+        x.conv2d(&kx, None::<Tensor>, [1, 1], [0, 0], [1, 1], 3)
+            .conv2d(&ky, None::<Tensor>, [1, 1], [0, 0], [1, 1], 3)
+    };
+    tch::no_grad(|| {
+        let (x, y) = (image(a), image(b));
+        let (mu_x, mu_y) = (blur(&x), blur(&y));
+        let var_x = blur(&(&x * &x)) - &mu_x * &mu_x;
+        let var_y = blur(&(&y * &y)) - &mu_y * &mu_y;
+        let cov = blur(&(&x * &y)) - &mu_x * &mu_y;
+        let (c1, c2) = (0.01f64.powi(2), 0.03f64.powi(2));
+        let map = ((&mu_x * &mu_y * 2.0 + c1) * (cov * 2.0 + c2))
+            / ((&mu_x * &mu_x + &mu_y * &mu_y + c1) * (var_x + var_y + c2));
+        map.mean(Kind::Double).double_value(&[])
+    })
 }
 
 /// The windows of a clip of `len` frames: `(start, predicted frames)`.
@@ -155,6 +145,25 @@ fn actions(clip: &Clip, start: usize, n: usize) -> Vec<Vec<f32>> {
     (start..start + n)
         .map(|t| clip.actions[t * d..(t + 1) * d].to_vec())
         .collect()
+}
+
+/// The one-step image error of `world` on `clips`: every next frame imagined from the real one
+/// before it with its action (the MSE per pixel-channel, averaged over the predicted frames).
+pub fn one_step_mse(
+    world: &dyn WorldModelService,
+    clips: &[&Clip],
+    names: &[StartName<'_>],
+) -> Result<f64, WorldError> {
+    let (mut sum, mut n) = (0.0, 0usize);
+    for (i, clip) in clips.iter().enumerate() {
+        let frame = (clip.width * clip.height * 3) as usize;
+        for t in 0..clip.len().saturating_sub(1) {
+            let imagined = replay(world, &start_at(clip, t, &names[i]), &actions(clip, t, 1))?;
+            sum += mse(&imagined[0], &clip.rgb[(t + 1) * frame..(t + 2) * frame]);
+            n += 1;
+        }
+    }
+    Ok(if n > 0 { sum / n as f64 } else { 0.0 })
 }
 
 /// The open-loop figures of `world` on `clips` (see the module docs); `names[i]` is what the
@@ -253,6 +262,59 @@ mod tests {
         let e = frame(32, 32, |_, _| [100, 100, 100]);
         let f = frame(32, 32, |_, _| [101, 101, 101]);
         assert!((psnr(&e, &f) - 48.1308).abs() < 1e-3, "{}", psnr(&e, &f));
+    }
+
+    /// SSIM summed directly over the valid window positions, to check the convolutions.
+    fn ssim_direct(a: &[u8], b: &[u8], width: usize, height: usize) -> f64 {
+        let r = 5usize;
+        let k: Vec<f64> = (0..=2 * r)
+            .map(|i| (-((i as f64 - r as f64).powi(2)) / (2.0 * 1.5 * 1.5)).exp())
+            .collect();
+        let sum: f64 = k.iter().sum();
+        let (c1, c2) = (0.01f64.powi(2), 0.03f64.powi(2));
+        let mut total = 0.0;
+        let (ow, oh) = (width - 2 * r, height - 2 * r);
+        for ch in 0..3 {
+            let px = |f: &[u8], x: usize, y: usize| f64::from(f[(y * width + x) * 3 + ch]) / 255.0;
+            for y in 0..oh {
+                for x in 0..ow {
+                    let mut m = [0.0f64; 5];
+                    for j in 0..=2 * r {
+                        for i in 0..=2 * r {
+                            let w = k[i] * k[j] / (sum * sum);
+                            let (u, v) = (px(a, x + i, y + j), px(b, x + i, y + j));
+                            for (slot, value) in m.iter_mut().zip([u, v, u * u, v * v, u * v]) {
+                                *slot += w * value;
+                            }
+                        }
+                    }
+                    let (var_a, var_b) = (m[2] - m[0] * m[0], m[3] - m[1] * m[1]);
+                    let cov = m[4] - m[0] * m[1];
+                    total += ((2.0 * m[0] * m[1] + c1) * (2.0 * cov + c2))
+                        / ((m[0] * m[0] + m[1] * m[1] + c1) * (var_a + var_b + c2));
+                }
+            }
+        }
+        total / (3 * ow * oh) as f64
+    }
+
+    #[test]
+    fn ssim_by_convolution_equals_the_direct_sum() {
+        // Not square, so that rows and columns cannot be swapped unnoticed.
+        let (w, h) = (24, 17);
+        let a = frame(w, h, |x, y| {
+            [(x * 10) as u8, (y * 14) as u8, ((x * y) % 256) as u8]
+        });
+        let b = frame(w, h, |x, y| {
+            [
+                (x * 9 + y) as u8,
+                (y * 15) as u8,
+                ((x * y + 7 * x) % 256) as u8,
+            ]
+        });
+        let (fast, direct) = (ssim(&a, &b, w, h), ssim_direct(&a, &b, w, h));
+        assert!((fast - direct).abs() < 1e-12, "{fast} against {direct}");
+        assert!(fast < 0.99, "{fast}");
     }
 
     #[test]

@@ -23,6 +23,10 @@
 //!   in an RGB image and a mask `α`; the frame is `α·rgb + (1 − α)·start`. What does not move is
 //!   copied from the real start, so the error left is where things moved — which only the
 //!   actions can tell (Finn et al. 2016's compositing, with the start frame as the source).
+//!   Beside the latent the decoder's first layer gets the predicted normalised state, broadcast,
+//!   and each position's x and y; with `tool_heatmap`, every decoder layer also gets two heat
+//!   maps, Gaussian bumps one cell wide at the tool's place now and at the start, the place a
+//!   learned linear map of the state: where to draw the tool and where to paint it out.
 //!
 //! # Training
 //! Windows of the training clips: every start `t₀` of a clip with a following frame, the next
@@ -31,8 +35,9 @@
 //! from the window's real first frame and state with the clip's actions. Loss: the mean absolute
 //! error of the predicted frames (in [0, 1]; `pixel_loss: l2` for the squared error), each pixel
 //! that differs from the window's first frame weighted `1 + motion_weight`, plus `state_weight`
-//! times the normalised state's squared error, over the window's real frames. Adam (`adam.rs`), its learning rate decayed from `lr` to a tenth
-//! of it over the fit's steps (cosine), gradients clipped at a global norm of 100.
+//! times the normalised state's squared error, over the window's real frames. Adam (`adam.rs`),
+//! its learning rate decayed from `lr` to a tenth of it over the fit's steps (cosine), gradients
+//! clipped at a global norm of 100.
 //! Initial weights come from the stream `video-model/init`; nothing draws from libtorch's global
 //! generator, so the same config and clips give the same weights (on one CPU thread, to the bit)
 //! and a fit resumed from a checkpoint ends where an uninterrupted one does.
