@@ -59,7 +59,9 @@ use assay_spec::rng::Rng;
 use tch::{Device, Kind, Tensor};
 
 use crate::adam::Adam;
-use crate::world_model::{Conv, Init, Linear, WorldModelError, device_name, lookup, world_frame};
+use crate::world_model::{
+    Conv, Init, Linear, WorldModelError, check_clip_frames, device_name, lookup, world_frame,
+};
 
 const MAGIC: &[u8; 8] = b"ASYVM001";
 const HEADER_LEN: usize = 8 + 8 * 4;
@@ -119,7 +121,7 @@ fn fit_keeping(
         )));
     }
     for (i, clip) in train.iter().enumerate() {
-        check_clip(clip, size).map_err(|reason| WorldModelError::BadClip {
+        check_clip_frames(clip, size, 0).map_err(|reason| WorldModelError::BadClip {
             clip: format!("train clip {i}"),
             reason,
         })?;
@@ -268,31 +270,6 @@ fn learning_rate(cfg: &VideoModelConfig, step: u64) -> f64 {
 
 // ---------------------------------------------------------------------------------------------
 // Data.
-
-fn check_clip(clip: &Clip, size: u32) -> Result<(), String> {
-    if clip.width != size || clip.height != size {
-        return Err(format!(
-            "frames of {}x{}, the video model wants {size}x{size}",
-            clip.width, clip.height
-        ));
-    }
-    if clip.proprio_dims as usize != PROPRIO_DIMS || clip.action_dims as usize != ACTION_DIMS {
-        return Err(format!(
-            "{} state and {} action dims, the video model wants {PROPRIO_DIMS} and {ACTION_DIMS}",
-            clip.proprio_dims, clip.action_dims
-        ));
-    }
-    clip.validate().map_err(|e| e.to_string())?;
-    if !clip
-        .proprio
-        .iter()
-        .chain(&clip.actions)
-        .all(|v| v.is_finite())
-    {
-        return Err("non-finite state or action values".into());
-    }
-    Ok(())
-}
 
 struct Window {
     clip: usize,

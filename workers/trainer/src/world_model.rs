@@ -393,6 +393,13 @@ fn validate(req: &FitRequest<'_>) -> Result<(), WorldModelError> {
 }
 
 fn check_clip(clip: &Clip, size: u32) -> Result<(), String> {
+    check_clip_frames(clip, size, 2)
+}
+
+/// What a world model (the RSSM, the video model) needs of a clip: frames of `size`×`size`,
+/// the clip interface's state and action widths, arrays that agree with the header, at least
+/// `min_frames` frames, finite values.
+pub(crate) fn check_clip_frames(clip: &Clip, size: u32, min_frames: usize) -> Result<(), String> {
     if clip.width != size || clip.height != size {
         return Err(format!(
             "frames of {}x{}, the world model wants {size}x{size}",
@@ -406,9 +413,9 @@ fn check_clip(clip: &Clip, size: u32) -> Result<(), String> {
         ));
     }
     clip.validate().map_err(|e| e.to_string())?;
-    if clip.len() < 2 {
+    if clip.len() < min_frames {
         return Err(format!(
-            "{} frame(s): at least 2 are needed for a transition",
+            "{} frame(s): at least {min_frames} are needed for a transition",
             clip.len()
         ));
     }
