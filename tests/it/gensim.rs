@@ -3,11 +3,12 @@
 //! oracle of every imported task on 20 seeds — each seed the layout the task's own `reset()`
 //! built on it, its random poses drawn as GenSim draws them — and writes what it did into the
 //! mapping report; the table of it is printed here. The goal is 90 % of the imported tasks
-//! solved (every goal holding at the end) on at least 18 of the 20 seeds; 81 of 92 (88 %) are
-//! (on seed 0's scene with jitter, 80 of 92), and GenSim's own reward is complete on at least 18
-//! seeds for 87 of 92. The rest is code that asks for what cannot stand and draws that put two
-//! structures in one place (docs/gensim.md lists them by cause). This test holds a floor of
-//! 85 %. `ASSAY_GENSIM_SEEDS=N` runs N seeds instead (the bar scales with it).
+//! solved (every goal holding at the end) on at least 18 of the 20 seeds; 84 of 92 (91.3 %) are
+//! (on seed 0's scene with jitter, 86 of 92), and GenSim's own reward is complete on at least 18
+//! seeds for 87 of 92. The rest is code that asks for what cannot stand, draws that put two
+//! structures in one place and targets beyond the arm (docs/gensim.md lists them by cause). This
+//! test holds the goal, 90 %. `ASSAY_GENSIM_SEEDS=N` runs N seeds instead (the bar scales with
+//! it).
 
 use crate::common::*;
 
@@ -77,8 +78,8 @@ fn gensim_library_oracles_solve_what_imports() {
     println!("{solved} of {imported} imported tasks solved on at least {need} of {seeds} seeds");
     assert!(imported > 0, "nothing imported");
     assert!(
-        solved * 20 >= imported * 17,
-        "{solved} of {imported} imported tasks solved by their oracle on at least {need} of {seeds} seeds (the floor is 85 %, the goal 90 %)"
+        solved * 10 >= imported * 9,
+        "{solved} of {imported} imported tasks solved by their oracle on at least {need} of {seeds} seeds (the goal is 90 %)"
     );
 }
 

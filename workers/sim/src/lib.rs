@@ -467,7 +467,7 @@ impl<'s> Rollout<'s> {
         };
         scene.hold_joints();
         scene.drive_fingers();
-        scene.world.step();
+        scene.step();
         self.ctl.apply(ev, scene, self.step);
         self.step += 1;
         if self.step.is_multiple_of(RECORD_STRIDE) {

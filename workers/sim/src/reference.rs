@@ -129,6 +129,7 @@ impl Contract {
                     fixed: false,
                     container: None,
                     joints: Vec::new(),
+                    rolling_friction: 0.0,
                 }
             })
             .collect();

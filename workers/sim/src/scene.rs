@@ -25,6 +25,9 @@ pub struct SimObject {
     pub container: Option<(Vec3, f32)>,
     /// For articulated URDF objects: the moving joints (`body` is the root link's body).
     pub joints: Vec<SimJoint>,
+    /// The rolling friction its URDF's root link declares (m; Bullet's `rolling_friction`),
+    /// 0 for every other shape: see [`SimScene::step`].
+    pub rolling_friction: f32,
 }
 
 /// A moving joint of an articulated object in the world.
@@ -252,6 +255,12 @@ pub struct SimScene {
 }
 
 impl SimScene {
+    /// One physics step, then each object's rolling friction ([`resist_rolling`]).
+    pub fn step(&mut self) {
+        self.world.step();
+        resist_rolling(&mut self.world, &self.objects);
+    }
+
     pub fn object(&self, id: &str) -> Option<&SimObject> {
         self.objects.iter().find(|o| o.id == id)
     }
@@ -660,6 +669,12 @@ pub fn new_world(dt: f32) -> PhysicsWorld {
     world.gravity = Vec3::new(0.0, 0.0, -9.81);
     world.integration_parameters.dt = dt;
     world.integration_parameters.normalized_prediction_distance = PREDICTION_DISTANCE;
+    // rapier recycles a touching pair's contacts (keeps its points and normal, frozen in the
+    // world) until the pair has moved 5 cm or turned 11° since it was last computed: a default
+    // for metre-sized game objects. On a tabletop of 4 cm blocks and balls that freezes every
+    // contact that matters — a ball rolling off a rim kept the normal of where it was, a
+    // container tilted on stale points stayed tilted. Every contact is computed every step.
+    world.integration_parameters.contact_recycling = false;
     world
 }
 
@@ -870,25 +885,94 @@ fn collider_for(shape: &Shape, spec: &TaskSpec, path: &str) -> Result<BuiltShape
     })
 }
 
-/// Angular damping (1/s) of a URDF ball: rapier has no rolling resistance, and a ball released
-/// with the slightest spin rolls off its target, out of a shallow container or off the table.
-/// GenSim's ball URDFs declare a rolling friction (0.0001) that PyBullet applies and rapier
-/// cannot. (Their inertia of 1 kg m² for 0.1 kg is not what PyBullet simulates: without
-/// `URDF_USE_INERTIA_FROM_FILE`, which Ravens does not pass, Bullet computes the inertia from the
-/// collision shapes' bounding box. Taken as written here, that inertia makes a ball slide out of
-/// a container it lands in off-centre.) This damping stands in for the rolling resistance: a
-/// ball rolls to the bottom of what it lands in and stops. Its value was chosen on GenSim's
-/// library (2 more tasks of 92 solved on ≥ 18 of 20 seeds, none fewer).
-const BALL_ROLLING_DAMPING: f32 = 5.0;
-
-/// Whether a URDF object is a ball: one link, every collision shape a sphere.
-fn is_ball(a: &assay_spec::urdf::Assembled) -> bool {
-    matches!(a.urdf.links.as_slice(), [link]
-        if !link.collisions.is_empty()
-            && link
-                .collisions
-                .iter()
-                .all(|c| matches!(c.geometry, assay_spec::urdf::Geometry::Sphere { .. })))
+/// Bullet's rolling friction, after the step: where an object that declares a rolling friction
+/// (GenSim's URDFs: 0.0001 m) touches another body, its rolling (its turn relative to the other
+/// body about axes in the contact plane) is resisted by an angular impulse about the contact
+/// point of at most `μ_r · J_n`, J_n the contact's normal impulse over the step, with Bullet's
+/// combined coefficient `μ_r = r_a · f_b + r_b · f_a` (r: rolling friction, f: sliding
+/// friction; Assay's objects share one f). rapier has no rolling friction: without it a ball on a
+/// top that its weight tilts by a tenth of a degree (rapier's contacts are springs) rolls off,
+/// where PyBullet's holds still on slopes up to `μ_r / r` (0.19° for a 3 cm ball; measured with
+/// PyBullet 3.2.7 on GenSim's plane: still at 0.15°, rolling at 0.25°).
+///
+/// Bullet solves the rolling constraint together with the sliding friction, so a body rolling
+/// without slipping loses turn and speed together (inertia about the contact point, `I + m d²`,
+/// d from its centre to the contact: half its height, a ball's radius). Done after rapier's step,
+/// the turn and the speed it carries come off together, but never more speed than the body has
+/// in the direction it rolls: a ball that spins without travelling loses spin only, as sliding
+/// friction, not rolling friction, is what sets it travelling. Taking the turn alone would leave
+/// the speed for the next step's friction to turn back into rolling, and a ball held by rolling
+/// friction on a slight tilt would creep (about 2.5 g sin θ dt per step, 5 mm a minute at 0.1°).
+pub fn resist_rolling(world: &mut PhysicsWorld, objects: &[SimObject]) {
+    let rolling_of = |body: Option<RigidBodyHandle>| {
+        body.and_then(|b| objects.iter().find(|o| o.body == b))
+            .map_or(0.0, |o| o.rolling_friction)
+    };
+    for o in objects {
+        if o.fixed || o.rolling_friction <= 0.0 {
+            continue;
+        }
+        let Some(body) = world.bodies.get(o.body) else {
+            continue;
+        };
+        if !body.is_dynamic() {
+            continue;
+        }
+        let inertia = body.mass_properties().local_mprops.principal_inertia();
+        let lever = o.half.z.max(1e-4);
+        let rolling_inertia = (inertia.x + inertia.y) / 2.0 + body.mass() * lever * lever;
+        if rolling_inertia <= 0.0 {
+            continue;
+        }
+        let mut resist = Vec::new();
+        for &collider in body.colliders() {
+            for pair in world.narrow_phase.contact_pairs_with(collider) {
+                if !pair.has_any_active_contact() {
+                    continue;
+                }
+                let mine_first = pair.collider1 == collider;
+                let other = if mine_first {
+                    pair.collider2
+                } else {
+                    pair.collider1
+                };
+                let other_body = world.colliders.get(other).and_then(|c| c.parent());
+                let mu = (o.rolling_friction + rolling_of(other_body)) * OBJECT_FRICTION;
+                for m in pair.solver_manifolds() {
+                    let impulse: f32 = m.points.iter().map(|p| p.data.impulse).sum();
+                    if impulse <= 0.0 {
+                        continue;
+                    }
+                    // rapier's normal points from the first collider to the second: the
+                    // support's side, seen from the object, is the other way round.
+                    let normal = if mine_first {
+                        -m.data.normal
+                    } else {
+                        m.data.normal
+                    };
+                    resist.push((other_body, normal, mu * impulse));
+                }
+            }
+        }
+        for (other_body, normal, limit) in resist {
+            let (support_turn, support_speed) = other_body
+                .and_then(|b| world.bodies.get(b))
+                .map_or((Vec3::ZERO, Vec3::ZERO), |b| (b.angvel(), b.linvel()));
+            let body = &mut world.bodies[o.body];
+            let relative = body.angvel() - support_turn;
+            let rolling = relative - normal * relative.dot(normal);
+            let turn = rolling.length();
+            if turn <= 0.0 {
+                continue;
+            }
+            let taken = (limit / rolling_inertia).min(turn);
+            // The way the body travels when it rolls so, and how fast it does.
+            let way = rolling.cross(normal) / turn;
+            let travel = (body.linvel() - support_speed).dot(way).max(0.0);
+            body.set_angvel(body.angvel() - rolling * (taken / turn), false);
+            body.set_linvel(body.linvel() - way * (taken * lever).min(travel), false);
+        }
+    }
 }
 
 /// Samples the initial state for `seed` and builds the world. Every random draw comes from one
@@ -964,9 +1048,6 @@ pub fn build_scene(spec: &TaskSpec, seed: u64) -> Result<SimScene, SimError> {
             .friction(OBJECT_FRICTION)
             .restitution(0.0);
         let (handle, _) = world.insert(body, collider);
-        if urdf.as_ref().is_some_and(is_ball) {
-            world.bodies[handle].set_angular_damping(BALL_ROLLING_DAMPING);
-        }
         let joints = match (&o.shape, &urdf) {
             (
                 Shape::Urdf {
@@ -993,6 +1074,10 @@ pub fn build_scene(spec: &TaskSpec, seed: u64) -> Result<SimScene, SimError> {
             fixed: o.is_fixed,
             container,
             joints,
+            rolling_friction: urdf
+                .as_ref()
+                .and_then(|a| a.urdf.links.first())
+                .map_or(0.0, |l| l.rolling_friction as f32),
         });
     }
 

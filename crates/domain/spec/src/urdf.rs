@@ -28,6 +28,9 @@ pub struct Link {
     pub name: String,
     pub visuals: Vec<Part>,
     pub collisions: Vec<Part>,
+    /// Bullet's `<contact><rolling_friction value=".."/>` (m): the most rolling torque a contact
+    /// resists, per newton of normal force; 0 where the link declares none.
+    pub rolling_friction: f64,
 }
 
 /// One visual or collision shape of a link, placed in the link's frame.
@@ -436,10 +439,27 @@ fn part(n: Node<'_, '_>, materials: Option<&mut Materials>) -> Result<Part, Stri
 }
 
 fn link(name: &str, n: Node<'_, '_>, materials: &mut Materials) -> Result<Link, String> {
+    let rolling_friction = match element(n, "contact").and_then(|c| element(c, "rolling_friction"))
+    {
+        Some(r) => {
+            let v: f64 = attr(r, "value")?
+                .trim()
+                .parse()
+                .map_err(|_| "contact/rolling_friction: value is not a number".to_owned())?;
+            if !v.is_finite() || v < 0.0 {
+                return Err(format!(
+                    "contact/rolling_friction: {v} is not a finite length of 0 or more"
+                ));
+            }
+            v
+        }
+        None => 0.0,
+    };
     let mut link = Link {
         name: name.to_owned(),
         visuals: Vec::new(),
         collisions: Vec::new(),
+        rolling_friction,
     };
     for (i, v) in elements(n, "visual").enumerate() {
         let visual = part(v, Some(materials)).map_err(|e| format!("visual {i}: {e}"))?;
