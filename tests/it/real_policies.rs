@@ -403,3 +403,147 @@ fn a_declared_space_a_task_cannot_fill_is_refused_before_the_batch_starts() {
         );
     }
 }
+
+/// The Python of LeRobot's environment (`scripts/setup-lerobot`: lerobot 0.4.4 and PyPI's torch,
+/// installed once): `ASSAY_LEROBOT_PYTHON`, which scripts/test sets, else the script's answer.
+fn lerobot_python() -> String {
+    if let Ok(py) = std::env::var("ASSAY_LEROBOT_PYTHON") {
+        return py;
+    }
+    let out = Command::new(repo().join("scripts/setup-lerobot"))
+        .stderr(Stdio::inherit())
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "scripts/setup-lerobot failed");
+    String::from_utf8(out.stdout).unwrap().trim().to_owned()
+}
+
+/// The kit's `LeRobotAdapter` with the real LeRobot (`tests/python/lerobot_adapter_check.py`):
+/// an ACT and a Diffusion checkpoint saved with dataset statistics and their processors, loaded
+/// by `LeRobotAdapter.from_pretrained`, answer every step of an episode as LeRobot's own
+/// evaluation pipeline does (its `preprocess_observation`, pre-processor, `select_action`,
+/// post-processor) to 1e-5; the policy without its processors (the adapter before) does not; two
+/// episodes over one loaded model, their steps in turn, answer as each would alone; the cameras,
+/// their sizes and the action space come from the checkpoint.
+#[test]
+fn the_kit_s_lerobot_adapter_answers_as_lerobot_s_own_pipeline() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = Command::new(lerobot_python())
+        .arg(repo().join("tests/python/lerobot_adapter_check.py"))
+        .arg(repo().join("python/assay-policy-kit/src"))
+        .arg(dir.path())
+        .env("HF_HUB_OFFLINE", "1")
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{stdout}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let line = stdout.lines().last().unwrap_or_default();
+    println!("{line}");
+    let result: serde_json::Value = serde_json::from_str(line).unwrap();
+    assert_eq!(result["lerobot"], "0.4.4");
+    for kind in ["act", "diffusion"] {
+        let r = &result[kind];
+        assert!(r["max_abs_diff"].as_f64().unwrap() <= 1e-5, "{kind}: {r}");
+        assert!(
+            r["interleaved_max_abs_diff"].as_f64().unwrap() <= 1e-5,
+            "{kind}: {r}"
+        );
+        assert!(
+            r["without_processors_max_abs_diff"].as_f64().unwrap() > 1e-2,
+            "{kind}: {r}"
+        );
+    }
+}
+
+/// A LeRobot checkpoint served by the kit's own command (`python -m assay_policy_kit lerobot
+/// --checkpoint DIR`), in LeRobot's environment: Assay reads the interface it declares in Health
+/// from the checkpoint (the top and wrist cameras at 64 px, 8 floats of state, 7-D `ee_delta`
+/// actions) and runs two episodes at once through one loaded model on the Panda. (The ACT
+/// checkpoint is untrained: what is checked is that it acts, not that it succeeds.)
+#[test]
+fn a_lerobot_checkpoint_served_by_the_kit_runs_in_assay_at_its_own_interface() {
+    let dir = tempfile::tempdir().unwrap();
+    let checkpoints = dir.path().join("checkpoints");
+    std::fs::create_dir_all(&checkpoints).unwrap();
+    let py = lerobot_python();
+    let kit = repo().join("python/assay-policy-kit/src");
+    let made = Command::new(&py)
+        .arg(repo().join("tests/python/lerobot_adapter_check.py"))
+        .arg(&kit)
+        .arg(&checkpoints)
+        .env("HF_HUB_OFFLINE", "1")
+        .output()
+        .unwrap();
+    assert!(
+        made.status.success(),
+        "{}",
+        String::from_utf8_lossy(&made.stderr)
+    );
+    let log = dir.path().join("lerobot-serve.log");
+    let mut child = Command::new(&py)
+        .args(["-m", "assay_policy_kit", "lerobot", "--checkpoint"])
+        .arg(checkpoints.join("act"))
+        .args([
+            "--device",
+            "cpu",
+            "--state",
+            "ee_pos+ee_quat+gripper",
+            "--port",
+            "0",
+        ])
+        .env("PYTHONPATH", &kit)
+        .env("HF_HUB_OFFLINE", "1")
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(std::fs::File::create(&log).unwrap())
+        .spawn()
+        .unwrap();
+    let mut first = String::new();
+    BufReader::new(child.stdout.take().unwrap())
+        .read_line(&mut first)
+        .unwrap();
+    let Some(url) = first
+        .trim()
+        .strip_prefix("listening on ")
+        .map(str::to_owned)
+    else {
+        let _ = child.kill();
+        panic!(
+            "{first:?}\n{}",
+            std::fs::read_to_string(&log).unwrap_or_default()
+        );
+    };
+    let served = Served { child, url };
+    // What the server says about itself, as `assay policy check` reads it.
+    let check = Command::new(bin())
+        .args(["policy", "check", &served.url])
+        .output()
+        .unwrap();
+    let health = String::from_utf8_lossy(&check.stdout).to_string();
+    assert!(
+        check.status.success(),
+        "{health}{}",
+        String::from_utf8_lossy(&check.stderr)
+    );
+    println!("{health}");
+    let health: serde_json::Value = serde_json::from_str(&health).unwrap();
+    let text = health.to_string();
+    for want in ["lerobot-act", "ee_delta", "\"wrist\"", "\"top\"", "ee_quat"] {
+        assert!(text.contains(want), "{want} not in {text}");
+    }
+    let task = on_the_panda(dir.path(), "placement/put-block-in-bowl.yaml", |t| t);
+    let policy = format!("remote:url={},{STEPS}", served.url);
+    let report = eval(dir.path(), &[task], &[&policy], 2);
+    let t = &report.results.tasks[0];
+    assert!(t.failures.is_empty(), "{:#?}", t.failures);
+    assert_eq!(t.episodes.len(), 2);
+    assert!(
+        t.episodes.iter().all(|e| e.steps >= 1200),
+        "{:?}",
+        t.episodes
+    );
+}

@@ -1,5 +1,6 @@
 """`python -m assay_policy_kit serve MODULE:ATTR ...`: serve a policy from the command line;
-`python -m assay_policy_kit world-model MODULE:ATTR ...`: serve a world model."""
+`python -m assay_policy_kit lerobot --checkpoint DIR ...`: serve a LeRobot checkpoint with its
+processors; `python -m assay_policy_kit world-model MODULE:ATTR ...`: serve a world model."""
 
 from __future__ import annotations
 
@@ -49,6 +50,26 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--api-key", default=None, help="openpi: require Authorization: Api-Key KEY")
     s.add_argument("--check-actions", action="store_true",
                    help="refuse actions of the wrong width or not finite (else the client does)")
+    r = sub.add_parser("lerobot", help="serve a LeRobot checkpoint (with its processors) to Assay")
+    r.add_argument("--checkpoint", required=True,
+                   help="the checkpoint folder (.../pretrained_model) or a hub id where the hub is reachable")
+    r.add_argument("--serve", choices=("grpc", "openpi"), default="grpc", help="the protocol")
+    r.add_argument("--host", default="127.0.0.1")
+    r.add_argument("--port", type=int, default=0, help="0: any free port (printed)")
+    r.add_argument("--device", default=None, help="cpu, cuda, ... (default: CUDA when torch sees it)")
+    r.add_argument("--camera", action="append", default=[], metavar="NAME=FEATURE",
+                   help="the kit camera NAME is the image feature FEATURE (repeatable; default: "
+                        "each observation.images.X is camera X)")
+    r.add_argument("--source", action="append", default=[], metavar="NAME=SOURCE",
+                   help="camera NAME is Assay's SOURCE view (default: a view's own name, else scene)")
+    r.add_argument("--state", default=None,
+                   help="state parts joined by '+' (default: ee_pos+holding for 4 floats)")
+    r.add_argument("--space", default=None, choices=ACTION_SPACES,
+                   help="action space (default: from the action width, 4/7/8)")
+    r.add_argument("--horizon", type=int, default=0, help="execute_horizon (0: the whole chunk)")
+    r.add_argument("--arm-joints", type=int, default=None)
+    r.add_argument("--name", default=None, help="the policy's name in Health (default: lerobot-TYPE)")
+    r.add_argument("--api-key", default=None, help="openpi: require Authorization: Api-Key KEY")
     w = sub.add_parser("world-model", help="serve a world model to Assay (assay.v1.WorldModel)")
     w.add_argument("target", help="MODULE:ATTR, a factory (e.g. the model's class) making one model "
                                   "per episode, with reset(frame, state, instruction) and step(actions)")
@@ -84,6 +105,8 @@ def main(argv: Optional[List[str]] = None) -> int:
             width=width, height=height, action_dims=args.action_dims,
         )
         return 0
+    if args.command == "lerobot":
+        return _serve_lerobot(args)
     interface = Interface(
         cameras=[Camera.parse(c) for c in args.camera] or [Camera("image")],
         state=[s for s in args.state.split("+") if s],
@@ -109,4 +132,47 @@ def main(argv: Optional[List[str]] = None) -> int:
             interface=interface, host=args.host, port=args.port, api_key=args.api_key,
             check_actions=args.check_actions, **kw,
         )
+    return 0
+
+
+def _pairs(items: List[str], flag: str):
+    out = {}
+    for item in items:
+        name, sep, value = item.partition("=")
+        if not sep or not name or not value:
+            raise SystemExit(f"{flag} {item!r}: expected NAME=VALUE")
+        out[name] = value
+    return out
+
+
+def _serve_lerobot(args) -> int:
+    import contextlib
+
+    from .lerobot import LeRobotAdapter
+
+    # LeRobot prints as it loads; stdout's first line is the server's address.
+    with contextlib.redirect_stdout(sys.stderr):
+        adapter = LeRobotAdapter.from_pretrained(
+            args.checkpoint, device=args.device,
+            image_keys=_pairs(args.camera, "--camera") or None,
+        )
+    try:
+        interface = adapter.interface(
+            state=args.state, action_space=args.space, sources=_pairs(args.source, "--source"),
+            execute_horizon=args.horizon, arm_joints=args.arm_joints,
+        )
+        interface.validate()
+    except ValueError as e:
+        raise SystemExit(f"{args.checkpoint}: {e}")
+    name = args.name or "lerobot-" + str(getattr(adapter.policy.config, "type", "policy"))
+    if args.serve == "grpc":
+        from .grpc_server import serve_grpc_forever
+
+        serve_grpc_forever(factory=adapter.for_episode, interface=interface, host=args.host,
+                           port=args.port, name=name)
+    else:
+        from .openpi_server import serve_openpi
+
+        serve_openpi(factory=adapter.for_episode, interface=interface, host=args.host,
+                     port=args.port, api_key=args.api_key)
     return 0
