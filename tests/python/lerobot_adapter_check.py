@@ -165,6 +165,13 @@ def main():
         assert iface.action_space == "ee_delta" and iface.state_dims() == STATE, iface
         assert [(c.name, c.source, c.width, c.height) for c in iface.cameras] == [
             ("top", "top", SIZE, SIZE), ("wrist", "wrist", SIZE, SIZE)], iface.cameras
+        for bad, field in (("ee_pos+holding", "state"), (None, "state")):
+            try:
+                adapter.interface(state=bad)
+            except ValueError as e:
+                assert field in str(e), str(e)
+            else:
+                raise AssertionError(f"state {bad!r} was accepted for 8 floats")
         result[kind] = {"steps": STEPS, "max_abs_diff": diff, "interleaved_max_abs_diff": inter, "without_processors_max_abs_diff": raw_diff,
                         "first_action": [round(float(v), 4) for v in want[0]],
                         "first_action_without_processors": [round(float(v), 4) for v in raw[0]]}

@@ -1076,7 +1076,7 @@ pub fn build_scene(spec: &TaskSpec, seed: u64) -> Result<SimScene, SimError> {
             joints,
             rolling_friction: urdf
                 .as_ref()
-                .and_then(|a| a.urdf.links.first())
+                .and_then(|a| a.urdf.links.get(a.urdf.root()))
                 .map_or(0.0, |l| l.rolling_friction as f32),
         });
     }

@@ -160,7 +160,21 @@ class LeRobotAdapter:
                     f"the checkpoint's actions have {width} floats: name the action space"
                 )
             action_space = spaces[width]
-        return Interface(cameras=cameras, state=list(state), action_space=action_space, **kwargs)
+        iface = Interface(cameras=cameras, state=list(state), action_space=action_space, **kwargs)
+        iface.validate()
+        want = self.input_features.get(self.state_key, (0,))[0] if self.state_key else 0
+        if iface.state_dims() != want:
+            raise ValueError(
+                f"state {'+'.join(iface.state) or '(none)'} is {iface.state_dims()} floats; "
+                f"the checkpoint's {self.state_key} has {want}"
+            )
+        actions = self.output_features.get("action", (0,))[0]
+        if iface.action_dims() != actions:
+            raise ValueError(
+                f"action space {iface.action_space} is {iface.action_dims()} floats; "
+                f"the checkpoint's actions have {actions}"
+            )
+        return iface
 
     def for_episode(self) -> "LeRobotAdapter":
         """A reset adapter for one more episode over the same loaded model. The policy is copied
