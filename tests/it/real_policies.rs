@@ -47,13 +47,23 @@ pub fn serve_python(dir: &Path, protocol: &str, policy: &str) -> Served {
 /// A Python test server (`script` with `args`) that prints `listening on URL` first; its
 /// stderr goes to `dir/<log>.log`.
 pub fn serve_script(dir: &Path, script: &str, args: &[&str], log: &str) -> Served {
-    let log_path = dir.join(format!("{log}.log"));
-    let mut child = Command::new(python())
-        .arg(repo().join(script))
-        .args(args)
+    let mut cmd = Command::new(python());
+    cmd.arg(repo().join(script)).args(args);
+    serve_command(
+        cmd,
+        &dir.join(format!("{log}.log")),
+        &format!(
+            "{script} {args:?} (scripts/test installs the kit's dependencies; or set ASSAY_TEST_PYTHON)"
+        ),
+    )
+}
+
+/// A server started by `cmd` that prints `listening on URL` first; its stderr goes to `log`.
+fn serve_command(mut cmd: Command, log: &Path, what: &str) -> Served {
+    let mut child = cmd
         .stdin(Stdio::null())
         .stdout(Stdio::piped())
-        .stderr(std::fs::File::create(&log_path).unwrap())
+        .stderr(std::fs::File::create(log).unwrap())
         .spawn()
         .unwrap();
     let mut first = String::new();
@@ -65,9 +75,8 @@ pub fn serve_script(dir: &Path, script: &str, args: &[&str], log: &str) -> Serve
         None => {
             let _ = child.kill();
             panic!(
-                "{script} {args:?}: {first:?}\n{}\n(scripts/test installs the kit's dependencies; \
-                 or set ASSAY_TEST_PYTHON)",
-                std::fs::read_to_string(&log_path).unwrap_or_default()
+                "{what}: {first:?}\n{}",
+                std::fs::read_to_string(log).unwrap_or_default()
             );
         }
     };
@@ -483,9 +492,8 @@ fn a_lerobot_checkpoint_served_by_the_kit_runs_in_assay_at_its_own_interface() {
         "{}",
         String::from_utf8_lossy(&made.stderr)
     );
-    let log = dir.path().join("lerobot-serve.log");
-    let mut child = Command::new(&py)
-        .args(["-m", "assay_policy_kit", "lerobot", "--checkpoint"])
+    let mut cmd = Command::new(&py);
+    cmd.args(["-m", "assay_policy_kit", "lerobot", "--checkpoint"])
         .arg(checkpoints.join("act"))
         .args([
             "--device",
@@ -496,28 +504,12 @@ fn a_lerobot_checkpoint_served_by_the_kit_runs_in_assay_at_its_own_interface() {
             "0",
         ])
         .env("PYTHONPATH", &kit)
-        .env("HF_HUB_OFFLINE", "1")
-        .stdin(Stdio::null())
-        .stdout(Stdio::piped())
-        .stderr(std::fs::File::create(&log).unwrap())
-        .spawn()
-        .unwrap();
-    let mut first = String::new();
-    BufReader::new(child.stdout.take().unwrap())
-        .read_line(&mut first)
-        .unwrap();
-    let Some(url) = first
-        .trim()
-        .strip_prefix("listening on ")
-        .map(str::to_owned)
-    else {
-        let _ = child.kill();
-        panic!(
-            "{first:?}\n{}",
-            std::fs::read_to_string(&log).unwrap_or_default()
-        );
-    };
-    let served = Served { child, url };
+        .env("HF_HUB_OFFLINE", "1");
+    let served = serve_command(
+        cmd,
+        &dir.path().join("lerobot-serve.log"),
+        "python -m assay_policy_kit lerobot",
+    );
     // What the server says about itself, as `assay policy check` reads it.
     let check = Command::new(bin())
         .args(["policy", "check", &served.url])
