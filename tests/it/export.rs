@@ -51,6 +51,22 @@ pub fn lerobot_export_of(run: &Path, r: &Report) {
     );
     let checked = read_lerobot(&dataset, run);
     assert_eq!(checked["episodes"], episodes.len());
+    // The real LeRobot (lerobot 0.4.4's LeRobotDataset, offline) loads it: its states and actions
+    // are the frames table's, its decoded frames the clips' (H.264 within 4 of 255 a frame).
+    let loaded = Command::new(crate::real_policies::lerobot_python())
+        .arg(repo().join("tests/python/load_with_lerobot.py"))
+        .args([&dataset, run])
+        .env("HF_HUB_OFFLINE", "1")
+        .output()
+        .unwrap();
+    let loaded: serde_json::Value =
+        serde_json::from_str(ok(&loaded).lines().last().unwrap_or_default()).unwrap();
+    println!("LeRobotDataset: {loaded}");
+    assert_eq!(loaded["lerobot_episodes"], episodes.len(), "{loaded}");
+    assert!(
+        loaded["frames_compared_with_clips"].as_u64().unwrap() > 0,
+        "{loaded}"
+    );
     let with_clips = episodes
         .iter()
         .filter(|e| e.imagery.as_ref().is_some_and(|i| i.clip.is_some()))

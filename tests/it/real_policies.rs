@@ -415,7 +415,7 @@ fn a_declared_space_a_task_cannot_fill_is_refused_before_the_batch_starts() {
 
 /// The Python of LeRobot's environment (`scripts/setup-lerobot`: lerobot 0.4.4 and PyPI's torch,
 /// installed once): `ASSAY_LEROBOT_PYTHON`, which scripts/test sets, else the script's answer.
-fn lerobot_python() -> String {
+pub fn lerobot_python() -> String {
     if let Ok(py) = std::env::var("ASSAY_LEROBOT_PYTHON") {
         return py;
     }

@@ -4,7 +4,8 @@ frames table, decoded frames with the run's dynamics clips (the same pictures be
 
     python load_with_lerobot.py DATASET RUN
 
-Run by scripts/check-lerobot (not by CI: LeRobot needs the whole CUDA build of torch, ~5 GB).
+Run by tests/it/export.rs on the eval test's run, and by scripts/check-lerobot on any run, in
+scripts/setup-lerobot's environment.
 """
 
 import json
