@@ -1,7 +1,7 @@
 //! Training speed of the world model with the default config on synthetic 64×64 clips.
 //!
 //! `cargo run --release -p assay-trainer --example world_model_bench [-- STEPS [--fits] [--cpu]
-//! [--config JSON]]`
+//! [--config JSON]]`, or `[-- STEPS --video]` for the video model
 //!
 //! Prints one JSON line `{"bench":"world-model-train",...}`: a warm-up fit, then a fit of
 //! `STEPS` (default 20) full steps (`batch` chunks of `chunk` frames each). With `--fits`, also
@@ -64,6 +64,53 @@ fn clip(len: usize, size: usize, seed: u64) -> Clip {
     }
 }
 
+/// `--video`: training throughput of the video model with its default settings (one thread) on
+/// 16 synthetic clips of 40 frames, as `python/assay-policy-kit/examples/torch_video_model.py
+/// bench` measures the same network in PyTorch: a warm-up fit of 3 steps, then `steps`.
+fn video_bench(steps: usize, device: Device) {
+    use assay_model::video::VideoModelConfig;
+    use assay_trainer::video_model;
+    let train: Vec<Clip> = (0..16).map(|i| clip(40, 64, 2000 + i)).collect();
+    let run = |steps: u64| {
+        let cfg = VideoModelConfig {
+            steps,
+            checkpoint_every: 0,
+            ..VideoModelConfig::default()
+        };
+        let (cpu0, wall0) = (cpu_seconds(), Instant::now());
+        let (model, fit) =
+            video_model::fit(&cfg, &train, device, None, &mut |_, _| Ok(())).expect("fit");
+        (
+            model,
+            fit,
+            cpu_seconds() - cpu0,
+            wall0.elapsed().as_secs_f64(),
+            cfg,
+        )
+    };
+    let _warm = run(3);
+    let (model, fit, cpu, wall, cfg) = run(steps as u64);
+    println!(
+        "{}",
+        serde_json::json!({
+            "bench": "video-model-train",
+            "implementation": "assay (tch)",
+            "device": device_name(device),
+            "threads": cfg.threads,
+            "image_size": 64,
+            "batch": cfg.batch,
+            "horizon": cfg.horizon,
+            "parameters": model.parameters(),
+            "steps": fit.steps,
+            "seconds": wall,
+            "cpu_seconds": cpu,
+            "steps_per_s": fit.steps as f64 / wall,
+            "steps_per_cpu_s": fit.steps as f64 / cpu,
+            "final_loss": fit.final_train_loss,
+        })
+    );
+}
+
 /// CPU seconds of this process (user + system), from /proc.
 fn cpu_seconds() -> f64 {
     let Ok(stat) = std::fs::read_to_string("/proc/self/stat") else {
@@ -91,6 +138,10 @@ fn main() {
     } else {
         Device::cuda_if_available()
     };
+    if args.iter().any(|a| a == "--video") {
+        video_bench(steps, device);
+        return;
+    }
     // `--config JSON`: settings over the defaults, e.g. `--config '{"lr":1e-3}'`.
     let cfg: DynamicsConfig = match args.iter().position(|a| a == "--config") {
         Some(i) => serde_json::from_str(args.get(i + 1).map_or("{}", String::as_str))

@@ -260,6 +260,11 @@ impl VideoModel {
     pub fn image_size(&self) -> u32 {
         self.size as u32
     }
+
+    /// Trained parameters (weights and biases), as PyTorch's `sum(p.numel())` counts them.
+    pub fn parameters(&self) -> i64 {
+        self.net.params.iter().map(Tensor::numel).sum::<usize>() as i64
+    }
 }
 
 /// Cosine decay from `lr` to a tenth of it over the fit's steps.
