@@ -6,7 +6,9 @@
 //! is asked about every imagined rollout's keyframes and is ranked as a proxy of its own; the
 //! report joins real and proxy success per task and policy and the correlation plots are
 //! written beside it. A lab's world model served over `assay.v1.WorldModel` (a Python server)
-//! drives a ranking the same way. Bad ranking settings — a scripted oracle ranked among them —
+//! drives a ranking the same way, and so does Assay's video model written again in PyTorch
+//! (the kit's example, on the real torch wheel); a served model that declares another interface
+//! than the ranked policy's is refused naming the field. Bad ranking settings — a scripted oracle ranked among them —
 //! are refused before anything runs, naming the setting.
 #![cfg(feature = "trainer")]
 
@@ -15,7 +17,7 @@ use std::sync::Arc;
 
 use crate::common::torchscript::torchscript;
 use crate::common::*;
-use crate::real_policies::serve_script;
+use crate::real_policies::{lerobot_python, serve_command, serve_script};
 use assay_report::report::Report;
 use assay_testkit::fixture::{Fixture, Received, Reply, Script};
 use base64::Engine;
@@ -331,6 +333,100 @@ fn a_world_model_served_over_grpc_by_python_drives_the_ranking() {
         "{error}"
     );
     // 4 oracles and the ranked policy on 2 tasks × 2 seeds.
+    assert_eq!(report.results.totals.episodes_completed, 20);
+}
+
+/// `python/assay-policy-kit/examples/torch_video_model.py serve` with `args`, on the torch of
+/// scripts/setup-lerobot's environment.
+fn serve_torch_model(
+    dir: &std::path::Path,
+    args: &[&str],
+    log: &str,
+) -> crate::real_policies::Served {
+    let mut cmd = Command::new(lerobot_python());
+    cmd.arg(repo().join("python/assay-policy-kit/examples/torch_video_model.py"))
+        .args(["serve", "--port", "0"])
+        .args(args);
+    serve_command(
+        cmd,
+        &dir.join(format!("{log}.log")),
+        "the kit's PyTorch video model (scripts/setup-lerobot installs torch; or set ASSAY_LEROBOT_PYTHON)",
+    )
+}
+
+#[test]
+fn a_pytorch_world_model_served_by_the_kit_drives_the_ranking_at_its_declared_interface() {
+    let dir = tempfile::tempdir().unwrap();
+    let module = torchscript(dir.path());
+    let learned = format!("torchscript:path={},max_steps=480", module.display());
+    let proxy = |url: &str| {
+        format!(r#"{{"judge_steps": 30, "external": {{"url": "{url}", "timeout_ms": 60000}}}}"#)
+    };
+
+    // Assay's video network in PyTorch, 30 training steps on synthetic clips at start.
+    let server = serve_torch_model(dir.path(), &["--train-steps", "30"], "torch");
+    let out_dir = dir.path().join("out");
+    let (out, report) = rank_served(&out_dir, &learned, &proxy(&server.url));
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
+    let k = report.results.ranking.expect("a ranking section");
+    assert!(k.errors.is_empty(), "{:?}", k.errors);
+    let g = &k.groups[0];
+    assert!(
+        g.world_model_name
+            .contains("torch-video-model (277714 parameters")
+            && g.world_model_name.contains(&server.url),
+        "{}",
+        g.world_model_name
+    );
+    assert_eq!(
+        g.world_model.steps, 0,
+        "a served model is not trained by Assay"
+    );
+    assert_eq!(
+        g.predictions.len(),
+        4,
+        "2 tasks × 2 seeds of the ranked policy"
+    );
+    for p in &g.predictions {
+        assert!(p.imagined_frames >= 2 && p.imagined_frames <= 21, "{p:?}");
+    }
+    // The action test ran through the PyTorch model: its frames follow the actions it is given,
+    // so the true, shuffled and zero actions give three different errors.
+    let test = g.action_test.as_ref().expect("the action test");
+    assert_eq!(test.episodes, 4);
+    let errors = [
+        test.true_actions_mse,
+        test.shuffled_actions_mse,
+        test.zero_actions_mse,
+    ];
+    assert!(
+        errors.iter().all(|e| e.is_finite() && *e > 0.0),
+        "{errors:?}"
+    );
+    assert!(
+        errors[0] != errors[1] && errors[0] != errors[2],
+        "the PyTorch model ignores its actions: {errors:?}"
+    );
+    drop(server);
+
+    // The same model declaring the interface of a 7-D, two-camera policy only: the TorchScript
+    // policy (the original interface) is refused before anything is imagined, naming the model,
+    // the policy and the field; the real episodes stay counted.
+    let seven = "ee_delta/ee_pos+ee_quat+gripper/image:scene@224x224+wrist_image:wrist@224x224";
+    let server = serve_torch_model(dir.path(), &["--declare", seven], "torch-7d");
+    let (_, report) = rank_served(&dir.path().join("7d"), &learned, &proxy(&server.url));
+    let k = report.results.ranking.expect("a ranking section");
+    assert_eq!(k.errors.len(), 1, "{:?}", k.errors);
+    let error = &k.errors[0].1;
+    assert!(
+        error.contains("world model 'torch-video-model")
+            && error.contains(&format!("cannot imagine policy '{learned}'"))
+            && error.contains(
+                "action_space: the policy answers in tool_velocity, the model takes ee_delta"
+            ),
+        "{error}"
+    );
     assert_eq!(report.results.totals.episodes_completed, 20);
 }
 

@@ -59,7 +59,7 @@ pub fn serve_script(dir: &Path, script: &str, args: &[&str], log: &str) -> Serve
 }
 
 /// A server started by `cmd` that prints `listening on URL` first; its stderr goes to `log`.
-fn serve_command(mut cmd: Command, log: &Path, what: &str) -> Served {
+pub fn serve_command(mut cmd: Command, log: &Path, what: &str) -> Served {
     let mut child = cmd
         .stdin(Stdio::null())
         .stdout(Stdio::piped())

@@ -315,7 +315,7 @@ def _kit():
 
 def serve(args):
     _kit()
-    from assay_policy_kit import serve_world_model_forever
+    from assay_policy_kit import Camera, Interface, serve_world_model_forever
 
     torch.manual_seed(args.seed)
     torch.set_num_threads(args.threads)
@@ -335,6 +335,21 @@ def serve(args):
         name=f"torch-video-model ({params} parameters, torch {torch.__version__})",
         description=f"Assay's video world model in PyTorch; {how}",
         width=args.size, height=args.size, action_dims=ACTION_DIMS,
+        # The interface it imagines in: the scene camera at its frame size, tool position +
+        # holding, tool velocities. `--declare` declares another instead (to see Assay refuse
+        # the policies that do not fit it), as `space/state/camera[+camera...]`.
+        interfaces=[_declared(args.declare, args.size, Camera, Interface)],
+    )
+
+
+def _declared(text, size, Camera, Interface):
+    if not text:
+        return Interface(cameras=[Camera("image", "scene", size, size)])
+    space, state, cameras = text.split("/")
+    return Interface(
+        cameras=[Camera.parse(c) for c in cameras.split("+")],
+        state=state.split("+"),
+        action_space=space,
     )
 
 
@@ -378,6 +393,8 @@ def main(argv=None):
     sv.add_argument("--checkpoint", help="a torch.save'd state dict of VideoNet")
     sv.add_argument("--train-steps", type=int, default=0, help="train this many steps on synthetic clips first")
     sv.add_argument("--threads", type=int, default=1)
+    sv.add_argument("--declare", help="declare this interface instead of the model's own: SPACE/STATE+STATE/CAMERA+CAMERA, "
+                    "e.g. ee_delta/ee_pos+ee_quat+gripper/image:scene@224x224+wrist_image:wrist@224x224")
     bn = sub.add_parser("bench", help="training throughput on synthetic clips, one JSON line")
     bn.add_argument("--steps", type=int, default=40)
     bn.add_argument("--threads", type=int, default=1)

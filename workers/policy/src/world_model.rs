@@ -17,6 +17,8 @@
 
 use std::time::Duration;
 
+use assay_model::clip::ACTION_DIMS;
+use assay_model::interface::Interface;
 use assay_model::world::{ImaginedEpisode, WorldError, WorldFrame, WorldModelService, WorldStart};
 use assay_proto::auth::Token;
 use assay_proto::v1 as pb;
@@ -49,17 +51,52 @@ pub struct WorldModelHealth {
     pub action_dims: Option<u32>,
     /// Episodes the server holds.
     pub live_episodes: u32,
+    /// The policy interfaces the model imagines in, as declared; empty: see
+    /// [`WorldModelHealth::accepted`].
+    pub interfaces: Vec<Interface>,
 }
 
-impl From<pb::WorldModelHealthResponse> for WorldModelHealth {
-    fn from(h: pb::WorldModelHealthResponse) -> Self {
-        Self {
+impl WorldModelHealth {
+    /// The interfaces a policy may act in inside the model: the declared ones, else the original
+    /// interface at the declared frame size (any: the proxy's) when the declared action width is
+    /// 0 or 4, else none.
+    pub fn accepted(&self) -> Vec<Interface> {
+        if !self.interfaces.is_empty() {
+            return self.interfaces.clone();
+        }
+        if self.action_dims.is_some_and(|d| d as usize != ACTION_DIMS) {
+            return Vec::new();
+        }
+        let mut legacy = Interface::default();
+        if let Some((w, h)) = self.frame_size {
+            legacy.cameras[0].width = w;
+            legacy.cameras[0].height = h;
+        }
+        vec![legacy]
+    }
+}
+
+impl TryFrom<pb::WorldModelHealthResponse> for WorldModelHealth {
+    type Error = String;
+
+    fn try_from(h: pb::WorldModelHealthResponse) -> Result<Self, String> {
+        let interfaces = h
+            .interfaces
+            .into_iter()
+            .enumerate()
+            .map(|(i, p)| {
+                crate::wire::interface_from_pb(Some(p))
+                    .map_err(|e| format!("Health: interfaces[{i}]: {e}"))
+            })
+            .collect::<Result<_, _>>()?;
+        Ok(Self {
             name: h.name,
             description: h.description,
             frame_size: (h.width != 0 && h.height != 0).then_some((h.width, h.height)),
             action_dims: (h.action_dims != 0).then_some(h.action_dims),
             live_episodes: h.live_episodes,
-        }
+            interfaces,
+        })
     }
 }
 
@@ -143,7 +180,8 @@ impl RemoteWorldModel {
                 request.set_timeout(timeout);
                 client.health(request).await
             })?;
-        let info = WorldModelHealth::from(answer);
+        let info = WorldModelHealth::try_from(answer)
+            .map_err(|e| WorldError::BadAnswer(format!("world model server at {url}: {e}")))?;
         debug!(%url, name = %info.name, "world model server connected");
         Ok(Self { connection, info })
     }
@@ -164,7 +202,9 @@ impl RemoteWorldModel {
         let answer = self.connection.call("Health", |mut client| async move {
             client.health(request).await
         })?;
-        Ok(answer.into())
+        WorldModelHealth::try_from(answer).map_err(|e| {
+            WorldError::BadAnswer(format!("world model server at {}: {e}", self.url()))
+        })
     }
 
     /// Starts an imagined episode ([`WorldModelService::reset`]), as the concrete session type.
@@ -239,6 +279,11 @@ impl WorldModelService for RemoteWorldModel {
 
     fn reset(&self, start: &WorldStart) -> Result<Box<dyn ImaginedEpisode + '_>, WorldError> {
         Ok(Box::new(self.start(start)?))
+    }
+
+    /// What the server declared in `Health` ([`WorldModelHealth::accepted`]).
+    fn interfaces(&self) -> Vec<Interface> {
+        self.info.accepted()
     }
 }
 

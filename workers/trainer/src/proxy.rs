@@ -29,13 +29,14 @@ use std::time::Instant;
 
 use assay_model::clip::{CLIP_STRIDE_STEPS, Clip};
 use assay_model::dynamics::DynamicsFit;
+use assay_model::interface::Interface;
 use assay_model::policy::{EpisodeContext, Policy, PolicyError, PolicySpec};
 use assay_model::proxy::{
     ActionTest, ExternalWorldModel, IMAGINED_KEYFRAMES, LeakVerdict, ProxyConfig, ProxyEpisode,
     ProxyPrediction, ProxyResult, SERVED_DEVICE,
 };
 use assay_model::video::WorldModelKind;
-use assay_model::world::{WorldError, WorldModelService};
+use assay_model::world::{WorldError, WorldModelService, check_policy_interface};
 use assay_spec::rng::Rng;
 use tch::{Device, Kind, Tensor};
 
@@ -308,6 +309,24 @@ pub fn run_proxy(
         }
     }
     let size = config.world_model.image_size;
+    // Every ranked policy's interface, checked against the world model's before anything is
+    // trained or imagined.
+    let mut interfaces: Vec<(&str, Interface)> = Vec::new();
+    for e in eval {
+        if interfaces.iter().all(|(p, _)| *p != e.policy) {
+            let policy = policies(&e.policy).map_err(|err| {
+                WorldModelError::Request(format!("ranked policy '{}': {err}", e.policy))
+            })?;
+            interfaces.push((&e.policy, policy.interface()));
+        }
+    }
+    let check_interfaces = |model: &str, accepted: &[Interface]| {
+        for (policy, interface) in &interfaces {
+            check_policy_interface(model, accepted, size, policy, interface)
+                .map_err(WorldModelError::Request)?;
+        }
+        Ok::<(), WorldModelError>(())
+    };
     let eval_keys: Vec<String> = eval.iter().map(|e| e.clip.clone()).collect();
     let rssm_model;
     let rssm;
@@ -317,6 +336,7 @@ pub fn run_proxy(
     let (world, fit): (&dyn WorldModelService, DynamicsFit) = match (&config.external, config.model)
     {
         (None, WorldModelKind::Rssm) => {
+            check_interfaces("Assay's RSSM", &[Interface::legacy(size)])?;
             let req = FitRequest {
                 config: &config.world_model,
                 group,
@@ -333,6 +353,7 @@ pub fn run_proxy(
             (&rssm, fit)
         }
         (None, WorldModelKind::Video) => {
+            check_interfaces("Assay's video model", &[Interface::legacy(size)])?;
             let (model, vfit) =
                 video_model::fit(&config.video, train_clips, device, resume, on_checkpoint)?;
             video = model;
@@ -350,6 +371,7 @@ pub fn run_proxy(
         }
         (Some(server), _) => {
             external = world_models(server)?;
+            check_interfaces(&external.name(), &external.interfaces())?;
             let fit = DynamicsFit {
                 group: group.to_owned(),
                 budget: 0,

@@ -53,6 +53,7 @@ use std::io::Cursor;
 use std::time::Instant;
 
 use assay_model::clip::{ACTION_DIMS, Clip, PROPRIO_DIMS};
+use assay_model::interface::Interface;
 use assay_model::video::{PixelLoss, VideoFit, VideoModelConfig};
 use assay_model::world::{ImaginedEpisode, WorldError, WorldFrame, WorldModelService, WorldStart};
 use assay_spec::rng::Rng;
@@ -850,6 +851,12 @@ impl WorldModelService for VideoModel {
             m = self.size / 8,
             b = self.net.blocks.len(),
         )
+    }
+
+    /// The interface of the clips it was trained on: the scene camera at its frame size, tool
+    /// position + holding, tool velocities.
+    fn interfaces(&self) -> Vec<Interface> {
+        vec![Interface::legacy(self.size as u32)]
     }
 
     fn reset(&self, start: &WorldStart) -> Result<Box<dyn ImaginedEpisode + '_>, WorldError> {

@@ -478,3 +478,90 @@ fn a_scripted_oracle_is_refused_as_a_ranked_policy_and_a_dead_world_model_is_una
         "{e}"
     );
 }
+
+/// Acts in 7-D end-effector deltas with a scene and a wrist camera at 224 pixels.
+struct SevenD;
+
+impl Policy for SevenD {
+    fn reset(&mut self, _: &EpisodeContext) -> Result<(), PolicyError> {
+        Ok(())
+    }
+    fn act(&mut self, _: &PolicyObservation) -> Result<Vec<Action>, PolicyError> {
+        Err(PolicyError::BadAnswer("never asked".into()))
+    }
+    fn interface(&self) -> assay_model::interface::Interface {
+        assay_model::interface::Interface::from_args(&[
+            ("space", "ee_delta"),
+            ("cameras", "image:scene@224+wrist_image:wrist@224"),
+            ("state", "ee_pos+ee_quat+gripper"),
+        ])
+        .unwrap()
+        .unwrap()
+    }
+}
+
+#[test]
+fn a_policy_at_an_interface_the_world_model_cannot_imagine_is_refused_before_training() {
+    let train_clips: Vec<Clip> = (0..2).map(|i| clip(i, 6)).collect();
+    let train_eps: Vec<ProxyEpisode> = (0..2)
+        .map(|i| proxy_episode("oracle:noise=0.01", i, Some(i == 0)))
+        .collect();
+    let ranked = "remote:url=http://127.0.0.1:1,space=ee_delta";
+    let eval = [proxy_episode(ranked, 0, None)];
+    let policies = |name: &str| -> Result<Box<dyn Policy>, PolicyError> {
+        Ok(if name == ranked {
+            Box::new(SevenD)
+        } else {
+            Box::new(Rightwards::default())
+        })
+    };
+    let world_models = |_: &assay_model::proxy::ExternalWorldModel| {
+        Ok(Box::new(Refusing) as Box<dyn WorldModelService>)
+    };
+    for (model, name) in [
+        (WorldModelKind::Video, "Assay's video model"),
+        (WorldModelKind::Rssm, "Assay's RSSM"),
+    ] {
+        let mut video = small_video(50);
+        video.checkpoint_every = 1;
+        let mut world = small_config(50);
+        world.checkpoint_every = 1;
+        let config = ProxyConfig {
+            model,
+            video,
+            world_model: world,
+            judge_steps: 5,
+            ..Default::default()
+        };
+        let mut checkpoints = 0;
+        let e = run_proxy(
+            &ProxyRequest {
+                group: "g",
+                policies: &policies,
+                world_models: &world_models,
+                train: &train_eps,
+                train_clips: &train_clips,
+                eval: &eval,
+                eval_clips: &train_clips[..1],
+                config: &config,
+                device: Device::Cpu,
+            },
+            None,
+            &mut |_, _| {
+                checkpoints += 1;
+                Ok(())
+            },
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(
+            e.contains(&format!(
+                "world model '{name}' cannot imagine policy '{ranked}'"
+            )) && e.contains(
+                "action_space: the policy answers in ee_delta, the model takes tool_velocity"
+            ),
+            "{e}"
+        );
+        assert_eq!(checkpoints, 0, "{name} trained before refusing");
+    }
+}

@@ -16,7 +16,7 @@ from __future__ import annotations
 import inspect
 import threading
 from collections import OrderedDict
-from typing import Any, Callable, Optional, Tuple
+from typing import Any, Callable, Optional, Sequence, Tuple
 
 import grpc
 import numpy as np
@@ -26,7 +26,7 @@ from ._policy import describe
 from ._proto import world_model_pb2 as pb
 from ._proto import world_model_pb2_grpc as pb_grpc
 from .grpc_server import GrpcPolicyServer, _serve_until_signal, _start
-from .interface import MAX_PIXELS
+from .interface import MAX_PIXELS, Interface
 from .observation import BadRequest, _frame
 
 MAX_EPISODES = 1024
@@ -134,6 +134,7 @@ class WorldModelServicer(pb_grpc.WorldModelServicer):
         height: int = 0,
         action_dims: int = 0,
         max_episodes: int = MAX_EPISODES,
+        interfaces: Optional[Sequence[Interface]] = None,
     ):
         if not callable(factory):
             raise TypeError(
@@ -151,6 +152,11 @@ class WorldModelServicer(pb_grpc.WorldModelServicer):
         self._height = int(height)
         self._action_dims = int(action_dims)
         self._max_episodes = int(max_episodes)
+        self._interfaces = list(interfaces or [])
+        for i, interface in enumerate(self._interfaces):
+            if not isinstance(interface, Interface):
+                raise TypeError(f"interfaces[{i}] is {type(interface).__name__}, not an assay_policy_kit.Interface")
+            interface.validate()
         self._episodes: "OrderedDict[str, _Episode]" = OrderedDict()
         self._lock = threading.Lock()
 
@@ -167,6 +173,7 @@ class WorldModelServicer(pb_grpc.WorldModelServicer):
             height=self._height,
             action_dims=self._action_dims,
             live_episodes=self.live_episodes,
+            interfaces=[i.to_proto() for i in self._interfaces],
         )
 
     def _frames(self, request) -> np.ndarray:
@@ -290,6 +297,7 @@ def serve_world_model(
     max_workers: int = 32,
     max_episodes: int = MAX_EPISODES,
     announce: bool = True,
+    interfaces: Optional[Sequence[Interface]] = None,
 ) -> GrpcPolicyServer:
     """Starts serving `assay.v1.WorldModel` and returns at once (see `serve_world_model_forever`).
 
@@ -305,6 +313,11 @@ def serve_world_model(
     name, description: what `Health` declares (reports show the name with the server's address).
     width, height: the frame size the model takes (0: any); action_dims: floats per action it
                  takes (0: any). Requests that differ are refused with INVALID_ARGUMENT.
+    interfaces:  the policy interfaces (`assay_policy_kit.Interface`) the model imagines in:
+                 Assay ranks only policies at one of them (same action space, state parts,
+                 cameras by source and size) and refuses the others before a ranking starts,
+                 naming the field. None: the original interface (one scene camera at
+                 width x height, ee_pos + holding, tool_velocity) when action_dims is 0 or 4.
     token:       the cluster token; default `$ASSAY_CLUSTER_TOKEN` / `$ASSAY_CLUSTER_TOKEN_FILE`
                  (none set: every call is accepted). Calls must carry the world-model secret
                  derived from it (auth.py).
@@ -313,7 +326,7 @@ def serve_world_model(
     """
     servicer = WorldModelServicer(
         factory, name=name, description=description, width=width, height=height,
-        action_dims=action_dims, max_episodes=max_episodes,
+        action_dims=action_dims, max_episodes=max_episodes, interfaces=interfaces,
     )
     return _start(
         servicer, pb_grpc.add_WorldModelServicer_to_server, auth.WORLD_MODEL, token=token,

@@ -6,6 +6,7 @@
 //! 0 or 1). Deterministic: modes, no sampling.
 
 use assay_model::clip::{ACTION_DIMS, PROPRIO_DIMS};
+use assay_model::interface::Interface;
 use assay_model::world::{ImaginedEpisode, WorldError, WorldFrame, WorldModelService, WorldStart};
 use tch::{Device, Kind, Tensor};
 
@@ -32,6 +33,11 @@ impl WorldModelService for Rssm<'_> {
             st = c.stoch,
             cl = c.classes,
         )
+    }
+
+    /// The interface of the clips it was trained on.
+    fn interfaces(&self) -> Vec<Interface> {
+        vec![Interface::legacy(self.model.size as u32)]
     }
 
     fn reset(&self, start: &WorldStart) -> Result<Box<dyn ImaginedEpisode + '_>, WorldError> {
