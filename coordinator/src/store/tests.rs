@@ -689,6 +689,7 @@ fn proxy_done(predictions: Vec<assay_model::proxy::ProxyPrediction>) -> String {
             predictions,
             seconds: 1.0,
             imagined_frames: Vec::new(),
+            imagined_frame_size: (0, 0),
         }),
     })
     .unwrap()

@@ -161,6 +161,7 @@ pub(crate) fn ranking_fixture() -> crate::ranking::RankingResults {
             .collect(),
         seconds: 0.0,
         imagined_frames: Vec::new(),
+        imagined_frame_size: (0, 0),
     };
     let groups = vec![
         group("g2", "cosmos (http://wm:50051)", None),

@@ -227,6 +227,27 @@ impl RemoteWorldModel {
         {
             return Err(self.refused(format!("{w}×{h} frames: the model works at {mw}×{mh}")));
         }
+        if start.views.len() + 1 != start.interface.cameras.len().max(1) {
+            return Err(self.refused(format!(
+                "{} start frame(s) for an interface of {} camera(s)",
+                start.views.len() + 1,
+                start.interface.cameras.len()
+            )));
+        }
+        for v in &start.views {
+            if !(1..=MAX_FRAME_SIDE).contains(&v.width)
+                || !(1..=MAX_FRAME_SIDE).contains(&v.height)
+                || v.rgb.len() != rgb_bytes(v.width, v.height)
+            {
+                return Err(self.refused(format!(
+                    "a start frame of camera '{}' of {} bytes at {}×{}",
+                    v.name,
+                    v.rgb.len(),
+                    v.width,
+                    v.height
+                )));
+            }
+        }
         let episode_id = new_episode_id();
         let mut request = tonic::Request::new(pb::WorldModelResetRequest {
             episode_id: episode_id.clone(),
@@ -234,13 +255,20 @@ impl RemoteWorldModel {
             seed: start.seed,
             instruction: start.instruction.clone(),
             frames: vec![pb::Image {
-                name: "image".into(),
+                name: start
+                    .interface
+                    .cameras
+                    .first()
+                    .map_or("image".into(), |c| c.name.clone()),
                 width: w,
                 height: h,
                 rgb: start.rgb.clone(),
                 depth: Vec::new(),
             }],
             state: start.state.clone(),
+            interface: (start.interface != Interface::default())
+                .then(|| crate::wire::interface_to_pb(&start.interface)),
+            views: crate::wire::images_to_pb(&start.views),
         });
         request.set_timeout(self.connection.timeout());
         self.connection.call(
@@ -254,6 +282,11 @@ impl RemoteWorldModel {
             seed: start.seed,
             width: w,
             height: h,
+            views: start
+                .views
+                .iter()
+                .map(|v| (v.name.clone(), v.width, v.height))
+                .collect(),
             steps: 0,
         })
     }
@@ -295,6 +328,8 @@ pub struct RemoteEpisode<'a> {
     seed: u64,
     width: u32,
     height: u32,
+    /// The cameras after the first: name, width, height.
+    views: Vec<(String, u32, u32)>,
     /// Actions stepped so far.
     steps: usize,
 }
@@ -342,7 +377,13 @@ impl ImaginedEpisode for RemoteEpisode<'_> {
             return Err(model.refused(format!("a non-finite action (action {i} of the chunk)")));
         }
         let k = actions.len();
-        let answer_bytes = k.saturating_mul(rgb_bytes(self.width, self.height));
+        let per_action = rgb_bytes(self.width, self.height)
+            + self
+                .views
+                .iter()
+                .map(|(_, w, h)| rgb_bytes(*w, *h))
+                .sum::<usize>();
+        let answer_bytes = k.saturating_mul(per_action);
         if k > MAX_STEP_ACTIONS || answer_bytes > MAX_MESSAGE_BYTES - 1024 * 1024 {
             return Err(model.refused(format!(
                 "a chunk of {k} actions of {}×{} frames (at most {MAX_STEP_ACTIONS} actions and \
@@ -367,13 +408,14 @@ impl ImaginedEpisode for RemoteEpisode<'_> {
                 &what,
                 |mut client| async move { client.step(request).await },
             )?;
-        let frames = frames_from(answer, k, self.width, self.height).map_err(|reason| {
-            WorldError::BadAnswer(format!(
-                "world model server at {} ({}) answered {what}: {reason}",
-                model.url(),
-                model.info.name
-            ))
-        })?;
+        let frames =
+            frames_from(answer, k, self.width, self.height, &self.views).map_err(|reason| {
+                WorldError::BadAnswer(format!(
+                    "world model server at {} ({}) answered {what}: {reason}",
+                    model.url(),
+                    model.info.name
+                ))
+            })?;
         self.steps += k;
         Ok(frames)
     }
@@ -404,19 +446,42 @@ fn rgb_bytes(width: u32, height: u32) -> usize {
     width as usize * height as usize * 3
 }
 
-/// Checks a `Step` answer to `k` actions: exactly `k` frames of `width × height` RGB8, and either
-/// no states or `k` finite states of `state_dims` floats.
+/// Checks a `Step` answer to `k` actions: exactly `k` frames of `width × height` RGB8, `k` frames
+/// of each camera of `views` at its size, and either no states or `k` finite states of
+/// `state_dims` floats.
 fn frames_from(
     answer: pb::WorldModelStepResponse,
     k: usize,
     width: u32,
     height: u32,
+    views: &[(String, u32, u32)],
 ) -> Result<Vec<WorldFrame>, String> {
     let pb::WorldModelStepResponse {
         frames,
         states,
         state_dims,
+        views: view_frames,
     } = answer;
+    let n = views.len();
+    if view_frames.len() != k * n {
+        return Err(format!(
+            "{} frames of the cameras after the first for {k} actions of {n} such camera(s)",
+            view_frames.len()
+        ));
+    }
+    for (i, f) in view_frames.iter().enumerate() {
+        let (name, w, h) = &views[i % n];
+        if (f.width, f.height) != (*w, *h) || f.rgb.len() != rgb_bytes(*w, *h) {
+            return Err(format!(
+                "view {i} (camera '{name}', action {}) is {}×{} with {} bytes; the camera is {w}×{h} RGB8",
+                i / n,
+                f.width,
+                f.height,
+                f.rgb.len()
+            ));
+        }
+    }
+    let mut view_frames = view_frames.into_iter().map(|f| f.rgb);
     if frames.len() != k {
         return Err(format!("{} frames for {k} actions", frames.len()));
     }
@@ -464,7 +529,11 @@ fn frames_from(
     Ok(frames
         .into_iter()
         .zip(states)
-        .map(|(f, state)| WorldFrame { rgb: f.rgb, state })
+        .map(|(f, state)| WorldFrame {
+            rgb: f.rgb,
+            views: view_frames.by_ref().take(n).collect(),
+            state,
+        })
         .collect())
 }
 
@@ -520,12 +589,13 @@ mod tests {
             frames,
             states,
             state_dims,
+            views: Vec::new(),
         }
     }
 
     #[test]
     fn checks_answers() {
-        let ok = frames_from(answer(vec![frame(4, 2); 2], vec![], 0), 2, 4, 2).unwrap();
+        let ok = frames_from(answer(vec![frame(4, 2); 2], vec![], 0), 2, 4, 2, &[]).unwrap();
         assert_eq!(ok.len(), 2);
         assert!(ok.iter().all(|f| f.rgb.len() == 24 && f.state.is_none()));
         let with_states = frames_from(
@@ -533,10 +603,11 @@ mod tests {
             2,
             4,
             2,
+            &[],
         )
         .unwrap();
         assert_eq!(with_states[1].state, Some(vec![3.0, 4.0]));
-        let bad = |a, k| frames_from(a, k, 4, 2).unwrap_err();
+        let bad = |a, k| frames_from(a, k, 4, 2, &[]).unwrap_err();
         assert!(bad(answer(vec![frame(4, 2)], vec![], 0), 2).contains("1 frames for 2 actions"));
         assert!(bad(answer(vec![frame(5, 2)], vec![], 0), 1).contains("5×2"));
         let mut short = frame(4, 2);
@@ -551,6 +622,23 @@ mod tests {
             )
             .contains("state 1, float 0")
         );
+        // A wrist camera of 3×3 after the first: one frame of it per action, in order.
+        let wrist = [("wrist_image".to_string(), 3, 3)];
+        let mut two = answer(vec![frame(4, 2); 2], vec![], 0);
+        two.views = vec![
+            frame(3, 3),
+            pb::Image {
+                rgb: vec![9; 27],
+                ..frame(3, 3)
+            },
+        ];
+        let ok = frames_from(two.clone(), 2, 4, 2, &wrist).unwrap();
+        assert_eq!((ok[0].views[0][0], ok[1].views[0][0]), (7, 9));
+        let e = frames_from(answer(vec![frame(4, 2); 2], vec![], 0), 2, 4, 2, &wrist).unwrap_err();
+        assert!(e.contains("0 frames of the cameras after the first"), "{e}");
+        two.views[1] = frame(4, 3);
+        let e = frames_from(two, 2, 4, 2, &wrist).unwrap_err();
+        assert!(e.contains("camera 'wrist_image', action 1"), "{e}");
     }
 
     #[test]

@@ -116,6 +116,8 @@ fn start(width: u32, height: u32) -> WorldStart {
         height,
         rgb: (0..width * height * 3).map(|i| (i % 200) as u8).collect(),
         state: vec![0.5, 0.0, 0.1, 0.0],
+        interface: Default::default(),
+        views: Vec::new(),
     }
 }
 

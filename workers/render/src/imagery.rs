@@ -186,6 +186,8 @@ pub fn render_clip(
         rgb,
         proprio,
         actions,
+        interface: String::new(),
+        views: Vec::new(),
     };
     clip.validate().map_err(|e| bad(e.to_string()))?;
     Ok(clip)

@@ -61,6 +61,8 @@ fn clip(len: usize, size: usize, seed: u64) -> Clip {
         rgb,
         proprio,
         actions,
+        interface: String::new(),
+        views: Vec::new(),
     }
 }
 

@@ -127,6 +127,8 @@ fn strip(world: &dyn WorldModelService, set: &[(Entry, Clip)], path: &str) {
             height: h as u32,
             rgb: clip.rgb[..frame].to_vec(),
             state: clip.proprio[..4].to_vec(),
+            interface: Default::default(),
+            views: Vec::new(),
         };
         let acts = |c: &Clip| {
             (0..n)

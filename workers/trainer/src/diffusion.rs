@@ -1168,6 +1168,8 @@ mod tests {
                     rgb,
                     proprio,
                     actions,
+                    interface: String::new(),
+                    views: Vec::new(),
                 }
             })
             .collect()

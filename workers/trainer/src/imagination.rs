@@ -11,21 +11,59 @@
 
 use std::collections::VecDeque;
 
-use assay_model::clip::{ACTION_DIMS, Clip, PROPRIO_DIMS};
+use assay_model::clip::{Clip, PROPRIO_DIMS};
+use assay_model::interface::{Interface, NamedImage, StatePart};
 use assay_model::policy::{EpisodeContext, Policy, PolicyError, PolicyObservation};
 use assay_model::world::{WorldError, WorldModelService, WorldStart};
 
-/// The start of `clip`'s episode: its first frame and state, nothing after.
+/// The start of `clip`'s episode: its first frames and state, nothing after.
 pub fn start_of(clip: &Clip, episode: &EpisodeContext) -> WorldStart {
-    let frame = (clip.width * clip.height * 3) as usize;
+    start_at(
+        clip,
+        0,
+        &episode.task_id,
+        episode.seed,
+        &episode.instruction,
+    )
+}
+
+/// The interface `clip` was recorded at, each camera at the clip's size of it (the original
+/// interface for a clip of the task camera; one that cannot be read too: the clip's check
+/// refuses it first).
+pub fn clip_interface(clip: &Clip) -> Interface {
+    let mut i = Interface::parse_args(&clip.interface).unwrap_or_default();
+    let mut sizes = vec![(clip.width, clip.height)];
+    sizes.extend(clip.views.iter().map(|v| (v.width, v.height)));
+    for (c, (w, h)) in i.cameras.iter_mut().zip(sizes) {
+        (c.width, c.height) = (w, h);
+    }
+    i
+}
+
+/// A start at frame `t` of `clip`: the frames of its cameras and its state there, at the clip's
+/// interface (one that cannot be read gives the original: the clip's check refuses it first).
+pub fn start_at(clip: &Clip, t: usize, task_id: &str, seed: u64, instruction: &str) -> WorldStart {
+    let p = clip.proprio_dims as usize;
     WorldStart {
-        task_id: episode.task_id.clone(),
-        seed: episode.seed,
-        instruction: episode.instruction.clone(),
+        task_id: task_id.to_owned(),
+        seed,
+        instruction: instruction.to_owned(),
+        interface: clip_interface(clip),
         width: clip.width,
         height: clip.height,
-        rgb: clip.rgb[..frame].to_vec(),
-        state: clip.proprio[..clip.proprio_dims as usize].to_vec(),
+        rgb: clip.frame(t).to_vec(),
+        views: clip
+            .views
+            .iter()
+            .map(|v| NamedImage {
+                name: v.name.clone(),
+                width: v.width,
+                height: v.height,
+                rgb: v.frame(t).to_vec(),
+                depth: Vec::new(),
+            })
+            .collect(),
+        state: clip.proprio[t * p..(t + 1) * p].to_vec(),
     }
 }
 
@@ -69,6 +107,27 @@ fn check_frames(
             start.height
         )));
     }
+    for f in frames {
+        if f.views.len() != start.views.len() {
+            return Err(WorldError::BadAnswer(format!(
+                "{} frame(s) of the cameras after the first, the interface has {}",
+                f.views.len(),
+                start.views.len()
+            )));
+        }
+        for (v, want) in f.views.iter().zip(&start.views) {
+            if v.len() != (want.width * want.height * 3) as usize {
+                return Err(WorldError::BadAnswer(format!(
+                    "a frame of camera '{}' of {} bytes, {}x{} RGB is {}",
+                    want.name,
+                    v.len(),
+                    want.width,
+                    want.height,
+                    want.width * want.height * 3
+                )));
+            }
+        }
+    }
     Ok(())
 }
 
@@ -110,9 +169,10 @@ pub struct ClosedLoop {
 }
 
 /// Runs `policy` (reset with `episode` first) inside `world` from `start`: at each step it sees
-/// the frame and state the model gave last (the real ones first) and its actions drive the next
-/// steps, one chunk at a time, until `stop` says so. A model that predicts no state hands the
-/// policy the last state it had.
+/// the frames and state the model gave last (the real ones first), at the start's interface (its
+/// cameras by name, its state vector), and its actions — in the interface's action space, at
+/// most the interface's execution horizon of each chunk — drive the next steps until `stop`
+/// says so. A model that predicts no state hands the policy the last state it had.
 pub fn closed_loop(
     world: &dyn WorldModelService,
     start: &WorldStart,
@@ -120,17 +180,61 @@ pub fn closed_loop(
     episode: &EpisodeContext,
     stop: &Stop<'_>,
 ) -> Result<ClosedLoop, ImaginationError> {
-    if start.state.len() != PROPRIO_DIMS {
-        return Err(ImaginationError::World(WorldError::Refused(format!(
-            "a start state of {} values, a policy in the world model is shown {PROPRIO_DIMS}",
-            start.state.len()
-        ))));
+    let interface = &start.interface;
+    let refuse = |msg: String| Err(ImaginationError::World(WorldError::Refused(msg)));
+    let arm = episode.arm.as_deref();
+    let state_dims = interface.state_dims(arm).unwrap_or(start.state.len());
+    if start.state.len() != state_dims {
+        return refuse(format!(
+            "a start state of {} values, the interface's state ({}) has {state_dims}",
+            start.state.len(),
+            interface
+                .state
+                .iter()
+                .map(|p| p.name())
+                .collect::<Vec<_>>()
+                .join("+")
+        ));
     }
+    if interface.cameras.len() != start.views.len() + 1 {
+        return refuse(format!(
+            "{} start frame(s) for the interface's {} camera(s)",
+            start.views.len() + 1,
+            interface.cameras.len()
+        ));
+    }
+    let action_dims = match interface.action.dims(arm) {
+        Ok(d) => d,
+        Err(e) => return refuse(format!("action_space: {e}")),
+    };
+    // Where the original 4 floats of proprio sit in the state vector, when they do.
+    let mut offset = 0;
+    let (mut pos_at, mut holding_at) = (None, None);
+    for part in &interface.state {
+        match part {
+            StatePart::EePos => pos_at = Some(offset),
+            StatePart::Holding => holding_at = Some(offset),
+            _ => {}
+        }
+        offset += part.dims(arm).unwrap_or(0);
+    }
+    let proprio = |state: &[f32]| {
+        let mut p = [0f32; PROPRIO_DIMS];
+        if let Some(i) = pos_at {
+            p[..3].copy_from_slice(&state[i..i + 3]);
+        }
+        if let Some(i) = holding_at {
+            p[3] = state[i];
+        }
+        p
+    };
     policy
         .reset(episode)
         .map_err(|e| ImaginationError::Policy(0, e))?;
     let mut world_episode = world.reset(start)?;
-    let mut seen = (start.rgb.clone(), start.state.clone());
+    let mut seen_rgb = start.rgb.clone();
+    let mut seen_views: Vec<Vec<u8>> = start.views.iter().map(|v| v.rgb.clone()).collect();
+    let mut seen_state = start.state.clone();
     let mut chunk: VecDeque<Vec<f32>> = VecDeque::new();
     let mut frames = Vec::new();
     let mut verdict: Option<(f64, bool)> = None;
@@ -141,17 +245,32 @@ pub fn closed_loop(
     let mut t = 0usize;
     while t < last && (verdict.is_none() || leak_at.is_some_and(|l| leak.is_none() && t < l)) {
         if chunk.is_empty() {
-            let mut proprio = [0f32; PROPRIO_DIMS];
-            proprio.copy_from_slice(&seen.1);
-            let obs = PolicyObservation::legacy(
-                t as u32,
-                start.width,
-                start.height,
-                seen.0.clone(),
-                proprio,
-            );
+            let mut images = Vec::with_capacity(interface.cameras.len());
+            for (i, c) in interface.cameras.iter().enumerate() {
+                let (width, height) = start.camera_size(i);
+                images.push(NamedImage {
+                    name: c.name.clone(),
+                    width,
+                    height,
+                    rgb: if i == 0 {
+                        seen_rgb.clone()
+                    } else {
+                        seen_views[i - 1].clone()
+                    },
+                    depth: Vec::new(),
+                });
+            }
+            let obs = PolicyObservation {
+                step: t as u32,
+                width: start.width,
+                height: start.height,
+                rgb: seen_rgb.clone(),
+                proprio: proprio(&seen_state),
+                images,
+                state: seen_state.clone(),
+            };
             let answer = policy
-                .act(&obs)
+                .act_any(&obs)
                 .map_err(|e| ImaginationError::Policy(t, e))?;
             if answer.is_empty() || answer.iter().flatten().any(|x| !x.is_finite()) {
                 return Err(ImaginationError::Policy(
@@ -159,21 +278,31 @@ pub fn closed_loop(
                     PolicyError::BadAnswer("an empty or non-finite chunk".into()),
                 ));
             }
-            chunk.extend(answer.iter().map(|a| a.to_vec()));
+            if let Some(a) = answer.iter().find(|a| a.len() != action_dims) {
+                return Err(ImaginationError::Policy(
+                    t,
+                    PolicyError::BadAnswer(format!(
+                        "an action of {} floats; the interface's {} takes {action_dims}",
+                        a.len(),
+                        interface.action
+                    )),
+                ));
+            }
+            let run = interface.execute.map_or(answer.len(), |h| h as usize);
+            chunk.extend(answer.into_iter().take(run.max(1)));
         }
         let action = chunk.pop_front().expect("a non-empty chunk");
-        debug_assert_eq!(action.len(), ACTION_DIMS);
         let mut next = world_episode.step(&[action])?;
         check_frames(&next, 1, start)?;
         let f = next.pop().expect("one frame");
         if let Some(state) = f.state {
-            if state.len() != PROPRIO_DIMS || state.iter().any(|v| !v.is_finite()) {
+            if state.len() != state_dims || state.iter().any(|v| !v.is_finite()) {
                 return Err(ImaginationError::World(WorldError::BadAnswer(format!(
-                    "a state of {} values, {PROPRIO_DIMS} finite ones were expected",
+                    "a state of {} values, {state_dims} finite ones were expected",
                     state.len()
                 ))));
             }
-            seen.1 = state;
+            seen_state = state;
         }
         t += 1;
         let p = (stop.judge)(&f.rgb);
@@ -189,7 +318,8 @@ pub fn closed_loop(
         if leak_at == Some(t) {
             leak = Some(p);
         }
-        seen.0 = f.rgb;
+        seen_rgb = f.rgb;
+        seen_views = f.views;
     }
     let (p_success, done_by_judge) = match verdict {
         Some(v) => v,

@@ -197,11 +197,11 @@ pub fn run(
                 message: format!("world-model proxy of group {group:?}: {e}"),
             })?;
             // The imagined keyframes go to the artifact store, for the judge role.
-            let size = config.world_model.image_size;
+            let (width, height) = result.imagined_frame_size;
             let frames = std::mem::take(&mut result.imagined_frames);
             for (p, frames) in result.predictions.iter_mut().zip(frames) {
                 for (index, rgb) in frames {
-                    let png = encode_png(&rgb, size);
+                    let png = encode_png(&rgb, width, height);
                     let key = format!("imagery/{}.png", sha256_hex(&png));
                     write_atomically(&artifacts.join(&key), &png).map_err(|e| JobError {
                         message: format!("storing an imagined keyframe of group {group:?}: {e}"),
@@ -359,10 +359,10 @@ fn load_clips(read: &ArtifactReader<'_>, keys: &[String]) -> Result<Vec<Clip>, J
     Ok(loaded)
 }
 
-/// An 8-bit RGB PNG of a square `size`² frame.
-fn encode_png(rgb: &[u8], size: u32) -> Vec<u8> {
+/// An 8-bit RGB PNG of a `width`×`height` frame.
+fn encode_png(rgb: &[u8], width: u32, height: u32) -> Vec<u8> {
     let mut out = Vec::new();
-    let mut enc = png::Encoder::new(&mut out, size, size);
+    let mut enc = png::Encoder::new(&mut out, width, height);
     enc.set_color(png::ColorType::Rgb);
     enc.set_depth(png::BitDepth::Eight);
     let mut w = enc.write_header().expect("png header to memory");

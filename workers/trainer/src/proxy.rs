@@ -55,13 +55,15 @@ pub struct FrameJudge {
     head: Linear,
     params: Vec<Tensor>,
     size: i64,
+    /// The frames it is given: width, height (resized to `size` square).
+    frame: (i64, i64),
     device: Device,
     /// The answer of a judge trained on one class only (nothing to learn).
     constant: Option<f64>,
 }
 
 impl FrameJudge {
-    fn new(size: u32, seed: u64, device: Device) -> Self {
+    fn new(frame: (u32, u32), size: u32, seed: u64, device: Device) -> Self {
         let mut init = Init {
             rng: Rng::new(seed, "frame-judge/init"),
             device,
@@ -86,21 +88,22 @@ impl FrameJudge {
             head,
             params: init.params,
             size: i64::from(size),
+            frame: (i64::from(frame.0), i64::from(frame.1)),
             device,
             constant: None,
         }
     }
 
     fn images(&self, frames: &[&[u8]]) -> Tensor {
-        let s = self.size;
+        let (w, h) = self.frame;
         let flat: Vec<u8> = frames.iter().flat_map(|f| f.iter().copied()).collect();
-        Tensor::from_slice(&flat)
-            .view([frames.len() as i64, s, s, 3])
+        let x = Tensor::from_slice(&flat)
+            .view([frames.len() as i64, h, w, 3])
             .to_device(self.device)
             .permute([0, 3, 1, 2])
             .to_kind(Kind::Float)
-            / 255.0
-            - 0.5
+            / 255.0;
+        crate::video_model::resized(&x, self.size) - 0.5
     }
 
     fn logits(&self, x: &Tensor) -> Tensor {
@@ -112,7 +115,7 @@ impl FrameJudge {
         self.head.forward(&pooled).squeeze_dim(-1)
     }
 
-    /// Probability of success of each frame (`size · size · 3` RGB bytes).
+    /// Probability of success of each frame (RGB bytes at the judge's frame size).
     pub fn probabilities(&self, frames: &[&[u8]]) -> Vec<f64> {
         tch::no_grad(|| {
             let mut out = Vec::with_capacity(frames.len());
@@ -129,7 +132,8 @@ impl FrameJudge {
     }
 }
 
-/// Trains a frame judge on `examples` (frame, success). Returns it with its training accuracy.
+/// Trains a frame judge on `examples` (frame, success) of `size`×`size`. Returns it with its
+/// training accuracy.
 pub fn train_frame_judge(
     examples: &[(&[u8], bool)],
     size: u32,
@@ -138,7 +142,21 @@ pub fn train_frame_judge(
     seed: u64,
     device: Device,
 ) -> (FrameJudge, f64) {
-    let mut judge = FrameJudge::new(size, seed, device);
+    train_frame_judge_at(examples, (size, size), size, steps, lr, seed, device)
+}
+
+/// [`train_frame_judge`] on frames of `frame` (width, height), which it resizes to `size`
+/// square.
+pub fn train_frame_judge_at(
+    examples: &[(&[u8], bool)],
+    frame: (u32, u32),
+    size: u32,
+    steps: u32,
+    lr: f64,
+    seed: u64,
+    device: Device,
+) -> (FrameJudge, f64) {
+    let mut judge = FrameJudge::new(frame, size, seed, device);
     let positives = examples.iter().filter(|e| e.1).count();
     let negatives = examples.len() - positives;
     if positives > 0 && negatives > 0 {
@@ -353,7 +371,11 @@ pub fn run_proxy(
             (&rssm, fit)
         }
         (None, WorldModelKind::Video) => {
-            check_interfaces("Assay's video model", &[Interface::legacy(size)])?;
+            // It imagines at the interface of the clips it is trained on.
+            let clips_interface = train_clips
+                .first()
+                .map_or_else(|| Interface::legacy(size), imagination::clip_interface);
+            check_interfaces("Assay's video model", &[clips_interface])?;
             let (model, vfit) =
                 video_model::fit(&config.video, train_clips, device, resume, on_checkpoint)?;
             video = model;
@@ -398,8 +420,13 @@ pub fn run_proxy(
 
     // The frame judge: real and imagined (replayed with the real actions) frames of the
     // training episodes — last frames labelled with the outcome, earlier ones not done.
-    let frame = (size * size * 3) as usize;
-    let at = |c: &Clip, t: usize| c.rgb[t * frame..(t + 1) * frame].to_vec();
+    let at = |c: &Clip, t: usize| c.frame(t).to_vec();
+    // The judge reads the first camera (the task's scene camera for the original interface),
+    // resized to the proxy's frame size.
+    let judged = train_clips
+        .first()
+        .or(eval_clips.first())
+        .map_or((size, size), |c| (c.width, c.height));
     let mut owned: Vec<(Vec<u8>, bool)> = Vec::new();
     for (i, e) in train.iter().enumerate() {
         let clip = &train_clips[i];
@@ -420,8 +447,9 @@ pub fn run_proxy(
         }
     }
     let examples: Vec<(&[u8], bool)> = owned.iter().map(|(f, ok)| (f.as_slice(), *ok)).collect();
-    let (judge, judge_train_accuracy) = train_frame_judge(
+    let (judge, judge_train_accuracy) = train_frame_judge_at(
         &examples,
+        judged,
         size,
         config.judge_steps,
         config.judge_lr,
@@ -513,6 +541,7 @@ pub fn run_proxy(
         predictions,
         seconds: started.elapsed().as_secs_f64(),
         imagined_frames,
+        imagined_frame_size: judged,
     })
 }
 

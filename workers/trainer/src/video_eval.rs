@@ -118,19 +118,9 @@ fn windows_of(len: usize, horizon: usize) -> Vec<(usize, usize)> {
         .collect()
 }
 
-/// The start of a window: the clip's frame and state at `t`.
+/// The start of a window: the clip's frames and state at `t`.
 fn start_at(clip: &Clip, t: usize, name: &StartName<'_>) -> WorldStart {
-    let frame = (clip.width * clip.height * 3) as usize;
-    let p = clip.proprio_dims as usize;
-    WorldStart {
-        task_id: name.task_id.to_string(),
-        seed: name.seed,
-        instruction: name.instruction.to_string(),
-        width: clip.width,
-        height: clip.height,
-        rgb: clip.rgb[t * frame..(t + 1) * frame].to_vec(),
-        state: clip.proprio[t * p..(t + 1) * p].to_vec(),
-    }
+    crate::imagination::start_at(clip, t, name.task_id, name.seed, name.instruction)
 }
 
 /// What a world model is told of an episode besides its frames.

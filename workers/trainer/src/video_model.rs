@@ -60,22 +60,147 @@ use assay_spec::rng::Rng;
 use tch::{Device, Kind, Tensor};
 
 use crate::adam::Adam;
-use crate::world_model::{
-    Conv, Init, Linear, WorldModelError, check_clip_frames, device_name, lookup, world_frame,
-};
+use crate::world_model::{Conv, Init, Linear, WorldModelError, device_name, lookup, world_frame};
 
 const MAGIC: &[u8; 8] = b"ASYVM001";
 const HEADER_LEN: usize = 8 + 8 * 4;
 const GRAD_CLIP: f64 = 100.0;
-/// Maps beside the latent at the decoder's input: the predicted normalised state, broadcast,
-/// and the x and y coordinates of each position in [−1, 1].
-const GUIDES: i64 = PROPRIO_DIMS as i64 + 2;
 
 /// A trained (or training) video world model.
 pub struct VideoModel {
     net: Net,
     size: i64,
+    layout: Layout,
     device: Device,
+}
+
+/// What the training clips hold, which every clip (and every imagined start) must match: their
+/// interface, each camera's size (the first is the clip's frames, the others its views), and the
+/// state and action widths.
+#[derive(Debug, Clone, PartialEq)]
+struct Layout {
+    interface: String,
+    cameras: Vec<(String, u32, u32)>,
+    state: usize,
+    action: usize,
+}
+
+impl Layout {
+    fn of(clip: &Clip) -> Self {
+        let first = Interface::parse_args(&clip.interface)
+            .ok()
+            .and_then(|i| i.cameras.first().map(|c| c.name.clone()))
+            .unwrap_or_else(|| "image".into());
+        let mut cameras = vec![(first, clip.width, clip.height)];
+        cameras.extend(
+            clip.views
+                .iter()
+                .map(|v| (v.name.clone(), v.width, v.height)),
+        );
+        Self {
+            interface: clip.interface.clone(),
+            cameras,
+            state: clip.proprio_dims as usize,
+            action: clip.action_dims as usize,
+        }
+    }
+
+    /// The original interface's: one camera of `size`, 4 state and 4 action floats.
+    fn original(size: u32) -> Self {
+        Self {
+            interface: String::new(),
+            cameras: vec![("image".into(), size, size)],
+            state: PROPRIO_DIMS,
+            action: ACTION_DIMS,
+        }
+    }
+
+    /// The interface, each camera at its size.
+    fn interface(&self) -> Interface {
+        let mut i = Interface::parse_args(&self.interface).unwrap_or_default();
+        for (c, (_, w, h)) in i.cameras.iter_mut().zip(&self.cameras) {
+            (c.width, c.height) = (*w, *h);
+        }
+        i
+    }
+
+    /// Whether the state's last float is "holding" (rounded to 0 or 1 in imagined states).
+    fn holding_last(&self) -> bool {
+        Interface::parse_args(&self.interface)
+            .map(|i| i.state.last() == Some(&assay_model::interface::StatePart::Holding))
+            .unwrap_or(true)
+    }
+
+    fn describe(&self) -> String {
+        let cams: Vec<String> = self
+            .cameras
+            .iter()
+            .map(|(n, w, h)| format!("'{n}' {w}x{h}"))
+            .collect();
+        format!(
+            "camera(s) {}, {} state and {} action floats{}",
+            cams.join(", "),
+            self.state,
+            self.action,
+            if self.interface.is_empty() {
+                String::new()
+            } else {
+                format!(" (interface {})", self.interface)
+            }
+        )
+    }
+
+    /// Why `clip` cannot be trained with clips of this layout.
+    fn check(&self, clip: &Clip) -> Result<(), String> {
+        clip.validate().map_err(|e| e.to_string())?;
+        let other = Layout::of(clip);
+        if other != *self {
+            return Err(format!(
+                "a clip of {}: the other clips have {}",
+                other.describe(),
+                self.describe()
+            ));
+        }
+        if !clip.interface.is_empty() {
+            Interface::parse_args(&clip.interface)
+                .map_err(|e| format!("interface '{}': {e}", clip.interface))?;
+        }
+        if !clip
+            .proprio
+            .iter()
+            .chain(&clip.actions)
+            .all(|v| v.is_finite())
+        {
+            return Err("non-finite proprioception or action values".into());
+        }
+        Ok(())
+    }
+
+    /// Channels of all cameras stacked.
+    fn channels(&self) -> i64 {
+        3 * self.cameras.len() as i64
+    }
+}
+
+/// `x` (`[N, C, h, w]`) at `s`×`s`: area-averaged down, bilinear up, as it is when it fits.
+pub(crate) fn resized(x: &Tensor, s: i64) -> Tensor {
+    let (h, w) = (x.size()[2], x.size()[3]);
+    if (h, w) == (s, s) {
+        x.shallow_clone()
+    } else if h >= s && w >= s {
+        x.adaptive_avg_pool2d([s, s])
+    } else {
+        x.upsample_bilinear2d([s, s], false, None, None)
+    }
+}
+
+/// `x` (`[N, C, s, s]`) at `h`×`w`, bilinear; as it is when it fits.
+fn resized_to(x: &Tensor, h: i64, w: i64) -> Tensor {
+    if (x.size()[2], x.size()[3]) == (h, w) {
+        x.shallow_clone()
+    } else {
+        x.upsample_bilinear2d([h, w], false, None, None)
+    }
 }
 
 /// Receives `(step, checkpoint bytes)`; an `Err` stops the fit.
@@ -115,17 +240,32 @@ fn fit_keeping(
     keep_last: bool,
 ) -> Result<(VideoModel, VideoFit, Option<Vec<u8>>), WorldModelError> {
     cfg.validate().map_err(WorldModelError::Request)?;
-    let size = train.first().map_or(0, |c| c.width);
+    let Some(first) = train.first() else {
+        return Err(WorldModelError::Request("no training clips".into()));
+    };
+    let layout = Layout::of(first);
+    let size = if cfg.image_size > 0 {
+        cfg.image_size
+    } else if first.width == first.height {
+        first.width
+    } else {
+        return Err(WorldModelError::Request(format!(
+            "frames of {}x{}: give the video model an image_size (the clips' frames are not square)",
+            first.width, first.height
+        )));
+    };
     if size == 0 || !size.is_multiple_of(8) {
         return Err(WorldModelError::Request(format!(
             "frames of {size} pixels: the video model needs a positive multiple of 8 (three stride-2 stages)"
         )));
     }
     for (i, clip) in train.iter().enumerate() {
-        check_clip_frames(clip, size, 0).map_err(|reason| WorldModelError::BadClip {
-            clip: format!("train clip {i}"),
-            reason,
-        })?;
+        layout
+            .check(clip)
+            .map_err(|reason| WorldModelError::BadClip {
+                clip: format!("train clip {i}"),
+                reason,
+            })?;
     }
     let windows = windows(train, cfg.horizon);
     if windows.is_empty() {
@@ -138,8 +278,8 @@ fn fit_keeping(
         tch::set_num_threads(cfg.threads.max(1) as i32);
     }
     let size = i64::from(size);
-    let mut net = Net::new(cfg, device);
-    net.stats = Stats::of(train, device);
+    let mut net = Net::new(cfg, &layout, device);
+    net.stats = Stats::of(train, &layout, device);
     let mut adam = Adam::new(&net.params, cfg.lr, GRAD_CLIP);
     let (config_hash, data_hash) = (config_hash(cfg), crate::world_model::clips_hash(train));
 
@@ -172,7 +312,7 @@ fn fit_keeping(
         let picked: Vec<&Window> = (0..cfg.batch)
             .map(|_| &windows[(rng.next_u64() % windows.len() as u64) as usize])
             .collect();
-        let batch = Batch::new(train, &picked, size, device);
+        let batch = Batch::new(train, &picked, &layout, size, device);
         let loss = net.loss(&batch, cfg);
         loss.backward();
         adam.lr = learning_rate(cfg, step);
@@ -187,7 +327,7 @@ fn fit_keeping(
             && step.is_multiple_of(cfg.checkpoint_every as u64)
             && step < cfg.steps
         {
-            let bytes = write_checkpoint(&net, &adam, config_hash, data_hash, step)?;
+            let bytes = write_checkpoint(&net, &adam, &layout, size, config_hash, data_hash, step)?;
             on_checkpoint(step, &bytes)
                 .map_err(|reason| WorldModelError::Checkpoint { step, reason })?;
         }
@@ -195,7 +335,15 @@ fn fit_keeping(
     let done = step - first_step;
     let seconds = started.elapsed().as_secs_f64();
     let last = if keep_last {
-        Some(write_checkpoint(&net, &adam, config_hash, data_hash, step)?)
+        Some(write_checkpoint(
+            &net,
+            &adam,
+            &layout,
+            size,
+            config_hash,
+            data_hash,
+            step,
+        )?)
     } else {
         None
     };
@@ -223,11 +371,21 @@ fn fit_keeping(
         steps_per_s = fit.steps_per_s,
         "video world model fitted"
     );
-    Ok((VideoModel { net, size, device }, fit, last))
+    Ok((
+        VideoModel {
+            net,
+            size,
+            layout,
+            device,
+        },
+        fit,
+        last,
+    ))
 }
 
 impl VideoModel {
-    /// The model a checkpoint holds (of any fit, at `size`×`size` frames), to imagine in.
+    /// The model a checkpoint holds (of any fit), to imagine in. `size`: the side of the frames
+    /// it works at, for a checkpoint that does not say (one of the original interface).
     pub fn from_checkpoint(
         cfg: &VideoModelConfig,
         size: u32,
@@ -241,12 +399,14 @@ impl VideoModel {
                 "it was written for another video-model config".into(),
             ));
         }
-        let mut net = Net::new(cfg, device);
+        let (layout, size) = read_layout(&saved.tensors, size)?;
+        let mut net = Net::new(cfg, &layout, device);
         net.restore(&saved.tensors, "p")?;
         net.stats = Stats::restore(&saved.tensors, device)?;
         Ok(Self {
             net,
             size: i64::from(size),
+            layout,
             device,
         })
     }
@@ -255,7 +415,15 @@ impl VideoModel {
     /// [`VideoModel::from_checkpoint`] reads.
     pub fn to_checkpoint(&self, cfg: &VideoModelConfig) -> Result<Vec<u8>, WorldModelError> {
         let adam = Adam::new(&self.net.params, cfg.lr, GRAD_CLIP);
-        write_checkpoint(&self.net, &adam, config_hash(cfg), 0, cfg.steps)
+        write_checkpoint(
+            &self.net,
+            &adam,
+            &self.layout,
+            self.size,
+            config_hash(cfg),
+            0,
+            cfg.steps,
+        )
     }
 
     pub fn image_size(&self) -> u32 {
@@ -299,15 +467,16 @@ fn windows(clips: &[Clip], horizon: usize) -> Vec<Window> {
     out
 }
 
-/// A batch of windows: first frames and states, then `len` steps, time-major.
+/// A batch of windows: first frames and states, then `len` steps, time-major. Every camera is
+/// at the model's `size`, the cameras stacked on the channels.
 struct Batch {
-    /// `[B, 3, H, W]` in [0, 1].
+    /// `[B, 3·cams, S, S]` in [0, 1].
     first: Tensor,
     /// `[B, P]`, raw.
     state: Tensor,
     /// `[L, B, A]`, raw.
     actions: Tensor,
-    /// `[L, B, 3, H, W]` in [0, 1].
+    /// `[L, B, 3·cams, S, S]` in [0, 1].
     targets: Tensor,
     /// `[L, B, P]`, raw.
     target_states: Tensor,
@@ -316,40 +485,67 @@ struct Batch {
 }
 
 impl Batch {
-    fn new(clips: &[Clip], picked: &[&Window], size: i64, device: Device) -> Self {
+    fn new(clips: &[Clip], picked: &[&Window], layout: &Layout, size: i64, device: Device) -> Self {
         let b = picked.len();
         let l = picked.iter().map(|w| w.len).max().unwrap_or(1);
-        let frame = (size * size * 3) as usize;
-        let (p, a) = (PROPRIO_DIMS, ACTION_DIMS);
-        let mut first = vec![0u8; b * frame];
+        let (p, a) = (layout.state, layout.action);
         let mut state = vec![0f32; b * p];
         let mut actions = vec![0f32; l * b * a];
-        let mut targets = vec![0u8; l * b * frame];
         let mut target_states = vec![0f32; l * b * p];
         let mut mask = vec![0f32; l * b];
+        // Per camera: the first frames and the targets at the camera's size.
+        let mut firsts = Vec::with_capacity(layout.cameras.len());
+        let mut targets = Vec::with_capacity(layout.cameras.len());
+        for (k, (_, cw, ch)) in layout.cameras.iter().enumerate() {
+            let frame = (cw * ch * 3) as usize;
+            fn at(c: &Clip, k: usize, t: usize) -> &[u8] {
+                if k == 0 {
+                    c.frame(t)
+                } else {
+                    c.views[k - 1].frame(t)
+                }
+            }
+            let mut first = vec![0u8; b * frame];
+            let mut target = vec![0u8; l * b * frame];
+            for (j, w) in picked.iter().enumerate() {
+                let c = &clips[w.clip];
+                first[j * frame..(j + 1) * frame].copy_from_slice(at(c, k, w.start));
+                for t in 0..w.len {
+                    let dst = t * b + j;
+                    target[dst * frame..(dst + 1) * frame].copy_from_slice(at(
+                        c,
+                        k,
+                        w.start + t + 1,
+                    ));
+                }
+            }
+            let (cw, ch) = (i64::from(*cw), i64::from(*ch));
+            firsts.push(resized(&pixels(&first, b as i64, ch, cw, device), size));
+            targets.push(resized(
+                &pixels(&target, (l * b) as i64, ch, cw, device),
+                size,
+            ));
+        }
         for (j, w) in picked.iter().enumerate() {
             let c = &clips[w.clip];
-            first[j * frame..(j + 1) * frame]
-                .copy_from_slice(&c.rgb[w.start * frame..(w.start + 1) * frame]);
             state[j * p..(j + 1) * p].copy_from_slice(&c.proprio[w.start * p..(w.start + 1) * p]);
             for t in 0..w.len {
                 let (src, dst) = (w.start + t, t * b + j);
                 actions[dst * a..(dst + 1) * a].copy_from_slice(&c.actions[src * a..(src + 1) * a]);
-                targets[dst * frame..(dst + 1) * frame]
-                    .copy_from_slice(&c.rgb[(src + 1) * frame..(src + 2) * frame]);
                 target_states[dst * p..(dst + 1) * p]
                     .copy_from_slice(&c.proprio[(src + 1) * p..(src + 2) * p]);
                 mask[dst] = 1.0;
             }
         }
         let (l, b) = (l as i64, b as i64);
+        let channels = layout.channels();
         Self {
-            first: pixels(&first, b, size, device),
+            first: Tensor::cat(&firsts, 1),
             state: Tensor::from_slice(&state).view([b, -1]).to_device(device),
             actions: Tensor::from_slice(&actions)
                 .view([l, b, -1])
                 .to_device(device),
-            targets: pixels(&targets, l * b, size, device).view([l, b, 3, size, size]),
+            targets: Tensor::cat(&targets, 1).view([l, b, channels, size, size]),
             target_states: Tensor::from_slice(&target_states)
                 .view([l, b, -1])
                 .to_device(device),
@@ -358,10 +554,10 @@ impl Batch {
     }
 }
 
-/// `n` RGB frames (HWC bytes) as `[n, 3, H, W]` floats in [0, 1].
-fn pixels(rgb: &[u8], n: i64, size: i64, device: Device) -> Tensor {
+/// `n` RGB frames (HWC bytes) of `h`×`w` as `[n, 3, h, w]` floats in [0, 1].
+fn pixels(rgb: &[u8], n: i64, h: i64, w: i64, device: Device) -> Tensor {
     Tensor::from_slice(rgb)
-        .view([n, size, size, 3])
+        .view([n, h, w, 3])
         .to_device(device)
         .permute([0, 3, 1, 2])
         .to_kind(Kind::Float)
@@ -378,18 +574,19 @@ struct Stats {
 }
 
 impl Stats {
-    fn identity(device: Device) -> Self {
+    fn identity(layout: &Layout, device: Device) -> Self {
         let z = |n: usize| Tensor::zeros([n as i64], (Kind::Float, device));
         let o = |n: usize| Tensor::ones([n as i64], (Kind::Float, device));
         Self {
-            act_mean: z(ACTION_DIMS),
-            act_dev: o(ACTION_DIMS),
-            state_mean: z(PROPRIO_DIMS),
-            state_dev: o(PROPRIO_DIMS),
+            act_mean: z(layout.action),
+            act_dev: o(layout.action),
+            state_mean: z(layout.state),
+            state_dev: o(layout.state),
         }
     }
 
-    fn of(clips: &[Clip], device: Device) -> Self {
+    fn of(clips: &[Clip], layout: &Layout, device: Device) -> Self {
+        let (p, a) = (layout.state, layout.action);
         let moments = |rows: &mut dyn Iterator<Item = &[f32]>, d: usize| {
             let (mut s, mut s2, mut n) = (vec![0f64; d], vec![0f64; d], 0f64);
             for row in rows {
@@ -418,17 +615,13 @@ impl Stats {
             )
         };
         let (act_mean, act_dev) = moments(
-            &mut clips.iter().flat_map(|c| {
-                c.actions
-                    .chunks(ACTION_DIMS)
-                    .take(c.len().saturating_sub(1))
-            }),
-            ACTION_DIMS,
+            &mut clips
+                .iter()
+                .flat_map(|c| c.actions.chunks(a).take(c.len().saturating_sub(1))),
+            a,
         );
-        let (state_mean, state_dev) = moments(
-            &mut clips.iter().flat_map(|c| c.proprio.chunks(PROPRIO_DIMS)),
-            PROPRIO_DIMS,
-        );
+        let (state_mean, state_dev) =
+            moments(&mut clips.iter().flat_map(|c| c.proprio.chunks(p)), p);
         Self {
             act_mean,
             act_dev,
@@ -521,6 +714,9 @@ impl Block {
 struct Net {
     c: i64,
     fourier: usize,
+    /// Cameras stacked on the channels, and the state's floats.
+    cams: i64,
+    state_dims: i64,
     enc: Vec<Conv>,
     state_in: Linear,
     act_in: Linear,
@@ -539,7 +735,7 @@ struct Net {
 }
 
 impl Net {
-    fn new(cfg: &VideoModelConfig, device: Device) -> Self {
+    fn new(cfg: &VideoModelConfig, layout: &Layout, device: Device) -> Self {
         let mut init = Init {
             rng: Rng::new(cfg.seed, "video-model/init"),
             device,
@@ -549,32 +745,38 @@ impl Net {
         let d = cfg.depth;
         let c = 4 * d;
         let e = cfg.action_embed;
-        let features = (ACTION_DIMS * (1 + 2 * cfg.fourier)) as i64;
+        let (cams, p) = (layout.cameras.len() as i64, layout.state as i64);
+        // The maps beside the latent at the decoder's input: the predicted normalised state,
+        // broadcast, and the x and y coordinates of each position in [−1, 1].
+        let guides = p + 2;
+        let features = (layout.action * (1 + 2 * cfg.fourier)) as i64;
         let enc = vec![
-            Conv::new(&mut init, "enc0", 3, d, false, true),
+            Conv::new(&mut init, "enc0", 3 * cams, d, false, true),
             Conv::new(&mut init, "enc1", d, 2 * d, false, true),
             Conv::new(&mut init, "enc2", 2 * d, c, false, true),
         ];
-        let state_in = Linear::new(&mut init, "state_in", PROPRIO_DIMS as i64, c, true);
+        let state_in = Linear::new(&mut init, "state_in", p, c, true);
         let act_in = Linear::new(&mut init, "act_in", features, e, true);
         let act_out = Linear::new(&mut init, "act_out", e, e, true);
         let blocks = (0..cfg.blocks)
             .map(|i| Block::new(&mut init, &format!("block{i}"), c, e))
             .collect();
         let head_hidden = Linear::new(&mut init, "head_hidden", c + e, 64, true);
-        let head_out = Linear::new(&mut init, "head_out", 64, PROPRIO_DIMS as i64, true);
+        let head_out = Linear::new(&mut init, "head_out", 64, p, true);
         let heat = if cfg.tool_heatmap { 2 } else { 0 };
         let proj = cfg
             .tool_heatmap
-            .then(|| Linear::new(&mut init, "proj", PROPRIO_DIMS as i64, 2, true));
+            .then(|| Linear::new(&mut init, "proj", p, 2, true));
         let dec = vec![
-            Conv::new(&mut init, "dec0", c + GUIDES + heat, 2 * d, true, true),
+            Conv::new(&mut init, "dec0", c + guides + heat, 2 * d, true, true),
             Conv::new(&mut init, "dec1", 4 * d + heat, d, true, true),
-            Conv::new(&mut init, "dec2", 2 * d + heat, 4, true, false),
+            Conv::new(&mut init, "dec2", 2 * d + heat, 4 * cams, true, false),
         ];
         Self {
             c,
             fourier: cfg.fourier,
+            cams,
+            state_dims: p,
             enc,
             state_in,
             act_in,
@@ -586,7 +788,7 @@ impl Net {
             dec,
             names: init.names,
             params: init.params,
-            stats: Stats::identity(device),
+            stats: Stats::identity(layout, device),
         }
     }
 
@@ -603,7 +805,7 @@ impl Net {
         self.act_out.forward(&self.act_in.forward(&f).silu())
     }
 
-    /// The start of a rollout: the first frame `[B, 3, H, W]` in [0, 1] and the raw state
+    /// The start of a rollout: the first frames `[B, 3·cams, S, S]` in [0, 1] and the raw state
     /// `[B, P]`.
     fn start(&self, first: &Tensor, state: &Tensor) -> Rollout {
         let s1 = self.enc[0].forward(&(first - 0.5));
@@ -631,9 +833,10 @@ impl Net {
         }
     }
 
-    /// One step with embedded actions `[B, E]`: the next frame in [0, 1] and the next
-    /// normalised state.
-    fn step(&self, r: &mut Rollout, emb: &Tensor) -> (Tensor, Tensor) {
+    /// One step with embedded actions `[B, E]`: the next frames `[B, 3·cams, S, S]` in [0, 1]
+    /// (each camera's RGB composited over its start through its mask), the next normalised
+    /// state, and the RGB `[B, 3·cams, S, S]` and masks `[B, cams, S, S]` before compositing.
+    fn step(&self, r: &mut Rollout, emb: &Tensor) -> Step {
         let mut z = r.z.shallow_clone();
         for block in &self.blocks {
             z = block.forward(&z, emb);
@@ -651,7 +854,7 @@ impl Net {
             &[
                 r.state
                     .view([b, -1, 1, 1])
-                    .expand([b, PROPRIO_DIMS as i64, m, m], false),
+                    .expand([b, self.state_dims, m, m], false),
                 r.coords.expand([b, 2, m, m], false),
             ],
             1,
@@ -671,11 +874,22 @@ impl Net {
         let u = self.dec[0].forward(&with_heat(z.shallow_clone(), &[&guides]));
         let u = self.dec[1].forward(&with_heat(u, &[&r.skips[1]]));
         let out = self.dec[2].forward(&with_heat(u, &[&r.skips[0]]));
-        let rgb = out.narrow(1, 0, 3).sigmoid();
-        let alpha = out.narrow(1, 3, 1).sigmoid();
-        let frame = &alpha * rgb + (1.0 - &alpha) * &r.first;
+        let k = self.cams;
+        let rgb = out.narrow(1, 0, 3 * k).sigmoid();
+        let alpha = out.narrow(1, 3 * k, k).sigmoid();
+        let frame = if k == 1 {
+            &alpha * &rgb + (1.0 - &alpha) * &r.first
+        } else {
+            let a3 = alpha.repeat_interleave_self_int(3, Some(1), None);
+            &a3 * &rgb + (1.0 - &a3) * &r.first
+        };
         r.z = z;
-        (frame, r.state.shallow_clone())
+        Step {
+            frame,
+            state: r.state.shallow_clone(),
+            rgb,
+            alpha,
+        }
     }
 
     fn loss(&self, batch: &Batch, cfg: &VideoModelConfig) -> Tensor {
@@ -687,13 +901,23 @@ impl Net {
         let steps = batch.mask.size()[0];
         let mut terms = Vec::with_capacity(steps as usize);
         for t in 0..steps {
-            let (frame, sn) = self.step(&mut r, &emb.get(t));
+            let Step {
+                frame, state: sn, ..
+            } = self.step(&mut r, &emb.get(t));
             let target = batch.targets.get(t);
-            let moved = (&target - &batch.first)
-                .abs()
-                .amax([1i64].as_slice(), true)
-                .gt(0.1)
-                .to_kind(Kind::Float);
+            // Where a camera's picture changed from its start (by more than 0.1 in a channel).
+            let changed = (&target - &batch.first).abs();
+            let moved = if self.cams == 1 {
+                changed.amax([1i64].as_slice(), true)
+            } else {
+                let sz = changed.size();
+                changed
+                    .view([sz[0], self.cams, 3, sz[2], sz[3]])
+                    .amax([2i64].as_slice(), false)
+                    .repeat_interleave_self_int(3, Some(1), None)
+            }
+            .gt(0.1)
+            .to_kind(Kind::Float);
             let diff = frame - &target;
             let err = match pixel_loss {
                 PixelLoss::L1 => diff.abs(),
@@ -742,6 +966,14 @@ fn heat(uv: &Tensor, m: i64) -> Tensor {
     (y.unsqueeze(2) * x.unsqueeze(1)).unsqueeze(1)
 }
 
+/// One step's output ([`Net::step`]).
+struct Step {
+    frame: Tensor,
+    state: Tensor,
+    rgb: Tensor,
+    alpha: Tensor,
+}
+
 struct Rollout {
     /// `[1, 2, m, m]`: x and y of each latent position.
     coords: Tensor,
@@ -772,6 +1004,8 @@ fn config_hash(cfg: &VideoModelConfig) -> u64 {
 fn write_checkpoint(
     net: &Net,
     adam: &Adam,
+    layout: &Layout,
+    size: i64,
     config_hash: u64,
     data_hash: u64,
     step: u64,
@@ -789,10 +1023,78 @@ fn write_checkpoint(
     for (name, t) in net.stats.named() {
         named.push((name.to_string(), t));
     }
+    // What the clips held, so that a checkpoint loads without them.
+    let dims = Tensor::from_slice(&[layout.state as i64, layout.action as i64, size]);
+    let sizes: Vec<i64> = layout
+        .cameras
+        .iter()
+        .flat_map(|(_, w, h)| [i64::from(*w), i64::from(*h)])
+        .collect();
+    let sizes = Tensor::from_slice(&sizes);
+    let names: Vec<&str> = layout.cameras.iter().map(|(n, _, _)| n.as_str()).collect();
+    // Texts lead with '#': libtorch cannot save an empty tensor to a stream.
+    let names = Tensor::from_slice(format!("#{}", names.join("\n")).as_bytes());
+    let interface = Tensor::from_slice(format!("#{}", layout.interface).as_bytes());
+    for (name, t) in [
+        ("layout/dims", &dims),
+        ("layout/camera_sizes", &sizes),
+        ("layout/camera_names", &names),
+        ("layout/interface", &interface),
+    ] {
+        named.push((name.to_string(), t));
+    }
     let mut blob = Vec::new();
     Tensor::save_multi_to_stream(&named, &mut blob)?;
     out.extend_from_slice(&blob);
     Ok(out)
+}
+
+/// The clips' layout and the model's frame size a checkpoint holds; one written before layouts
+/// were saved is of the original interface at `size`.
+fn read_layout(
+    saved: &HashMap<String, Tensor>,
+    size: u32,
+) -> Result<(Layout, u32), WorldModelError> {
+    let Some(dims) = saved.get("layout/dims") else {
+        return Ok((Layout::original(size), size));
+    };
+    let bad = |what: &str| WorldModelError::CheckpointRefused(format!("its layout: {what}"));
+    let ints = |t: &Tensor| {
+        Vec::<i64>::try_from(t.to_device(Device::Cpu)).map_err(|_| bad("not integers"))
+    };
+    let text = |k: &str| -> Result<String, WorldModelError> {
+        let t = saved.get(k).ok_or_else(|| bad(k))?;
+        let bytes = Vec::<u8>::try_from(t.to_device(Device::Cpu)).map_err(|_| bad(k))?;
+        let text = String::from_utf8(bytes).map_err(|_| bad(k))?;
+        text.strip_prefix('#')
+            .map(str::to_owned)
+            .ok_or_else(|| bad(k))
+    };
+    let dims = ints(dims)?;
+    let sizes = ints(
+        saved
+            .get("layout/camera_sizes")
+            .ok_or_else(|| bad("camera sizes"))?,
+    )?;
+    let names = text("layout/camera_names")?;
+    let names: Vec<&str> = names.split('\n').collect();
+    if dims.len() != 3
+        || sizes.len() != 2 * names.len()
+        || dims.iter().chain(&sizes).any(|v| *v < 1)
+    {
+        return Err(bad("inconsistent sizes"));
+    }
+    let layout = Layout {
+        interface: text("layout/interface")?,
+        cameras: names
+            .iter()
+            .zip(sizes.chunks(2))
+            .map(|(n, s)| (n.to_string(), s[0] as u32, s[1] as u32))
+            .collect(),
+        state: dims[0] as usize,
+        action: dims[1] as usize,
+    };
+    Ok((layout, dims[2] as u32))
 }
 
 struct Saved {
@@ -845,49 +1147,78 @@ fn read_checkpoint(
 impl WorldModelService for VideoModel {
     fn name(&self) -> String {
         format!(
-            "Assay video model ({s}x{s} frames, latent {c}x{m}x{m}, {b} FiLM blocks)",
+            "Assay video model ({s}x{s} frames, latent {c}x{m}x{m}, {b} FiLM blocks{cams})",
             s = self.size,
             c = self.net.c,
             m = self.size / 8,
             b = self.net.blocks.len(),
+            cams = if self.layout.cameras.len() > 1 || !self.layout.interface.is_empty() {
+                format!("; {}", self.layout.describe())
+            } else {
+                String::new()
+            },
         )
     }
 
-    /// The interface of the clips it was trained on: the scene camera at its frame size, tool
-    /// position + holding, tool velocities.
+    /// The interface of the clips it was trained on, each camera at its size.
     fn interfaces(&self) -> Vec<Interface> {
-        vec![Interface::legacy(self.size as u32)]
+        vec![self.layout.interface()]
     }
 
     fn reset(&self, start: &WorldStart) -> Result<Box<dyn ImaginedEpisode + '_>, WorldError> {
-        let size = self.size;
-        if i64::from(start.width) != size
-            || i64::from(start.height) != size
-            || start.rgb.len() != (size * size * 3) as usize
-        {
+        let layout = &self.layout;
+        let mut sizes = vec![(start.width, start.height, start.rgb.len())];
+        sizes.extend(start.views.iter().map(|v| (v.width, v.height, v.rgb.len())));
+        let fits = sizes.len() == layout.cameras.len()
+            && sizes
+                .iter()
+                .zip(&layout.cameras)
+                .all(|((w, h, n), (_, cw, ch))| (w, h) == (cw, ch) && *n == (w * h * 3) as usize);
+        if !fits {
+            let given: Vec<String> = sizes
+                .iter()
+                .map(|(w, h, n)| format!("{w}x{h} ({n} bytes)"))
+                .collect();
             return Err(WorldError::Refused(format!(
-                "a first frame of {}x{} ({} bytes): this video model was trained on {size}x{size} RGB",
-                start.width,
-                start.height,
-                start.rgb.len()
+                "first frames of {}: this video model was trained on {}",
+                given.join(", "),
+                layout.describe()
             )));
         }
-        if start.state.len() != PROPRIO_DIMS || start.state.iter().any(|v| !v.is_finite()) {
+        if start.state.len() != layout.state || start.state.iter().any(|v| !v.is_finite()) {
             return Err(WorldError::Refused(format!(
-                "a first state of {} values: the video model takes {PROPRIO_DIMS} finite ones (tool x, y, z, holding)",
-                start.state.len()
+                "a first state of {} values: the video model takes {} finite ones",
+                start.state.len(),
+                layout.state
             )));
         }
         let rollout = tch::no_grad(|| {
-            let first = pixels(&start.rgb, 1, size, self.device);
+            let mut full = vec![pixels(
+                &start.rgb,
+                1,
+                i64::from(start.height),
+                i64::from(start.width),
+                self.device,
+            )];
+            full.extend(start.views.iter().map(|v| {
+                pixels(
+                    &v.rgb,
+                    1,
+                    i64::from(v.height),
+                    i64::from(v.width),
+                    self.device,
+                )
+            }));
+            let small: Vec<Tensor> = full.iter().map(|f| resized(f, self.size)).collect();
             let state = Tensor::from_slice(&start.state)
                 .view([1, -1])
                 .to_device(self.device);
-            self.net.start(&first, &state)
+            (self.net.start(&Tensor::cat(&small, 1), &state), full)
         });
         Ok(Box::new(Imagined {
             model: self,
-            rollout,
+            rollout: rollout.0,
+            full: rollout.1,
         }))
     }
 }
@@ -895,24 +1226,46 @@ impl WorldModelService for VideoModel {
 struct Imagined<'a> {
     model: &'a VideoModel,
     rollout: Rollout,
+    /// Each camera's real start frame `[1, 3, h, w]` at its own size.
+    full: Vec<Tensor>,
 }
 
 impl ImaginedEpisode for Imagined<'_> {
     fn step(&mut self, actions: &[Vec<f32>]) -> Result<Vec<WorldFrame>, WorldError> {
-        let (net, device) = (&self.model.net, self.model.device);
+        let (net, device, layout) = (&self.model.net, self.model.device, &self.model.layout);
         let mut out = Vec::with_capacity(actions.len());
         for a in actions {
-            if a.len() != ACTION_DIMS || a.iter().any(|v| !v.is_finite()) {
+            if a.len() != layout.action || a.iter().any(|v| !v.is_finite()) {
                 return Err(WorldError::Refused(format!(
-                    "an action of {} values: the video model takes {ACTION_DIMS} finite ones (tool velocity x, y, z, hold)",
-                    a.len()
+                    "an action of {} values: the video model takes {} finite ones",
+                    a.len(),
+                    layout.action
                 )));
             }
             let frame = tch::no_grad(|| -> Result<WorldFrame, tch::TchError> {
                 let emb = net.embed(&Tensor::from_slice(a).view([1, -1]).to_device(device));
-                let (frame, sn) = net.step(&mut self.rollout, &emb);
-                let raw = sn * &net.stats.state_dev + &net.stats.state_mean;
-                world_frame(&frame, &raw)
+                let step = net.step(&mut self.rollout, &emb);
+                let raw = &step.state * &net.stats.state_dev + &net.stats.state_mean;
+                // Each camera composited at its own size over its real start: what did not move
+                // keeps the camera's detail.
+                let mut frames = Vec::with_capacity(self.full.len());
+                for (k, start) in self.full.iter().enumerate() {
+                    let k = k as i64;
+                    let (h, w) = (start.size()[2], start.size()[3]);
+                    let picture = if (h, w) == (self.model.size, self.model.size) {
+                        step.frame.narrow(1, 3 * k, 3)
+                    } else {
+                        let rgb = resized_to(&step.rgb.narrow(1, 3 * k, 3), h, w);
+                        let alpha = resized_to(&step.alpha.narrow(1, k, 1), h, w);
+                        &alpha * rgb + (1.0 - &alpha) * start
+                    };
+                    frames.push(picture);
+                }
+                let mut first = world_frame(&frames[0], &raw, layout.holding_last())?;
+                for f in &frames[1..] {
+                    first.views.push(world_frame(f, &raw, false)?.rgb);
+                }
+                Ok(first)
             })
             .map_err(|e| WorldError::BadAnswer(format!("libtorch: {e}")))?;
             out.push(frame);

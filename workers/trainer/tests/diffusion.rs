@@ -96,6 +96,8 @@ fn episode(len: usize, s: &Start) -> Clip {
         rgb,
         proprio,
         actions,
+        interface: String::new(),
+        views: Vec::new(),
     }
 }
 
@@ -134,6 +136,8 @@ fn long_episode(len: usize, rng: &mut Rng) -> Clip {
         rgb,
         proprio,
         actions,
+        interface: String::new(),
+        views: Vec::new(),
     }
 }
 

@@ -86,6 +86,8 @@ fn moving(start: u32, dx: i32, len: u32) -> Clip {
         rgb,
         proprio,
         actions,
+        interface: String::new(),
+        views: Vec::new(),
     }
 }
 

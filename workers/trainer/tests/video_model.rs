@@ -47,6 +47,8 @@ fn clip(x: i32, y: i32, moves: &[(i32, i32)]) -> Clip {
         rgb,
         proprio,
         actions,
+        interface: String::new(),
+        views: Vec::new(),
     }
 }
 
@@ -89,6 +91,8 @@ fn start(c: &Clip) -> WorldStart {
         height: SIZE,
         rgb: c.rgb[..frame].to_vec(),
         state: c.proprio[..PROPRIO_DIMS].to_vec(),
+        interface: Default::default(),
+        views: Vec::new(),
     }
 }
 
@@ -217,7 +221,7 @@ fn what_the_video_model_cannot_take_is_refused_with_the_reason() {
         .unwrap()
         .to_string();
     assert!(e.contains("finite"), "{e}");
-    // Clips it cannot train on: a frame size that is not a multiple of 8, 7-D actions.
+    // Clips it cannot train on together: one of 7-D actions among clips of 4-D ones.
     let mut odd = train[0].clone();
     odd.actions = vec![0.0; odd.len() * 7];
     odd.action_dims = 7;
@@ -232,7 +236,9 @@ fn what_the_video_model_cannot_take_is_refused_with_the_reason() {
     .unwrap()
     .to_string();
     assert!(
-        e.contains("train clip 1") && e.contains("7 action dims"),
+        e.contains("train clip 1")
+            && e.contains("4 state and 7 action floats: the other clips have")
+            && e.contains("4 state and 4 action floats"),
         "{e}"
     );
     let e = fit(
@@ -249,4 +255,263 @@ fn what_the_video_model_cannot_take_is_refused_with_the_reason() {
     .unwrap()
     .to_string();
     assert!(e.contains("horizon 0"), "{e}");
+}
+
+/// The interface of [`two_camera_clip`]: a 7-D end-effector-delta policy with a scene camera of
+/// 32×32 and a wrist camera of 16×16, reading the tool's position, orientation and gripper.
+const SEVEN: &str = "space=ee_delta,cameras=image:scene@32x32+wrist_image:wrist@16x16,\
+                     state=ee_pos+ee_quat+gripper";
+
+/// A `side`² grey frame with a `sq`² square of `color` at (x, y).
+fn square(side: u32, sq: i32, x: i32, y: i32, color: [u8; 3]) -> Vec<u8> {
+    let mut f = vec![100u8; (side * side * 3) as usize];
+    for j in y.max(0)..(y + sq).min(side as i32) {
+        for i in x.max(0)..(x + sq).min(side as i32) {
+            let at = ((j as u32 * side + i as u32) * 3) as usize;
+            f[at..at + 3].copy_from_slice(&color);
+        }
+    }
+    f
+}
+
+/// A clip at [`SEVEN`]: the scene camera (32 px, the model's size) sees a red 4 px square move
+/// by each action's (dx, dy) (1 px per 0.125); the wrist camera (16 px, drawn at 32 inside the
+/// model), riding with the tool, sees a blue 2 px square move the other way at half the scale.
+/// In the model's frames both are 4 px squares moving 2 px a step (a camera whose moving parts
+/// are smaller learns slower, as both share one loss).
+fn two_camera_clip(x: i32, y: i32, moves: &[(i32, i32)]) -> Clip {
+    let (mut x, mut y) = (x, y);
+    let (mut rgb, mut wrist, mut proprio, mut actions) = (vec![], vec![], vec![], vec![]);
+    for t in 0..=moves.len() {
+        rgb.extend(square(32, 4, x, y, [220, 30, 30]));
+        wrist.extend(square(
+            16,
+            2,
+            7 - (x - 12) / 2,
+            7 - (y - 12) / 2,
+            [30, 30, 220],
+        ));
+        proprio.extend([
+            x as f32 / 16.0,
+            y as f32 / 16.0,
+            0.1,
+            1.0,
+            0.0,
+            0.0,
+            0.0,
+            1.0,
+        ]);
+        let (dx, dy) = moves.get(t).copied().unwrap_or((0, 0));
+        actions.extend([
+            dx as f32 * 0.125,
+            dy as f32 * 0.125,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+        ]);
+        x = (x + dx).clamp(0, 28);
+        y = (y + dy).clamp(0, 28);
+    }
+    Clip {
+        height: 32,
+        width: 32,
+        interval_s: 0.1,
+        proprio_dims: 8,
+        action_dims: 7,
+        rgb,
+        proprio,
+        actions,
+        interface: SEVEN.into(),
+        views: vec![assay_model::clip::ClipView {
+            name: "wrist_image".into(),
+            width: 16,
+            height: 16,
+            rgb: wrist,
+        }],
+    }
+}
+
+fn two_camera_episodes(seed: i32) -> Vec<Clip> {
+    let dirs = [(2, 0), (-2, 0), (0, 2), (0, -2)];
+    (0..16)
+        .map(|i| {
+            let a = dirs[(i + seed as usize) % 4];
+            let b = if i % 2 == 0 { a } else { dirs[(i / 2 + 1) % 4] };
+            let moves: Vec<(i32, i32)> = (0..8).map(|t| if t < 4 { a } else { b }).collect();
+            two_camera_clip(
+                10 + 2 * (i as i32 % 3),
+                10 + 2 * ((i as i32 / 3) % 3),
+                &moves,
+            )
+        })
+        .collect()
+}
+
+/// Acts in [`SEVEN`]: always 0.25 to the right, in chunks of 2; keeps what it saw.
+#[derive(Default)]
+struct SevenRight {
+    seen: Vec<assay_model::policy::PolicyObservation>,
+}
+
+impl assay_model::policy::Policy for SevenRight {
+    fn reset(
+        &mut self,
+        _: &assay_model::policy::EpisodeContext,
+    ) -> Result<(), assay_model::policy::PolicyError> {
+        Ok(())
+    }
+    fn act_any(
+        &mut self,
+        obs: &assay_model::policy::PolicyObservation,
+    ) -> Result<Vec<Vec<f32>>, assay_model::policy::PolicyError> {
+        self.seen.push(obs.clone());
+        Ok(vec![vec![0.25, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]; 2])
+    }
+    fn interface(&self) -> assay_model::interface::Interface {
+        assay_model::interface::Interface::parse_args(SEVEN).unwrap()
+    }
+}
+
+#[test]
+fn the_video_model_imagines_every_camera_of_a_seven_d_interface_and_a_policy_acts_in_it() {
+    let train = two_camera_episodes(0);
+    // The squared error: with the absolute error, the copy of the start frame is a plateau
+    // these small synthetic fits leave after 600 steps for some initial weights and not for
+    // others (seeds 0–2: 1 of 3 with 4-float states and actions, 0 of 3 with this interface's
+    // 8 and 7); the squared error leaves it for all three.
+    let cfg = VideoModelConfig {
+        image_size: 32,
+        pixel_loss: assay_model::video::PixelLoss::L2,
+        ..small(600)
+    };
+    let (model, _) = fit(&cfg, &train, Device::Cpu, None, &mut |_, _| Ok(())).unwrap();
+    // It declares the clips' interface, each camera at its size.
+    let declared = model.interfaces();
+    assert_eq!(declared.len(), 1);
+    assert_eq!(
+        declared[0].action,
+        assay_model::interface::ActionSpace::EeDelta
+    );
+    let sizes: Vec<(u32, u32)> = declared[0]
+        .cameras
+        .iter()
+        .map(|c| (c.width, c.height))
+        .collect();
+    assert_eq!(sizes, [(32, 32), (16, 16)]);
+    assert!(
+        model.name().contains("'wrist_image' 16x16"),
+        "{}",
+        model.name()
+    );
+
+    // Every camera follows the actions: right and left differ in both, at each camera's size.
+    let s = imagination::start_of(
+        &train[0],
+        &assay_model::policy::EpisodeContext {
+            task_id: "t".into(),
+            seed: 0,
+            instruction: String::new(),
+            arm: None,
+        },
+    );
+    assert_eq!((s.views.len(), s.state.len()), (1, 8));
+    let go = |dx: f32| {
+        let mut e = model.reset(&s).unwrap();
+        e.step(&vec![vec![dx, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]; 4])
+            .unwrap()
+    };
+    let (right, left) = (go(0.25), go(-0.25));
+    assert_eq!(
+        (right[3].rgb.len(), right[3].views[0].len()),
+        (32 * 32 * 3, 16 * 16 * 3)
+    );
+    assert_eq!(right[3].state.as_ref().map(Vec::len), Some(8));
+    let scene_apart = imagination::mse(&right[3].rgb, &left[3].rgb);
+    let wrist_apart = imagination::mse(&right[3].views[0], &left[3].views[0]);
+    assert!(
+        scene_apart > 1e-3 && wrist_apart > 1e-3,
+        "right and left apart: scene {scene_apart}, wrist {wrist_apart}"
+    );
+
+    // Held out: the true actions beat another episode's in both cameras, on the last frame of
+    // 8 imagined open loop (1.20 and 1.24 times here).
+    let held_out = two_camera_episodes(1);
+    let (mut true_err, mut other_err) = ([0.0; 2], [0.0; 2]);
+    for (i, clip) in held_out.iter().enumerate() {
+        let other = &held_out[(i + 1) % held_out.len()];
+        let start = imagination::start_at(clip, 0, "t", i as u64, "");
+        let imagine = |c: &Clip| {
+            let mut e = model.reset(&start).unwrap();
+            e.step(&imagination::actions_of(c)).unwrap()
+        };
+        for (err, acts) in [(&mut true_err, clip), (&mut other_err, other)] {
+            let frames = imagine(acts);
+            let last = frames.len();
+            err[0] += imagination::mse(&frames[last - 1].rgb, clip.frame(last));
+            err[1] += imagination::mse(&frames[last - 1].views[0], clip.views[0].frame(last));
+        }
+    }
+    for (k, camera) in ["scene", "wrist"].iter().enumerate() {
+        assert!(
+            true_err[k] * 1.1 < other_err[k],
+            "{camera}: true actions {} another episode's {}",
+            true_err[k],
+            other_err[k]
+        );
+    }
+
+    // A policy at the interface acts inside it, closed loop: it is shown both cameras at their
+    // sizes and the 8-float state, and its 7-D actions drive the model.
+    let never = |_: &[u8]| 0.0;
+    let stop = imagination::Stop {
+        horizon: 7,
+        judge: &never,
+        threshold: 0.5,
+        done_frames: 2,
+        leak_at: None,
+    };
+    let mut policy = SevenRight::default();
+    let ctx = assay_model::policy::EpisodeContext {
+        task_id: "t".into(),
+        seed: 0,
+        instruction: String::new(),
+        arm: None,
+    };
+    let rollout = imagination::closed_loop(&model, &s, &mut policy, &ctx, &stop).unwrap();
+    assert_eq!(rollout.frames.len(), 6);
+    assert_eq!(policy.seen.len(), 3, "chunks of 2 over 6 steps");
+    let obs = &policy.seen[1];
+    let shown: Vec<(&str, u32, u32)> = obs
+        .images
+        .iter()
+        .map(|i| (i.name.as_str(), i.width, i.height))
+        .collect();
+    assert_eq!(shown, [("image", 32, 32), ("wrist_image", 16, 16)]);
+    assert_eq!(obs.state.len(), 8);
+    assert_eq!(
+        obs.images[0].rgb, rollout.frames[1],
+        "it saw the imagined frame"
+    );
+
+    // Saved and loaded without the clips, it imagines the same frames.
+    let bytes = model.to_checkpoint(&cfg).unwrap();
+    let loaded = VideoModel::from_checkpoint(&cfg, 0, &bytes, Device::Cpu).unwrap();
+    let mut e = loaded.reset(&s).unwrap();
+    let again = e
+        .step(&vec![vec![0.25, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]; 4])
+        .unwrap();
+    assert_eq!(again, right);
+
+    // A start of the original interface is refused, naming what it was trained on.
+    let e = model
+        .reset(&start(&episodes(0)[0]))
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(
+        e.contains("first frames of 32x32") && e.contains("'wrist_image' 16x16"),
+        "{e}"
+    );
 }

@@ -53,6 +53,8 @@ fn square_clip(len: usize, color: [u8; 3], start: (f32, f32), vel: (f32, f32), s
         rgb,
         proprio,
         actions,
+        interface: String::new(),
+        views: Vec::new(),
     }
 }
 

@@ -2,14 +2,28 @@
 //! fixed rate from the task's camera, the robot's proprioception at each frame and the action
 //! taken from each frame to the next. Written by the render role, read by the trainer role.
 //!
+//! A clip may be recorded at a policy's interface (`interface`, `Interface::to_args`): its
+//! first camera is `rgb` at `width`×`height`, the cameras after it are `views` (each at its own
+//! size), `proprio` is the interface's state vector and `actions` are in its action space. An
+//! empty `interface` is the original one: the task camera, tool position + holding, tool
+//! velocities ([`PROPRIO_DIMS`], [`ACTION_DIMS`]).
+//!
 //! File layout (little endian): the 8 bytes `ASYCLIP1`; a header of six `u32` — frames `T`,
 //! height `H`, width `W`, proprioception dims `P`, action dims `A`, and the frame interval in
 //! microseconds; then `T·H·W·3` bytes of RGB (row-major, top row first), `T·P` `f32` and `T·A`
-//! `f32`. The action of the last frame is all zeros (nothing follows it).
+//! `f32`. The action of the last frame is all zeros (nothing follows it). A clip with an
+//! interface or views is `ASYCLIP2`: the same header, then the interface (a `u32` length and
+//! UTF-8), the number of views (`u32`) and each view's name (a `u32` length and UTF-8), width
+//! and height (`u32`); then the RGB of the first camera, of each view in order (`T·h·w·3`
+//! each), the proprioception and the actions.
 
 use thiserror::Error;
 
 pub const CLIP_MAGIC: &[u8; 8] = b"ASYCLIP1";
+/// A clip at a policy's interface (with an interface or views).
+pub const CLIP_MAGIC_V2: &[u8; 8] = b"ASYCLIP2";
+/// Most cameras after the first one clip holds.
+pub const MAX_VIEWS: usize = 7;
 /// Proprioception per frame: tool position x, y, z (metres) and whether it holds an object (0/1).
 pub const PROPRIO_DIMS: usize = 4;
 /// Action per frame: the tool's commanded velocity x, y, z (m/s) and the hold command (0/1: holding
@@ -32,11 +46,34 @@ pub struct Clip {
     pub proprio: Vec<f32>,
     /// `len · action_dims`.
     pub actions: Vec<f32>,
+    /// The policy interface it was recorded at (`Interface::to_args`); empty: the original.
+    pub interface: String,
+    /// The interface's cameras after the first, in its order.
+    pub views: Vec<ClipView>,
+}
+
+/// One camera of a clip after the first: `len` frames at its own size.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ClipView {
+    /// The interface's name for the camera.
+    pub name: String,
+    pub width: u32,
+    pub height: u32,
+    /// `len · height · width · 3` bytes.
+    pub rgb: Vec<u8>,
+}
+
+impl ClipView {
+    /// Frame `t`'s RGB bytes.
+    pub fn frame(&self, t: usize) -> &[u8] {
+        let n = (self.width * self.height * 3) as usize;
+        &self.rgb[t * n..(t + 1) * n]
+    }
 }
 
 #[derive(Debug, Error, PartialEq)]
 pub enum ClipError {
-    #[error("not a dynamics clip (no ASYCLIP1 magic)")]
+    #[error("not a dynamics clip (no ASYCLIP1 or ASYCLIP2 magic)")]
     Magic,
     #[error("dynamics clip truncated: {have} bytes, the header promises {want}")]
     Truncated { have: usize, want: usize },
@@ -77,6 +114,24 @@ impl Clip {
                 self.proprio_dims
             )));
         }
+        if self.views.len() > MAX_VIEWS {
+            return Err(ClipError::Shape(format!(
+                "{} views (at most {MAX_VIEWS})",
+                self.views.len()
+            )));
+        }
+        for v in &self.views {
+            let n = (v.width * v.height * 3) as usize;
+            if n == 0 || v.rgb.len() != t * n {
+                return Err(ClipError::Shape(format!(
+                    "view '{}': {} RGB bytes, not {t} frames of {}x{}",
+                    v.name,
+                    v.rgb.len(),
+                    v.width,
+                    v.height
+                )));
+            }
+        }
         if self.actions.len() != t * self.action_dims as usize {
             return Err(ClipError::Shape(format!(
                 "{} action values for {t} frames of {}",
@@ -87,11 +142,19 @@ impl Clip {
         Ok(())
     }
 
+    /// Frame `t` of the first camera.
+    pub fn frame(&self, t: usize) -> &[u8] {
+        let n = (self.width * self.height * 3) as usize;
+        &self.rgb[t * n..(t + 1) * n]
+    }
+
     pub fn encode(&self) -> Vec<u8> {
+        let v2 = !self.interface.is_empty() || !self.views.is_empty();
+        let views: usize = self.views.iter().map(|v| v.rgb.len()).sum();
         let mut out = Vec::with_capacity(
-            8 + 24 + self.rgb.len() + 4 * (self.proprio.len() + self.actions.len()),
+            64 + self.rgb.len() + views + 4 * (self.proprio.len() + self.actions.len()),
         );
-        out.extend_from_slice(CLIP_MAGIC);
+        out.extend_from_slice(if v2 { CLIP_MAGIC_V2 } else { CLIP_MAGIC });
         let interval_us = (self.interval_s as f64 * 1e6).round() as u32;
         for v in [
             self.len() as u32,
@@ -103,7 +166,23 @@ impl Clip {
         ] {
             out.extend_from_slice(&v.to_le_bytes());
         }
+        let text = |out: &mut Vec<u8>, s: &str| {
+            out.extend_from_slice(&(s.len() as u32).to_le_bytes());
+            out.extend_from_slice(s.as_bytes());
+        };
+        if v2 {
+            text(&mut out, &self.interface);
+            out.extend_from_slice(&(self.views.len() as u32).to_le_bytes());
+            for v in &self.views {
+                text(&mut out, &v.name);
+                out.extend_from_slice(&v.width.to_le_bytes());
+                out.extend_from_slice(&v.height.to_le_bytes());
+            }
+        }
         out.extend_from_slice(&self.rgb);
+        for v in &self.views {
+            out.extend_from_slice(&v.rgb);
+        }
         for v in self.proprio.iter().chain(&self.actions) {
             out.extend_from_slice(&v.to_le_bytes());
         }
@@ -111,32 +190,75 @@ impl Clip {
     }
 
     pub fn decode(bytes: &[u8]) -> Result<Clip, ClipError> {
-        if bytes.len() < 8 || &bytes[..8] != CLIP_MAGIC {
-            return Err(ClipError::Magic);
-        }
-        let header = |k: usize| -> Result<usize, ClipError> {
-            let at = 8 + 4 * k;
-            let b = bytes.get(at..at + 4).ok_or(ClipError::Truncated {
-                have: bytes.len(),
-                want: 32,
-            })?;
+        let v2 = match bytes.get(..8) {
+            Some(m) if m == CLIP_MAGIC => false,
+            Some(m) if m == CLIP_MAGIC_V2 => true,
+            _ => return Err(ClipError::Magic),
+        };
+        let truncated = |want: usize| ClipError::Truncated {
+            have: bytes.len(),
+            want,
+        };
+        let word = |at: usize| -> Result<usize, ClipError> {
+            let b = bytes.get(at..at + 4).ok_or(truncated(at + 4))?;
             Ok(u32::from_le_bytes([b[0], b[1], b[2], b[3]]) as usize)
         };
         let (t, h, w, p, a, us) = (
-            header(0)?,
-            header(1)?,
-            header(2)?,
-            header(3)?,
-            header(4)?,
-            header(5)?,
+            word(8)?,
+            word(12)?,
+            word(16)?,
+            word(20)?,
+            word(24)?,
+            word(28)?,
         );
+        let mut at = 32;
+        let text = |at: &mut usize| -> Result<String, ClipError> {
+            let n = word(*at)?;
+            if n > 4096 {
+                return Err(ClipError::Shape(format!("a name of {n} bytes")));
+            }
+            let b = bytes
+                .get(*at + 4..*at + 4 + n)
+                .ok_or(truncated(*at + 4 + n))?;
+            *at += 4 + n;
+            String::from_utf8(b.to_vec())
+                .map_err(|_| ClipError::Shape("a name that is not UTF-8".into()))
+        };
+        let (mut interface, mut views) = (String::new(), Vec::new());
+        if v2 {
+            interface = text(&mut at)?;
+            let n = word(at)?;
+            at += 4;
+            if n > MAX_VIEWS {
+                return Err(ClipError::Shape(format!("{n} views (at most {MAX_VIEWS})")));
+            }
+            for _ in 0..n {
+                let name = text(&mut at)?;
+                let (vw, vh) = (word(at)?, word(at + 4)?);
+                at += 8;
+                views.push(ClipView {
+                    name,
+                    width: vw as u32,
+                    height: vh as u32,
+                    rgb: Vec::new(),
+                });
+            }
+        }
         let rgb_len = t * h * w * 3;
-        let want = 32 + rgb_len + 4 * t * (p + a);
+        let view_len: usize = views
+            .iter()
+            .map(|v| t * (v.width * v.height * 3) as usize)
+            .sum();
+        let want = at + rgb_len + view_len + 4 * t * (p + a);
         if bytes.len() != want {
-            return Err(ClipError::Truncated {
-                have: bytes.len(),
-                want,
-            });
+            return Err(truncated(want));
+        }
+        let rgb = bytes[at..at + rgb_len].to_vec();
+        at += rgb_len;
+        for v in &mut views {
+            let n = t * (v.width * v.height * 3) as usize;
+            v.rgb = bytes[at..at + n].to_vec();
+            at += n;
         }
         let floats = |from: usize, n: usize| -> Vec<f32> {
             bytes[from..from + 4 * n]
@@ -150,9 +272,11 @@ impl Clip {
             interval_s: (us as f64 / 1e6) as f32,
             proprio_dims: p as u32,
             action_dims: a as u32,
-            rgb: bytes[32..32 + rgb_len].to_vec(),
-            proprio: floats(32 + rgb_len, t * p),
-            actions: floats(32 + rgb_len + 4 * t * p, t * a),
+            rgb,
+            proprio: floats(at, t * p),
+            actions: floats(at + 4 * t * p, t * a),
+            interface,
+            views,
         };
         clip.validate()?;
         Ok(clip)
@@ -173,6 +297,8 @@ mod tests {
             rgb: (0..t * 18).map(|i| i as u8).collect(),
             proprio: (0..t * PROPRIO_DIMS).map(|i| i as f32 * 0.5).collect(),
             actions: (0..t * ACTION_DIMS).map(|i| -(i as f32)).collect(),
+            interface: String::new(),
+            views: Vec::new(),
         }
     }
 
@@ -182,6 +308,35 @@ mod tests {
         assert_eq!(c.len(), 5);
         let bytes = c.encode();
         assert_eq!(Clip::decode(&bytes).unwrap(), c);
+    }
+
+    #[test]
+    fn a_clip_at_an_interface_round_trips_with_its_views() {
+        let mut c = clip(4);
+        c.interface = "space=ee_delta,cameras=image:scene@3x2+wrist_image:wrist@2x2".into();
+        c.views.push(ClipView {
+            name: "wrist_image".into(),
+            width: 2,
+            height: 2,
+            rgb: (0..4 * 12).map(|i| (i * 3) as u8).collect(),
+        });
+        let bytes = c.encode();
+        assert_eq!(&bytes[..8], CLIP_MAGIC_V2);
+        assert_eq!(Clip::decode(&bytes).unwrap(), c);
+        assert_eq!(c.views[0].frame(1), &c.views[0].rgb[12..24]);
+        assert!(matches!(
+            Clip::decode(&bytes[..bytes.len() - 1]),
+            Err(ClipError::Truncated { .. })
+        ));
+        c.views[0].rgb.pop();
+        assert!(
+            c.validate()
+                .unwrap_err()
+                .to_string()
+                .contains("view 'wrist_image'")
+        );
+        // A clip at the original interface is written as before.
+        assert_eq!(&clip(2).encode()[..8], CLIP_MAGIC);
     }
 
     #[test]

@@ -368,6 +368,68 @@ impl Interface {
 
     /// The keys [`Interface::from_args`] reads.
     pub const ARGS: &[&str] = &["space", "cameras", "state", "depth", "horizon"];
+
+    /// The interface as policy-spec arguments (`space=ee_delta,cameras=image:scene@224x224+…,
+    /// state=ee_pos+holding`), what [`Interface::parse_args`] reads back; empty for the
+    /// original interface at any size.
+    pub fn to_args(&self) -> String {
+        if *self == Interface::default() {
+            return String::new();
+        }
+        let camera = |c: &CameraRequest| {
+            let size = if c.width == 0 {
+                String::new()
+            } else {
+                format!("@{}x{}", c.width, c.height)
+            };
+            format!("{}:{}{size}", c.name, c.source.name())
+        };
+        let mut out = vec![
+            format!("space={}", self.action),
+            format!(
+                "cameras={}",
+                self.cameras
+                    .iter()
+                    .map(camera)
+                    .collect::<Vec<_>>()
+                    .join("+")
+            ),
+            format!(
+                "state={}",
+                self.state
+                    .iter()
+                    .map(|p| p.name())
+                    .collect::<Vec<_>>()
+                    .join("+")
+            ),
+        ];
+        let depth: Vec<&str> = self
+            .cameras
+            .iter()
+            .filter(|c| c.depth)
+            .map(|c| c.name.as_str())
+            .collect();
+        if !depth.is_empty() {
+            out.push(format!("depth={}", depth.join("+")));
+        }
+        if let Some(h) = self.execute {
+            out.push(format!("horizon={h}"));
+        }
+        out.join(",")
+    }
+
+    /// [`Interface::to_args`]'s text back (empty: the original interface).
+    pub fn parse_args(text: &str) -> Result<Interface, String> {
+        let args = text
+            .split(',')
+            .filter(|a| !a.is_empty())
+            .map(|a| {
+                a.split_once('=')
+                    .ok_or_else(|| format!("interface argument '{a}' is not key=value"))
+            })
+            .collect::<Result<Vec<_>, _>>()?;
+        Ok(Interface::from_args(&args)?.unwrap_or_default())
+    }
 }
 
 /// `name:source@WxH`, `name:source@W`, `name:source` or `name` (the scene camera).
@@ -431,6 +493,11 @@ mod tests {
         assert_eq!(i.state_dims(None), Ok(8));
         assert_eq!(i.execute, Some(4));
         assert!(!i.is_legacy() && Interface::legacy(64).is_legacy());
+        assert_eq!(Interface::parse_args(&i.to_args()), Ok(i.clone()));
+        assert_eq!(Interface::default().to_args(), "");
+        assert_eq!(Interface::parse_args(""), Ok(Interface::default()));
+        let sized = Interface::legacy(64);
+        assert_eq!(Interface::parse_args(&sized.to_args()), Ok(sized));
         assert!(
             Interface::from_args(&[("space", "joint_velocity")])
                 .unwrap_err()

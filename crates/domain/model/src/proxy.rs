@@ -357,10 +357,14 @@ pub struct ProxyResult {
     /// serialised: a report's results are the same for the same batch (the trainer logs it).
     #[serde(skip)]
     pub seconds: f64,
-    /// Per prediction, the imagined keyframes' RGB bytes (`image_size`², frame index first),
-    /// before the job runner stores them and names them in `imagined_keyframes`.
+    /// Per prediction, the imagined keyframes' RGB bytes (of the first camera, at
+    /// `imagined_frame_size`; frame index first), before the job runner stores them and names
+    /// them in `imagined_keyframes`.
     #[serde(skip)]
     pub imagined_frames: Vec<Vec<(u64, Vec<u8>)>>,
+    /// Width and height of `imagined_frames`.
+    #[serde(skip)]
+    pub imagined_frame_size: (u32, u32),
 }
 
 /// Source names of the ranking's success cells.

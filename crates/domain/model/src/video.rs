@@ -46,6 +46,16 @@ pub struct VideoModelConfig {
     pub checkpoint_every: usize,
     /// Intra-op threads of libtorch on a CPU.
     pub threads: usize,
+    /// The side of the square frames the model works at (a multiple of 8): every camera of the
+    /// clips is resized to it (area averaging) and its predictions back to the camera's size,
+    /// composited over the camera's real start frame. 0: the first camera's size, which must
+    /// then be square.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub image_size: u32,
+}
+
+fn is_zero(v: &u32) -> bool {
+    *v == 0
 }
 
 impl Default for VideoModelConfig {
@@ -66,6 +76,7 @@ impl Default for VideoModelConfig {
             seed: 0,
             checkpoint_every: 100,
             threads: 1,
+            image_size: 0,
         }
     }
 }
@@ -76,6 +87,12 @@ impl VideoModelConfig {
             return Err(format!(
                 "depth {}, action_embed {}, blocks {}: all must be at least 1",
                 self.depth, self.action_embed, self.blocks
+            ));
+        }
+        if !self.image_size.is_multiple_of(8) {
+            return Err(format!(
+                "image_size {}: a multiple of 8 (three stride-2 stages), or 0 for the clips' size",
+                self.image_size
             ));
         }
         if self.horizon == 0 || self.batch == 0 {

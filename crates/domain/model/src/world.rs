@@ -14,19 +14,41 @@ pub struct WorldStart {
     pub task_id: String,
     pub seed: u64,
     pub instruction: String,
-    /// Frame size the proxy works at; every frame the model answers must have it.
+    /// The interface of the policy whose episode is imagined: its cameras (the first is `rgb`,
+    /// the others `views`, in order; a camera of size 0 is at `width`×`height`), its state
+    /// parts (`state`) and its action space (what `step` is given). The original interface
+    /// (`Interface::default()`) for clips of the task camera.
+    pub interface: Interface,
+    /// The first camera's frame size; every frame of it the model answers must have it.
     pub width: u32,
     pub height: u32,
-    /// The real first frame: `height · width · 3` RGB bytes, row-major, top row first.
+    /// The first camera's real first frame: `height · width · 3` RGB bytes, row-major, top row
+    /// first.
     pub rgb: Vec<u8>,
-    /// The real first state (the clip's proprioception: tool x, y, z, holding).
+    /// The real first frames of the interface's cameras after the first, in its order.
+    pub views: Vec<crate::interface::NamedImage>,
+    /// The real first state: the interface's state vector (the original: tool x, y, z, holding).
     pub state: Vec<f32>,
 }
 
-/// One imagined step: the frame after an action and, when the model predicts it, the state.
+impl WorldStart {
+    /// The `(width, height)` of camera `i` of the interface (0: the first camera's size).
+    pub fn camera_size(&self, i: usize) -> (u32, u32) {
+        match self.interface.cameras.get(i) {
+            Some(c) if c.width != 0 => (c.width, c.height),
+            _ => (self.width, self.height),
+        }
+    }
+}
+
+/// One imagined step: the frame of each camera after an action and, when the model predicts
+/// it, the state.
 #[derive(Debug, Clone, PartialEq)]
 pub struct WorldFrame {
+    /// The first camera's frame.
     pub rgb: Vec<u8>,
+    /// The frames of the cameras after the first, in the interface's order.
+    pub views: Vec<Vec<u8>>,
     pub state: Option<Vec<f32>>,
 }
 

@@ -39,11 +39,12 @@ class WorldModelError(Exception):
 
 
 class _Episode:
-    __slots__ = ("model", "name", "lock")
+    __slots__ = ("model", "name", "views", "lock")
 
-    def __init__(self, model: Any, name: str):
+    def __init__(self, model: Any, name: str, views: list):
         self.model = model
         self.name = name
+        self.views = views  # the names of the cameras after the first
         self.lock = threading.Lock()
 
 
@@ -89,7 +90,8 @@ def to_states(raw: Any) -> Optional[np.ndarray]:
 
 
 def split_answer(raw: Any) -> Tuple[np.ndarray, Optional[np.ndarray]]:
-    """`step`'s answer: frames, a tuple (frames, states), or a dict {"frames", "states"}."""
+    """`step`'s answer: frames, a tuple (frames, states), or a dict {"frames", "states"} (see
+    `split_views` for the other cameras' frames)."""
     if isinstance(raw, dict):
         if "frames" not in raw:
             raise WorldModelError(f"the model returned a dict without 'frames' (keys: {sorted(raw)})")
@@ -101,6 +103,28 @@ def split_answer(raw: Any) -> Tuple[np.ndarray, Optional[np.ndarray]]:
             )
         return to_frames(raw[0]), to_states(raw[1])
     return to_frames(raw), None
+
+
+def split_views(raw: Any, names: list) -> list:
+    """The frames of the cameras after the first in `step`'s answer: its dict's "views", a dict
+    {camera name: uint8 [K, H, W, 3]} (or a list in the interface's order); one array per name."""
+    if not names:
+        return []
+    views = raw.get("views") if isinstance(raw, dict) else None
+    if views is None:
+        raise WorldModelError(
+            f"the interface has cameras {names} after the first: answer "
+            '{"frames": ..., "states": ..., "views": {name: frames}}'
+        )
+    if isinstance(views, dict):
+        missing = [n for n in names if n not in views]
+        if missing:
+            raise WorldModelError(f"the model returned no frames of camera(s) {missing} (views: {sorted(views)})")
+        return [to_frames(views[n]) for n in names]
+    views = list(views)
+    if len(views) != len(names):
+        raise WorldModelError(f"the model returned {len(views)} views for cameras {names}")
+    return [to_frames(v) for v in views]
 
 
 def _call_reset(reset: Callable, frame: np.ndarray, state: np.ndarray, instruction: str, **extra) -> None:
@@ -202,6 +226,14 @@ class WorldModelServicer(pb_grpc.WorldModelServicer):
         except BadRequest as e:
             context.abort(grpc.StatusCode.INVALID_ARGUMENT, str(e))
         state = np.array(request.state, dtype=np.float32)
+        try:
+            views = {
+                img.name or f"view {i}": _frame(img.name or f"view {i}", img.width, img.height, img.rgb)
+                for i, img in enumerate(request.views)
+            }
+        except BadRequest as e:
+            context.abort(grpc.StatusCode.INVALID_ARGUMENT, str(e))
+        interface = request.interface if request.HasField("interface") else None
         error = None
         try:
             model = self._factory()
@@ -210,6 +242,7 @@ class WorldModelServicer(pb_grpc.WorldModelServicer):
                 _call_reset(
                     reset, frames[-1].copy(), state, request.instruction,
                     task_id=request.task_id, seed=request.seed, frames=frames.copy(),
+                    views=views, interface=interface,
                 )
             if not callable(getattr(model, "step", None)):
                 raise TypeError(f"{type(model).__name__} has no step(actions) method")
@@ -221,7 +254,7 @@ class WorldModelServicer(pb_grpc.WorldModelServicer):
                 f"cannot start a world model for episode {request.episode_id!r}: {error}",
             )
         with self._lock:
-            self._episodes[request.episode_id] = _Episode(model, request.frames[-1].name)
+            self._episodes[request.episode_id] = _Episode(model, request.frames[-1].name, list(views))
             self._episodes.move_to_end(request.episode_id)
             while len(self._episodes) > self._max_episodes:
                 self._episodes.popitem(last=False)
@@ -261,7 +294,9 @@ class WorldModelServicer(pb_grpc.WorldModelServicer):
         error = None
         with ep.lock:
             try:
-                frames, states = split_answer(ep.model.step(actions))
+                raw = ep.model.step(actions)
+                frames, states = split_answer(raw)
+                views = split_views(raw, ep.views)
             except WorldModelError as e:
                 error = str(e)
             except Exception as e:  # noqa: BLE001 - the model failed on these actions
@@ -275,6 +310,10 @@ class WorldModelServicer(pb_grpc.WorldModelServicer):
         if states is not None:
             answer.states.extend(states.ravel().tolist())
             answer.state_dims = states.shape[1]
+        for k in range(len(frames)):
+            for name, v in zip(ep.views, views):
+                if k < len(v):
+                    answer.views.add(name=name, width=v.shape[2], height=v.shape[1], rgb=v[k].tobytes())
         return answer
 
     def End(self, request, context):
@@ -304,12 +343,16 @@ def serve_world_model(
     factory:     a zero-argument callable making one fresh model per imagined episode, at `Reset`
                  (the model's class, or e.g. `lambda: MyModel(shared_network)` to share weights).
                  The model has `reset(frame, state, instruction)` — frame uint8 [H, W, 3], the
-                 real first frame; state float32 [S]; also given `task_id=`, `seed=` and
-                 `frames=` (uint8 [T, H, W, 3], every frame the client sent) when its signature
-                 names them — and `step(actions)` — float32 [K, D] — returning uint8 frames
-                 [K, H, W, 3] at the reset's size, or `(frames, states)` with states [K, S], or
-                 `{"frames": ..., "states": ...}` (numpy arrays or torch tensors). Episodes run
-                 concurrently on several threads; one episode's calls are sequential.
+                 real first frame; state float32 [S]; also given `task_id=`, `seed=`,
+                 `frames=` (uint8 [T, H, W, 3], every frame the client sent), `views=` ({camera
+                 name: uint8 [H, W, 3]}, the first frames of the interface's cameras after the
+                 first) and `interface=` (the `PolicyInterface` message, None for the original)
+                 when its signature names them — and `step(actions)` — float32 [K, D] —
+                 returning uint8 frames [K, H, W, 3] at the reset's size, or `(frames, states)`
+                 with states [K, S], or `{"frames": ..., "states": ..., "views": {camera name:
+                 uint8 [K, h, w, 3]}}` ("views" required when the interface has more than one
+                 camera; numpy arrays or torch tensors). Episodes run concurrently on several
+                 threads; one episode's calls are sequential.
     name, description: what `Health` declares (reports show the name with the server's address).
     width, height: the frame size the model takes (0: any); action_dims: floats per action it
                  takes (0: any). Requests that differ are refused with INVALID_ARGUMENT.

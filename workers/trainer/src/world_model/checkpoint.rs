@@ -53,6 +53,20 @@ pub(super) fn data_hash(clips: &[Clip]) -> u64 {
         for v in c.proprio.iter().chain(&c.actions) {
             mix(&mut h, u64::from(v.to_bits()));
         }
+        // A clip at a policy's interface: its interface and its other cameras too.
+        if !c.interface.is_empty() || !c.views.is_empty() {
+            for b in c.interface.bytes() {
+                mix(&mut h, u64::from(b));
+            }
+            for v in &c.views {
+                mix(&mut h, (u64::from(v.width) << 32) | u64::from(v.height));
+                for w in v.rgb.chunks(8) {
+                    let mut b = [0u8; 8];
+                    b[..w.len()].copy_from_slice(w);
+                    mix(&mut h, u64::from_le_bytes(b));
+                }
+            }
+        }
     }
     h
 }

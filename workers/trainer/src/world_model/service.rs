@@ -87,8 +87,13 @@ impl WorldModelService for Rssm<'_> {
 }
 
 /// One imagined frame as the service answers it: the image `[1, 3, H, W]` in [0, 1] as RGB
-/// bytes (clamped, rounded), the state `[1, P]` with holding (its last value) rounded to 0 or 1.
-pub(crate) fn world_frame(image: &Tensor, state: &Tensor) -> Result<WorldFrame, tch::TchError> {
+/// bytes (clamped, rounded), the state `[1, P]`, with holding (its last value, when
+/// `holding_last`) rounded to 0 or 1.
+pub(crate) fn world_frame(
+    image: &Tensor,
+    state: &Tensor,
+    holding_last: bool,
+) -> Result<WorldFrame, tch::TchError> {
     let pixels = (image.clamp(0.0, 1.0) * 255.0)
         .round()
         .to_kind(Kind::Uint8)
@@ -97,11 +102,12 @@ pub(crate) fn world_frame(image: &Tensor, state: &Tensor) -> Result<WorldFrame, 
         .to_device(Device::Cpu);
     let rgb = Vec::<u8>::try_from(pixels.flatten(0, -1))?;
     let mut state = Vec::<f32>::try_from(state.to_device(Device::Cpu).flatten(0, -1))?;
-    if let Some(holding) = state.last_mut() {
+    if let Some(holding) = state.last_mut().filter(|_| holding_last) {
         *holding = if *holding >= 0.5 { 1.0 } else { 0.0 };
     }
     Ok(WorldFrame {
         rgb,
+        views: Vec::new(),
         state: Some(state),
     })
 }
@@ -123,7 +129,7 @@ impl ImaginedEpisode for Episode<'_> {
                 self.h = m.step_h(&self.h, &self.z, &a);
                 self.z = m.mode(&m.prior(&self.h));
                 let (img, prop) = m.decode(&Tensor::cat(&[&self.h, &self.z], -1));
-                world_frame(&(img + 0.5), &prop.narrow(1, 0, PROPRIO_DIMS as i64))
+                world_frame(&(img + 0.5), &prop.narrow(1, 0, PROPRIO_DIMS as i64), true)
             })
             .map_err(|e| WorldError::BadAnswer(format!("libtorch: {e}")))?;
             out.push(frame);

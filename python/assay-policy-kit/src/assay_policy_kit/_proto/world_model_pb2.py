@@ -25,7 +25,7 @@ _sym_db = _symbol_database.Default()
 from . import policy_pb2 as assay_dot_v1_dot_policy__pb2
 
 
-DESCRIPTOR = _descriptor_pool.Default().AddSerializedFile(b'\n\x1a\x61ssay/v1/world_model.proto\x12\x08\x61ssay.v1\x1a\x15\x61ssay/v1/policy.proto\"\x19\n\x17WorldModelHealthRequest\"\xb7\x01\n\x18WorldModelHealthResponse\x12\x0c\n\x04name\x18\x01 \x01(\t\x12\x13\n\x0b\x64\x65scription\x18\x02 \x01(\t\x12\r\n\x05width\x18\x03 \x01(\r\x12\x0e\n\x06height\x18\x04 \x01(\r\x12\x13\n\x0b\x61\x63tion_dims\x18\x05 \x01(\r\x12\x15\n\rlive_episodes\x18\x06 \x01(\r\x12-\n\ninterfaces\x18\x07 \x03(\x0b\x32\x19.assay.v1.PolicyInterface\"\x90\x01\n\x16WorldModelResetRequest\x12\x12\n\nepisode_id\x18\x01 \x01(\t\x12\x0f\n\x07task_id\x18\x02 \x01(\t\x12\x0c\n\x04seed\x18\x03 \x01(\x04\x12\x13\n\x0binstruction\x18\x04 \x01(\t\x12\x1f\n\x06\x66rames\x18\x05 \x03(\x0b\x32\x0f.assay.v1.Image\x12\r\n\x05state\x18\x06 \x03(\x02\"\x19\n\x17WorldModelResetResponse\"Q\n\x15WorldModelStepRequest\x12\x12\n\nepisode_id\x18\x01 \x01(\t\x12\x0f\n\x07\x61\x63tions\x18\x02 \x03(\x02\x12\x13\n\x0b\x61\x63tion_dims\x18\x03 \x01(\r\"]\n\x16WorldModelStepResponse\x12\x1f\n\x06\x66rames\x18\x01 \x03(\x0b\x32\x0f.assay.v1.Image\x12\x0e\n\x06states\x18\x02 \x03(\x02\x12\x12\n\nstate_dims\x18\x03 \x01(\r\"*\n\x14WorldModelEndRequest\x12\x12\n\nepisode_id\x18\x01 \x01(\t\"\x17\n\x15WorldModelEndResponse2\xbe\x02\n\nWorldModel\x12O\n\x06Health\x12!.assay.v1.WorldModelHealthRequest\x1a\".assay.v1.WorldModelHealthResponse\x12L\n\x05Reset\x12 .assay.v1.WorldModelResetRequest\x1a!.assay.v1.WorldModelResetResponse\x12I\n\x04Step\x12\x1f.assay.v1.WorldModelStepRequest\x1a .assay.v1.WorldModelStepResponse\x12\x46\n\x03\x45nd\x12\x1e.assay.v1.WorldModelEndRequest\x1a\x1f.assay.v1.WorldModelEndResponseb\x06proto3')
+DESCRIPTOR = _descriptor_pool.Default().AddSerializedFile(b'\n\x1a\x61ssay/v1/world_model.proto\x12\x08\x61ssay.v1\x1a\x15\x61ssay/v1/policy.proto\"\x19\n\x17WorldModelHealthRequest\"\xb7\x01\n\x18WorldModelHealthResponse\x12\x0c\n\x04name\x18\x01 \x01(\t\x12\x13\n\x0b\x64\x65scription\x18\x02 \x01(\t\x12\r\n\x05width\x18\x03 \x01(\r\x12\x0e\n\x06height\x18\x04 \x01(\r\x12\x13\n\x0b\x61\x63tion_dims\x18\x05 \x01(\r\x12\x15\n\rlive_episodes\x18\x06 \x01(\r\x12-\n\ninterfaces\x18\x07 \x03(\x0b\x32\x19.assay.v1.PolicyInterface\"\xde\x01\n\x16WorldModelResetRequest\x12\x12\n\nepisode_id\x18\x01 \x01(\t\x12\x0f\n\x07task_id\x18\x02 \x01(\t\x12\x0c\n\x04seed\x18\x03 \x01(\x04\x12\x13\n\x0binstruction\x18\x04 \x01(\t\x12\x1f\n\x06\x66rames\x18\x05 \x03(\x0b\x32\x0f.assay.v1.Image\x12\r\n\x05state\x18\x06 \x03(\x02\x12,\n\tinterface\x18\x07 \x01(\x0b\x32\x19.assay.v1.PolicyInterface\x12\x1e\n\x05views\x18\x08 \x03(\x0b\x32\x0f.assay.v1.Image\"\x19\n\x17WorldModelResetResponse\"Q\n\x15WorldModelStepRequest\x12\x12\n\nepisode_id\x18\x01 \x01(\t\x12\x0f\n\x07\x61\x63tions\x18\x02 \x03(\x02\x12\x13\n\x0b\x61\x63tion_dims\x18\x03 \x01(\r\"}\n\x16WorldModelStepResponse\x12\x1f\n\x06\x66rames\x18\x01 \x03(\x0b\x32\x0f.assay.v1.Image\x12\x0e\n\x06states\x18\x02 \x03(\x02\x12\x12\n\nstate_dims\x18\x03 \x01(\r\x12\x1e\n\x05views\x18\x04 \x03(\x0b\x32\x0f.assay.v1.Image\"*\n\x14WorldModelEndRequest\x12\x12\n\nepisode_id\x18\x01 \x01(\t\"\x17\n\x15WorldModelEndResponse2\xbe\x02\n\nWorldModel\x12O\n\x06Health\x12!.assay.v1.WorldModelHealthRequest\x1a\".assay.v1.WorldModelHealthResponse\x12L\n\x05Reset\x12 .assay.v1.WorldModelResetRequest\x1a!.assay.v1.WorldModelResetResponse\x12I\n\x04Step\x12\x1f.assay.v1.WorldModelStepRequest\x1a .assay.v1.WorldModelStepResponse\x12\x46\n\x03\x45nd\x12\x1e.assay.v1.WorldModelEndRequest\x1a\x1f.assay.v1.WorldModelEndResponseb\x06proto3')
 
 _globals = globals()
 _builder.BuildMessageAndEnumDescriptors(DESCRIPTOR, _globals)
@@ -37,17 +37,17 @@ if not _descriptor._USE_C_DESCRIPTORS:
   _globals['_WORLDMODELHEALTHRESPONSE']._serialized_start=91
   _globals['_WORLDMODELHEALTHRESPONSE']._serialized_end=274
   _globals['_WORLDMODELRESETREQUEST']._serialized_start=277
-  _globals['_WORLDMODELRESETREQUEST']._serialized_end=421
-  _globals['_WORLDMODELRESETRESPONSE']._serialized_start=423
-  _globals['_WORLDMODELRESETRESPONSE']._serialized_end=448
-  _globals['_WORLDMODELSTEPREQUEST']._serialized_start=450
-  _globals['_WORLDMODELSTEPREQUEST']._serialized_end=531
-  _globals['_WORLDMODELSTEPRESPONSE']._serialized_start=533
-  _globals['_WORLDMODELSTEPRESPONSE']._serialized_end=626
-  _globals['_WORLDMODELENDREQUEST']._serialized_start=628
-  _globals['_WORLDMODELENDREQUEST']._serialized_end=670
-  _globals['_WORLDMODELENDRESPONSE']._serialized_start=672
-  _globals['_WORLDMODELENDRESPONSE']._serialized_end=695
-  _globals['_WORLDMODEL']._serialized_start=698
-  _globals['_WORLDMODEL']._serialized_end=1016
+  _globals['_WORLDMODELRESETREQUEST']._serialized_end=499
+  _globals['_WORLDMODELRESETRESPONSE']._serialized_start=501
+  _globals['_WORLDMODELRESETRESPONSE']._serialized_end=526
+  _globals['_WORLDMODELSTEPREQUEST']._serialized_start=528
+  _globals['_WORLDMODELSTEPREQUEST']._serialized_end=609
+  _globals['_WORLDMODELSTEPRESPONSE']._serialized_start=611
+  _globals['_WORLDMODELSTEPRESPONSE']._serialized_end=736
+  _globals['_WORLDMODELENDREQUEST']._serialized_start=738
+  _globals['_WORLDMODELENDREQUEST']._serialized_end=780
+  _globals['_WORLDMODELENDRESPONSE']._serialized_start=782
+  _globals['_WORLDMODELENDRESPONSE']._serialized_end=805
+  _globals['_WORLDMODEL']._serialized_start=808
+  _globals['_WORLDMODEL']._serialized_end=1126
 # @@protoc_insertion_point(module_scope)
