@@ -2,18 +2,24 @@
 """Assay's action-conditioned video world model written again in PyTorch, served by the kit.
 
     python torch_video_model.py serve [--port 0] [--size 64] [--seed 0] [--checkpoint FILE]
+        [--train-steps N] [--declare SPACE/STATE/CAMERAS]
     python torch_video_model.py bench [--steps 40] [--threads 1] [--size 64]
 
 The network is the one of `workers/trainer/src/video_model.rs` with its default settings, layer
-for layer (`VideoNet`): a convolutional encoder of the real start frame and state, actions through
-Fourier features and an MLP, FiLM-conditioned residual blocks stepping a latent map once per
-action, and a decoder with skips from the start frame's encoder that composites its RGB over the
-start through a mask. It is here for two reasons:
+for layer (`VideoNet`): a convolutional encoder of the real start frames and state, actions
+through Fourier features and an MLP, FiLM-conditioned residual blocks stepping a latent map once
+per action, and a decoder with skips from the start frames' encoder that composites each
+camera's RGB over its start through a mask. It is here for two reasons:
 
 - `serve`: a PyTorch world model behind `assay.v1.WorldModel` (the kit's `serve_world_model`),
   as a lab would serve its own: one network shared by all episodes, one `Session` per imagined
-  episode. Its weights are a fresh initialisation from `--seed` unless `--checkpoint` names a
-  `torch.save`d state dict; `--train-steps N` first trains it N steps on synthetic clips.
+  episode. It imagines at one policy interface, declared in Health: by default the original one
+  (the scene camera at `--size`, tool position + holding, tool velocities); `--declare` another,
+  e.g. `ee_delta/ee_pos+ee_quat+gripper/image:scene@224x224+wrist_image:wrist@224x224` — every
+  camera is resized to `--size` inside the model and its prediction composited back at the
+  camera's size. Its weights are a fresh initialisation from `--seed` unless `--checkpoint`
+  names a `torch.save`d state dict; `--train-steps N` first trains it N steps on synthetic clips
+  (the original interface only).
 - `bench`: training throughput of the same architecture on PyTorch's CPU path, for
   `scripts/bench-video-model-torch`, which runs Assay's libtorch (tch) fit beside it: the same
   batch (8 windows of 8 steps of 64x64 frames), the same loss, Adam with the gradient clipped at a
@@ -96,30 +102,32 @@ def heat(uv, m):
 
 
 class VideoNet(nn.Module):
-    """Assay's video world model (see the module's doc)."""
+    """Assay's video world model (see the module's doc), for `cams` cameras stacked on the
+    channels, `state_dims` floats of state and `action_dims` floats of action (the original
+    interface: 1, 4, 4)."""
 
-    def __init__(self, s=Settings):
+    def __init__(self, s=Settings, cams=1, state_dims=STATE_DIMS, action_dims=ACTION_DIMS):
         super().__init__()
         d, e = s.depth, s.action_embed
         c = 4 * d
-        self.c, self.fourier = c, s.fourier
-        features = ACTION_DIMS * (1 + 2 * s.fourier)
-        self.enc = nn.ModuleList([Conv(3, d), Conv(d, 2 * d), Conv(2 * d, c)])
-        self.state_in = nn.Linear(STATE_DIMS, c)
+        self.c, self.fourier, self.cams, self.state_dims = c, s.fourier, cams, state_dims
+        features = action_dims * (1 + 2 * s.fourier)
+        self.enc = nn.ModuleList([Conv(3 * cams, d), Conv(d, 2 * d), Conv(2 * d, c)])
+        self.state_in = nn.Linear(state_dims, c)
         self.act_in = nn.Linear(features, e)
         self.act_out = nn.Linear(e, e)
         self.blocks = nn.ModuleList([Block(c, e) for _ in range(s.blocks)])
         self.head_hidden = nn.Linear(c + e, 64)
-        self.head_out = nn.Linear(64, STATE_DIMS)
-        self.proj = nn.Linear(STATE_DIMS, 2)
-        guides, hm = STATE_DIMS + 2, 2
+        self.head_out = nn.Linear(64, state_dims)
+        self.proj = nn.Linear(state_dims, 2)
+        guides, hm = state_dims + 2, 2
         self.dec = nn.ModuleList([
             Conv(c + guides + hm, 2 * d, transposed=True),
             Conv(4 * d + hm, d, transposed=True),
-            Conv(2 * d + hm, 4, transposed=True, norm=False),
+            Conv(2 * d + hm, 4 * cams, transposed=True, norm=False),
         ])
         # Normalisation of actions and states (from training clips; identity until fitted).
-        for name, n in (("act", ACTION_DIMS), ("state", STATE_DIMS)):
+        for name, n in (("act", action_dims), ("state", state_dims)):
             self.register_buffer(f"{name}_mean", torch.zeros(n))
             self.register_buffer(f"{name}_dev", torch.ones(n))
 
@@ -151,7 +159,7 @@ class VideoNet(nn.Module):
         r["state"] = r["state"] + self.head_out(F.silu(self.head_hidden(torch.cat([pooled, emb], -1))))
         b, m = z.shape[0], z.shape[2]
         guides = torch.cat([
-            r["state"].view(b, -1, 1, 1).expand(b, STATE_DIMS, m, m),
+            r["state"].view(b, -1, 1, 1).expand(b, self.state_dims, m, m),
             r["coords"].expand(b, 2, m, m),
         ], 1)
         uv = self.proj(r["state"])
@@ -164,9 +172,10 @@ class VideoNet(nn.Module):
         u = self.dec[0](with_heat(z, guides))
         u = self.dec[1](with_heat(u, s2))
         out = self.dec[2](with_heat(u, s1))
-        alpha = torch.sigmoid(out[:, 3:4])
-        frame = alpha * torch.sigmoid(out[:, :3]) + (1 - alpha) * r["first"]
-        r["z"] = z
+        k = self.cams
+        rgb, alpha = torch.sigmoid(out[:, :3 * k]), torch.sigmoid(out[:, 3 * k:4 * k])
+        frame = alpha.repeat_interleave(3, 1) * rgb + (1 - alpha.repeat_interleave(3, 1)) * r["first"]
+        r["z"], r["rgb"], r["alpha"] = z, rgb, alpha
         return frame, r["state"]
 
     def loss(self, batch, s=Settings):
@@ -278,32 +287,67 @@ def train(net, clips, steps, seed=0, s=Settings):
 # Serving.
 
 
+def _resized(x, size):
+    """[N, C, h, w] at size x size: area-averaged down, bilinear up (as Assay's model)."""
+    h, w = x.shape[-2:]
+    if (h, w) == (size, size):
+        return x
+    if h >= size and w >= size:
+        return F.adaptive_avg_pool2d(x, size)
+    return F.interpolate(x, size=(size, size), mode="bilinear", align_corners=False)
+
+
 class Session:
-    """One imagined episode in a shared `VideoNet` (the kit makes one per Reset)."""
+    """One imagined episode in a shared `VideoNet` (the kit makes one per Reset): every camera
+    resized to the model's size on the way in, its prediction composited back at the camera's
+    own size over the camera's real start frame."""
 
-    def __init__(self, net, size):
-        self.net, self.size, self.rollout = net, size, None
+    def __init__(self, net, size, cameras, holding_last=True):
+        self.net, self.size, self.cameras, self.holding_last = net, size, cameras, holding_last
+        self.rollout = None
 
-    def reset(self, frame, state, instruction):
-        if frame.shape != (self.size, self.size, 3):
-            raise ValueError(f"a {frame.shape[1]}x{frame.shape[0]} frame: this model works at {self.size}x{self.size}")
-        if state.shape != (STATE_DIMS,):
-            raise ValueError(f"a state of {state.shape[0]} floats: this model takes {STATE_DIMS}")
+    def reset(self, frame, state, instruction, views=None):
+        given = [frame] + [views[name] for name, _, _ in self.cameras[1:] if name in (views or {})]
+        if [f.shape[:2] for f in given] != [(h, w) for _, w, h in self.cameras]:
+            want = ", ".join(f"{n} {w}x{h}" for n, w, h in self.cameras)
+            got = ", ".join(f"{f.shape[1]}x{f.shape[0]}" for f in given)
+            raise ValueError(f"frames of {got}: this model imagines {want}")
+        if state.shape != (self.net.state_dims,):
+            raise ValueError(f"a state of {state.shape[0]} floats: this model takes {self.net.state_dims}")
         with torch.no_grad():
-            first = torch.from_numpy(frame).permute(2, 0, 1)[None].float() / 255.0
-            self.rollout = self.net.start(first, torch.from_numpy(state)[None])
+            self.full = [torch.from_numpy(f.copy()).permute(2, 0, 1)[None].float() / 255.0 for f in given]
+            first = torch.cat([_resized(f, self.size) for f in self.full], 1)
+            self.rollout = self.net.start(first, torch.from_numpy(state.copy())[None])
 
     def step(self, actions):
-        frames, states = [], []
+        frames, states = [[] for _ in self.cameras], []
         with torch.no_grad():
             emb = self.net.embed(torch.from_numpy(actions))
             for k in range(len(actions)):
-                frame, sn = self.net.step(self.rollout, emb[k:k + 1])
-                frames.append((frame[0].permute(1, 2, 0).clamp(0, 1) * 255).round().byte())
+                small, sn = self.net.step(self.rollout, emb[k:k + 1])
+                for c, start in enumerate(self.full):
+                    h, w = start.shape[-2:]
+                    if (h, w) == (self.size, self.size):
+                        picture = small[:, 3 * c:3 * c + 3]
+                    else:
+                        size = dict(size=(h, w), mode="bilinear", align_corners=False)
+                        rgb = F.interpolate(self.rollout["rgb"][:, 3 * c:3 * c + 3], **size)
+                        alpha = F.interpolate(self.rollout["alpha"][:, c:c + 1], **size)
+                        picture = alpha * rgb + (1 - alpha) * start
+                    frames[c].append((picture[0].permute(1, 2, 0).clamp(0, 1) * 255).round().byte())
                 raw = sn[0] * self.net.state_dev + self.net.state_mean
-                raw[-1] = float(raw[-1] >= 0.5)  # holding, 0 or 1
+                if self.holding_last:
+                    raw[-1] = float(raw[-1] >= 0.5)  # holding, 0 or 1
                 states.append(raw)
-        return torch.stack(frames), torch.stack(states)
+        return {
+            "frames": torch.stack(frames[0]),
+            "states": torch.stack(states),
+            "views": {name: torch.stack(f) for (name, _, _), f in zip(self.cameras[1:], frames[1:])},
+        }
+
+
+STATE_PART_DIMS = {"ee_pos": 3, "ee_quat": 4, "ee_yaw": 1, "gripper": 1, "holding": 1}
+ACTION_SPACE_DIMS = {"tool_velocity": 4, "ee_delta": 7, "ee_pose": 8}
 
 
 def _kit():
@@ -319,7 +363,16 @@ def serve(args):
 
     torch.manual_seed(args.seed)
     torch.set_num_threads(args.threads)
-    net = VideoNet().eval()
+    interface = _declared(args.declare, args.size, Camera, Interface)
+    cameras = [(c.name, c.width, c.height) for c in interface.cameras]
+    unknown = [p for p in interface.state if p not in STATE_PART_DIMS]
+    if unknown or interface.action_space not in ACTION_SPACE_DIMS or any(w == 0 for _, w, _ in cameras):
+        raise SystemExit(f"--declare: sized cameras, state parts of {sorted(STATE_PART_DIMS)} and an "
+                         f"action space of {sorted(ACTION_SPACE_DIMS)}")
+    dims = sum(STATE_PART_DIMS[p] for p in interface.state), ACTION_SPACE_DIMS[interface.action_space]
+    if args.train_steps and (len(cameras), *dims) != (1, STATE_DIMS, ACTION_DIMS):
+        raise SystemExit("--train-steps: the synthetic clips are of the original interface only")
+    net = VideoNet(cams=len(cameras), state_dims=dims[0], action_dims=dims[1]).eval()
     how = f"fresh weights from seed {args.seed}"
     if args.checkpoint:
         net.load_state_dict(torch.load(args.checkpoint, map_location="cpu"))
@@ -330,15 +383,16 @@ def serve(args):
         net.eval()
         how += f", then {args.train_steps} steps on synthetic clips (loss {loss:.4f}, {wall:.0f} s)"
     params = sum(p.numel() for p in net.parameters())
+    holding_last = interface.state[-1:] == ["holding"]
     serve_world_model_forever(
-        lambda: Session(net, args.size), host=args.host, port=args.port,
+        lambda: Session(net, args.size, cameras, holding_last), host=args.host, port=args.port,
         name=f"torch-video-model ({params} parameters, torch {torch.__version__})",
         description=f"Assay's video world model in PyTorch; {how}",
-        width=args.size, height=args.size, action_dims=ACTION_DIMS,
-        # The interface it imagines in: the scene camera at its frame size, tool position +
-        # holding, tool velocities. `--declare` declares another instead (to see Assay refuse
-        # the policies that do not fit it), as `space/state/camera[+camera...]`.
-        interfaces=[_declared(args.declare, args.size, Camera, Interface)],
+        width=cameras[0][1], height=cameras[0][2], action_dims=dims[1],
+        # The interface it imagines in: by default the scene camera at its frame size, tool
+        # position + holding, tool velocities; `--declare` another, as
+        # `space/state/camera[+camera...]`.
+        interfaces=[interface],
     )
 
 
