@@ -49,10 +49,9 @@
 //! [`VideoModel::from_checkpoint`] loads one to imagine in without the clips.
 
 use std::collections::HashMap;
-use std::io::Cursor;
 use std::time::Instant;
 
-use assay_model::clip::{ACTION_DIMS, Clip, PROPRIO_DIMS};
+use assay_model::clip::Clip;
 use assay_model::interface::Interface;
 use assay_model::video::{PixelLoss, VideoFit, VideoModelConfig};
 use assay_model::world::{ImaginedEpisode, WorldError, WorldFrame, WorldModelService, WorldStart};
@@ -62,9 +61,14 @@ use tch::{Device, Kind, Tensor};
 use crate::adam::Adam;
 use crate::world_model::{Conv, Init, Linear, WorldModelError, device_name, lookup, world_frame};
 
-const MAGIC: &[u8; 8] = b"ASYVM001";
-const HEADER_LEN: usize = 8 + 8 * 4;
 const GRAD_CLIP: f64 = 100.0;
+
+mod checkpoint;
+mod layout;
+
+use checkpoint::{config_hash, read_checkpoint, read_layout, write_checkpoint};
+pub(crate) use layout::resized;
+use layout::{Layout, resized_to};
 
 /// A trained (or training) video world model.
 pub struct VideoModel {
@@ -72,135 +76,6 @@ pub struct VideoModel {
     size: i64,
     layout: Layout,
     device: Device,
-}
-
-/// What the training clips hold, which every clip (and every imagined start) must match: their
-/// interface, each camera's size (the first is the clip's frames, the others its views), and the
-/// state and action widths.
-#[derive(Debug, Clone, PartialEq)]
-struct Layout {
-    interface: String,
-    cameras: Vec<(String, u32, u32)>,
-    state: usize,
-    action: usize,
-}
-
-impl Layout {
-    fn of(clip: &Clip) -> Self {
-        let first = Interface::parse_args(&clip.interface)
-            .ok()
-            .and_then(|i| i.cameras.first().map(|c| c.name.clone()))
-            .unwrap_or_else(|| "image".into());
-        let mut cameras = vec![(first, clip.width, clip.height)];
-        cameras.extend(
-            clip.views
-                .iter()
-                .map(|v| (v.name.clone(), v.width, v.height)),
-        );
-        Self {
-            interface: clip.interface.clone(),
-            cameras,
-            state: clip.proprio_dims as usize,
-            action: clip.action_dims as usize,
-        }
-    }
-
-    /// The original interface's: one camera of `size`, 4 state and 4 action floats.
-    fn original(size: u32) -> Self {
-        Self {
-            interface: String::new(),
-            cameras: vec![("image".into(), size, size)],
-            state: PROPRIO_DIMS,
-            action: ACTION_DIMS,
-        }
-    }
-
-    /// The interface, each camera at its size.
-    fn interface(&self) -> Interface {
-        let mut i = Interface::parse_args(&self.interface).unwrap_or_default();
-        for (c, (_, w, h)) in i.cameras.iter_mut().zip(&self.cameras) {
-            (c.width, c.height) = (*w, *h);
-        }
-        i
-    }
-
-    /// Whether the state's last float is "holding" (rounded to 0 or 1 in imagined states).
-    fn holding_last(&self) -> bool {
-        Interface::parse_args(&self.interface)
-            .map(|i| i.state.last() == Some(&assay_model::interface::StatePart::Holding))
-            .unwrap_or(true)
-    }
-
-    fn describe(&self) -> String {
-        let cams: Vec<String> = self
-            .cameras
-            .iter()
-            .map(|(n, w, h)| format!("'{n}' {w}x{h}"))
-            .collect();
-        format!(
-            "camera(s) {}, {} state and {} action floats{}",
-            cams.join(", "),
-            self.state,
-            self.action,
-            if self.interface.is_empty() {
-                String::new()
-            } else {
-                format!(" (interface {})", self.interface)
-            }
-        )
-    }
-
-    /// Why `clip` cannot be trained with clips of this layout.
-    fn check(&self, clip: &Clip) -> Result<(), String> {
-        clip.validate().map_err(|e| e.to_string())?;
-        let other = Layout::of(clip);
-        if other != *self {
-            return Err(format!(
-                "a clip of {}: the other clips have {}",
-                other.describe(),
-                self.describe()
-            ));
-        }
-        if !clip.interface.is_empty() {
-            Interface::parse_args(&clip.interface)
-                .map_err(|e| format!("interface '{}': {e}", clip.interface))?;
-        }
-        if !clip
-            .proprio
-            .iter()
-            .chain(&clip.actions)
-            .all(|v| v.is_finite())
-        {
-            return Err("non-finite proprioception or action values".into());
-        }
-        Ok(())
-    }
-
-    /// Channels of all cameras stacked.
-    fn channels(&self) -> i64 {
-        3 * self.cameras.len() as i64
-    }
-}
-
-/// `x` (`[N, C, h, w]`) at `s`×`s`: area-averaged down, bilinear up, as it is when it fits.
-pub(crate) fn resized(x: &Tensor, s: i64) -> Tensor {
-    let (h, w) = (x.size()[2], x.size()[3]);
-    if (h, w) == (s, s) {
-        x.shallow_clone()
-    } else if h >= s && w >= s {
-        x.adaptive_avg_pool2d([s, s])
-    } else {
-        x.upsample_bilinear2d([s, s], false, None, None)
-    }
-}
-
-/// `x` (`[N, C, s, s]`) at `h`×`w`, bilinear; as it is when it fits.
-fn resized_to(x: &Tensor, h: i64, w: i64) -> Tensor {
-    if (x.size()[2], x.size()[3]) == (h, w) {
-        x.shallow_clone()
-    } else {
-        x.upsample_bilinear2d([h, w], false, None, None)
-    }
 }
 
 /// Receives `(step, checkpoint bytes)`; an `Err` stops the fit.
@@ -983,162 +858,6 @@ struct Rollout {
     skips: [Tensor; 2],
     z: Tensor,
     state: Tensor,
-}
-
-// ---------------------------------------------------------------------------------------------
-// Checkpoints.
-
-fn config_hash(cfg: &VideoModelConfig) -> u64 {
-    let mut c = cfg.clone();
-    c.checkpoint_every = 0;
-    c.threads = 0;
-    let json = serde_json::to_vec(&c).unwrap_or_default();
-    let mut h = 0xcbf2_9ce4_8422_2325u64;
-    for b in b"video-model v1 ".iter().chain(&json) {
-        h ^= u64::from(*b);
-        h = h.wrapping_mul(0x0000_0100_0000_01b3);
-    }
-    h
-}
-
-fn write_checkpoint(
-    net: &Net,
-    adam: &Adam,
-    layout: &Layout,
-    size: i64,
-    config_hash: u64,
-    data_hash: u64,
-    step: u64,
-) -> Result<Vec<u8>, WorldModelError> {
-    let mut out = Vec::from(&MAGIC[..]);
-    for v in [config_hash, data_hash, step, adam.t] {
-        out.extend_from_slice(&v.to_le_bytes());
-    }
-    let mut named: Vec<(String, &Tensor)> = Vec::new();
-    for (prefix, tensors) in [("p", &net.params), ("m", &adam.m), ("v", &adam.v)] {
-        for (name, t) in net.names.iter().zip(tensors.iter()) {
-            named.push((format!("{prefix}/{name}"), t));
-        }
-    }
-    for (name, t) in net.stats.named() {
-        named.push((name.to_string(), t));
-    }
-    // What the clips held, so that a checkpoint loads without them.
-    let dims = Tensor::from_slice(&[layout.state as i64, layout.action as i64, size]);
-    let sizes: Vec<i64> = layout
-        .cameras
-        .iter()
-        .flat_map(|(_, w, h)| [i64::from(*w), i64::from(*h)])
-        .collect();
-    let sizes = Tensor::from_slice(&sizes);
-    let names: Vec<&str> = layout.cameras.iter().map(|(n, _, _)| n.as_str()).collect();
-    // Texts lead with '#': libtorch cannot save an empty tensor to a stream.
-    let names = Tensor::from_slice(format!("#{}", names.join("\n")).as_bytes());
-    let interface = Tensor::from_slice(format!("#{}", layout.interface).as_bytes());
-    for (name, t) in [
-        ("layout/dims", &dims),
-        ("layout/camera_sizes", &sizes),
-        ("layout/camera_names", &names),
-        ("layout/interface", &interface),
-    ] {
-        named.push((name.to_string(), t));
-    }
-    let mut blob = Vec::new();
-    Tensor::save_multi_to_stream(&named, &mut blob)?;
-    out.extend_from_slice(&blob);
-    Ok(out)
-}
-
-/// The clips' layout and the model's frame size a checkpoint holds; one written before layouts
-/// were saved is of the original interface at `size`.
-fn read_layout(
-    saved: &HashMap<String, Tensor>,
-    size: u32,
-) -> Result<(Layout, u32), WorldModelError> {
-    let Some(dims) = saved.get("layout/dims") else {
-        return Ok((Layout::original(size), size));
-    };
-    let bad = |what: &str| WorldModelError::CheckpointRefused(format!("its layout: {what}"));
-    let ints = |t: &Tensor| {
-        Vec::<i64>::try_from(t.to_device(Device::Cpu)).map_err(|_| bad("not integers"))
-    };
-    let text = |k: &str| -> Result<String, WorldModelError> {
-        let t = saved.get(k).ok_or_else(|| bad(k))?;
-        let bytes = Vec::<u8>::try_from(t.to_device(Device::Cpu)).map_err(|_| bad(k))?;
-        let text = String::from_utf8(bytes).map_err(|_| bad(k))?;
-        text.strip_prefix('#')
-            .map(str::to_owned)
-            .ok_or_else(|| bad(k))
-    };
-    let dims = ints(dims)?;
-    let sizes = ints(
-        saved
-            .get("layout/camera_sizes")
-            .ok_or_else(|| bad("camera sizes"))?,
-    )?;
-    let names = text("layout/camera_names")?;
-    let names: Vec<&str> = names.split('\n').collect();
-    if dims.len() != 3
-        || sizes.len() != 2 * names.len()
-        || dims.iter().chain(&sizes).any(|v| *v < 1)
-    {
-        return Err(bad("inconsistent sizes"));
-    }
-    let layout = Layout {
-        interface: text("layout/interface")?,
-        cameras: names
-            .iter()
-            .zip(sizes.chunks(2))
-            .map(|(n, s)| (n.to_string(), s[0] as u32, s[1] as u32))
-            .collect(),
-        state: dims[0] as usize,
-        action: dims[1] as usize,
-    };
-    Ok((layout, dims[2] as u32))
-}
-
-struct Saved {
-    config_hash: u64,
-    step: u64,
-    adam_t: u64,
-    tensors: HashMap<String, Tensor>,
-}
-
-/// `expect`: the config and data hashes the checkpoint must carry (a resumed fit).
-fn read_checkpoint(
-    bytes: &[u8],
-    expect: Option<(u64, u64)>,
-    device: Device,
-) -> Result<Saved, WorldModelError> {
-    let refuse = |s: &str| Err(WorldModelError::CheckpointRefused(s.to_string()));
-    if bytes.len() < HEADER_LEN || &bytes[..8] != MAGIC {
-        return refuse("not a video-model checkpoint (no ASYVM001 header)");
-    }
-    let word = |k: usize| {
-        let mut b = [0u8; 8];
-        b.copy_from_slice(&bytes[8 + 8 * k..16 + 8 * k]);
-        u64::from_le_bytes(b)
-    };
-    if let Some((config, data)) = expect {
-        if word(0) != config {
-            return refuse("it was written for another video-model config");
-        }
-        if word(1) != data {
-            return refuse("it was written for other training clips");
-        }
-    }
-    let tensors =
-        Tensor::load_multi_from_stream_with_device(Cursor::new(&bytes[HEADER_LEN..]), device)
-            .map_err(|e| WorldModelError::CheckpointRefused(format!("unreadable tensors: {e}")))?;
-    Ok(Saved {
-        config_hash: word(0),
-        step: word(2),
-        adam_t: word(3),
-        tensors: tensors
-            .into_iter()
-            .map(|(k, v)| (k.replace('|', "."), v))
-            .collect(),
-    })
 }
 
 // ---------------------------------------------------------------------------------------------
