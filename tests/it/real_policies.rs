@@ -492,24 +492,29 @@ fn a_lerobot_checkpoint_served_by_the_kit_runs_in_assay_at_its_own_interface() {
         "{}",
         String::from_utf8_lossy(&made.stderr)
     );
-    let mut cmd = Command::new(&py);
-    cmd.args(["-m", "assay_policy_kit", "lerobot", "--checkpoint"])
-        .arg(checkpoints.join("act"))
-        .args([
-            "--device",
-            "cpu",
-            "--state",
-            "ee_pos+ee_quat+gripper",
-            "--port",
-            "0",
-        ])
-        .env("PYTHONPATH", &kit)
-        .env("HF_HUB_OFFLINE", "1");
-    let served = serve_command(
-        cmd,
-        &dir.path().join("lerobot-serve.log"),
-        "python -m assay_policy_kit lerobot",
-    );
+    let serve = |protocol: &str| {
+        let mut cmd = Command::new(&py);
+        cmd.args(["-m", "assay_policy_kit", "lerobot", "--checkpoint"])
+            .arg(checkpoints.join("act"))
+            .args([
+                "--device",
+                "cpu",
+                "--state",
+                "ee_pos+ee_quat+gripper",
+                "--port",
+                "0",
+                "--serve",
+                protocol,
+            ])
+            .env("PYTHONPATH", &kit)
+            .env("HF_HUB_OFFLINE", "1");
+        serve_command(
+            cmd,
+            &dir.path().join(format!("lerobot-serve-{protocol}.log")),
+            "python -m assay_policy_kit lerobot",
+        )
+    };
+    let served = serve("grpc");
     // What the server says about itself, as `assay policy check` reads it.
     let check = Command::new(bin())
         .args(["policy", "check", &served.url])
@@ -528,14 +533,60 @@ fn a_lerobot_checkpoint_served_by_the_kit_runs_in_assay_at_its_own_interface() {
         assert!(text.contains(want), "{want} not in {text}");
     }
     let task = on_the_panda(dir.path(), "placement/put-block-in-bowl.yaml", |t| t);
-    let policy = format!("remote:url={},{STEPS}", served.url);
-    let report = eval(dir.path(), &[task], &[&policy], 2);
+    let grpc = format!("remote:url={},{STEPS}", served.url);
+    // The same checkpoint over openpi's protocol, which declares no interface: the spec gives
+    // the one the gRPC server declared.
+    let iface = &health["interface"];
+    let cameras: Vec<String> = iface["cameras"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|c| {
+            format!(
+                "{}:{}@{}x{}",
+                c["name"].as_str().unwrap(),
+                c["source"].as_str().unwrap(),
+                c["width"],
+                c["height"]
+            )
+        })
+        .collect();
+    let state: Vec<&str> = iface["state"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|p| p.as_str().unwrap())
+        .collect();
+    let openpi_served = serve("openpi");
+    let openpi = format!(
+        "openpi:url={},space={},cameras={},state={},{STEPS}",
+        openpi_served.url,
+        iface["action_space"].as_str().unwrap(),
+        cameras.join("+"),
+        state.join("+")
+    );
+    let report = eval(dir.path(), &[task], &[&grpc, &openpi], 2);
     let t = &report.results.tasks[0];
     assert!(t.failures.is_empty(), "{:#?}", t.failures);
-    assert_eq!(t.episodes.len(), 2);
+    assert_eq!(t.episodes.len(), 4);
     assert!(
         t.episodes.iter().all(|e| e.steps >= 1200),
         "{:?}",
         t.episodes
     );
+    // One checkpoint, one adapter, two protocols: the same episodes, row for row.
+    for seed in 0..2 {
+        let file = |policy: &str| {
+            let e = t
+                .episodes
+                .iter()
+                .find(|e| e.policy == policy && e.seed == seed)
+                .unwrap_or_else(|| panic!("no episode of {policy} on seed {seed}"));
+            columns(dir.path(), &e.artifact)
+        };
+        assert!(
+            file(&grpc) == file(&openpi),
+            "seed {seed}: the episodes differ"
+        );
+    }
 }
