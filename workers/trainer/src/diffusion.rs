@@ -285,15 +285,7 @@ fn check_clip(clip: &Clip, size: u32) -> Result<(), String> {
             clip.len()
         ));
     }
-    if !clip
-        .proprio
-        .iter()
-        .chain(&clip.actions)
-        .all(|v| v.is_finite())
-    {
-        return Err("non-finite proprioception or action values".into());
-    }
-    Ok(())
+    crate::world_model::finite_values(clip)
 }
 
 // ---------------------------------------------------------------------------------------------

@@ -31,10 +31,16 @@ pub fn start_of(clip: &Clip, episode: &EpisodeContext) -> WorldStart {
 /// interface for a clip of the task camera; one that cannot be read too: the clip's check
 /// refuses it first).
 pub fn clip_interface(clip: &Clip) -> Interface {
-    let mut i = Interface::parse_args(&clip.interface).unwrap_or_default();
     let mut sizes = vec![(clip.width, clip.height)];
     sizes.extend(clip.views.iter().map(|v| (v.width, v.height)));
-    for (c, (w, h)) in i.cameras.iter_mut().zip(sizes) {
+    sized_interface(&clip.interface, &sizes)
+}
+
+/// The interface of `args` (`Interface::to_args`; one that cannot be read: the original) with
+/// its cameras at `sizes`, in order.
+pub fn sized_interface(args: &str, sizes: &[(u32, u32)]) -> Interface {
+    let mut i = Interface::parse_args(args).unwrap_or_default();
+    for (c, &(w, h)) in i.cameras.iter_mut().zip(sizes) {
         (c.width, c.height) = (w, h);
     }
     i

@@ -399,6 +399,21 @@ fn check_clip(clip: &Clip, size: u32) -> Result<(), String> {
 /// What a world model (the RSSM, the video model) needs of a clip: frames of `size`×`size`,
 /// the clip interface's state and action widths, arrays that agree with the header, at least
 /// `min_frames` frames, finite values.
+/// Why `clip`'s proprioception (state) or actions cannot be trained on: a value that is not
+/// finite.
+pub(crate) fn finite_values(clip: &Clip) -> Result<(), String> {
+    if clip
+        .proprio
+        .iter()
+        .chain(&clip.actions)
+        .all(|v| v.is_finite())
+    {
+        Ok(())
+    } else {
+        Err("non-finite proprioception or action values".into())
+    }
+}
+
 pub(crate) fn check_clip_frames(clip: &Clip, size: u32, min_frames: usize) -> Result<(), String> {
     if clip.width != size || clip.height != size {
         return Err(format!(
@@ -419,15 +434,7 @@ pub(crate) fn check_clip_frames(clip: &Clip, size: u32, min_frames: usize) -> Re
             clip.len()
         ));
     }
-    let finite = clip
-        .proprio
-        .iter()
-        .chain(&clip.actions)
-        .all(|v| v.is_finite());
-    if !finite {
-        return Err("non-finite proprioception or action values".into());
-    }
-    Ok(())
+    finite_values(clip)
 }
 
 // ---------------------------------------------------------------------------------------------

@@ -48,11 +48,8 @@ impl Layout {
 
     /// The interface, each camera at its size.
     pub(super) fn interface(&self) -> Interface {
-        let mut i = Interface::parse_args(&self.interface).unwrap_or_default();
-        for (c, (_, w, h)) in i.cameras.iter_mut().zip(&self.cameras) {
-            (c.width, c.height) = (*w, *h);
-        }
-        i
+        let sizes: Vec<(u32, u32)> = self.cameras.iter().map(|(_, w, h)| (*w, *h)).collect();
+        crate::imagination::sized_interface(&self.interface, &sizes)
     }
 
     /// Whether the state's last float is "holding" (rounded to 0 or 1 in imagined states).
@@ -96,15 +93,7 @@ impl Layout {
             Interface::parse_args(&clip.interface)
                 .map_err(|e| format!("interface '{}': {e}", clip.interface))?;
         }
-        if !clip
-            .proprio
-            .iter()
-            .chain(&clip.actions)
-            .all(|v| v.is_finite())
-        {
-            return Err("non-finite proprioception or action values".into());
-        }
-        Ok(())
+        crate::world_model::finite_values(clip)
     }
 
     /// Channels of all cameras stacked.
