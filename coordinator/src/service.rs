@@ -582,6 +582,7 @@ async fn assign(
                 (None, None, None) => String::new(),
             },
             clip_size: l.clip_size,
+            clip_interface: l.clip_interface,
             render: l.render,
         };
         if tx.send(msg(Out::Assignment(a))).await.is_err() {

@@ -430,6 +430,101 @@ fn a_pytorch_world_model_served_by_the_kit_drives_the_ranking_at_its_declared_in
     assert_eq!(report.results.totals.episodes_completed, 20);
 }
 
+/// The interface of [`eval_ranks_policies_at_a_seven_d_two_camera_interface`]: a scene and a wrist
+/// camera at 32², the tool's position, orientation and gripper, 7-D end-effector deltas.
+const SEVEN_D: &str =
+    "space=ee_delta,cameras=image:scene@32+wrist:wrist@32,state=ee_pos+ee_quat+gripper";
+
+#[test]
+fn eval_ranks_policies_at_a_seven_d_two_camera_interface() {
+    use crate::common::torchscript::seven_d_torchscript;
+    use assay_model::policy::Interface;
+    let dir = tempfile::tempdir().unwrap();
+    // Two TorchScript policies at that interface: one reaches for the block, one stands still.
+    let policies = [("reach", 0.5), ("still", 0.0)].map(|(name, gain)| {
+        let module = seven_d_torchscript(dir.path(), name, gain);
+        format!(
+            "torchscript:path={},{SEVEN_D},max_steps=480",
+            module.display()
+        )
+    });
+    let proxy =
+        format!(r#"{{"judge_steps": 30, "video": {{"steps": 30}}, "interface": "{SEVEN_D}"}}"#);
+    let out_dir = dir.path().join("out");
+    let out = eval(
+        &out_dir,
+        &[
+            "--no-judge",
+            "--policy",
+            &policies[0],
+            "--policy",
+            &policies[1],
+            "--rank-train-policies",
+            TRAIN,
+            "--proxy",
+            &proxy,
+        ],
+    );
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
+    let report: Report =
+        serde_json::from_str(&std::fs::read_to_string(out_dir.join("report.json")).unwrap())
+            .unwrap();
+
+    // Every episode's clip, the oracles' included, is at the interface: the scene camera as
+    // its frames, the wrist camera as a view, 8 floats of state and 7 of action per frame.
+    let mut clips = 0;
+    for t in &report.results.tasks {
+        for e in &t.episodes {
+            let key = e.imagery.as_ref().and_then(|i| i.clip.clone()).unwrap();
+            let bytes = std::fs::read(out_dir.join("artifacts").join(&key)).unwrap();
+            let c = assay_model::clip::Clip::decode(&bytes).unwrap();
+            assert_eq!(
+                Interface::parse_args(&c.interface),
+                Interface::parse_args(SEVEN_D),
+                "{key}"
+            );
+            assert_eq!(
+                (c.width, c.height, c.proprio_dims, c.action_dims),
+                (32, 32, 8, 7)
+            );
+            assert_eq!(c.views.len(), 1);
+            assert_eq!((c.views[0].name.as_str(), c.views[0].width), ("wrist", 32));
+            // The oracle's tool moves: its end-effector deltas are not all zero.
+            if e.policy == "oracle" {
+                assert!(c.actions.chunks(7).any(|a| a[0].abs() + a[2].abs() > 1e-3));
+            }
+            clips += 1;
+        }
+    }
+    assert_eq!(clips, 2 * 2 * 6, "2 tasks × 2 seeds × 6 policies");
+
+    // The video model learned the oracles' clips at that interface, and each ranked policy
+    // acted inside it at its own interface.
+    let k = report.results.ranking.expect("a ranking section");
+    assert!(k.errors.is_empty(), "{:?}", k.errors);
+    assert_eq!(k.ranked_policies, policies);
+    assert_eq!(k.config.as_ref().unwrap().interface, SEVEN_D);
+    let g = &k.groups[0];
+    let video = g.video_model.as_ref().expect("the video model imagined");
+    assert_eq!(video.train_clips, 2 * 2 * 4, "the 4 oracles' episodes only");
+    assert_eq!(
+        g.predictions.len(),
+        2 * 2 * 2,
+        "2 tasks × 2 seeds × 2 ranked policies"
+    );
+    for p in &g.predictions {
+        assert!(p.imagined_frames >= 2, "{p:?}");
+    }
+    let test = g.action_test.as_ref().expect("the action test");
+    assert!(
+        test.true_actions_mse.is_finite() && test.shuffled_actions_mse.is_finite(),
+        "{test:?}"
+    );
+    let md = std::fs::read_to_string(out_dir.join("report.md")).unwrap();
+    assert!(md.contains(SEVEN_D), "the report names the interface");
+}
+
 #[test]
 fn ranking_settings_that_cannot_work_are_refused_with_the_reason() {
     let dir = tempfile::tempdir().unwrap();

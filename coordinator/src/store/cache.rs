@@ -31,6 +31,8 @@ pub(super) struct BatchInfo {
     pub judge_budget_usd: Option<f64>,
     /// The frame size of the clips its world models or policies learn from (None: no clips).
     pub clip_size: Option<i64>,
+    /// The policy interface of its clips (a ranking's `config.interface`; empty: the original).
+    pub clip_interface: String,
     /// Every episode is rendered.
     pub render: bool,
     /// It has work planned after its episodes (dynamics, ranking or generalization).
@@ -70,7 +72,8 @@ impl Cache {
                                  json_extract(generalization_json, '$.config.image_size')),
                         render,
                         dynamics_json IS NOT NULL OR ranking_json IS NOT NULL
-                          OR generalization_json IS NOT NULL
+                          OR generalization_json IS NOT NULL,
+                        COALESCE(json_extract(ranking_json, '$.config.interface'), '')
                  FROM batches WHERE id = ?1",
             )?
             .query_row([batch], |r| {
@@ -85,6 +88,7 @@ impl Cache {
                     clip_size: r.get(5)?,
                     render: r.get(6)?,
                     planned: r.get(7)?,
+                    clip_interface: r.get(8)?,
                 })
             })
             .optional()?

@@ -77,6 +77,11 @@ impl Store {
                 (Some(size), r) if r != role::JUDGE && r != role::TRAINER => size as u32,
                 _ => 0,
             };
+            let clip_interface = if clip_size > 0 {
+                batch.clip_interface.clone()
+            } else {
+                String::new()
+            };
             let judge = match (q.judge, input) {
                 (Some(judge), Some(episode_json)) => Some(JudgeLease {
                     judge,
@@ -107,6 +112,7 @@ impl Store {
                 judge,
                 trainer_job,
                 clip_size,
+                clip_interface,
                 render: batch.render || clip_size > 0,
                 render_input,
             });

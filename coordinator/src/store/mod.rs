@@ -130,6 +130,8 @@ pub struct Lease {
     pub trainer_job: Option<String>,
     /// For an episode of a batch that measures dynamics diversity: the clip's frame size.
     pub clip_size: u32,
+    /// With `clip_size`: the policy interface the clip is recorded at (empty: the original).
+    pub clip_interface: String,
     /// For an episode of a batch that renders: its pictures are wanted.
     pub render: bool,
     /// For an episode waiting for its pictures (role `render`): its outcome with its scenes.

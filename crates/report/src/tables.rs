@@ -639,6 +639,14 @@ pub fn ranking_compared(r: &RankingResults) -> Table {
         return table;
     };
     table.row(vec![
+        "policy interface (of the clips the world model learns and of the ranked policies)".into(),
+        Cell::from(if cfg.interface.is_empty() {
+            "the original: the task camera, tool position + holding, tool velocities".to_owned()
+        } else {
+            cfg.interface.clone()
+        }),
+    ]);
+    table.row(vec![
         "frame judge".into(),
         lines([
             format!(

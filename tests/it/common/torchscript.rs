@@ -81,3 +81,31 @@ pub fn scripted_torchscript(dir: &Path) -> PathBuf {
     module.save(&path).expect("save");
     path
 }
+
+/// A policy at a 7-D, two-camera interface (`image` [1, 6, H, W]: two cameras stacked, `state`
+/// [1, S ≥ 3] starting with the tool's position) traced and saved in `dir` as `name`.pt: end-
+/// effector deltas of `gain` × the way to a point over the block's nominal position, at most
+/// 3 cm a step, holding once within 5 mm; chunks of two. `gain` 0: it stands still.
+pub fn seven_d_torchscript(dir: &Path, name: &str, gain: f64) -> PathBuf {
+    let image = Tensor::rand([1, 6, 32, 32], (Kind::Float, Device::Cpu));
+    let state = Tensor::rand([1, 8], (Kind::Float, Device::Cpu));
+    let module = CModule::create_by_tracing("Policy", "forward", &[image, state], &mut |xs| {
+        let s = &xs[1];
+        let zero = s.narrow(1, 0, 1).zeros_like();
+        let target = Tensor::cat(&[&zero + 0.5, &zero + 0.1, &zero + 0.09], 1);
+        let error = target - s.narrow(1, 0, 3);
+        let delta = (&error * gain).clamp(-0.03, 0.03);
+        let near = error
+            .square()
+            .sum_dim_intlist([1i64].as_slice(), true, Kind::Float)
+            .sqrt()
+            .lt(0.005)
+            .to_kind(Kind::Float);
+        let action = Tensor::cat(&[&delta, &zero, &zero, &zero, &near], 1);
+        vec![Tensor::stack(&[&action, &action], 1)]
+    })
+    .expect("trace");
+    let path = dir.join(format!("{name}.pt"));
+    module.save(&path).expect("save");
+    path
+}

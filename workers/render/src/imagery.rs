@@ -2,7 +2,8 @@
 //! over the rollout (for task completion), a contact sheet of both, optionally a video, and a
 //! dynamics clip when the batch measures dynamics diversity.
 
-use assay_model::clip::{ACTION_DIMS, Clip, PROPRIO_DIMS};
+use assay_model::clip::{ACTION_DIMS, Clip, ClipView, PROPRIO_DIMS};
+use assay_model::episode::ClipCamera;
 use assay_spec::scene::{SceneSnapshot, scene_views};
 use assay_spec::spec::Camera;
 
@@ -188,6 +189,73 @@ pub fn render_clip(
         actions,
         interface: String::new(),
         views: Vec::new(),
+    };
+    clip.validate().map_err(|e| bad(e.to_string()))?;
+    Ok(clip)
+}
+
+/// A dynamics clip at a policy's interface (`interface`, `Interface::to_args`): `scenes` drawn
+/// from each of `cameras` as placed at that frame and at its own size, the first camera as the
+/// clip's frames and the others as its views, with the interface's state vector (`state`) and
+/// actions (`actions`) per frame and `interval_s` between frames.
+pub fn render_clip_at(
+    r: &mut Renderer,
+    scenes: &[SceneSnapshot],
+    cameras: &[ClipCamera],
+    interval_s: f32,
+    state: Vec<f32>,
+    actions: Vec<f32>,
+    interface: &str,
+) -> Result<Clip, RenderError> {
+    let bad = |reason: String| RenderError::Scene {
+        path: "clip".into(),
+        reason,
+    };
+    let t = scenes.len();
+    if cameras.is_empty() || cameras.iter().any(|c| c.frames.len() != t) {
+        return Err(bad(format!(
+            "a clip at an interface needs each camera placed at each of its {t} frames"
+        )));
+    }
+    let dims = |n: usize, what: &str| match n.checked_div(t) {
+        Some(d) if d * t == n && d > 0 => Ok(d as u32),
+        _ => Err(bad(format!("{n} {what} values for {t} frames"))),
+    };
+    let (state_dims, action_dims) = (dims(state.len(), "state")?, dims(actions.len(), "action")?);
+    let mut drawn = Vec::with_capacity(cameras.len());
+    for c in cameras {
+        let (w, h) = (c.frames[0].width, c.frames[0].height);
+        if w == 0 || h == 0 || w.max(h) > MAX_CLIP_SIZE {
+            return Err(bad(format!(
+                "camera '{}': frames of {w}x{h} pixels (1..={MAX_CLIP_SIZE})",
+                c.name
+            )));
+        }
+        let mut rgba = vec![0u8; (w * h * 4) as usize];
+        let mut rgb = Vec::with_capacity(t * (w * h * 3) as usize);
+        for (scene, camera) in scenes.iter().zip(&c.frames) {
+            r.render_rgba_into(scene, camera, &mut rgba)?;
+            rgb.extend(rgba.chunks_exact(4).flat_map(|p| [p[0], p[1], p[2]]));
+        }
+        drawn.push(ClipView {
+            name: c.name.clone(),
+            width: w,
+            height: h,
+            rgb,
+        });
+    }
+    let first = drawn.remove(0);
+    let clip = Clip {
+        height: first.height,
+        width: first.width,
+        interval_s,
+        proprio_dims: state_dims,
+        action_dims,
+        rgb: first.rgb,
+        proprio: state,
+        actions,
+        interface: interface.to_owned(),
+        views: drawn,
     };
     clip.validate().map_err(|e| bad(e.to_string()))?;
     Ok(clip)

@@ -149,3 +149,75 @@ fn a_clip_of_a_task_without_cameras_is_drawn_from_the_keyframe_camera() {
         "actions must match the frames"
     );
 }
+
+#[test]
+fn a_clip_at_a_policys_interface_draws_each_camera_where_it_was() {
+    use assay_model::policy::Interface;
+    let spec = task("placement/put-block-in-bowl.yaml");
+    let args = "space=ee_delta,cameras=image:scene@64+wrist:wrist@24,state=ee_pos+ee_quat+gripper";
+    let interface = Interface::parse_args(args).unwrap();
+    let options = SimOptions {
+        clip: true,
+        clip_interface: Some(interface.clone()),
+        ..Default::default()
+    };
+    let ep = assay_sim::simulate_with(&spec, 0, "oracle", options).unwrap();
+    let states = ep.clip.clone().unwrap();
+    let mut r = Renderer::new().expect("an adapter");
+    let bytes = assay_render::imagery::render_clip_at(
+        &mut r,
+        &states.scenes,
+        &states.cameras,
+        states.interval_s,
+        states.proprio.clone(),
+        states.actions.clone(),
+        &interface.to_args(),
+    )
+    .unwrap()
+    .encode();
+    let c = Clip::decode(&bytes).expect("the clip decodes");
+    assert_eq!(c.interface, interface.to_args());
+    assert_eq!(
+        (c.width, c.height, c.proprio_dims, c.action_dims),
+        (64, 64, 8, 7)
+    );
+    assert_eq!(c.len(), states.len());
+    assert_eq!(c.views.len(), 1);
+    let wrist = &c.views[0];
+    assert_eq!(
+        (wrist.name.as_str(), wrist.width, wrist.height),
+        ("wrist", 24, 24)
+    );
+
+    // The scene camera is the task's: its frames are the original clip's, pixel for pixel.
+    let original = clip(&mut r, &spec, &episode(&spec, 0));
+    assert_eq!(original.rgb, c.rgb);
+
+    // The wrist camera rides on the tool: its view changes as the tool moves to the block, and
+    // close above it (at the grasp) it is mostly the block's red. (Mounted 6 cm below the tool's
+    // centre, it is inside a block the suction tool holds: all red while it carries one.)
+    let holding_from = (0..c.len())
+        .find(|&t| c.actions[t * 7 + 6] == 1.0)
+        .expect("a grasp");
+    let changed = (1..holding_from)
+        .filter(|&t| wrist.frame(t) != wrist.frame(t - 1))
+        .count();
+    assert!(
+        changed + 1 >= holding_from && holding_from > 5,
+        "{changed} of the {holding_from} wrist frames before the grasp changed"
+    );
+    let red = |rgb: &[u8]| {
+        rgb.chunks(3)
+            .filter(|p| p[0] > 120 && p[1] < 80 && p[2] < 80)
+            .count() as f64
+            / (rgb.len() / 3) as f64
+    };
+    let above_block = (0..=holding_from + 1)
+        .map(|t| red(wrist.frame(t)))
+        .fold(0.0, f64::max);
+    let at_start = red(wrist.frame(0));
+    assert!(
+        above_block > 0.4 && at_start < 0.05,
+        "red share of the wrist view: {at_start:.2} at the start, {above_block:.2} above the block"
+    );
+}

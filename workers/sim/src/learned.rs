@@ -9,12 +9,13 @@
 use std::collections::VecDeque;
 
 use assay_model::policy::{
-    ActionSpace, CONTROL_STRIDE_STEPS, CameraSource, Interface, NamedImage, Policy, PolicyError,
-    PolicyObservation, StatePart,
+    ActionSpace, CONTROL_STRIDE_STEPS, Interface, NamedImage, Policy, PolicyError,
+    PolicyObservation,
 };
-use assay_spec::spec::{Camera, TaskSpec};
+use assay_spec::spec::TaskSpec;
 use rapier3d::prelude::*;
 
+use crate::at_interface::{PolicyCamera, ToolState, policy_cameras, state_vector};
 use crate::controller::{Controller, Event, Note};
 use crate::scene::{GRIPPER_HALF_EXTENTS, SimScene};
 use crate::{Observer, SimError};
@@ -25,16 +26,7 @@ pub const MAX_CHUNK: usize = 256;
 pub const MAX_SPEED: f32 = 2.0;
 /// Commanded turns of the tool are clipped to this (rad/s).
 pub const MAX_TURN_RATE: f32 = 2.0 * std::f32::consts::PI;
-/// The wrist camera: this far below the tool's centre (m), looking straight down.
-pub const WRIST_CAMERA_DROP: f32 = 0.06;
-
-/// A policy camera, resolved against the task.
-struct PolicyCamera {
-    name: String,
-    camera: Camera,
-    wrist: bool,
-    depth: bool,
-}
+pub use crate::at_interface::{WRIST_CAMERA_DROP, tool_quaternion};
 
 pub struct Learned<'p> {
     policy: &'p mut dyn Policy,
@@ -67,12 +59,6 @@ fn policy_error(step: u64, e: PolicyError) -> SimError {
     }
 }
 
-/// The orientation of the tool pointing down, turned by `yaw` about z: x, y, z, w.
-pub fn tool_quaternion(yaw: f32) -> [f32; 4] {
-    let q = Rotation::from_rotation_z(yaw) * Rotation::from_rotation_x(std::f32::consts::PI);
-    [q.x, q.y, q.z, q.w]
-}
-
 impl<'p> Learned<'p> {
     /// A driver for `policy` (named `name` in errors) on `spec`, its cameras without a size at
     /// `frame` pixels. An interface the task cannot fill (a camera it does not have, joints
@@ -97,46 +83,7 @@ impl<'p> Learned<'p> {
             .action
             .dims(arm.as_deref())
             .map_err(|e| refuse(format!("action_space: {e}")))?;
-        let task_cameras = assay_spec::scene::task_cameras(&spec.cameras);
-        let standard = assay_spec::scene::scene_views();
-        let mut cameras = Vec::new();
-        for c in &interface.cameras {
-            let (w, h) = if c.width == 0 {
-                (frame, frame)
-            } else {
-                (c.width, c.height)
-            };
-            let (base, wrist) = match &c.source {
-                CameraSource::Scene => (task_cameras[0].clone(), false),
-                CameraSource::Wrist => (
-                    Camera {
-                        name: format!("{}-wrist", c.name),
-                        eye: [0.0; 3],
-                        target: [0.0; 3],
-                        fovy_deg: 70.0,
-                        width: w,
-                        height: h,
-                    },
-                    true,
-                ),
-                // A camera of the task, else one of Assay's standard views (a policy calibrated
-                // for the top view finds it on every task); `check_task` made sure it is one.
-                CameraSource::Named(n) => {
-                    let found = task_cameras.iter().chain(&standard).find(|t| &t.name == n);
-                    (found.expect("checked by check_task").clone(), false)
-                }
-            };
-            cameras.push(PolicyCamera {
-                name: c.name.clone(),
-                camera: Camera {
-                    width: w,
-                    height: h,
-                    ..base
-                },
-                wrist,
-                depth: c.depth,
-            });
-        }
+        let cameras = policy_cameras(&interface, spec, frame);
         Ok(Learned {
             policy,
             name: name.to_owned(),
@@ -299,28 +246,20 @@ impl<'p> Learned<'p> {
 
     /// The state vector the interface asks for.
     fn state(&self, scene: &SimScene, ctl: &Controller) -> Vec<f32> {
-        let tool = scene.gripper_position();
-        let yaw = scene.tool_yaw();
-        let holding = f32::from(u8::from(ctl.held.is_some()));
-        let mut state = Vec::new();
-        for part in &self.interface.state {
-            match part {
-                StatePart::EePos => state.extend([tool.x, tool.y, tool.z]),
-                StatePart::EeQuat => state.extend(tool_quaternion(yaw)),
-                StatePart::EeYaw => state.push(yaw),
-                StatePart::Gripper => state.push(match &scene.fingers {
-                    Some(f) => (f.opening(&scene.world) / f.max_opening).clamp(0.0, 1.0),
-                    None => 1.0 - holding,
-                }),
-                StatePart::Joints => {
-                    if let Some(arm) = &scene.arm {
-                        state.extend(arm.joints().iter().map(|&q| q as f32));
-                    }
-                }
-                StatePart::Holding => state.push(holding),
-            }
-        }
-        state
+        let tool = ToolState {
+            position: scene.gripper_position().into(),
+            yaw: scene.tool_yaw(),
+            holding: ctl.held.is_some(),
+            opening: scene
+                .fingers
+                .as_ref()
+                .map(|f| f.opening(&scene.world) / f.max_opening),
+            joints: scene
+                .arm
+                .as_ref()
+                .map_or_else(Vec::new, |a| a.joints().to_vec()),
+        };
+        state_vector(&self.interface.state, &tool)
     }
 
     fn ask(
@@ -336,18 +275,7 @@ impl<'p> Learned<'p> {
         let heading = scene.tool_yaw();
         let mut images = Vec::with_capacity(self.cameras.len());
         for c in &self.cameras {
-            let mut camera = c.camera.clone();
-            if c.wrist {
-                // Straight down from below the tool, the image's top towards the tool's heading
-                // (a tilt of 1 mrad gives the view its turn).
-                let eye = [tool.x, tool.y, tool.z - WRIST_CAMERA_DROP];
-                camera.eye = eye.map(f64::from);
-                camera.target = [
-                    f64::from(eye[0] + 1e-3 * heading.cos()),
-                    f64::from(eye[1] + 1e-3 * heading.sin()),
-                    f64::from(eye[2] - 1.0),
-                ];
-            }
+            let camera = c.placed(tool.into(), heading);
             let camera_error = |e: String| {
                 SimError::internal(format!("policy camera '{}' at step {step}: {e}", c.name))
             };

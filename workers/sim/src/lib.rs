@@ -6,6 +6,7 @@
 //! caller's thread (a shard thread), never on an async executor.
 
 pub mod arm;
+pub mod at_interface;
 pub mod controller;
 pub mod learned;
 pub mod perception;
@@ -18,9 +19,10 @@ pub mod tabletop;
 
 use std::collections::{BTreeMap, HashMap};
 
-use assay_model::clip::{ACTION_DIMS, CLIP_STRIDE_STEPS, PROPRIO_DIMS};
+use assay_model::clip::CLIP_STRIDE_STEPS;
+use assay_model::episode::ClipCamera;
 use assay_model::episode::{EpisodeOutcome, LabelSource};
-use assay_model::policy::{OBSERVE_EVERY_STEPS, Policy, PolicySpec, Sense};
+use assay_model::policy::{Interface, OBSERVE_EVERY_STEPS, Policy, PolicySpec, Sense};
 use assay_spec::scene::{Observation, SceneSnapshot};
 use assay_spec::spec::{Camera, TaskSpec};
 
@@ -102,6 +104,10 @@ pub struct Episode {
 /// What a dynamics clip is drawn from (`assay_model::clip::Clip` less its pixels): the recorded
 /// state every [`CLIP_STRIDE_STEPS`] physics steps from the first policy step to the end of the
 /// episode (the final settle included; a last stretch shorter than the stride has no frame).
+///
+/// At the original interface (`interface` `None`) the state is the tool position and holding
+/// and the action the tool velocity; at a policy's interface they are that interface's state
+/// parts and action space ([`at_interface`]), and `cameras` are its cameras at every frame.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ClipStates {
     /// Seconds between frames: [`CLIP_STRIDE_STEPS`] · dt.
@@ -110,13 +116,20 @@ pub struct ClipStates {
     pub steps: Vec<u64>,
     /// The scene at each frame, tool included.
     pub scenes: Vec<SceneSnapshot>,
-    /// Per frame, [`PROPRIO_DIMS`] values: the recorded tool position x, y, z (`ee`) and 1 while
-    /// it holds an object (`grasped >= 0`), else 0.
+    /// Per frame, the state vector. At the original interface,
+    /// [`PROPRIO_DIMS`](assay_model::clip::PROPRIO_DIMS) values: the recorded tool position x,
+    /// y, z (`ee`) and 1 while it holds an object (`grasped >= 0`), else 0.
     pub proprio: Vec<f32>,
-    /// Per frame, [`ACTION_DIMS`] values: the tool's mean commanded velocity until the next frame
-    /// (m/s: the change of the recorded `ee_cmd` target over the interval) and the hold command
-    /// (the next frame's holding). All zeros for the last frame.
+    /// Per frame, the action to the next frame; all zeros for the last frame. At the original
+    /// interface, [`ACTION_DIMS`](assay_model::clip::ACTION_DIMS) values: the tool's mean
+    /// commanded velocity until the next frame (m/s: the change of the recorded `ee_cmd` target
+    /// over the interval) and the hold command (the next frame's holding).
     pub actions: Vec<f32>,
+    /// The policy interface of `proprio`, `actions` and `cameras`; `None`: the original one.
+    pub interface: Option<Interface>,
+    /// The interface's cameras in its order, each placed at every frame (empty for the original
+    /// interface, which the render role draws from the task's camera).
+    pub cameras: Vec<ClipCamera>,
 }
 
 impl ClipStates {
@@ -138,6 +151,9 @@ pub struct SimOptions<'a> {
     pub video_frames: usize,
     /// Keep the states of a dynamics clip ([`Episode::clip`]).
     pub clip: bool,
+    /// The policy interface the clip is recorded at, its cameras sized (`None`: the original
+    /// one). An interface the task cannot fill refuses the episode before it runs.
+    pub clip_interface: Option<Interface>,
     /// Renders the frames of a policy that sees (`oracle:sense=camera`: every
     /// [`OBSERVE_EVERY_STEPS`] physics steps while it acts, and once before); such a policy
     /// fails without one.
@@ -266,6 +282,7 @@ pub fn simulate_with(
     let SimOptions {
         video_frames,
         clip,
+        clip_interface,
         mut observer,
         policy: policy_object,
         frame_size,
@@ -287,6 +304,9 @@ pub fn simulate_with(
             "policy '{policy}' sees through a camera: it needs a worker with the render role (--roles sim,render)"
         )));
     }
+    if let Some(interface) = clip_interface.as_ref().filter(|_| clip) {
+        at_interface::check_task(interface, spec).map_err(SimError::Policy)?;
+    }
     let mut learned = learned_policy(policy, &parsed, spec, policy_object, frame_size)?;
     let camera = assay_model::policy::observation_camera();
     let mut run = Rollout::new(spec, seed, noise, sense, learned.is_some())?;
@@ -299,6 +319,7 @@ pub fn simulate_with(
         ),
         video_frames,
         clip,
+        clip_interface,
     };
     run.settle_in();
     let acted = run.act(&request, learned.as_mut(), &mut observer, &camera)?;
@@ -342,6 +363,7 @@ struct Request<'p> {
     max_steps: u64,
     video_frames: usize,
     clip: bool,
+    clip_interface: Option<Interface>,
 }
 
 /// How the policy's part of an episode went.
@@ -669,9 +691,16 @@ impl<'s> Rollout<'s> {
                 .map(|row| (u64::from(rec.step_at(row)), rec.snapshot(row, spec)))
                 .collect(),
             observations: acted.observations,
-            clip: request
-                .clip
-                .then(|| clip_states(rec, spec, first, self.dt, CLIP_STRIDE_STEPS)),
+            clip: request.clip.then(|| {
+                clip_states(
+                    rec,
+                    spec,
+                    first,
+                    self.dt,
+                    CLIP_STRIDE_STEPS,
+                    request.clip_interface.as_ref(),
+                )
+            }),
         })
     }
 
@@ -791,6 +820,30 @@ pub fn recorded_states(
     file: &[u8],
     stride_steps: u64,
 ) -> Result<ClipStates, SimError> {
+    read_recorded(spec, seed, file, stride_steps, None)
+}
+
+/// [`recorded_states`] at a policy's `interface` (its cameras sized), one frame per control
+/// step ([`CLIP_STRIDE_STEPS`]): the state and actions a policy of that interface would have
+/// seen and taken, and where its cameras were. An interface the task cannot fill is refused
+/// naming the task and the field.
+pub fn recorded_states_at(
+    spec: &TaskSpec,
+    seed: u64,
+    file: &[u8],
+    interface: &Interface,
+) -> Result<ClipStates, SimError> {
+    at_interface::check_task(interface, &spec.for_seed(seed)).map_err(SimError::Policy)?;
+    read_recorded(spec, seed, file, CLIP_STRIDE_STEPS, Some(interface))
+}
+
+fn read_recorded(
+    spec: &TaskSpec,
+    seed: u64,
+    file: &[u8],
+    stride_steps: u64,
+    interface: Option<&Interface>,
+) -> Result<ClipStates, SimError> {
     if stride_steps == 0 || !stride_steps.is_multiple_of(RECORD_STRIDE) {
         return Err(SimError::Policy(format!(
             "frames every {stride_steps} physics steps: rows are recorded every {RECORD_STRIDE} \
@@ -818,43 +871,80 @@ pub fn recorded_states(
         .parse()
         .map_err(|_| SimError::internal("episode file: assay.dt is not a number"))?;
     let varied = spec.for_seed(seed);
-    // The row the policy started from: the last one of the initial settle.
-    let settle = varied.physics.settle_steps;
-    let first = (0..rec.rows())
-        .take_while(|&row| rec.step_at(row) <= settle)
-        .last()
-        .unwrap_or(0);
-    Ok(clip_states(&rec, &varied, first, dt, stride_steps))
+    let first = first_policy_row(&rec, &varied);
+    Ok(clip_states(
+        &rec,
+        &varied,
+        first,
+        dt,
+        stride_steps,
+        interface,
+    ))
 }
 
-/// The recorded rows every `stride_steps` physics steps from `first` to the end, as clip states.
+/// The row a policy started from in `rec` (an episode of `spec` for its seed): the last one of
+/// the initial settle.
+fn first_policy_row(rec: &Recorder, spec: &TaskSpec) -> usize {
+    let settle = spec.physics.settle_steps;
+    (0..rec.rows())
+        .take_while(|&row| rec.step_at(row) <= settle)
+        .last()
+        .unwrap_or(0)
+}
+
+/// The recorded rows every `stride_steps` physics steps from `first` to the end, as clip states
+/// at `interface` (`None`: the original one).
 fn clip_states(
     rec: &Recorder,
     spec: &TaskSpec,
     first: usize,
     dt: f64,
     stride_steps: u64,
+    interface: Option<&Interface>,
 ) -> ClipStates {
     let start = rec.step_at(first);
     let rows: Vec<usize> = (first..rec.rows())
         .filter(|&row| u64::from(rec.step_at(row) - start).is_multiple_of(stride_steps))
         .collect();
     let interval = stride_steps as f64 * dt;
-    let holding = |row: usize| f32::from(u8::from(rec.grasped_at(row) >= 0));
-    let mut proprio = Vec::with_capacity(rows.len() * PROPRIO_DIMS);
-    let mut actions = Vec::with_capacity(rows.len() * ACTION_DIMS);
+    // The original interface's numbers are its state parts (tool position, holding) and space
+    // (tool velocity).
+    let original = Interface::default();
+    let at = interface.unwrap_or(&original);
+    let mut proprio = Vec::new();
+    let mut actions = Vec::new();
+    let mut action_dims = 0;
     for (k, &row) in rows.iter().enumerate() {
-        let ee = rec.ee_at(row);
-        proprio.extend_from_slice(&[ee[0], ee[1], ee[2], holding(row)]);
+        let tool = at_interface::recorded_tool(rec, spec, row);
+        proprio.extend(at_interface::state_vector(&at.state, &tool));
         match rows.get(k + 1) {
             Some(&next) => {
-                let (from, to) = (rec.cmd_at(row), rec.cmd_at(next));
-                let v = |i: usize| ((f64::from(to[i]) - f64::from(from[i])) / interval) as f32;
-                actions.extend_from_slice(&[v(0), v(1), v(2), holding(next)]);
+                let a = at_interface::recorded_action(at.action, rec, row, next, interval);
+                action_dims = a.len();
+                actions.extend(a);
             }
-            None => actions.extend_from_slice(&[0.0; ACTION_DIMS]),
+            None => {
+                let dims = match rows.len() {
+                    1 => at_interface::recorded_action(at.action, rec, row, row, interval).len(),
+                    _ => action_dims,
+                };
+                actions.extend(std::iter::repeat_n(0.0, dims));
+            }
         }
     }
+    let cameras = match interface {
+        None => Vec::new(),
+        Some(i) => at_interface::policy_cameras(i, spec, DEFAULT_FRAME_SIZE)
+            .into_iter()
+            .map(|c| ClipCamera {
+                frames: rows
+                    .iter()
+                    .map(|&row| c.placed(rec.ee_at(row), rec.yaw_at(row)))
+                    .collect(),
+                name: c.name,
+            })
+            .collect(),
+    };
     ClipStates {
         interval_s: interval as f32,
         steps: rows
@@ -864,6 +954,8 @@ fn clip_states(
         scenes: rows.iter().map(|&row| rec.snapshot(row, spec)).collect(),
         proprio,
         actions,
+        interface: interface.cloned(),
+        cameras,
     }
 }
 

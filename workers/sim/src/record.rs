@@ -75,6 +75,21 @@ impl Recorder {
         self.grasped[row]
     }
 
+    /// The tool's turn about z recorded at `row` (`ee_yaw`; 0 in files without the column).
+    pub fn yaw_at(&self, row: usize) -> f32 {
+        self.ee_yaw.get(row).copied().unwrap_or(0.0)
+    }
+
+    /// The gap between a friction gripper's pads at `row` (m), or `None` without pads.
+    pub fn opening_at(&self, row: usize) -> Option<f32> {
+        self.fingers[0].get(row).copied()
+    }
+
+    /// The arm's joint positions at `row` (rad; empty without an arm).
+    pub fn arm_at(&self, row: usize) -> Vec<f64> {
+        self.arm.iter().map(|(_, c)| f64::from(c[row])).collect()
+    }
+
     /// The recorded state of `row` as a scene a camera can draw.
     pub fn snapshot(&self, row: usize, spec: &TaskSpec) -> SceneSnapshot {
         snapshot_of(
@@ -99,10 +114,7 @@ impl Recorder {
                     crate::arm::Arm::new(&a.model, a.base, a.base_yaw_deg).ok()
                 })
                 .as_ref()
-                .map_or_else(Vec::new, |arm| {
-                    let q: Vec<f64> = self.arm.iter().map(|(_, c)| f64::from(c[row])).collect();
-                    arm.boxes_at(&q)
-                }),
+                .map_or_else(Vec::new, |arm| arm.boxes_at(&self.arm_at(row))),
         )
     }
 

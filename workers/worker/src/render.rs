@@ -35,7 +35,7 @@ pub(crate) struct RenderRole {
 }
 
 pub(crate) enum RenderJob {
-    Episode(EpisodeJob),
+    Episode(Box<EpisodeJob>),
     /// The RGB frame a policy object sees (the task camera at the policy's frame size).
     Frame {
         scene: SceneSnapshot,
@@ -193,7 +193,7 @@ impl RenderRole {
     ) -> Result<EpisodeImagery, ShardError> {
         let (reply, answer) = std::sync::mpsc::channel();
         let goals_met = ep.keyframe_goals;
-        let job = RenderJob::Episode(EpisodeJob {
+        let job = RenderJob::Episode(Box::new(EpisodeJob {
             shard,
             initial: ep.initial,
             initial_step: ep.initial_step,
@@ -202,7 +202,7 @@ impl RenderRole {
             clip: ep.clip.map(|c| (c, clip_size)),
             camera: task_cameras(&spec.cameras).remove(0),
             reply,
-        });
+        }));
         let gone = || ShardError::retryable("the render thread stopped");
         self.jobs.send(job).map_err(|_| gone())?;
         let rendered = answer.recv().map_err(|_| gone())?.map_err(|e| {
@@ -340,7 +340,7 @@ fn render_loop(
     };
     for job in jobs {
         let job = match job {
-            RenderJob::Episode(job) => job,
+            RenderJob::Episode(job) => *job,
             RenderJob::Frame {
                 scene,
                 camera,
@@ -454,6 +454,17 @@ fn render_loop(
             };
             let caption = assay_render::caption::caption_frames(&job.initial, &views);
             let clip = match job.clip {
+                Some((c, _)) if !c.cameras.is_empty() => {
+                    Some(assay_render::imagery::render_clip_at(
+                        &mut r,
+                        &c.scenes,
+                        &c.cameras,
+                        c.interval_s,
+                        c.proprio,
+                        c.actions,
+                        &c.interface,
+                    )?)
+                }
                 Some((c, size)) => Some(assay_render::imagery::render_clip(
                     &mut r,
                     &c.scenes,

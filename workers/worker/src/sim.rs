@@ -70,6 +70,19 @@ impl SimRole {
             shard: a.shard_id,
         });
         let clip_size = a.clip_size;
+        // A clip at a policy's interface: its cameras without a size at the clip size.
+        let clip_interface = match a.clip_interface.as_str() {
+            "" => None,
+            args => {
+                let mut i = assay_model::policy::Interface::parse_args(args).map_err(|e| {
+                    ShardError::permanent(format!("task {}: clip interface: {e}", spec.id))
+                })?;
+                for c in i.cameras.iter_mut().filter(|c| c.width == 0) {
+                    (c.width, c.height) = (clip_size, clip_size);
+                }
+                Some(i)
+            }
+        };
         // Every policy but the built-in oracle is a policy object, made for this episode: a
         // remote server is health-checked here, a model is loaded from this worker or the
         // artifact store.
@@ -98,6 +111,7 @@ impl SimRole {
         let options = assay_sim::SimOptions {
             video_frames,
             clip: clip_size > 0,
+            clip_interface,
             observer: observer.as_mut().map(|o| o as &mut dyn assay_sim::Observer),
             policy: object
                 .as_deref_mut()
@@ -156,6 +170,8 @@ fn scenes_of(ep: assay_sim::Episode) -> EpisodeScenes {
             scenes: c.scenes,
             proprio: c.proprio,
             actions: c.actions,
+            interface: c.interface.map(|i| i.to_args()).unwrap_or_default(),
+            cameras: c.cameras,
         }),
     }
 }

@@ -107,8 +107,26 @@ pub struct ClipScenes {
     pub interval_s: f32,
     pub steps: Vec<u64>,
     pub scenes: Vec<SceneSnapshot>,
+    /// Per frame, the state vector (the original interface's tool position + holding, or the
+    /// state parts of `interface`).
     pub proprio: Vec<f32>,
+    /// Per frame, the action to the next frame in the interface's action space.
     pub actions: Vec<f32>,
+    /// The policy interface the clip is recorded at (`Interface::to_args`; empty: the
+    /// original one, drawn from the task's camera at the batch's clip size).
+    #[serde(default, skip_serializing_if = "String::is_empty")]
+    pub interface: String,
+    /// The interface's cameras in its order, each placed at every frame (a wrist camera moves
+    /// with the tool) and sized; empty for the original interface.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub cameras: Vec<ClipCamera>,
+}
+
+/// One camera of a clip at a policy interface: its name and where it is at each frame.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ClipCamera {
+    pub name: String,
+    pub frames: Vec<assay_spec::spec::Camera>,
 }
 
 /// Pictures of one episode, as artifact keys.

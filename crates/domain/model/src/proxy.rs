@@ -51,6 +51,13 @@ pub struct ProxyConfig {
     /// the proxy trains on the training episodes.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub external: Option<ExternalWorldModel>,
+    /// The policy interface the batch's clips are recorded at, as policy-spec arguments
+    /// (`space=ee_delta,cameras=scene:scene@64+wrist:wrist@32,state=ee_pos+ee_quat+gripper`;
+    /// cameras without a size are `world_model.image_size` square): the ranked policies'
+    /// interface, which the video model then learns and imagines at. Empty: the original
+    /// interface (the task camera, tool position and holding, tool velocities).
+    #[serde(skip_serializing_if = "String::is_empty")]
+    pub interface: String,
 }
 
 /// A world model behind the `assay.v1.WorldModel` gRPC service.
@@ -82,6 +89,7 @@ impl Default for ProxyConfig {
             leak_ablation: false,
             normalize_actions: true,
             external: None,
+            interface: String::new(),
         }
     }
 }
@@ -122,6 +130,15 @@ impl ProxyConfig {
             if e.timeout_ms == 0 {
                 return Err("external.timeout_ms: must be at least 1".into());
             }
+        }
+        let interface = crate::interface::Interface::parse_args(&self.interface)
+            .map_err(|e| format!("interface: {e}"))?;
+        if !interface.is_legacy() && self.external.is_none() && self.model == WorldModelKind::Rssm {
+            return Err(
+                "interface: the RSSM (model = \"rssm\") learns only the original interface; \
+                 use the video model or a served one"
+                    .into(),
+            );
         }
         Ok(())
     }

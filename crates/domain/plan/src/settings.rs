@@ -121,6 +121,13 @@ pub fn check(req: &BatchSettings) -> Result<Settings, SettingsError> {
                 "config.image_size {size} differs from the clips' {other}"
             )));
         }
+        if let Some(r) = ranking.as_ref().filter(|r| !r.config.interface.is_empty()) {
+            return Err(SettingsError::Generalization(format!(
+                "its diffusion policies learn from clips at the original interface, and the \
+                 ranking records them at {:?} (config.interface): run them as two batches",
+                r.config.interface
+            )));
+        }
         Some(plan)
     };
     Ok(Settings {
@@ -184,6 +191,21 @@ fn check_ranking(
         return Err(format!(
             "world_model.image_size {size} differs from the dynamics clips' {}",
             d.config.image_size
+        ));
+    }
+    let at_interface = !plan.config.interface.is_empty();
+    if at_interface && dynamics.is_some() {
+        return Err(format!(
+            "config.interface {:?}: the clips would be recorded at it, and dynamics diversity's \
+             RSSM learns the original interface: run them as two batches",
+            plan.config.interface
+        ));
+    }
+    if at_interface && plan.ladder.is_some() {
+        return Err(format!(
+            "config.interface {:?}: the ladder's diffusion policies learn the original interface \
+             only; rank policies of that interface (served, TorchScript) instead",
+            plan.config.interface
         ));
     }
     if plan.train_policies.is_empty() {
@@ -299,6 +321,43 @@ mod tests {
         other_size.config.image_size = 32;
         let e = check_ranking(&plan(&train, Some(other_size)), &policies, None).unwrap_err();
         assert!(e.contains("ladder.config.image_size 32 differs"), "{e}");
+    }
+
+    #[test]
+    fn clips_at_a_policy_interface_are_refused_where_a_model_learns_only_the_original() {
+        let policies = names(&["oracle", "torchscript:path=p.pt"]);
+        let seven = "space=ee_delta,cameras=image:scene@32+wrist:wrist@32,state=ee_pos+gripper";
+        let mut at = plan(&["oracle"], None);
+        at.config.interface = seven.into();
+        assert_eq!(check_ranking(&at, &policies, None), Ok(()));
+        // Dynamics diversity's RSSM, in the same batch.
+        let dynamics = DynamicsPlan {
+            budgets: vec![4],
+            config: DynamicsConfig::default(),
+        };
+        let e = check_ranking(&at, &policies, Some(&dynamics)).unwrap_err();
+        assert!(
+            e.contains("config.interface") && e.contains("two batches"),
+            "{e}"
+        );
+        // A ladder of diffusion policies.
+        let mut ladder = at.clone();
+        ladder.ladder = Some(LadderPlan::default());
+        let e = check_ranking(&ladder, &policies, None).unwrap_err();
+        assert!(e.contains("ladder's diffusion policies"), "{e}");
+        // The RSSM as the proxy's world model.
+        let mut rssm = at.clone();
+        rssm.config.model = assay_model::video::WorldModelKind::Rssm;
+        let e = check_ranking(&rssm, &policies, None).unwrap_err();
+        assert!(e.starts_with("interface: the RSSM"), "{e}");
+        // An interface that does not read.
+        let mut bad = at.clone();
+        bad.config.interface = "space=joint_velocity".into();
+        let e = check_ranking(&bad, &policies, None).unwrap_err();
+        assert!(
+            e.starts_with("interface: ") && e.contains("joint_velocity"),
+            "{e}"
+        );
     }
 
     #[test]
