@@ -68,6 +68,14 @@ pub struct LerobotArgs {
     /// Only episodes that succeeded (ground truth from the simulator).
     #[arg(long)]
     pub successful: bool,
+    /// Export at a policy interface, as policy-spec arguments
+    /// (`space=ee_delta,cameras=image:scene@224+wrist:wrist@224,state=ee_pos+ee_quat+gripper`):
+    /// each of its cameras as `observation.images.<name>` (those without a size at --size), its
+    /// state parts as `observation.state` and its action space as `action`, read from the
+    /// recorded rows at the control rate (--fps 10 at the default time step). Default: the
+    /// original interface (the task camera, tool position + holding, tool velocities).
+    #[arg(long, value_name = "ARGS")]
+    pub interface: Option<String>,
 }
 
 pub fn run(a: Args) -> anyhow::Result<ExitCode> {
@@ -78,6 +86,12 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
                 fps: a.fps,
                 policies: a.policies,
                 successful_only: a.successful,
+                interface: a
+                    .interface
+                    .as_deref()
+                    .map(assay_model::policy::Interface::parse_args)
+                    .transpose()
+                    .map_err(|e| anyhow::anyhow!("--interface: {e}"))?,
             };
             let specs = assay_run::export::task_specs(&a.run)?;
             let mut drawing = assay_run::export::RunDrawing::default();

@@ -523,6 +523,62 @@ fn eval_ranks_policies_at_a_seven_d_two_camera_interface() {
     );
     let md = std::fs::read_to_string(out_dir.join("report.md")).unwrap();
     assert!(md.contains(SEVEN_D), "the report names the interface");
+
+    // The run exported as a LeRobot dataset at the same interface, read from the episode files:
+    // the real LeRobot loads both cameras, their frames are the clips' (within H.264's loss),
+    // and the states and actions are the clips', value for value.
+    let dataset = dir.path().join("dataset");
+    let said = ok(&assay(&[
+        "export".as_ref(),
+        "lerobot".as_ref(),
+        out_dir.as_os_str(),
+        dataset.as_os_str(),
+        "--interface".as_ref(),
+        SEVEN_D.as_ref(),
+    ]));
+    assert!(said.contains(&format!("with {clips} episodes")), "{said}");
+    let info: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(dataset.join("meta/info.json")).unwrap()).unwrap();
+    let f = &info["features"];
+    assert_eq!(
+        f["observation.images.wrist"]["shape"],
+        serde_json::json!([32, 32, 3])
+    );
+    assert_eq!(
+        f["observation.state"]["names"],
+        serde_json::json!([
+            "ee_x", "ee_y", "ee_z", "ee_qx", "ee_qy", "ee_qz", "ee_qw", "gripper"
+        ])
+    );
+    assert_eq!(
+        f["action"]["names"],
+        serde_json::json!(["dx", "dy", "dz", "droll", "dpitch", "dyaw", "gripper"])
+    );
+    let loaded = Command::new(lerobot_python())
+        .arg(repo().join("tests/python/load_with_lerobot.py"))
+        .args([&dataset, &out_dir])
+        .env("HF_HUB_OFFLINE", "1")
+        .output()
+        .unwrap();
+    let loaded: serde_json::Value =
+        serde_json::from_str(ok(&loaded).lines().last().unwrap_or_default()).unwrap();
+    println!("LeRobotDataset at {SEVEN_D}: {loaded}");
+    assert_eq!(
+        loaded["cameras"],
+        serde_json::json!(["image", "wrist"]),
+        "{loaded}"
+    );
+    let frames = loaded["lerobot_frames"].as_u64().unwrap();
+    assert_eq!(
+        loaded["frames_compared_with_clips"].as_u64().unwrap(),
+        2 * frames,
+        "{loaded}"
+    );
+    assert_eq!(
+        loaded["values_compared_with_clips"].as_u64().unwrap(),
+        15 * frames,
+        "{loaded}"
+    );
 }
 
 #[test]

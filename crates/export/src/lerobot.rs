@@ -9,6 +9,14 @@
 //!   command — a dynamics clip's action (docs/episode-format.md), zeros on the last frame;
 //! - the task's instruction (its `description`) as the frame's task.
 //!
+//! At a policy's interface ([`Options::interface`], `assay export lerobot --interface`), the
+//! frames are at its control rate (one every `CLIP_STRIDE_STEPS` physics steps, 10 a second at
+//! the default time step) and each of its cameras is `observation.images.<name>` at its own size
+//! (a wrist camera moving with the tool), `observation.state` its state parts and `action` its
+//! action space, as a policy of that interface would have seen and commanded them
+//! (`assay_sim::at_interface`); `meta/info.json` names every value, `meta/assay.json` keeps the
+//! interface.
+//!
 //! Nothing is simulated again: the states are the episode file's recorded rows, drawn by the
 //! same renderer as the run's pictures — a [`Drawing`] the caller hands in (the `assay-run`
 //! layer implements it with `assay-sim`'s recorded states and `assay-render`; this crate links
@@ -32,15 +40,18 @@ use arrow_array::{
 use arrow_schema::{DataType, Field};
 use serde_json::json;
 
-use assay_model::clip::{ACTION_DIMS, PROPRIO_DIMS};
+use assay_model::clip::{ACTION_DIMS, CLIP_STRIDE_STEPS, PROPRIO_DIMS};
+use assay_model::policy::Interface;
 use assay_spec::spec::TaskSpec;
 
 use crate::episodes_table::to_parquet;
 
 /// The dataset format this writes (LeRobot's `CODEBASE_VERSION`).
 pub const CODEBASE_VERSION: &str = "v3.0";
-/// The one camera's feature key.
+/// The feature key of the original interface's one camera.
 pub const VIDEO_KEY: &str = "observation.images.scene";
+/// What a camera's feature key starts with.
+pub const IMAGE_PREFIX: &str = "observation.images.";
 const STATE_NAMES: [&str; PROPRIO_DIMS] = ["ee_x", "ee_y", "ee_z", "holding"];
 const ACTION_NAMES: [&str; ACTION_DIMS] = ["ee_vx", "ee_vy", "ee_vz", "hold"];
 
@@ -55,16 +66,28 @@ pub struct Options {
     pub policies: Vec<String>,
     /// Only episodes that succeeded.
     pub successful_only: bool,
+    /// The policy interface to export at, its cameras without a size at `size`; `None`: the
+    /// original one (the task's first camera, tool position + holding, tool velocity).
+    pub interface: Option<Interface>,
 }
 
-/// One episode's recorded states drawn again: `len` frames of `size` × `size` RGB, back to back,
-/// with the tool's state and commanded action per frame (`PROPRIO_DIMS` and `ACTION_DIMS`
-/// floats each).
+/// One episode's recorded states drawn again: `len` frames of each camera, with the state and
+/// the commanded action per frame (the original interface: `PROPRIO_DIMS` and `ACTION_DIMS`
+/// floats each; a policy's: its state vector and action space).
 pub struct Drawn {
     pub len: usize,
-    pub rgb: Vec<u8>,
+    /// Per camera, in the interface's order (the original: one, "scene").
+    pub views: Vec<DrawnView>,
     pub state: Vec<f32>,
     pub action: Vec<f32>,
+}
+
+/// One camera's frames of an episode: `len` frames of `width` × `height` RGB, back to back.
+pub struct DrawnView {
+    pub name: String,
+    pub width: u32,
+    pub height: u32,
+    pub rgb: Vec<u8>,
 }
 
 /// An H.264 video the frames go into, one RGB frame at a time.
@@ -81,8 +104,9 @@ pub trait Drawing {
     fn max_size(&self) -> u32;
     /// Readies the renderer, once the dataset's folder is known to be writable.
     fn start(&mut self) -> anyhow::Result<()>;
-    /// Draws the episode file `episode` of `spec` with `seed` from its task's first camera, one
-    /// frame every `steps` physics steps, `size` pixels square.
+    /// Draws the episode file `episode` of `spec` with `seed`, one frame every `steps` physics
+    /// steps: from its task's first camera at `size` pixels square, or from the cameras of
+    /// `interface` (sized) with its state and actions.
     fn draw(
         &mut self,
         spec: &TaskSpec,
@@ -90,9 +114,16 @@ pub trait Drawing {
         episode: &[u8],
         steps: u64,
         size: u32,
+        interface: Option<&Interface>,
     ) -> Result<Drawn, String>;
-    /// A video file at `path` of `size` × `size` frames at `fps`.
-    fn video(&mut self, path: &Path, size: u32, fps: u32) -> Result<Box<dyn VideoSink>, String>;
+    /// A video file at `path` of `width` × `height` frames at `fps`.
+    fn video(
+        &mut self,
+        path: &Path,
+        width: u32,
+        height: u32,
+        fps: u32,
+    ) -> Result<Box<dyn VideoSink>, String>;
 }
 
 /// What was written.
@@ -199,6 +230,54 @@ impl Moments {
 /// The task specs of a run by task id: each parsed, or why it could not be.
 pub type Specs = HashMap<String, Result<TaskSpec, String>>;
 
+/// A camera of the dataset: its name, feature key and frame size.
+struct Camera {
+    name: String,
+    key: String,
+    width: u32,
+    height: u32,
+}
+
+impl Camera {
+    fn video_path(&self) -> String {
+        format!("videos/{}/chunk-000/file-000.mp4", self.key)
+    }
+}
+
+/// The dataset's cameras: the original interface's one (`scene`, `size` square) or the
+/// interface's, each at its own size (unsized ones at `size`). Every side must be even (H.264's
+/// 4:2:0) and at most `max`.
+fn cameras(o: &Options, max: u32) -> anyhow::Result<Vec<Camera>> {
+    let cams: Vec<(String, u32, u32)> = match &o.interface {
+        None => vec![("scene".to_owned(), o.size, o.size)],
+        Some(i) => i
+            .cameras
+            .iter()
+            .map(|c| match c.width {
+                0 => (c.name.clone(), o.size, o.size),
+                w => (c.name.clone(), w, c.height),
+            })
+            .collect(),
+    };
+    for (name, w, h) in &cams {
+        if *w == 0 || w % 2 == 1 || h % 2 == 1 || (*w).max(*h) > max {
+            bail!(
+                "camera '{name}' of {w}x{h} pixels: frames are an even number of pixels a side, \
+                 at most {max} (--size sets cameras without a size)"
+            );
+        }
+    }
+    Ok(cams
+        .into_iter()
+        .map(|(name, width, height)| Camera {
+            key: format!("{IMAGE_PREFIX}{name}"),
+            name,
+            width,
+            height,
+        })
+        .collect())
+}
+
 /// Exports `run` (an `assay eval` output folder: report.json and the artifact store) to `out`,
 /// which must not exist or be empty; `specs` are the run's tasks as it ran them (its job store).
 pub fn export(
@@ -218,6 +297,25 @@ pub fn export(
     if o.fps == 0 {
         bail!("--fps 0: a dataset needs a frame rate");
     }
+    // The interface's cameras without a size are `size` square.
+    let sized;
+    let o = match &o.interface {
+        None => o,
+        Some(i) => {
+            i.validate()
+                .map_err(|e| anyhow::anyhow!("--interface: {e}"))?;
+            let mut i = i.clone();
+            for c in i.cameras.iter_mut().filter(|c| c.width == 0) {
+                (c.width, c.height) = (o.size, o.size);
+            }
+            sized = Options {
+                interface: Some(i),
+                ..o.clone()
+            };
+            &sized
+        }
+    };
+    let cameras = cameras(o, drawing.max_size())?;
     let report = crate::read_report(run)?;
     if out.exists()
         && std::fs::read_dir(out)
@@ -230,24 +328,32 @@ pub fn export(
             out.display()
         );
     }
-    let video_path = out.join(format!("videos/{VIDEO_KEY}/chunk-000/file-000.mp4"));
     for dir in ["meta/episodes/chunk-000", "data/chunk-000"] {
         std::fs::create_dir_all(out.join(dir))?;
     }
-    std::fs::create_dir_all(video_path.parent().expect("video folder"))?;
-
     drawing.start()?;
-    let mut video = drawing
-        .video(&video_path, o.size, o.fps)
-        .map_err(anyhow::Error::msg)
-        .context("writing the dataset's video")?;
+    let mut videos = Vec::with_capacity(cameras.len());
+    for c in &cameras {
+        let path = out.join(c.video_path());
+        std::fs::create_dir_all(path.parent().expect("video folder"))?;
+        videos.push(
+            drawing
+                .video(&path, c.width, c.height, o.fps)
+                .map_err(anyhow::Error::msg)
+                .with_context(|| format!("writing the dataset's video of camera '{}'", c.name))?,
+        );
+    }
     let mut summary = Summary::default();
     let mut frames = Frames::default();
     let mut episodes: Vec<EpisodeMeta> = Vec::new();
     let mut tasks: Vec<String> = Vec::new();
-    let mut state_stats = Moments::new(PROPRIO_DIMS);
-    let mut action_stats = Moments::new(ACTION_DIMS);
-    let mut image_stats = Moments::new(3);
+    // The state and action widths and names, from the first episode written (a joint state or
+    // action space has the arm's width: episodes of an arm of another width are left out).
+    let mut widths: Option<(usize, usize)> = None;
+    let mut names: (Vec<String>, Vec<String>) = (Vec::new(), Vec::new());
+    let mut state_stats = Moments::new(0);
+    let mut action_stats = Moments::new(0);
+    let mut image_stats = vec![Moments::new(3); cameras.len()];
     for t in &report.results.tasks {
         for e in &t.episodes {
             if (!o.policies.is_empty() && !o.policies.contains(&e.policy))
@@ -277,6 +383,36 @@ pub fn export(
                     continue;
                 }
             };
+            let n = episode.len;
+            let shape = (
+                episode.state.len() / n.max(1),
+                episode.action.len() / n.max(1),
+            );
+            if episode.views.len() != cameras.len() {
+                summary.skipped.push(skip(format!(
+                    "{} cameras drawn, the dataset has {}",
+                    episode.views.len(),
+                    cameras.len()
+                )));
+                continue;
+            }
+            match widths {
+                None => {
+                    widths = Some(shape);
+                    names = value_names(o.interface.as_ref(), spec, shape)?;
+                    state_stats = Moments::new(shape.0);
+                    action_stats = Moments::new(shape.1);
+                }
+                Some(w) if w != shape => {
+                    summary.skipped.push(skip(format!(
+                        "{} state and {} action values a frame; the dataset's first episode has \
+                         {} and {} (an arm of another width)",
+                        shape.0, shape.1, w.0, w.1
+                    )));
+                    continue;
+                }
+                Some(_) => {}
+            }
             let instruction = instruction(spec);
             let task_index = match tasks.iter().position(|x| *x == instruction) {
                 Some(i) => i,
@@ -285,23 +421,31 @@ pub fn export(
                     tasks.len() - 1
                 }
             } as i64;
-            let n = episode.len;
             let index = episodes.len() as i64;
             let from = frames.frame_index.len() as i64;
-            let frame_bytes = (o.size * o.size * 3) as usize;
-            for (k, rgb) in episode.rgb.chunks_exact(frame_bytes).enumerate() {
-                video.push(rgb).map_err(anyhow::Error::msg)?;
-                for px in rgb.chunks_exact(3) {
-                    for (c, &v) in px.iter().enumerate() {
-                        image_stats.add(c, f64::from(v) / 255.0);
+            for ((view, video), stats) in episode
+                .views
+                .iter()
+                .zip(videos.iter_mut())
+                .zip(image_stats.iter_mut())
+            {
+                let frame_bytes = (view.width * view.height * 3) as usize;
+                for rgb in view.rgb.chunks_exact(frame_bytes) {
+                    video.push(rgb).map_err(anyhow::Error::msg)?;
+                    for px in rgb.chunks_exact(3) {
+                        for (c, &v) in px.iter().enumerate() {
+                            stats.add(c, f64::from(v) / 255.0);
+                        }
                     }
                 }
+                stats.count += (n * frame_bytes / 3) as u64;
+            }
+            for k in 0..n {
                 frames.timestamp.push(k as f32 / o.fps as f32);
                 frames.frame_index.push(k as i64);
                 frames.episode_index.push(index);
                 frames.task_index.push(task_index);
             }
-            image_stats.count += (n * frame_bytes / 3) as u64;
             state_stats.add_rows(&episode.state);
             action_stats.add_rows(&episode.action);
             frames.state.extend_from_slice(&episode.state);
@@ -321,10 +465,10 @@ pub fn export(
             });
         }
     }
-    if episodes.is_empty() {
+    let Some((state_dims, action_dims)) = widths.filter(|_| !episodes.is_empty()) else {
         // Nothing to write: stop ffmpeg and take back the folders made above (`out` held
         // nothing before).
-        drop(video);
+        drop(videos);
         for dir in ["videos", "meta", "data"] {
             let _ = std::fs::remove_dir_all(out.join(dir));
         }
@@ -337,9 +481,13 @@ pub fn export(
                 format!(":\n  {}", summary.skipped.join("\n  "))
             }
         );
+    };
+    let mut video_bytes = 0;
+    for (video, c) in videos.into_iter().zip(&cameras) {
+        let written = video.finish().map_err(anyhow::Error::msg)?;
+        debug_assert_eq!(written as usize, frames.frame_index.len());
+        video_bytes = video_bytes.max(std::fs::metadata(out.join(c.video_path()))?.len());
     }
-    let written = video.finish().map_err(anyhow::Error::msg)?;
-    debug_assert_eq!(written as usize, frames.frame_index.len());
     summary.episodes = episodes.len();
     summary.frames = frames.frame_index.len();
     summary.tasks = tasks.len();
@@ -349,23 +497,24 @@ pub fn export(
     };
     write(
         "data/chunk-000/file-000.parquet",
-        &data_table(&frames).map_err(anyhow::Error::msg)?,
+        &data_table(&frames, state_dims, action_dims).map_err(anyhow::Error::msg)?,
     )?;
     write(
         "meta/episodes/chunk-000/file-000.parquet",
-        &episodes_table(&episodes, o.fps).map_err(anyhow::Error::msg)?,
+        &episodes_table(&episodes, &cameras, o.fps).map_err(anyhow::Error::msg)?,
     )?;
     write(
         "meta/tasks.parquet",
         &tasks_table(&tasks).map_err(anyhow::Error::msg)?,
     )?;
-    let info = info_json(o, &summary, std::fs::metadata(&video_path)?.len());
+    let info = info_json(o, &summary, &cameras, &names, video_bytes);
     write("meta/info.json", &serde_json::to_vec_pretty(&info)?)?;
-    let stats = json!({
-        "observation.state": state_stats.json(false),
-        "action": action_stats.json(false),
-        VIDEO_KEY: image_stats.json(true),
-    });
+    let mut stats = serde_json::Map::new();
+    stats.insert("observation.state".into(), state_stats.json(false));
+    stats.insert("action".into(), action_stats.json(false));
+    for (c, m) in cameras.iter().zip(&image_stats) {
+        stats.insert(c.key.clone(), m.json(true));
+    }
     write("meta/stats.json", &serde_json::to_vec_pretty(&stats)?)?;
     let provenance = json!({
         "exported_by": format!("assay {}", env!("CARGO_PKG_VERSION")),
@@ -375,10 +524,42 @@ pub fn export(
         "fps": o.fps,
         "policies": o.policies,
         "successful_only": o.successful_only,
+        "interface": o.interface.as_ref().map(Interface::to_args),
         "skipped": summary.skipped,
     });
     write("meta/assay.json", &serde_json::to_vec_pretty(&provenance)?)?;
     Ok(summary)
+}
+
+/// The names of the state's and the action's values: the original interface's, or those of
+/// `interface`'s parts and space on `spec`'s arm (which must give `widths`).
+fn value_names(
+    interface: Option<&Interface>,
+    spec: &TaskSpec,
+    widths: (usize, usize),
+) -> anyhow::Result<(Vec<String>, Vec<String>)> {
+    let owned = |n: &[&str]| n.iter().map(|s| (*s).to_owned()).collect::<Vec<_>>();
+    let names = match interface {
+        None => (owned(&STATE_NAMES), owned(&ACTION_NAMES)),
+        Some(i) => {
+            let arm = spec.arm.as_ref().map(|a| a.model.as_str());
+            (
+                i.state_names(arm).map_err(anyhow::Error::msg)?,
+                i.action.value_names(arm).map_err(anyhow::Error::msg)?,
+            )
+        }
+    };
+    if (names.0.len(), names.1.len()) != widths {
+        bail!(
+            "task {}: {} state and {} action values a frame, where the interface names {} and {}",
+            spec.id,
+            widths.0,
+            widths.1,
+            names.0.len(),
+            names.1.len()
+        );
+    }
+    Ok(names)
 }
 
 /// What a task asks for, in words: its description, else its name.
@@ -425,7 +606,22 @@ fn render_episode(
             o.fps
         ));
     }
-    drawing.draw(spec, seed, &bytes, steps as u64, o.size)
+    if o.interface.is_some() && steps as u64 != CLIP_STRIDE_STEPS {
+        return Err(format!(
+            "--fps {}: a dataset at a policy interface is at its control rate, one frame every \
+             {CLIP_STRIDE_STEPS} physics steps ({} fps at this task's physics.dt = {dt} s)",
+            o.fps,
+            1.0 / (CLIP_STRIDE_STEPS as f64 * dt)
+        ));
+    }
+    drawing.draw(
+        spec,
+        seed,
+        &bytes,
+        steps as u64,
+        o.size,
+        o.interface.as_ref(),
+    )
 }
 
 /// A fixed-size list column of `dims` float32 values per row (a `datasets.Sequence` of a length).
@@ -441,16 +637,16 @@ fn vectors(values: Vec<f32>, dims: usize) -> ArrayRef {
     )
 }
 
-fn data_table(f: &Frames) -> Result<Vec<u8>, String> {
+fn data_table(f: &Frames, state_dims: usize, action_dims: usize) -> Result<Vec<u8>, String> {
     let n = f.frame_index.len() as i64;
     to_parquet(
         vec![
             (
                 "observation.state",
                 true,
-                vectors(f.state.clone(), PROPRIO_DIMS),
+                vectors(f.state.clone(), state_dims),
             ),
-            ("action", true, vectors(f.action.clone(), ACTION_DIMS)),
+            ("action", true, vectors(f.action.clone(), action_dims)),
             (
                 "timestamp",
                 true,
@@ -477,7 +673,11 @@ fn data_table(f: &Frames) -> Result<Vec<u8>, String> {
     )
 }
 
-fn episodes_table(episodes: &[EpisodeMeta], fps: u32) -> Result<Vec<u8>, String> {
+fn episodes_table(
+    episodes: &[EpisodeMeta],
+    cameras: &[Camera],
+    fps: u32,
+) -> Result<Vec<u8>, String> {
     let ints = |f: &dyn Fn(&EpisodeMeta) -> i64| -> ArrayRef {
         Arc::new(Int64Array::from_iter_values(episodes.iter().map(f)))
     };
@@ -492,14 +692,22 @@ fn episodes_table(episodes: &[EpisodeMeta], fps: u32) -> Result<Vec<u8>, String>
         task_lists.values().append_value(&e.task);
         task_lists.append(true);
     }
-    let video = |k: &str| format!("videos/{VIDEO_KEY}/{k}");
-    let (chunk, file, from_ts, to_ts) = (
-        video("chunk_index"),
-        video("file_index"),
-        video("from_timestamp"),
-        video("to_timestamp"),
-    );
     let fps = f64::from(fps);
+    // Per camera, where its frames of each episode are (every camera's video holds every
+    // episode, back to back).
+    let mut video_columns: Vec<(String, ArrayRef)> = Vec::new();
+    for c in cameras {
+        let column = |k: &str| format!("videos/{}/{k}", c.key);
+        video_columns.extend([
+            (column("chunk_index"), ints(&|_| 0)),
+            (column("file_index"), ints(&|_| 0)),
+            (column("from_timestamp"), floats(&|e| e.video_from_s)),
+            (
+                column("to_timestamp"),
+                floats(&|e| e.video_from_s + e.length as f64 / fps),
+            ),
+        ]);
+    }
     to_parquet(
         vec![
             ("episode_index", true, ints(&|e| e.index)),
@@ -509,14 +717,14 @@ fn episodes_table(episodes: &[EpisodeMeta], fps: u32) -> Result<Vec<u8>, String>
             ("data/file_index", true, ints(&|_| 0)),
             ("dataset_from_index", true, ints(&|e| e.from)),
             ("dataset_to_index", true, ints(&|e| e.from + e.length)),
-            (&chunk, true, ints(&|_| 0)),
-            (&file, true, ints(&|_| 0)),
-            (&from_ts, true, floats(&|e| e.video_from_s)),
-            (
-                &to_ts,
-                true,
-                floats(&|e| e.video_from_s + e.length as f64 / fps),
-            ),
+        ]
+        .into_iter()
+        .chain(
+            video_columns
+                .iter()
+                .map(|(k, v)| (k.as_str(), true, v.clone())),
+        )
+        .chain([
             ("meta/episodes/chunk_index", true, ints(&|_| 0)),
             ("meta/episodes/file_index", true, ints(&|_| 0)),
             // Where each episode came from, for joining with the run's episodes.parquet.
@@ -537,7 +745,8 @@ fn episodes_table(episodes: &[EpisodeMeta], fps: u32) -> Result<Vec<u8>, String>
                 )),
             ),
             ("assay/episode_file", true, texts(&|e| e.file.clone())),
-        ],
+        ])
+        .collect(),
         HashMap::new(),
     )
 }
@@ -577,34 +786,42 @@ fn tasks_table(tasks: &[String]) -> Result<Vec<u8>, String> {
     )
 }
 
-fn info_json(o: &Options, s: &Summary, video_bytes: u64) -> serde_json::Value {
+fn info_json(
+    o: &Options,
+    s: &Summary,
+    cameras: &[Camera],
+    names: &(Vec<String>, Vec<String>),
+    video_bytes: u64,
+) -> serde_json::Value {
     let scalar = |dtype: &str| json!({"dtype": dtype, "shape": [1], "names": null});
     let mut features = BTreeMap::new();
-    features.insert(
-        VIDEO_KEY.to_owned(),
-        json!({
-            "dtype": "video",
-            "shape": [o.size, o.size, 3],
-            "names": ["height", "width", "channels"],
-            "info": {
-                "video.height": o.size,
-                "video.width": o.size,
-                "video.codec": "h264",
-                "video.pix_fmt": "yuv420p",
-                "video.is_depth_map": false,
-                "video.fps": o.fps,
-                "video.channels": 3,
-                "has_audio": false
-            }
-        }),
-    );
+    for c in cameras {
+        features.insert(
+            c.key.clone(),
+            json!({
+                "dtype": "video",
+                "shape": [c.height, c.width, 3],
+                "names": ["height", "width", "channels"],
+                "info": {
+                    "video.height": c.height,
+                    "video.width": c.width,
+                    "video.codec": "h264",
+                    "video.pix_fmt": "yuv420p",
+                    "video.is_depth_map": false,
+                    "video.fps": o.fps,
+                    "video.channels": 3,
+                    "has_audio": false
+                }
+            }),
+        );
+    }
     features.insert(
         "observation.state".to_owned(),
-        json!({"dtype": "float32", "shape": [PROPRIO_DIMS], "names": STATE_NAMES}),
+        json!({"dtype": "float32", "shape": [names.0.len()], "names": names.0}),
     );
     features.insert(
         "action".to_owned(),
-        json!({"dtype": "float32", "shape": [ACTION_DIMS], "names": ACTION_NAMES}),
+        json!({"dtype": "float32", "shape": [names.1.len()], "names": names.1}),
     );
     features.insert("timestamp".to_owned(), scalar("float32"));
     for k in ["frame_index", "episode_index", "index", "task_index"] {

@@ -9,7 +9,8 @@
 use std::path::Path;
 
 use anyhow::Context;
-use assay_export::lerobot::{Drawing, Drawn, Specs, VideoSink};
+use assay_export::lerobot::{Drawing, Drawn, DrawnView, Specs, VideoSink};
+use assay_model::policy::Interface;
 use assay_spec::spec::TaskSpec;
 
 use crate::outdir;
@@ -73,34 +74,81 @@ impl Drawing for RunDrawing {
         episode: &[u8],
         steps: u64,
         size: u32,
+        interface: Option<&Interface>,
     ) -> Result<Drawn, String> {
-        let states = assay_sim::recorded_states(spec, seed, episode, steps)
-            .map_err(|e| format!("episode file: {e}"))?;
-        let camera = assay_spec::scene::task_cameras(&spec.cameras).remove(0);
+        let states = match interface {
+            None => assay_sim::recorded_states(spec, seed, episode, steps),
+            Some(i) => assay_sim::recorded_states_at(spec, seed, episode, i),
+        }
+        .map_err(|e| format!("episode file: {e}"))?;
         let renderer = self
             .renderer
             .as_mut()
             .ok_or("the renderer was not started")?;
-        let clip = assay_render::imagery::render_clip(
+        let len = states.steps.len();
+        let rendering = |e: assay_render::RenderError| format!("rendering: {e}");
+        let Some(i) = interface else {
+            let camera = assay_spec::scene::task_cameras(&spec.cameras).remove(0);
+            let clip = assay_render::imagery::render_clip(
+                renderer,
+                &states.scenes,
+                &camera,
+                size,
+                states.interval_s,
+                states.proprio,
+                states.actions,
+            )
+            .map_err(rendering)?;
+            return Ok(Drawn {
+                len,
+                views: vec![DrawnView {
+                    name: "scene".into(),
+                    width: size,
+                    height: size,
+                    rgb: clip.rgb,
+                }],
+                state: clip.proprio,
+                action: clip.actions,
+            });
+        };
+        let clip = assay_render::imagery::render_clip_at(
             renderer,
             &states.scenes,
-            &camera,
-            size,
+            &states.cameras,
             states.interval_s,
             states.proprio,
             states.actions,
+            &i.to_args(),
         )
-        .map_err(|e| format!("rendering: {e}"))?;
-        Ok(Drawn {
-            len: states.steps.len(),
+        .map_err(rendering)?;
+        let mut views = vec![DrawnView {
+            name: states.cameras[0].name.clone(),
+            width: clip.width,
+            height: clip.height,
             rgb: clip.rgb,
+        }];
+        views.extend(clip.views.into_iter().map(|v| DrawnView {
+            name: v.name,
+            width: v.width,
+            height: v.height,
+            rgb: v.rgb,
+        }));
+        Ok(Drawn {
+            len,
+            views,
             state: clip.proprio,
             action: clip.actions,
         })
     }
 
-    fn video(&mut self, path: &Path, size: u32, fps: u32) -> Result<Box<dyn VideoSink>, String> {
-        let writer = assay_render::video::Mp4Writer::create(path, size, size, fps)?;
+    fn video(
+        &mut self,
+        path: &Path,
+        width: u32,
+        height: u32,
+        fps: u32,
+    ) -> Result<Box<dyn VideoSink>, String> {
+        let writer = assay_render::video::Mp4Writer::create(path, width, height, fps)?;
         Ok(Box::new(Mp4(writer)))
     }
 }

@@ -74,6 +74,25 @@ impl ActionSpace {
     }
 }
 
+impl ActionSpace {
+    /// A name per float of an action, in order (a dataset's column names; `arm` as for
+    /// [`ActionSpace::dims`]). The last one is the gripper (hold) command.
+    pub fn value_names(self, arm: Option<&str>) -> Result<Vec<String>, String> {
+        let names: &[&str] = match self {
+            ActionSpace::ToolVelocity => &["ee_vx", "ee_vy", "ee_vz", "hold"],
+            ActionSpace::EeDelta => &["dx", "dy", "dz", "droll", "dpitch", "dyaw", "gripper"],
+            ActionSpace::EePose => &["x", "y", "z", "qx", "qy", "qz", "qw", "gripper"],
+            ActionSpace::JointPosition => {
+                let joints = self.dims(arm)? - 1;
+                let mut v: Vec<String> = (1..=joints).map(|j| format!("joint_{j}")).collect();
+                v.push("gripper".into());
+                return Ok(v);
+            }
+        };
+        Ok(names.iter().map(|n| (*n).to_owned()).collect())
+    }
+}
+
 impl fmt::Display for ActionSpace {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         f.write_str(self.name())
@@ -121,6 +140,22 @@ impl StatePart {
 
     pub fn name(self) -> &'static str {
         Self::NAMES[self as usize]
+    }
+
+    /// A name per float of this part, in order (a dataset's column names).
+    pub fn value_names(self, arm: Option<&str>) -> Result<Vec<String>, String> {
+        let names: &[&str] = match self {
+            StatePart::EePos => &["ee_x", "ee_y", "ee_z"],
+            StatePart::EeQuat => &["ee_qx", "ee_qy", "ee_qz", "ee_qw"],
+            StatePart::EeYaw => &["ee_yaw"],
+            StatePart::Gripper => &["gripper"],
+            StatePart::Holding => &["holding"],
+            StatePart::Joints => {
+                let n = self.dims(arm)?;
+                return Ok((1..=n).map(|j| format!("joint_{j}")).collect());
+            }
+        };
+        Ok(names.iter().map(|n| (*n).to_owned()).collect())
     }
 
     pub fn dims(self, arm: Option<&str>) -> Result<usize, String> {
@@ -233,6 +268,15 @@ impl Interface {
     }
 
     /// Floats of the state vector for a task with arm `arm`.
+    /// A name per float of the state vector, in order.
+    pub fn state_names(&self, arm: Option<&str>) -> Result<Vec<String>, String> {
+        let mut names = Vec::new();
+        for p in &self.state {
+            names.extend(p.value_names(arm)?);
+        }
+        Ok(names)
+    }
+
     pub fn state_dims(&self, arm: Option<&str>) -> Result<usize, String> {
         self.state.iter().map(|p| p.dims(arm)).sum()
     }
