@@ -4,6 +4,16 @@ use std::path::{Path, PathBuf};
 
 use tch::{CModule, Device, Kind, Tensor};
 
+/// 1.0 where the position error [1, 3] is under 5 mm, else 0.0: [1, 1].
+fn within_5_mm(error: &Tensor) -> Tensor {
+    error
+        .square()
+        .sum_dim_intlist([1i64].as_slice(), true, Kind::Float)
+        .sqrt()
+        .lt(0.005)
+        .to_kind(Kind::Float)
+}
+
 /// A proportional controller to a point over the block's nominal position that commands a hold
 /// once the tool is within 5 mm of it: [1, 3, H, W] image and [1, 4] proprio → [1, 2, 4].
 pub fn controller(_image: &Tensor, proprio: &Tensor) -> Tensor {
@@ -13,13 +23,7 @@ pub fn controller(_image: &Tensor, proprio: &Tensor) -> Tensor {
     let target = Tensor::cat(&[&zero + 0.5, &zero + 0.1, &zero + 0.09], 1);
     let error = target - proprio.narrow(1, 0, 3);
     let velocity = (&error * 5.0).clamp(-0.5, 0.5);
-    let near = error
-        .square()
-        .sum_dim_intlist([1i64].as_slice(), true, Kind::Float)
-        .sqrt()
-        .lt(0.005)
-        .to_kind(Kind::Float);
-    let action = Tensor::cat(&[velocity, near], 1);
+    let action = Tensor::cat(&[velocity, within_5_mm(&error)], 1);
     Tensor::stack(&[&action, &action], 1)
 }
 
@@ -95,12 +99,7 @@ pub fn seven_d_torchscript(dir: &Path, name: &str, gain: f64) -> PathBuf {
         let target = Tensor::cat(&[&zero + 0.5, &zero + 0.1, &zero + 0.09], 1);
         let error = target - s.narrow(1, 0, 3);
         let delta = (&error * gain).clamp(-0.03, 0.03);
-        let near = error
-            .square()
-            .sum_dim_intlist([1i64].as_slice(), true, Kind::Float)
-            .sqrt()
-            .lt(0.005)
-            .to_kind(Kind::Float);
+        let near = within_5_mm(&error);
         let action = Tensor::cat(&[&delta, &zero, &zero, &zero, &near], 1);
         vec![Tensor::stack(&[&action, &action], 1)]
     })

@@ -10,34 +10,10 @@ use assay_model::policy::{
 };
 use assay_sim::{Observer, SimError, SimOptions, simulate_with};
 use assay_spec::scene::{Observation, SceneSnapshot};
-use assay_spec::spec::{Camera, Format, TaskSpec, parse_task};
+use assay_spec::spec::{Camera, TaskSpec};
 
-/// A red block to carry into a zone and leave turned by 45°, by suction; `arm` is appended.
-fn task(arm: &str) -> TaskSpec {
-    let yaml = format!(
-        r#"
-spec_version: 1
-id: turn-block-into-zone
-name: turn-block-into-zone
-description: Put the red block on the green square, turned by 45 degrees.
-group: placement
-scene:
-  objects:
-    - {{id: red_block, shape: {{box: {{half_extents: [0.03, 0.02, 0.02]}}}}, color: red, pose: {{position: [0.5, 0.1, 0.02]}}}}
-  zones:
-    - {{id: goal, center: [0.5, -0.1], half_extents: [0.05, 0.05], color: green}}
-end_effector: {{type: suction}}
-physics: {{max_steps: 4800}}
-goals:
-  - pose_within: {{object: red_block, position: [0.5, -0.1, 0.02], tolerance: 0.02, yaw_deg: 45, yaw_tolerance_deg: 5, planar: true, yaw_symmetry_deg: 180}}
-oracle:
-  - pick: {{object: red_block}}
-  - place: {{target: {{zone: goal}}}}
-{arm}
-"#
-    );
-    parse_task(&yaml, Format::Yaml, "t.yaml").unwrap()
-}
+mod common;
+use common::{carry_and_turn, turn_block_task as task};
 
 /// A camera drawn: its name, eye, target and size.
 type Drawn = (String, [f64; 3], [f64; 3], u32, u32);
@@ -149,22 +125,6 @@ impl Policy for Waypoints {
     fn interface(&self) -> Interface {
         self.interface.clone()
     }
-}
-
-/// Over the block, down, hold, up, turn 45° while carrying it over the zone, down, let go, up.
-fn carry_and_turn() -> Vec<([f32; 3], f32, f32)> {
-    let quarter = std::f32::consts::FRAC_PI_4;
-    // The tool's centre when its face touches the block's top: 0.04 + 0.05.
-    vec![
-        ([0.5, 0.1, 0.2], 0.0, 0.0),
-        ([0.5, 0.1, 0.09], 0.0, 0.0),
-        ([0.5, 0.1, 0.09], 0.0, 1.0),
-        ([0.5, 0.1, 0.2], 0.0, 1.0),
-        ([0.5, -0.1, 0.2], quarter, 1.0),
-        ([0.5, -0.1, 0.093], quarter, 1.0),
-        ([0.5, -0.1, 0.093], quarter, 0.0),
-        ([0.5, -0.1, 0.2], quarter, 0.0),
-    ]
 }
 
 fn run(
