@@ -245,18 +245,15 @@ impl Camera {
 }
 
 /// The dataset's cameras: the original interface's one (`scene`, `size` square) or the
-/// interface's, each at its own size (unsized ones at `size`). Every side must be even (H.264's
-/// 4:2:0) and at most `max`.
+/// interface's (sized), each at its own size. Every side must be even (H.264's 4:2:0) and at
+/// most `max`.
 fn cameras(o: &Options, max: u32) -> anyhow::Result<Vec<Camera>> {
     let cams: Vec<(String, u32, u32)> = match &o.interface {
         None => vec![("scene".to_owned(), o.size, o.size)],
         Some(i) => i
             .cameras
             .iter()
-            .map(|c| match c.width {
-                0 => (c.name.clone(), o.size, o.size),
-                w => (c.name.clone(), w, c.height),
-            })
+            .map(|c| (c.name.clone(), c.width, c.height))
             .collect(),
     };
     for (name, w, h) in &cams {
@@ -304,12 +301,8 @@ pub fn export(
         Some(i) => {
             i.validate()
                 .map_err(|e| anyhow::anyhow!("--interface: {e}"))?;
-            let mut i = i.clone();
-            for c in i.cameras.iter_mut().filter(|c| c.width == 0) {
-                (c.width, c.height) = (o.size, o.size);
-            }
             sized = Options {
-                interface: Some(i),
+                interface: Some(i.clone().sized(o.size)),
                 ..o.clone()
             };
             &sized

@@ -913,23 +913,15 @@ fn clip_states(
     let at = interface.unwrap_or(&original);
     let mut proprio = Vec::new();
     let mut actions = Vec::new();
-    let mut action_dims = 0;
     for (k, &row) in rows.iter().enumerate() {
         let tool = at_interface::recorded_tool(rec, spec, row);
         proprio.extend(at_interface::state_vector(&at.state, &tool));
-        match rows.get(k + 1) {
-            Some(&next) => {
-                let a = at_interface::recorded_action(at.action, rec, row, next, interval);
-                action_dims = a.len();
-                actions.extend(a);
-            }
-            None => {
-                let dims = match rows.len() {
-                    1 => at_interface::recorded_action(at.action, rec, row, row, interval).len(),
-                    _ => action_dims,
-                };
-                actions.extend(std::iter::repeat_n(0.0, dims));
-            }
+        let next = rows.get(k + 1).copied();
+        let a = at_interface::recorded_action(at.action, rec, row, next.unwrap_or(row), interval);
+        // Nothing follows the last frame: its action is zeros.
+        match next {
+            Some(_) => actions.extend(a),
+            None => actions.extend(std::iter::repeat_n(0.0, a.len())),
         }
     }
     let cameras = match interface {

@@ -74,13 +74,10 @@ impl SimRole {
         let clip_interface = match a.clip_interface.as_str() {
             "" => None,
             args => {
-                let mut i = assay_model::policy::Interface::parse_args(args).map_err(|e| {
+                let i = assay_model::policy::Interface::parse_args(args).map_err(|e| {
                     ShardError::permanent(format!("task {}: clip interface: {e}", spec.id))
                 })?;
-                for c in i.cameras.iter_mut().filter(|c| c.width == 0) {
-                    (c.width, c.height) = (clip_size, clip_size);
-                }
-                Some(i)
+                Some(i.sized(clip_size))
             }
         };
         // Every policy but the built-in oracle is a policy object, made for this episode: a

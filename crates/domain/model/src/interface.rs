@@ -250,10 +250,15 @@ impl Default for Interface {
 impl Interface {
     /// The original interface at a square frame size (0: the batch's).
     pub fn legacy(frame: u32) -> Self {
-        let mut i = Interface::default();
-        i.cameras[0].width = frame;
-        i.cameras[0].height = frame;
-        i
+        Interface::default().sized(frame)
+    }
+
+    /// The interface with its cameras that have no size at `frame` × `frame` pixels.
+    pub fn sized(mut self, frame: u32) -> Self {
+        for c in self.cameras.iter_mut().filter(|c| c.width == 0) {
+            (c.width, c.height) = (frame, frame);
+        }
+        self
     }
 
     /// Whether this is the original interface (any frame size).
