@@ -18,7 +18,9 @@ What it does, as a lab's scripted baseline would:
 
 The cameras' placement is what the policy was "calibrated" for: Assay's top view looks straight
 down from (0.5, 0, 0.95) m with a 50° field of view, its image's top towards +x; the wrist camera
-is 6 cm below the tool's centre with a 70° field of view. Distances in metres, angles in radians.
+is mounted beside the tool (4 cm behind its axis, 4 cm below its centre, in the tool's frame whose
+x is its heading), looks down tilted 25° forward, with a 70° field of view. Distances in metres,
+angles in radians.
 """
 
 import math
@@ -31,7 +33,8 @@ DEBUG = bool(os.environ.get("ASSAY_VISION_DEBUG"))
 
 SCENE_EYE = np.array([0.5, 0.0, 0.95])
 SCENE_FOVY = math.radians(50.0)
-WRIST_DROP = 0.06
+WRIST_MOUNT = np.array([-0.04, 0.0, -0.04])
+WRIST_TILT = math.radians(25.0)
 WRIST_FOVY = math.radians(70.0)
 TOOL_HALF_HEIGHT = 0.05
 CRUISE_Z = 0.28
@@ -80,10 +83,13 @@ def scene_points(depth):
 
 
 def wrist_points(depth, tool, heading):
-    eye = np.array([tool[0], tool[1], tool[2] - WRIST_DROP])
-    up = np.array([math.cos(heading), math.sin(heading), 0.0])
-    right = np.array([math.sin(heading), -math.cos(heading), 0.0])
-    return back_project(depth, eye, right, up, np.array([0.0, 0.0, -1.0]), WRIST_FOVY)
+    c, s = math.cos(heading), math.sin(heading)
+    turn = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    eye = np.asarray(tool, dtype=np.float64) + turn @ WRIST_MOUNT
+    ts, tc = math.sin(WRIST_TILT), math.cos(WRIST_TILT)
+    forward = turn @ np.array([ts, 0.0, -tc])
+    up = turn @ np.array([tc, 0.0, ts])
+    return back_project(depth, eye, np.cross(forward, up), up, forward, WRIST_FOVY)
 
 
 def rectangle(xy):

@@ -34,6 +34,7 @@ pub fn caption_scene(
 ) -> Result<SceneCaption, RenderError> {
     let scene = SceneSnapshot {
         tool: None,
+        tool_rotation: None,
         fingers: Vec::new(),
         arm: Vec::new(),
         ..initial.clone()

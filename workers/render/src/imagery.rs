@@ -87,6 +87,7 @@ pub fn render_episode_with(
     // The views show the scene as the task set it up: without the tool in the way.
     let scene = SceneSnapshot {
         tool: None,
+        tool_rotation: None,
         fingers: Vec::new(),
         arm: Vec::new(),
         ..initial.clone()

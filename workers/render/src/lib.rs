@@ -653,7 +653,11 @@ impl Renderer {
         if let Some(t) = scene.tool {
             push(
                 MeshKey::Box,
-                trs(t, identity, TOOL_HALF_EXTENTS.map(|x| x as f32)),
+                trs(
+                    t,
+                    scene.tool_rotation.unwrap_or(identity),
+                    TOOL_HALF_EXTENTS.map(|x| x as f32),
+                ),
                 TOOL_COLOR,
                 SEGMENT_TOOL,
             );
@@ -816,16 +820,26 @@ impl Renderer {
         rgba_into: Option<&mut [u8]>,
     ) -> Result<Frame, RenderError> {
         let (w, h) = (camera.width.max(1), camera.height.max(1));
-        let (eye, target) = if camera.name == EE_CAMERA {
+        let (eye, target, up) = if camera.name == EE_CAMERA {
             let t = scene.tool.ok_or_else(|| RenderError::Scene {
                 path: "cameras".into(),
                 reason: "the end-effector camera needs the tool in the snapshot".into(),
             })?;
-            ([t[0], t[1], t[2] - 0.06], [t[0], t[1], t[2] - 1.0])
+            // Along the tool's axis from below its centre, the image's top towards its x axis.
+            let r = scene.tool_rotation.unwrap_or([0.0, 0.0, 0.0, 1.0]);
+            let at = |v: [f32; 3]| {
+                let d = math::rotate(r, v);
+                [t[0] + d[0], t[1] + d[1], t[2] + d[2]]
+            };
+            let up = scene
+                .tool_rotation
+                .map(|r| math::rotate(r, [1.0, 0.0, 0.0]));
+            (at([0.0, 0.0, -0.06]), at([0.0, 0.0, -1.0]), up)
         } else {
             (
                 camera.eye.map(|x| x as f32),
                 camera.target.map(|x| x as f32),
+                camera.up.map(|u| u.map(|x| x as f32)),
             )
         };
         let view_proj = mul(
@@ -835,7 +849,7 @@ impl Renderer {
                 ZNEAR,
                 ZFAR,
             ),
-            &math::look_at(eye, target),
+            &math::look_at(eye, target, up),
         );
         let globals = Globals {
             view_proj,

@@ -21,14 +21,16 @@ pub fn normalize(a: [f32; 3]) -> [f32; 3] {
     [a[0] / l, a[1] / l, a[2] / l]
 }
 
-/// View matrix of a camera at `eye` looking at `target`. World z is up; a camera looking straight
-/// down takes +x (away from the robot) as the image's up.
-pub fn look_at(eye: [f32; 3], target: [f32; 3]) -> Mat4 {
+/// View matrix of a camera at `eye` looking at `target`, `up` towards the image's top (a camera
+/// that rides on the tool turns with it). Without one (or with one along the view) world z is
+/// up; a camera looking straight down takes +x (away from the robot) as the image's up.
+pub fn look_at(eye: [f32; 3], target: [f32; 3], up: Option<[f32; 3]>) -> Mat4 {
     let f = normalize(sub(target, eye));
-    let up = if cross(f, [0.0, 0.0, 1.0]).iter().all(|c| c.abs() < 1e-4) {
-        [1.0, 0.0, 0.0]
-    } else {
-        [0.0, 0.0, 1.0]
+    let along = |u: [f32; 3]| cross(f, normalize(u)).iter().all(|c| c.abs() < 1e-4);
+    let up = match up {
+        Some(u) if dot(u, u) > 0.0 && !along(u) => u,
+        _ if along([0.0, 0.0, 1.0]) => [1.0, 0.0, 0.0],
+        _ => [0.0, 0.0, 1.0],
     };
     let s = normalize(cross(f, up));
     let u = cross(s, f);
@@ -145,7 +147,7 @@ mod tests {
         let (near, far) = (0.01, 10.0);
         let vp = mul(
             &perspective(1.0, 4.0 / 3.0, near, far),
-            &look_at([1.0, 0.0, 0.75], [0.5, 0.0, 0.0]),
+            &look_at([1.0, 0.0, 0.75], [0.5, 0.0, 0.0], None),
         );
         let c = project(&vp, [0.5, 0.0, 0.0]);
         assert!(c[0].abs() < 1e-5 && c[1].abs() < 1e-5, "{c:?}");
@@ -158,7 +160,7 @@ mod tests {
         // Looking straight down works too (+x is image up).
         let top = mul(
             &perspective(1.0, 1.0, near, far),
-            &look_at([0.5, 0.0, 1.0], [0.5, 0.0, 0.0]),
+            &look_at([0.5, 0.0, 1.0], [0.5, 0.0, 0.0], None),
         );
         assert!(project(&top, [0.6, 0.0, 0.0])[1] > 0.0);
     }

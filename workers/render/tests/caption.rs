@@ -167,6 +167,7 @@ fn hidden_objects_are_not_captioned_as_visible() {
             ),
         ],
         tool: None,
+        tool_rotation: None,
         fingers: Vec::new(),
         arm: Vec::new(),
     };
@@ -210,6 +211,7 @@ fn every_palette_colour_is_named_back_from_the_top_view() {
                 [0.5, 0.1, 0.03],
             )],
             tool: None,
+            tool_rotation: None,
             fingers: Vec::new(),
             arm: Vec::new(),
         };
@@ -268,6 +270,7 @@ fn stacks_containers_and_floating_objects_are_measured() {
             ),
         ],
         tool: None,
+        tool_rotation: None,
         fingers: Vec::new(),
         arm: Vec::new(),
     };

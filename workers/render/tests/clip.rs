@@ -194,8 +194,8 @@ fn a_clip_at_a_policys_interface_draws_each_camera_where_it_was() {
     assert_eq!(original.rgb, c.rgb);
 
     // The wrist camera rides on the tool: its view changes as the tool moves to the block, and
-    // close above it (at the grasp) it is mostly the block's red. (Mounted 6 cm below the tool's
-    // centre, it is inside a block the suction tool holds: all red while it carries one.)
+    // close above it (at the grasp) the block's red fills much of it. Mounted beside the tool, it
+    // sees a block the suction tool carries from outside: part of the view, the scene around it.
     let holding_from = (0..c.len())
         .find(|&t| c.actions[t * 7 + 6] == 1.0)
         .expect("a grasp");
@@ -216,8 +216,19 @@ fn a_clip_at_a_policys_interface_draws_each_camera_where_it_was() {
         .map(|t| red(wrist.frame(t)))
         .fold(0.0, f64::max);
     let at_start = red(wrist.frame(0));
+    let carried: Vec<f64> = (holding_from + 3..c.len())
+        .take_while(|&t| c.actions[t * 7 + 6] == 1.0)
+        .map(|t| red(wrist.frame(t)))
+        .collect();
+    println!(
+        "red share of the wrist view: {at_start:.2} at the start, {above_block:.2} above the block, {carried:.2?} carrying it"
+    );
     assert!(
         above_block > 0.4 && at_start < 0.05,
         "red share of the wrist view: {at_start:.2} at the start, {above_block:.2} above the block"
+    );
+    assert!(
+        !carried.is_empty() && carried.iter().all(|&r| r > 0.05 && r < 0.7),
+        "red share of the wrist view while carrying: {carried:.2?}"
     );
 }

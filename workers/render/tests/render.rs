@@ -70,6 +70,7 @@ fn scene() -> SceneSnapshot {
             ),
         ],
         tool: Some([0.55, 0.0, 0.3]),
+        tool_rotation: None,
         fingers: Vec::new(),
         arm: Vec::new(),
     }
@@ -83,6 +84,7 @@ fn camera(name: &str, eye: [f64; 3], target: [f64; 3], w: u32, h: u32) -> Camera
         fovy_deg: 50.0,
         width: w,
         height: h,
+        up: None,
     }
 }
 
@@ -101,7 +103,11 @@ fn pixel(cam: &Camera, p: [f32; 3]) -> (u32, u32) {
             ZNEAR,
             ZFAR,
         ),
-        &look_at(cam.eye.map(|x| x as f32), cam.target.map(|x| x as f32)),
+        &look_at(
+            cam.eye.map(|x| x as f32),
+            cam.target.map(|x| x as f32),
+            cam.up.map(|u| u.map(|x| x as f32)),
+        ),
     );
     let n = project(&vp, p);
     (
@@ -240,4 +246,48 @@ fn finger_pads_are_drawn_as_the_tool() {
     // Beside the pads there is nothing but the background.
     let (x, y) = pixel(&cam, [0.62, 0.0, 0.2]);
     assert_ne!(f.segments[(y * f.width + x) as usize], SEGMENT_TOOL);
+}
+
+/// A turned tool is drawn turned: pitched by 90° its box (0.02 × 0.02 × 0.05 half extents) lies
+/// along x, seen from the side; the end-effector camera looks along its axis, no longer down.
+#[test]
+fn a_turned_tool_is_drawn_turned_and_its_camera_looks_along_its_axis() {
+    let mut r = Renderer::new().expect("a graphics adapter");
+    let cam = camera("side", [0.55, -1.0, 0.3], [0.55, 0.0, 0.3], 320, 240);
+    let mut s = scene();
+    s.objects.clear();
+    let mut tool_at = |s: &SceneSnapshot, p: [f32; 3]| {
+        let f = r.render(s, &cam).unwrap();
+        let (x, y) = pixel(&cam, p);
+        f.segments[(y * f.width + x) as usize] == SEGMENT_TOOL
+    };
+    // Pointing down: 4 cm above its centre is tool, 4 cm beside it is not.
+    let (above, beside) = ([0.55, 0.0, 0.34], [0.59, 0.0, 0.3]);
+    assert!(tool_at(&s, above) && !tool_at(&s, beside));
+    // Pitched by -90° about y (its axis along +x): the other way round.
+    let h = std::f32::consts::FRAC_PI_4;
+    s.tool_rotation = Some([0.0, -h.sin(), 0.0, h.cos()]);
+    assert!(!tool_at(&s, above) && tool_at(&s, beside));
+    // Its camera looks along +x from 6 cm in front of its centre: at a box standing 0.3 m ahead
+    // at the tool's height, where pointing down it saw the table.
+    let ee = Camera {
+        fovy_deg: 70.0,
+        ..camera(assay_spec::scene::EE_CAMERA, [0.0; 3], [0.0; 3], 64, 48)
+    };
+    s.objects = vec![object(
+        "wall",
+        Shape::Box {
+            half_extents: [0.02, 0.2, 0.2],
+        },
+        [0.8, 0.3, 0.3],
+        [0.9, 0.0, 0.3],
+        0.0,
+    )];
+    let centre = |s: &SceneSnapshot, r: &mut Renderer| {
+        let f = r.render(s, &ee).unwrap();
+        f.segments[(24 * 64 + 32) as usize]
+    };
+    assert_eq!(centre(&s, &mut r), FIRST_OBJECT_SEGMENT);
+    s.tool_rotation = None;
+    assert_eq!(centre(&s, &mut r), SEGMENT_SURFACE);
 }

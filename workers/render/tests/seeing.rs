@@ -62,6 +62,7 @@ fn the_camera_sees_a_box_where_it_is() {
             joints: Default::default(),
         }],
         tool: None,
+        tool_rotation: None,
         fingers: Vec::new(),
         arm: Vec::new(),
     };

@@ -37,6 +37,7 @@ fn cabinet_coloured(drawer: f64, color_given: bool) -> (SceneSnapshot, [f64; 3])
             joints: Default::default(),
         }],
         tool: None,
+        tool_rotation: None,
         fingers: Vec::new(),
         arm: Vec::new(),
     };

@@ -1,14 +1,15 @@
 //! A robot arm from URDF that carries the tool: every step, damped-least-squares inverse
 //! kinematics turns the commanded tool position into joint positions (the tool pointing straight
-//! down), the links follow as kinematic bodies that collide with the scene, and the tool goes
-//! where the arm actually put it — a command out of reach is not met.
+//! down, or turned as a policy commands: yaw, roll and pitch), the links follow as kinematic
+//! bodies that collide with the scene, and the tool goes where the arm actually put it — a
+//! command out of reach is not met.
 
 use std::collections::BTreeMap;
 
 use assay_spec::urdf::{Geometry, JointKind, Pose as UPose, Urdf};
 use rapier3d::prelude::*;
 
-use crate::tabletop::{GRIPPER_HALF_EXTENTS, OBJECT_FRICTION, wrap_angle as wrap};
+use crate::tabletop::{GRIPPER_HALF_EXTENTS, OBJECT_FRICTION};
 
 /// A built-in arm.
 struct Model {
@@ -69,8 +70,9 @@ pub struct Arm {
     pub colliders: Vec<ColliderHandle>,
     /// Each link's boxes: (link, pose in the link's frame, half extents).
     boxes: Vec<(usize, UPose, [f32; 3])>,
-    /// The wrist's heading where the episode's tool started: the tool's yaw 0.
-    yaw0: f32,
+    /// The wrist's orientation where the episode's tool started (pointing down): the tool's
+    /// turn is measured from it.
+    wrist0: Rotation,
 }
 
 /// Fastest a joint follows a joint-position target (rad/s).
@@ -172,7 +174,7 @@ impl Arm {
             bodies: Vec::new(),
             colliders: Vec::new(),
             boxes,
-            yaw0: 0.0,
+            wrist0: Rotation::IDENTITY,
         })
     }
 
@@ -208,18 +210,14 @@ impl Arm {
         for _ in 0..20 {
             self.reach(target);
         }
-        self.yaw0 = self.heading(&self.link_poses());
+        self.wrist0 = self.link_poses()[self.wrist].rotation;
         self.tool_position()
     }
 
-    /// The heading (rad) of the wrist's x axis, which is across the tool's axis.
-    fn heading(&self, poses: &[Pose]) -> f32 {
-        crate::tabletop::yaw_of(&poses[self.wrist].rotation)
-    }
-
-    /// The tool's turn about z from where the episode's tool started (rad, in (−π, π]).
-    pub fn tool_yaw(&self) -> f32 {
-        wrap(self.heading(&self.link_poses()) - self.yaw0)
+    /// The tool's turn from where the episode's tool started, in the world frame: the rotation
+    /// that takes the starting wrist onto the wrist now (the tool's yaw is its turn about z).
+    pub fn tool_turn(&self) -> Rotation {
+        (self.link_poses()[self.wrist].rotation * self.wrist0.inverse()).normalize()
     }
 
     /// Moves every joint towards `goal` (rad, along the chain; clamped to its limits) by at most
@@ -242,10 +240,10 @@ impl Arm {
         &self.q
     }
 
-    /// [`Arm::reach`], also turning the tool to `yaw` (rad from where it started) about its
-    /// axis when given.
-    pub fn reach_turned(&mut self, target: Vec3, yaw: Option<f32>) -> Vec3 {
-        self.solve(target, yaw)
+    /// [`Arm::reach`], also turning the tool by `turn` (from where it started, in the world
+    /// frame; see [`Arm::tool_turn`]) when given.
+    pub fn reach_turned(&mut self, target: Vec3, turn: Option<Rotation>) -> Vec3 {
+        self.solve(target, turn)
     }
 
     fn positions(&self, q: &[f64]) -> BTreeMap<String, f64> {
@@ -284,8 +282,14 @@ impl Arm {
         self.solve(target, None)
     }
 
-    fn solve(&mut self, target: Vec3, yaw: Option<f32>) -> Vec3 {
-        let flange_target = target + Vec3::Z * GRIPPER_HALF_EXTENTS[2];
+    fn solve(&mut self, target: Vec3, turn: Option<Rotation>) -> Vec3 {
+        // The tool's axis and the wrist's heading axis (its x, across the tool) as wanted: down
+        // and free about z without a turn; else the start's turned by it.
+        let (axis, across) = match turn {
+            Some(r) => (r * -Vec3::Z, Some(r * (self.wrist0 * Vec3::X))),
+            None => (-Vec3::Z, None),
+        };
+        let flange_target = target - axis * GRIPPER_HALF_EXTENTS[2];
         let t = [flange_target.x, flange_target.y, flange_target.z].map(f64::from);
         let n = self.chain.len();
         let mut q = self.q.clone();
@@ -293,16 +297,21 @@ impl Arm {
             let poses = self.world_poses(&q);
             let p = poses[self.flange].translation;
             let a = poses[self.wrist].rotation * self.tool_axis;
-            // Position error, and the rotation that turns the tool's axis onto straight down.
+            // Position error, and the rotation that turns the tool's axis onto the wanted one.
             let ep = [
                 t[0] - f64::from(p.x),
                 t[1] - f64::from(p.y),
                 t[2] - f64::from(p.z),
             ];
-            let mut er = a.cross(-Vec3::Z);
-            // Its z part is 0 (the axis error is horizontal): the turn about z goes there.
-            if let Some(yaw) = yaw {
-                er.z = wrap(yaw + self.yaw0 - self.heading(&poses));
+            let mut er = a.cross(axis);
+            // Pointing down its part along the axis is 0: the turn about the axis goes there —
+            // the signed angle from the wrist's heading axis (across the tool, laid into the
+            // plane across the wanted axis) to the wanted one.
+            if let Some(want) = across {
+                let x = poses[self.wrist].rotation * Vec3::X;
+                let x = (x - axis * x.dot(axis)).normalize_or_zero();
+                let twist = x.cross(want).dot(axis).atan2(x.dot(want));
+                er += axis * twist;
             }
             let e = [
                 ep[0],

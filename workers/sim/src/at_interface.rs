@@ -7,11 +7,19 @@
 
 use assay_model::policy::{ActionSpace, CameraSource, Interface, StatePart};
 use assay_spec::spec::{Camera, EndEffector, TaskSpec};
+use rapier3d::prelude::{Rotation, Vec3};
 
 use crate::record::Recorder;
+pub use crate::tabletop::{rpy_of_turn, tool_quaternion, turn_of_quaternion, turn_of_rpy};
 
-/// The wrist camera: this far below the tool's centre (m), looking straight down.
-pub const WRIST_CAMERA_DROP: f32 = 0.06;
+/// Where the wrist camera is mounted, in the tool's frame (m; x the tool's heading, z up its
+/// axis, the tool's face at z = −0.05): beside the tool, 2 cm out from its back and 1 cm above
+/// its face, as a hand camera is, so that what the tool holds is seen from outside, in the
+/// middle and upper part of its image, with the scene around it.
+pub const WRIST_CAMERA_MOUNT: [f32; 3] = [-0.04, 0.0, -0.04];
+/// How far the wrist camera looks forward (towards the tool's heading) from the tool's axis
+/// (rad): 25°, so that the point on the axis 6 cm below the face is 5° from the image's centre.
+pub const WRIST_CAMERA_TILT: f32 = 25.0 * std::f32::consts::PI / 180.0;
 
 /// A policy camera, resolved against the task.
 #[derive(Debug, Clone)]
@@ -26,19 +34,20 @@ pub struct PolicyCamera {
 }
 
 impl PolicyCamera {
-    /// The camera with the tool at `tool` turned `heading` rad about z: a wrist camera looks
-    /// straight down from below the tool, the image's top towards the tool's heading (a tilt of
-    /// 1 mrad gives the view its turn); any other camera stays where the task put it.
-    pub fn placed(&self, tool: [f32; 3], heading: f32) -> Camera {
+    /// The camera with the tool at `tool` turned by `turn` (from pointing down; see
+    /// [`tool_quaternion`]): a wrist camera rides on the tool ([`WRIST_CAMERA_MOUNT`]), looking
+    /// along its axis tilted forward by [`WRIST_CAMERA_TILT`], the image's top towards the tool's
+    /// heading; any other camera stays where the task put it.
+    pub fn placed(&self, tool: [f32; 3], turn: Rotation) -> Camera {
         let mut camera = self.camera.clone();
         if self.wrist {
-            let eye = [tool[0], tool[1], tool[2] - WRIST_CAMERA_DROP];
-            camera.eye = eye.map(f64::from);
-            camera.target = [
-                f64::from(eye[0] + 1e-3 * heading.cos()),
-                f64::from(eye[1] + 1e-3 * heading.sin()),
-                f64::from(eye[2] - 1.0),
-            ];
+            let (sin, cos) = WRIST_CAMERA_TILT.sin_cos();
+            let eye = Vec3::from(tool) + turn * Vec3::from(WRIST_CAMERA_MOUNT);
+            let target = eye + turn * Vec3::new(sin, 0.0, -cos);
+            let up = turn * Vec3::new(cos, 0.0, sin);
+            camera.eye = eye.to_array().map(f64::from);
+            camera.target = target.to_array().map(f64::from);
+            camera.up = Some(up.to_array().map(f64::from));
         }
         camera
     }
@@ -84,6 +93,7 @@ pub fn policy_cameras(interface: &Interface, spec: &TaskSpec, frame: u32) -> Vec
                         fovy_deg: 70.0,
                         width: w,
                         height: h,
+                        up: None,
                     },
                     true,
                 ),
@@ -112,21 +122,14 @@ pub fn policy_cameras(interface: &Interface, spec: &TaskSpec, frame: u32) -> Vec
 pub struct ToolState {
     /// The tool's centre (m).
     pub position: [f32; 3],
-    /// Its turn about z (rad).
-    pub yaw: f32,
+    /// Its turn from pointing down (world frame).
+    pub turn: Rotation,
     /// Whether it holds an object.
     pub holding: bool,
     /// A friction gripper's opening as a fraction of its widest, `None` without pads.
     pub opening: Option<f32>,
     /// The arm's joint positions (rad; empty without an arm).
     pub joints: Vec<f64>,
-}
-
-/// The orientation of the tool pointing down, turned by `yaw` about z: x, y, z, w.
-pub fn tool_quaternion(yaw: f32) -> [f32; 4] {
-    use rapier3d::prelude::Rotation;
-    let q = Rotation::from_rotation_z(yaw) * Rotation::from_rotation_x(std::f32::consts::PI);
-    [q.x, q.y, q.z, q.w]
 }
 
 /// The state vector `parts` ask for, in their order.
@@ -136,8 +139,8 @@ pub fn state_vector(parts: &[StatePart], t: &ToolState) -> Vec<f32> {
     for part in parts {
         match part {
             StatePart::EePos => state.extend(t.position),
-            StatePart::EeQuat => state.extend(tool_quaternion(t.yaw)),
-            StatePart::EeYaw => state.push(t.yaw),
+            StatePart::EeQuat => state.extend(tool_quaternion(t.turn)),
+            StatePart::EeYaw => state.push(crate::tabletop::yaw_of(&t.turn)),
             // Open 1, closed 0; a tool without pads is open unless it holds something.
             StatePart::Gripper => state.push(match t.opening {
                 Some(o) => o.clamp(0.0, 1.0),
@@ -162,7 +165,7 @@ fn max_opening(spec: &TaskSpec) -> Option<f32> {
 pub(crate) fn recorded_tool(rec: &Recorder, spec: &TaskSpec, row: usize) -> ToolState {
     ToolState {
         position: rec.ee_at(row),
-        yaw: rec.yaw_at(row),
+        turn: rec.turn_at(row),
         holding: rec.grasped_at(row) >= 0,
         opening: rec
             .opening_at(row)
@@ -174,8 +177,9 @@ pub(crate) fn recorded_tool(rec: &Recorder, spec: &TaskSpec, row: usize) -> Tool
 
 /// The action in `space` that takes the recorded robot from `row` to `next`, `interval` seconds
 /// later, as a policy of that space would command it ([`crate::learned`] runs it): the
-/// commanded tool centre's velocity (`tool_velocity`) or change (`ee_delta`, its turn about z
-/// as the yaw), the commanded centre and the tool's orientation at `next` (`ee_pose`), or the
+/// commanded tool centre's velocity (`tool_velocity`) or change (`ee_delta`, its turn as roll,
+/// pitch and yaw of the rotation from the one to the other, in the world frame: see
+/// [`turn_of_rpy`]), the commanded centre and the tool's orientation at `next` (`ee_pose`), or the
 /// arm's joints at `next` (`joint_position`); last, the hold command (1 while it holds at
 /// `next`).
 pub(crate) fn recorded_action(
@@ -191,19 +195,19 @@ pub(crate) fn recorded_action(
     let mut a = match space {
         ActionSpace::ToolVelocity => (0..3).map(|i| (delta(i) / interval) as f32).collect(),
         ActionSpace::EeDelta => {
-            let turn = crate::tabletop::wrap_angle(rec.yaw_at(next) - rec.yaw_at(row));
+            let [roll, pitch, yaw] = rpy_of_turn(rec.turn_at(next) * rec.turn_at(row).inverse());
             vec![
                 delta(0) as f32,
                 delta(1) as f32,
                 delta(2) as f32,
-                0.0,
-                0.0,
-                turn,
+                roll,
+                pitch,
+                yaw,
             ]
         }
         ActionSpace::EePose => {
             let mut a = to.to_vec();
-            a.extend(tool_quaternion(rec.yaw_at(next)));
+            a.extend(tool_quaternion(rec.turn_at(next)));
             a
         }
         ActionSpace::JointPosition => rec.arm_at(next).iter().map(|&q| q as f32).collect(),

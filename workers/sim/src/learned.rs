@@ -2,7 +2,8 @@
 //! [`CONTROL_STRIDE_STEPS`] physics steps it shows the policy what its [`Interface`] asks for
 //! (named cameras, a state vector) and runs the actions it answers, one per control step, in the
 //! policy's action space: the tool's velocity (the original space), an end-effector delta or
-//! pose (the tool moves there and turns about z), or the arm's joint targets. A change of the
+//! pose (the tool moves there and turns: yaw, roll and pitch, an arm's wrist following through
+//! inverse kinematics), or the arm's joint targets. A change of the
 //! gripper command grasps the object under the tool (by the same rule as the oracle's grasps)
 //! or releases the one held.
 
@@ -15,7 +16,10 @@ use assay_model::policy::{
 use assay_spec::spec::TaskSpec;
 use rapier3d::prelude::*;
 
-use crate::at_interface::{PolicyCamera, ToolState, policy_cameras, state_vector};
+use crate::at_interface::{
+    PolicyCamera, ToolState, policy_cameras, rpy_of_turn, state_vector, turn_of_quaternion,
+    turn_of_rpy,
+};
 use crate::controller::{Controller, Event, Note};
 use crate::scene::{GRIPPER_HALF_EXTENTS, SimScene};
 use crate::{Observer, SimError};
@@ -26,7 +30,17 @@ pub const MAX_CHUNK: usize = 256;
 pub const MAX_SPEED: f32 = 2.0;
 /// Commanded turns of the tool are clipped to this (rad/s).
 pub const MAX_TURN_RATE: f32 = 2.0 * std::f32::consts::PI;
-pub use crate::at_interface::{WRIST_CAMERA_DROP, tool_quaternion};
+/// An arm's tool further than this (rad) from its commanded turn at a control step has not
+/// followed it …
+pub const TURN_MISS: f32 = 0.1;
+/// … and after this many control steps in a row the turn is refused: the arm cannot reach the
+/// orientation (its joints' limits, or the pose out of its reach). The episode notes it and
+/// goes on from the orientation the arm did reach, as a real arm's controller would.
+pub const TURN_MISS_STEPS: u32 = 15;
+/// A hold is refused while the tool tilts further than this (rad) from pointing down: Assay's
+/// grasps are made from above.
+pub const GRASP_TILT: f32 = 0.1;
+pub use crate::at_interface::{WRIST_CAMERA_MOUNT, WRIST_CAMERA_TILT, tool_quaternion};
 
 pub struct Learned<'p> {
     policy: &'p mut dyn Policy,
@@ -37,9 +51,15 @@ pub struct Learned<'p> {
     action_dims: usize,
     chunk: VecDeque<Vec<f32>>,
     velocity: Vec3,
-    turn_rate: f32,
-    /// Whether a roll or pitch the tool cannot follow has been noted.
-    noted_tilt: bool,
+    /// The tool's commanded turn at the start and at the end of the current control step
+    /// (`ee_delta` and `ee_pose`): the goal moves from the one to the other over its physics
+    /// steps.
+    turn_from: Rotation,
+    turn_to: Rotation,
+    /// Control steps in a row at which an arm's tool missed its commanded turn.
+    missed_turns: u32,
+    /// Turns refused so far (the first is noted in full).
+    refused_turns: u32,
     /// Control steps taken.
     pub control: u32,
     /// The physics step of the first action.
@@ -93,8 +113,10 @@ impl<'p> Learned<'p> {
             action_dims,
             chunk: VecDeque::new(),
             velocity: Vec3::ZERO,
-            turn_rate: 0.0,
-            noted_tilt: false,
+            turn_from: Rotation::IDENTITY,
+            turn_to: Rotation::IDENTITY,
+            missed_turns: 0,
+            refused_turns: 0,
             control: 0,
             start: 0,
             frames: 0,
@@ -112,7 +134,11 @@ impl<'p> Learned<'p> {
     ) -> Result<(), SimError> {
         self.start = start;
         match self.interface.action {
-            ActionSpace::EeDelta | ActionSpace::EePose => scene.yaw_goal = Some(scene.tool_yaw()),
+            ActionSpace::EeDelta | ActionSpace::EePose => {
+                let now = scene.tool_turn();
+                (self.turn_from, self.turn_to) = (now, now);
+                scene.turn_goal = Some(now);
+            }
             ActionSpace::JointPosition => {
                 scene.joint_goal = scene.arm.as_ref().map(|a| a.joints().to_vec())
             }
@@ -141,13 +167,26 @@ impl<'p> Learned<'p> {
         dt: f32,
     ) -> Result<(Vec3, Event), SimError> {
         let mut ev = Event::None;
-        if (step - self.start).is_multiple_of(CONTROL_STRIDE_STEPS) {
+        let into_step = (step - self.start) % CONTROL_STRIDE_STEPS;
+        if into_step == 0 {
+            self.check_turn(scene, ctl, step);
             if self.chunk.is_empty() {
                 self.ask(scene, spec, ctl, observer, step)?;
             }
             let a = self.chunk.pop_front().expect("a non-empty chunk");
             let hold = self.take(&a, scene, ctl, step, dt)?;
+            let tilt = (scene.tool_turn() * -Vec3::Z).angle_between(-Vec3::Z);
             ev = match (hold, ctl.held.is_some()) {
+                (true, false) if tilt > GRASP_TILT => {
+                    ctl.notes.push(Note {
+                        step,
+                        text: format!(
+                            "hold commanded with the tool tilted {tilt:.3} rad from pointing down: \
+                             Assay grasps from above (within {GRASP_TILT} rad)"
+                        ),
+                    });
+                    Event::None
+                }
                 (true, false) => match grasp_candidate(scene) {
                     Some(i) => Event::Grasp(i),
                     None => {
@@ -168,8 +207,9 @@ impl<'p> Learned<'p> {
             ctl.command = scene.gripper_position();
             return Ok((ctl.command, ev));
         }
-        if let Some(yaw) = scene.yaw_goal.as_mut() {
-            *yaw += self.turn_rate * dt;
+        if let Some(goal) = scene.turn_goal.as_mut() {
+            let t = (into_step + 1) as f32 / CONTROL_STRIDE_STEPS as f32;
+            *goal = self.turn_from.slerp(self.turn_to, t).normalize();
         }
         let mut cmd = ctl.command + self.velocity * dt;
         // The tool stays above the surface and over the table's reach.
@@ -197,25 +237,27 @@ impl<'p> Learned<'p> {
                 v
             }
         };
-        let turn = |rate: f32| rate.clamp(-MAX_TURN_RATE, MAX_TURN_RATE);
+        // The turn from where the last step's goal ended, at most MAX_TURN_RATE for the period.
+        let from = self.turn_to;
+        let mut turn_by = |by: Rotation| {
+            // The short way round.
+            let by = if by.w < 0.0 { -by } else { by };
+            let (_, angle) = by.to_axis_angle();
+            let most = MAX_TURN_RATE * period;
+            let by = if angle > most {
+                Rotation::IDENTITY.slerp(by, most / angle)
+            } else {
+                by
+            };
+            (self.turn_from, self.turn_to) = (from, (by * from).normalize());
+        };
         match self.interface.action {
             ActionSpace::ToolVelocity => {
                 self.velocity = cap(Vec3::new(a[0], a[1], a[2]));
             }
             ActionSpace::EeDelta => {
                 self.velocity = cap(Vec3::new(a[0], a[1], a[2]) / period);
-                self.turn_rate = turn(a[5] / period);
-                if !self.noted_tilt && (a[3].abs() > 1e-3 || a[4].abs() > 1e-3) {
-                    self.noted_tilt = true;
-                    ctl.notes.push(Note {
-                        step,
-                        text: format!(
-                            "the policy commanded roll {:.3} / pitch {:.3} rad: the tool points \
-                             down and follows only the turn about z",
-                            a[3], a[4]
-                        ),
-                    });
-                }
+                turn_by(turn_of_rpy([a[3], a[4], a[5]]));
             }
             ActionSpace::EePose => {
                 let q = Vec4::new(a[3], a[4], a[5], a[6]);
@@ -230,11 +272,9 @@ impl<'p> Learned<'p> {
                     ));
                 }
                 let q = q.normalize();
-                let r = Rotation::from_xyzw(q.x, q.y, q.z, q.w);
-                let target_yaw = crate::tabletop::yaw_of(&r);
+                let target = turn_of_quaternion([q.x, q.y, q.z, q.w]);
                 self.velocity = cap((Vec3::new(a[0], a[1], a[2]) - ctl.command) / period);
-                let now = scene.yaw_goal.unwrap_or(0.0);
-                self.turn_rate = turn(crate::tabletop::wrap_angle(target_yaw - now) / period);
+                turn_by((target * from.inverse()).normalize());
             }
             ActionSpace::JointPosition => {
                 let n = self.action_dims - 1;
@@ -244,11 +284,52 @@ impl<'p> Learned<'p> {
         Ok(a[self.action_dims - 1] >= 0.5)
     }
 
+    /// At a control step: whether an arm's tool has followed the turn the policy commanded (see
+    /// [`TURN_MISS`]). A turn it misses for [`TURN_MISS_STEPS`] control steps is refused: the
+    /// goal comes back to the orientation the arm reached (so that the policy's next deltas start
+    /// from there, not from a goal wound up beyond reach), and the episode notes it — the first
+    /// time naming the policy, the turn, the arm and how far it got; then how often.
+    fn check_turn(&mut self, scene: &mut SimScene, ctl: &mut Controller, step: u64) {
+        let (Some(arm), Some(_)) = (&scene.arm, scene.turn_goal) else {
+            return;
+        };
+        let reached = scene.tool_turn();
+        let off = (reached * self.turn_to.inverse()).to_axis_angle().1;
+        let off = off.min(std::f32::consts::TAU - off);
+        self.missed_turns = if off > TURN_MISS {
+            self.missed_turns + 1
+        } else {
+            0
+        };
+        if self.missed_turns < TURN_MISS_STEPS {
+            return;
+        }
+        self.refused_turns += 1;
+        let [roll, pitch, yaw] = rpy_of_turn(self.turn_to);
+        let text = if self.refused_turns == 1 {
+            format!(
+                "policy '{}' commanded the tool turned to roll {roll:.3}, pitch {pitch:.3}, yaw \
+                 {yaw:.3} rad; the arm '{}' cannot reach it (its tool stayed {off:.3} rad away for \
+                 {TURN_MISS_STEPS} control steps): refused, the tool goes on from where it is",
+                self.name, arm.model
+            )
+        } else {
+            format!(
+                "turn refused again ({} so far): roll {roll:.3}, pitch {pitch:.3}, yaw {yaw:.3} rad",
+                self.refused_turns
+            )
+        };
+        ctl.notes.push(Note { step, text });
+        (self.turn_from, self.turn_to) = (reached, reached);
+        scene.turn_goal = Some(reached);
+        self.missed_turns = 0;
+    }
+
     /// The state vector the interface asks for.
     fn state(&self, scene: &SimScene, ctl: &Controller) -> Vec<f32> {
         let tool = ToolState {
             position: scene.gripper_position().into(),
-            yaw: scene.tool_yaw(),
+            turn: scene.tool_turn(),
             holding: ctl.held.is_some(),
             opening: scene
                 .fingers
@@ -272,10 +353,10 @@ impl<'p> Learned<'p> {
     ) -> Result<(), SimError> {
         let snapshot = crate::record::live_snapshot(scene, spec);
         let tool = scene.gripper_position();
-        let heading = scene.tool_yaw();
+        let turn = scene.tool_turn();
         let mut images = Vec::with_capacity(self.cameras.len());
         for c in &self.cameras {
-            let camera = c.placed(tool.into(), heading);
+            let camera = c.placed(tool.into(), turn);
             let camera_error = |e: String| {
                 SimError::internal(format!("policy camera '{}' at step {step}: {e}", c.name))
             };

@@ -931,7 +931,7 @@ fn clip_states(
             .map(|c| ClipCamera {
                 frames: rows
                     .iter()
-                    .map(|&row| c.placed(rec.ee_at(row), rec.yaw_at(row)))
+                    .map(|&row| c.placed(rec.ee_at(row), rec.turn_at(row)))
                     .collect(),
                 name: c.name,
             })

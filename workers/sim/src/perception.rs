@@ -128,6 +128,7 @@ mod tests {
             fovy_deg: 50.0,
             width: 64,
             height: 64,
+            up: None,
         };
         let mut segments = vec![1; 64 * 64];
         let mut depths = vec![1.0f32; 64 * 64];

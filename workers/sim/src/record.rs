@@ -17,6 +17,12 @@ use crate::scene::SimScene;
 
 pub const EPISODE_FORMAT_VERSION: &str = "1";
 
+/// Whether a recorded roll or pitch (rad) tilts the tool: more than the arm's inverse
+/// kinematics leaves of a tool held pointing down.
+fn tilted(angle: f32) -> bool {
+    angle.abs() > 1e-3
+}
+
 /// Per-step rows, column by column.
 #[derive(Default)]
 pub struct Recorder {
@@ -28,8 +34,9 @@ pub struct Recorder {
     contact_pairs: Vec<u32>,
     contact_points: Vec<u32>,
     ee_contact: Vec<bool>,
-    /// The tool's turn about z (rad): 0 unless a policy turns it.
-    ee_yaw: Vec<f32>,
+    /// The tool's turn from pointing down as roll, pitch and yaw (rad; see
+    /// [`crate::tabletop::turn_of_rpy`]): 0 unless a policy turns it.
+    ee_turn: [Vec<f32>; 3],
     /// Per object: x, y, z, qx, qy, qz, qw.
     objects: Vec<[Vec<f32>; 7]>,
     /// Per object: each moving joint's name and position (articulated objects only).
@@ -75,9 +82,14 @@ impl Recorder {
         self.grasped[row]
     }
 
-    /// The tool's turn about z recorded at `row` (`ee_yaw`; 0 in files without the column).
-    pub fn yaw_at(&self, row: usize) -> f32 {
-        self.ee_yaw.get(row).copied().unwrap_or(0.0)
+    /// The tool's turn from pointing down recorded at `row` (`ee_roll`, `ee_pitch`, `ee_yaw`;
+    /// 0 in files without the columns).
+    pub fn turn_at(&self, row: usize) -> Rotation {
+        crate::tabletop::turn_of_rpy(
+            self.ee_turn
+                .each_ref()
+                .map(|c| c.get(row).copied().unwrap_or(0.0)),
+        )
     }
 
     /// The gap between a friction gripper's pads at `row` (m), or `None` without pads.
@@ -101,13 +113,22 @@ impl Recorder {
                 )
             }),
             [self.ee[0][row], self.ee[1][row], self.ee[2][row]],
+            self.turn_at(row),
             |i| {
                 self.joints[i]
                     .iter()
                     .map(|(name, q)| (name.clone(), f64::from(q[row])))
                     .collect()
             },
-            (!self.fingers[0].is_empty()).then(|| (self.fingers[0][row], self.fingers[1][row])),
+            // The pads' turn on the tool is their recorded yaw less the tool's.
+            (!self.fingers[0].is_empty()).then(|| {
+                let on_tool =
+                    self.fingers[1][row] - self.ee_turn[2].get(row).copied().unwrap_or(0.0);
+                (
+                    self.fingers[0][row],
+                    self.turn_at(row) * Rotation::from_rotation_z(on_tool),
+                )
+            }),
             self.drawn_arm
                 .get_or_init(|| {
                     let a = spec.arm.as_ref()?;
@@ -138,7 +159,17 @@ impl Recorder {
         self.contact_pairs.push(pairs);
         self.contact_points.push(points);
         self.ee_contact.push(ee_touch);
-        self.ee_yaw.push(scene.tool_yaw());
+        // The yaw as before turns existed while the tool points down (within the inverse
+        // kinematics' residual); Euler angles that recompose the turn once it tilts.
+        let [roll, pitch, yaw] = crate::tabletop::rpy_of_turn(scene.tool_turn());
+        let yaw = if tilted(roll) || tilted(pitch) {
+            yaw
+        } else {
+            scene.tool_yaw()
+        };
+        for (col, v) in self.ee_turn.iter_mut().zip([roll, pitch, yaw]) {
+            col.push(v);
+        }
         for (o, cols) in scene.objects.iter().zip(self.objects.iter_mut()) {
             let p = scene.pose(o);
             let t = p.translation;
@@ -205,7 +236,8 @@ impl Recorder {
             .map(|j| (j.to_owned(), Vec::new()))
             .collect();
         let has = |n: &str| names.iter().any(|x| x == n);
-        let (yaw, fingers) = (has("ee_yaw"), has("gripper_opening"));
+        let fingers = has("gripper_opening");
+        let turns = ["ee_roll", "ee_pitch", "ee_yaw"].map(has);
         for batch in reader {
             let batch = batch.map_err(|e| bad(e.to_string()))?;
             let f32s = |name: &str, into: &mut Vec<f32>| -> Result<(), SimError> {
@@ -229,11 +261,16 @@ impl Recorder {
             let touch = column::<BooleanArray>(&batch, "ee_in_contact", "bool")?;
             rec.ee_contact
                 .extend(touch.iter().map(|b| b.unwrap_or(false)));
-            if yaw {
-                f32s("ee_yaw", &mut rec.ee_yaw)?;
-            } else {
-                rec.ee_yaw
-                    .extend(std::iter::repeat_n(0.0, batch.num_rows()));
+            for ((name, col), present) in ["ee_roll", "ee_pitch", "ee_yaw"]
+                .into_iter()
+                .zip(&mut rec.ee_turn)
+                .zip(turns)
+            {
+                if present {
+                    f32s(name, col)?;
+                } else {
+                    col.extend(std::iter::repeat_n(0.0, batch.num_rows()));
+                }
             }
             for (id, cols) in objects.iter().zip(rec.objects.iter_mut()) {
                 for (k, c) in ["x", "y", "z", "qx", "qy", "qz", "qw"].iter().enumerate() {
@@ -291,10 +328,15 @@ impl Recorder {
         cols.push(Arc::new(UInt32Array::from(self.contact_points.clone())));
         fields.push(Field::new("ee_in_contact", DataType::Boolean, false));
         cols.push(Arc::new(BooleanArray::from(self.ee_contact.clone())));
-        // Only episodes whose tool turned carry its yaw: other files stay as they were.
-        if self.ee_yaw.iter().any(|&y| y != 0.0) {
-            fields.push(Field::new("ee_yaw", DataType::Float32, false));
-            cols.push(Arc::new(Float32Array::from(self.ee_yaw.clone())));
+        // Only episodes whose tool turned carry its yaw, and only those whose tool tilted its
+        // roll and pitch: other files stay as they were.
+        let turned = self.ee_turn[2].iter().any(|&y| y != 0.0);
+        let tilted = self.ee_turn[..2].iter().flatten().any(|&a| tilted(a));
+        for (k, name) in ["ee_roll", "ee_pitch", "ee_yaw"].into_iter().enumerate() {
+            if tilted || (k == 2 && turned) {
+                fields.push(Field::new(name, DataType::Float32, false));
+                cols.push(Arc::new(Float32Array::from(self.ee_turn[k].clone())));
+            }
         }
         for (id, data) in object_ids.iter().zip(&self.objects) {
             for (k, c) in ["x", "y", "z", "qx", "qy", "qz", "qw"].iter().enumerate() {
@@ -403,11 +445,12 @@ pub fn live_snapshot(scene: &SimScene, spec: &TaskSpec) -> SceneSnapshot {
             )
         }),
         scene.gripper_position().into(),
+        scene.tool_turn(),
         |i| scene.joint_positions(&scene.objects[i]),
         scene
             .fingers
             .as_ref()
-            .map(|f| (f.opening(&scene.world), f.world_yaw(&scene.world))),
+            .map(|f| (f.opening(&scene.world), f.world_turn(&scene.world))),
         scene
             .arm
             .as_ref()
@@ -416,13 +459,15 @@ pub fn live_snapshot(scene: &SimScene, spec: &TaskSpec) -> SceneSnapshot {
 }
 
 /// `spec`'s objects at `poses` (position, quaternion x y z w; in spec order) with the tool at
-/// `tool`, asset paths resolved.
+/// `tool` turned by `turn` (its pads, if any, `opening` apart and turned by their own turn in
+/// the world), asset paths resolved.
 fn snapshot_of(
     spec: &TaskSpec,
     poses: impl Iterator<Item = ([f32; 3], [f32; 4])>,
     tool: [f32; 3],
+    turn: Rotation,
     joints: impl Fn(usize) -> std::collections::BTreeMap<String, f64>,
-    fingers: Option<(f32, f32)>,
+    fingers: Option<(f32, Rotation)>,
     arm: Vec<SnapshotBox>,
 ) -> SceneSnapshot {
     let objects = spec
@@ -450,9 +495,11 @@ fn snapshot_of(
         surface: spec.scene.surface,
         objects,
         tool: Some(tool),
+        // A tool that has not turned is drawn as before turns existed (no rotation stored).
+        tool_rotation: (turn != Rotation::IDENTITY).then_some([turn.x, turn.y, turn.z, turn.w]),
         fingers: fingers
-            .map(|(opening, yaw)| {
-                crate::scene::Fingers::poses(Vec3::from(tool), opening, yaw)
+            .map(|(opening, pads)| {
+                crate::scene::Fingers::poses(Vec3::from(tool), opening, pads)
                     .map(|p| SnapshotBox {
                         position: p.translation.into(),
                         rotation: [p.rotation.x, p.rotation.y, p.rotation.z, p.rotation.w],

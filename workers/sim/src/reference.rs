@@ -152,7 +152,7 @@ impl Contract {
             fingers: None,
             arm: None,
             zones: Vec::new(),
-            yaw_goal: None,
+            turn_goal: None,
             joint_goal: None,
         }
     }
@@ -212,6 +212,7 @@ pub fn camera(c: &Contract, width: u32, height: u32) -> Camera {
         fovy_deg: c.camera.fovy_deg,
         width,
         height,
+        up: None,
     }
 }
 
@@ -260,6 +261,7 @@ pub fn snapshot(scene: &SimScene) -> SceneSnapshot {
         surface: Surface::Ground,
         objects,
         tool: Some(scene.gripper_position().into()),
+        tool_rotation: None,
         fingers: Vec::new(),
         arm: Vec::new(),
     }

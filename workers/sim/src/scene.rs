@@ -128,10 +128,10 @@ pub struct Fingers {
 }
 
 impl Fingers {
-    /// The pads' poses for the tool at `tool` (centre), the gap `opening` and turn `yaw`.
-    pub fn poses(tool: Vec3, opening: f32, yaw: f32) -> [Pose; 2] {
+    /// The pads' poses for the tool at `tool` (centre), the gap `opening`, the pads turned by
+    /// `turn` in the world (the tool's turn, then theirs about its axis).
+    pub fn poses(tool: Vec3, opening: f32, turn: Rotation) -> [Pose; 2] {
         let [_, t, h] = FINGER_HALF_EXTENTS;
-        let turn = Rotation::from_rotation_z(yaw);
         let below = -(GRIPPER_HALF_EXTENTS[2] + h);
         [-1.0f32, 1.0].map(|s| {
             Pose::from_parts(
@@ -145,13 +145,18 @@ impl Fingers {
     /// tool has turned them).
     pub fn opening(&self, world: &PhysicsWorld) -> f32 {
         let [a, b] = self.bodies.map(|h| world.bodies[h].translation());
-        let axis = Rotation::from_rotation_z(self.world_yaw(world)) * Vec3::Y;
+        let axis = self.world_turn(world) * Vec3::Y;
         (b - a).dot(axis) - 2.0 * FINGER_HALF_EXTENTS[1]
     }
 
     /// The pads' turn about z in the world: the tool's turn plus theirs on it.
     pub fn world_yaw(&self, world: &PhysicsWorld) -> f32 {
         yaw_of(world.bodies[self.tool].rotation()) + self.yaw
+    }
+
+    /// The pads' turn in the world: the tool's, then theirs about its axis.
+    pub fn world_turn(&self, world: &PhysicsWorld) -> Rotation {
+        *world.bodies[self.tool].rotation() * Rotation::from_rotation_z(self.yaw)
     }
 
     /// Pads and joints for the tool `gripper` where it is, turned by `yaw` on it, `opening`
@@ -170,7 +175,7 @@ impl Fingers {
         let poses = Self::poses(
             tool,
             opening,
-            yaw_of(world.bodies[gripper].rotation()) + yaw,
+            *world.bodies[gripper].rotation() * Rotation::from_rotation_z(yaw),
         );
         let mut bodies = Vec::new();
         let mut cols = Vec::new();
@@ -244,9 +249,10 @@ pub struct SimScene {
     pub fingers: Option<Fingers>,
     /// The arm that carries the tool, if the task has one.
     pub arm: Option<crate::arm::Arm>,
-    /// The tool's commanded turn about z (rad), for a policy that turns it; None: the tool
-    /// keeps its orientation (the oracle, and policies of the original action space).
-    pub yaw_goal: Option<f32>,
+    /// The tool's commanded turn from pointing down (in the world frame: yaw, and roll and
+    /// pitch that tilt it), for a policy that turns it; None: the tool keeps pointing down
+    /// (the oracle, and policies of the original action space).
+    pub turn_goal: Option<Rotation>,
     /// Joint targets of the arm (rad), for a policy that acts in joint space: the arm follows
     /// them instead of inverse kinematics.
     pub joint_goal: Option<Vec<f64>>,
@@ -312,26 +318,32 @@ impl SimScene {
         yaw_of(self.world.bodies[self.gripper].rotation())
     }
 
-    /// Where the tool goes for the command `cmd` (and [`SimScene::yaw_goal`],
+    /// The tool's turn from pointing down now (world frame; the identity for a tool that has not
+    /// turned).
+    pub fn tool_turn(&self) -> Rotation {
+        *self.world.bodies[self.gripper].rotation()
+    }
+
+    /// Where the tool goes for the command `cmd` (and [`SimScene::turn_goal`],
     /// [`SimScene::joint_goal`]): with an arm, where inverse kinematics (or the joint targets)
     /// put it, the links following at the next step; without, `cmd`. Returns its pose.
     pub fn drive_arm(&mut self, cmd: Vec3) -> Pose {
         let dt = self.world.integration_parameters.dt;
-        let (at, yaw) = match &mut self.arm {
+        let (at, turn) = match &mut self.arm {
             Some(arm) => {
                 let at = match &self.joint_goal {
                     Some(goal) => arm.follow_joints(goal, f64::from(dt)),
-                    None => arm.reach_turned(cmd, self.yaw_goal),
+                    None => arm.reach_turned(cmd, self.turn_goal),
                 };
                 arm.move_links(&mut self.world);
                 // The tool turns with the arm's wrist only for a policy that turns it.
-                let yaw =
-                    (self.yaw_goal.is_some() || self.joint_goal.is_some()).then(|| arm.tool_yaw());
-                (at, yaw)
+                let turn = (self.turn_goal.is_some() || self.joint_goal.is_some())
+                    .then(|| arm.tool_turn());
+                (at, turn)
             }
-            None => (cmd, self.yaw_goal),
+            None => (cmd, self.turn_goal),
         };
-        Pose::from_parts(at, Rotation::from_rotation_z(yaw.unwrap_or(0.0)))
+        Pose::from_parts(at, turn.unwrap_or(Rotation::IDENTITY))
     }
 
     /// Drives the finger pads towards a gap of `goal` (m); they stop against what lies
@@ -1142,7 +1154,7 @@ pub fn build_scene(spec: &TaskSpec, seed: u64) -> Result<SimScene, SimError> {
         fingers,
         arm,
         zones,
-        yaw_goal: None,
+        turn_goal: None,
         joint_goal: None,
     })
 }

@@ -5,7 +5,7 @@
 //! policy driver (the tool follows the oracle's path), and against the episode file.
 
 use assay_model::policy::{EpisodeContext, Interface, Policy, PolicyError, PolicyObservation};
-use assay_sim::at_interface::WRIST_CAMERA_DROP;
+use assay_sim::at_interface::WRIST_CAMERA_MOUNT;
 use assay_sim::{ClipStates, Observer, SimOptions, recorded_states_at, simulate_with};
 use assay_spec::scene::{Observation, SceneSnapshot};
 use assay_spec::spec::{Camera, Format, TaskSpec, parse_task};
@@ -170,7 +170,7 @@ fn a_clip_at_a_policys_interface_gives_back_what_the_policy_saw_and_answered() {
     assert!(frame(&c.actions, 7, c.len() - 1).iter().all(|&x| x == 0.0));
 
     // The cameras at every frame: the scene camera where the task put it at 32², the wrist
-    // camera 16² below the tool, looking down along its heading.
+    // camera 16² on the tool, beside it, looking down and forward along its heading.
     assert_eq!(c.cameras.len(), 2);
     let (scene, wrist) = (&c.cameras[0], &c.cameras[1]);
     assert_eq!(
@@ -187,8 +187,16 @@ fn a_clip_at_a_policys_interface_gives_back_what_the_policy_saw_and_answered() {
         let w = &wrist.frames[k];
         let ee = frame(&c.proprio, 5, k);
         assert_eq!((w.width, w.height), (16, 16));
-        assert!((w.eye[2] - f64::from(ee[2] - WRIST_CAMERA_DROP)).abs() < 1e-6);
-        assert!((w.eye[0] - f64::from(ee[0])).abs() < 1e-6);
+        let [mx, _, mz] = WRIST_CAMERA_MOUNT;
+        let (sin, cos) = ee[3].sin_cos();
+        let mount = [ee[0] + mx * cos, ee[1] + mx * sin, ee[2] + mz].map(f64::from);
+        for (got, want) in w.eye.iter().zip(mount) {
+            assert!(
+                (got - want).abs() < 1e-5,
+                "eye {:?}, wanted {mount:?}",
+                w.eye
+            );
+        }
         let heading = (w.target[1] - w.eye[1]).atan2(w.target[0] - w.eye[0]) as f32;
         assert!(assay_sim::tabletop::wrap_angle(heading - ee[3]).abs() < 1e-3);
     }

@@ -15,8 +15,8 @@ use assay_spec::spec::{Camera, TaskSpec};
 mod common;
 use common::{carry_and_turn, turn_block_task as task};
 
-/// A camera drawn: its name, eye, target and size.
-type Drawn = (String, [f64; 3], [f64; 3], u32, u32);
+/// A camera drawn: its name, eye, target, up and size.
+type Drawn = (String, [f64; 3], [f64; 3], Option<[f64; 3]>, u32, u32);
 
 /// Records what it was asked to draw.
 #[derive(Default)]
@@ -36,7 +36,7 @@ impl Observer for Cameras {
     }
     fn frame(&mut self, _: SceneSnapshot, _: u64, c: &Camera) -> Result<Vec<u8>, String> {
         self.drawn
-            .push((c.name.clone(), c.eye, c.target, c.width, c.height));
+            .push((c.name.clone(), c.eye, c.target, c.up, c.width, c.height));
         Ok(vec![90; (c.width * c.height * 3) as usize])
     }
 }
@@ -115,7 +115,9 @@ impl Policy for Waypoints {
             ActionSpace::EeDelta => vec![step[0], step[1], step[2], 0.0, 0.0, turn, grip],
             ActionSpace::EePose => {
                 let [x, y, z] = [p[0] + step[0], p[1] + step[1], p[2] + step[2]];
-                let q = assay_sim::learned::tool_quaternion(yaw + turn);
+                let q = assay_sim::learned::tool_quaternion(
+                    rapier3d::prelude::Rotation::from_rotation_z(yaw + turn),
+                );
                 vec![x, y, z, q[0], q[1], q[2], q[3], grip]
             }
             _ => unreachable!(),
@@ -166,22 +168,24 @@ fn an_ee_delta_policy_turns_the_block_it_carries_into_a_yaw_goal_free_and_on_the
         let context = policy.context.as_ref().unwrap();
         assert!(context.instruction.contains("turned by 45"));
         assert_eq!(context.arm.as_deref(), (!arm.is_empty()).then_some("panda"));
-        // The wrist camera rides 6 cm under the tool, looking down, its view turned with it.
+        // The wrist camera rides beside the tool, 1 cm above its face, looking down and forward,
+        // its view turned with it (the image's top along the tool's heading).
         let wrist: Vec<_> = cameras
             .drawn
             .iter()
             .filter(|c| c.0.ends_with("-wrist"))
             .collect();
         assert_eq!(wrist.len(), policy.images.len());
-        for ((_, eye, target, _, _), state) in wrist.iter().zip(&policy.states) {
-            assert!((eye[2] - (f64::from(state[2]) - 0.06)).abs() < 1e-5);
-            let heading = (target[1] - eye[1]).atan2(target[0] - eye[0]) as f32;
+        for ((_, eye, target, up, _, _), state) in wrist.iter().zip(&policy.states) {
+            assert!((eye[2] - (f64::from(state[2]) - 0.04)).abs() < 1e-4);
+            let up = up.expect("a wrist camera turns with the tool");
+            let heading = up[1].atan2(up[0]) as f32;
             assert!(
                 wrap(heading - state[3]).abs() < 1e-3,
                 "{heading} vs {}",
                 state[3]
             );
-            assert!(target[2] < eye[2] - 0.9);
+            assert!(target[2] < eye[2] - 0.9 && target[2] > eye[2] - 0.91);
         }
         // The yaw it reports turned to 45° while it carried the block, and the episode file
         // records it.

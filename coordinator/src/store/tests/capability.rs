@@ -10,6 +10,7 @@ fn awaiting_pictures(l: &Lease) -> String {
         surface: assay_spec::spec::Surface::Table,
         objects: vec![],
         tool: None,
+        tool_rotation: None,
         fingers: vec![],
         arm: vec![],
     };

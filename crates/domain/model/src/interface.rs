@@ -25,7 +25,8 @@ pub enum ActionSpace {
     #[default]
     ToolVelocity,
     /// The tool's move over one control step (SIMPLER / Bridge): dx, dy, dz (m, world frame),
-    /// droll, dpitch, dyaw (rad), gripper: 7. The tool points down: only dyaw is followed.
+    /// droll, dpitch, dyaw (rad; the rotation `Rz(dyaw)·Ry(dpitch)·Rx(droll)` in the world frame,
+    /// applied to the tool's commanded turn), gripper: 7.
     EeDelta,
     /// The tool's target pose: x, y, z (m), quaternion x, y, z, w (world frame), gripper: 8.
     EePose,

@@ -40,6 +40,10 @@ pub struct SceneSnapshot {
     pub objects: Vec<SnapshotObject>,
     /// Tool centre, if the tool is drawn.
     pub tool: Option<[f32; 3]>,
+    /// The tool's turn from pointing down (unit quaternion x, y, z, w); none: pointing down,
+    /// not turned.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub tool_rotation: Option<[f32; 4]>,
     /// The finger pads of a parallel gripper that grasps by friction (drawn as the tool).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub fingers: Vec<SnapshotBox>,
@@ -82,6 +86,7 @@ fn camera(name: &str, eye: [f64; 3], target: [f64; 3]) -> Camera {
         fovy_deg: 50.0,
         width: 640,
         height: 480,
+        up: None,
     }
 }
 

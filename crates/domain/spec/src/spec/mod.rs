@@ -379,7 +379,8 @@ pub enum EndEffector {
 pub const ARM_MODELS: &[&str] = &["ur5", "panda"];
 
 /// A robot arm from URDF, driven by inverse kinematics: the tool goes where the arm can put it,
-/// pointing straight down; its links collide with the scene.
+/// pointing straight down (or turned as a policy acting in `ee_delta` or `ee_pose` turns it);
+/// its links collide with the scene.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct Arm {
@@ -631,6 +632,10 @@ pub struct Camera {
     pub width: u32,
     #[serde(default = "default_height")]
     pub height: u32,
+    /// The direction that is up in the image (world frame); none: the world's z (its x when
+    /// the camera looks straight up or down).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub up: Option<[f64; 3]>,
 }
 
 fn default_fovy() -> f64 {
