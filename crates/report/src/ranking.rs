@@ -93,6 +93,17 @@ pub struct RepeatConsistency {
     pub split: u64,
 }
 
+/// One task group's ranking: every proxy against the real success over its tasks.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+pub struct GroupRanking {
+    pub group: String,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub ranking: Option<Ranking>,
+    /// Why the group has no ranking.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub missing: Option<String>,
+}
+
 /// The policy-ranking section of a report.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct RankingResults {
@@ -119,6 +130,10 @@ pub struct RankingResults {
     /// Why there is no ranking yet (or at all).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub ranking_missing: Option<String>,
+    /// With tasks of several groups: the same statistics per group, over that group's tasks only
+    /// (the paper's Table I ranks per task), in report order; `ranking` is the pooled one.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub per_group: Vec<GroupRanking>,
     /// Of the ranked episodes the proxy judged: how often its verdict matches the real outcome,
     /// and how often the frame judge is right on the *real* last frames (its own error, without
     /// the world model's).
@@ -198,6 +213,12 @@ pub const PER_POLICY_NOTE: &str = "Episodes pooled over each policy's tasks: rat
     trials) [95 % Wilson interval]. The ranking statistics below compare R and R_S as each \
     policy's mean over tasks of its per-task rate instead, which differs from the pooled rate \
     when its tasks have different numbers of episodes.";
+
+/// What the per-group table says.
+pub const PER_GROUP_NOTE: &str = "Each task group ranked on its own tasks (the paper ranks per \
+    task), then pooled over every group. Calibration is the mean over policies of |R_S − R|: how \
+    far the predicted success rates are from the real ones as rates, which an order can get right \
+    while every rate is off. Intervals: 95 % bootstrap, as below.";
 
 /// What the action test measures.
 pub const ACTION_TEST_NOTE: &str = "The world model's open-loop image error on the ranked \
@@ -366,19 +387,53 @@ pub fn ranking_results(
         imagined,
         plan.config.completion_threshold,
     );
-    let (ranking, ranking_missing) = if proxies.is_empty() {
-        (None, Some("no proxy job has finished".to_owned()))
-    } else {
+    let rank_cells = |cells: &[Cell]| -> (Option<Ranking>, Option<String>) {
+        let proxies: Vec<String> = proxies
+            .iter()
+            .filter(|p| cells.iter().any(|c| &c.source == *p))
+            .cloned()
+            .collect();
+        if proxies.is_empty() {
+            return (None, Some("no proxy job has finished".to_owned()));
+        }
         let cfg = RankingConfig {
             real: REAL_SOURCE.into(),
             proxies,
             resamples: RANKING_RESAMPLES,
             seed: 0,
         };
-        match rank(&cells, &cfg) {
+        match rank(cells, &cfg) {
             Ok(r) => (Some(r), None),
             Err(e) => (None, Some(e)),
         }
+    };
+    let (ranking, ranking_missing) = rank_cells(&cells);
+    // Per group, when the ranked tasks span several.
+    let mut ranked_groups: Vec<&str> = Vec::new();
+    for (task, group) in task_groups {
+        if cells.iter().any(|c| &c.task == task) && !ranked_groups.contains(&group.as_str()) {
+            ranked_groups.push(group);
+        }
+    }
+    let per_group = if ranked_groups.len() < 2 {
+        Vec::new()
+    } else {
+        ranked_groups
+            .iter()
+            .map(|&group| {
+                let of_group: Vec<Cell> = cells
+                    .iter()
+                    .filter(|c| task_groups.iter().any(|(t, g)| t == &c.task && g == group))
+                    .cloned()
+                    .collect();
+                let (ranking, missing) = rank_cells(&of_group);
+                GroupRanking {
+                    group: group.to_owned(),
+                    ranking,
+                    missing,
+                }
+            })
+            .collect()
     };
     RankingResults {
         train_policies: plan.train_policies.clone(),
@@ -390,6 +445,7 @@ pub fn ranking_results(
         groups,
         ranking,
         ranking_missing,
+        per_group,
         proxy_agreement: (agree.1 > 0).then(|| Proportion::new(agree.0, agree.1)),
         judge_agreement_real_frames: (judge_real.1 > 0)
             .then(|| Proportion::new(judge_real.0, judge_real.1)),
@@ -650,6 +706,99 @@ mod tests {
             md.contains("1 imagined rollouts could not be judged"),
             "{md}"
         );
+    }
+
+    #[test]
+    fn tasks_of_several_groups_are_ranked_per_group_and_pooled_with_their_calibration() {
+        let plan = RankingPlan {
+            train_policies: vec!["teacher".into()],
+            config: ProxyConfig::default(),
+            ladder: None,
+            groups: Vec::new(),
+        };
+        let ranked: Vec<String> = ["good", "fair", "poor"].map(String::from).to_vec();
+        let task_groups = vec![
+            ("a1".into(), "placement".into()),
+            ("b1".into(), "stacking".into()),
+        ];
+        // Real success on 4 seeds of each task: good 4, fair 2, poor 0. The judge of imagined
+        // rollouts gets placement's order right but every rate too high (half the spread),
+        // and stacking's the wrong way round.
+        let mut episodes = Vec::new();
+        let mut imagined = Vec::new();
+        for (policy, real_ok, placement, stacking) in
+            [("good", 4, 4, 0), ("fair", 2, 3, 2), ("poor", 0, 2, 4)]
+        {
+            for (task, predicted) in [("a1", placement), ("b1", stacking)] {
+                for seed in 0..4u64 {
+                    episodes.push(real(task, policy, seed, seed < real_ok));
+                    let score = if seed < predicted { 9.0 } else { 1.0 };
+                    imagined.push(verdict("vlm", task, policy, seed, Ok(score)));
+                }
+            }
+        }
+        let r = ranking_results(
+            &plan,
+            &ranked,
+            &task_groups,
+            &episodes,
+            Vec::new(),
+            &imagined,
+            Vec::new(),
+        );
+        let groups: Vec<&str> = r.per_group.iter().map(|g| g.group.as_str()).collect();
+        assert_eq!(groups, ["placement", "stacking"]);
+        let stat = |g: usize| {
+            let c = &r.per_group[g].ranking.as_ref().unwrap().comparisons[0];
+            assert_eq!((c.policies.len(), c.tasks.len()), (3, 1));
+            (
+                c.pearson.value.unwrap(),
+                c.mmrv.value.unwrap(),
+                c.calibration_mae.as_ref().unwrap().value.unwrap(),
+            )
+        };
+        // Placement: (1, 0.75, 0.5) against (1, 0.5, 0): ordered, a quarter off on average.
+        let (pearson, mmrv, calibration) = stat(0);
+        assert!(
+            (pearson - 1.0).abs() < 1e-9 && mmrv == 0.0,
+            "{pearson} {mmrv}"
+        );
+        assert!((calibration - 0.25).abs() < 1e-12, "{calibration}");
+        // Stacking: (0, 0.5, 1) against (1, 0.5, 0): reversed, 2/3 off on average.
+        let (pearson, mmrv, calibration) = stat(1);
+        // MMRV: each policy's largest violated real gap, (1 + 0.5 + 1) / 3.
+        assert!((pearson + 1.0).abs() < 1e-9 && (mmrv - 2.5 / 3.0).abs() < 1e-12);
+        assert!((calibration - 2.0 / 3.0).abs() < 1e-12, "{calibration}");
+        // Pooled over both groups the judge's rates are flat (0.5, 0.625, 0.75): the wrong order,
+        // neither group's picture.
+        let pooled = &r.ranking.as_ref().unwrap().comparisons[0];
+        assert_eq!(pooled.tasks.len(), 2);
+        let md = r.markdown();
+        assert!(md.contains("### Per task group"), "{md}");
+        for g in ["placement", "stacking", "(pooled)"] {
+            assert!(md.contains(&format!("| {g} |")), "{g}: {md}");
+        }
+        // The page shows the table and one scatter per group.
+        let report = crate::testing::report_with_ranking(r.clone());
+        let html = crate::html::report_html(&crate::html::HtmlInputs {
+            report: &report,
+            artifact: &|_| None,
+            human: None,
+        });
+        assert!(html.contains("Per task group"));
+        assert!(html.contains("group placement:") && html.contains("group stacking:"));
+        // One group: no per-group table (the pooled ranking is the group's).
+        let one = ranking_results(
+            &plan,
+            &ranked,
+            &task_groups[..1],
+            &episodes,
+            Vec::new(),
+            &imagined,
+            Vec::new(),
+        );
+        assert!(one.per_group.is_empty());
+        assert!(!one.markdown().contains("Per task group"));
     }
 
     #[test]

@@ -731,6 +731,55 @@ pub fn ranking_per_policy(r: &RankingResults) -> Table {
     table
 }
 
+/// Per task group (with tasks of several groups), each proxy's ranking over that group's tasks
+/// alone, beside the pooled one: policies, Pearson, MMRV, Spearman, Kendall with their 95 %
+/// intervals, and the calibration (mean |predicted − real|).
+pub fn ranking_per_group(r: &RankingResults) -> Table {
+    let mut table = Table::new([
+        "group",
+        "proxy",
+        "#policies",
+        "#tasks",
+        "#Pearson r",
+        "#MMRV",
+        "#Spearman ρ",
+        "#Kendall τ-b",
+        "#calibration |pred − real|",
+    ]);
+    let pooled = r.ranking.iter().map(|rk| ("(pooled)", rk));
+    let groups = r
+        .per_group
+        .iter()
+        .filter_map(|g| g.ranking.as_ref().map(|rk| (g.group.as_str(), rk)));
+    if r.per_group.is_empty() {
+        return table;
+    }
+    for (group, rk) in groups.chain(pooled) {
+        for c in &rk.comparisons {
+            table.row(vec![
+                group.into(),
+                source_title(&c.proxy).into(),
+                n(c.policies.len() as u64),
+                n(c.tasks.len() as u64),
+                estimate(&c.pearson),
+                estimate(&c.mmrv),
+                estimate(&c.spearman),
+                estimate(&c.kendall),
+                c.calibration_mae
+                    .as_ref()
+                    .map_or_else(Cell::missing, estimate),
+            ]);
+        }
+    }
+    for g in r.per_group.iter().filter(|g| g.ranking.is_none()) {
+        let why = g.missing.as_deref().unwrap_or("no ranking");
+        let mut row = vec![g.group.as_str().into(), Cell::text(why.to_owned())];
+        row.extend((0..7).map(|_| Cell::missing()));
+        table.row(row);
+    }
+    table
+}
+
 /// Per group: the world model's open-loop error over windows of the ranked episodes' clips with
 /// their true actions, another episode's and zero actions, and the video figures (PSNR, SSIM)
 /// of the true-action predictions.
@@ -980,6 +1029,12 @@ pub fn ranking_statistics(c: &Comparison) -> Table {
     let mut table = Table::new(["statistic", "#value [95 % interval]"]);
     for (name, e) in c.statistics() {
         table.row(vec![name.into(), estimate(e)]);
+    }
+    if let Some(e) = &c.calibration_mae {
+        table.row(vec![
+            "calibration: mean |predicted − real| (lower is better)".into(),
+            estimate(e),
+        ]);
     }
     table
 }

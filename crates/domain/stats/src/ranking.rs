@@ -109,6 +109,11 @@ pub struct Comparison {
     pub spearman: Estimate,
     /// τ-b (ties corrected).
     pub kendall: Estimate,
+    /// Calibration: the mean over policies of |R_S − R|, how far the proxy's success rates are
+    /// from the real ones as rates a person reads (0 is perfect; an order can be right while
+    /// every rate is off). Defined from one policy on.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub calibration_mae: Option<Estimate>,
     /// Caveats worth reading next to the numbers.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub notes: Vec<String>,
@@ -554,6 +559,18 @@ struct Row {
 
 type Stat = fn(&[f64], &[f64]) -> Option<f64>;
 
+/// Mean absolute difference of the proxy's and the real rates (`Comparison::calibration_mae`).
+fn calibration_mae(proxy: &[f64], real: &[f64]) -> Option<f64> {
+    (!real.is_empty()).then(|| {
+        proxy
+            .iter()
+            .zip(real)
+            .map(|(p, r)| (p - r).abs())
+            .sum::<f64>()
+            / real.len() as f64
+    })
+}
+
 /// The four statistics on (proxy, real), in `Comparison`'s order. MMRV needs 2 policies too.
 const STATS: [Stat; 4] = [
     pearson,
@@ -684,6 +701,7 @@ fn compare(cells: &[Cell], real: &str, proxy: &str, resamples: usize, seed: u64)
     };
 
     let mut samples: Vec<Vec<f64>> = vec![Vec::with_capacity(resamples); STATS.len()];
+    let mut mae_samples: Vec<f64> = Vec::with_capacity(resamples);
     // Resamples where a policy drew none of its tasks (only with different task sets).
     let mut incomplete = 0usize;
     if !rows.is_empty() && nothing_to_resample.is_none() {
@@ -740,6 +758,7 @@ fn compare(cells: &[Cell], real: &str, proxy: &str, resamples: usize, seed: u64)
                     s.push(v);
                 }
             }
+            mae_samples.extend(calibration_mae(&x, &y));
         }
     }
 
@@ -798,6 +817,33 @@ fn compare(cells: &[Cell], real: &str, proxy: &str, resamples: usize, seed: u64)
     });
     let mut next = || estimates.next().expect("four statistics");
     let (pearson, mmrv, spearman, kendall) = (next(), next(), next(), next());
+    let calibration_mae = (!rows.is_empty()).then(|| {
+        let defined = mae_samples.len();
+        let mut e = bootstrap_estimate(
+            calibration_mae(&proxy_v, &real_v),
+            mae_samples,
+            resamples,
+            || "no policy".to_owned(),
+        );
+        let reason = if resamples == 0 {
+            Some("no bootstrap resamples were drawn".to_owned())
+        } else if nothing_to_resample.is_some() {
+            nothing_to_resample.clone()
+        } else {
+            e.no_interval.is_some().then(|| {
+                format!(
+                    "undefined in {} of {resamples} bootstrap resamples (a policy drew none of \
+                     its tasks)",
+                    resamples - defined
+                )
+            })
+        };
+        if let Some(reason) = reason {
+            e.ci95 = None;
+            e.no_interval = Some(reason);
+        }
+        e
+    });
 
     let mut notes = Vec::new();
     if points.iter().any(|p| p.tasks != points[0].tasks) {
@@ -818,6 +864,7 @@ fn compare(cells: &[Cell], real: &str, proxy: &str, resamples: usize, seed: u64)
         mmrv,
         spearman,
         kendall,
+        calibration_mae,
         notes,
     }
 }
@@ -885,6 +932,28 @@ mod tests {
     fn mmrv_of(proxy: &[f64], real: &[f64]) -> f64 {
         let r = rank(&vectors(proxy, real), &cfg(0, 0)).unwrap();
         r.comparisons[0].mmrv.value.unwrap()
+    }
+
+    #[test]
+    fn calibration_is_the_mean_distance_of_the_rates_whatever_the_order() {
+        let calibration = |proxy: &[f64], real: &[f64]| {
+            let r = rank(&vectors(proxy, real), &cfg(0, 0)).unwrap();
+            r.comparisons[0].calibration_mae.clone().unwrap()
+        };
+        // Ordered perfectly, yet every rate 0.3 too high: Pearson 1, calibration 0.3.
+        let e = calibration(&[0.5, 0.7, 0.9], &[0.2, 0.4, 0.6]);
+        assert!((e.value.unwrap() - 0.3).abs() < 1e-12, "{e:?}");
+        // |0.1 − 0.2| and |0.9 − 0.6|: 0.2. One policy is enough.
+        assert!((calibration(&[0.1, 0.9], &[0.2, 0.6]).value.unwrap() - 0.2).abs() < 1e-12);
+        assert_eq!(calibration(&[0.4], &[0.4]).value, Some(0.0));
+        // With counted trials the bootstrap gives it an interval around the value.
+        let a = rank(&ladder(), &cfg(1000, 7)).unwrap();
+        let e = a.comparisons[0].calibration_mae.clone().unwrap();
+        let [lo, hi] = e.ci95.unwrap();
+        assert!(
+            lo <= e.value.unwrap() && e.value.unwrap() <= hi && lo < hi,
+            "{e:?}"
+        );
     }
 
     #[test]

@@ -7,7 +7,8 @@ use crate::figures::{self, BarChart, Bars, Line};
 use crate::generalization::{GeneralizationResults, GroupGeneralization, HELD_OUT_NOTE};
 use crate::quality::{OFFLINE_JUDGE_NOTE, QualityResults};
 use crate::ranking::{
-    ACTION_TEST_NOTE, LEAK_NOTE, PER_POLICY_NOTE, REPEAT_NOTE, RankingResults, is_ablation,
+    ACTION_TEST_NOTE, LEAK_NOTE, PER_GROUP_NOTE, PER_POLICY_NOTE, REPEAT_NOTE, RankingResults,
+    is_ablation,
 };
 use crate::tables::{self, AgreementLine};
 use crate::view::proportion;
@@ -318,6 +319,7 @@ pub(super) fn ranking(r: Option<&RankingResults>) -> Markup {
     let per_policy = tables::ranking_per_policy(r);
     let actions = tables::action_test(r);
     let repeats = tables::repeat_consistency(r);
+    let per_group = tables::ranking_per_group(r);
     html! {
         section id="ranking" {
             h2 { "Policy ranking: predicted against real success" }
@@ -375,6 +377,21 @@ pub(super) fn ranking(r: Option<&RankingResults>) -> Markup {
                 },
                 (None, Some(why)) => p.absent { "No ranking: " (why) "." },
                 (None, None) => p.absent { "No ranking." },
+            }
+            @if !per_group.rows.is_empty() {
+                h3 { "Per task group" }
+                p.caption { (PER_GROUP_NOTE) }
+                (table(&per_group))
+                div.row {
+                    @for g in &r.per_group {
+                        @if let Some(rk) = &g.ranking {
+                            figure {
+                                (inline_svg(&figures::ranking_labelled(rk, 0, &r.labels)))
+                                figcaption { "group " (g.group) ": " (crate::ranking::source_title(&rk.comparisons[0].proxy)) }
+                            }
+                        }
+                    }
+                }
             }
             @if let Some(a) = &r.proxy_agreement {
                 p { "Proxy verdicts matching the real outcome: " (cell(&proportion(a))) "." }

@@ -11,8 +11,8 @@ use crate::diversity::DiversityResults;
 use crate::generalization::GeneralizationResults;
 use crate::quality::{ERRORS_SHOWN, OFFLINE_JUDGE_NOTE, QualityResults, TaskQuality};
 use crate::ranking::{
-    ACTION_TEST_NOTE, LEAK_NOTE, PER_POLICY_NOTE, REPEAT_NOTE, RankingResults, is_ablation,
-    ranking_figure,
+    ACTION_TEST_NOTE, LEAK_NOTE, PER_GROUP_NOTE, PER_POLICY_NOTE, REPEAT_NOTE, RankingResults,
+    is_ablation, ranking_figure,
 };
 use crate::tables;
 use crate::view::{Table, abbreviations, md_text};
@@ -276,6 +276,12 @@ impl RankingResults {
                 let _ = writeln!(out, "No ranking: {}.", md_text(why));
             }
             (None, None) => {}
+        }
+        let per_group = tables::ranking_per_group(self);
+        if !per_group.rows.is_empty() {
+            out.push_str("### Per task group\n\n");
+            let _ = writeln!(out, "{}\n", md_text(PER_GROUP_NOTE));
+            out.push_str(&per_group.markdown());
         }
         out.push_str(&full_names(&shown));
         for (group, e) in &self.errors {
