@@ -1,6 +1,6 @@
-//! The tool's full orientation: a policy that pitches the tool stands a lying block on its end —
-//! free, on the UR5 and on the Panda (inverse kinematics with the whole orientation), in
-//! `ee_delta` and in `ee_pose` — where the scripted oracle, whose tool points down, cannot; the
+//! The tool's full orientation: a policy that pitches or rolls the tool stands a lying block on
+//! its end — free, on the UR5 and on the Panda (inverse kinematics with the whole orientation),
+//! in `ee_delta` and in `ee_pose` — where the scripted oracle, whose tool points down, cannot; the
 //! state, the recorded rows, the drawn tool and the wrist camera turn with it; a turn the arm
 //! cannot reach is refused, noted naming the policy and the turn.
 
