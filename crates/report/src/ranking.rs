@@ -592,15 +592,20 @@ mod tests {
         }
     }
 
-    #[test]
-    fn each_judge_of_imagined_rollouts_is_a_proxy_of_its_own() {
+    /// A plan with one training policy and three ranked ones: good, fair and poor.
+    fn good_fair_poor() -> (RankingPlan, Vec<String>) {
         let plan = RankingPlan {
             train_policies: vec!["teacher".into()],
             config: ProxyConfig::default(),
             ladder: None,
             groups: Vec::new(),
         };
-        let ranked: Vec<String> = ["good", "fair", "poor"].map(String::from).to_vec();
+        (plan, ["good", "fair", "poor"].map(String::from).to_vec())
+    }
+
+    #[test]
+    fn each_judge_of_imagined_rollouts_is_a_proxy_of_its_own() {
+        let (plan, ranked) = good_fair_poor();
         let task_groups = vec![("t1".into(), "g".into()), ("t2".into(), "g".into())];
         let mut episodes = Vec::new();
         let mut imagined = Vec::new();
@@ -710,13 +715,7 @@ mod tests {
 
     #[test]
     fn tasks_of_several_groups_are_ranked_per_group_and_pooled_with_their_calibration() {
-        let plan = RankingPlan {
-            train_policies: vec!["teacher".into()],
-            config: ProxyConfig::default(),
-            ladder: None,
-            groups: Vec::new(),
-        };
-        let ranked: Vec<String> = ["good", "fair", "poor"].map(String::from).to_vec();
+        let (plan, ranked) = good_fair_poor();
         let task_groups = vec![
             ("a1".into(), "placement".into()),
             ("b1".into(), "stacking".into()),

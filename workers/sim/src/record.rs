@@ -104,6 +104,7 @@ impl Recorder {
 
     /// The recorded state of `row` as a scene a camera can draw.
     pub fn snapshot(&self, row: usize, spec: &TaskSpec) -> SceneSnapshot {
+        let turn = self.turn_at(row);
         snapshot_of(
             spec,
             self.objects.iter().map(|c| {
@@ -113,7 +114,7 @@ impl Recorder {
                 )
             }),
             [self.ee[0][row], self.ee[1][row], self.ee[2][row]],
-            self.turn_at(row),
+            turn,
             |i| {
                 self.joints[i]
                     .iter()
@@ -126,7 +127,7 @@ impl Recorder {
                     self.fingers[1][row] - self.ee_turn[2].get(row).copied().unwrap_or(0.0);
                 (
                     self.fingers[0][row],
-                    self.turn_at(row) * Rotation::from_rotation_z(on_tool),
+                    turn * Rotation::from_rotation_z(on_tool),
                 )
             }),
             self.drawn_arm
@@ -331,9 +332,9 @@ impl Recorder {
         // Only episodes whose tool turned carry its yaw, and only those whose tool tilted its
         // roll and pitch: other files stay as they were.
         let turned = self.ee_turn[2].iter().any(|&y| y != 0.0);
-        let tilted = self.ee_turn[..2].iter().flatten().any(|&a| tilted(a));
+        let any_tilt = self.ee_turn[..2].iter().flatten().any(|&a| tilted(a));
         for (k, name) in ["ee_roll", "ee_pitch", "ee_yaw"].into_iter().enumerate() {
-            if tilted || (k == 2 && turned) {
+            if any_tilt || (k == 2 && turned) {
                 fields.push(Field::new(name, DataType::Float32, false));
                 cols.push(Arc::new(Float32Array::from(self.ee_turn[k].clone())));
             }

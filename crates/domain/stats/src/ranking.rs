@@ -778,70 +778,60 @@ fn compare(cells: &[Cell], real: &str, proxy: &str, resamples: usize, seed: u64)
             },
         }
     };
-    let mut estimates = STATS.iter().zip(samples).enumerate().map(|(k, (stat, s))| {
-        let undefined_in = resamples - s.len();
-        let mut e = bootstrap_estimate(stat(&proxy_v, &real_v), s, resamples, || why(k != 1));
-        if e.value.is_some() {
-            let reason = if resamples == 0 {
-                Some("no bootstrap resamples were drawn".to_owned())
-            } else if nothing_to_resample.is_some() {
-                nothing_to_resample.clone()
-            } else {
-                // Say why the resamples were undefined (the shared message assumes scores).
-                e.no_interval.is_some().then(|| {
-                    let mut why =
-                        format!("undefined in {undefined_in} of {resamples} bootstrap resamples");
-                    if incomplete > 0 {
-                        let _ = write!(
-                            why,
-                            "; in {incomplete} of them a policy drew none of its tasks \
-                             (policies have different task sets)"
-                        );
-                    }
-                    if undefined_in > incomplete {
-                        let _ = write!(
-                            why,
-                            "; in {} every policy's resampled rate was the same",
-                            undefined_in - incomplete
-                        );
-                    }
-                    why
-                })
-            };
-            if let Some(reason) = reason {
-                e.ci95 = None;
-                e.no_interval = Some(reason);
-            }
+    // A defined estimate without an interval says why: no resamples, nothing to resample, or in
+    // how many resamples it was undefined and for which reasons (the shared message assumes
+    // scores).
+    let explain_interval = |e: &mut Estimate, undefined_in: usize| {
+        if e.value.is_none() {
+            return;
         }
-        e
-    });
-    let mut next = || estimates.next().expect("four statistics");
-    let (pearson, mmrv, spearman, kendall) = (next(), next(), next(), next());
-    let calibration_mae = (!rows.is_empty()).then(|| {
-        let defined = mae_samples.len();
-        let mut e = bootstrap_estimate(
-            calibration_mae(&proxy_v, &real_v),
-            mae_samples,
-            resamples,
-            || "no policy".to_owned(),
-        );
         let reason = if resamples == 0 {
             Some("no bootstrap resamples were drawn".to_owned())
         } else if nothing_to_resample.is_some() {
             nothing_to_resample.clone()
         } else {
             e.no_interval.is_some().then(|| {
-                format!(
-                    "undefined in {} of {resamples} bootstrap resamples (a policy drew none of \
-                     its tasks)",
-                    resamples - defined
-                )
+                let mut why =
+                    format!("undefined in {undefined_in} of {resamples} bootstrap resamples");
+                if incomplete > 0 {
+                    let _ = write!(
+                        why,
+                        "; in {incomplete} of them a policy drew none of its tasks \
+                         (policies have different task sets)"
+                    );
+                }
+                if undefined_in > incomplete {
+                    let _ = write!(
+                        why,
+                        "; in {} every policy's resampled rate was the same",
+                        undefined_in - incomplete
+                    );
+                }
+                why
             })
         };
         if let Some(reason) = reason {
             e.ci95 = None;
             e.no_interval = Some(reason);
         }
+    };
+    let mut estimates = STATS.iter().zip(samples).enumerate().map(|(k, (stat, s))| {
+        let undefined_in = resamples - s.len();
+        let mut e = bootstrap_estimate(stat(&proxy_v, &real_v), s, resamples, || why(k != 1));
+        explain_interval(&mut e, undefined_in);
+        e
+    });
+    let mut next = || estimates.next().expect("four statistics");
+    let (pearson, mmrv, spearman, kendall) = (next(), next(), next(), next());
+    let calibration_mae = (!rows.is_empty()).then(|| {
+        let undefined_in = resamples - mae_samples.len();
+        let mut e = bootstrap_estimate(
+            calibration_mae(&proxy_v, &real_v),
+            mae_samples,
+            resamples,
+            || "no policy".to_owned(),
+        );
+        explain_interval(&mut e, undefined_in);
         e
     });
 

@@ -387,7 +387,10 @@ pub(super) fn ranking(r: Option<&RankingResults>) -> Markup {
                         @if let Some(rk) = &g.ranking {
                             figure {
                                 (inline_svg(&figures::ranking_labelled(rk, 0, &r.labels)))
-                                figcaption { "group " (g.group) ": " (crate::ranking::source_title(&rk.comparisons[0].proxy)) }
+                                figcaption {
+                                    "group " (g.group) ": "
+                                    (crate::ranking::source_title(&rk.comparisons[0].proxy))
+                                }
                             }
                         }
                     }
