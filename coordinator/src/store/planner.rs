@@ -9,6 +9,7 @@
 //! finished between one shard and those it queues.
 //! Never changes a shard's state once queued (that is `leases`).
 
+use assay_model::diffusion::Backbone;
 use assay_model::episode::{EpisodeImagery, EpisodeOutcome};
 use assay_model::generalization::{GeneralizationPlan, HELD_OUT_VARIATIONS, TRAIN_VARIATIONS};
 use assay_model::job::JobKind;
@@ -690,19 +691,26 @@ impl Store {
             if let Some(covering) = runs.iter().position(|n| *n as usize >= clips.len()) {
                 runs.truncate(covering + 1);
             }
-            for n in runs {
-                let job = TrainerJob::Diffusion {
-                    group: group.clone(),
-                    clips: clips.iter().take(n as usize).cloned().collect(),
-                    config: assay_model::diffusion::DiffusionConfig {
-                        steps,
-                        ..ladder.config.clone()
-                    },
-                    checkpoints: checkpoints.clone(),
-                };
-                let name = format!("ladder {group} @ {n}");
-                let kind = JobKind::LadderTraining;
-                Self::insert_trainer_shard(conn, batch_id, kind, &name, &group, &job)?;
+            for backbone in ladder.families() {
+                for &n in &runs {
+                    let job = TrainerJob::Diffusion {
+                        group: group.clone(),
+                        clips: clips.iter().take(n as usize).cloned().collect(),
+                        config: assay_model::diffusion::DiffusionConfig {
+                            steps,
+                            backbone,
+                            ..ladder.config.clone()
+                        },
+                        checkpoints: checkpoints.clone(),
+                    };
+                    // The U-Net's runs keep the names they had before there were families.
+                    let name = match backbone {
+                        Backbone::Unet => format!("ladder {group} @ {n}"),
+                        other => format!("ladder {group} @ {n} {}", other.as_str()),
+                    };
+                    let kind = JobKind::LadderTraining;
+                    Self::insert_trainer_shard(conn, batch_id, kind, &name, &group, &job)?;
+                }
             }
         }
         Ok(())

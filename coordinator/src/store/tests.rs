@@ -751,6 +751,57 @@ fn trainer_jobs(leases: &[Lease]) -> Vec<TrainerJob> {
         .collect()
 }
 
+/// A ladder of two families trains every run once per family, each with its own backbone and
+/// the same clips and checkpoints.
+#[test]
+fn a_ladder_of_two_families_trains_each_run_in_each() {
+    use assay_model::diffusion::Backbone;
+    use assay_model::proxy::{LadderPlan, ProxyConfig};
+    let mut s = Store::open_in_memory().unwrap();
+    let mut b = batch(&["a"], &[0, 1, 2, 3], 3);
+    b.tasks[0].spec_json = r#"{"id": "a"}"#.into();
+    b.policies = vec!["oracle".into()];
+    b.ranking = Some(RankingPlan {
+        train_policies: b.policies.clone(),
+        config: ProxyConfig::default(),
+        ladder: Some(LadderPlan {
+            episodes: vec![2, 4],
+            checkpoints: vec![3, 6],
+            backbones: vec![Backbone::Transformer, Backbone::Unet, Backbone::Transformer],
+            ..LadderPlan::default()
+        }),
+        groups: Vec::new(),
+    });
+    s.submit(&b, 0).unwrap();
+    for (i, l) in s.lease("w", &sim(), 4, 1, TTL).unwrap().iter().enumerate() {
+        finish_episode(&mut s, l, true, &format!("clips/{i}.clip"));
+    }
+    let trainer = vec!["trainer".to_owned()];
+    let queued = s.lease("t", &trainer, 10, 3, TTL).unwrap();
+    let mut runs: Vec<(Backbone, usize, Vec<u64>)> = trainer_jobs(&queued)
+        .into_iter()
+        .filter_map(|job| match job {
+            TrainerJob::Diffusion {
+                clips,
+                config,
+                checkpoints,
+                ..
+            } => Some((config.backbone, clips.len(), checkpoints)),
+            _ => None,
+        })
+        .collect();
+    runs.sort_by_key(|r| (r.0.as_str(), r.1));
+    assert_eq!(
+        runs,
+        [
+            (Backbone::Transformer, 2, vec![3, 6]),
+            (Backbone::Transformer, 4, vec![3, 6]),
+            (Backbone::Unet, 2, vec![3, 6]),
+            (Backbone::Unet, 4, vec![3, 6]),
+        ]
+    );
+}
+
 /// A ranking batch whose policies all train the world model ranks a ladder of learned
 /// policies instead: trained once the group's episodes are done, on the ladder policy's first
 /// clips; each kept policy runs every (task, seed) of the group as an ordinary episode; the

@@ -8,6 +8,7 @@
 
 use std::collections::BTreeSet;
 
+use assay_model::diffusion::Backbone;
 use assay_model::episode::{EpisodeOutcome, JudgeRecord, ShardRecord, TaskInfo};
 use assay_model::job::{JobKind, ShardState};
 use assay_model::proxy::{ImaginedJudgement, LadderPlan, ProxyResult, RankingPlan};
@@ -346,8 +347,8 @@ fn imagined_judgements(rows: &BatchRows) -> Vec<ImaginedJudgement> {
 /// long, by group (task order), episodes and step; a key kept twice (the final model at the last
 /// checkpoint) is labelled once. With ladders in several groups, each label names its group.
 fn ladder_labels(rows: &BatchRows, plan: &LadderPlan, labels: &mut Vec<(String, String)>) {
-    // (group, episodes trained on, step, key)
-    let mut kept: Vec<(&str, u32, u64, &str)> = Vec::new();
+    // (group, family, episodes trained on, step, key)
+    let mut kept: Vec<(&str, Backbone, u32, u64, &str)> = Vec::new();
     for s in of_kind(rows, JobKind::LadderTraining) {
         if let Some(TrainerOutcome::Diffusion {
             group,
@@ -362,18 +363,21 @@ fn ladder_labels(rows: &BatchRows, plan: &LadderPlan, labels: &mut Vec<(String, 
                 .map(|(s, k)| (*s, k.as_str()))
                 .chain([last])
             {
-                kept.push((group.as_str(), fit.clips, step, key));
+                kept.push((group.as_str(), fit.config.backbone, fit.clips, step, key));
             }
         }
     }
     let rank = |g: &str| group_rank(&rows.tasks, g);
-    kept.sort_by(|a, b| (rank(a.0), a.1, a.2, a.3).cmp(&(rank(b.0), b.1, b.2, b.3)));
+    let order = |b: Backbone| plan.families().iter().position(|f| *f == b);
+    kept.sort_by(|a, b| {
+        (rank(a.0), order(a.1), a.2, a.3, a.4).cmp(&(rank(b.0), order(b.1), b.2, b.3, b.4))
+    });
     let several = kept.iter().any(|(g, ..)| *g != kept[0].0);
-    for (group, episodes, step, key) in kept {
+    for (group, backbone, episodes, step, key) in kept {
         let name = plan.policy_name(key);
         if !labels.iter().any(|(p, _)| *p == name) {
             let group = several.then_some(group);
-            labels.push((name, ladder_label(episodes, step, group)));
+            labels.push((name, ladder_label(backbone, episodes, step, group)));
         }
     }
 }
@@ -601,6 +605,34 @@ mod tests {
                 label("k4", "diffusion 40 ep @ 1000, g2"),
                 label("k1", "diffusion 10 ep @ 300, g1"),
                 label("k2", "diffusion 10 ep @ 1000, g1"),
+            ]
+        );
+    }
+
+    /// With two families, each policy's label names its family, the families in the plan's
+    /// order within a group.
+    #[test]
+    fn ladder_labels_name_the_family() {
+        let mut transformer = ladder_training("g1", 10, &[(300, "t1")], "t2");
+        if let Some(Outcome::Trainer(t)) = &mut transformer.outcome
+            && let TrainerOutcome::Diffusion { fit, .. } = t.as_mut()
+        {
+            fit.config.backbone = Backbone::Transformer;
+        }
+        let rows = batch_rows(vec![transformer, ladder_training("g1", 10, &[], "u1")]);
+        let plan = LadderPlan {
+            backbones: vec![Backbone::Unet, Backbone::Transformer],
+            ..LadderPlan::default()
+        };
+        let mut labels = Vec::new();
+        ladder_labels(&rows, &plan, &mut labels);
+        let label = |key: &str, l: &str| (plan.policy_name(key), l.to_owned());
+        assert_eq!(
+            labels,
+            [
+                label("u1", "diffusion 10 ep @ 1000"),
+                label("t1", "transformer diffusion 10 ep @ 300"),
+                label("t2", "transformer diffusion 10 ep @ 1000"),
             ]
         );
     }

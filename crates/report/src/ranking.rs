@@ -9,6 +9,7 @@
 
 use serde::{Deserialize, Serialize};
 
+use assay_model::diffusion::Backbone;
 use assay_model::proxy::{
     ImaginedJudgement, JudgedProxy, LEAK_SOURCE, PROXY_SOURCE, ProxyConfig, ProxyPrediction,
     ProxyResult, REAL_SOURCE, RankingPlan, judged_source,
@@ -156,13 +157,18 @@ pub struct RankingResults {
     pub labels: Vec<(String, String)>,
 }
 
-/// A ladder policy's label: the episodes it was trained on and the training step it was kept at,
-/// `diffusion 10 ep @ 300`; with its group when a batch has ladders in several groups
-/// (`diffusion 10 ep @ 300, g1`), so that no two policies read the same.
-pub fn ladder_label(episodes: u32, step: u64, group: Option<&str>) -> String {
+/// A ladder policy's label: its family, the episodes it was trained on and the training step it
+/// was kept at, `diffusion 10 ep @ 300` (the U-Net) or `transformer diffusion 10 ep @ 300`; with
+/// its group when a batch has ladders in several groups (`diffusion 10 ep @ 300, g1`), so that no
+/// two policies read the same.
+pub fn ladder_label(backbone: Backbone, episodes: u32, step: u64, group: Option<&str>) -> String {
+    let family = match backbone {
+        Backbone::Unet => "diffusion",
+        Backbone::Transformer => "transformer diffusion",
+    };
     match group {
-        Some(g) => format!("diffusion {episodes} ep @ {step}, {g}"),
-        None => format!("diffusion {episodes} ep @ {step}"),
+        Some(g) => format!("{family} {episodes} ep @ {step}, {g}"),
+        None => format!("{family} {episodes} ep @ {step}"),
     }
 }
 
@@ -958,15 +964,24 @@ mod tests {
     #[test]
     fn ladder_policies_read_by_their_episodes_and_step_in_ladder_order() {
         use crate::testing::{LADDER_BEST, LADDER_WORST, ranking_fixture, report_with_ranking};
-        assert_eq!(ladder_label(10, 300, None), "diffusion 10 ep @ 300");
         assert_eq!(
-            ladder_label(40, 3000, Some("g1")),
+            ladder_label(Backbone::Unet, 10, 300, None),
+            "diffusion 10 ep @ 300"
+        );
+        assert_eq!(
+            ladder_label(Backbone::Unet, 40, 3000, Some("g1")),
             "diffusion 40 ep @ 3000, g1"
         );
         let mut r = ranking_fixture();
         r.labels = vec![
-            (LADDER_WORST.to_owned(), ladder_label(10, 300, None)),
-            (LADDER_BEST.to_owned(), ladder_label(40, 3000, None)),
+            (
+                LADDER_WORST.to_owned(),
+                ladder_label(Backbone::Unet, 10, 300, None),
+            ),
+            (
+                LADDER_BEST.to_owned(),
+                ladder_label(Backbone::Unet, 40, 3000, None),
+            ),
         ];
         let back: RankingResults =
             serde_json::from_str(&serde_json::to_string(&r).unwrap()).unwrap();

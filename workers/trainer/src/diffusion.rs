@@ -25,6 +25,10 @@
 //!   Linear) concatenated with the observation conditioning. A U-Net rather than an MLP: it is
 //!   fast enough on a CPU core (the figures below) and its temporal convolutions give the
 //!   smooth chunks Chi et al. chose it for.
+//! - Or, with `backbone: transformer`, Chi et al.'s `TransformerForDiffusion`
+//!   ([`transformer`]): one token per action of the chunk attending, causally, to each other and
+//!   to tokens of the diffusion step and of each observed step. The video-world-model paper
+//!   ranks policies of both families; a ladder (`LadderPlan::backbones`) trains both.
 //!
 //! # Training
 //! DDPM with `train_timesteps` steps and the squared-cosine schedule (betas capped at 0.999),
@@ -89,7 +93,7 @@ use std::io::Cursor;
 use std::time::Instant;
 
 use assay_model::clip::{ACTION_DIMS, Clip, PROPRIO_DIMS};
-use assay_model::diffusion::{DiffusionConfig, DiffusionFit};
+use assay_model::diffusion::{Backbone, DiffusionConfig, DiffusionFit};
 use assay_model::policy::{Action, EpisodeContext, Policy, PolicyError, PolicyObservation};
 use assay_spec::rng::Rng;
 use serde::{Deserialize, Serialize};
@@ -98,6 +102,10 @@ use thiserror::Error;
 
 use crate::adam::Adam;
 use crate::world_model::{Conv, Init, Linear, device_name};
+
+mod transformer;
+
+use transformer::TransformerDenoiser;
 
 const MAGIC: &[u8; 8] = b"ASYDP001";
 const FORMAT: u32 = 1;
@@ -661,15 +669,8 @@ struct Level {
     resample: Option<Conv1d>,
 }
 
-/// The encoder and the U-Net, with their parameters in creation order.
-struct Net {
-    enc: Vec<Conv>,
-    /// 1×1 convolution to the keypoint maps.
-    keypoints_w: Tensor,
-    keypoints_b: Tensor,
-    /// x and y in [−1, 1] of each cell of the keypoint maps (row-major), not trained.
-    grid: (Tensor, Tensor),
-    enc_out: Linear,
+/// The U-Net denoiser (Chi et al.'s `ConditionalUnet1D`).
+struct Unet {
     time1: Linear,
     time2: Linear,
     time_embed: i64,
@@ -678,9 +679,129 @@ struct Net {
     up: Vec<Level>,
     final_block: Block1d,
     final_conv: Conv1d,
+}
+
+/// The denoiser of the config's [`Backbone`].
+enum Denoiser {
+    Unet(Box<Unet>),
+    Transformer(Box<TransformerDenoiser>),
+}
+
+/// The encoder and the denoiser, with their parameters in creation order.
+struct Net {
+    enc: Vec<Conv>,
+    /// 1×1 convolution to the keypoint maps.
+    keypoints_w: Tensor,
+    keypoints_b: Tensor,
+    /// x and y in [−1, 1] of each cell of the keypoint maps (row-major), not trained.
+    grid: (Tensor, Tensor),
+    enc_out: Linear,
+    denoiser: Denoiser,
     obs_horizon: i64,
     names: Vec<String>,
     params: Vec<Tensor>,
+}
+
+impl Unet {
+    fn new(init: &mut Init, cfg: &DiffusionConfig) -> Self {
+        let te = cfg.time_embed;
+        let time1 = Linear::new(init, "time/1", te, 4 * te, true);
+        let time2 = Linear::new(init, "time/2", 4 * te, te, true);
+        let cond = te + cfg.obs_horizon as i64 * (cfg.obs_features + P);
+        let dims: Vec<i64> = std::iter::once(A)
+            .chain(cfg.down_dims.iter().copied())
+            .collect();
+        let levels = cfg.down_dims.len();
+        let mut down = Vec::new();
+        for k in 0..levels {
+            let (i, o) = (dims[k], dims[k + 1]);
+            let name = format!("unet/down{k}");
+            down.push(Level {
+                blocks: [
+                    ResBlock::new(init, &format!("{name}/0"), i, o, cond, cfg),
+                    ResBlock::new(init, &format!("{name}/1"), o, o, cond, cfg),
+                ],
+                resample: (k + 1 < levels)
+                    .then(|| Conv1d::new(init, &format!("{name}/down"), o, o, 3, 2)),
+            });
+        }
+        let m = dims[levels];
+        let mid = [
+            ResBlock::new(init, "unet/mid/0", m, m, cond, cfg),
+            ResBlock::new(init, "unet/mid/1", m, m, cond, cfg),
+        ];
+        // Chi et al.: for each level but the first, from the deepest: a block from
+        // (the level's channels + its skip) to the level below's channels, then upsampling.
+        let mut up = Vec::new();
+        for k in (1..levels).rev() {
+            let (i, o) = (dims[k], dims[k + 1]);
+            let name = format!("unet/up{k}");
+            up.push(Level {
+                blocks: [
+                    ResBlock::new(init, &format!("{name}/0"), 2 * o, i, cond, cfg),
+                    ResBlock::new(init, &format!("{name}/1"), i, i, cond, cfg),
+                ],
+                resample: Some(Conv1d::upsample(init, &format!("{name}/up"), i)),
+            });
+        }
+        let start = dims[1];
+        let final_block = Block1d::new(init, "unet/final", start, start, cfg);
+        let final_conv = Conv1d::new(init, "unet/out", start, A, 1, 1);
+        Self {
+            time1,
+            time2,
+            time_embed: te,
+            down,
+            mid,
+            up,
+            final_block,
+            final_conv,
+        }
+    }
+
+    /// The predicted noise `[B, pred_horizon, 4]` of `noisy` `[B, pred_horizon, 4]` at
+    /// diffusion steps `t` `[B]` (float), given the flat observation conditioning.
+    fn forward(&self, noisy: &Tensor, t: &Tensor, obs_cond: &Tensor) -> Tensor {
+        let temb = self
+            .time2
+            .forward(&self.time1.forward(&sinusoid(t, self.time_embed)).mish());
+        // FiLM's encoders all start with Mish (Chi et al.'s `cond_encoder`).
+        let cond = Tensor::cat(&[temb, obs_cond.shallow_clone()], -1).mish();
+        let mut x = noisy.permute([0, 2, 1]);
+        let mut skips = Vec::new();
+        for level in &self.down {
+            x = level.blocks[0].forward(&x, &cond);
+            x = level.blocks[1].forward(&x, &cond);
+            skips.push(x.shallow_clone());
+            if let Some(r) = &level.resample {
+                x = r.forward(&x);
+            }
+        }
+        for block in &self.mid {
+            x = block.forward(&x, &cond);
+        }
+        for level in &self.up {
+            let skip = skips.pop().expect("one skip per level");
+            x = Tensor::cat(&[x, skip], 1);
+            x = level.blocks[0].forward(&x, &cond);
+            x = level.blocks[1].forward(&x, &cond);
+            if let Some(r) = &level.resample {
+                x = r.forward(&x);
+            }
+        }
+        self.final_conv
+            .forward(&self.final_block.forward(&x))
+            .permute([0, 2, 1])
+    }
+}
+
+/// Chi et al.'s `SinusoidalPosEmb`: `[B]` → `[B, width]`.
+fn sinusoid(t: &Tensor, width: i64) -> Tensor {
+    let half = width / 2;
+    let scale = (10000f64).ln() / (half - 1).max(1) as f64;
+    let freqs = (Tensor::arange(half, (Kind::Float, t.device())) * -scale).exp();
+    let x = t.unsqueeze(1) * freqs.unsqueeze(0);
+    Tensor::cat(&[x.sin(), x.cos()], -1)
 }
 
 impl Net {
@@ -715,63 +836,24 @@ impl Net {
             cells.unsqueeze(1).expand([s, s], false).reshape([s * s]),
         );
         let enc_out = Linear::new(&mut init, "enc/out", 2 * k, cfg.obs_features, true);
-        let te = cfg.time_embed;
-        let time1 = Linear::new(&mut init, "time/1", te, 4 * te, true);
-        let time2 = Linear::new(&mut init, "time/2", 4 * te, te, true);
-        let cond = te + cfg.obs_horizon as i64 * (cfg.obs_features + P);
-        let dims: Vec<i64> = std::iter::once(A)
-            .chain(cfg.down_dims.iter().copied())
-            .collect();
-        let levels = cfg.down_dims.len();
-        let mut down = Vec::new();
-        for k in 0..levels {
-            let (i, o) = (dims[k], dims[k + 1]);
-            let name = format!("unet/down{k}");
-            down.push(Level {
-                blocks: [
-                    ResBlock::new(&mut init, &format!("{name}/0"), i, o, cond, cfg),
-                    ResBlock::new(&mut init, &format!("{name}/1"), o, o, cond, cfg),
-                ],
-                resample: (k + 1 < levels)
-                    .then(|| Conv1d::new(&mut init, &format!("{name}/down"), o, o, 3, 2)),
-            });
-        }
-        let m = dims[levels];
-        let mid = [
-            ResBlock::new(&mut init, "unet/mid/0", m, m, cond, cfg),
-            ResBlock::new(&mut init, "unet/mid/1", m, m, cond, cfg),
-        ];
-        // Chi et al.: for each level but the first, from the deepest: a block from
-        // (the level's channels + its skip) to the level below's channels, then upsampling.
-        let mut up = Vec::new();
-        for k in (1..levels).rev() {
-            let (i, o) = (dims[k], dims[k + 1]);
-            let name = format!("unet/up{k}");
-            up.push(Level {
-                blocks: [
-                    ResBlock::new(&mut init, &format!("{name}/0"), 2 * o, i, cond, cfg),
-                    ResBlock::new(&mut init, &format!("{name}/1"), i, i, cond, cfg),
-                ],
-                resample: Some(Conv1d::upsample(&mut init, &format!("{name}/up"), i)),
-            });
-        }
-        let start = dims[1];
-        let final_block = Block1d::new(&mut init, "unet/final", start, start, cfg);
-        let final_conv = Conv1d::new(&mut init, "unet/out", start, A, 1, 1);
+        let denoiser = match cfg.backbone {
+            Backbone::Unet => Denoiser::Unet(Box::new(Unet::new(&mut init, cfg))),
+            Backbone::Transformer => Denoiser::Transformer(Box::new(TransformerDenoiser::new(
+                &mut init,
+                &cfg.transformer,
+                cfg.pred_horizon as i64,
+                A,
+                cfg.obs_horizon as i64,
+                cfg.obs_features + P,
+            ))),
+        };
         Self {
             enc,
             keypoints_w,
             keypoints_b,
             grid,
             enc_out,
-            time1,
-            time2,
-            time_embed: te,
-            down,
-            mid,
-            up,
-            final_block,
-            final_conv,
+            denoiser,
             obs_horizon: cfg.obs_horizon as i64,
             names: init.names,
             params: init.params,
@@ -808,48 +890,16 @@ impl Net {
         Tensor::cat(&[features, proprio], -1).view([b, -1])
     }
 
-    /// Chi et al.'s `SinusoidalPosEmb`: `[B]` → `[B, time_embed]`.
-    fn sinusoid(&self, t: &Tensor) -> Tensor {
-        let half = self.time_embed / 2;
-        let scale = (10000f64).ln() / (half - 1).max(1) as f64;
-        let freqs = (Tensor::arange(half, (Kind::Float, t.device())) * -scale).exp();
-        let x = t.unsqueeze(1) * freqs.unsqueeze(0);
-        Tensor::cat(&[x.sin(), x.cos()], -1)
-    }
-
     /// The predicted noise `[B, pred_horizon, 4]` of `noisy` `[B, pred_horizon, 4]` at
     /// diffusion steps `t` `[B]` (float).
     fn denoise(&self, noisy: &Tensor, t: &Tensor, obs_cond: &Tensor) -> Tensor {
-        let temb = self
-            .time2
-            .forward(&self.time1.forward(&self.sinusoid(t)).mish());
-        // FiLM's encoders all start with Mish (Chi et al.'s `cond_encoder`).
-        let cond = Tensor::cat(&[temb, obs_cond.shallow_clone()], -1).mish();
-        let mut x = noisy.permute([0, 2, 1]);
-        let mut skips = Vec::new();
-        for level in &self.down {
-            x = level.blocks[0].forward(&x, &cond);
-            x = level.blocks[1].forward(&x, &cond);
-            skips.push(x.shallow_clone());
-            if let Some(r) = &level.resample {
-                x = r.forward(&x);
+        match &self.denoiser {
+            Denoiser::Unet(unet) => unet.forward(noisy, t, obs_cond),
+            Denoiser::Transformer(transformer) => {
+                let b = obs_cond.size()[0];
+                transformer.forward(noisy, t, &obs_cond.view([b, self.obs_horizon, -1]))
             }
         }
-        for block in &self.mid {
-            x = block.forward(&x, &cond);
-        }
-        for level in &self.up {
-            let skip = skips.pop().expect("one skip per level");
-            x = Tensor::cat(&[x, skip], 1);
-            x = level.blocks[0].forward(&x, &cond);
-            x = level.blocks[1].forward(&x, &cond);
-            if let Some(r) = &level.resample {
-                x = r.forward(&x);
-            }
-        }
-        self.final_conv
-            .forward(&self.final_block.forward(&x))
-            .permute([0, 2, 1])
     }
 }
 

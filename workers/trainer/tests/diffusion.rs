@@ -3,7 +3,7 @@
 //! actions = the tool's velocity toward the target (hold commanded once it is there).
 
 use assay_model::clip::Clip;
-use assay_model::diffusion::DiffusionConfig;
+use assay_model::diffusion::{Backbone, DiffusionConfig, TransformerSize};
 use assay_model::policy::{Action, EpisodeContext, Policy, PolicyError, PolicyObservation};
 use assay_spec::rng::Rng;
 use assay_trainer::diffusion::{DiffusionError, DiffusionPolicy, train};
@@ -219,13 +219,29 @@ fn unseen_first_actions(policy: &DiffusionPolicy) -> (f32, Vec<f32>, Vec<f32>) {
 #[test]
 fn learns_to_move_toward_the_target() {
     // The default model with a narrower U-Net, trained briefly on many short episodes.
-    let cfg = DiffusionConfig {
+    learns_toward_the_target(DiffusionConfig {
         steps: 1000,
         batch: 32,
         lr: 2e-3,
         down_dims: vec![16, 32, 64],
         ..DiffusionConfig::default()
-    };
+    });
+}
+
+#[test]
+fn the_transformer_family_learns_to_move_toward_the_target() {
+    // The second family (Chi et al.'s transformer denoiser) at its default size, the same data
+    // and training as the U-Net's test above.
+    learns_toward_the_target(DiffusionConfig {
+        steps: 1000,
+        batch: 32,
+        lr: 2e-3,
+        backbone: Backbone::Transformer,
+        ..DiffusionConfig::default()
+    });
+}
+
+fn learns_toward_the_target(cfg: DiffusionConfig) {
     let data = clips(80, 12, 7);
     let mut losses = Vec::new();
     let (policy, fit) = train(&data, &cfg, Device::Cpu, &mut |_, l| losses.push(l)).unwrap();
@@ -262,7 +278,37 @@ fn learns_to_move_toward_the_target() {
 
 #[test]
 fn bytes_round_trip_gives_the_same_predictions() {
-    let policy = tiny_policy(3);
+    round_trip(tiny_policy(3));
+    let transformer = DiffusionConfig {
+        backbone: Backbone::Transformer,
+        transformer: TransformerSize {
+            layers: 2,
+            heads: 2,
+            width: 16,
+        },
+        ..tiny_config()
+    };
+    let policy = train(&clips(3, 12, 1), &transformer, Device::Cpu, &mut |_, _| {})
+        .unwrap()
+        .0;
+    // Its parameters are the transformer's, not the U-Net's.
+    assert!(
+        policy.to_bytes().len() < tiny_policy(3).to_bytes().len(),
+        "a 2-layer, 16-wide transformer is smaller than the tiny U-Net"
+    );
+    round_trip(policy);
+    // A U-Net checkpoint is not read as a transformer's (its config says which it is).
+    let bytes = tiny_policy(3).to_bytes();
+    assert_eq!(
+        DiffusionPolicy::from_bytes(&bytes, Device::Cpu)
+            .unwrap()
+            .config()
+            .backbone,
+        Backbone::Unet
+    );
+}
+
+fn round_trip(policy: DiffusionPolicy) {
     let bytes = policy.to_bytes();
     let again = DiffusionPolicy::from_bytes(&bytes, Device::Cpu).unwrap();
     assert_eq!(again.config(), policy.config());

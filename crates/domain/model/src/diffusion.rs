@@ -62,6 +62,71 @@ pub struct DiffusionConfig {
     /// Intra-op threads of libtorch while training on a CPU (1 is fastest for models this small
     /// on 2 cores).
     pub threads: usize,
+    /// The denoiser's family: Chi et al.'s 1-D temporal U-Net (the default; `down_dims`,
+    /// `kernel_size`, `groups`) or their transformer (`transformer`). The video-world-model
+    /// paper ranks policies of both.
+    #[serde(skip_serializing_if = "Backbone::is_unet")]
+    pub backbone: Backbone,
+    /// The transformer denoiser's size (read when `backbone` is `transformer`).
+    #[serde(skip_serializing_if = "TransformerSize::is_default")]
+    pub transformer: TransformerSize,
+}
+
+/// The denoiser of a diffusion policy.
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, schemars::JsonSchema,
+)]
+#[serde(rename_all = "snake_case")]
+pub enum Backbone {
+    /// Chi et al.'s `ConditionalUnet1D`: temporal convolutions with FiLM conditioning.
+    #[default]
+    Unet,
+    /// Chi et al.'s `TransformerForDiffusion`: one token per action of the chunk, causal
+    /// self-attention among them and cross-attention to a token of the diffusion step and one per
+    /// observed step.
+    Transformer,
+}
+
+impl Backbone {
+    pub fn is_unet(&self) -> bool {
+        *self == Backbone::Unet
+    }
+
+    pub fn as_str(&self) -> &'static str {
+        match self {
+            Backbone::Unet => "unet",
+            Backbone::Transformer => "transformer",
+        }
+    }
+}
+
+/// The transformer denoiser's size (Chi et al.: 8 layers, 4 heads, 256 wide; here sized for a
+/// CPU core, about the U-Net's training cost per step).
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
+#[serde(default, deny_unknown_fields)]
+pub struct TransformerSize {
+    /// Decoder layers (self-attention, cross-attention, MLP; pre-norm).
+    pub layers: i64,
+    /// Attention heads; `width` is a multiple of it.
+    pub heads: i64,
+    /// Token width.
+    pub width: i64,
+}
+
+impl Default for TransformerSize {
+    fn default() -> Self {
+        Self {
+            layers: 4,
+            heads: 4,
+            width: 64,
+        }
+    }
+}
+
+impl TransformerSize {
+    pub fn is_default(&self) -> bool {
+        *self == TransformerSize::default()
+    }
 }
 
 impl Default for DiffusionConfig {
@@ -86,6 +151,8 @@ impl Default for DiffusionConfig {
             kernel_size: 5,
             groups: 8,
             threads: 1,
+            backbone: Backbone::Unet,
+            transformer: TransformerSize::default(),
         }
     }
 }
@@ -110,7 +177,7 @@ impl DiffusionConfig {
             return Err("down_dims: at least one U-Net level is needed".into());
         }
         let factor = 1usize << (self.down_dims.len() - 1).min(16);
-        if !self.pred_horizon.is_multiple_of(factor) {
+        if self.backbone == Backbone::Unet && !self.pred_horizon.is_multiple_of(factor) {
             return Err(format!(
                 "pred_horizon: {} is not a multiple of {factor} (the U-Net halves it {} times)",
                 self.pred_horizon,
@@ -187,6 +254,25 @@ impl DiffusionConfig {
                 self.kernel_size
             ));
         }
+        let t = &self.transformer;
+        if t.layers < 1 || t.heads < 1 || t.width < 1 {
+            return Err(format!(
+                "transformer: layers {}, heads {} and width {} must each be positive",
+                t.layers, t.heads, t.width
+            ));
+        }
+        if t.width % 2 != 0 {
+            return Err(format!(
+                "transformer.width: {} is not even (the diffusion step's sines and cosines)",
+                t.width
+            ));
+        }
+        if t.width % t.heads != 0 {
+            return Err(format!(
+                "transformer.width: {} is not a multiple of heads ({})",
+                t.width, t.heads
+            ));
+        }
         Ok(())
     }
 }
@@ -243,6 +329,36 @@ mod tests {
         assert!(with(|c| c.steps = 0).starts_with("steps"));
         assert!(with(|c| c.keypoints = 0).starts_with("keypoints"));
         assert!(with(|c| c.time_embed = 31).starts_with("time_embed"));
+        assert!(with(|c| c.transformer.heads = 0).starts_with("transformer"));
+        assert!(with(|c| c.transformer.width = 30).starts_with("transformer.width"));
+        // The U-Net's halving constrains the chunk; the transformer's tokens do not.
+        let mut c = DiffusionConfig {
+            pred_horizon: 10,
+            ..DiffusionConfig::default()
+        };
+        assert!(c.validate().unwrap_err().starts_with("pred_horizon"));
+        c.backbone = Backbone::Transformer;
+        c.validate().unwrap();
+    }
+
+    #[test]
+    fn the_u_net_default_serialises_as_before_and_the_transformer_is_named() {
+        // A U-Net policy's config (and so its checkpoint bytes and artifact key) is what it was
+        // before the transformer family existed.
+        let json = serde_json::to_string(&DiffusionConfig::default()).unwrap();
+        assert!(
+            !json.contains("backbone") && !json.contains("transformer"),
+            "{json}"
+        );
+        let c: DiffusionConfig =
+            serde_json::from_str(r#"{"backbone": "transformer", "transformer": {"layers": 2}}"#)
+                .unwrap();
+        assert_eq!(c.backbone, Backbone::Transformer);
+        assert_eq!((c.transformer.layers, c.transformer.heads), (2, 4));
+        let json = serde_json::to_string(&c).unwrap();
+        assert!(json.contains(r#""backbone":"transformer""#), "{json}");
+        let err = serde_json::from_str::<DiffusionConfig>(r#"{"backbone": "mlp"}"#).unwrap_err();
+        assert!(err.to_string().contains("unknown variant `mlp`"), "{err}");
     }
 
     #[test]

@@ -169,9 +169,10 @@ impl RankingPlan {
 }
 
 /// A ladder of learned policies to rank, as the video-world-model paper ranks checkpoints:
-/// per task group, one diffusion policy is trained on the first `n` episodes of
-/// `train_policy` for every `n` in `episodes`, and kept at every step in `checkpoints` —
-/// `episodes.len() × checkpoints.len()` policies of differing skill. Each runs in the simulator
+/// per task group and per family in `backbones`, one diffusion policy is trained on the first `n`
+/// episodes of `train_policy` for every `n` in `episodes`, and kept at every step in
+/// `checkpoints` — `backbones.len() × episodes.len() × checkpoints.len()` policies of differing
+/// skill (the paper's: CNN- and transformer-based diffusion policies at several lengths). Each runs in the simulator
 /// on every (task, seed) of the group (its real success) and is ranked by the proxy.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
@@ -184,6 +185,10 @@ pub struct LadderPlan {
     pub checkpoints: Vec<u64>,
     /// Horizon of the policies' episodes, physics steps (the task's own budget when smaller).
     pub max_steps: u32,
+    /// The policy families: the denoiser each run is trained with (`config.backbone` is
+    /// replaced by each in turn). Default: the U-Net alone.
+    #[serde(skip_serializing_if = "LadderPlan::unet_only")]
+    pub backbones: Vec<crate::diffusion::Backbone>,
     pub config: crate::diffusion::DiffusionConfig,
 }
 
@@ -194,6 +199,7 @@ impl Default for LadderPlan {
             episodes: vec![10, 40],
             checkpoints: vec![300, 1000, 3000],
             max_steps: 6000,
+            backbones: vec![crate::diffusion::Backbone::Unet],
             config: crate::diffusion::DiffusionConfig::default(),
         }
     }
@@ -210,9 +216,27 @@ impl LadderPlan {
         if self.max_steps == 0 {
             return Err("ladder.max_steps: must be at least 1".into());
         }
+        if self.backbones.is_empty() {
+            return Err("ladder.backbones: one or more families (unet, transformer)".into());
+        }
         self.config
             .validate()
             .map_err(|e| format!("ladder.config.{e}"))
+    }
+
+    fn unet_only(backbones: &Vec<crate::diffusion::Backbone>) -> bool {
+        backbones == &[crate::diffusion::Backbone::Unet]
+    }
+
+    /// Each family once, in the order given.
+    pub fn families(&self) -> Vec<crate::diffusion::Backbone> {
+        let mut out = Vec::new();
+        for b in &self.backbones {
+            if !out.contains(b) {
+                out.push(*b);
+            }
+        }
+        out
     }
 
     /// The policy name of a kept model's episodes (its horizon is the ladder's); the report's
