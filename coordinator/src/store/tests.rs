@@ -571,6 +571,7 @@ fn a_ranking_batch_queues_one_proxy_per_group_that_never_sees_the_ranked_outcome
                 last_frame_mse: 0.001,
                 imagined_frames: 0,
                 done_by_judge: false,
+                p_calibrated: None,
                 leak: None,
                 imagined_keyframes: (0..8)
                     .map(|k| Keyframe {
@@ -686,6 +687,7 @@ fn proxy_done(predictions: Vec<assay_model::proxy::ProxyPrediction>) -> String {
             judge_examples: 8,
             judge_positives: 5,
             judge_train_accuracy: 1.0,
+            calibration: None,
             predictions,
             seconds: 1.0,
             imagined_frames: Vec::new(),
@@ -984,6 +986,7 @@ fn a_ladder_of_learned_policies_is_trained_then_run_then_ranked() {
             last_frame_mse: 0.0,
             imagined_frames: 3,
             done_by_judge: false,
+            p_calibrated: None,
             leak: None,
             imagined_keyframes: Vec::new(),
         })

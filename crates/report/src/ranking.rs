@@ -11,8 +11,8 @@ use serde::{Deserialize, Serialize};
 
 use assay_model::diffusion::Backbone;
 use assay_model::proxy::{
-    ImaginedJudgement, JudgedProxy, LEAK_SOURCE, PROXY_SOURCE, ProxyConfig, ProxyPrediction,
-    ProxyResult, REAL_SOURCE, RankingPlan, judged_source,
+    CALIBRATED_SOURCE, ImaginedJudgement, JudgedProxy, LEAK_SOURCE, PROXY_SOURCE, ProxyConfig,
+    ProxyPrediction, ProxyResult, REAL_SOURCE, RankingPlan, judged_source,
 };
 use assay_model::quality::ScoreStats;
 use assay_stats::ranking::{Cell, Ranking, RankingConfig, rank};
@@ -182,6 +182,9 @@ pub fn ranking_figure(proxy: &str) -> String {
     if proxy == LEAK_SOURCE {
         return "ranking-leak.svg".to_owned();
     }
+    if proxy == CALIBRATED_SOURCE {
+        return "ranking-calibrated.svg".to_owned();
+    }
     match proxy.strip_prefix(&format!("{PROXY_SOURCE}+")) {
         Some(judge) => {
             let safe: String = judge
@@ -245,6 +248,14 @@ pub const REPEAT_NOTE: &str = "Each imagined rollout is judged k times; its verd
 pub const LEAK_NOTE: &str = "An ablation, not the proxy: every ranked episode imagined for \
     exactly as many frames as its real episode had and judged on that last frame — the real \
     episode's length given to the proxy. It measures what that leak is worth.";
+
+/// What the calibrated proxy is (report.md and report.html, under its comparison).
+pub const CALIBRATION_NOTE: &str = "The frame judge's verdicts made rates: each ranked \
+    episode's judge probability on its last imagined frame mapped to a probability of real \
+    success by Platt scaling fitted per group on the training policies' episodes only (their \
+    out-of-fold judge probabilities on replays in the world model, against their real outcomes); \
+    a cell's R_S is its episodes' mean calibrated probability (counted as the rounded expected \
+    successes). The ranked policies' outcomes never reach the fit.";
 
 /// Bootstrap resamples of the report's ranking statistics.
 pub const RANKING_RESAMPLES: usize = 2000;
@@ -352,7 +363,18 @@ pub fn ranking_results(
                 successes: Some(real.successes),
                 rate: real.rate.unwrap_or(0.0),
             });
-            for (source, p) in [(PROXY_SOURCE, &proxy), (LEAK_SOURCE, &leak)] {
+            // The calibrated verdicts: the expected successes, rounded, so that the bootstrap
+            // redraws them as the others (binomially, from as many trials).
+            let calibrated: Vec<f64> = preds.iter().filter_map(|p| p.p_calibrated).collect();
+            let calibrated = (!calibrated.is_empty()).then(|| {
+                let expected = calibrated.iter().sum::<f64>().round() as u64;
+                Proportion::new(expected, calibrated.len() as u64)
+            });
+            for (source, p) in [
+                (PROXY_SOURCE, &proxy),
+                (CALIBRATED_SOURCE, &calibrated),
+                (LEAK_SOURCE, &leak),
+            ] {
                 if let Some(p) = p {
                     cells.push(Cell {
                         task: task.clone(),
@@ -379,11 +401,11 @@ pub fn ranking_results(
             });
         }
     }
-    // The frame judge's proxy first, then each judge's, then the leak ablation, as far as they
-    // have verdicts.
+    // The frame judge's proxy first, then each judge's, then the calibrated frame judge's, then
+    // the leak ablation, as far as they have verdicts.
     let proxies: Vec<String> = std::iter::once(PROXY_SOURCE.to_owned())
         .chain(judges.iter().map(|j| judged_source(j)))
-        .chain([LEAK_SOURCE.to_owned()])
+        .chain([CALIBRATED_SOURCE.to_owned(), LEAK_SOURCE.to_owned()])
         .filter(|p| cells.iter().any(|c| &c.source == p))
         .collect();
     let policies = pooled(ranked_policies, &proxies, &cells);
@@ -804,6 +826,130 @@ mod tests {
         );
         assert!(one.per_group.is_empty());
         assert!(!one.markdown().contains("Per task group"));
+    }
+
+    /// A group's proxy result with `predictions` (task, policy, seed, judge probability) and the
+    /// calibration `calibration`, whose calibrated probabilities it carries as the trainer
+    /// computes them.
+    fn calibrated_group(
+        predictions: &[(&str, &str, u64, f64)],
+        calibration: &assay_model::proxy::Calibration,
+    ) -> ProxyResult {
+        let predictions: Vec<serde_json::Value> = predictions
+            .iter()
+            .map(|(task, policy, seed, p)| {
+                serde_json::json!({
+                    "task_id": task, "policy": policy, "seed": seed, "p_success": p,
+                    "success": *p >= 0.5, "p_success_real_frame": 0.5, "last_frame_mse": 0.001,
+                    "p_calibrated": calibration.apply(*p),
+                })
+            })
+            .collect();
+        serde_json::from_value(serde_json::json!({
+            "group": "g",
+            "world_model": {
+                "group": "g", "budget": 4, "train_episodes": 4, "eval_episodes": 0,
+                "eval_image_mse": 0.0, "eval_proprio_mse": 0.0, "per_episode": [],
+                "episodes": [], "final_train_loss": 0.0, "steps": 1, "epochs": 0.0,
+                "device": "cpu", "config": {}
+            },
+            "judge_examples": 16, "judge_positives": 6, "judge_train_accuracy": 0.9,
+            "calibration": calibration,
+            "predictions": predictions,
+        }))
+        .unwrap()
+    }
+
+    #[test]
+    fn the_calibrated_proxy_reads_the_training_fit_and_never_the_ranked_outcomes() {
+        let (plan, ranked) = good_fair_poor();
+        let task_groups = vec![("t1".into(), "g".into())];
+        // The frame judge calls every imagined rollout done (p 0.9, 0.7, 0.55 by policy); the
+        // calibration fitted on the training episodes maps those to 0.72, 0.47, 0.35.
+        let calibration = assay_model::proxy::Calibration {
+            a: -0.8,
+            b: 0.8,
+            episodes: 16,
+            positives: 6,
+            folds: 2,
+            train_error: 0.3,
+            train_error_uncalibrated: 0.4,
+        };
+        let p_of = |policy: &str| match policy {
+            "good" => 0.9,
+            "fair" => 0.7,
+            _ => 0.55,
+        };
+        let predictions: Vec<(&str, &str, u64, f64)> = ranked
+            .iter()
+            .flat_map(|policy| {
+                (0..4u64).map(move |seed| ("t1", policy.as_str(), seed, p_of(policy)))
+            })
+            .collect();
+        let expected: Vec<f64> = ranked
+            .iter()
+            .map(|policy| (4.0 * calibration.apply(p_of(policy))).round() / 4.0)
+            .collect();
+        assert_eq!(
+            expected,
+            [0.75, 0.5, 0.25],
+            "the fixture's calibrated rates"
+        );
+        let with_real = |real_ok: [u64; 3]| {
+            let episodes: Vec<RealEpisode> = ranked
+                .iter()
+                .zip(real_ok)
+                .flat_map(|(policy, ok)| {
+                    (0..4u64).map(move |seed| real("t1", policy, seed, seed < ok))
+                })
+                .collect();
+            ranking_results(
+                &plan,
+                &ranked,
+                &task_groups,
+                &episodes,
+                vec![calibrated_group(&predictions, &calibration)],
+                &[],
+                Vec::new(),
+            )
+        };
+        let points = |r: &RankingResults, source: &str| -> Vec<(f64, f64)> {
+            let c = r
+                .ranking
+                .as_ref()
+                .unwrap()
+                .comparisons
+                .iter()
+                .find(|c| c.proxy == source)
+                .unwrap_or_else(|| panic!("no {source} comparison"));
+            c.policies.iter().map(|p| (p.real, p.proxy)).collect()
+        };
+        let r = with_real([4, 2, 0]);
+        let proxies: Vec<&str> = r
+            .ranking
+            .as_ref()
+            .unwrap()
+            .comparisons
+            .iter()
+            .map(|c| c.proxy.as_str())
+            .collect();
+        assert_eq!(proxies, [PROXY_SOURCE, CALIBRATED_SOURCE]);
+        // Uncalibrated: every policy 100 %; calibrated: readable rates in the right order.
+        assert!(points(&r, PROXY_SOURCE).iter().all(|(_, p)| *p == 1.0));
+        let calibrated = points(&r, CALIBRATED_SOURCE);
+        assert_eq!(calibrated, [(1.0, 0.75), (0.5, 0.5), (0.0, 0.25)]);
+        // Other real outcomes of the ranked policies: R moves, the calibrated R_S does not.
+        let other = points(&with_real([1, 3, 4]), CALIBRATED_SOURCE);
+        assert_eq!(other, [(0.25, 0.75), (0.75, 0.5), (1.0, 0.25)]);
+        let md = r.markdown();
+        assert!(md.contains("Platt scaling fitted per group"), "{md}");
+        assert!(md.contains("(ranking-calibrated.svg)"), "{md}");
+        assert!(
+            md.contains(
+                "σ(-0.80 + 0.80·logit p), fitted on 16 training episodes (6 successes, 2 folds)"
+            ),
+            "{md}"
+        );
     }
 
     #[test]

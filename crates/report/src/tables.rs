@@ -12,7 +12,7 @@ use crate::quality::{JudgeSummary, QualityResults};
 use crate::ranking::{RankingResults, is_ablation, source_title};
 use crate::report::{PolicySuccess, Provenance, Results, RunInfo};
 use crate::view::{Cell, Span, Table, estimate, label_rank, num2, proportion, score};
-use assay_model::proxy::{LEAK_SOURCE, PROXY_SOURCE, REAL_SOURCE};
+use assay_model::proxy::{CALIBRATED_SOURCE, LEAK_SOURCE, PROXY_SOURCE, REAL_SOURCE};
 use assay_model::quality::ScoreStats;
 use assay_stats::agreement::Agreement;
 use assay_stats::diversity::TextDiversityTable;
@@ -680,6 +680,36 @@ pub fn ranking_compared(r: &RankingResults) -> Table {
             lines(judges.into_iter().chain([rule]))
         },
     ]);
+    let calibrations: Vec<String> = r
+        .groups
+        .iter()
+        .map(|g| match &g.calibration {
+            Some(c) => format!(
+                "{}: P(success) = σ({:.2} {} {:.2}·logit p), fitted on {} training episodes \
+                 ({} successes, {} folds); mean |p − outcome| on them {:.2} (uncalibrated \
+                 {:.2})",
+                g.group,
+                c.a,
+                if c.b < 0.0 { '−' } else { '+' },
+                c.b.abs(),
+                c.episodes,
+                c.positives,
+                c.folds,
+                c.train_error,
+                c.train_error_uncalibrated
+            ),
+            None => format!(
+                "{}: none (its training episodes are too few or all of one outcome)",
+                g.group
+            ),
+        })
+        .collect();
+    if !calibrations.is_empty() {
+        table.row(vec![
+            format!("calibration ({CALIBRATED_SOURCE}; training policies only)").into(),
+            lines(calibrations),
+        ]);
+    }
     let leak = cfg.leak_ablation || r.rows.iter().any(|x| x.leak.is_some());
     table.row(vec![
         "leak ablation".into(),

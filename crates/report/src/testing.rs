@@ -117,6 +117,7 @@ pub(crate) fn ranking_fixture() -> crate::ranking::RankingResults {
                         last_frame_mse: 0.004,
                         imagined_frames: if ok { 20 } else { 40 },
                         done_by_judge: ok,
+                        p_calibrated: None,
                         leak: Some(LeakVerdict {
                             p_success: if success { 0.7 } else { 0.3 },
                             success,
@@ -154,6 +155,7 @@ pub(crate) fn ranking_fixture() -> crate::ranking::RankingResults {
         judge_examples: 40,
         judge_positives: 12,
         judge_train_accuracy: 0.95,
+        calibration: None,
         predictions: predictions
             .iter()
             .filter(|(g, _)| g == name)

@@ -15,6 +15,12 @@
 //! *when* an imagined rollout is done, not only whether a last frame looks like a success.
 //! Initial weights and batches come from `assay_spec::rng` streams: deterministic.
 //!
+//! # Calibration
+//! The judge's probability on an imagined last frame is mapped to a probability of real success
+//! by Platt scaling fitted on the **training** episodes only (`assay_model::proxy::Calibration`):
+//! each one's probability comes from a judge trained without it (2 folds), on the last frame of
+//! its replay in the world model. The ranked episodes' outcomes never reach the trainer.
+//!
 //! # What the ranked policies act on
 //! Every ranked policy is a policy object (diffusion, TorchScript, remote, openpi) built again for
 //! the episode (`ProxyRequest::policies`): it is shown the frame and state the world model gives
@@ -45,6 +51,8 @@ use crate::imagination::{self, Stop};
 use crate::video_eval::{self, StartName};
 use crate::video_model;
 use crate::world_model::{Conv, FitRequest, Init, Linear, WorldModelError, fit_model};
+
+mod calibration;
 
 const JUDGE_BATCH: usize = 16;
 const JUDGE_CHANNELS: [i64; 5] = [3, 8, 16, 32, 64];
@@ -428,6 +436,9 @@ pub fn run_proxy(
         .or(eval_clips.first())
         .map_or((size, size), |c| (c.width, c.height));
     let mut owned: Vec<(Vec<u8>, bool)> = Vec::new();
+    // Per training episode: its examples in `owned`, its imagined last frame's index there, and
+    // its outcome (for the calibration).
+    let mut spans: Vec<calibration::Span> = Vec::with_capacity(train.len());
     for (i, e) in train.iter().enumerate() {
         let clip = &train_clips[i];
         let ok = e.success.unwrap_or(false);
@@ -437,6 +448,7 @@ pub fn run_proxy(
             &imagination::actions_of(clip),
         )?;
         let last = clip.len() - 1;
+        let first = owned.len();
         owned.push((at(clip, last), ok));
         owned.push((imagined[last - 1].clone(), ok));
         for t in [last / 4, last / 2] {
@@ -445,6 +457,11 @@ pub fn run_proxy(
                 owned.push((imagined[t - 1].clone(), false));
             }
         }
+        spans.push(calibration::Span {
+            examples: first..owned.len(),
+            imagined_last: first + 1,
+            success: ok,
+        });
     }
     let examples: Vec<(&[u8], bool)> = owned.iter().map(|(f, ok)| (f.as_slice(), *ok)).collect();
     let (judge, judge_train_accuracy) = train_frame_judge_at(
@@ -457,6 +474,7 @@ pub fn run_proxy(
         device,
     );
     let judge_one = |f: &[u8]| judge.probability_of(&[f])[0];
+    let calibration = calibration::fit(&owned, &spans, judged, size, config, device);
 
     // The world model's use of its actions and its video prediction, open loop over windows
     // of the ranked episodes' real clips (a diagnostic).
@@ -512,6 +530,7 @@ pub fn run_proxy(
             last_frame_mse: imagination::mse(last_imagined, &real_last),
             imagined_frames: rollout.frames.len() as u32 + 1,
             done_by_judge: rollout.done_by_judge,
+            p_calibrated: calibration.as_ref().map(|c| c.apply(rollout.p_success)),
             leak: rollout.leak.map(|p| LeakVerdict {
                 p_success: p,
                 success: p >= config.threshold,
@@ -538,6 +557,7 @@ pub fn run_proxy(
         judge_examples: examples.len() as u32,
         judge_positives: examples.iter().filter(|e| e.1).count() as u32,
         judge_train_accuracy,
+        calibration,
         predictions,
         seconds: started.elapsed().as_secs_f64(),
         imagined_frames,

@@ -425,6 +425,46 @@ fn real_length_and_outcome_change_nothing(model: WorldModelKind, name: &str) {
         );
     }
     assert_eq!(base.imagined_frames, shuffled.imagined_frames);
+    // The calibration is fitted on the training episodes only: the ranked episodes' other
+    // lengths, endings and claimed outcomes leave it and every calibrated probability as they
+    // were.
+    let calibration = base
+        .calibration
+        .as_ref()
+        .expect("a calibration: 4 successes, 4 failures");
+    assert_eq!(
+        (
+            calibration.episodes,
+            calibration.positives,
+            calibration.folds
+        ),
+        (8, 4, 2)
+    );
+    assert!(
+        calibration.a.is_finite() && calibration.b.is_finite(),
+        "{calibration:?}"
+    );
+    assert_eq!(base.calibration, shuffled.calibration);
+    for (a, b) in base.predictions.iter().zip(&shuffled.predictions) {
+        assert_eq!(a.p_calibrated, b.p_calibrated);
+        assert_eq!(a.p_calibrated, Some(calibration.apply(a.p_success)));
+    }
+    // …while the training episodes' outcomes are what it is fitted on: other outcomes, another
+    // calibration (this test would see a calibration that ignored them).
+    if model == WorldModelKind::Video {
+        let relabelled: Vec<ProxyEpisode> = train_eps
+            .iter()
+            .enumerate()
+            .map(|(i, e)| ProxyEpisode {
+                success: Some(i < 2 || i == 5),
+                ..e.clone()
+            })
+            .collect();
+        let other = run(&relabelled, &train_clips, &eval_eps, &eval_clips, &config).unwrap();
+        let other = other.calibration.expect("3 successes, 5 failures");
+        assert_eq!(other.positives, 3);
+        assert_ne!((other.a, other.b), (calibration.a, calibration.b));
+    }
     // The leak ablation reads the judge at the real length: it does move (which is why it is
     // an ablation), so this test would see a leak into the verdict.
     let leak_at = |r: &ProxyResult| -> Vec<f64> {

@@ -288,6 +288,10 @@ pub struct ProxyPrediction {
     /// done) before the task's step budget ran out.
     #[serde(default)]
     pub done_by_judge: bool,
+    /// `p_success` through the group's [`Calibration`] (fitted on the training policies'
+    /// episodes only): a probability of real success. Absent without a calibration.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub p_calibrated: Option<f64>,
     /// The ablation of `ProxyConfig::leak_ablation`: the verdict when imagining exactly as many
     /// frames as the real episode had.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -393,6 +397,11 @@ pub struct ProxyResult {
     pub judge_positives: u32,
     /// The judge's accuracy on its own training examples.
     pub judge_train_accuracy: f64,
+    /// The map from the frame judge's probability on an imagined last frame to a probability of
+    /// real success, fitted on the training episodes only (absent when they are all successes
+    /// or all failures, or before it existed).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub calibration: Option<Calibration>,
     pub predictions: Vec<ProxyPrediction>,
     /// Seconds the whole job took (world model, judge, imagination). Measured, so not
     /// serialised: a report's results are the same for the same batch (the trainer logs it).
@@ -408,6 +417,39 @@ pub struct ProxyResult {
     pub imagined_frame_size: (u32, u32),
 }
 
+/// Platt scaling of the frame judge, fitted on the training policies' episodes only (the ranked
+/// episodes' outcomes never reach the trainer): `P(real success) = σ(a + b · logit(p))`, where `p`
+/// is the judge's probability on the last frame of the episode imagined in the world model.
+/// Each training episode's `p` is **out of fold**: the episodes are split in `folds` by their
+/// index, a judge is trained on the others' frames (as the proxy's own judge is, same settings)
+/// and judges the fold's replays (the world model driven by the episode's real actions for its
+/// real length). `a` and `b` maximise the likelihood of the real outcomes with Platt's (1999)
+/// targets `(positives + 1) / (positives + 2)` and `1 / (negatives + 2)`, which keep them finite
+/// when the judge separates the classes. A ranked policy's calibrated success is the mean of its
+/// episodes' calibrated probabilities.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+pub struct Calibration {
+    pub a: f64,
+    pub b: f64,
+    /// Training episodes it was fitted on, and how many of them succeeded.
+    pub episodes: u32,
+    pub positives: u32,
+    pub folds: u32,
+    /// Mean |calibrated probability − outcome| and the same for the uncalibrated out-of-fold
+    /// probabilities, over the training episodes (in sample for the calibration).
+    pub train_error: f64,
+    pub train_error_uncalibrated: f64,
+}
+
+impl Calibration {
+    /// The calibrated probability of a judge probability `p`.
+    pub fn apply(&self, p: f64) -> f64 {
+        let p = p.clamp(1e-4, 1.0 - 1e-4);
+        let z = self.a + self.b * (p / (1.0 - p)).ln();
+        1.0 / (1.0 + (-z).exp())
+    }
+}
+
 /// Source names of the ranking's success cells.
 pub const REAL_SOURCE: &str = "sim";
 pub const PROXY_SOURCE: &str = "world-model";
@@ -416,3 +458,6 @@ pub const PROXY_SOURCE: &str = "world-model";
 pub const SERVED_DEVICE: &str = "served";
 /// The leak ablation's source (imagined for the real episode's length).
 pub const LEAK_SOURCE: &str = "world-model-leak";
+/// The frame judge's verdicts through the group's [`Calibration`]: per (task, policy), the
+/// expected successes (the sum of the calibrated probabilities), rounded, of its episodes.
+pub const CALIBRATED_SOURCE: &str = "world-model-calibrated";

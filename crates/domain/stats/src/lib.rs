@@ -8,6 +8,7 @@
 //! never draws, never knows a batch, a shard or a report.
 
 pub mod agreement;
+pub mod calibration;
 pub mod diversity;
 pub mod ranking;
 pub mod stats;

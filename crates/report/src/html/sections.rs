@@ -7,11 +7,12 @@ use crate::figures::{self, BarChart, Bars, Line};
 use crate::generalization::{GeneralizationResults, GroupGeneralization, HELD_OUT_NOTE};
 use crate::quality::{OFFLINE_JUDGE_NOTE, QualityResults};
 use crate::ranking::{
-    ACTION_TEST_NOTE, LEAK_NOTE, PER_GROUP_NOTE, PER_POLICY_NOTE, REPEAT_NOTE, RankingResults,
-    is_ablation,
+    ACTION_TEST_NOTE, CALIBRATION_NOTE, LEAK_NOTE, PER_GROUP_NOTE, PER_POLICY_NOTE, REPEAT_NOTE,
+    RankingResults, is_ablation,
 };
 use crate::tables::{self, AgreementLine};
 use crate::view::proportion;
+use assay_model::proxy::CALIBRATED_SOURCE;
 use assay_stats::agreement::{Agreement, Estimate};
 use assay_stats::stats::Proportion;
 
@@ -350,6 +351,9 @@ pub(super) fn ranking(r: Option<&RankingResults>) -> Markup {
                         h3 { (crate::ranking::source_title(&c.proxy)) " against " (c.real) }
                         @if is_ablation(&c.proxy) {
                             p.caption { (LEAK_NOTE) }
+                        }
+                        @if c.proxy == CALIBRATED_SOURCE {
+                            p.caption { (CALIBRATION_NOTE) }
                         }
                         div.row {
                             (inline_svg(&figures::ranking_labelled(rk, i, &r.labels)))

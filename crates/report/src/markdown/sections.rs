@@ -11,11 +11,12 @@ use crate::diversity::DiversityResults;
 use crate::generalization::GeneralizationResults;
 use crate::quality::{ERRORS_SHOWN, OFFLINE_JUDGE_NOTE, QualityResults, TaskQuality};
 use crate::ranking::{
-    ACTION_TEST_NOTE, LEAK_NOTE, PER_GROUP_NOTE, PER_POLICY_NOTE, REPEAT_NOTE, RankingResults,
-    is_ablation, ranking_figure,
+    ACTION_TEST_NOTE, CALIBRATION_NOTE, LEAK_NOTE, PER_GROUP_NOTE, PER_POLICY_NOTE, REPEAT_NOTE,
+    RankingResults, is_ablation, ranking_figure,
 };
 use crate::tables;
 use crate::view::{Table, abbreviations, md_text};
+use assay_model::proxy::CALIBRATED_SOURCE;
 
 impl QualityResults {
     /// The "## Quality" section of report.md. `figure`: relative path of the SVG to link as an
@@ -348,6 +349,9 @@ fn comparison(r: &Ranking, c: &Comparison, labels: &[(String, String)]) -> Strin
     );
     if is_ablation(&c.proxy) {
         let _ = writeln!(out, "{}\n", md_text(LEAK_NOTE));
+    }
+    if c.proxy == CALIBRATED_SOURCE {
+        let _ = writeln!(out, "{}\n", md_text(CALIBRATION_NOTE));
     }
     let _ = writeln!(
         out,
