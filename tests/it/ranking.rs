@@ -630,3 +630,98 @@ fn ranking_settings_that_cannot_work_are_refused_with_the_reason() {
         "{stderr}"
     );
 }
+
+/// Issue 45's shape end to end, small: two task groups, each with a ladder of both policy
+/// families (U-Net and transformer diffusion, kept at two steps), ranked per group and pooled,
+/// with the calibrated proxy wherever a group's training episodes have both outcomes.
+#[test]
+fn each_group_ranks_a_ladder_of_both_families_on_its_own() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = Command::new(bin())
+        .arg("eval")
+        .args([TASKS[0], STACKING])
+        .args(["--seeds", "3", "--no-diversity", "--no-judge"])
+        .args(["--image-size", "160x120", "--quiet"])
+        .args(["--policy", "oracle", "--policy", "oracle:noise=0.05"])
+        .args(["--rank-train-policies", "oracle,oracle:noise=0.05"])
+        .args([
+            "--rank-ladder",
+            r#"{"episodes": [3], "checkpoints": [5, 10], "max_steps": 480,
+                "backbones": ["unet", "transformer"]}"#,
+            "--proxy",
+            r#"{"judge_steps": 20, "video": {"steps": 10}}"#,
+        ])
+        .arg("--out")
+        .arg(dir.path())
+        .current_dir(repo())
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{stdout}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let report: Report =
+        serde_json::from_str(&std::fs::read_to_string(dir.path().join("report.json")).unwrap())
+            .unwrap();
+    let k = report.results.ranking.expect("a ranking section");
+    // 2 groups × 2 families × 2 kept policies, each labelled by its family.
+    assert_eq!(k.ranked_policies.len(), 8, "{:?}", k.ranked_policies);
+    let labels: Vec<&str> = k.labels.iter().map(|(_, l)| l.as_str()).collect();
+    for group in ["placement", "stacking"] {
+        for family in ["diffusion", "transformer diffusion"] {
+            for step in [5, 10] {
+                let label = format!("{family} 3 ep @ {step}, {group}");
+                assert!(labels.contains(&label.as_str()), "{label}: {labels:?}");
+            }
+        }
+    }
+    // Each group ranked on its own tasks, over its own ladder's 4 policies.
+    let mut groups: Vec<&str> = k.per_group.iter().map(|g| g.group.as_str()).collect();
+    groups.sort_unstable();
+    assert_eq!(groups, ["placement", "stacking"]);
+    for g in &k.per_group {
+        let ranking = g.ranking.as_ref().unwrap_or_else(|| panic!("{g:?}"));
+        let main = &ranking.comparisons[0];
+        assert_eq!(main.proxy, "world-model");
+        assert_eq!(main.policies.len(), 4, "{:?}", main.policies);
+        assert!(main.calibration_mae.is_some());
+        assert!(
+            main.policies
+                .iter()
+                .all(|p| p.policy.ends_with(",max_steps=480"))
+        );
+    }
+    // The calibration, where a group has one: fitted on its 6 training episodes, read by every
+    // ranked prediction and ranked as a proxy of its own.
+    for p in &k.groups {
+        match &p.calibration {
+            Some(c) => {
+                assert_eq!((c.episodes, c.folds), (6, 2), "{c:?}");
+                assert!(p.predictions.iter().all(|x| x.p_calibrated.is_some()));
+                let per_group = k.per_group.iter().find(|g| g.group == p.group).unwrap();
+                let proxies: Vec<&str> = per_group
+                    .ranking
+                    .as_ref()
+                    .unwrap()
+                    .comparisons
+                    .iter()
+                    .map(|c| c.proxy.as_str())
+                    .collect();
+                assert!(proxies.contains(&"world-model-calibrated"), "{proxies:?}");
+            }
+            None => assert!(p.predictions.iter().all(|x| x.p_calibrated.is_none())),
+        }
+    }
+    let md = std::fs::read_to_string(dir.path().join("report.md")).unwrap();
+    assert!(md.contains("### Per task group"), "{md}");
+    assert!(
+        md.contains("| placement |") && md.contains("| stacking |"),
+        "{md}"
+    );
+    assert!(
+        md.contains("transformer diffusion 3 ep @ 10, stacking"),
+        "{md}"
+    );
+}

@@ -272,6 +272,22 @@ fn real_episodes(
                 .filter_map(|o| o.item(Item::Completion))
                 .flat_map(|i| i.scores.iter().copied())
                 .collect();
+            // Per judge that looks at images: its mean completion on this episode.
+            let mut by_judge: Vec<(String, Vec<f64>)> = Vec::new();
+            for o in judged
+                .iter()
+                .filter(|j| j.task_id == e.task_id && j.seed == e.seed && j.policy == e.policy)
+                .filter_map(|j| j.outcome.as_ref())
+                .filter(|o| o.backend != "offline")
+            {
+                let Some(item) = o.item(Item::Completion) else {
+                    continue;
+                };
+                match by_judge.iter_mut().find(|(j, _)| *j == o.judge) {
+                    Some((_, s)) => s.extend(&item.scores),
+                    None => by_judge.push((o.judge.clone(), item.scores.clone())),
+                }
+            }
             RealEpisode {
                 task_id: e.task_id.clone(),
                 policy: e.policy.clone(),
@@ -279,6 +295,11 @@ fn real_episodes(
                 success: e.success,
                 judged_completion: (!scores.is_empty())
                     .then(|| scores.iter().sum::<f64>() / scores.len() as f64),
+                completion_by_judge: by_judge
+                    .into_iter()
+                    .filter(|(_, s)| !s.is_empty())
+                    .map(|(j, s)| (j, s.iter().sum::<f64>() / s.len() as f64))
+                    .collect(),
             }
         })
         .collect()

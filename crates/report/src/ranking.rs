@@ -27,7 +27,32 @@ pub struct RealEpisode {
     pub success: bool,
     /// Mean completion score (0–10) of the batch's judges on this episode, when judged.
     pub judged_completion: Option<f64>,
+    /// Per judge that looks at images (not the built-in `offline`, whose completion is the
+    /// simulator's), its mean completion score on this episode.
+    pub completion_by_judge: Vec<(String, f64)>,
 }
+
+/// How often one judge's verdicts agree with the simulator and with the frame judge (issue 45;
+/// the paper's VLM annotation accuracy, 65–80 %). A verdict is a success when the mean
+/// completion is at least `completion_threshold` (the frame judge: a probability at least
+/// `threshold`). Over the ranked policies' episodes.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+pub struct JudgeAgreement {
+    /// The judge's name, or [`FRAME_JUDGE`].
+    pub judge: String,
+    /// On the real rollouts: its verdict against the simulator's outcome.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub real_vs_sim: Option<Proportion>,
+    /// On the imagined rollouts: its verdict against the simulator's outcome of the real episode.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub imagined_vs_sim: Option<Proportion>,
+    /// On the imagined rollouts: its verdict against the frame judge's on the same rollout.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub imagined_vs_frame_judge: Option<Proportion>,
+}
+
+/// [`JudgeAgreement::judge`] of the proxy's frame judge.
+pub const FRAME_JUDGE: &str = "frame judge";
 
 /// Real, proxy and judged success of one (task, ranked policy).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
@@ -142,6 +167,10 @@ pub struct RankingResults {
     pub proxy_agreement: Option<Proportion>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub judge_agreement_real_frames: Option<Proportion>,
+    /// The frame judge's and each judge's agreement with the simulator and with each other, on
+    /// real and imagined rollouts (the frame judge first, then the judges by name).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub judge_agreements: Vec<JudgeAgreement>,
     /// Proxy jobs that failed: (group, error).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub errors: Vec<(String, String)>,
@@ -248,6 +277,14 @@ pub const REPEAT_NOTE: &str = "Each imagined rollout is judged k times; its verd
 pub const LEAK_NOTE: &str = "An ablation, not the proxy: every ranked episode imagined for \
     exactly as many frames as its real episode had and judged on that last frame — the real \
     episode's length given to the proxy. It measures what that leak is worth.";
+
+/// What the judges' agreement table says.
+pub const JUDGE_AGREEMENT_NOTE: &str = "Over the ranked policies' episodes: how often each \
+    judge's verdict (a mean completion at or above the completion threshold; the frame judge: a \
+    probability at or above its threshold, on the real last frame or as the proxy's verdict on \
+    the imagined rollout) matches the simulator's outcome, and on imagined rollouts how often a \
+    judge and the frame judge agree. The paper's VLM annotation accuracy on real rollouts is \
+    65–80 %.";
 
 /// What the calibrated proxy is (report.md and report.html, under its comparison).
 pub const CALIBRATION_NOTE: &str = "The frame judge's verdicts made rates: each ranked \
@@ -463,6 +500,7 @@ pub fn ranking_results(
             })
             .collect()
     };
+    let judge_agreements = judge_agreements(plan, &judges, episodes, &predictions, imagined);
     RankingResults {
         train_policies: plan.train_policies.clone(),
         ranked_policies: ranked_policies.to_vec(),
@@ -477,6 +515,7 @@ pub fn ranking_results(
         proxy_agreement: (agree.1 > 0).then(|| Proportion::new(agree.0, agree.1)),
         judge_agreement_real_frames: (judge_real.1 > 0)
             .then(|| Proportion::new(judge_real.0, judge_real.1)),
+        judge_agreements,
         errors,
         judging_errors: imagined
             .iter()
@@ -587,6 +626,84 @@ fn repeat_consistency(
     out
 }
 
+/// The frame judge's agreement (first), then each judge's: with the simulator on real and
+/// imagined rollouts, and with the frame judge on imagined ones. `judges`: those of imagined
+/// rollouts; a judge that only judged real rollouts is listed too.
+fn judge_agreements(
+    plan: &RankingPlan,
+    judges: &[&str],
+    episodes: &[RealEpisode],
+    predictions: &[&ProxyPrediction],
+    imagined: &[ImaginedJudgement],
+) -> Vec<JudgeAgreement> {
+    let proportion = |pairs: &mut dyn Iterator<Item = (bool, bool)>| {
+        let (mut agree, mut n) = (0u64, 0u64);
+        for (a, b) in pairs {
+            n += 1;
+            agree += u64::from(a == b);
+        }
+        (n > 0).then(|| Proportion::new(agree, n))
+    };
+    let real_of = |task: &str, policy: &str, seed: u64| {
+        episodes
+            .iter()
+            .find(|e| e.task_id == task && e.policy == policy && e.seed == seed)
+    };
+    let frame_of = |task: &str, policy: &str, seed: u64| {
+        predictions
+            .iter()
+            .find(|p| p.task_id == task && p.policy == policy && p.seed == seed)
+    };
+    let done = |completion: f64| completion >= plan.config.completion_threshold;
+    let mut out = Vec::new();
+    if !predictions.is_empty() {
+        out.push(JudgeAgreement {
+            judge: FRAME_JUDGE.to_owned(),
+            real_vs_sim: proportion(&mut predictions.iter().filter_map(|p| {
+                real_of(&p.task_id, &p.policy, p.seed)
+                    .map(|e| (p.p_success_real_frame >= plan.config.threshold, e.success))
+            })),
+            imagined_vs_sim: proportion(&mut predictions.iter().filter_map(|p| {
+                real_of(&p.task_id, &p.policy, p.seed).map(|e| (p.success, e.success))
+            })),
+            imagined_vs_frame_judge: None,
+        });
+    }
+    let mut names: Vec<&str> = judges.to_vec();
+    for e in episodes {
+        for (j, _) in &e.completion_by_judge {
+            if !names.contains(&j.as_str()) {
+                names.push(j);
+            }
+        }
+    }
+    names.sort_unstable();
+    for judge in names {
+        let verdicts = || {
+            imagined
+                .iter()
+                .filter(move |j| j.judge == judge)
+                .filter_map(|j| j.completion.as_ref().ok().map(|c| (j, done(*c))))
+        };
+        out.push(JudgeAgreement {
+            judge: judge.to_owned(),
+            real_vs_sim: proportion(&mut episodes.iter().filter_map(|e| {
+                e.completion_by_judge
+                    .iter()
+                    .find(|(j, _)| j == judge)
+                    .map(|(_, c)| (done(*c), e.success))
+            })),
+            imagined_vs_sim: proportion(&mut verdicts().filter_map(|(j, ok)| {
+                real_of(&j.task_id, &j.policy, j.seed).map(|e| (ok, e.success))
+            })),
+            imagined_vs_frame_judge: proportion(&mut verdicts().filter_map(|(j, ok)| {
+                frame_of(&j.task_id, &j.policy, j.seed).map(|p| (ok, p.success))
+            })),
+        });
+    }
+    out
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -599,6 +716,7 @@ mod tests {
             seed,
             success,
             judged_completion: None,
+            completion_by_judge: Vec::new(),
         }
     }
 
@@ -948,6 +1066,84 @@ mod tests {
             md.contains(
                 "σ(-0.80 + 0.80·logit p), fitted on 16 training episodes (6 successes, 2 folds)"
             ),
+            "{md}"
+        );
+    }
+
+    #[test]
+    fn each_judge_s_agreement_with_the_simulator_and_the_frame_judge_is_counted() {
+        let (plan, ranked) = good_fair_poor();
+        let task_groups = vec![("t1".into(), "g".into())];
+        let identity = assay_model::proxy::Calibration {
+            a: 0.0,
+            b: 1.0,
+            episodes: 8,
+            positives: 4,
+            folds: 2,
+            train_error: 0.0,
+            train_error_uncalibrated: 0.0,
+        };
+        // Real: good 4/4, fair 2/4 (seeds 0, 1), poor 0/4. The frame judge calls good's and
+        // fair's imagined rollouts done and poor's not, and every real last frame done (0.5).
+        // The VLM: on real rollouts 8 for a success and 2 for a failure, but 7 for poor's seed 0;
+        // on imagined ones 9 for good and 1 for the others.
+        let mut episodes = Vec::new();
+        let mut predictions = Vec::new();
+        let mut imagined = Vec::new();
+        for policy in &ranked {
+            for seed in 0..4u64 {
+                let ok = policy == "good" || (policy == "fair" && seed < 2);
+                let mut e = real("t1", policy, seed, ok);
+                let real_score = if policy == "poor" && seed == 0 {
+                    7.0
+                } else if ok {
+                    8.0
+                } else {
+                    2.0
+                };
+                e.completion_by_judge = vec![("vlm".into(), real_score)];
+                episodes.push(e);
+                predictions.push((
+                    "t1",
+                    policy.as_str(),
+                    seed,
+                    if policy == "poor" { 0.2 } else { 0.9 },
+                ));
+                let score = if policy == "good" { 9.0 } else { 1.0 };
+                imagined.push(verdict("vlm", "t1", policy, seed, Ok(score)));
+            }
+        }
+        let r = ranking_results(
+            &plan,
+            &ranked,
+            &task_groups,
+            &episodes,
+            vec![calibrated_group(&predictions, &identity)],
+            &imagined,
+            Vec::new(),
+        );
+        let p = |a: u64, n: u64| Some(Proportion::new(a, n));
+        assert_eq!(
+            r.judge_agreements,
+            [
+                JudgeAgreement {
+                    judge: FRAME_JUDGE.into(),
+                    real_vs_sim: p(6, 12),
+                    imagined_vs_sim: p(10, 12),
+                    imagined_vs_frame_judge: None,
+                },
+                JudgeAgreement {
+                    judge: "vlm".into(),
+                    real_vs_sim: p(11, 12),
+                    imagined_vs_sim: p(10, 12),
+                    imagined_vs_frame_judge: p(8, 12),
+                },
+            ]
+        );
+        let md = r.markdown();
+        assert!(md.contains("### Judges' agreement"), "{md}");
+        assert!(
+            md.contains("| `vlm` | 92 % (11/12) | 83 % (10/12) | 67 % (8/12) |"),
             "{md}"
         );
     }

@@ -916,6 +916,37 @@ pub fn repeat_consistency(r: &RankingResults) -> Table {
     table
 }
 
+/// The frame judge's and each judge's agreement with the simulator and with each other
+/// ([`crate::ranking::JudgeAgreement`]): rate (agreeing/episodes).
+pub fn judge_agreement(r: &RankingResults) -> Table {
+    let mut table = Table::new([
+        "judge",
+        "#real rollouts: agrees with the simulator",
+        "#imagined rollouts: agrees with the simulator",
+        "#imagined rollouts: agrees with the frame judge",
+    ]);
+    let cell = |p: &Option<assay_stats::stats::Proportion>| match p
+        .as_ref()
+        .and_then(|p| p.rate.map(|x| (x, p)))
+    {
+        Some((x, p)) => Cell::text(format!("{:.0} % ({}/{})", x * 100.0, p.successes, p.trials)),
+        None => Cell::missing(),
+    };
+    for a in &r.judge_agreements {
+        table.row(vec![
+            if a.judge == crate::ranking::FRAME_JUDGE {
+                Cell::text(&a.judge)
+            } else {
+                Cell::code(&a.judge)
+            },
+            cell(&a.real_vs_sim),
+            cell(&a.imagined_vs_sim),
+            cell(&a.imagined_vs_frame_judge),
+        ]);
+    }
+    table
+}
+
 /// Per task and policy: real success, the proxy's verdicts and the judges' view. Within a task,
 /// the ladder's policies last in ladder order (episodes, step).
 pub fn ranking_rows(r: &RankingResults) -> Table {

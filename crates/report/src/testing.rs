@@ -103,6 +103,7 @@ pub(crate) fn ranking_fixture() -> crate::ranking::RankingResults {
                     seed,
                     success,
                     judged_completion: None,
+                    completion_by_judge: Vec::new(),
                 });
                 let ok = proxy(task, policy, seed);
                 predictions.push((

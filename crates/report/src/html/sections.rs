@@ -7,8 +7,8 @@ use crate::figures::{self, BarChart, Bars, Line};
 use crate::generalization::{GeneralizationResults, GroupGeneralization, HELD_OUT_NOTE};
 use crate::quality::{OFFLINE_JUDGE_NOTE, QualityResults};
 use crate::ranking::{
-    ACTION_TEST_NOTE, CALIBRATION_NOTE, LEAK_NOTE, PER_GROUP_NOTE, PER_POLICY_NOTE, REPEAT_NOTE,
-    RankingResults, is_ablation,
+    ACTION_TEST_NOTE, CALIBRATION_NOTE, JUDGE_AGREEMENT_NOTE, LEAK_NOTE, PER_GROUP_NOTE,
+    PER_POLICY_NOTE, REPEAT_NOTE, RankingResults, is_ablation,
 };
 use crate::tables::{self, AgreementLine};
 use crate::view::proportion;
@@ -320,6 +320,7 @@ pub(super) fn ranking(r: Option<&RankingResults>) -> Markup {
     let per_policy = tables::ranking_per_policy(r);
     let actions = tables::action_test(r);
     let repeats = tables::repeat_consistency(r);
+    let agreement = tables::judge_agreement(r);
     let per_group = tables::ranking_per_group(r);
     html! {
         section id="ranking" {
@@ -344,6 +345,11 @@ pub(super) fn ranking(r: Option<&RankingResults>) -> Markup {
                 h3 { "Judge repeat consistency on imagined rollouts" }
                 p.caption { (REPEAT_NOTE) }
                 (table(&repeats))
+            }
+            @if !agreement.rows.is_empty() {
+                h3 { "Judges' agreement" }
+                p.caption { (JUDGE_AGREEMENT_NOTE) }
+                (table(&agreement))
             }
             @match (&r.ranking, &r.ranking_missing) {
                 (Some(rk), _) => {

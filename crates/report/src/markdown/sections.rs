@@ -11,8 +11,8 @@ use crate::diversity::DiversityResults;
 use crate::generalization::GeneralizationResults;
 use crate::quality::{ERRORS_SHOWN, OFFLINE_JUDGE_NOTE, QualityResults, TaskQuality};
 use crate::ranking::{
-    ACTION_TEST_NOTE, CALIBRATION_NOTE, LEAK_NOTE, PER_GROUP_NOTE, PER_POLICY_NOTE, REPEAT_NOTE,
-    RankingResults, is_ablation, ranking_figure,
+    ACTION_TEST_NOTE, CALIBRATION_NOTE, JUDGE_AGREEMENT_NOTE, LEAK_NOTE, PER_GROUP_NOTE,
+    PER_POLICY_NOTE, REPEAT_NOTE, RankingResults, is_ablation, ranking_figure,
 };
 use crate::tables;
 use crate::view::{Table, abbreviations, md_text};
@@ -239,6 +239,12 @@ impl RankingResults {
             out.push_str("\n### Judge repeat consistency on imagined rollouts\n\n");
             let _ = writeln!(out, "{}\n", md_text(REPEAT_NOTE));
             out.push_str(&repeats.markdown());
+        }
+        let agreement = tables::judge_agreement(self);
+        if !agreement.rows.is_empty() {
+            out.push_str("\n### Judges' agreement\n\n");
+            let _ = writeln!(out, "{}\n", md_text(JUDGE_AGREEMENT_NOTE));
+            out.push_str(&agreement.markdown());
         }
         out.push_str("\n### Per task and policy\n\n");
         out.push_str(&rows.markdown());
