@@ -219,6 +219,26 @@ fn eval_ranks_a_ladder_by_the_world_model_proxy() {
         );
     }
     assert!(k.judging_errors.is_empty(), "{:?}", k.judging_errors);
+    // The judges' agreement: the frame judge's, then the VLM's on the 12 ranked episodes —
+    // real rollouts (it said 8 to every one: done) against the simulator, and its imagined
+    // verdicts against the simulator and against the frame judge's.
+    let judges: Vec<&str> = k
+        .judge_agreements
+        .iter()
+        .map(|a| a.judge.as_str())
+        .collect();
+    assert_eq!(judges, ["frame judge", "vlm"]);
+    let vlm = &k.judge_agreements[1];
+    let real_ok: u64 = k.rows.iter().map(|r| r.real.successes).sum();
+    assert_eq!(
+        vlm.real_vs_sim.as_ref().map(|p| (p.successes, p.trials)),
+        Some((real_ok, 12))
+    );
+    assert_eq!(vlm.imagined_vs_sim.as_ref().map(|p| p.trials), Some(12));
+    assert_eq!(
+        vlm.imagined_vs_frame_judge.as_ref().map(|p| p.trials),
+        Some(12)
+    );
     let ranking = k.ranking.expect("statistics");
     assert_eq!(ranking.comparisons[0].policies.len(), 3);
     let judged = &ranking.comparisons[1];

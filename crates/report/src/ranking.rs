@@ -500,7 +500,14 @@ pub fn ranking_results(
             })
             .collect()
     };
-    let judge_agreements = judge_agreements(plan, &judges, episodes, &predictions, imagined);
+    // Over the ranked tasks' episodes only (a ranked policy may run tasks of other groups).
+    let ranked_episodes: Vec<RealEpisode> = episodes
+        .iter()
+        .filter(|e| task_groups.iter().any(|(t, _)| *t == e.task_id))
+        .cloned()
+        .collect();
+    let judge_agreements =
+        judge_agreements(plan, &judges, &ranked_episodes, &predictions, imagined);
     RankingResults {
         train_policies: plan.train_policies.clone(),
         ranked_policies: ranked_policies.to_vec(),
