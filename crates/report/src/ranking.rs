@@ -1150,7 +1150,9 @@ mod tests {
         let md = r.markdown();
         assert!(md.contains("### Judges' agreement"), "{md}");
         assert!(
-            md.contains("| `vlm` | 92 % (11/12) | 83 % (10/12) | 67 % (8/12) |"),
+            md.contains(
+                "| `vlm` | 92 % (11/12) [65, 99] | 83 % (10/12) [55, 95] | 67 % (8/12) [39, 86] |"
+            ),
             "{md}"
         );
     }

@@ -13,9 +13,13 @@ use crate::ranking::{RankingResults, is_ablation, source_title};
 use crate::report::{PolicySuccess, Provenance, Results, RunInfo};
 use crate::view::{Cell, Span, Table, estimate, label_rank, num2, proportion, score};
 use assay_model::proxy::{CALIBRATED_SOURCE, LEAK_SOURCE, PROXY_SOURCE, REAL_SOURCE};
+
+mod judges;
+
 use assay_model::quality::ScoreStats;
 use assay_stats::agreement::Agreement;
 use assay_stats::diversity::TextDiversityTable;
+pub use judges::judge_agreement;
 
 fn n(v: impl ToString) -> Cell {
     Cell::text(v.to_string())
@@ -680,30 +684,7 @@ pub fn ranking_compared(r: &RankingResults) -> Table {
             lines(judges.into_iter().chain([rule]))
         },
     ]);
-    let calibrations: Vec<String> = r
-        .groups
-        .iter()
-        .map(|g| match &g.calibration {
-            Some(c) => format!(
-                "{}: P(success) = σ({:.2} {} {:.2}·logit p), fitted on {} training episodes \
-                 ({} successes, {} folds); mean |p − outcome| on them {:.2} (uncalibrated \
-                 {:.2})",
-                g.group,
-                c.a,
-                if c.b < 0.0 { '−' } else { '+' },
-                c.b.abs(),
-                c.episodes,
-                c.positives,
-                c.folds,
-                c.train_error,
-                c.train_error_uncalibrated
-            ),
-            None => format!(
-                "{}: none (its training episodes are too few or all of one outcome)",
-                g.group
-            ),
-        })
-        .collect();
+    let calibrations = judges::calibration_lines(r);
     if !calibrations.is_empty() {
         table.row(vec![
             format!("calibration ({CALIBRATED_SOURCE}; training policies only)").into(),
@@ -912,37 +893,6 @@ pub fn repeat_consistency(r: &RankingResults) -> Table {
         } else {
             table.row(cells);
         }
-    }
-    table
-}
-
-/// The frame judge's and each judge's agreement with the simulator and with each other
-/// ([`crate::ranking::JudgeAgreement`]): rate (agreeing/episodes).
-pub fn judge_agreement(r: &RankingResults) -> Table {
-    let mut table = Table::new([
-        "judge",
-        "#real rollouts: agrees with the simulator",
-        "#imagined rollouts: agrees with the simulator",
-        "#imagined rollouts: agrees with the frame judge",
-    ]);
-    let cell = |p: &Option<assay_stats::stats::Proportion>| match p
-        .as_ref()
-        .and_then(|p| p.rate.map(|x| (x, p)))
-    {
-        Some((x, p)) => Cell::text(format!("{:.0} % ({}/{})", x * 100.0, p.successes, p.trials)),
-        None => Cell::missing(),
-    };
-    for a in &r.judge_agreements {
-        table.row(vec![
-            if a.judge == crate::ranking::FRAME_JUDGE {
-                Cell::text(&a.judge)
-            } else {
-                Cell::code(&a.judge)
-            },
-            cell(&a.real_vs_sim),
-            cell(&a.imagined_vs_sim),
-            cell(&a.imagined_vs_frame_judge),
-        ]);
     }
     table
 }
