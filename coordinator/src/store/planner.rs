@@ -508,6 +508,11 @@ impl Store {
                 continue;
             }
             let (train, _) = Self::proxy_episodes(conn, batch_id, &group, &plan)?;
+            // Exactly the clips the proxy's own fit takes (`world_model_policies`).
+            let train: Vec<ProxyEpisode> = train
+                .into_iter()
+                .filter(|e| plan.config.trains_world_model(&e.policy))
+                .collect();
             if train.len() < 2 {
                 continue;
             }

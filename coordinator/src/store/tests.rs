@@ -754,7 +754,8 @@ fn trainer_jobs(leases: &[Lease]) -> Vec<TrainerJob> {
 }
 
 /// A ladder of two families trains every run once per family, each with its own backbone and
-/// the same clips and checkpoints.
+/// the same clips and checkpoints; the world model fitted ahead takes only the episodes of
+/// `world_model_policies`.
 #[test]
 fn a_ladder_of_two_families_trains_each_run_in_each() {
     use assay_model::diffusion::Backbone;
@@ -762,10 +763,14 @@ fn a_ladder_of_two_families_trains_each_run_in_each() {
     let mut s = Store::open_in_memory().unwrap();
     let mut b = batch(&["a"], &[0, 1, 2, 3], 3);
     b.tasks[0].spec_json = r#"{"id": "a"}"#.into();
-    b.policies = vec!["oracle".into()];
+    b.policies = vec!["oracle".into(), "oracle:noise=0.05".into()];
     b.ranking = Some(RankingPlan {
         train_policies: b.policies.clone(),
-        config: ProxyConfig::default(),
+        // The world model without rollouts: the oracle's episodes alone train it.
+        config: ProxyConfig {
+            world_model_policies: vec!["oracle".into()],
+            ..ProxyConfig::default()
+        },
         ladder: Some(LadderPlan {
             episodes: vec![2, 4],
             checkpoints: vec![3, 6],
@@ -775,11 +780,24 @@ fn a_ladder_of_two_families_trains_each_run_in_each() {
         groups: Vec::new(),
     });
     s.submit(&b, 0).unwrap();
-    for (i, l) in s.lease("w", &sim(), 4, 1, TTL).unwrap().iter().enumerate() {
+    for (i, l) in s.lease("w", &sim(), 8, 1, TTL).unwrap().iter().enumerate() {
         finish_episode(&mut s, l, true, &format!("clips/{i}.clip"));
     }
     let trainer = vec!["trainer".to_owned()];
     let queued = s.lease("t", &trainer, 10, 3, TTL).unwrap();
+    let world: Vec<String> = trainer_jobs(&queued)
+        .into_iter()
+        .find_map(|job| match job {
+            TrainerJob::ProxyWorld { train, .. } => {
+                Some(train.into_iter().map(|e| e.policy).collect())
+            }
+            _ => None,
+        })
+        .expect("the proxy's world model, fitted ahead");
+    assert_eq!(
+        world, ["oracle"; 4],
+        "the world model's clips: the oracle's only"
+    );
     let mut runs: Vec<(Backbone, usize, Vec<u64>)> = trainer_jobs(&queued)
         .into_iter()
         .filter_map(|job| match job {

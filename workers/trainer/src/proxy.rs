@@ -354,6 +354,26 @@ pub fn run_proxy(
         Ok::<(), WorldModelError>(())
     };
     let eval_keys: Vec<String> = eval.iter().map(|e| e.clip.clone()).collect();
+    // The world model's clips: the training episodes of `world_model_policies` (all of them by
+    // default); the frame judge below learns from every training episode.
+    let subset: Vec<Clip>;
+    let world_clips: &[Clip] = if config.world_model_policies.is_empty() {
+        train_clips
+    } else {
+        subset = train
+            .iter()
+            .zip(train_clips)
+            .filter(|(e, _)| config.trains_world_model(&e.policy))
+            .map(|(_, c)| c.clone())
+            .collect();
+        if subset.is_empty() {
+            return Err(WorldModelError::Request(format!(
+                "world_model_policies {:?}: no training episode of theirs in group {group:?}",
+                config.world_model_policies
+            )));
+        }
+        &subset
+    };
     let rssm_model;
     let rssm;
     let video;
@@ -366,8 +386,8 @@ pub fn run_proxy(
             let req = FitRequest {
                 config: &config.world_model,
                 group,
-                budget: train_clips.len() as u32,
-                train: train_clips,
+                budget: world_clips.len() as u32,
+                train: world_clips,
                 eval: eval_clips,
                 eval_keys: &eval_keys,
                 device,
@@ -380,12 +400,12 @@ pub fn run_proxy(
         }
         (None, WorldModelKind::Video) => {
             // It imagines at the interface of the clips it is trained on.
-            let clips_interface = train_clips
+            let clips_interface = world_clips
                 .first()
                 .map_or_else(|| Interface::legacy(size), imagination::clip_interface);
             check_interfaces("Assay's video model", &[clips_interface])?;
             let (model, vfit) =
-                video_model::fit(&config.video, train_clips, device, resume, on_checkpoint)?;
+                video_model::fit(&config.video, world_clips, device, resume, on_checkpoint)?;
             video = model;
             // The one-step error, as the RSSM's fit reports it: each next frame predicted from
             // the real one before it, on the ranked episodes' clips.

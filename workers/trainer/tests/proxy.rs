@@ -607,3 +607,43 @@ fn a_policy_at_an_interface_the_world_model_cannot_imagine_is_refused_before_tra
         assert_eq!(checkpoints, 0, "{name} trained before refusing");
     }
 }
+
+#[test]
+fn the_world_model_learns_from_its_policies_and_the_judge_from_every_training_episode() {
+    // Half the training episodes are the oracle's, half another policy's.
+    let mut train_eps = Vec::new();
+    let mut train_clips = Vec::new();
+    for i in 0..8u64 {
+        let policy = if i % 2 == 0 {
+            "oracle"
+        } else {
+            "oracle:noise=0.01"
+        };
+        train_clips.push(moving(1, if i < 4 { 1 } else { 0 }, 10));
+        train_eps.push(proxy_episode(policy, i, Some(i < 4)));
+    }
+    let eval_clips: Vec<Clip> = (0..2).map(|i| moving(1, 1, 5 + i)).collect();
+    let eval_eps: Vec<ProxyEpisode> = (0..2).map(|i| proxy_episode(RANKED, i, None)).collect();
+    let mut config = ProxyConfig {
+        video: small_video(5),
+        world_model: small_config(5),
+        judge_steps: 5,
+        world_model_policies: vec!["oracle".into()],
+        ..Default::default()
+    };
+    let r = run(&train_eps, &train_clips, &eval_eps, &eval_clips, &config).unwrap();
+    // The video model saw the oracle's 4 clips; the judge every episode's frames (6 each: real
+    // and imagined last frames, at a quarter and at half).
+    assert_eq!(r.video_model.as_ref().map(|v| v.train_clips), Some(4));
+    assert_eq!(r.judge_examples, 8 * 6);
+    assert_eq!(r.calibration.as_ref().map(|c| c.episodes), Some(8));
+    // A policy with no training episode in the group leaves the world model nothing to learn.
+    config.world_model_policies = vec!["random".into()];
+    let err = run(&train_eps, &train_clips, &eval_eps, &eval_clips, &config)
+        .err()
+        .expect("refused");
+    assert!(
+        err.to_string().contains("world_model_policies") && err.to_string().contains("\"g\""),
+        "{err}"
+    );
+}

@@ -58,6 +58,20 @@ pub struct ProxyConfig {
     /// interface (the task camera, tool position and holding, tool velocities).
     #[serde(skip_serializing_if = "String::is_empty")]
     pub interface: String,
+    /// The training policies whose episodes train the world model; empty: all of them. The
+    /// frame judge and its calibration learn from every training policy's episodes whatever
+    /// this says. The paper's ablation "without rollouts": `["oracle"]`, the demonstrations
+    /// alone.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub world_model_policies: Vec<String>,
+}
+
+impl ProxyConfig {
+    /// Whether `policy`'s episodes train the world model (see `world_model_policies`).
+    pub fn trains_world_model(&self, policy: &str) -> bool {
+        self.world_model_policies.is_empty()
+            || self.world_model_policies.iter().any(|p| p == policy)
+    }
 }
 
 /// A world model behind the `assay.v1.WorldModel` gRPC service.
@@ -90,6 +104,7 @@ impl Default for ProxyConfig {
             normalize_actions: true,
             external: None,
             interface: String::new(),
+            world_model_policies: Vec::new(),
         }
     }
 }

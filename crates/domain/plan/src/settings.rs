@@ -216,6 +216,17 @@ fn check_ranking(
             "training policy {p:?} is not one of the batch's policies"
         ));
     }
+    if let Some(p) = plan
+        .config
+        .world_model_policies
+        .iter()
+        .find(|p| !plan.train_policies.contains(p))
+    {
+        return Err(format!(
+            "config.world_model_policies: {p:?} is not a training policy (the world model learns \
+             from training policies' episodes only)"
+        ));
+    }
     let ranked: Vec<&String> = policies
         .iter()
         .filter(|p| !plan.train_policies.contains(p))
@@ -321,6 +332,16 @@ mod tests {
         other_size.config.image_size = 32;
         let e = check_ranking(&plan(&train, Some(other_size)), &policies, None).unwrap_err();
         assert!(e.contains("ladder.config.image_size 32 differs"), "{e}");
+        // The world model's policies are some of the training policies.
+        let mut demonstrations = plan(&train, Some(LadderPlan::default()));
+        demonstrations.config.world_model_policies = names(&["oracle"]);
+        assert_eq!(check_ranking(&demonstrations, &policies, None), Ok(()));
+        demonstrations.config.world_model_policies = names(&["random"]);
+        let e = check_ranking(&demonstrations, &policies, None).unwrap_err();
+        assert!(
+            e.starts_with("config.world_model_policies: \"random\" is not a training policy"),
+            "{e}"
+        );
     }
 
     #[test]
