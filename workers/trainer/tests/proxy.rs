@@ -640,8 +640,8 @@ fn the_world_model_learns_from_its_policies_and_the_judge_from_every_training_ep
     // A policy with no training episode in the group leaves the world model nothing to learn.
     config.world_model_policies = vec!["random".into()];
     let err = run(&train_eps, &train_clips, &eval_eps, &eval_clips, &config)
-        .err()
-        .expect("refused");
+        .map(|_| ())
+        .expect_err("refused");
     assert!(
         err.to_string().contains("world_model_policies") && err.to_string().contains("\"g\""),
         "{err}"
