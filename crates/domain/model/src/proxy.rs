@@ -187,8 +187,9 @@ impl RankingPlan {
 /// per task group and per family in `backbones`, one diffusion policy is trained on the first `n`
 /// episodes of `train_policy` for every `n` in `episodes`, and kept at every step in
 /// `checkpoints` — `backbones.len() × episodes.len() × checkpoints.len()` policies of differing
-/// skill (the paper's: CNN- and transformer-based diffusion policies at several lengths). Each runs in the simulator
-/// on every (task, seed) of the group (its real success) and is ranked by the proxy.
+/// skill (the paper's: CNN- and transformer-based diffusion policies at several lengths). Each
+/// runs in the simulator on every (task, seed) of the group (its real success) and is ranked by
+/// the proxy.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct LadderPlan {
@@ -413,8 +414,8 @@ pub struct ProxyResult {
     /// The judge's accuracy on its own training examples.
     pub judge_train_accuracy: f64,
     /// The map from the frame judge's probability on an imagined last frame to a probability of
-    /// real success, fitted on the training episodes only (absent when they are all successes
-    /// or all failures, or before it existed).
+    /// real success, fitted on the training episodes only (absent when they are fewer than 4,
+    /// all successes or all failures, or before it existed).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub calibration: Option<Calibration>,
     pub predictions: Vec<ProxyPrediction>,
