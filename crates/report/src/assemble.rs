@@ -265,24 +265,22 @@ fn real_episodes(
         .iter()
         .filter(|e| ranked.contains(&e.policy))
         .map(|e| {
-            let scores: Vec<f64> = judged
-                .iter()
-                .filter(|j| j.task_id == e.task_id && j.seed == e.seed && j.policy == e.policy)
-                .filter_map(|j| j.outcome.as_ref())
-                .filter_map(|o| o.item(Item::Completion))
-                .flat_map(|i| i.scores.iter().copied())
-                .collect();
-            // Per judge that looks at images: its mean completion on this episode.
+            // Every judge's completion scores (the mean over them all), and per judge that looks
+            // at images its own.
+            let mut scores: Vec<f64> = Vec::new();
             let mut by_judge: Vec<(String, Vec<f64>)> = Vec::new();
             for o in judged
                 .iter()
                 .filter(|j| j.task_id == e.task_id && j.seed == e.seed && j.policy == e.policy)
                 .filter_map(|j| j.outcome.as_ref())
-                .filter(|o| o.backend != "offline")
             {
                 let Some(item) = o.item(Item::Completion) else {
                     continue;
                 };
+                scores.extend(&item.scores);
+                if o.backend == "offline" {
+                    continue;
+                }
                 match by_judge.iter_mut().find(|(j, _)| *j == o.judge) {
                     Some((_, s)) => s.extend(&item.scores),
                     None => by_judge.push((o.judge.clone(), item.scores.clone())),

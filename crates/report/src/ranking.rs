@@ -506,8 +506,26 @@ pub fn ranking_results(
         .filter(|e| task_groups.iter().any(|(t, _)| *t == e.task_id))
         .cloned()
         .collect();
-    let judge_agreements =
-        judge_agreements(plan, &judges, &ranked_episodes, &predictions, imagined);
+    let proxy_agreement = (agree.1 > 0).then(|| Proportion::new(agree.0, agree.1));
+    let judge_agreement_real_frames =
+        (judge_real.1 > 0).then(|| Proportion::new(judge_real.0, judge_real.1));
+    // The frame judge's row is the two counts above; then each judge's.
+    let judge_agreements: Vec<JudgeAgreement> = (!predictions.is_empty())
+        .then(|| JudgeAgreement {
+            judge: FRAME_JUDGE.to_owned(),
+            real_vs_sim: judge_agreement_real_frames,
+            imagined_vs_sim: proxy_agreement,
+            imagined_vs_frame_judge: None,
+        })
+        .into_iter()
+        .chain(judge_agreements(
+            plan,
+            &judges,
+            &ranked_episodes,
+            &predictions,
+            imagined,
+        ))
+        .collect();
     RankingResults {
         train_policies: plan.train_policies.clone(),
         ranked_policies: ranked_policies.to_vec(),
@@ -519,9 +537,8 @@ pub fn ranking_results(
         ranking,
         ranking_missing,
         per_group,
-        proxy_agreement: (agree.1 > 0).then(|| Proportion::new(agree.0, agree.1)),
-        judge_agreement_real_frames: (judge_real.1 > 0)
-            .then(|| Proportion::new(judge_real.0, judge_real.1)),
+        proxy_agreement,
+        judge_agreement_real_frames,
         judge_agreements,
         errors,
         judging_errors: imagined
@@ -633,9 +650,9 @@ fn repeat_consistency(
     out
 }
 
-/// The frame judge's agreement (first), then each judge's: with the simulator on real and
-/// imagined rollouts, and with the frame judge on imagined ones. `judges`: those of imagined
-/// rollouts; a judge that only judged real rollouts is listed too.
+/// Each judge's agreement: with the simulator on real and imagined rollouts, and with the frame
+/// judge on imagined ones. `judges`: those of imagined rollouts; a judge that only judged real
+/// rollouts is listed too.
 fn judge_agreements(
     plan: &RankingPlan,
     judges: &[&str],
@@ -663,19 +680,6 @@ fn judge_agreements(
     };
     let done = |completion: f64| completion >= plan.config.completion_threshold;
     let mut out = Vec::new();
-    if !predictions.is_empty() {
-        out.push(JudgeAgreement {
-            judge: FRAME_JUDGE.to_owned(),
-            real_vs_sim: proportion(&mut predictions.iter().filter_map(|p| {
-                real_of(&p.task_id, &p.policy, p.seed)
-                    .map(|e| (p.p_success_real_frame >= plan.config.threshold, e.success))
-            })),
-            imagined_vs_sim: proportion(&mut predictions.iter().filter_map(|p| {
-                real_of(&p.task_id, &p.policy, p.seed).map(|e| (p.success, e.success))
-            })),
-            imagined_vs_frame_judge: None,
-        });
-    }
     let mut names: Vec<&str> = judges.to_vec();
     for e in episodes {
         for (j, _) in &e.completion_by_judge {

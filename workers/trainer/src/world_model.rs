@@ -628,14 +628,14 @@ impl Linear {
 }
 
 /// Layer norm over the last dimension.
-struct Norm {
+pub(crate) struct Norm {
     w: Tensor,
     b: Tensor,
     n: i64,
 }
 
 impl Norm {
-    fn new(init: &mut Init, name: &str, n: i64) -> Self {
+    pub(crate) fn new(init: &mut Init, name: &str, n: i64) -> Self {
         Self {
             w: init.constant(format!("{name}/norm_w"), &[n], 1.0),
             b: init.constant(format!("{name}/norm_b"), &[n], 0.0),
@@ -643,7 +643,7 @@ impl Norm {
         }
     }
 
-    fn forward(&self, x: &Tensor) -> Tensor {
+    pub(crate) fn forward(&self, x: &Tensor) -> Tensor {
         x.layer_norm([self.n], Some(&self.w), Some(&self.b), 1e-3, true)
     }
 }

@@ -13,33 +13,13 @@
 //!   and a GELU MLP 4× wide, each added to its input; a final LayerNorm and a linear layer to the
 //!   predicted noise.
 //!
-//! Dropout is left out (Chi et al.'s 0.1 on larger data; these fits are a few thousand steps).
+//! Dropout is left out (Chi et al.'s 0.1 on larger data; these fits are a few thousand steps). The
+//! layer norms are the world model's (`world_model::Norm`, ε 10⁻³).
 
 use assay_model::diffusion::TransformerSize;
 use tch::{Kind, Tensor};
 
-use crate::world_model::{Init, Linear};
-
-/// LayerNorm over the last dimension (PyTorch's ε).
-struct LayerNorm {
-    w: Tensor,
-    b: Tensor,
-    n: i64,
-}
-
-impl LayerNorm {
-    fn new(init: &mut Init, name: &str, n: i64) -> Self {
-        Self {
-            w: init.constant(format!("{name}/w"), &[n], 1.0),
-            b: init.constant(format!("{name}/b"), &[n], 0.0),
-            n,
-        }
-    }
-
-    fn forward(&self, x: &Tensor) -> Tensor {
-        x.layer_norm([self.n], Some(&self.w), Some(&self.b), 1e-5, true)
-    }
-}
+use crate::world_model::{Init, Linear, Norm};
 
 /// Multi-head attention with query, key, value and output projections.
 struct Attention {
@@ -81,11 +61,11 @@ impl Attention {
 
 /// One pre-norm decoder layer.
 struct Layer {
-    norm1: LayerNorm,
+    norm1: Norm,
     self_attention: Attention,
-    norm2: LayerNorm,
+    norm2: Norm,
     cross_attention: Attention,
-    norm3: LayerNorm,
+    norm3: Norm,
     mlp1: Linear,
     mlp2: Linear,
 }
@@ -93,11 +73,11 @@ struct Layer {
 impl Layer {
     fn new(init: &mut Init, name: &str, width: i64, heads: i64) -> Self {
         Self {
-            norm1: LayerNorm::new(init, &format!("{name}/norm1"), width),
+            norm1: Norm::new(init, &format!("{name}/norm1"), width),
             self_attention: Attention::new(init, &format!("{name}/self"), width, heads),
-            norm2: LayerNorm::new(init, &format!("{name}/norm2"), width),
+            norm2: Norm::new(init, &format!("{name}/norm2"), width),
             cross_attention: Attention::new(init, &format!("{name}/cross"), width, heads),
-            norm3: LayerNorm::new(init, &format!("{name}/norm3"), width),
+            norm3: Norm::new(init, &format!("{name}/norm3"), width),
             mlp1: Linear::new(init, &format!("{name}/mlp1"), width, 4 * width, true),
             mlp2: Linear::new(init, &format!("{name}/mlp2"), 4 * width, width, true),
         }
@@ -123,7 +103,7 @@ pub(super) struct TransformerDenoiser {
     condition_position: Tensor,
     condition_mlp: (Linear, Linear),
     layers: Vec<Layer>,
-    norm: LayerNorm,
+    norm: Norm,
     head: Linear,
     width: i64,
 }
@@ -158,7 +138,7 @@ impl TransformerDenoiser {
             layers: (0..size.layers)
                 .map(|k| Layer::new(init, &format!("transformer/layer{k}"), e, size.heads))
                 .collect(),
-            norm: LayerNorm::new(init, "transformer/norm", e),
+            norm: Norm::new(init, "transformer/norm", e),
             head: Linear::new(init, "transformer/head", e, action_dims, true),
             width: e,
         }
