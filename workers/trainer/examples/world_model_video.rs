@@ -289,7 +289,12 @@ fn main() {
             })
         })
         .collect();
-    let machine = "2-core CPU, no GPU, release build, one libtorch thread per fit";
+    let build = if cfg!(debug_assertions) {
+        "debug"
+    } else {
+        "release"
+    };
+    let machine = format!("2-core CPU, no GPU, {build} build, one libtorch thread per fit");
     let command = std::env::args().collect::<Vec<_>>().join(" ");
     let write = |name: &str, rows: &[serde_json::Value]| {
         let doc = json!({"command": command, "machine": machine, "horizon": HORIZON, "rows": rows});

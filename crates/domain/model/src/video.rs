@@ -5,7 +5,7 @@
 use serde::{Deserialize, Serialize};
 
 /// Settings of the video world model. It works at the clips' frame size (square, a multiple of
-/// 8). The defaults train in about 5 minutes on one CPU core with 64×64 frames; raise `depth`
+/// 8). The defaults train in about 10 minutes on one CPU core with 64×64 frames; raise `depth`
 /// and `steps` on a GPU.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
@@ -68,7 +68,7 @@ impl Default for VideoModelConfig {
             tool_heatmap: true,
             horizon: 8,
             batch: 8,
-            steps: 3000,
+            steps: 6000,
             lr: 1e-3,
             pixel_loss: PixelLoss::L1,
             state_weight: 0.01,
