@@ -13,16 +13,16 @@ use assay_model::diffusion::Backbone;
 use assay_model::episode::{EpisodeImagery, EpisodeOutcome};
 use assay_model::generalization::{GeneralizationPlan, HELD_OUT_VARIATIONS, TRAIN_VARIATIONS};
 use assay_model::job::JobKind;
-use assay_model::policy::PolicySpec;
-use assay_model::proxy::{IMAGINED_JUDGING, ProxyEpisode, ProxyResult, RankingPlan};
+use assay_model::proxy::{IMAGINED_JUDGING, ProxyResult, RankingPlan};
 use assay_model::quality::DEFAULT_REPEATS;
-use assay_model::trainer::{TrainerJob, TrainerOutcome};
-use assay_spec::spec::PhysicsSettings;
+use assay_model::trainer::TrainerJob;
 use rusqlite::{Connection, OptionalExtension, params};
 
-use super::shard_state::{LEASED, QUEUED};
+use super::shard_state::QUEUED;
 use super::{DynamicsPlan, NewBatch, PlannedTask, Store, batch_state, role};
 use crate::error::CoordError;
+
+mod ranking;
 
 impl Store {
     fn insert_tasks(
@@ -427,178 +427,6 @@ impl Store {
                     &job,
                 )?;
             }
-        }
-        Ok(())
-    }
-
-    /// The episodes of `group` with a clip, split into the training policies' (with their
-    /// outcomes) and the ranked policies' (without), in planning order.
-    fn proxy_episodes(
-        conn: &Connection,
-        batch_id: &str,
-        group: &str,
-        plan: &RankingPlan,
-    ) -> Result<(Vec<ProxyEpisode>, Vec<ProxyEpisode>), CoordError> {
-        let default_budget = PhysicsSettings::default().max_steps;
-        let (mut train, mut eval) = (Vec::new(), Vec::new());
-        let mut stmt = conn.prepare(
-            "SELECT s.task_id, s.policy, s.seed,
-                    json_extract(s.outcome_json, '$.imagery.clip') AS clip,
-                    json_extract(s.outcome_json, '$.success'),
-                    COALESCE(json_extract(t.spec_json, '$.description'), ''),
-                    COALESCE(json_extract(t.spec_json, '$.physics.max_steps'), ?3)
-             FROM shards s JOIN tasks t ON t.batch_id = s.batch_id AND t.task_id = s.task_id
-             WHERE s.batch_id = ?1 AND t.grp = ?2 AND s.kind = ?4
-               AND s.state = 'done' AND clip IS NOT NULL ORDER BY s.id",
-        )?;
-        let mut rows = stmt.query(params![
-            batch_id,
-            group,
-            default_budget,
-            JobKind::Episode.as_str()
-        ])?;
-        while let Some(r) = rows.next()? {
-            let policy: String = r.get(1)?;
-            let training = plan.train_policies.contains(&policy);
-            // The simulator's horizon: the task's budget, or the policy's when smaller.
-            let task_budget: u32 = r.get(6)?;
-            let budget_steps = match PolicySpec::parse_with_horizon(&policy) {
-                Ok((_, Some(h))) => h.min(task_budget),
-                _ => task_budget,
-            };
-            let ep = ProxyEpisode {
-                task_id: r.get(0)?,
-                policy,
-                seed: r.get::<_, i64>(2)? as u64,
-                clip: r.get(3)?,
-                instruction: r.get(5)?,
-                success: training.then(|| r.get::<_, i64>(4).unwrap_or(0) != 0),
-                budget_steps,
-            };
-            if training {
-                train.push(ep);
-            } else {
-                eval.push(ep);
-            }
-        }
-        Ok((train, eval))
-    }
-
-    /// The job name of `group`'s world model fitted ahead of its proxy.
-    fn proxy_world_job(group: &str) -> String {
-        format!("world model {group}")
-    }
-
-    /// Queues, for every ranked group of a running ranking batch with a ladder whose episodes
-    /// are all finished, the proxy's world model ahead of the proxy: it trains on the training
-    /// policies' episodes while the ladder's policies train and run, instead of after them. A
-    /// served world model is not fitted; a group with fewer than 2 training clips gets none
-    /// (its proxy says why).
-    pub(super) fn queue_proxy_world(conn: &Connection, batch_id: &str) -> Result<(), CoordError> {
-        let Some(plan) = Self::running_plan::<RankingPlan>(conn, batch_id, "ranking_json")? else {
-            return Ok(());
-        };
-        if plan.ladder.is_none() || plan.config.external.is_some() {
-            return Ok(());
-        }
-        for group in Self::groups(conn, batch_id)? {
-            if !plan.covers(&group)
-                || !Self::group_ready(conn, batch_id, &group, JobKind::ProxyWorldModel)?
-            {
-                continue;
-            }
-            let (train, _) = Self::proxy_episodes(conn, batch_id, &group, &plan)?;
-            // Exactly the clips the proxy's own fit takes (`world_model_policies`).
-            let train: Vec<ProxyEpisode> = train
-                .into_iter()
-                .filter(|e| plan.config.trains_world_model(&e.policy))
-                .collect();
-            if train.len() < 2 {
-                continue;
-            }
-            let job = TrainerJob::ProxyWorld {
-                group: group.clone(),
-                train,
-                config: plan.config.clone(),
-            };
-            let name = Self::proxy_world_job(&group);
-            let kind = JobKind::ProxyWorldModel;
-            Self::insert_trainer_shard(conn, batch_id, kind, &name, &group, &job)?;
-        }
-        Ok(())
-    }
-
-    /// `group`'s world model fitted ahead of its proxy: `Err(())` while it is still queued or
-    /// running (the proxy waits), its checkpoint's key once done, `None` when there is none or
-    /// it failed (the proxy fits its own).
-    fn proxy_world(
-        conn: &Connection,
-        batch_id: &str,
-        group: &str,
-    ) -> Result<Result<Option<String>, ()>, CoordError> {
-        let row: Option<(String, Option<String>)> = conn
-            .query_row(
-                "SELECT state, outcome_json FROM shards WHERE batch_id = ?1 AND kind = ?3 AND grp = ?2",
-                params![batch_id, group, JobKind::ProxyWorldModel.as_str()],
-                |r| Ok((r.get(0)?, r.get(1)?)),
-            )
-            .optional()?;
-        Ok(match row {
-            Some((state, _)) if state == QUEUED || state == LEASED => Err(()),
-            Some((_, Some(json))) => match serde_json::from_str(&json) {
-                Ok(TrainerOutcome::ProxyWorld { checkpoint, .. }) => Ok(Some(checkpoint)),
-                _ => Ok(None),
-            },
-            _ => Ok(None),
-        })
-    }
-
-    /// Queues the world-model proxy of every group of a running ranking batch whose episodes are
-    /// all finished and that has none yet: one trainer shard per group, trained on the clips of
-    /// the training policies' episodes (with their outcomes) and imagining those of the ranked
-    /// policies (without), from the world model fitted ahead of it when there is one. A group
-    /// with fewer than 2 training clips or no ranked clip gets one failed shard saying so.
-    pub(super) fn queue_proxy(conn: &Connection, batch_id: &str) -> Result<(), CoordError> {
-        let Some(plan) = Self::running_plan::<RankingPlan>(conn, batch_id, "ranking_json")? else {
-            return Ok(());
-        };
-        for group in Self::groups(conn, batch_id)? {
-            if !plan.covers(&group)
-                || !Self::group_ready(conn, batch_id, &group, JobKind::Proxy)?
-                || (plan.ladder.is_some() && !Self::ladder_settled(conn, batch_id, &group)?)
-            {
-                continue;
-            }
-            let Ok(world_model) = Self::proxy_world(conn, batch_id, &group)? else {
-                continue;
-            };
-            let (train, eval) = Self::proxy_episodes(conn, batch_id, &group, &plan)?;
-            let job_name = format!("proxy {group}");
-            if train.len() < 2 || eval.is_empty() {
-                Self::insert_failed_trainer_shard(
-                    conn,
-                    batch_id,
-                    JobKind::Proxy,
-                    &job_name,
-                    &group,
-                    &format!(
-                        "group {group:?} has {} training episode(s) and {} ranked episode(s) with a clip; \
-                             the proxy needs at least 2 and 1 (clips are rendered by workers with the render role)",
-                        train.len(),
-                        eval.len()
-                    ),
-                )?;
-                continue;
-            }
-            let job = TrainerJob::Proxy {
-                group: group.clone(),
-                train,
-                eval,
-                config: plan.config.clone(),
-                world_model,
-            };
-            let kind = JobKind::Proxy;
-            Self::insert_trainer_shard(conn, batch_id, kind, &job_name, &group, &job)?;
         }
         Ok(())
     }

@@ -573,6 +573,7 @@ fn a_ranking_batch_queues_one_proxy_per_group_that_never_sees_the_ranked_outcome
                 done_by_judge: false,
                 p_calibrated: None,
                 leak: None,
+                cross_family: None,
                 imagined_keyframes: (0..8)
                     .map(|k| Keyframe {
                         step: k,
@@ -688,6 +689,7 @@ fn proxy_done(predictions: Vec<assay_model::proxy::ProxyPrediction>) -> String {
             judge_positives: 5,
             judge_train_accuracy: 1.0,
             calibration: None,
+            cross_family: Vec::new(),
             predictions,
             seconds: 1.0,
             imagined_frames: Vec::new(),
@@ -983,6 +985,10 @@ fn a_ladder_of_learned_policies_is_trained_then_run_then_ranked() {
     assert_eq!(eval.len(), 8);
     assert_eq!(input.matches("\"success\"").count(), 8);
     assert!(eval.iter().all(|e| learned.contains(&e.policy.as_str())));
+    // Each ranked episode names its ladder family (the cross-family ablation groups by it); a
+    // training episode names none.
+    assert!(eval.iter().all(|e| e.family == "unet"), "{eval:?}");
+    assert!(train.iter().all(|e| e.family.is_empty()));
     // Budgets: the task's, or the policy's horizon when smaller.
     for e in train.iter().chain(&eval) {
         let want = match (e.task_id.as_str(), eval.contains(e)) {
@@ -1006,6 +1012,7 @@ fn a_ladder_of_learned_policies_is_trained_then_run_then_ranked() {
             done_by_judge: false,
             p_calibrated: None,
             leak: None,
+            cross_family: None,
             imagined_keyframes: Vec::new(),
         })
         .collect();

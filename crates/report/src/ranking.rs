@@ -11,8 +11,9 @@ use serde::{Deserialize, Serialize};
 
 use assay_model::diffusion::Backbone;
 use assay_model::proxy::{
-    CALIBRATED_SOURCE, ImaginedJudgement, JudgedProxy, LEAK_SOURCE, PROXY_SOURCE, ProxyConfig,
-    ProxyPrediction, ProxyResult, REAL_SOURCE, RankingPlan, judged_source,
+    CALIBRATED_SOURCE, CROSS_FAMILY_SOURCE, ImaginedJudgement, JudgedProxy, LEAK_SOURCE,
+    PROXY_SOURCE, ProxyConfig, ProxyPrediction, ProxyResult, REAL_SOURCE, RankingPlan,
+    judged_source,
 };
 use assay_model::quality::ScoreStats;
 use assay_stats::ranking::{Cell, Ranking, RankingConfig, rank};
@@ -214,6 +215,9 @@ pub fn ranking_figure(proxy: &str) -> String {
     if proxy == CALIBRATED_SOURCE {
         return "ranking-calibrated.svg".to_owned();
     }
+    if proxy == CROSS_FAMILY_SOURCE {
+        return "ranking-cross-family.svg".to_owned();
+    }
     match proxy.strip_prefix(&format!("{PROXY_SOURCE}+")) {
         Some(judge) => {
             let safe: String = judge
@@ -232,9 +236,10 @@ pub fn ranking_figure(proxy: &str) -> String {
     }
 }
 
-/// Whether a comparison's source is the leak ablation (shown as such, never as the proxy).
+/// Whether a comparison's source is an ablation — the leak's or the cross-family one's (shown
+/// as such, never as the proxy).
 pub fn is_ablation(source: &str) -> bool {
-    source == LEAK_SOURCE
+    source == LEAK_SOURCE || source == CROSS_FAMILY_SOURCE
 }
 
 /// A success source as a column, heading or plot title reads: the leak ablation says it is one.
@@ -277,6 +282,21 @@ pub const REPEAT_NOTE: &str = "Each imagined rollout is judged k times; its verd
 pub const LEAK_NOTE: &str = "An ablation, not the proxy: every ranked episode imagined for \
     exactly as many frames as its real episode had and judged on that last frame — the real \
     episode's length given to the proxy. It measures what that leak is worth.";
+
+/// What the cross-family ablation's section says.
+pub const CROSS_FAMILY_NOTE: &str = "An ablation, not the proxy: each family of ranked ladder \
+    policies imagined by a world model of the same settings trained on the training policies' \
+    episodes and the other families' ranked episodes (their clips, never their outcomes), judged \
+    by the same frame judge — a world model that has seen rollouts of policies it does not rank.";
+
+/// The note of an ablation's section (`None` for a proxy).
+pub fn ablation_note(source: &str) -> Option<&'static str> {
+    match source {
+        LEAK_SOURCE => Some(LEAK_NOTE),
+        CROSS_FAMILY_SOURCE => Some(CROSS_FAMILY_NOTE),
+        _ => None,
+    }
+}
 
 /// What the judges' agreement table says.
 pub const JUDGE_AGREEMENT_NOTE: &str = "Over the ranked policies' episodes: how often each \
@@ -362,6 +382,18 @@ pub fn ranking_results(
                     leaks.len() as u64,
                 )
             });
+            // The cross-family ablation: the episodes imagined by the world model trained with
+            // the other families' episodes.
+            let crossed: Vec<bool> = preds
+                .iter()
+                .filter_map(|p| p.cross_family.as_ref().map(|v| v.success))
+                .collect();
+            let cross = (!crossed.is_empty()).then(|| {
+                Proportion::new(
+                    crossed.iter().filter(|ok| **ok).count() as u64,
+                    crossed.len() as u64,
+                )
+            });
             let judged: Vec<f64> = eps.iter().filter_map(|e| e.judged_completion).collect();
             let mut judged_proxy = Vec::new();
             for judge in &judges {
@@ -411,6 +443,7 @@ pub fn ranking_results(
                 (PROXY_SOURCE, &proxy),
                 (CALIBRATED_SOURCE, &calibrated),
                 (LEAK_SOURCE, &leak),
+                (CROSS_FAMILY_SOURCE, &cross),
             ] {
                 if let Some(p) = p {
                     cells.push(Cell {
@@ -442,7 +475,11 @@ pub fn ranking_results(
     // the leak ablation, as far as they have verdicts.
     let proxies: Vec<String> = std::iter::once(PROXY_SOURCE.to_owned())
         .chain(judges.iter().map(|j| judged_source(j)))
-        .chain([CALIBRATED_SOURCE.to_owned(), LEAK_SOURCE.to_owned()])
+        .chain([
+            CALIBRATED_SOURCE.to_owned(),
+            LEAK_SOURCE.to_owned(),
+            CROSS_FAMILY_SOURCE.to_owned(),
+        ])
         .filter(|p| cells.iter().any(|c| &c.source == p))
         .collect();
     let policies = pooled(ranked_policies, &proxies, &cells);

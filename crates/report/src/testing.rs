@@ -123,6 +123,7 @@ pub(crate) fn ranking_fixture() -> crate::ranking::RankingResults {
                             p_success: if success { 0.7 } else { 0.3 },
                             success,
                         }),
+                        cross_family: None,
                         imagined_keyframes: Vec::new(),
                     },
                 ));
@@ -157,6 +158,7 @@ pub(crate) fn ranking_fixture() -> crate::ranking::RankingResults {
         judge_positives: 12,
         judge_train_accuracy: 0.95,
         calibration: None,
+        cross_family: Vec::new(),
         predictions: predictions
             .iter()
             .filter(|(g, _)| g == name)

@@ -53,6 +53,7 @@ use crate::video_model;
 use crate::world_model::{Conv, FitRequest, Init, Linear, WorldModelError, fit_model};
 
 mod calibration;
+mod cross_family;
 
 const JUDGE_BATCH: usize = 16;
 const JUDGE_CHANNELS: [i64; 5] = [3, 8, 16, 32, 64];
@@ -555,10 +556,28 @@ pub fn run_proxy(
                 p_success: p,
                 success: p >= config.threshold,
             }),
+            cross_family: None,
             // Named by the job runner once it has stored `imagined_frames`.
             imagined_keyframes: Vec::new(),
         });
         imagined_frames.push(keyframes_of(&start.rgb, &rollout.frames));
+    }
+    let mut cross_family = Vec::new();
+    if config.cross_family_ablation {
+        let ablation = cross_family::run(&cross_family::Inputs {
+            policies,
+            world_clips,
+            eval,
+            eval_clips,
+            eval_ctx: &eval_ctx,
+            judge: &judge_one,
+            config,
+            device,
+        })?;
+        for (p, v) in predictions.iter_mut().zip(ablation.verdicts) {
+            p.cross_family = v;
+        }
+        cross_family = ablation.fits;
     }
     tracing::info!(
         group,
@@ -578,6 +597,7 @@ pub fn run_proxy(
         judge_positives: examples.iter().filter(|e| e.1).count() as u32,
         judge_train_accuracy,
         calibration,
+        cross_family,
         predictions,
         seconds: started.elapsed().as_secs_f64(),
         imagined_frames,

@@ -55,6 +55,7 @@ fn episode(policy: &str, seed: u64, success: Option<bool>) -> ProxyEpisode {
         instruction: "move the square right".into(),
         success,
         budget_steps: 24 * 8,
+        family: String::new(),
     }
 }
 

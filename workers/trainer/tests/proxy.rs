@@ -318,6 +318,7 @@ fn proxy_episode(policy: &str, seed: u64, success: Option<bool>) -> ProxyEpisode
         instruction: "move the square".into(),
         success,
         budget_steps: 24 * 11,
+        family: String::new(),
     }
 }
 
@@ -645,5 +646,93 @@ fn the_world_model_learns_from_its_policies_and_the_judge_from_every_training_ep
     assert!(
         err.to_string().contains("world_model_policies") && err.to_string().contains("\"g\""),
         "{err}"
+    );
+}
+
+#[test]
+fn the_cross_family_ablation_imagines_each_family_by_a_model_that_never_saw_it() {
+    let mut train_eps = Vec::new();
+    let mut train_clips = Vec::new();
+    for i in 0..6u64 {
+        train_clips.push(moving(1, if i % 2 == 0 { 1 } else { 0 }, 8));
+        train_eps.push(proxy_episode("oracle", i, Some(i % 2 == 0)));
+    }
+    // Ranked: three episodes of each family and one of a policy of none.
+    let family_of = |i: u64| match i {
+        0..3 => "unet",
+        3..6 => "transformer",
+        _ => "",
+    };
+    let eval_clips: Vec<Clip> = (0..7u64)
+        .map(|i| moving(1 + (i % 3) as u32, [1, 0, -1][i as usize % 3], 6))
+        .collect();
+    let eval_eps: Vec<ProxyEpisode> = (0..7u64)
+        .map(|i| ProxyEpisode {
+            family: family_of(i).into(),
+            ..proxy_episode(RANKED, i, None)
+        })
+        .collect();
+    let mut config = ProxyConfig {
+        video: small_video(40),
+        world_model: small_config(40),
+        judge_steps: 20,
+        cross_family_ablation: true,
+        ..Default::default()
+    };
+    let base = run(&train_eps, &train_clips, &eval_eps, &eval_clips, &config).unwrap();
+    // One model per family, each trained on the training clips and the other family's.
+    let fits: Vec<(&str, Vec<String>, u32)> = base
+        .cross_family
+        .iter()
+        .map(|f| (f.family.as_str(), f.trained_with.clone(), f.train_clips))
+        .collect();
+    assert_eq!(
+        fits,
+        [
+            ("unet", vec!["transformer".to_owned()], 6 + 3),
+            ("transformer", vec!["unet".to_owned()], 6 + 3),
+        ]
+    );
+    assert!(base.cross_family.iter().all(|f| f.action_test.is_some()));
+    for (e, p) in eval_eps.iter().zip(&base.predictions) {
+        assert_eq!(p.cross_family.is_some(), !e.family.is_empty(), "{e:?}");
+    }
+    // The proxy itself is what it is without the ablation.
+    config.cross_family_ablation = false;
+    let plain = run(&train_eps, &train_clips, &eval_eps, &eval_clips, &config).unwrap();
+    assert!(plain.cross_family.is_empty());
+    for (a, b) in base.predictions.iter().zip(&plain.predictions) {
+        assert_eq!(
+            (a.p_success, a.imagined_frames),
+            (b.p_success, b.imagined_frames)
+        );
+    }
+    // The U-Net's own clips after their first frame reach the transformer's model only: other
+    // endings for them change the transformer's fit and leave the U-Net's verdicts as they were
+    // (this test would see a family imagined by a model trained on its own episodes).
+    config.cross_family_ablation = true;
+    let mut changed = eval_clips.clone();
+    for (i, c) in changed.iter_mut().enumerate().take(3) {
+        let mut other = moving(1 + (i % 3) as u32, 2, 6);
+        let (frame, p) = ((SIZE * SIZE * 3) as usize, PROPRIO_DIMS);
+        other.rgb[..frame].copy_from_slice(&c.rgb[..frame]);
+        other.proprio[..p].copy_from_slice(&c.proprio[..p]);
+        *c = other;
+    }
+    assert_ne!(changed[..3], eval_clips[..3]);
+    let other = run(&train_eps, &train_clips, &eval_eps, &changed, &config).unwrap();
+    for i in 0..3 {
+        assert_eq!(
+            base.predictions[i].cross_family,
+            other.predictions[i].cross_family
+        );
+    }
+    assert_eq!(
+        base.cross_family[0].final_train_loss,
+        other.cross_family[0].final_train_loss
+    );
+    assert_ne!(
+        base.cross_family[1].final_train_loss,
+        other.cross_family[1].final_train_loss
     );
 }

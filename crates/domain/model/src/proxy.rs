@@ -44,6 +44,14 @@ pub struct ProxyConfig {
     /// episode's length, restored on purpose to measure what it is worth. Reported as a proxy
     /// of its own ([`LEAK_SOURCE`]), never as the proxy.
     pub leak_ablation: bool,
+    /// Ablation across the ladder's families (the paper's rollouts of policies never ranked):
+    /// for each family of ranked ladder policies, a second video model of the same settings is
+    /// trained on the world model's training episodes **and the other families' ranked
+    /// episodes** (their clips; never their outcomes), imagines that family's episodes, and the
+    /// same frame judge calls them done. Reported as a proxy of its own
+    /// ([`CROSS_FAMILY_SOURCE`]), never as the proxy. Costs one more fit per family and group;
+    /// needs the video model and ranked policies of two or more families.
+    pub cross_family_ablation: bool,
     /// Normalize the RSSM's actions (zero mean, unit deviation per dimension over the training
     /// clips) before they enter it.
     pub normalize_actions: bool,
@@ -101,6 +109,7 @@ impl Default for ProxyConfig {
             completion_threshold: 5.0,
             done_frames: 2,
             leak_ablation: false,
+            cross_family_ablation: false,
             normalize_actions: true,
             external: None,
             interface: String::new(),
@@ -145,6 +154,15 @@ impl ProxyConfig {
             if e.timeout_ms == 0 {
                 return Err("external.timeout_ms: must be at least 1".into());
             }
+        }
+        if self.cross_family_ablation
+            && (self.external.is_some() || self.model != WorldModelKind::Video)
+        {
+            return Err(
+                "cross_family_ablation: trains Assay's video model (model = \"video\", no \
+                 external server)"
+                    .into(),
+            );
         }
         let interface = crate::interface::Interface::parse_args(&self.interface)
             .map_err(|e| format!("interface: {e}"))?;
@@ -280,6 +298,10 @@ pub struct ProxyEpisode {
     /// frames), whatever its real episode did.
     #[serde(default)]
     pub budget_steps: u32,
+    /// The family of a ranked ladder policy (`unet`, `transformer`: its denoiser); empty for
+    /// every other episode. The cross-family ablation groups the ranked episodes by it.
+    #[serde(default, skip_serializing_if = "String::is_empty")]
+    pub family: String,
 }
 
 /// The proxy's verdict on one ranked episode.
@@ -312,6 +334,11 @@ pub struct ProxyPrediction {
     /// frames as the real episode had.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub leak: Option<LeakVerdict>,
+    /// The ablation of `ProxyConfig::cross_family_ablation`: the verdict when the episode is
+    /// imagined by the world model trained with the other families' episodes (as the proxy
+    /// imagines: until the judge calls it done or the step budget runs out).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cross_family: Option<CrossFamilyVerdict>,
     /// The imagined rollout as the judge role sees it: [`IMAGINED_KEYFRAMES`] frames evenly
     /// spaced from the real first frame to the last imagined one, PNGs in the artifact store
     /// (`step` is the frame's index at the clip's rate, `camera` is `imagined`).
@@ -325,6 +352,32 @@ pub struct ProxyPrediction {
 pub struct LeakVerdict {
     pub p_success: f64,
     pub success: bool,
+}
+
+/// The cross-family ablation's verdict on one ranked episode.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+pub struct CrossFamilyVerdict {
+    /// The frame judge's probability on the last imagined frame.
+    pub p_success: f64,
+    /// Whether the judge called the imagined rollout done (`done_frames` in a row).
+    pub success: bool,
+    /// Clip frames imagined (the first, real one included).
+    pub imagined_frames: u32,
+}
+
+/// One world model of the cross-family ablation: the family it ranks and what it learned from.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+pub struct CrossFamilyFit {
+    /// The family whose episodes it imagines.
+    pub family: String,
+    /// The families whose ranked episodes it was trained on, besides the training episodes.
+    pub trained_with: Vec<String>,
+    /// Clips it was trained on: the world model's training clips and those families'.
+    pub train_clips: u32,
+    pub final_train_loss: f64,
+    /// Its action test on the ranked family's own clips (policies it never saw).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub action_test: Option<ActionTest>,
 }
 
 /// Whether the world model uses its actions, and how well it predicts video: on the ranked
@@ -418,6 +471,9 @@ pub struct ProxyResult {
     /// all successes or all failures, or before it existed).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub calibration: Option<Calibration>,
+    /// The cross-family ablation's world models, one per family ranked (empty without it).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub cross_family: Vec<CrossFamilyFit>,
     pub predictions: Vec<ProxyPrediction>,
     /// Seconds the whole job took (world model, judge, imagination). Measured, so not
     /// serialised: a report's results are the same for the same batch (the trainer logs it).
@@ -477,3 +533,5 @@ pub const LEAK_SOURCE: &str = "world-model-leak";
 /// The frame judge's verdicts through the group's [`Calibration`]: per (task, policy), the
 /// expected successes (the sum of the calibrated probabilities), rounded, of its episodes.
 pub const CALIBRATED_SOURCE: &str = "world-model-calibrated";
+/// The cross-family ablation's source (`ProxyConfig::cross_family_ablation`).
+pub const CROSS_FAMILY_SOURCE: &str = "world-model-cross-family";

@@ -7,8 +7,8 @@ use crate::figures::{self, BarChart, Bars, Line};
 use crate::generalization::{GeneralizationResults, GroupGeneralization, HELD_OUT_NOTE};
 use crate::quality::{OFFLINE_JUDGE_NOTE, QualityResults};
 use crate::ranking::{
-    ACTION_TEST_NOTE, CALIBRATION_NOTE, JUDGE_AGREEMENT_NOTE, LEAK_NOTE, PER_GROUP_NOTE,
-    PER_POLICY_NOTE, REPEAT_NOTE, RankingResults, is_ablation,
+    ACTION_TEST_NOTE, CALIBRATION_NOTE, JUDGE_AGREEMENT_NOTE, PER_GROUP_NOTE, PER_POLICY_NOTE,
+    REPEAT_NOTE, RankingResults, ablation_note,
 };
 use crate::tables::{self, AgreementLine};
 use crate::view::proportion;
@@ -355,8 +355,8 @@ pub(super) fn ranking(r: Option<&RankingResults>) -> Markup {
                 (Some(rk), _) => {
                     @for (i, c) in rk.comparisons.iter().enumerate() {
                         h3 { (crate::ranking::source_title(&c.proxy)) " against " (c.real) }
-                        @if is_ablation(&c.proxy) {
-                            p.caption { (LEAK_NOTE) }
+                        @if let Some(note) = ablation_note(&c.proxy) {
+                            p.caption { (note) }
                         }
                         @if c.proxy == CALIBRATED_SOURCE {
                             p.caption { (CALIBRATION_NOTE) }

@@ -11,8 +11,8 @@ use crate::diversity::DiversityResults;
 use crate::generalization::GeneralizationResults;
 use crate::quality::{ERRORS_SHOWN, OFFLINE_JUDGE_NOTE, QualityResults, TaskQuality};
 use crate::ranking::{
-    ACTION_TEST_NOTE, CALIBRATION_NOTE, JUDGE_AGREEMENT_NOTE, LEAK_NOTE, PER_GROUP_NOTE,
-    PER_POLICY_NOTE, REPEAT_NOTE, RankingResults, is_ablation, ranking_figure,
+    ACTION_TEST_NOTE, CALIBRATION_NOTE, JUDGE_AGREEMENT_NOTE, PER_GROUP_NOTE, PER_POLICY_NOTE,
+    REPEAT_NOTE, RankingResults, ablation_note, ranking_figure,
 };
 use crate::tables;
 use crate::view::{Table, abbreviations, md_text};
@@ -353,8 +353,8 @@ fn comparison(r: &Ranking, c: &Comparison, labels: &[(String, String)]) -> Strin
         md_text(&crate::ranking::source_title(&c.proxy)),
         md_text(&c.real)
     );
-    if is_ablation(&c.proxy) {
-        let _ = writeln!(out, "{}\n", md_text(LEAK_NOTE));
+    if let Some(note) = ablation_note(&c.proxy) {
+        let _ = writeln!(out, "{}\n", md_text(note));
     }
     if c.proxy == CALIBRATED_SOURCE {
         let _ = writeln!(out, "{}\n", md_text(CALIBRATION_NOTE));

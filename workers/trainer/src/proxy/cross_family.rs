@@ -1,0 +1,152 @@
+//! The cross-family ablation (`assay_model::proxy::ProxyConfig::cross_family_ablation`): for
+//! each family of ranked ladder policies, a video model of the proxy's settings trained on the
+//! world model's training clips and the **other** families' ranked clips, which imagines that
+//! family's episodes closed loop; the proxy's frame judge calls each one done or not. The
+//! paper's setting — a world model that has seen rollouts of policies never ranked with it —
+//! with the other family's rollouts as those policies. Only clips reach the fit: no ranked
+//! episode's outcome does, and no family is ever imagined by a model that saw its own episodes.
+
+use assay_model::clip::Clip;
+use assay_model::policy::EpisodeContext;
+use assay_model::proxy::{
+    ActionTest, CrossFamilyFit, CrossFamilyVerdict, ProxyConfig, ProxyEpisode,
+};
+use tch::Device;
+
+use super::{PolicyLoader, horizon_frames, start_name};
+use crate::imagination::{self, Stop};
+use crate::video_eval::{self, StartName};
+use crate::video_model;
+use crate::world_model::WorldModelError;
+
+/// The ablation's world models and, per ranked episode (same order), its verdict (`None` for
+/// an episode of no family, or of a family no other family was ranked beside).
+pub(super) struct Ablation {
+    pub fits: Vec<CrossFamilyFit>,
+    pub verdicts: Vec<Option<CrossFamilyVerdict>>,
+}
+
+/// What the ablation reads of the proxy's request.
+pub(super) struct Inputs<'a> {
+    pub policies: &'a PolicyLoader<'a>,
+    /// The main world model's training clips.
+    pub world_clips: &'a [Clip],
+    pub eval: &'a [ProxyEpisode],
+    pub eval_clips: &'a [Clip],
+    pub eval_ctx: &'a [EpisodeContext],
+    pub judge: &'a dyn Fn(&[u8]) -> f64,
+    pub config: &'a ProxyConfig,
+    pub device: Device,
+}
+
+/// The ranked families in order of first appearance.
+fn families(eval: &[ProxyEpisode]) -> Vec<&str> {
+    let mut out: Vec<&str> = Vec::new();
+    for e in eval {
+        if !e.family.is_empty() && !out.contains(&e.family.as_str()) {
+            out.push(&e.family);
+        }
+    }
+    out
+}
+
+/// Runs the ablation; with fewer than two ranked families there is nothing to do.
+pub(super) fn run(inputs: &Inputs<'_>) -> Result<Ablation, WorldModelError> {
+    let Inputs {
+        policies,
+        world_clips,
+        eval,
+        eval_clips,
+        eval_ctx,
+        judge,
+        config,
+        device,
+    } = *inputs;
+    let mut ablation = Ablation {
+        fits: Vec::new(),
+        verdicts: vec![None; eval.len()],
+    };
+    let families = families(eval);
+    if families.len() < 2 {
+        return Ok(ablation);
+    }
+    for family in &families {
+        let others: Vec<String> = families
+            .iter()
+            .filter(|f| *f != family)
+            .map(|f| (*f).to_owned())
+            .collect();
+        let mut clips: Vec<Clip> = world_clips.to_vec();
+        clips.extend(
+            eval.iter()
+                .zip(eval_clips)
+                .filter(|(e, _)| !e.family.is_empty() && e.family != *family)
+                .map(|(_, c)| c.clone()),
+        );
+        let mut no_checkpoints = |_: u64, _: &[u8]| Ok::<(), String>(());
+        let (world, fit) =
+            video_model::fit(&config.video, &clips, device, None, &mut no_checkpoints)?;
+        let own: Vec<usize> = (0..eval.len())
+            .filter(|&i| eval[i].family == *family)
+            .collect();
+        let own_clips: Vec<&Clip> = own.iter().map(|&i| &eval_clips[i]).collect();
+        let names: Vec<StartName<'_>> = own.iter().map(|&i| start_name(&eval[i])).collect();
+        let action_test = if own_clips.len() < 2 {
+            None
+        } else {
+            let o = tch::no_grad(|| {
+                video_eval::open_loop(&world, &own_clips, &names, video_eval::HORIZON)
+            })?;
+            Some(ActionTest {
+                episodes: o.clips as u32,
+                windows: o.windows as u32,
+                horizon: o.horizon as u32,
+                true_actions_mse: o.mse_true,
+                shuffled_actions_mse: o.mse_shuffled,
+                zero_actions_mse: o.mse_zero,
+                psnr: o.psnr,
+                ssim: o.ssim,
+            })
+        };
+        for &i in &own {
+            let e = &eval[i];
+            let what = |err: String| {
+                WorldModelError::Request(format!(
+                    "cross-family ablation, policy '{}' on task {} seed {}: {err}",
+                    e.policy, e.task_id, e.seed
+                ))
+            };
+            let mut policy = policies(&e.policy).map_err(|err| what(err.to_string()))?;
+            let stop = Stop {
+                horizon: horizon_frames(e.budget_steps),
+                judge,
+                threshold: config.threshold,
+                done_frames: config.done_frames as usize,
+                leak_at: None,
+            };
+            let start = imagination::start_of(&eval_clips[i], &eval_ctx[i]);
+            let rollout =
+                imagination::closed_loop(&world, &start, policy.as_mut(), &eval_ctx[i], &stop)
+                    .map_err(|err| what(err.to_string()))?;
+            ablation.verdicts[i] = Some(CrossFamilyVerdict {
+                p_success: rollout.p_success,
+                success: rollout.done_by_judge,
+                imagined_frames: rollout.frames.len() as u32 + 1,
+            });
+        }
+        tracing::info!(
+            family,
+            trained_with = ?others,
+            clips = clips.len(),
+            "cross-family ablation: a family imagined"
+        );
+        ablation.fits.push(CrossFamilyFit {
+            family: (*family).to_owned(),
+            trained_with: others,
+            train_clips: clips.len() as u32,
+            final_train_loss: fit.final_train_loss,
+            action_test,
+        });
+    }
+    Ok(ablation)
+}
