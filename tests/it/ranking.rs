@@ -669,7 +669,7 @@ fn each_group_ranks_a_ladder_of_both_families_on_its_own() {
             r#"{"episodes": [3], "checkpoints": [5, 10], "max_steps": 480,
                 "backbones": ["unet", "transformer"]}"#,
             "--proxy",
-            r#"{"judge_steps": 20, "video": {"steps": 10}}"#,
+            r#"{"judge_steps": 20, "video": {"steps": 10}, "cross_family_ablation": true}"#,
         ])
         .arg("--out")
         .arg(dir.path())
@@ -734,8 +734,42 @@ fn each_group_ranks_a_ladder_of_both_families_on_its_own() {
             None => assert!(p.predictions.iter().all(|x| x.p_calibrated.is_none())),
         }
     }
+    // The cross-family ablation: per group one model per family, trained with the other
+    // family's 6 ranked episodes (2 kept policies × 3 seeds) beside the 6 training ones, and a
+    // verdict for every ranked episode, ranked per group as an ablation.
+    for p in &k.groups {
+        let fits: Vec<(&str, &[String], u32)> = p
+            .cross_family
+            .iter()
+            .map(|f| (f.family.as_str(), f.trained_with.as_slice(), f.train_clips))
+            .collect();
+        assert_eq!(
+            fits,
+            [
+                ("unet", &["transformer".to_owned()][..], 12),
+                ("transformer", &["unet".to_owned()][..], 12),
+            ],
+            "{}",
+            p.group
+        );
+        assert!(p.predictions.iter().all(|x| x.cross_family.is_some()));
+        let per_group = k.per_group.iter().find(|g| g.group == p.group).unwrap();
+        assert!(
+            per_group
+                .ranking
+                .as_ref()
+                .unwrap()
+                .comparisons
+                .iter()
+                .any(|c| c.proxy == "world-model-cross-family")
+        );
+    }
     let md = std::fs::read_to_string(dir.path().join("report.md")).unwrap();
     assert!(md.contains("### Per task group"), "{md}");
+    assert!(
+        md.contains("## Policy ranking: world-model-cross-family (ablation) against sim"),
+        "{md}"
+    );
     assert!(
         md.contains("| placement |") && md.contains("| stacking |"),
         "{md}"
