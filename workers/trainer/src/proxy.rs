@@ -499,24 +499,7 @@ pub fn run_proxy(
 
     // The world model's use of its actions and its video prediction, open loop over windows
     // of the ranked episodes' real clips (a diagnostic).
-    let eval_refs: Vec<&Clip> = eval_clips.iter().collect();
-    let names: Vec<StartName<'_>> = eval.iter().map(start_name).collect();
-    let action_test = if eval_refs.len() < 2 {
-        None
-    } else {
-        let o =
-            tch::no_grad(|| video_eval::open_loop(world, &eval_refs, &names, video_eval::HORIZON))?;
-        Some(ActionTest {
-            episodes: o.clips as u32,
-            windows: o.windows as u32,
-            horizon: o.horizon as u32,
-            true_actions_mse: o.mse_true,
-            shuffled_actions_mse: o.mse_shuffled,
-            zero_actions_mse: o.mse_zero,
-            psnr: o.psnr,
-            ssim: o.ssim,
-        })
-    };
+    let action_test = action_test(world, eval, eval_clips.iter().collect())?;
 
     let mut predictions = Vec::with_capacity(eval.len());
     let mut imagined_frames = Vec::with_capacity(eval.len());
@@ -603,6 +586,30 @@ pub fn run_proxy(
         imagined_frames,
         imagined_frame_size: judged,
     })
+}
+
+/// The action test of `world` on `clips` (the ranked `episodes`' clips, or some of them; `None`
+/// with fewer than 2).
+fn action_test(
+    world: &dyn WorldModelService,
+    episodes: &[ProxyEpisode],
+    clips: Vec<&Clip>,
+) -> Result<Option<ActionTest>, WorldModelError> {
+    if clips.len() < 2 {
+        return Ok(None);
+    }
+    let names: Vec<StartName<'_>> = episodes.iter().map(start_name).collect();
+    let o = tch::no_grad(|| video_eval::open_loop(world, &clips, &names, video_eval::HORIZON))?;
+    Ok(Some(ActionTest {
+        episodes: o.clips as u32,
+        windows: o.windows as u32,
+        horizon: o.horizon as u32,
+        true_actions_mse: o.mse_true,
+        shuffled_actions_mse: o.mse_shuffled,
+        zero_actions_mse: o.mse_zero,
+        psnr: o.psnr,
+        ssim: o.ssim,
+    }))
 }
 
 /// [`IMAGINED_KEYFRAMES`] frames of an imagined rollout, evenly spaced from the real first

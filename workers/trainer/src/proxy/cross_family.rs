@@ -8,14 +8,11 @@
 
 use assay_model::clip::Clip;
 use assay_model::policy::EpisodeContext;
-use assay_model::proxy::{
-    ActionTest, CrossFamilyFit, CrossFamilyVerdict, ProxyConfig, ProxyEpisode,
-};
+use assay_model::proxy::{CrossFamilyFit, CrossFamilyVerdict, ProxyConfig, ProxyEpisode};
 use tch::Device;
 
-use super::{PolicyLoader, horizon_frames, start_name};
+use super::{PolicyLoader, action_test, horizon_frames};
 use crate::imagination::{self, Stop};
-use crate::video_eval::{self, StartName};
 use crate::video_model;
 use crate::world_model::WorldModelError;
 
@@ -89,25 +86,9 @@ pub(super) fn run(inputs: &Inputs<'_>) -> Result<Ablation, WorldModelError> {
         let own: Vec<usize> = (0..eval.len())
             .filter(|&i| eval[i].family == *family)
             .collect();
+        let own_episodes: Vec<ProxyEpisode> = own.iter().map(|&i| eval[i].clone()).collect();
         let own_clips: Vec<&Clip> = own.iter().map(|&i| &eval_clips[i]).collect();
-        let names: Vec<StartName<'_>> = own.iter().map(|&i| start_name(&eval[i])).collect();
-        let action_test = if own_clips.len() < 2 {
-            None
-        } else {
-            let o = tch::no_grad(|| {
-                video_eval::open_loop(&world, &own_clips, &names, video_eval::HORIZON)
-            })?;
-            Some(ActionTest {
-                episodes: o.clips as u32,
-                windows: o.windows as u32,
-                horizon: o.horizon as u32,
-                true_actions_mse: o.mse_true,
-                shuffled_actions_mse: o.mse_shuffled,
-                zero_actions_mse: o.mse_zero,
-                psnr: o.psnr,
-                ssim: o.ssim,
-            })
-        };
+        let action_test = action_test(&world, &own_episodes, own_clips)?;
         for &i in &own {
             let e = &eval[i];
             let what = |err: String| {
