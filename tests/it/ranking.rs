@@ -632,6 +632,23 @@ fn ranking_settings_that_cannot_work_are_refused_with_the_reason() {
         stderr.contains("threshold: 2 is outside [0, 1]"),
         "{stderr}"
     );
+    // The cross-family ablation fits the video model again: not with the RSSM.
+    let out = eval(
+        dir.path(),
+        &[
+            "--no-judge",
+            "--rank-train-policies",
+            "oracle:noise=0.01",
+            "--proxy",
+            r#"{"model": "rssm", "cross_family_ablation": true}"#,
+        ],
+    );
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(
+        stderr.contains("cross_family_ablation") && stderr.contains("model = \"video\""),
+        "{stderr}"
+    );
     // A scripted oracle cannot act inside a world model: ranking one is refused.
     let out = eval(
         dir.path(),

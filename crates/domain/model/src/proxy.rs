@@ -159,8 +159,8 @@ impl ProxyConfig {
             && (self.external.is_some() || self.model != WorldModelKind::Video)
         {
             return Err(
-                "cross_family_ablation: trains Assay's video model (model = \"video\", no \
-                 external server)"
+                "cross_family_ablation: the ablation fits Assay's video model again; it needs \
+                 model = \"video\" and no external world model"
                     .into(),
             );
         }
