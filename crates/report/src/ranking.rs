@@ -242,7 +242,7 @@ pub fn is_ablation(source: &str) -> bool {
     source == LEAK_SOURCE || source == CROSS_FAMILY_SOURCE
 }
 
-/// A success source as a column, heading or plot title reads: the leak ablation says it is one.
+/// A success source as a column, heading or plot title reads: an ablation says it is one.
 pub fn source_title(source: &str) -> String {
     if is_ablation(source) {
         format!("{source} (ablation)")
@@ -472,7 +472,7 @@ pub fn ranking_results(
         }
     }
     // The frame judge's proxy first, then each judge's, then the calibrated frame judge's, then
-    // the leak ablation, as far as they have verdicts.
+    // the leak and cross-family ablations, as far as they have verdicts.
     let proxies: Vec<String> = std::iter::once(PROXY_SOURCE.to_owned())
         .chain(judges.iter().map(|j| judged_source(j)))
         .chain([
