@@ -4,8 +4,8 @@
 //! batch, and the shards queued as a batch's work finishes: judge shards for a rendered episode,
 //! per group the world models (dynamics), the ladder of learned policies to rank and their
 //! episodes, the proxy's world model (fitted while the ladder trains), the proxy (those two and
-//! the proxy's episodes in `ranking`) and its imagined-rollout judging, the diffusion policy and its evaluation
-//! episodes. Each runs on the caller's transaction or savepoint, so a batch never looks
+//! the proxy's episodes in `ranking`) and its imagined-rollout judging, the diffusion policy
+//! and its evaluation episodes. Each runs on the caller's transaction or savepoint, so a batch never looks
 //! finished between one shard and those it queues.
 //! Never changes a shard's state once queued (that is `leases`).
 
