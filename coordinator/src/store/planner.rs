@@ -5,8 +5,8 @@
 //! per group the world models (dynamics), the ladder of learned policies to rank and their
 //! episodes, the proxy's world model (fitted while the ladder trains), the proxy (those two and
 //! the proxy's episodes in `ranking`) and its imagined-rollout judging, the diffusion policy
-//! and its evaluation episodes. Each runs on the caller's transaction or savepoint, so a batch never looks
-//! finished between one shard and those it queues.
+//! and its evaluation episodes. Each runs on the caller's transaction or savepoint, so a batch
+//! never looks finished between one shard and those it queues.
 //! Never changes a shard's state once queued (that is `leases`).
 
 use assay_model::diffusion::Backbone;
