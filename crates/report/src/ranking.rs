@@ -317,6 +317,18 @@ pub const CALIBRATION_NOTE: &str = "The frame judge's verdicts made rates: each 
 /// Bootstrap resamples of the report's ranking statistics.
 pub const RANKING_RESAMPLES: usize = 2000;
 
+/// The share of successes among the verdicts given (`None` ones are not counted); `None` when
+/// none was given.
+fn successes(verdicts: impl Iterator<Item = Option<bool>>) -> Option<Proportion> {
+    let given: Vec<bool> = verdicts.flatten().collect();
+    (!given.is_empty()).then(|| {
+        Proportion::new(
+            given.iter().filter(|ok| **ok).count() as u64,
+            given.len() as u64,
+        )
+    })
+}
+
 /// Builds the ranking section: `episodes` are the finished episodes of the ranked policies,
 /// `groups` the finished proxy jobs, `imagined` the judge role's verdicts on their imagined
 /// rollouts, `task_groups` (task id, group) in report order. Its `labels` are left empty:
@@ -366,34 +378,15 @@ pub fn ranking_results(
                         u64::from((p.p_success_real_frame >= plan.config.threshold) == e.success);
                 }
             }
-            let proxy = (!preds.is_empty()).then(|| {
-                Proportion::new(
-                    preds.iter().filter(|p| p.success).count() as u64,
-                    preds.len() as u64,
-                )
-            });
-            let leaks: Vec<bool> = preds
-                .iter()
-                .filter_map(|p| p.leak.as_ref().map(|l| l.success))
-                .collect();
-            let leak = (!leaks.is_empty()).then(|| {
-                Proportion::new(
-                    leaks.iter().filter(|ok| **ok).count() as u64,
-                    leaks.len() as u64,
-                )
-            });
+            let proxy = successes(preds.iter().map(|p| Some(p.success)));
+            let leak = successes(preds.iter().map(|p| p.leak.as_ref().map(|l| l.success)));
             // The cross-family ablation: the episodes imagined by the world model trained with
             // the other families' episodes.
-            let crossed: Vec<bool> = preds
-                .iter()
-                .filter_map(|p| p.cross_family.as_ref().map(|v| v.success))
-                .collect();
-            let cross = (!crossed.is_empty()).then(|| {
-                Proportion::new(
-                    crossed.iter().filter(|ok| **ok).count() as u64,
-                    crossed.len() as u64,
-                )
-            });
+            let cross = successes(
+                preds
+                    .iter()
+                    .map(|p| p.cross_family.as_ref().map(|v| v.success)),
+            );
             let judged: Vec<f64> = eps.iter().filter_map(|e| e.judged_completion).collect();
             let mut judged_proxy = Vec::new();
             for judge in &judges {

@@ -42,7 +42,7 @@ use assay_model::proxy::{
     ProxyPrediction, ProxyResult, SERVED_DEVICE,
 };
 use assay_model::video::WorldModelKind;
-use assay_model::world::{WorldError, WorldModelService, check_policy_interface};
+use assay_model::world::{WorldError, WorldModelService, WorldStart, check_policy_interface};
 use assay_spec::rng::Rng;
 use tch::{Device, Kind, Tensor};
 
@@ -499,29 +499,20 @@ pub fn run_proxy(
 
     // The world model's use of its actions and its video prediction, open loop over windows
     // of the ranked episodes' real clips (a diagnostic).
-    let action_test = action_test(world, eval, eval_clips.iter().collect())?;
+    let action_test = action_test(world, eval.iter().zip(eval_clips).collect())?;
 
     let mut predictions = Vec::with_capacity(eval.len());
     let mut imagined_frames = Vec::with_capacity(eval.len());
     for (i, e) in eval.iter().enumerate() {
         let clip = &eval_clips[i];
-        let what = |err: String| {
-            WorldModelError::Request(format!(
-                "policy '{}' on task {} seed {}: {err}",
-                e.policy, e.task_id, e.seed
-            ))
-        };
-        let mut policy = policies(&e.policy).map_err(|err| what(err.to_string()))?;
-        let stop = Stop {
-            horizon: horizon_frames(e.budget_steps),
-            judge: &judge_one,
-            threshold: config.threshold,
-            done_frames: config.done_frames as usize,
-            leak_at: config.leak_ablation.then(|| clip.len() - 1),
-        };
+        let leak_at = config.leak_ablation.then(|| clip.len() - 1);
         let start = imagination::start_of(clip, &eval_ctx[i]);
-        let rollout = imagination::closed_loop(world, &start, policy.as_mut(), &eval_ctx[i], &stop)
-            .map_err(|err| what(err.to_string()))?;
+        let ranked = Ranked {
+            episode: e,
+            context: &eval_ctx[i],
+            start: &start,
+        };
+        let rollout = imagine(world, policies, &ranked, &judge_one, config, leak_at, "")?;
         let real_last = at(clip, clip.len() - 1);
         let last_imagined = rollout.frames.last().unwrap_or(&start.rgb);
         predictions.push(ProxyPrediction {
@@ -588,17 +579,55 @@ pub fn run_proxy(
     })
 }
 
-/// The action test of `world` on `clips` (the ranked `episodes`' clips, or some of them; `None`
-/// with fewer than 2).
+/// One ranked episode as a rollout starts from it.
+struct Ranked<'a> {
+    episode: &'a ProxyEpisode,
+    context: &'a EpisodeContext,
+    start: &'a WorldStart,
+}
+
+/// `ranked`'s policy acting closed loop inside `world` from its real start, until the frame
+/// `judge` calls it done or its step budget runs out (`leak_at`: the leak ablation's frame).
+/// Errors name the policy, task and seed, after `what` (the ablation's name, or empty).
+fn imagine(
+    world: &dyn WorldModelService,
+    policies: &PolicyLoader<'_>,
+    ranked: &Ranked<'_>,
+    judge: &dyn Fn(&[u8]) -> f64,
+    config: &ProxyConfig,
+    leak_at: Option<usize>,
+    what: &str,
+) -> Result<imagination::ClosedLoop, WorldModelError> {
+    let e = ranked.episode;
+    let error = |err: String| {
+        WorldModelError::Request(format!(
+            "{what}policy '{}' on task {} seed {}: {err}",
+            e.policy, e.task_id, e.seed
+        ))
+    };
+    let mut policy = policies(&e.policy).map_err(|err| error(err.to_string()))?;
+    let stop = Stop {
+        horizon: horizon_frames(e.budget_steps),
+        judge,
+        threshold: config.threshold,
+        done_frames: config.done_frames as usize,
+        leak_at,
+    };
+    imagination::closed_loop(world, ranked.start, policy.as_mut(), ranked.context, &stop)
+        .map_err(|err| error(err.to_string()))
+}
+
+/// The action test of `world` on ranked episodes' clips (all of them, or some; `None` with
+/// fewer than 2).
 fn action_test(
     world: &dyn WorldModelService,
-    episodes: &[ProxyEpisode],
-    clips: Vec<&Clip>,
+    ranked: Vec<(&ProxyEpisode, &Clip)>,
 ) -> Result<Option<ActionTest>, WorldModelError> {
-    if clips.len() < 2 {
+    if ranked.len() < 2 {
         return Ok(None);
     }
-    let names: Vec<StartName<'_>> = episodes.iter().map(start_name).collect();
+    let (episodes, clips): (Vec<&ProxyEpisode>, Vec<&Clip>) = ranked.into_iter().unzip();
+    let names: Vec<StartName<'_>> = episodes.into_iter().map(start_name).collect();
     let o = tch::no_grad(|| video_eval::open_loop(world, &clips, &names, video_eval::HORIZON))?;
     Ok(Some(ActionTest {
         episodes: o.clips as u32,

@@ -11,8 +11,8 @@ use assay_model::policy::EpisodeContext;
 use assay_model::proxy::{CrossFamilyFit, CrossFamilyVerdict, ProxyConfig, ProxyEpisode};
 use tch::Device;
 
-use super::{PolicyLoader, action_test, horizon_frames};
-use crate::imagination::{self, Stop};
+use super::{PolicyLoader, Ranked, action_test, imagine};
+use crate::imagination;
 use crate::video_model;
 use crate::world_model::WorldModelError;
 
@@ -86,29 +86,19 @@ pub(super) fn run(inputs: &Inputs<'_>) -> Result<Ablation, WorldModelError> {
         let own: Vec<usize> = (0..eval.len())
             .filter(|&i| eval[i].family == *family)
             .collect();
-        let own_episodes: Vec<ProxyEpisode> = own.iter().map(|&i| eval[i].clone()).collect();
-        let own_clips: Vec<&Clip> = own.iter().map(|&i| &eval_clips[i]).collect();
-        let action_test = action_test(&world, &own_episodes, own_clips)?;
+        let action_test = action_test(
+            &world,
+            own.iter().map(|&i| (&eval[i], &eval_clips[i])).collect(),
+        )?;
         for &i in &own {
-            let e = &eval[i];
-            let what = |err: String| {
-                WorldModelError::Request(format!(
-                    "cross-family ablation, policy '{}' on task {} seed {}: {err}",
-                    e.policy, e.task_id, e.seed
-                ))
-            };
-            let mut policy = policies(&e.policy).map_err(|err| what(err.to_string()))?;
-            let stop = Stop {
-                horizon: horizon_frames(e.budget_steps),
-                judge,
-                threshold: config.threshold,
-                done_frames: config.done_frames as usize,
-                leak_at: None,
-            };
             let start = imagination::start_of(&eval_clips[i], &eval_ctx[i]);
-            let rollout =
-                imagination::closed_loop(&world, &start, policy.as_mut(), &eval_ctx[i], &stop)
-                    .map_err(|err| what(err.to_string()))?;
+            let ranked = Ranked {
+                episode: &eval[i],
+                context: &eval_ctx[i],
+                start: &start,
+            };
+            let what = "cross-family ablation, ";
+            let rollout = imagine(&world, policies, &ranked, judge, config, None, what)?;
             ablation.verdicts[i] = Some(CrossFamilyVerdict {
                 p_success: rollout.p_success,
                 success: rollout.done_by_judge,
