@@ -287,7 +287,8 @@ pub const LEAK_NOTE: &str = "An ablation, not the proxy: every ranked episode im
 pub const CROSS_FAMILY_NOTE: &str = "An ablation, not the proxy: each family of ranked ladder \
     policies imagined by a world model of the same settings trained on the training policies' \
     episodes and the other families' ranked episodes (their clips, never their outcomes), judged \
-    by the same frame judge — a world model that has seen rollouts of policies it does not rank.";
+    by a frame judge trained as the proxy's on that model's replays of the training episodes — a \
+    world model that has seen rollouts of policies it does not rank.";
 
 /// The note of an ablation's section (`None` for a proxy).
 pub fn ablation_note(source: &str) -> Option<&'static str> {

@@ -447,53 +447,24 @@ pub fn run_proxy(
     let train_ctx: Vec<EpisodeContext> = train.iter().map(context).collect();
     let eval_ctx: Vec<EpisodeContext> = eval.iter().map(context).collect();
 
-    // The frame judge: real and imagined (replayed with the real actions) frames of the
-    // training episodes — last frames labelled with the outcome, earlier ones not done.
-    let at = |c: &Clip, t: usize| c.frame(t).to_vec();
     // The judge reads the first camera (the task's scene camera for the original interface),
     // resized to the proxy's frame size.
     let judged = train_clips
         .first()
         .or(eval_clips.first())
         .map_or((size, size), |c| (c.width, c.height));
-    let mut owned: Vec<(Vec<u8>, bool)> = Vec::new();
-    // Per training episode: its examples in `owned`, its imagined last frame's index there, and
-    // its outcome (for the calibration).
-    let mut spans: Vec<calibration::Span> = Vec::with_capacity(train.len());
-    for (i, e) in train.iter().enumerate() {
-        let clip = &train_clips[i];
-        let ok = e.success.unwrap_or(false);
-        let imagined = imagination::replay(
-            world,
-            &imagination::start_of(clip, &train_ctx[i]),
-            &imagination::actions_of(clip),
-        )?;
-        let last = clip.len() - 1;
-        let first = owned.len();
-        owned.push((at(clip, last), ok));
-        owned.push((imagined[last - 1].clone(), ok));
-        for t in [last / 4, last / 2] {
-            if t >= 1 && t < last {
-                owned.push((at(clip, t), false));
-                owned.push((imagined[t - 1].clone(), false));
-            }
-        }
-        spans.push(calibration::Span {
-            examples: first..owned.len(),
-            imagined_last: first + 1,
-            success: ok,
-        });
-    }
-    let examples: Vec<(&[u8], bool)> = owned.iter().map(|(f, ok)| (f.as_slice(), *ok)).collect();
-    let (judge, judge_train_accuracy) = train_frame_judge_at(
-        &examples,
+    let training = TrainingEpisodes {
+        episodes: train,
+        clips: train_clips,
+        contexts: &train_ctx,
         judged,
-        size,
-        config.judge_steps,
-        config.judge_lr,
-        config.world_model.seed,
-        device,
-    );
+    };
+    let JudgeFit {
+        judge,
+        accuracy: judge_train_accuracy,
+        examples: owned,
+        spans,
+    } = fit_judge(world, &training, config, device)?;
     let judge_one = |f: &[u8]| judge.probability_of(&[f])[0];
     let calibration = calibration::fit(&owned, &spans, judged, size, config, device);
 
@@ -513,7 +484,7 @@ pub fn run_proxy(
             start: &start,
         };
         let rollout = imagine(world, policies, &ranked, &judge_one, config, leak_at, "")?;
-        let real_last = at(clip, clip.len() - 1);
+        let real_last = clip.frame(clip.len() - 1).to_vec();
         let last_imagined = rollout.frames.last().unwrap_or(&start.rgb);
         predictions.push(ProxyPrediction {
             task_id: e.task_id.clone(),
@@ -541,10 +512,10 @@ pub fn run_proxy(
         let ablation = cross_family::run(&cross_family::Inputs {
             policies,
             world_clips,
+            training: &training,
             eval,
             eval_clips,
             eval_ctx: &eval_ctx,
-            judge: &judge_one,
             config,
             device,
         })?;
@@ -567,8 +538,8 @@ pub fn run_proxy(
         action_test,
         world_model: fit,
         video_model: video_fit,
-        judge_examples: examples.len() as u32,
-        judge_positives: examples.iter().filter(|e| e.1).count() as u32,
+        judge_examples: owned.len() as u32,
+        judge_positives: owned.iter().filter(|e| e.1).count() as u32,
         judge_train_accuracy,
         calibration,
         cross_family,
@@ -576,6 +547,78 @@ pub fn run_proxy(
         seconds: started.elapsed().as_secs_f64(),
         imagined_frames,
         imagined_frame_size: judged,
+    })
+}
+
+/// The training episodes as the frame judge learns from them: their clips and contexts (same
+/// order), and the size of the frames it judges (width, height).
+struct TrainingEpisodes<'a> {
+    episodes: &'a [ProxyEpisode],
+    clips: &'a [Clip],
+    contexts: &'a [EpisodeContext],
+    judged: (u32, u32),
+}
+
+/// A world model's frame judge, with its training accuracy, its examples and, per training
+/// episode, where they lie (for the calibration).
+struct JudgeFit {
+    judge: FrameJudge,
+    accuracy: f64,
+    examples: Vec<(Vec<u8>, bool)>,
+    spans: Vec<calibration::Span>,
+}
+
+/// Trains the frame judge of `world` on the training episodes' real and imagined (replayed in
+/// `world` with the real actions) frames: last frames labelled with the outcome, those at a
+/// quarter and at half of the episode not done.
+fn fit_judge(
+    world: &dyn WorldModelService,
+    training: &TrainingEpisodes<'_>,
+    config: &ProxyConfig,
+    device: Device,
+) -> Result<JudgeFit, WorldModelError> {
+    let at = |c: &Clip, t: usize| c.frame(t).to_vec();
+    let mut owned: Vec<(Vec<u8>, bool)> = Vec::new();
+    let mut spans: Vec<calibration::Span> = Vec::with_capacity(training.episodes.len());
+    for (i, e) in training.episodes.iter().enumerate() {
+        let clip = &training.clips[i];
+        let ok = e.success.unwrap_or(false);
+        let imagined = imagination::replay(
+            world,
+            &imagination::start_of(clip, &training.contexts[i]),
+            &imagination::actions_of(clip),
+        )?;
+        let last = clip.len() - 1;
+        let first = owned.len();
+        owned.push((at(clip, last), ok));
+        owned.push((imagined[last - 1].clone(), ok));
+        for t in [last / 4, last / 2] {
+            if t >= 1 && t < last {
+                owned.push((at(clip, t), false));
+                owned.push((imagined[t - 1].clone(), false));
+            }
+        }
+        spans.push(calibration::Span {
+            examples: first..owned.len(),
+            imagined_last: first + 1,
+            success: ok,
+        });
+    }
+    let examples: Vec<(&[u8], bool)> = owned.iter().map(|(f, ok)| (f.as_slice(), *ok)).collect();
+    let (judge, accuracy) = train_frame_judge_at(
+        &examples,
+        training.judged,
+        config.world_model.image_size,
+        config.judge_steps,
+        config.judge_lr,
+        config.world_model.seed,
+        device,
+    );
+    Ok(JudgeFit {
+        judge,
+        accuracy,
+        examples: owned,
+        spans,
     })
 }
 

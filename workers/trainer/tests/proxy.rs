@@ -694,6 +694,11 @@ fn the_cross_family_ablation_imagines_each_family_by_a_model_that_never_saw_it()
         ]
     );
     assert!(base.cross_family.iter().all(|f| f.action_test.is_some()));
+    // Each model has its own frame judge, trained on its replays of the training episodes.
+    for f in &base.cross_family {
+        let accuracy = f.judge_train_accuracy.expect("the ablation's own judge");
+        assert!((0.0..=1.0).contains(&accuracy), "{f:?}");
+    }
     for (e, p) in eval_eps.iter().zip(&base.predictions) {
         assert_eq!(p.cross_family.is_some(), !e.family.is_empty(), "{e:?}");
     }
@@ -728,8 +733,14 @@ fn the_cross_family_ablation_imagines_each_family_by_a_model_that_never_saw_it()
         );
     }
     assert_eq!(
-        base.cross_family[0].final_train_loss,
-        other.cross_family[0].final_train_loss
+        (
+            base.cross_family[0].final_train_loss,
+            base.cross_family[0].judge_train_accuracy
+        ),
+        (
+            other.cross_family[0].final_train_loss,
+            other.cross_family[0].judge_train_accuracy
+        )
     );
     assert_ne!(
         base.cross_family[1].final_train_loss,

@@ -47,8 +47,9 @@ pub struct ProxyConfig {
     /// Ablation across the ladder's families (the paper's rollouts of policies never ranked):
     /// for each family of ranked ladder policies, a second video model of the same settings is
     /// trained on the world model's training episodes **and the other families' ranked
-    /// episodes** (their clips; never their outcomes), imagines that family's episodes, and the
-    /// same frame judge calls them done. Reported as a proxy of its own
+    /// episodes** (their clips; never their outcomes), imagines that family's episodes, and a
+    /// frame judge trained as the proxy's, on this model's replays of the training episodes,
+    /// calls them done. Reported as a proxy of its own
     /// ([`CROSS_FAMILY_SOURCE`]), never as the proxy. Costs one more fit per family and group;
     /// needs the video model and ranked policies of two or more families.
     pub cross_family_ablation: bool,
@@ -375,6 +376,11 @@ pub struct CrossFamilyFit {
     /// Clips it was trained on: the world model's training clips and those families'.
     pub train_clips: u32,
     pub final_train_loss: f64,
+    /// The training accuracy of its own frame judge (trained as the proxy's, on the training
+    /// episodes' real frames and their replays in this model). Absent in reports before the
+    /// ablation had its own judge (it used the proxy's).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub judge_train_accuracy: Option<f64>,
     /// Its action test on the ranked family's own clips (policies it never saw).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub action_test: Option<ActionTest>,

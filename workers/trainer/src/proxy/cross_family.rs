@@ -1,8 +1,9 @@
 //! The cross-family ablation (`assay_model::proxy::ProxyConfig::cross_family_ablation`): for
 //! each family of ranked ladder policies, a video model of the proxy's settings trained on the
 //! world model's training clips and the **other** families' ranked clips, which imagines that
-//! family's episodes closed loop; the proxy's frame judge calls each one done or not. The
-//! paper's setting — a world model that has seen rollouts of policies never ranked with it —
+//! family's episodes closed loop; a frame judge of its own, trained as the proxy's is (the
+//! training episodes' real frames and their replays in this model), calls each one done or not.
+//! The paper's setting — a world model that has seen rollouts of policies never ranked with it —
 //! with the other family's rollouts as those policies. Only clips reach the fit: no ranked
 //! episode's outcome does, and no family is ever imagined by a model that saw its own episodes.
 
@@ -11,7 +12,7 @@ use assay_model::policy::EpisodeContext;
 use assay_model::proxy::{CrossFamilyFit, CrossFamilyVerdict, ProxyConfig, ProxyEpisode};
 use tch::Device;
 
-use super::{PolicyLoader, Ranked, action_test, imagine};
+use super::{JudgeFit, PolicyLoader, Ranked, TrainingEpisodes, action_test, fit_judge, imagine};
 use crate::imagination;
 use crate::video_model;
 use crate::world_model::WorldModelError;
@@ -28,10 +29,11 @@ pub(super) struct Inputs<'a> {
     pub policies: &'a PolicyLoader<'a>,
     /// The main world model's training clips.
     pub world_clips: &'a [Clip],
+    /// The training episodes each model's frame judge learns from.
+    pub training: &'a TrainingEpisodes<'a>,
     pub eval: &'a [ProxyEpisode],
     pub eval_clips: &'a [Clip],
     pub eval_ctx: &'a [EpisodeContext],
-    pub judge: &'a dyn Fn(&[u8]) -> f64,
     pub config: &'a ProxyConfig,
     pub device: Device,
 }
@@ -52,10 +54,10 @@ pub(super) fn run(inputs: &Inputs<'_>) -> Result<Ablation, WorldModelError> {
     let Inputs {
         policies,
         world_clips,
+        training,
         eval,
         eval_clips,
         eval_ctx,
-        judge,
         config,
         device,
     } = *inputs;
@@ -83,6 +85,11 @@ pub(super) fn run(inputs: &Inputs<'_>) -> Result<Ablation, WorldModelError> {
         let mut no_checkpoints = |_: u64, _: &[u8]| Ok::<(), String>(());
         let (world, fit) =
             video_model::fit(&config.video, &clips, device, None, &mut no_checkpoints)?;
+        // Its own judge: the proxy's learned what the main model's replays look like.
+        let JudgeFit {
+            judge, accuracy, ..
+        } = fit_judge(&world, training, config, device)?;
+        let judge_one = |f: &[u8]| judge.probability_of(&[f])[0];
         let own: Vec<usize> = (0..eval.len())
             .filter(|&i| eval[i].family == *family)
             .collect();
@@ -98,7 +105,7 @@ pub(super) fn run(inputs: &Inputs<'_>) -> Result<Ablation, WorldModelError> {
                 start: &start,
             };
             let what = "cross-family ablation, ";
-            let rollout = imagine(&world, policies, &ranked, judge, config, None, what)?;
+            let rollout = imagine(&world, policies, &ranked, &judge_one, config, None, what)?;
             ablation.verdicts[i] = Some(CrossFamilyVerdict {
                 p_success: rollout.p_success,
                 success: rollout.done_by_judge,
@@ -116,6 +123,7 @@ pub(super) fn run(inputs: &Inputs<'_>) -> Result<Ablation, WorldModelError> {
             trained_with: others,
             train_clips: clips.len() as u32,
             final_train_loss: fit.final_train_loss,
+            judge_train_accuracy: Some(accuracy),
             action_test,
         });
     }
