@@ -649,6 +649,24 @@ fn ranking_settings_that_cannot_work_are_refused_with_the_reason() {
         stderr.contains("cross_family_ablation") && stderr.contains("model = \"video\""),
         "{stderr}"
     );
+    // Cross-fitting with one fold would imagine each policy by a model that saw it.
+    let out = eval(
+        dir.path(),
+        &[
+            "--no-judge",
+            "--rank-train-policies",
+            "oracle:noise=0.01",
+            "--proxy",
+            r#"{"cross_fit_folds": 1}"#,
+        ],
+    );
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(
+        stderr
+            .contains("cross_fit_folds: 1 fold would imagine every policy by a model that saw it"),
+        "{stderr}"
+    );
     // A scripted oracle cannot act inside a world model: ranking one is refused.
     let out = eval(
         dir.path(),
@@ -670,7 +688,8 @@ fn ranking_settings_that_cannot_work_are_refused_with_the_reason() {
 
 /// Issue 45's shape end to end, small: two task groups, each with a ladder of both policy
 /// families (U-Net and transformer diffusion, kept at two steps), ranked per group and pooled,
-/// with the calibrated proxy wherever a group's training episodes have both outcomes.
+/// with the calibrated proxy wherever a group's training episodes have both outcomes, the
+/// cross-fitted proxy and the cross-family ablation.
 #[test]
 fn each_group_ranks_a_ladder_of_both_families_on_its_own() {
     let dir = tempfile::tempdir().unwrap();
@@ -686,7 +705,8 @@ fn each_group_ranks_a_ladder_of_both_families_on_its_own() {
             r#"{"episodes": [3], "checkpoints": [5, 10], "max_steps": 480,
                 "backbones": ["unet", "transformer"]}"#,
             "--proxy",
-            r#"{"judge_steps": 20, "video": {"steps": 10}, "cross_family_ablation": true}"#,
+            r#"{"judge_steps": 20, "video": {"steps": 10}, "cross_family_ablation": true,
+                "cross_fit_folds": 2}"#,
         ])
         .arg("--out")
         .arg(dir.path())
@@ -781,8 +801,37 @@ fn each_group_ranks_a_ladder_of_both_families_on_its_own() {
                 .any(|c| c.proxy == "world-model-cross-family")
         );
     }
+    // Cross-fitting: per group two folds, each one policy of each family (the kept steps dealt
+    // in turn), trained with the other fold's 6 ranked episodes; every episode imagined by its
+    // fold's model, ranked per group as a proxy.
+    for p in &k.groups {
+        assert_eq!(p.cross_fit.len(), 2, "{}", p.group);
+        for f in &p.cross_fit {
+            assert_eq!((f.policies.len(), f.trained_with.len()), (2, 2), "{f:?}");
+            assert!(
+                f.policies.iter().all(|x| !f.trained_with.contains(x)),
+                "{f:?}"
+            );
+            assert_eq!(f.train_clips, 12, "{f:?}");
+        }
+        assert!(p.predictions.iter().all(|x| x.cross_fit.is_some()));
+        let per_group = k.per_group.iter().find(|g| g.group == p.group).unwrap();
+        assert!(
+            per_group
+                .ranking
+                .as_ref()
+                .unwrap()
+                .comparisons
+                .iter()
+                .any(|c| c.proxy == "world-model-cross-fit")
+        );
+    }
     let md = std::fs::read_to_string(dir.path().join("report.md")).unwrap();
     assert!(md.contains("### Per task group"), "{md}");
+    assert!(
+        md.contains("## Policy ranking: world-model-cross-fit against sim"),
+        "{md}"
+    );
     assert!(
         md.contains("## Policy ranking: world-model-cross-family (ablation) against sim"),
         "{md}"

@@ -11,8 +11,8 @@ use serde::{Deserialize, Serialize};
 
 use assay_model::diffusion::Backbone;
 use assay_model::proxy::{
-    CALIBRATED_SOURCE, CROSS_FAMILY_SOURCE, ImaginedJudgement, JudgedProxy, LEAK_SOURCE,
-    PROXY_SOURCE, ProxyConfig, ProxyPrediction, ProxyResult, REAL_SOURCE, RankingPlan,
+    CALIBRATED_SOURCE, CROSS_FAMILY_SOURCE, CROSS_FIT_SOURCE, ImaginedJudgement, JudgedProxy,
+    LEAK_SOURCE, PROXY_SOURCE, ProxyConfig, ProxyPrediction, ProxyResult, REAL_SOURCE, RankingPlan,
     judged_source,
 };
 use assay_model::quality::ScoreStats;
@@ -218,6 +218,9 @@ pub fn ranking_figure(proxy: &str) -> String {
     if proxy == CROSS_FAMILY_SOURCE {
         return "ranking-cross-family.svg".to_owned();
     }
+    if proxy == CROSS_FIT_SOURCE {
+        return "ranking-cross-fit.svg".to_owned();
+    }
     match proxy.strip_prefix(&format!("{PROXY_SOURCE}+")) {
         Some(judge) => {
             let safe: String = judge
@@ -290,11 +293,22 @@ pub const CROSS_FAMILY_NOTE: &str = "An ablation, not the proxy: each family of 
     by a frame judge trained as the proxy's on that model's replays of the training episodes — a \
     world model that has seen rollouts of policies it does not rank.";
 
-/// The note of an ablation's section (`None` for a proxy).
-pub fn ablation_note(source: &str) -> Option<&'static str> {
+/// What cross-fitting's section says.
+pub const CROSS_FIT_NOTE: &str = "A proxy beside the frame judge's: the ranked policies dealt \
+    into folds (each family's in turn), and each fold's episodes imagined by a world model of the \
+    same settings trained on the training policies' episodes and the other folds' ranked episodes \
+    (their clips, never their outcomes), judged by a frame judge trained as the proxy's on that \
+    model's replays of the training episodes — no policy imagined by a model that saw its \
+    episodes, every model having seen rollouts of learned policies.";
+
+/// What the section of a comparison says about its source, when it needs saying: the
+/// ablations, the calibration, cross-fitting.
+pub fn source_note(source: &str) -> Option<&'static str> {
     match source {
         LEAK_SOURCE => Some(LEAK_NOTE),
         CROSS_FAMILY_SOURCE => Some(CROSS_FAMILY_NOTE),
+        CALIBRATED_SOURCE => Some(CALIBRATION_NOTE),
+        CROSS_FIT_SOURCE => Some(CROSS_FIT_NOTE),
         _ => None,
     }
 }
@@ -388,6 +402,12 @@ pub fn ranking_results(
                     .iter()
                     .map(|p| p.cross_family.as_ref().map(|v| v.success)),
             );
+            // Cross-fitting: each episode imagined by the model of its policy's fold.
+            let cross_fit = successes(
+                preds
+                    .iter()
+                    .map(|p| p.cross_fit.as_ref().map(|v| v.success)),
+            );
             let judged: Vec<f64> = eps.iter().filter_map(|e| e.judged_completion).collect();
             let mut judged_proxy = Vec::new();
             for judge in &judges {
@@ -436,6 +456,7 @@ pub fn ranking_results(
             for (source, p) in [
                 (PROXY_SOURCE, &proxy),
                 (CALIBRATED_SOURCE, &calibrated),
+                (CROSS_FIT_SOURCE, &cross_fit),
                 (LEAK_SOURCE, &leak),
                 (CROSS_FAMILY_SOURCE, &cross),
             ] {
@@ -465,12 +486,13 @@ pub fn ranking_results(
             });
         }
     }
-    // The frame judge's proxy first, then each judge's, then the calibrated frame judge's, then
-    // the leak and cross-family ablations, as far as they have verdicts.
+    // The frame judge's proxy first, then each judge's, then the calibrated frame judge's and
+    // cross-fitting's, then the leak and cross-family ablations, as far as they have verdicts.
     let proxies: Vec<String> = std::iter::once(PROXY_SOURCE.to_owned())
         .chain(judges.iter().map(|j| judged_source(j)))
         .chain([
             CALIBRATED_SOURCE.to_owned(),
+            CROSS_FIT_SOURCE.to_owned(),
             LEAK_SOURCE.to_owned(),
             CROSS_FAMILY_SOURCE.to_owned(),
         ])

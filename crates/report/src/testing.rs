@@ -124,6 +124,7 @@ pub(crate) fn ranking_fixture() -> crate::ranking::RankingResults {
                             success,
                         }),
                         cross_family: None,
+                        cross_fit: None,
                         imagined_keyframes: Vec::new(),
                     },
                 ));
@@ -159,6 +160,7 @@ pub(crate) fn ranking_fixture() -> crate::ranking::RankingResults {
         judge_train_accuracy: 0.95,
         calibration: None,
         cross_family: Vec::new(),
+        cross_fit: Vec::new(),
         predictions: predictions
             .iter()
             .filter(|(g, _)| g == name)

@@ -30,6 +30,11 @@
 //! episode's length and outcome never reach the rollout. The scripted oracle cannot act outside
 //! the simulator (its plan reads the scene's state) and is refused as a ranked policy; it may
 //! train the world model.
+//!
+//! # Held-out models
+//! With `cross_fit_folds` or `cross_family_ablation`, more video models are trained, each on
+//! the training clips and some ranked policies' clips, each with its own frame judge, and each
+//! imagines only ranked policies whose episodes it never saw (`held_out.rs`).
 
 use std::time::Instant;
 
@@ -53,7 +58,7 @@ use crate::video_model;
 use crate::world_model::{Conv, FitRequest, Init, Linear, WorldModelError, fit_model};
 
 mod calibration;
-mod cross_family;
+mod held_out;
 
 const JUDGE_BATCH: usize = 16;
 const JUDGE_CHANNELS: [i64; 5] = [3, 8, 16, 32, 64];
@@ -502,27 +507,37 @@ pub fn run_proxy(
                 success: p >= config.threshold,
             }),
             cross_family: None,
+            cross_fit: None,
             // Named by the job runner once it has stored `imagined_frames`.
             imagined_keyframes: Vec::new(),
         });
         imagined_frames.push(keyframes_of(&start.rgb, &rollout.frames));
     }
+    let held_out = held_out::Inputs {
+        policies,
+        world_clips,
+        training: &training,
+        eval,
+        eval_clips,
+        eval_ctx: &eval_ctx,
+        config,
+        device,
+    };
     let mut cross_family = Vec::new();
     if config.cross_family_ablation {
-        let ablation = cross_family::run(&cross_family::Inputs {
-            policies,
-            world_clips,
-            training: &training,
-            eval,
-            eval_clips,
-            eval_ctx: &eval_ctx,
-            config,
-            device,
-        })?;
-        for (p, v) in predictions.iter_mut().zip(ablation.verdicts) {
+        let (fits, verdicts) = held_out::cross_family(&held_out)?;
+        for (p, v) in predictions.iter_mut().zip(verdicts) {
             p.cross_family = v;
         }
-        cross_family = ablation.fits;
+        cross_family = fits;
+    }
+    let mut cross_fit = Vec::new();
+    if config.cross_fit_folds > 0 {
+        let (fits, verdicts) = held_out::cross_fit(&held_out, config.cross_fit_folds)?;
+        for (p, v) in predictions.iter_mut().zip(verdicts) {
+            p.cross_fit = v;
+        }
+        cross_fit = fits;
     }
     tracing::info!(
         group,
@@ -543,6 +558,7 @@ pub fn run_proxy(
         judge_train_accuracy,
         calibration,
         cross_family,
+        cross_fit,
         predictions,
         seconds: started.elapsed().as_secs_f64(),
         imagined_frames,

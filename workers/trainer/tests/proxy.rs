@@ -747,3 +747,118 @@ fn the_cross_family_ablation_imagines_each_family_by_a_model_that_never_saw_it()
         other.cross_family[1].final_train_loss
     );
 }
+
+#[test]
+fn cross_fitting_imagines_each_policy_by_a_model_trained_on_the_other_folds_only() {
+    let mut train_eps = Vec::new();
+    let mut train_clips = Vec::new();
+    for i in 0..6u64 {
+        train_clips.push(moving(1, if i % 2 == 0 { 1 } else { 0 }, 8));
+        train_eps.push(proxy_episode("oracle", i, Some(i % 2 == 0)));
+    }
+    // Four ranked policies, two of each family, two episodes each, interleaved.
+    let policy = |k: u64| format!("remote:url=http://127.0.0.1:{}", k + 1);
+    let family = |k: u64| if k < 2 { "unet" } else { "transformer" };
+    let order = [0u64, 2, 1, 3, 0, 2, 1, 3];
+    let eval_eps: Vec<ProxyEpisode> = order
+        .iter()
+        .enumerate()
+        .map(|(i, &k)| ProxyEpisode {
+            family: family(k).into(),
+            ..proxy_episode(&policy(k), i as u64, None)
+        })
+        .collect();
+    let eval_clips: Vec<Clip> = (0..8u64)
+        .map(|i| moving(1 + (i % 3) as u32, [1, 0, -1][i as usize % 3], 6))
+        .collect();
+    let mut config = ProxyConfig {
+        video: small_video(40),
+        world_model: small_config(40),
+        judge_steps: 20,
+        cross_fit_folds: 2,
+        ..Default::default()
+    };
+    let base = run(&train_eps, &train_clips, &eval_eps, &eval_clips, &config).unwrap();
+    // Each family's policies dealt in turn in order of first appearance: fold 0 holds the
+    // first of each family, fold 1 the second; each model trained on the 6 training clips and
+    // the other fold's 4 ranked clips.
+    let folds: Vec<(u32, Vec<String>, Vec<String>, u32)> = base
+        .cross_fit
+        .iter()
+        .map(|f| {
+            (
+                f.fold,
+                f.policies.clone(),
+                f.trained_with.clone(),
+                f.train_clips,
+            )
+        })
+        .collect();
+    assert_eq!(
+        folds,
+        [
+            (
+                0,
+                vec![policy(0), policy(2)],
+                vec![policy(1), policy(3)],
+                6 + 4
+            ),
+            (
+                1,
+                vec![policy(1), policy(3)],
+                vec![policy(0), policy(2)],
+                6 + 4
+            ),
+        ]
+    );
+    for f in &base.cross_fit {
+        assert!(f.action_test.is_some(), "{f:?}");
+        assert!((0.0..=1.0).contains(&f.judge_train_accuracy), "{f:?}");
+    }
+    assert!(base.predictions.iter().all(|p| p.cross_fit.is_some()));
+    // The proxy itself is what it is without cross-fitting.
+    config.cross_fit_folds = 0;
+    let plain = run(&train_eps, &train_clips, &eval_eps, &eval_clips, &config).unwrap();
+    assert!(plain.cross_fit.is_empty());
+    assert!(plain.predictions.iter().all(|p| p.cross_fit.is_none()));
+    for (a, b) in base.predictions.iter().zip(&plain.predictions) {
+        assert_eq!(
+            (a.p_success, a.imagined_frames),
+            (b.p_success, b.imagined_frames)
+        );
+    }
+    // Fold 0's clips after their first frame reach fold 1's model only: other endings for them
+    // leave fold 0's model, judge and verdicts as they were and change fold 1's model (this
+    // test would see a policy imagined by a model trained on its own episodes).
+    config.cross_fit_folds = 2;
+    let in_fold_0 = |i: usize| order[i] == 0 || order[i] == 2;
+    let mut changed = eval_clips.clone();
+    for (i, c) in changed.iter_mut().enumerate() {
+        if in_fold_0(i) {
+            let mut other = moving(1 + (i % 3) as u32, 2, 6);
+            let (frame, p) = ((SIZE * SIZE * 3) as usize, PROPRIO_DIMS);
+            other.rgb[..frame].copy_from_slice(&c.rgb[..frame]);
+            other.proprio[..p].copy_from_slice(&c.proprio[..p]);
+            *c = other;
+        }
+    }
+    assert_ne!(changed, eval_clips);
+    let other = run(&train_eps, &train_clips, &eval_eps, &changed, &config).unwrap();
+    for i in (0..8).filter(|&i| in_fold_0(i)) {
+        assert_eq!(
+            base.predictions[i].cross_fit,
+            other.predictions[i].cross_fit
+        );
+    }
+    let model = |r: &ProxyResult, k: usize| {
+        (
+            r.cross_fit[k].final_train_loss,
+            r.cross_fit[k].judge_train_accuracy,
+        )
+    };
+    assert_eq!(model(&base, 0), model(&other, 0));
+    assert_ne!(
+        base.cross_fit[1].final_train_loss,
+        other.cross_fit[1].final_train_loss
+    );
+}

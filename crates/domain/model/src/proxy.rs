@@ -53,6 +53,17 @@ pub struct ProxyConfig {
     /// ([`CROSS_FAMILY_SOURCE`]), never as the proxy. Costs one more fit per family and group;
     /// needs the video model and ranked policies of two or more families.
     pub cross_family_ablation: bool,
+    /// Cross-fitting over the ranked policies (0: off; else at least 2): the ranked policies
+    /// are dealt into this many folds (each family's in turn, in order of first appearance, so
+    /// every fold holds policies of every family), and each fold's episodes are imagined by a
+    /// video model of the proxy's settings trained on the world model's training episodes
+    /// **and the other folds' ranked episodes** (their clips; never their outcomes), with a
+    /// frame judge of its own trained as the proxy's. No policy is imagined by a model that saw
+    /// its episodes; every model has seen rollouts of learned policies — the paper's recipe,
+    /// with the ranked policies' siblings as the rollouts. Reported as a proxy of its own
+    /// ([`CROSS_FIT_SOURCE`]) beside the proxy. Costs one more fit per fold and group; needs
+    /// the video model.
+    pub cross_fit_folds: u32,
     /// Normalize the RSSM's actions (zero mean, unit deviation per dimension over the training
     /// clips) before they enter it.
     pub normalize_actions: bool,
@@ -111,6 +122,7 @@ impl Default for ProxyConfig {
             done_frames: 2,
             leak_ablation: false,
             cross_family_ablation: false,
+            cross_fit_folds: 0,
             normalize_actions: true,
             external: None,
             interface: String::new(),
@@ -161,6 +173,22 @@ impl ProxyConfig {
         {
             return Err(
                 "cross_family_ablation: the ablation fits Assay's video model again; it needs \
+                 model = \"video\" and no external world model"
+                    .into(),
+            );
+        }
+        if self.cross_fit_folds == 1 {
+            return Err(
+                "cross_fit_folds: 1 fold would imagine every policy by a model that saw it; \
+                 use 0 (off) or at least 2"
+                    .into(),
+            );
+        }
+        if self.cross_fit_folds > 0
+            && (self.external.is_some() || self.model != WorldModelKind::Video)
+        {
+            return Err(
+                "cross_fit_folds: cross-fitting fits Assay's video model again; it needs \
                  model = \"video\" and no external world model"
                     .into(),
             );
@@ -339,7 +367,11 @@ pub struct ProxyPrediction {
     /// imagined by the world model trained with the other families' episodes (as the proxy
     /// imagines: until the judge calls it done or the step budget runs out).
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub cross_family: Option<CrossFamilyVerdict>,
+    pub cross_family: Option<HeldOutVerdict>,
+    /// The verdict of `ProxyConfig::cross_fit_folds`: the episode imagined by the model of its
+    /// policy's fold, trained with the other folds' episodes (as the proxy imagines).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cross_fit: Option<HeldOutVerdict>,
     /// The imagined rollout as the judge role sees it: [`IMAGINED_KEYFRAMES`] frames evenly
     /// spaced from the real first frame to the last imagined one, PNGs in the artifact store
     /// (`step` is the frame's index at the clip's rate, `camera` is `imagined`).
@@ -355,9 +387,10 @@ pub struct LeakVerdict {
     pub success: bool,
 }
 
-/// The cross-family ablation's verdict on one ranked episode.
+/// The verdict on one ranked episode of a world model that never saw its policy's episodes
+/// (the cross-family ablation, cross-fitting), judged by that model's own frame judge.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
-pub struct CrossFamilyVerdict {
+pub struct HeldOutVerdict {
     /// The frame judge's probability on the last imagined frame.
     pub p_success: f64,
     /// Whether the judge called the imagined rollout done (`done_frames` in a row).
@@ -382,6 +415,26 @@ pub struct CrossFamilyFit {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub judge_train_accuracy: Option<f64>,
     /// Its action test on the ranked family's own clips (policies it never saw).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub action_test: Option<ActionTest>,
+}
+
+/// One fold's world model of cross-fitting (`ProxyConfig::cross_fit_folds`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+pub struct CrossFitFold {
+    /// The fold's index, from 0.
+    pub fold: u32,
+    /// The ranked policies it imagines (those of its fold).
+    pub policies: Vec<String>,
+    /// The ranked policies whose episodes it was trained on, besides the training episodes.
+    pub trained_with: Vec<String>,
+    /// Clips it was trained on: the world model's training clips and those policies'.
+    pub train_clips: u32,
+    pub final_train_loss: f64,
+    /// The training accuracy of its own frame judge (on the training episodes' real frames and
+    /// their replays in this model).
+    pub judge_train_accuracy: f64,
+    /// Its action test on its fold's clips (policies it never saw).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub action_test: Option<ActionTest>,
 }
@@ -480,6 +533,9 @@ pub struct ProxyResult {
     /// The cross-family ablation's world models, one per family ranked (empty without it).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub cross_family: Vec<CrossFamilyFit>,
+    /// Cross-fitting's world models, one per fold that has policies (empty without it).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub cross_fit: Vec<CrossFitFold>,
     pub predictions: Vec<ProxyPrediction>,
     /// Seconds the whole job took (world model, judge, imagination). Measured, so not
     /// serialised: a report's results are the same for the same batch (the trainer logs it).
@@ -541,3 +597,6 @@ pub const LEAK_SOURCE: &str = "world-model-leak";
 pub const CALIBRATED_SOURCE: &str = "world-model-calibrated";
 /// The cross-family ablation's source (`ProxyConfig::cross_family_ablation`).
 pub const CROSS_FAMILY_SOURCE: &str = "world-model-cross-family";
+/// Cross-fitting's source (`ProxyConfig::cross_fit_folds`): each policy imagined by a model
+/// trained with the other folds' ranked episodes.
+pub const CROSS_FIT_SOURCE: &str = "world-model-cross-fit";

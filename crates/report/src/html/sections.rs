@@ -7,12 +7,11 @@ use crate::figures::{self, BarChart, Bars, Line};
 use crate::generalization::{GeneralizationResults, GroupGeneralization, HELD_OUT_NOTE};
 use crate::quality::{OFFLINE_JUDGE_NOTE, QualityResults};
 use crate::ranking::{
-    ACTION_TEST_NOTE, CALIBRATION_NOTE, JUDGE_AGREEMENT_NOTE, PER_GROUP_NOTE, PER_POLICY_NOTE,
-    REPEAT_NOTE, RankingResults, ablation_note,
+    ACTION_TEST_NOTE, JUDGE_AGREEMENT_NOTE, PER_GROUP_NOTE, PER_POLICY_NOTE, REPEAT_NOTE,
+    RankingResults, source_note,
 };
 use crate::tables::{self, AgreementLine};
 use crate::view::proportion;
-use assay_model::proxy::CALIBRATED_SOURCE;
 use assay_stats::agreement::{Agreement, Estimate};
 use assay_stats::stats::Proportion;
 
@@ -355,11 +354,8 @@ pub(super) fn ranking(r: Option<&RankingResults>) -> Markup {
                 (Some(rk), _) => {
                     @for (i, c) in rk.comparisons.iter().enumerate() {
                         h3 { (crate::ranking::source_title(&c.proxy)) " against " (c.real) }
-                        @if let Some(note) = ablation_note(&c.proxy) {
+                        @if let Some(note) = source_note(&c.proxy) {
                             p.caption { (note) }
-                        }
-                        @if c.proxy == CALIBRATED_SOURCE {
-                            p.caption { (CALIBRATION_NOTE) }
                         }
                         div.row {
                             (inline_svg(&figures::ranking_labelled(rk, i, &r.labels)))

@@ -11,12 +11,11 @@ use crate::diversity::DiversityResults;
 use crate::generalization::GeneralizationResults;
 use crate::quality::{ERRORS_SHOWN, OFFLINE_JUDGE_NOTE, QualityResults, TaskQuality};
 use crate::ranking::{
-    ACTION_TEST_NOTE, CALIBRATION_NOTE, JUDGE_AGREEMENT_NOTE, PER_GROUP_NOTE, PER_POLICY_NOTE,
-    REPEAT_NOTE, RankingResults, ablation_note, ranking_figure,
+    ACTION_TEST_NOTE, JUDGE_AGREEMENT_NOTE, PER_GROUP_NOTE, PER_POLICY_NOTE, REPEAT_NOTE,
+    RankingResults, ranking_figure, source_note,
 };
 use crate::tables;
 use crate::view::{Table, abbreviations, md_text};
-use assay_model::proxy::CALIBRATED_SOURCE;
 
 impl QualityResults {
     /// The "## Quality" section of report.md. `figure`: relative path of the SVG to link as an
@@ -353,11 +352,8 @@ fn comparison(r: &Ranking, c: &Comparison, labels: &[(String, String)]) -> Strin
         md_text(&crate::ranking::source_title(&c.proxy)),
         md_text(&c.real)
     );
-    if let Some(note) = ablation_note(&c.proxy) {
+    if let Some(note) = source_note(&c.proxy) {
         let _ = writeln!(out, "{}\n", md_text(note));
-    }
-    if c.proxy == CALIBRATED_SOURCE {
-        let _ = writeln!(out, "{}\n", md_text(CALIBRATION_NOTE));
     }
     let _ = writeln!(
         out,

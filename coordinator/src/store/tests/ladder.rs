@@ -1,0 +1,302 @@
+//! The ranking's ladder of learned policies: its families, its training, its episodes and
+//! its proxy.
+
+use super::*;
+
+/// A ladder of two families trains every run once per family, each with its own backbone and
+/// the same clips and checkpoints; the world model fitted ahead takes only the episodes of
+/// `world_model_policies`.
+#[test]
+fn a_ladder_of_two_families_trains_each_run_in_each() {
+    use assay_model::diffusion::Backbone;
+    use assay_model::proxy::{LadderPlan, ProxyConfig};
+    let mut s = Store::open_in_memory().unwrap();
+    let mut b = batch(&["a"], &[0, 1, 2, 3], 3);
+    b.tasks[0].spec_json = r#"{"id": "a"}"#.into();
+    b.policies = vec!["oracle".into(), "oracle:noise=0.05".into()];
+    b.ranking = Some(RankingPlan {
+        train_policies: b.policies.clone(),
+        // The world model without rollouts: the oracle's episodes alone train it.
+        config: ProxyConfig {
+            world_model_policies: vec!["oracle".into()],
+            ..ProxyConfig::default()
+        },
+        ladder: Some(LadderPlan {
+            episodes: vec![2, 4],
+            checkpoints: vec![3, 6],
+            backbones: vec![Backbone::Transformer, Backbone::Unet, Backbone::Transformer],
+            ..LadderPlan::default()
+        }),
+        groups: Vec::new(),
+    });
+    s.submit(&b, 0).unwrap();
+    for (i, l) in s.lease("w", &sim(), 8, 1, TTL).unwrap().iter().enumerate() {
+        finish_episode(&mut s, l, true, &format!("clips/{i}.clip"));
+    }
+    let trainer = vec!["trainer".to_owned()];
+    let queued = s.lease("t", &trainer, 10, 3, TTL).unwrap();
+    let world: Vec<String> = trainer_jobs(&queued)
+        .into_iter()
+        .find_map(|job| match job {
+            TrainerJob::ProxyWorld { train, .. } => {
+                Some(train.into_iter().map(|e| e.policy).collect())
+            }
+            _ => None,
+        })
+        .expect("the proxy's world model, fitted ahead");
+    assert_eq!(
+        world, ["oracle"; 4],
+        "the world model's clips: the oracle's only"
+    );
+    let mut runs: Vec<(Backbone, usize, Vec<u64>)> = trainer_jobs(&queued)
+        .into_iter()
+        .filter_map(|job| match job {
+            TrainerJob::Diffusion {
+                clips,
+                config,
+                checkpoints,
+                ..
+            } => Some((config.backbone, clips.len(), checkpoints)),
+            _ => None,
+        })
+        .collect();
+    runs.sort_by_key(|r| (r.0.as_str(), r.1));
+    assert_eq!(
+        runs,
+        [
+            (Backbone::Transformer, 2, vec![3, 6]),
+            (Backbone::Transformer, 4, vec![3, 6]),
+            (Backbone::Unet, 2, vec![3, 6]),
+            (Backbone::Unet, 4, vec![3, 6]),
+        ]
+    );
+}
+
+/// A ranking batch whose policies all train the world model ranks a ladder of learned
+/// policies instead: trained once the group's episodes are done, on the ladder policy's first
+/// clips; each kept policy runs every (task, seed) of the group as an ordinary episode; the
+/// proxy waits for them (a failed training does not block it) and ranks them with each
+/// episode's step budget. A generalization policy of the same batch stays apart.
+#[test]
+fn a_ladder_of_learned_policies_is_trained_then_run_then_ranked() {
+    use assay_model::generalization::GeneralizationPlan;
+    use assay_model::proxy::{LadderPlan, ProxyConfig, ProxyPrediction};
+    let mut s = Store::open_in_memory().unwrap();
+    let mut b = batch(&["a", "b"], &[0, 1], 3);
+    // Task a's budget is its own, 400 steps; b has the default.
+    b.tasks[0].spec_json = r#"{"id": "a", "physics": {"max_steps": 400}}"#.into();
+    b.tasks[1].spec_json = r#"{"id": "b"}"#.into();
+    b.policies = vec!["oracle".into(), "oracle:noise=0.01".into()];
+    b.ranking = Some(RankingPlan {
+        train_policies: b.policies.clone(),
+        config: ProxyConfig::default(),
+        ladder: Some(LadderPlan {
+            train_policy: "oracle".into(),
+            episodes: vec![4, 2, 8],
+            checkpoints: vec![5, 2, 5],
+            max_steps: 600,
+            ..LadderPlan::default()
+        }),
+        groups: Vec::new(),
+    });
+    b.generalization = Some(GeneralizationPlan {
+        episodes: 2,
+        held_out_seeds: 1,
+        ..GeneralizationPlan::default()
+    });
+    let (id, n) = s.submit(&b, 0).unwrap();
+    assert_eq!(n, 8);
+    let trainer = vec!["trainer".to_owned()];
+    let leases = s.lease("w", &sim(), 8, 1, TTL).unwrap();
+    for (i, l) in leases.iter().enumerate() {
+        finish_episode(&mut s, l, i % 2 == 0, &format!("clips/{i}.clip"));
+        if i + 1 < leases.len() {
+            assert!(s.lease("t", &trainer, 10, 2, TTL).unwrap().is_empty());
+        }
+    }
+    // One training per run; 4 clips of the oracle cover the run of 8, which is left out. The
+    // generalization policy is queued as before. No proxy yet.
+    let queued = s.lease("t", &trainer, 10, 3, TTL).unwrap();
+    let oracle_clips: Vec<String> = (0..8)
+        .filter(|i| leases[*i].policy == "oracle")
+        .map(|i| format!("clips/{i}.clip"))
+        .collect();
+    let mut ladder = Vec::new();
+    let mut general = None;
+    let mut world = None;
+    for (l, job) in queued.iter().zip(trainer_jobs(&queued)) {
+        if let TrainerJob::ProxyWorld { train, .. } = &job {
+            assert_eq!(train.len(), 8);
+            world = Some(l);
+            continue;
+        }
+        let TrainerJob::Diffusion {
+            group,
+            clips,
+            config,
+            checkpoints,
+        } = job
+        else {
+            panic!("{job:?}")
+        };
+        assert_eq!(group, "g");
+        if checkpoints.is_empty() {
+            assert_eq!(clips, oracle_clips[..2]);
+            general = Some(l);
+        } else {
+            assert_eq!((config.steps, checkpoints), (5, vec![2, 5]));
+            ladder.push((l, clips));
+        }
+    }
+    assert_eq!(ladder.len(), 2);
+    // The proxy's world model, fitted ahead, fails: reported, and the proxy fits its own.
+    let world = world.expect("the proxy's world model, fitted ahead");
+    s.fail(world.lease_id, world.shard_id, "no space left", false, 4)
+        .unwrap();
+    assert_eq!(ladder[0].1, oracle_clips[..2]);
+    assert_eq!(ladder[1].1, oracle_clips);
+    let general = general.expect("a generalization training");
+    let done = diffusion_done("policies/g.diffusion", &[]);
+    let (ok, changed) = s
+        .complete("t", general.lease_id, general.shard_id, &done, 1.0, 4)
+        .unwrap();
+    assert!(ok);
+    assert_eq!(changed.requeued, 4, "2 trained variations, 2 held-out");
+    // The first run's policies (a checkpoint named twice, and the final one) run the group's
+    // 2 tasks × 2 seeds each, in the same transaction.
+    let (l2, _) = &ladder[0];
+    let done = diffusion_done(
+        "policies/m2.diffusion",
+        &[(2, "policies/c2.diffusion"), (3, "policies/c2.diffusion")],
+    );
+    let (ok, changed) = s
+        .complete("t", l2.lease_id, l2.shard_id, &done, 1.0, 5)
+        .unwrap();
+    assert!(ok);
+    assert_eq!(changed.requeued, 8);
+    // The second run fails: reported, and the proxy does not wait for it.
+    let (l4, _) = &ladder[1];
+    s.fail(l4.lease_id, l4.shard_id, "out of memory", false, 6)
+        .unwrap();
+    assert!(s.lease("t", &trainer, 10, 6, TTL).unwrap().is_empty());
+    let learned = [
+        "diffusion:model=policies/c2.diffusion,max_steps=600",
+        "diffusion:model=policies/m2.diffusion,max_steps=600",
+    ];
+    // Learned policies see while they run: their episodes need a renderer beside the simulator.
+    assert!(s.lease("w", &sim(), 20, 7, TTL).unwrap().is_empty());
+    let sim_render: Vec<String> = ["sim", "render"].map(String::from).to_vec();
+    let episodes = s.lease("w", &sim_render, 20, 7, TTL).unwrap();
+    assert_eq!(episodes.len(), 12);
+    let mut ranked: Vec<(String, String, u64)> = Vec::new();
+    for (i, l) in episodes.iter().enumerate() {
+        assert_eq!((l.role.as_str(), l.clip_size), ("sim", 64));
+        if !l.policy.contains("/g.diffusion") {
+            let spec: serde_json::Value = serde_json::from_str(&l.task_spec_json).unwrap();
+            let task = spec["id"].as_str().unwrap().to_owned();
+            ranked.push((l.policy.clone(), task, l.seed));
+        }
+        // The proxy waits for the last of them.
+        assert!(s.lease("t", &trainer, 10, 7, TTL).unwrap().is_empty());
+        finish_episode(
+            &mut s,
+            l,
+            l.policy == learned[1],
+            &format!("clips/l{i}.clip"),
+        );
+    }
+    ranked.sort();
+    let mut want: Vec<(String, String, u64)> = Vec::new();
+    for p in learned {
+        for t in ["a", "b"] {
+            for seed in [0, 1] {
+                want.push((p.to_owned(), t.to_owned(), seed));
+            }
+        }
+    }
+    assert_eq!(ranked, want);
+    let queued = s.lease("t", &trainer, 10, 8, TTL).unwrap();
+    assert_eq!(queued.len(), 1);
+    let input = queued[0].trainer_job.clone().unwrap();
+    let TrainerJob::Proxy {
+        train,
+        eval,
+        world_model,
+        ..
+    } = serde_json::from_str(&input).unwrap()
+    else {
+        panic!("{input}")
+    };
+    assert_eq!(world_model, None);
+    // Trained on the batch's 8 episodes, ranking the ladder's 8, never the generalization's.
+    assert_eq!(train.len(), 8);
+    assert_eq!(eval.len(), 8);
+    assert_eq!(input.matches("\"success\"").count(), 8);
+    assert!(eval.iter().all(|e| learned.contains(&e.policy.as_str())));
+    // Each ranked episode names its ladder family (the cross-family ablation groups by it); a
+    // training episode names none.
+    assert!(eval.iter().all(|e| e.family == "unet"), "{eval:?}");
+    assert!(train.iter().all(|e| e.family.is_empty()));
+    // Budgets: the task's, or the policy's horizon when smaller.
+    for e in train.iter().chain(&eval) {
+        let want = match (e.task_id.as_str(), eval.contains(e)) {
+            ("a", _) => 400,
+            (_, true) => 600,
+            _ => 20_000,
+        };
+        assert_eq!(e.budget_steps, want, "{e:?}");
+    }
+    let predictions = eval
+        .iter()
+        .map(|e| ProxyPrediction {
+            imagined_frames: 3,
+            ..prediction(e, e.policy == learned[1])
+        })
+        .collect();
+    let l = &queued[0];
+    let done = proxy_done(predictions);
+    assert!(
+        s.complete("t", l.lease_id, l.shard_id, &done, 1.0, 9)
+            .unwrap()
+            .0
+    );
+    assert_eq!(s.counts(&id).unwrap().state, "completed");
+    let r = s.report(&id).unwrap().results;
+    // The learned policies are the batch's: in its success tables and ranked.
+    for p in learned {
+        assert!(r.policies.iter().any(|q| q == p), "{:?}", r.policies);
+        let row = r.by_policy.iter().find(|q| q.policy == p).unwrap();
+        assert_eq!(row.success.trials, 4);
+    }
+    let k = r.ranking.unwrap();
+    let mut ranked_policies = k.ranked_policies.clone();
+    ranked_policies.sort();
+    assert_eq!(ranked_policies, learned);
+    // Each reads by what it was trained on and for how long: the run's 2 episodes, the step it
+    // was kept at (the checkpoint named twice by its first, the final model by the fit's).
+    assert_eq!(
+        k.labels,
+        [
+            (learned[0].to_owned(), "diffusion 2 ep @ 2".to_owned()),
+            (learned[1].to_owned(), "diffusion 2 ep @ 3000".to_owned()),
+        ]
+    );
+    assert_eq!(k.rows.len(), 4);
+    assert!(k.proxy_agreement.is_some_and(|a| a.successes == a.trials));
+    assert_eq!(k.errors.len(), 2);
+    assert!(
+        k.errors
+            .iter()
+            .any(|e| e.1.starts_with("ladder g @ 4: out of memory")),
+        "{:?}",
+        k.errors
+    );
+    assert!(
+        k.errors
+            .iter()
+            .any(|e| e.1 == "world model g: no space left"),
+        "{:?}",
+        k.errors
+    );
+    assert_eq!(r.generalization.unwrap().groups.len(), 1);
+}
