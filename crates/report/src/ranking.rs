@@ -206,8 +206,9 @@ pub fn ladder_label(backbone: Backbone, episodes: u32, step: u64, group: Option<
 pub const RANKING_FIGURE: &str = "ranking.svg";
 
 /// The file of the correlation plot of `proxy`: [`RANKING_FIGURE`] for the frame judge's, one
-/// per judge for the judge role's verdicts on imagined rollouts, `ranking-leak.svg` for the leak
-/// ablation.
+/// per judge for the judge role's verdicts on imagined rollouts, and `ranking-calibrated.svg`,
+/// `ranking-cross-fit.svg`, `ranking-leak.svg`, `ranking-cross-family.svg` for the calibrated
+/// proxy, cross-fitting and the two ablations.
 pub fn ranking_figure(proxy: &str) -> String {
     if proxy == LEAK_SOURCE {
         return "ranking-leak.svg".to_owned();
