@@ -649,14 +649,21 @@ fn the_world_model_learns_from_its_policies_and_the_judge_from_every_training_ep
     );
 }
 
+/// Six oracle training episodes, every other one moving and a success.
+fn six_training_episodes() -> (Vec<ProxyEpisode>, Vec<Clip>) {
+    (0..6u64)
+        .map(|i| {
+            (
+                proxy_episode("oracle", i, Some(i % 2 == 0)),
+                moving(1, if i % 2 == 0 { 1 } else { 0 }, 8),
+            )
+        })
+        .unzip()
+}
+
 #[test]
 fn the_cross_family_ablation_imagines_each_family_by_a_model_that_never_saw_it() {
-    let mut train_eps = Vec::new();
-    let mut train_clips = Vec::new();
-    for i in 0..6u64 {
-        train_clips.push(moving(1, if i % 2 == 0 { 1 } else { 0 }, 8));
-        train_eps.push(proxy_episode("oracle", i, Some(i % 2 == 0)));
-    }
+    let (train_eps, train_clips) = six_training_episodes();
     // Ranked: three episodes of each family and one of a policy of none.
     let family_of = |i: u64| match i {
         0..3 => "unet",
@@ -750,12 +757,7 @@ fn the_cross_family_ablation_imagines_each_family_by_a_model_that_never_saw_it()
 
 #[test]
 fn cross_fitting_imagines_each_policy_by_a_model_trained_on_the_other_folds_only() {
-    let mut train_eps = Vec::new();
-    let mut train_clips = Vec::new();
-    for i in 0..6u64 {
-        train_clips.push(moving(1, if i % 2 == 0 { 1 } else { 0 }, 8));
-        train_eps.push(proxy_episode("oracle", i, Some(i % 2 == 0)));
-    }
+    let (train_eps, train_clips) = six_training_episodes();
     // Four ranked policies, two of each family, two episodes each, interleaved.
     let policy = |k: u64| format!("remote:url=http://127.0.0.1:{}", k + 1);
     let family = |k: u64| if k < 2 { "unet" } else { "transformer" };
