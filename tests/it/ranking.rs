@@ -702,8 +702,8 @@ fn each_group_ranks_a_ladder_of_both_families_on_its_own() {
         .args(["--rank-train-policies", "oracle,oracle:noise=0.05"])
         .args([
             "--rank-ladder",
-            r#"{"episodes": [3], "checkpoints": [5, 10], "max_steps": 480,
-                "backbones": ["unet", "transformer"]}"#,
+            r#"{"episodes": [3], "checkpoints": [5, 10], "train_checkpoints": [7],
+                "max_steps": 480, "backbones": ["unet", "transformer"]}"#,
             "--proxy",
             r#"{"judge_steps": 20, "video": {"steps": 10}, "cross_family_ablation": true,
                 "cross_fit_folds": 2}"#,
@@ -723,14 +723,29 @@ fn each_group_ranks_a_ladder_of_both_families_on_its_own() {
         serde_json::from_str(&std::fs::read_to_string(dir.path().join("report.json")).unwrap())
             .unwrap();
     let k = report.results.ranking.expect("a ranking section");
-    // 2 groups × 2 families × 2 kept policies, each labelled by its family.
+    // 2 groups × 2 families × 2 ranked kept policies, each labelled by its family; the policy
+    // each run kept at step 7 trains the proxy (2 groups × 2 families) and is never ranked.
     assert_eq!(k.ranked_policies.len(), 8, "{:?}", k.ranked_policies);
-    let labels: Vec<&str> = k.labels.iter().map(|(_, l)| l.as_str()).collect();
+    assert_eq!(k.train_policies.len(), 2 + 4, "{:?}", k.train_policies);
+    let label = |p: &String| {
+        k.labels
+            .iter()
+            .find(|(q, _)| q == p)
+            .map(|(_, l)| l.as_str())
+    };
     for group in ["placement", "stacking"] {
         for family in ["diffusion", "transformer diffusion"] {
-            for step in [5, 10] {
-                let label = format!("{family} 3 ep @ {step}, {group}");
-                assert!(labels.contains(&label.as_str()), "{label}: {labels:?}");
+            for (step, policies) in [
+                (5, &k.ranked_policies),
+                (7, &k.train_policies),
+                (10, &k.ranked_policies),
+            ] {
+                let want = format!("{family} 3 ep @ {step}, {group}");
+                assert!(
+                    policies.iter().any(|p| label(p) == Some(want.as_str())),
+                    "{want}: {:?}",
+                    k.labels
+                );
             }
         }
     }
@@ -750,12 +765,13 @@ fn each_group_ranks_a_ladder_of_both_families_on_its_own() {
                 .all(|p| p.policy.ends_with(",max_steps=480"))
         );
     }
-    // The calibration, where a group has one: fitted on its 6 training episodes, read by every
-    // ranked prediction and ranked as a proxy of its own.
+    // The calibration, where a group has one: fitted on its 12 training episodes (the training
+    // policies' 6 and the training-only ladder policies' 6), read by every ranked prediction
+    // and ranked as a proxy of its own.
     for p in &k.groups {
         match &p.calibration {
             Some(c) => {
-                assert_eq!((c.episodes, c.folds), (6, 2), "{c:?}");
+                assert_eq!((c.episodes, c.folds), (12, 2), "{c:?}");
                 assert!(p.predictions.iter().all(|x| x.p_calibrated.is_some()));
                 let per_group = k.per_group.iter().find(|g| g.group == p.group).unwrap();
                 let proxies: Vec<&str> = per_group
@@ -772,19 +788,21 @@ fn each_group_ranks_a_ladder_of_both_families_on_its_own() {
         }
     }
     // The cross-family ablation: per group one model per family, trained with the other
-    // family's 6 ranked episodes (2 kept policies × 3 seeds) beside the 6 training ones, and a
-    // verdict for every ranked episode, ranked per group as an ablation.
+    // family's 6 ranked episodes (2 kept policies × 3 seeds) beside the 12 training ones, and a
+    // verdict for every ranked episode, ranked per group as an ablation. (The families come in
+    // the order their episodes were planned: whichever training finished first.)
     for p in &k.groups {
-        let fits: Vec<(&str, &[String], u32)> = p
+        let mut fits: Vec<(&str, &[String], u32)> = p
             .cross_family
             .iter()
             .map(|f| (f.family.as_str(), f.trained_with.as_slice(), f.train_clips))
             .collect();
+        fits.sort_unstable();
         assert_eq!(
             fits,
             [
-                ("unet", &["transformer".to_owned()][..], 12),
-                ("transformer", &["unet".to_owned()][..], 12),
+                ("transformer", &["unet".to_owned()][..], 18),
+                ("unet", &["transformer".to_owned()][..], 18),
             ],
             "{}",
             p.group
@@ -801,9 +819,9 @@ fn each_group_ranks_a_ladder_of_both_families_on_its_own() {
                 .any(|c| c.proxy == "world-model-cross-family")
         );
     }
-    // Cross-fitting: per group two folds, each one policy of each family (the kept steps dealt
-    // in turn), trained with the other fold's 6 ranked episodes; every episode imagined by its
-    // fold's model, ranked per group as a proxy.
+    // Cross-fitting: per group two folds, each one ranked policy of each family (the ranked
+    // steps dealt in turn), trained with the other fold's 6 ranked episodes beside the 12
+    // training ones; every episode imagined by its fold's model, ranked per group as a proxy.
     for p in &k.groups {
         assert_eq!(p.cross_fit.len(), 2, "{}", p.group);
         for f in &p.cross_fit {
@@ -812,7 +830,7 @@ fn each_group_ranks_a_ladder_of_both_families_on_its_own() {
                 f.policies.iter().all(|x| !f.trained_with.contains(x)),
                 "{f:?}"
             );
-            assert_eq!(f.train_clips, 12, "{f:?}");
+            assert_eq!(f.train_clips, 18, "{f:?}");
         }
         assert!(p.predictions.iter().all(|x| x.cross_fit.is_some()));
         let per_group = k.per_group.iter().find(|g| g.group == p.group).unwrap();

@@ -478,7 +478,8 @@ impl Store {
     /// Queues the ladder of learned policies of every group of a running ranking batch with a
     /// ladder whose episodes are all finished and that has none yet: one diffusion training per
     /// run (`ladder.episodes`) on the group's first `n` clips of the ladder's training policy in
-    /// planning order, for `max(checkpoints)` steps and kept at every checkpoint. A group with
+    /// planning order, for as many steps as its last checkpoint (ranked or training-only) and
+    /// kept at every one. A group with
     /// fewer clips than a run trains it on all of them, and larger runs, which would repeat that
     /// training, are left out. A group with fewer than 2 such clips gets one failed shard saying
     /// so (and its proxy ranks what it has).
@@ -492,9 +493,7 @@ impl Store {
         let mut runs = ladder.episodes.clone();
         runs.sort_unstable();
         runs.dedup();
-        let mut checkpoints = ladder.checkpoints.clone();
-        checkpoints.sort_unstable();
-        checkpoints.dedup();
+        let checkpoints = ladder.kept_steps();
         let steps = checkpoints.last().copied().unwrap_or(ladder.config.steps);
         for group in Self::groups(conn, batch_id)? {
             if !plan.covers(&group)
@@ -552,7 +551,8 @@ impl Store {
     /// Queues the episodes of the policies one ladder training of `group` kept (each checkpoint
     /// and the final model, each key once): every (task, seed) of the group the batch planned
     /// for its own policies, as ordinary episodes of the batch (kind `Episode`, no job name: they
-    /// count in its success tables and are ranked by the proxy). Returns how many.
+    /// count in its success tables and are ranked by the proxy, or train it when kept at a
+    /// `train_checkpoints` step). Returns how many.
     pub(super) fn queue_ladder_episodes(
         conn: &Connection,
         batch_id: &str,

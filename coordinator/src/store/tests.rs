@@ -692,6 +692,22 @@ fn proxy_done(predictions: Vec<assay_model::proxy::ProxyPrediction>) -> String {
     .unwrap()
 }
 
+/// A fitted world model of group `g` (a proxy's, fitted ahead of it) at `checkpoint`.
+fn proxy_world_done(checkpoint: &str) -> String {
+    let fit: assay_model::dynamics::DynamicsFit = serde_json::from_value(serde_json::json!({
+        "group": "g", "budget": 4, "train_episodes": 4, "eval_episodes": 1, "eval_image_mse": 0.001,
+        "eval_proprio_mse": 0.0, "per_episode": [], "episodes": [], "final_train_loss": 1.0,
+        "steps": 10, "epochs": 1.0, "device": "cpu", "config": {}
+    }))
+    .unwrap();
+    serde_json::to_string(&TrainerOutcome::ProxyWorld {
+        group: "g".into(),
+        checkpoint: checkpoint.into(),
+        fit: Box::new(fit),
+    })
+    .unwrap()
+}
+
 /// A trained diffusion policy of group `g`, with the policies kept at its checkpoints.
 fn diffusion_done(model: &str, checkpoints: &[(u64, &str)]) -> String {
     let config = assay_model::diffusion::DiffusionConfig::default();

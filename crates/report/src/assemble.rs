@@ -215,9 +215,9 @@ fn evaluation_episodes(rows: &BatchRows) -> Vec<EvalEpisode> {
         .collect()
 }
 
-/// The ranking section: the ranked policies (every policy of the batch but the training ones)
-/// of the ranked groups, their real and judged success against the proxies' predictions, and the
-/// ladder's labels.
+/// The ranking section: the ranked policies (every policy of the batch but the training ones
+/// and the ladder's training-only ones) of the ranked groups, their real and judged success
+/// against the proxies' predictions, and the ladder's labels.
 fn ranking(
     rows: &BatchRows,
     plan: &RankingPlan,
@@ -225,9 +225,14 @@ fn ranking(
     episodes: &[EpisodeOutcome],
     judged: &[JudgeRecord],
 ) -> RankingResults {
+    let ladder_training = plan
+        .ladder
+        .as_ref()
+        .map(|l| ladder_training_policies(rows, l))
+        .unwrap_or_default();
     let ranked: Vec<String> = policies
         .iter()
-        .filter(|p| !plan.train_policies.contains(p))
+        .filter(|p| !plan.train_policies.contains(p) && !ladder_training.contains(p))
         .cloned()
         .collect();
     let real = real_episodes(&ranked, episodes, judged);
@@ -252,7 +257,30 @@ fn ranking(
     if let Some(ladder) = &plan.ladder {
         ladder_labels(rows, ladder, &mut ranking.labels);
     }
+    for p in ladder_training {
+        if !ranking.train_policies.contains(&p) {
+            ranking.train_policies.push(p);
+        }
+    }
     ranking
+}
+
+/// The ladder's policies kept at a `train_checkpoints` step (they train the proxy and are never
+/// ranked), in the order their trainings finished.
+fn ladder_training_policies(rows: &BatchRows, plan: &LadderPlan) -> Vec<String> {
+    let mut out: Vec<String> = Vec::new();
+    for s in of_kind(rows, JobKind::LadderTraining) {
+        let Some(outcome) = s.trained() else {
+            continue;
+        };
+        for (step, key) in outcome.kept_policies() {
+            let name = plan.policy_name(key);
+            if plan.trains_only(step) && !out.contains(&name) {
+                out.push(name);
+            }
+        }
+    }
+    out
 }
 
 /// The ranked policies' finished episodes, each with its judges' mean completion score.
@@ -369,19 +397,11 @@ fn ladder_labels(rows: &BatchRows, plan: &LadderPlan, labels: &mut Vec<(String, 
     // (group, family, episodes trained on, step, key)
     let mut kept: Vec<(&str, Backbone, u32, u64, &str)> = Vec::new();
     for s in of_kind(rows, JobKind::LadderTraining) {
-        if let Some(TrainerOutcome::Diffusion {
-            group,
-            model,
-            fit,
-            checkpoints,
-        }) = s.trained()
-        {
-            let last = (fit.steps, model.as_str());
-            for (step, key) in checkpoints
-                .iter()
-                .map(|(s, k)| (*s, k.as_str()))
-                .chain([last])
-            {
+        let Some(outcome) = s.trained() else {
+            continue;
+        };
+        if let TrainerOutcome::Diffusion { group, fit, .. } = outcome {
+            for (step, key) in outcome.kept_policies() {
                 kept.push((group.as_str(), fit.config.backbone, fit.clips, step, key));
             }
         }

@@ -15,7 +15,8 @@ use crate::error::CoordError;
 
 impl Store {
     /// The episodes of `group` with a clip, split into the training policies' (with their
-    /// outcomes) and the ranked policies' (without), in planning order.
+    /// outcomes; the ladder's training-only policies among them) and the ranked policies'
+    /// (without), in planning order.
     fn proxy_episodes(
         conn: &Connection,
         batch_id: &str,
@@ -23,7 +24,7 @@ impl Store {
         plan: &RankingPlan,
     ) -> Result<(Vec<ProxyEpisode>, Vec<ProxyEpisode>), CoordError> {
         let default_budget = PhysicsSettings::default().max_steps;
-        let families = Self::ladder_families(conn, batch_id, group, plan)?;
+        let ladder = Self::ladder_policies(conn, batch_id, group, plan)?;
         let (mut train, mut eval) = (Vec::new(), Vec::new());
         let mut stmt = conn.prepare(
             "SELECT s.task_id, s.policy, s.seed,
@@ -43,15 +44,17 @@ impl Store {
         ])?;
         while let Some(r) = rows.next()? {
             let policy: String = r.get(1)?;
-            let training = plan.train_policies.contains(&policy);
+            let of_ladder = ladder.iter().find(|p| p.name == policy);
+            let training =
+                plan.train_policies.contains(&policy) || of_ladder.is_some_and(|p| p.trains_only);
             // The simulator's horizon: the task's budget, or the policy's when smaller.
             let task_budget: u32 = r.get(6)?;
             let budget_steps = match PolicySpec::parse_with_horizon(&policy) {
                 Ok((_, Some(h))) => h.min(task_budget),
                 _ => task_budget,
             };
-            let family = match families.iter().find(|(p, _)| *p == policy) {
-                Some((_, f)) if !training => (*f).to_owned(),
+            let family = match of_ladder {
+                Some(p) if !training => p.family.to_owned(),
                 _ => String::new(),
             };
             let ep = ProxyEpisode {
@@ -73,14 +76,14 @@ impl Store {
         Ok((train, eval))
     }
 
-    /// The family (`Backbone::as_str`) of every policy the finished ladder trainings of `group`
-    /// kept: (policy name, family).
-    fn ladder_families(
+    /// Every policy the finished ladder trainings of `group` kept, with its family and whether
+    /// it only trains the proxy.
+    fn ladder_policies(
         conn: &Connection,
         batch_id: &str,
         group: &str,
         plan: &RankingPlan,
-    ) -> Result<Vec<(String, &'static str)>, CoordError> {
+    ) -> Result<Vec<LadderPolicy>, CoordError> {
         let Some(ladder) = &plan.ladder else {
             return Ok(Vec::new());
         };
@@ -92,17 +95,19 @@ impl Store {
         let mut rows = stmt.query(params![batch_id, group, JobKind::LadderTraining.as_str()])?;
         while let Some(r) = rows.next()? {
             let json: String = r.get(0)?;
-            if let Ok(TrainerOutcome::Diffusion {
-                model,
-                fit,
-                checkpoints,
-                ..
-            }) = serde_json::from_str(&json)
-            {
-                let family = fit.config.backbone.as_str();
-                for key in checkpoints.iter().map(|(_, k)| k).chain([&model]) {
-                    out.push((ladder.policy_name(key), family));
-                }
+            let Ok(outcome) = serde_json::from_str::<TrainerOutcome>(&json) else {
+                continue;
+            };
+            let TrainerOutcome::Diffusion { fit, .. } = &outcome else {
+                continue;
+            };
+            let family = fit.config.backbone.as_str();
+            for (step, key) in outcome.kept_policies() {
+                out.push(LadderPolicy {
+                    name: ladder.policy_name(key),
+                    family,
+                    trains_only: ladder.trains_only(step),
+                });
             }
         }
         Ok(out)
@@ -115,9 +120,11 @@ impl Store {
 
     /// Queues, for every ranked group of a running ranking batch with a ladder whose episodes
     /// are all finished, the proxy's world model ahead of the proxy: it trains on the training
-    /// policies' episodes while the ladder's policies train and run, instead of after them. A
-    /// served world model is not fitted; a group with fewer than 2 training clips gets none
-    /// (its proxy says why).
+    /// policies' episodes while the ladder's policies train and run, instead of after them.
+    /// With training-only ladder policies (`ladder.train_checkpoints`) their episodes are
+    /// training episodes too, so the fit waits for the ladder's trainings and episodes to
+    /// finish. A served world model is not fitted; a group with fewer than 2 training clips
+    /// gets none (its proxy says why).
     pub(in crate::store) fn queue_proxy_world(
         conn: &Connection,
         batch_id: &str,
@@ -125,12 +132,17 @@ impl Store {
         let Some(plan) = Self::running_plan::<RankingPlan>(conn, batch_id, "ranking_json")? else {
             return Ok(());
         };
-        if plan.ladder.is_none() || plan.config.external.is_some() {
+        let Some(ladder) = &plan.ladder else {
+            return Ok(());
+        };
+        if plan.config.external.is_some() {
             return Ok(());
         }
+        let trains_on_ladder = !ladder.train_checkpoints.is_empty();
         for group in Self::groups(conn, batch_id)? {
             if !plan.covers(&group)
                 || !Self::group_ready(conn, batch_id, &group, JobKind::ProxyWorldModel)?
+                || (trains_on_ladder && !Self::ladder_settled(conn, batch_id, &group)?)
             {
                 continue;
             }
@@ -232,4 +244,13 @@ impl Store {
         }
         Ok(())
     }
+}
+
+/// A policy a ladder training kept.
+struct LadderPolicy {
+    name: String,
+    /// Its denoiser (`Backbone::as_str`).
+    family: &'static str,
+    /// Kept at one of `ladder.train_checkpoints`: a training policy, never ranked.
+    trains_only: bool,
 }

@@ -92,18 +92,7 @@ fn a_ranking_and_a_generalization_scoped_to_groups_leave_the_others_alone() {
     }
     // The ladder is done, but its world model is still being fitted: the proxy waits for it.
     assert!(s.lease("t", &trainer, 10, 6, TTL).unwrap().is_empty());
-    let fit: assay_model::dynamics::DynamicsFit = serde_json::from_value(serde_json::json!({
-        "group": "g", "budget": 4, "train_episodes": 4, "eval_episodes": 1, "eval_image_mse": 0.001,
-        "eval_proprio_mse": 0.0, "per_episode": [], "episodes": [], "final_train_loss": 1.0,
-        "steps": 10, "epochs": 1.0, "device": "cpu", "config": {}
-    }))
-    .unwrap();
-    let done = serde_json::to_string(&TrainerOutcome::ProxyWorld {
-        group: "g".into(),
-        checkpoint: "checkpoints/b/world-1.ckpt".into(),
-        fit: Box::new(fit),
-    })
-    .unwrap();
+    let done = proxy_world_done("checkpoints/b/world-1.ckpt");
     assert!(
         s.complete("t", world.lease_id, world.shard_id, &done, 1.0, 7)
             .unwrap()

@@ -300,3 +300,145 @@ fn a_ladder_of_learned_policies_is_trained_then_run_then_ranked() {
     );
     assert_eq!(r.generalization.unwrap().groups.len(), 1);
 }
+
+/// A ladder policy kept at a `train_checkpoints` step trains the proxy and is never ranked: the
+/// run keeps it beside the ranked ones, it runs every (task, seed) of the group, and its
+/// episodes (with their outcomes) join the training policies' — in the world model fitted
+/// ahead, which waits for them, and in the proxy's training set — while only the other kept
+/// policy is ranked and the report lists it among the training policies.
+#[test]
+fn a_ladder_s_training_only_policies_train_the_proxy_and_are_never_ranked() {
+    use assay_model::proxy::{LadderPlan, ProxyConfig};
+    let mut s = Store::open_in_memory().unwrap();
+    let mut b = batch(&["a"], &[0, 1], 3);
+    b.tasks[0].spec_json = r#"{"id": "a"}"#.into();
+    b.policies = vec!["oracle".into(), "oracle:noise=0.05".into()];
+    let ladder = LadderPlan {
+        episodes: vec![2],
+        checkpoints: vec![3000],
+        train_checkpoints: vec![2],
+        max_steps: 600,
+        ..LadderPlan::default()
+    };
+    b.ranking = Some(RankingPlan {
+        train_policies: b.policies.clone(),
+        config: ProxyConfig::default(),
+        ladder: Some(ladder.clone()),
+        groups: Vec::new(),
+    });
+    let (id, _) = s.submit(&b, 0).unwrap();
+    for (i, l) in s.lease("w", &sim(), 8, 1, TTL).unwrap().iter().enumerate() {
+        finish_episode(&mut s, l, i % 2 == 0, &format!("clips/{i}.clip"));
+    }
+    // The ladder's training alone: the world model waits for the training-only policy's
+    // episodes. The run is kept at both kinds of checkpoint.
+    let trainer = vec!["trainer".to_owned()];
+    let queued = s.lease("t", &trainer, 10, 2, TTL).unwrap();
+    let jobs = trainer_jobs(&queued);
+    assert_eq!(jobs.len(), 1, "{jobs:?}");
+    let TrainerJob::Diffusion {
+        config,
+        checkpoints,
+        ..
+    } = &jobs[0]
+    else {
+        panic!("{:?}", jobs[0])
+    };
+    assert_eq!(
+        (config.steps, checkpoints.as_slice()),
+        (3000, &[2, 3000][..])
+    );
+    let done = diffusion_done("policies/m.diffusion", &[(2, "policies/c2.diffusion")]);
+    let l = &queued[0];
+    let (ok, changed) = s
+        .complete("t", l.lease_id, l.shard_id, &done, 1.0, 3)
+        .unwrap();
+    assert!(ok);
+    assert_eq!(changed.requeued, 4, "2 kept policies × 1 task × 2 seeds");
+    let (training_only, ranked) = (
+        ladder.policy_name("policies/c2.diffusion"),
+        ladder.policy_name("policies/m.diffusion"),
+    );
+    let sim_render: Vec<String> = ["sim", "render"].map(String::from).to_vec();
+    let episodes = s.lease("w", &sim_render, 20, 4, TTL).unwrap();
+    assert_eq!(episodes.len(), 4);
+    for (i, l) in episodes.iter().enumerate() {
+        assert!(s.lease("t", &trainer, 10, 4, TTL).unwrap().is_empty());
+        let success = l.policy == training_only && l.seed == 0;
+        finish_episode(&mut s, l, success, &format!("clips/l{i}.clip"));
+    }
+    // Now the world model, on the batch's 4 episodes and the training-only policy's 2.
+    let queued = s.lease("t", &trainer, 10, 5, TTL).unwrap();
+    let jobs = trainer_jobs(&queued);
+    assert_eq!(
+        jobs.len(),
+        1,
+        "the proxy waits for its world model: {jobs:?}"
+    );
+    let TrainerJob::ProxyWorld { train, .. } = &jobs[0] else {
+        panic!("{:?}", jobs[0])
+    };
+    let of = |p: &str| train.iter().filter(|e| e.policy == p).count();
+    assert_eq!((train.len(), of(&training_only), of(&ranked)), (6, 2, 0));
+    let world = &queued[0];
+    let done = proxy_world_done("checkpoints/b/world-1.ckpt");
+    assert!(
+        s.complete("t", world.lease_id, world.shard_id, &done, 1.0, 6)
+            .unwrap()
+            .0
+    );
+    let queued = s.lease("t", &trainer, 10, 7, TTL).unwrap();
+    let jobs = trainer_jobs(&queued);
+    let TrainerJob::Proxy {
+        train: proxy_train,
+        eval,
+        ..
+    } = &jobs[0]
+    else {
+        panic!("{:?}", jobs[0])
+    };
+    assert_eq!(
+        proxy_train, train,
+        "the world model's training episodes, exactly"
+    );
+    // The training-only policy's outcomes reach the proxy (it is not ranked); it has no family.
+    let own: Vec<(u64, Option<bool>, &str)> = proxy_train
+        .iter()
+        .filter(|e| e.policy == training_only)
+        .map(|e| (e.seed, e.success, e.family.as_str()))
+        .collect();
+    assert_eq!(own, [(0, Some(true), ""), (1, Some(false), "")]);
+    assert_eq!(eval.len(), 2);
+    assert!(
+        eval.iter()
+            .all(|e| e.policy == ranked && e.success.is_none() && e.family == "unet")
+    );
+    let predictions = eval.iter().map(|e| prediction(e, false)).collect();
+    let l = &queued[0];
+    assert!(
+        s.complete(
+            "t",
+            l.lease_id,
+            l.shard_id,
+            &proxy_done(predictions),
+            1.0,
+            8
+        )
+        .unwrap()
+        .0
+    );
+    let k = s.report(&id).unwrap().results.ranking.unwrap();
+    assert_eq!(k.ranked_policies, std::slice::from_ref(&ranked));
+    assert!(
+        k.train_policies.contains(&training_only),
+        "{:?}",
+        k.train_policies
+    );
+    assert!(k.rows.iter().all(|r| r.policy != training_only));
+    assert!(
+        k.labels
+            .contains(&(training_only.clone(), "diffusion 2 ep @ 2".to_owned())),
+        "{:?}",
+        k.labels
+    );
+}

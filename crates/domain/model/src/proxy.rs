@@ -236,7 +236,7 @@ impl RankingPlan {
 /// `checkpoints` — `backbones.len() × episodes.len() × checkpoints.len()` policies of differing
 /// skill (the paper's: CNN- and transformer-based diffusion policies at several lengths). Each
 /// runs in the simulator on every (task, seed) of the group (its real success) and is ranked by
-/// the proxy.
+/// the proxy — except those kept at `train_checkpoints`, whose episodes only train the proxy.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct LadderPlan {
@@ -244,8 +244,17 @@ pub struct LadderPlan {
     pub train_policy: String,
     /// Training episodes of each run (the group's first ones in planning order).
     pub episodes: Vec<u32>,
-    /// Training steps at which each run's policy is kept (the last is the run's length).
+    /// Training steps at which each run's policy is kept and ranked (the run is as long as the
+    /// last of these and `train_checkpoints`).
     pub checkpoints: Vec<u64>,
+    /// Training steps at which each run's policy is kept for the proxy's **training** only: its
+    /// episodes run in the simulator and join the training policies' (the world model learns
+    /// their clips; the frame judge and its calibration their outcomes too), and it is never
+    /// ranked. The paper's world model learns from rollouts of learned policies that are not
+    /// evaluated with it; these are such policies, of the ranked ones' families. Disjoint from
+    /// `checkpoints`. Empty (the default): every kept policy is ranked.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub train_checkpoints: Vec<u64>,
     /// Horizon of the policies' episodes, physics steps (the task's own budget when smaller).
     pub max_steps: u32,
     /// The policy families: the denoiser each run is trained with (`config.backbone` is
@@ -261,6 +270,7 @@ impl Default for LadderPlan {
             train_policy: "oracle".into(),
             episodes: vec![10, 40],
             checkpoints: vec![300, 1000, 3000],
+            train_checkpoints: Vec::new(),
             max_steps: 6000,
             backbones: vec![crate::diffusion::Backbone::Unet],
             config: crate::diffusion::DiffusionConfig::default(),
@@ -275,6 +285,19 @@ impl LadderPlan {
         }
         if self.checkpoints.is_empty() || self.checkpoints.contains(&0) {
             return Err("ladder.checkpoints: one or more steps, each at least 1".into());
+        }
+        if self.train_checkpoints.contains(&0) {
+            return Err("ladder.train_checkpoints: each step at least 1".into());
+        }
+        if let Some(step) = self
+            .train_checkpoints
+            .iter()
+            .find(|s| self.checkpoints.contains(s))
+        {
+            return Err(format!(
+                "ladder.train_checkpoints: step {step} is also in ladder.checkpoints (a policy \
+                 that trained the proxy cannot be ranked by it)"
+            ));
         }
         if self.max_steps == 0 {
             return Err("ladder.max_steps: must be at least 1".into());
@@ -300,6 +323,25 @@ impl LadderPlan {
             }
         }
         out
+    }
+
+    /// Every step a run keeps its policy at, ranked or training-only, ascending, each once; the
+    /// last is the run's length.
+    pub fn kept_steps(&self) -> Vec<u64> {
+        let mut steps: Vec<u64> = self
+            .checkpoints
+            .iter()
+            .chain(&self.train_checkpoints)
+            .copied()
+            .collect();
+        steps.sort_unstable();
+        steps.dedup();
+        steps
+    }
+
+    /// Whether the policy a run kept at `step` only trains the proxy (`train_checkpoints`).
+    pub fn trains_only(&self, step: u64) -> bool {
+        self.train_checkpoints.contains(&step)
     }
 
     /// The policy name of a kept model's episodes (its horizon is the ladder's); the report's

@@ -92,3 +92,32 @@ pub enum TrainerOutcome {
         checkpoints: Vec<(u64, String)>,
     },
 }
+
+impl TrainerOutcome {
+    /// The policies a diffusion training kept: (step, key in the artifact store) for each
+    /// checkpoint and the final model, by step, each key once (the final model's step is the
+    /// fit's length). Empty for any other outcome.
+    pub fn kept_policies(&self) -> Vec<(u64, &str)> {
+        let TrainerOutcome::Diffusion {
+            model,
+            fit,
+            checkpoints,
+            ..
+        } = self
+        else {
+            return Vec::new();
+        };
+        let mut kept: Vec<(u64, &str)> = Vec::with_capacity(checkpoints.len() + 1);
+        for (step, key) in checkpoints
+            .iter()
+            .map(|(s, k)| (*s, k.as_str()))
+            .chain([(fit.steps, model.as_str())])
+        {
+            if !kept.iter().any(|(_, k)| *k == key) {
+                kept.push((step, key));
+            }
+        }
+        kept.sort_by_key(|(step, _)| *step);
+        kept
+    }
+}

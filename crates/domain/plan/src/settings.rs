@@ -328,6 +328,17 @@ mod tests {
         };
         let e = check_ranking(&plan(&train, Some(short)), &policies, None).unwrap_err();
         assert!(e.starts_with("ladder.episodes"), "{e}");
+        // A step is either ranked or training-only.
+        let both = LadderPlan {
+            checkpoints: vec![300, 1000],
+            train_checkpoints: vec![500, 1000],
+            ..LadderPlan::default()
+        };
+        let e = check_ranking(&plan(&train, Some(both)), &policies, None).unwrap_err();
+        assert!(
+            e.starts_with("ladder.train_checkpoints: step 1000 is also in ladder.checkpoints"),
+            "{e}"
+        );
         let mut other_size = LadderPlan::default();
         other_size.config.image_size = 32;
         let e = check_ranking(&plan(&train, Some(other_size)), &policies, None).unwrap_err();
