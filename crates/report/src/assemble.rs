@@ -266,7 +266,7 @@ fn ranking(
 }
 
 /// The ladder's policies kept at a `train_checkpoints` step (they train the proxy and are never
-/// ranked), in the order their trainings finished.
+/// ranked), in their trainings' queue order.
 fn ladder_training_policies(rows: &BatchRows, plan: &LadderPlan) -> Vec<String> {
     let mut out: Vec<String> = Vec::new();
     for s in of_kind(rows, JobKind::LadderTraining) {
