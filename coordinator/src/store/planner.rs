@@ -479,10 +479,9 @@ impl Store {
     /// ladder whose episodes are all finished and that has none yet: one diffusion training per
     /// run (`ladder.episodes`) on the group's first `n` clips of the ladder's training policy in
     /// planning order, for as many steps as its last checkpoint (ranked or training-only) and
-    /// kept at every one. A group with
-    /// fewer clips than a run trains it on all of them, and larger runs, which would repeat that
-    /// training, are left out. A group with fewer than 2 such clips gets one failed shard saying
-    /// so (and its proxy ranks what it has).
+    /// kept at every one. A group with fewer clips than a run trains it on all of them, and
+    /// larger runs, which would repeat that training, are left out. A group with fewer than 2
+    /// such clips gets one failed shard saying so (and its proxy ranks what it has).
     pub(super) fn queue_ladder(conn: &Connection, batch_id: &str) -> Result<(), CoordError> {
         let Some(plan) = Self::running_plan::<RankingPlan>(conn, batch_id, "ranking_json")? else {
             return Ok(());
