@@ -662,20 +662,24 @@ fn a_ranking_batch_queues_one_proxy_per_group_that_never_sees_the_ranked_outcome
     assert_eq!((vlm.episodes_judged, vlm.episodes_failed), (12, 0));
 }
 
+/// A world model's fit of group `g` on 4 episodes, evaluated on `eval_episodes`.
+fn dynamics_fit(eval_episodes: u32) -> assay_model::dynamics::DynamicsFit {
+    serde_json::from_value(serde_json::json!({
+        "group": "g", "budget": 4, "train_episodes": 4, "eval_episodes": eval_episodes,
+        "eval_image_mse": 0.001, "eval_proprio_mse": 0.0, "per_episode": [], "episodes": [],
+        "final_train_loss": 1.0, "steps": 10, "epochs": 1.0, "device": "cpu", "config": {}
+    }))
+    .unwrap()
+}
+
 /// A finished proxy of group `g` with these predictions.
 fn proxy_done(predictions: Vec<assay_model::proxy::ProxyPrediction>) -> String {
-    let fit: assay_model::dynamics::DynamicsFit = serde_json::from_value(serde_json::json!({
-        "group": "g", "budget": 4, "train_episodes": 4, "eval_episodes": 8, "eval_image_mse": 0.001,
-        "eval_proprio_mse": 0.0, "per_episode": [], "episodes": [], "final_train_loss": 1.0,
-        "steps": 10, "epochs": 1.0, "device": "cpu", "config": {}
-    }))
-    .unwrap();
     serde_json::to_string(&TrainerOutcome::Proxy {
         result: Box::new(ProxyResult {
             group: "g".into(),
             world_model_name: String::new(),
             action_test: None,
-            world_model: fit,
+            world_model: dynamics_fit(8),
             video_model: None,
             judge_examples: 8,
             judge_positives: 5,
@@ -694,16 +698,10 @@ fn proxy_done(predictions: Vec<assay_model::proxy::ProxyPrediction>) -> String {
 
 /// A fitted world model of group `g` (a proxy's, fitted ahead of it) at `checkpoint`.
 fn proxy_world_done(checkpoint: &str) -> String {
-    let fit: assay_model::dynamics::DynamicsFit = serde_json::from_value(serde_json::json!({
-        "group": "g", "budget": 4, "train_episodes": 4, "eval_episodes": 1, "eval_image_mse": 0.001,
-        "eval_proprio_mse": 0.0, "per_episode": [], "episodes": [], "final_train_loss": 1.0,
-        "steps": 10, "epochs": 1.0, "device": "cpu", "config": {}
-    }))
-    .unwrap();
     serde_json::to_string(&TrainerOutcome::ProxyWorld {
         group: "g".into(),
         checkpoint: checkpoint.into(),
-        fit: Box::new(fit),
+        fit: Box::new(dynamics_fit(1)),
     })
     .unwrap()
 }
