@@ -477,9 +477,9 @@ impl Store {
 
     /// Queues the ladder of learned policies of every group of a running ranking batch with a
     /// ladder whose episodes are all finished and that has none yet: one diffusion training per
-    /// run (`ladder.episodes`) on the group's first `n` clips of the ladder's training policy in
-    /// planning order, for as many steps as its last checkpoint (ranked or training-only) and
-    /// kept at every one. A group with fewer clips than a run trains it on all of them, and
+    /// run (`ladder.episodes` and `train_episodes`) on the group's first `n` clips of the
+    /// ladder's training policy in planning order, for as many steps as its last checkpoint
+    /// (ranked or training-only) and kept at every one. A group with fewer clips than a run trains it on all of them, and
     /// larger runs, which would repeat that training, are left out. A group with fewer than 2
     /// such clips gets one failed shard saying so (and its proxy ranks what it has).
     pub(super) fn queue_ladder(conn: &Connection, batch_id: &str) -> Result<(), CoordError> {
@@ -489,9 +489,7 @@ impl Store {
         let Some(ladder) = &plan.ladder else {
             return Ok(());
         };
-        let mut runs = ladder.episodes.clone();
-        runs.sort_unstable();
-        runs.dedup();
+        let runs = ladder.runs();
         let checkpoints = ladder.kept_steps();
         let steps = checkpoints.last().copied().unwrap_or(ladder.config.steps);
         for group in Self::groups(conn, batch_id)? {
@@ -551,7 +549,7 @@ impl Store {
     /// and the final model, each key once): every (task, seed) of the group the batch planned
     /// for its own policies, as ordinary episodes of the batch (kind `Episode`, no job name: they
     /// count in its success tables and are ranked by the proxy, or train it when kept at a
-    /// `train_checkpoints` step). Returns how many.
+    /// `train_checkpoints` step or by a `train_episodes` run). Returns how many.
     pub(super) fn queue_ladder_episodes(
         conn: &Connection,
         batch_id: &str,

@@ -708,6 +708,11 @@ fn proxy_world_done(checkpoint: &str) -> String {
 
 /// A trained diffusion policy of group `g`, with the policies kept at its checkpoints.
 fn diffusion_done(model: &str, checkpoints: &[(u64, &str)]) -> String {
+    diffusion_done_on(model, checkpoints, 2)
+}
+
+/// [`diffusion_done`] of a run that trained on `clips` clips.
+fn diffusion_done_on(model: &str, checkpoints: &[(u64, &str)], clips: u32) -> String {
     let config = assay_model::diffusion::DiffusionConfig::default();
     serde_json::to_string(&TrainerOutcome::Diffusion {
         group: "g".into(),
@@ -718,7 +723,7 @@ fn diffusion_done(model: &str, checkpoints: &[(u64, &str)]) -> String {
             mean_last_100_loss: 0.1,
             train_seconds: 1.0,
             parameters: 1,
-            clips: 2,
+            clips,
             samples: 10,
             device: "cpu".into(),
             libtorch: String::new(),

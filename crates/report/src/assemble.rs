@@ -265,17 +265,17 @@ fn ranking(
     ranking
 }
 
-/// The ladder's policies kept at a `train_checkpoints` step (they train the proxy and are never
-/// ranked), in their trainings' queue order.
+/// The ladder's policies kept at a `train_checkpoints` step or by a `train_episodes` run (they
+/// train the proxy and are never ranked), in their trainings' queue order.
 fn ladder_training_policies(rows: &BatchRows, plan: &LadderPlan) -> Vec<String> {
     let mut out: Vec<String> = Vec::new();
     for s in of_kind(rows, JobKind::LadderTraining) {
-        let Some(outcome) = s.trained() else {
+        let Some(outcome @ TrainerOutcome::Diffusion { fit, .. }) = s.trained() else {
             continue;
         };
         for (step, key) in outcome.kept_policies() {
             let name = plan.policy_name(key);
-            if plan.trains_only(step) && !out.contains(&name) {
+            if plan.trains_only(fit.clips, step) && !out.contains(&name) {
                 out.push(name);
             }
         }

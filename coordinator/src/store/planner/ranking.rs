@@ -106,7 +106,7 @@ impl Store {
                 out.push(LadderPolicy {
                     name: ladder.policy_name(key),
                     family,
-                    trains_only: ladder.trains_only(step),
+                    trains_only: ladder.trains_only(fit.clips, step),
                 });
             }
         }
@@ -121,9 +121,9 @@ impl Store {
     /// Queues, for every ranked group of a running ranking batch with a ladder whose episodes
     /// are all finished, the proxy's world model ahead of the proxy: it trains on the training
     /// policies' episodes while the ladder's policies train and run, instead of after them.
-    /// With training-only ladder policies (`ladder.train_checkpoints`) their episodes are
-    /// training episodes too, so the fit waits for the ladder's trainings and episodes to
-    /// finish. A served world model is not fitted; a group with fewer than 2 training clips
+    /// With training-only ladder policies (`train_checkpoints`, `train_episodes`) their
+    /// episodes are training episodes too, so the fit waits for the ladder's trainings and
+    /// episodes to finish. A served world model is not fitted; a group with fewer than 2 training clips
     /// gets none (its proxy says why).
     pub(in crate::store) fn queue_proxy_world(
         conn: &Connection,
@@ -138,7 +138,7 @@ impl Store {
         if plan.config.external.is_some() {
             return Ok(());
         }
-        let trains_on_ladder = !ladder.train_checkpoints.is_empty();
+        let trains_on_ladder = ladder.has_training_only();
         for group in Self::groups(conn, batch_id)? {
             if !plan.covers(&group)
                 || !Self::group_ready(conn, batch_id, &group, JobKind::ProxyWorldModel)?
@@ -251,6 +251,7 @@ struct LadderPolicy {
     name: String,
     /// Its denoiser (`Backbone::as_str`).
     family: &'static str,
-    /// Kept at one of `ladder.train_checkpoints`: a training policy, never ranked.
+    /// Kept at one of `ladder.train_checkpoints` or by a run of `ladder.train_episodes`: a
+    /// training policy, never ranked.
     trains_only: bool,
 }

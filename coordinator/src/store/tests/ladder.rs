@@ -442,3 +442,115 @@ fn a_ladder_s_training_only_policies_train_the_proxy_and_are_never_ranked() {
         k.labels
     );
 }
+
+/// Every policy of a `train_episodes` run trains the proxy and is never ranked: both runs train,
+/// the world model waits for the training-only run's episodes and learns them, and only the
+/// ranked run's policy is imagined, ranked and labelled as ranked.
+#[test]
+fn a_training_only_run_trains_the_proxy_and_is_never_ranked() {
+    use assay_model::proxy::{LadderPlan, ProxyConfig};
+    let mut s = Store::open_in_memory().unwrap();
+    let mut b = batch(&["a"], &[0, 1, 2, 3], 3);
+    b.tasks[0].spec_json = r#"{"id": "a"}"#.into();
+    b.policies = vec!["oracle".into(), "oracle:noise=0.05".into()];
+    let ladder = LadderPlan {
+        episodes: vec![4],
+        train_episodes: vec![2],
+        checkpoints: vec![5],
+        max_steps: 600,
+        ..LadderPlan::default()
+    };
+    b.ranking = Some(RankingPlan {
+        train_policies: b.policies.clone(),
+        config: ProxyConfig::default(),
+        ladder: Some(ladder.clone()),
+        groups: Vec::new(),
+    });
+    let (id, _) = s.submit(&b, 0).unwrap();
+    for (i, l) in s.lease("w", &sim(), 8, 1, TTL).unwrap().iter().enumerate() {
+        finish_episode(&mut s, l, i % 2 == 0, &format!("clips/{i}.clip"));
+    }
+    let trainer = vec!["trainer".to_owned()];
+    let queued = s.lease("t", &trainer, 10, 2, TTL).unwrap();
+    let jobs = trainer_jobs(&queued);
+    let runs: Vec<usize> = jobs
+        .iter()
+        .map(|j| match j {
+            TrainerJob::Diffusion { clips, .. } => clips.len(),
+            other => panic!("the world model waits for the ladder: {other:?}"),
+        })
+        .collect();
+    assert_eq!(runs, [2, 4]);
+    let (small, big) = ("policies/small.diffusion", "policies/big.diffusion");
+    for (l, (model, clips)) in queued.iter().zip([(small, 2), (big, 4)]) {
+        let done = diffusion_done_on(model, &[], clips);
+        assert!(
+            s.complete("t", l.lease_id, l.shard_id, &done, 1.0, 3)
+                .unwrap()
+                .0
+        );
+    }
+    let (training_only, ranked) = (ladder.policy_name(small), ladder.policy_name(big));
+    let sim_render: Vec<String> = ["sim", "render"].map(String::from).to_vec();
+    let episodes = s.lease("w", &sim_render, 20, 4, TTL).unwrap();
+    assert_eq!(episodes.len(), 8, "2 runs × 1 task × 4 seeds");
+    for (i, l) in episodes.iter().enumerate() {
+        assert!(s.lease("t", &trainer, 10, 4, TTL).unwrap().is_empty());
+        let success = l.policy == training_only && l.seed < 2;
+        finish_episode(&mut s, l, success, &format!("clips/l{i}.clip"));
+    }
+    let queued = s.lease("t", &trainer, 10, 5, TTL).unwrap();
+    let jobs = trainer_jobs(&queued);
+    let [TrainerJob::ProxyWorld { train, .. }] = &jobs[..] else {
+        panic!("{jobs:?}")
+    };
+    let of = |p: &str| train.iter().filter(|e| e.policy == p).count();
+    assert_eq!((train.len(), of(&training_only), of(&ranked)), (12, 4, 0));
+    let world = &queued[0];
+    let done = proxy_world_done("checkpoints/b/world-1.ckpt");
+    assert!(
+        s.complete("t", world.lease_id, world.shard_id, &done, 1.0, 6)
+            .unwrap()
+            .0
+    );
+    let queued = s.lease("t", &trainer, 10, 7, TTL).unwrap();
+    let jobs = trainer_jobs(&queued);
+    let [
+        TrainerJob::Proxy {
+            train: proxy_train,
+            eval,
+            ..
+        },
+    ] = &jobs[..]
+    else {
+        panic!("{jobs:?}")
+    };
+    assert_eq!(proxy_train, train);
+    let outcomes: Vec<Option<bool>> = proxy_train
+        .iter()
+        .filter(|e| e.policy == training_only)
+        .map(|e| e.success)
+        .collect();
+    assert_eq!(outcomes, [Some(true), Some(true), Some(false), Some(false)]);
+    assert_eq!(eval.len(), 4);
+    assert!(
+        eval.iter()
+            .all(|e| e.policy == ranked && e.success.is_none())
+    );
+    let predictions = eval.iter().map(|e| prediction(e, false)).collect();
+    let l = &queued[0];
+    let done = proxy_done(predictions);
+    assert!(
+        s.complete("t", l.lease_id, l.shard_id, &done, 1.0, 8)
+            .unwrap()
+            .0
+    );
+    let k = s.report(&id).unwrap().results.ranking.unwrap();
+    assert_eq!(k.ranked_policies, std::slice::from_ref(&ranked));
+    assert!(
+        k.train_policies.contains(&training_only),
+        "{:?}",
+        k.train_policies
+    );
+    assert!(k.rows.iter().all(|r| r.policy != training_only));
+}

@@ -236,7 +236,8 @@ impl RankingPlan {
 /// `checkpoints` — `backbones.len() × episodes.len() × checkpoints.len()` policies of differing
 /// skill (the paper's: CNN- and transformer-based diffusion policies at several lengths). Each
 /// runs in the simulator on every (task, seed) of the group (its real success) and is ranked by
-/// the proxy — except those kept at `train_checkpoints`, whose episodes only train the proxy.
+/// the proxy — except those kept at `train_checkpoints` and every one of the runs of
+/// `train_episodes`, whose episodes only train the proxy.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct LadderPlan {
@@ -255,6 +256,11 @@ pub struct LadderPlan {
     /// `checkpoints`. Empty (the default): every kept policy is ranked.
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub train_checkpoints: Vec<u64>,
+    /// Training episodes of more runs whose policies, at every kept step, only train the proxy
+    /// (as `train_checkpoints`' do): rollouts of learned policies trained on other data than
+    /// any ranked one. Disjoint from `episodes`. Empty (the default): none.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub train_episodes: Vec<u32>,
     /// Horizon of the policies' episodes, physics steps (the task's own budget when smaller).
     pub max_steps: u32,
     /// The policy families: the denoiser each run is trained with (`config.backbone` is
@@ -271,6 +277,7 @@ impl Default for LadderPlan {
             episodes: vec![10, 40],
             checkpoints: vec![300, 1000, 3000],
             train_checkpoints: Vec::new(),
+            train_episodes: Vec::new(),
             max_steps: 6000,
             backbones: vec![crate::diffusion::Backbone::Unet],
             config: crate::diffusion::DiffusionConfig::default(),
@@ -285,6 +292,19 @@ impl LadderPlan {
         }
         if self.checkpoints.is_empty() || self.checkpoints.contains(&0) {
             return Err("ladder.checkpoints: one or more steps, each at least 1".into());
+        }
+        if self.train_episodes.iter().any(|&n| n < 2) {
+            return Err("ladder.train_episodes: each run of at least 2 episodes".into());
+        }
+        if let Some(n) = self
+            .train_episodes
+            .iter()
+            .find(|n| self.episodes.contains(n))
+        {
+            return Err(format!(
+                "ladder.train_episodes: {n} is also in ladder.episodes (a policy that trained the \
+                 proxy cannot be ranked by it)"
+            ));
         }
         if self.train_checkpoints.contains(&0) {
             return Err("ladder.train_checkpoints: each step at least 1".into());
@@ -339,9 +359,32 @@ impl LadderPlan {
         steps
     }
 
-    /// Whether the policy a run kept at `step` only trains the proxy (`train_checkpoints`).
-    pub fn trains_only(&self, step: u64) -> bool {
+    /// Every run's training episodes, ranked or training-only, ascending, each once.
+    pub fn runs(&self) -> Vec<u32> {
+        let mut runs: Vec<u32> = self
+            .episodes
+            .iter()
+            .chain(&self.train_episodes)
+            .copied()
+            .collect();
+        runs.sort_unstable();
+        runs.dedup();
+        runs
+    }
+
+    /// Whether some kept policies only train the proxy (`train_checkpoints`, `train_episodes`).
+    pub fn has_training_only(&self) -> bool {
+        !self.train_checkpoints.is_empty() || !self.train_episodes.is_empty()
+    }
+
+    /// Whether the policy kept at `step` by the run that trained on `clips` clips only trains
+    /// the proxy. A run asked for more episodes than its group has trains on all of them (and
+    /// larger runs are left out), so the run of a fit is the smallest of [`Self::runs`] of at
+    /// least `clips`.
+    pub fn trains_only(&self, clips: u32, step: u64) -> bool {
+        let run = self.runs().into_iter().find(|&n| n >= clips);
         self.train_checkpoints.contains(&step)
+            || run.is_some_and(|n| self.train_episodes.contains(&n))
     }
 
     /// The policy name of a kept model's episodes (its horizon is the ladder's); the report's
@@ -642,3 +685,49 @@ pub const CROSS_FAMILY_SOURCE: &str = "world-model-cross-family";
 /// Cross-fitting's source (`ProxyConfig::cross_fit_folds`): each policy imagined by a model
 /// trained with the other folds' ranked episodes.
 pub const CROSS_FIT_SOURCE: &str = "world-model-cross-fit";
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A fit's run is the smallest run of at least its clips: a run asked for more episodes
+    /// than its group has trained on all of them, and larger runs were left out.
+    #[test]
+    fn a_ladder_policy_trains_only_when_its_step_or_its_run_says_so() {
+        let plan = LadderPlan {
+            episodes: vec![10, 40],
+            train_episodes: vec![5, 20],
+            checkpoints: vec![300, 1000],
+            train_checkpoints: vec![500],
+            ..LadderPlan::default()
+        };
+        plan.validate().unwrap();
+        assert_eq!(plan.runs(), [5, 10, 20, 40]);
+        assert_eq!(plan.kept_steps(), [300, 500, 1000]);
+        assert!(plan.has_training_only());
+        let only = |clips, step| plan.trains_only(clips, step);
+        assert_eq!(
+            [
+                only(10, 300),
+                only(10, 500),
+                only(5, 1000),
+                only(20, 300),
+                only(40, 1000)
+            ],
+            [false, true, true, true, false]
+        );
+        // A group of 15 clips: the 20-run trained on 15 (training-only), the 40-run left out.
+        assert!(only(15, 1000));
+        // A group of 8: the 10-run trained on 8 (ranked).
+        assert!(!only(8, 1000));
+        assert!(!LadderPlan::default().has_training_only());
+        assert!(!LadderPlan::default().trains_only(10, 300));
+        let e = LadderPlan {
+            train_episodes: vec![1],
+            ..LadderPlan::default()
+        }
+        .validate()
+        .unwrap_err();
+        assert!(e.starts_with("ladder.train_episodes: each run"), "{e}");
+    }
+}

@@ -339,6 +339,17 @@ mod tests {
             e.starts_with("ladder.train_checkpoints: step 1000 is also in ladder.checkpoints"),
             "{e}"
         );
+        // A run is either ranked or training-only.
+        let both = LadderPlan {
+            episodes: vec![10, 40],
+            train_episodes: vec![5, 40],
+            ..LadderPlan::default()
+        };
+        let e = check_ranking(&plan(&train, Some(both)), &policies, None).unwrap_err();
+        assert!(
+            e.starts_with("ladder.train_episodes: 40 is also in ladder.episodes"),
+            "{e}"
+        );
         let mut other_size = LadderPlan::default();
         other_size.config.image_size = 32;
         let e = check_ranking(&plan(&train, Some(other_size)), &policies, None).unwrap_err();
