@@ -2,6 +2,7 @@
 //! its proxy.
 
 use super::*;
+use assay_model::proxy::{LadderPlan, ProxyConfig};
 
 /// A ladder of two families trains every run once per family, each with its own backbone and
 /// the same clips and checkpoints; the world model fitted ahead takes only the episodes of
@@ -9,7 +10,6 @@ use super::*;
 #[test]
 fn a_ladder_of_two_families_trains_each_run_in_each() {
     use assay_model::diffusion::Backbone;
-    use assay_model::proxy::{LadderPlan, ProxyConfig};
     let mut s = Store::open_in_memory().unwrap();
     let mut b = batch(&["a"], &[0, 1, 2, 3], 3);
     b.tasks[0].spec_json = r#"{"id": "a"}"#.into();
@@ -80,7 +80,7 @@ fn a_ladder_of_two_families_trains_each_run_in_each() {
 #[test]
 fn a_ladder_of_learned_policies_is_trained_then_run_then_ranked() {
     use assay_model::generalization::GeneralizationPlan;
-    use assay_model::proxy::{LadderPlan, ProxyConfig, ProxyPrediction};
+    use assay_model::proxy::ProxyPrediction;
     let mut s = Store::open_in_memory().unwrap();
     let mut b = batch(&["a", "b"], &[0, 1], 3);
     // Task a's budget is its own, 400 steps; b has the default.
@@ -308,11 +308,6 @@ fn a_ladder_of_learned_policies_is_trained_then_run_then_ranked() {
 /// policy is ranked and the report lists it among the training policies.
 #[test]
 fn a_ladder_s_training_only_policies_train_the_proxy_and_are_never_ranked() {
-    use assay_model::proxy::{LadderPlan, ProxyConfig};
-    let mut s = Store::open_in_memory().unwrap();
-    let mut b = batch(&["a"], &[0, 1], 3);
-    b.tasks[0].spec_json = r#"{"id": "a"}"#.into();
-    b.policies = vec!["oracle".into(), "oracle:noise=0.05".into()];
     let ladder = LadderPlan {
         episodes: vec![2],
         checkpoints: vec![3000],
@@ -320,16 +315,7 @@ fn a_ladder_s_training_only_policies_train_the_proxy_and_are_never_ranked() {
         max_steps: 600,
         ..LadderPlan::default()
     };
-    b.ranking = Some(RankingPlan {
-        train_policies: b.policies.clone(),
-        config: ProxyConfig::default(),
-        ladder: Some(ladder.clone()),
-        groups: Vec::new(),
-    });
-    let (id, _) = s.submit(&b, 0).unwrap();
-    for (i, l) in s.lease("w", &sim(), 8, 1, TTL).unwrap().iter().enumerate() {
-        finish_episode(&mut s, l, i % 2 == 0, &format!("clips/{i}.clip"));
-    }
+    let (mut s, id) = ladder_batch_run(&[0, 1], &ladder);
     // The ladder's training alone: the world model waits for the training-only policy's
     // episodes. The run is kept at both kinds of checkpoint.
     let trainer = vec!["trainer".to_owned()];
@@ -380,14 +366,7 @@ fn a_ladder_s_training_only_policies_train_the_proxy_and_are_never_ranked() {
     };
     let of = |p: &str| train.iter().filter(|e| e.policy == p).count();
     assert_eq!((train.len(), of(&training_only), of(&ranked)), (6, 2, 0));
-    let world = &queued[0];
-    let done = proxy_world_done("checkpoints/b/world-1.ckpt");
-    assert!(
-        s.complete("t", world.lease_id, world.shard_id, &done, 1.0, 6)
-            .unwrap()
-            .0
-    );
-    let queued = s.lease("t", &trainer, 10, 7, TTL).unwrap();
+    let queued = finish_world_lease_proxy(&mut s, &queued[0]);
     let jobs = trainer_jobs(&queued);
     let TrainerJob::Proxy {
         train: proxy_train,
@@ -413,28 +392,7 @@ fn a_ladder_s_training_only_policies_train_the_proxy_and_are_never_ranked() {
         eval.iter()
             .all(|e| e.policy == ranked && e.success.is_none() && e.family == "unet")
     );
-    let predictions = eval.iter().map(|e| prediction(e, false)).collect();
-    let l = &queued[0];
-    assert!(
-        s.complete(
-            "t",
-            l.lease_id,
-            l.shard_id,
-            &proxy_done(predictions),
-            1.0,
-            8
-        )
-        .unwrap()
-        .0
-    );
-    let k = s.report(&id).unwrap().results.ranking.unwrap();
-    assert_eq!(k.ranked_policies, std::slice::from_ref(&ranked));
-    assert!(
-        k.train_policies.contains(&training_only),
-        "{:?}",
-        k.train_policies
-    );
-    assert!(k.rows.iter().all(|r| r.policy != training_only));
+    let k = finish_proxy_ranking_one(&mut s, &id, &queued[0], eval, &ranked, &training_only);
     assert!(
         k.labels
             .contains(&(training_only.clone(), "diffusion 2 ep @ 2".to_owned())),
@@ -445,14 +403,9 @@ fn a_ladder_s_training_only_policies_train_the_proxy_and_are_never_ranked() {
 
 /// Every policy of a `train_episodes` run trains the proxy and is never ranked: both runs train,
 /// the world model waits for the training-only run's episodes and learns them, and only the
-/// ranked run's policy is imagined, ranked and labelled as ranked.
+/// ranked run's policy is imagined and ranked, the other listed among the training policies.
 #[test]
 fn a_training_only_run_trains_the_proxy_and_is_never_ranked() {
-    use assay_model::proxy::{LadderPlan, ProxyConfig};
-    let mut s = Store::open_in_memory().unwrap();
-    let mut b = batch(&["a"], &[0, 1, 2, 3], 3);
-    b.tasks[0].spec_json = r#"{"id": "a"}"#.into();
-    b.policies = vec!["oracle".into(), "oracle:noise=0.05".into()];
     let ladder = LadderPlan {
         episodes: vec![4],
         train_episodes: vec![2],
@@ -460,16 +413,7 @@ fn a_training_only_run_trains_the_proxy_and_is_never_ranked() {
         max_steps: 600,
         ..LadderPlan::default()
     };
-    b.ranking = Some(RankingPlan {
-        train_policies: b.policies.clone(),
-        config: ProxyConfig::default(),
-        ladder: Some(ladder.clone()),
-        groups: Vec::new(),
-    });
-    let (id, _) = s.submit(&b, 0).unwrap();
-    for (i, l) in s.lease("w", &sim(), 8, 1, TTL).unwrap().iter().enumerate() {
-        finish_episode(&mut s, l, i % 2 == 0, &format!("clips/{i}.clip"));
-    }
+    let (mut s, id) = ladder_batch_run(&[0, 1, 2, 3], &ladder);
     let trainer = vec!["trainer".to_owned()];
     let queued = s.lease("t", &trainer, 10, 2, TTL).unwrap();
     let jobs = trainer_jobs(&queued);
@@ -506,14 +450,7 @@ fn a_training_only_run_trains_the_proxy_and_is_never_ranked() {
     };
     let of = |p: &str| train.iter().filter(|e| e.policy == p).count();
     assert_eq!((train.len(), of(&training_only), of(&ranked)), (12, 4, 0));
-    let world = &queued[0];
-    let done = proxy_world_done("checkpoints/b/world-1.ckpt");
-    assert!(
-        s.complete("t", world.lease_id, world.shard_id, &done, 1.0, 6)
-            .unwrap()
-            .0
-    );
-    let queued = s.lease("t", &trainer, 10, 7, TTL).unwrap();
+    let queued = finish_world_lease_proxy(&mut s, &queued[0]);
     let jobs = trainer_jobs(&queued);
     let [
         TrainerJob::Proxy {
@@ -537,20 +474,63 @@ fn a_training_only_run_trains_the_proxy_and_is_never_ranked() {
         eval.iter()
             .all(|e| e.policy == ranked && e.success.is_none())
     );
+    finish_proxy_ranking_one(&mut s, &id, &queued[0], eval, &ranked, &training_only);
+}
+
+/// A batch of one task `a` at `seeds` with the oracle and a noisier one, both training a proxy
+/// with `ladder`, submitted and its episodes finished (every other one a success).
+fn ladder_batch_run(seeds: &[u64], ladder: &LadderPlan) -> (Store, String) {
+    let mut s = Store::open_in_memory().unwrap();
+    let mut b = batch(&["a"], seeds, 3);
+    b.tasks[0].spec_json = r#"{"id": "a"}"#.into();
+    b.policies = vec!["oracle".into(), "oracle:noise=0.05".into()];
+    b.ranking = Some(RankingPlan {
+        train_policies: b.policies.clone(),
+        config: ProxyConfig::default(),
+        ladder: Some(ladder.clone()),
+        groups: Vec::new(),
+    });
+    let (id, _) = s.submit(&b, 0).unwrap();
+    for (i, l) in s.lease("w", &sim(), 8, 1, TTL).unwrap().iter().enumerate() {
+        finish_episode(&mut s, l, i % 2 == 0, &format!("clips/{i}.clip"));
+    }
+    (s, id)
+}
+
+/// Completes the world model fitted ahead (leased as `world`) and leases what follows it.
+fn finish_world_lease_proxy(s: &mut Store, world: &Lease) -> Vec<Lease> {
+    let done = proxy_world_done("checkpoints/b/world-1.ckpt");
+    let (ok, _) = s
+        .complete("t", world.lease_id, world.shard_id, &done, 1.0, 6)
+        .unwrap();
+    assert!(ok);
+    s.lease("t", &["trainer".to_owned()], 10, 7, TTL).unwrap()
+}
+
+/// Completes the proxy (leased as `proxy`) with a prediction per `eval` episode and returns the
+/// report's ranking, having checked that it ranks `ranked` alone and lists `training_only` among
+/// the training policies, never in its rows.
+fn finish_proxy_ranking_one(
+    s: &mut Store,
+    id: &str,
+    proxy: &Lease,
+    eval: &[assay_model::proxy::ProxyEpisode],
+    ranked: &str,
+    training_only: &str,
+) -> assay_report::ranking::RankingResults {
     let predictions = eval.iter().map(|e| prediction(e, false)).collect();
-    let l = &queued[0];
     let done = proxy_done(predictions);
+    let (ok, _) = s
+        .complete("t", proxy.lease_id, proxy.shard_id, &done, 1.0, 8)
+        .unwrap();
+    assert!(ok);
+    let k = s.report(id).unwrap().results.ranking.unwrap();
+    assert_eq!(k.ranked_policies, [ranked]);
     assert!(
-        s.complete("t", l.lease_id, l.shard_id, &done, 1.0, 8)
-            .unwrap()
-            .0
-    );
-    let k = s.report(&id).unwrap().results.ranking.unwrap();
-    assert_eq!(k.ranked_policies, std::slice::from_ref(&ranked));
-    assert!(
-        k.train_policies.contains(&training_only),
+        k.train_policies.iter().any(|p| p == training_only),
         "{:?}",
         k.train_policies
     );
     assert!(k.rows.iter().all(|r| r.policy != training_only));
+    k
 }
