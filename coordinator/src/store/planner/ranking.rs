@@ -123,8 +123,8 @@ impl Store {
     /// policies' episodes while the ladder's policies train and run, instead of after them.
     /// With training-only ladder policies (`train_checkpoints`, `train_episodes`) their
     /// episodes are training episodes too, so the fit waits for the ladder's trainings and
-    /// episodes to finish. A served world model is not fitted; a group with fewer than 2 training clips
-    /// gets none (its proxy says why).
+    /// episodes to finish. A served world model is not fitted; a group with fewer than 2
+    /// training clips gets none (its proxy says why).
     pub(in crate::store) fn queue_proxy_world(
         conn: &Connection,
         batch_id: &str,
