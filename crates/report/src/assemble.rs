@@ -11,7 +11,7 @@ use std::collections::BTreeSet;
 use assay_model::diffusion::Backbone;
 use assay_model::episode::{EpisodeOutcome, JudgeRecord, ShardRecord, TaskInfo};
 use assay_model::job::{JobKind, ShardState};
-use assay_model::proxy::{ImaginedJudgement, LadderPlan, ProxyResult, RankingPlan};
+use assay_model::proxy::{ImaginedJudgement, KeptPolicy, LadderPlan, ProxyResult, RankingPlan};
 use assay_model::quality::Item;
 use assay_model::trainer::TrainerOutcome;
 
@@ -269,18 +269,20 @@ fn ranking(
 /// train the proxy and are never ranked), in their trainings' queue order.
 fn ladder_training_policies(rows: &BatchRows, plan: &LadderPlan) -> Vec<String> {
     let mut out: Vec<String> = Vec::new();
-    for s in of_kind(rows, JobKind::LadderTraining) {
-        let Some(outcome @ TrainerOutcome::Diffusion { fit, .. }) = s.trained() else {
-            continue;
-        };
-        for (step, key) in outcome.kept_policies() {
-            let name = plan.policy_name(key);
-            if plan.trains_only(fit.clips, step) && !out.contains(&name) {
-                out.push(name);
-            }
+    for p in ladder_kept(rows, plan) {
+        if p.trains_only && !out.contains(&p.name) {
+            out.push(p.name);
         }
     }
     out
+}
+
+/// Every policy the batch's finished ladder trainings kept, in their trainings' queue order.
+fn ladder_kept(rows: &BatchRows, plan: &LadderPlan) -> Vec<KeptPolicy> {
+    of_kind(rows, JobKind::LadderTraining)
+        .filter_map(|s| s.trained())
+        .flat_map(|outcome| plan.kept(outcome))
+        .collect()
 }
 
 /// The ranked policies' finished episodes, each with its judges' mean completion score.
@@ -394,29 +396,23 @@ fn imagined_judgements(rows: &BatchRows) -> Vec<ImaginedJudgement> {
 /// long, by group (task order), episodes and step; a key kept twice (the final model at the last
 /// checkpoint) is labelled once. With ladders in several groups, each label names its group.
 fn ladder_labels(rows: &BatchRows, plan: &LadderPlan, labels: &mut Vec<(String, String)>) {
-    // (group, family, episodes trained on, step, key)
-    let mut kept: Vec<(&str, Backbone, u32, u64, &str)> = Vec::new();
-    for s in of_kind(rows, JobKind::LadderTraining) {
-        let Some(outcome) = s.trained() else {
-            continue;
-        };
-        if let TrainerOutcome::Diffusion { group, fit, .. } = outcome {
-            for (step, key) in outcome.kept_policies() {
-                kept.push((group.as_str(), fit.config.backbone, fit.clips, step, key));
-            }
-        }
-    }
+    let mut kept = ladder_kept(rows, plan);
     let rank = |g: &str| group_rank(&rows.tasks, g);
     let order = |b: Backbone| plan.families().iter().position(|f| *f == b);
     kept.sort_by(|a, b| {
-        (rank(a.0), order(a.1), a.2, a.3, a.4).cmp(&(rank(b.0), order(b.1), b.2, b.3, b.4))
+        (rank(&a.group), order(a.family), a.clips, a.step, &a.name).cmp(&(
+            rank(&b.group),
+            order(b.family),
+            b.clips,
+            b.step,
+            &b.name,
+        ))
     });
-    let several = kept.iter().any(|(g, ..)| *g != kept[0].0);
-    for (group, backbone, episodes, step, key) in kept {
-        let name = plan.policy_name(key);
-        if !labels.iter().any(|(p, _)| *p == name) {
-            let group = several.then_some(group);
-            labels.push((name, ladder_label(backbone, episodes, step, group)));
+    let several = kept.iter().any(|p| p.group != kept[0].group);
+    for p in kept {
+        if !labels.iter().any(|(name, _)| *name == p.name) {
+            let group = several.then_some(p.group.as_str());
+            labels.push((p.name, ladder_label(p.family, p.clips, p.step, group)));
         }
     }
 }

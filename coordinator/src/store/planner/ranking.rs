@@ -4,7 +4,7 @@
 
 use assay_model::job::JobKind;
 use assay_model::policy::PolicySpec;
-use assay_model::proxy::{ProxyEpisode, RankingPlan};
+use assay_model::proxy::{KeptPolicy, ProxyEpisode, RankingPlan};
 use assay_model::trainer::{TrainerJob, TrainerOutcome};
 use assay_spec::spec::PhysicsSettings;
 use rusqlite::{Connection, OptionalExtension, params};
@@ -54,7 +54,7 @@ impl Store {
                 _ => task_budget,
             };
             let family = match of_ladder {
-                Some(p) if !training => p.family.to_owned(),
+                Some(p) if !training => p.family.as_str().to_owned(),
                 _ => String::new(),
             };
             let ep = ProxyEpisode {
@@ -76,14 +76,13 @@ impl Store {
         Ok((train, eval))
     }
 
-    /// Every policy the finished ladder trainings of `group` kept, with its family and whether
-    /// it only trains the proxy.
+    /// Every policy the finished ladder trainings of `group` kept.
     fn ladder_policies(
         conn: &Connection,
         batch_id: &str,
         group: &str,
         plan: &RankingPlan,
-    ) -> Result<Vec<LadderPolicy>, CoordError> {
+    ) -> Result<Vec<KeptPolicy>, CoordError> {
         let Some(ladder) = &plan.ladder else {
             return Ok(Vec::new());
         };
@@ -95,19 +94,8 @@ impl Store {
         let mut rows = stmt.query(params![batch_id, group, JobKind::LadderTraining.as_str()])?;
         while let Some(r) = rows.next()? {
             let json: String = r.get(0)?;
-            let Ok(outcome) = serde_json::from_str::<TrainerOutcome>(&json) else {
-                continue;
-            };
-            let TrainerOutcome::Diffusion { fit, .. } = &outcome else {
-                continue;
-            };
-            let family = fit.config.backbone.as_str();
-            for (step, key) in outcome.kept_policies() {
-                out.push(LadderPolicy {
-                    name: ladder.policy_name(key),
-                    family,
-                    trains_only: ladder.trains_only(fit.clips, step),
-                });
+            if let Ok(outcome) = serde_json::from_str::<TrainerOutcome>(&json) {
+                out.extend(ladder.kept(&outcome));
             }
         }
         Ok(out)
@@ -244,14 +232,4 @@ impl Store {
         }
         Ok(())
     }
-}
-
-/// A policy a ladder training kept.
-struct LadderPolicy {
-    name: String,
-    /// Its denoiser (`Backbone::as_str`).
-    family: &'static str,
-    /// Kept at one of `ladder.train_checkpoints` or by a run of `ladder.train_episodes`: a
-    /// training policy, never ranked.
-    trains_only: bool,
 }
