@@ -32,7 +32,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         train,
         eval,
         config,
-        ..
+        world_model,
     } = job
     else {
         return Err("not a proxy job".into());
@@ -58,21 +58,29 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let world_models = |server: &ExternalWorldModel| {
         assay_policy::world_model::connect(&server.url, server.timeout_ms, &handle)
     };
-    let result = run_proxy(
-        &ProxyRequest {
-            group: &group,
-            policies: &policies,
-            world_models: &world_models,
-            train: &train,
-            train_clips: &train_clips,
-            eval: &eval,
-            eval_clips: &eval_clips,
-            config: &config,
-            device: assay_trainer::default_device(),
-        },
-        None,
-        &mut |_, _| Ok(()),
-    )?;
+    // The world model fitted ahead of the proxy, when the batch had one: imagining starts from
+    // it (a config override that changes its training settings refits, as the trainer does).
+    let ahead = world_model
+        .map(|k| std::fs::read(root.join(k)))
+        .transpose()?;
+    let request = ProxyRequest {
+        group: &group,
+        policies: &policies,
+        world_models: &world_models,
+        train: &train,
+        train_clips: &train_clips,
+        eval: &eval,
+        eval_clips: &eval_clips,
+        config: &config,
+        device: assay_trainer::default_device(),
+    };
+    let result = match run_proxy(&request, ahead.as_deref(), &mut |_, _| Ok(())) {
+        Err(assay_trainer::world_model::WorldModelError::CheckpointRefused(why)) => {
+            eprintln!("the world model fitted ahead is refused ({why}); fitting one");
+            run_proxy(&request, None, &mut |_, _| Ok(()))?
+        }
+        other => other?,
+    };
     let mut by_policy: BTreeMap<&str, (u32, u32, f64)> = BTreeMap::new();
     for p in &result.predictions {
         println!("{}", serde_json::to_string(p)?);
