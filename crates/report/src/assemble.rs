@@ -11,9 +11,9 @@ use std::collections::BTreeSet;
 use assay_model::diffusion::Backbone;
 use assay_model::episode::{EpisodeOutcome, JudgeRecord, ShardRecord, TaskInfo};
 use assay_model::job::{JobKind, ShardState};
-use assay_model::proxy::{ImaginedJudgement, KeptPolicy, LadderPlan, ProxyResult, RankingPlan};
+use assay_model::proxy::{ImaginedJudgement, LadderPlan, ProxyResult, RankingPlan};
 use assay_model::quality::Item;
-use assay_model::trainer::TrainerOutcome;
+use assay_model::trainer::{KeptPolicy, TrainerOutcome};
 
 use crate::diversity::DiversityResults;
 use crate::generalization::{EvalEpisode, GeneralizationResults, GroupGeneralization};
@@ -281,7 +281,7 @@ fn ladder_training_policies(rows: &BatchRows, plan: &LadderPlan) -> Vec<String> 
 fn ladder_kept(rows: &BatchRows, plan: &LadderPlan) -> Vec<KeptPolicy> {
     of_kind(rows, JobKind::LadderTraining)
         .filter_map(|s| s.trained())
-        .flat_map(|outcome| plan.kept(outcome))
+        .flat_map(|outcome| outcome.ladder_policies(plan))
         .collect()
 }
 

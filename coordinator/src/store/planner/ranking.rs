@@ -4,8 +4,8 @@
 
 use assay_model::job::JobKind;
 use assay_model::policy::PolicySpec;
-use assay_model::proxy::{KeptPolicy, ProxyEpisode, RankingPlan};
-use assay_model::trainer::{TrainerJob, TrainerOutcome};
+use assay_model::proxy::{ProxyEpisode, RankingPlan};
+use assay_model::trainer::{KeptPolicy, TrainerJob, TrainerOutcome};
 use assay_spec::spec::PhysicsSettings;
 use rusqlite::{Connection, OptionalExtension, params};
 
@@ -95,7 +95,7 @@ impl Store {
         while let Some(r) = rows.next()? {
             let json: String = r.get(0)?;
             if let Ok(outcome) = serde_json::from_str::<TrainerOutcome>(&json) {
-                out.extend(ladder.kept(&outcome));
+                out.extend(outcome.ladder_policies(ladder));
             }
         }
         Ok(out)

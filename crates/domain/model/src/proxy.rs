@@ -11,7 +11,6 @@ use serde::{Deserialize, Serialize};
 
 use crate::dynamics::{DynamicsConfig, DynamicsFit};
 use crate::episode::Keyframe;
-use crate::trainer::TrainerOutcome;
 use crate::video::{VideoFit, VideoModelConfig, WorldModelKind};
 use assay_stats::stats::Proportion;
 
@@ -393,43 +392,6 @@ impl LadderPlan {
     pub fn policy_name(&self, model: &str) -> String {
         format!("diffusion:model={model},max_steps={}", self.max_steps)
     }
-
-    /// The policies a finished ladder training kept ([`TrainerOutcome::kept_policies`]), by
-    /// step, each with what the planner and the report read of it; empty for any other outcome.
-    pub fn kept(&self, outcome: &TrainerOutcome) -> Vec<KeptPolicy> {
-        let TrainerOutcome::Diffusion { group, fit, .. } = outcome else {
-            return Vec::new();
-        };
-        outcome
-            .kept_policies()
-            .into_iter()
-            .map(|(step, key)| KeptPolicy {
-                name: self.policy_name(key),
-                group: group.clone(),
-                family: fit.config.backbone,
-                clips: fit.clips,
-                step,
-                trains_only: self.trains_only(fit.clips, step),
-            })
-            .collect()
-    }
-}
-
-/// A policy a ladder training kept ([`LadderPlan::kept`]).
-#[derive(Debug, Clone, PartialEq)]
-pub struct KeptPolicy {
-    /// Its episodes' policy name ([`LadderPlan::policy_name`]).
-    pub name: String,
-    pub group: String,
-    /// The run's denoiser.
-    pub family: crate::diffusion::Backbone,
-    /// The run's training episodes (fewer than asked when its group has fewer).
-    pub clips: u32,
-    /// The training step it was kept at.
-    pub step: u64,
-    /// Kept at one of `train_checkpoints` or by a run of `train_episodes`: it trains the proxy
-    /// and is never ranked.
-    pub trains_only: bool,
 }
 
 /// One episode the proxy uses: its dynamics clip in the artifact store and, for a training
@@ -767,56 +729,5 @@ mod tests {
         .validate()
         .unwrap_err();
         assert!(e.starts_with("ladder.train_episodes: each run"), "{e}");
-    }
-
-    /// `kept` reads each kept policy's run from the fit (a transformer run on 5 clips, a
-    /// `train_episodes` run) and names it as the ladder's episodes do.
-    #[test]
-    fn kept_policies_carry_their_run_and_role() {
-        use crate::diffusion::{Backbone, DiffusionConfig, DiffusionFit};
-        let plan = LadderPlan {
-            episodes: vec![10],
-            train_episodes: vec![5],
-            checkpoints: vec![300, 1000],
-            ..LadderPlan::default()
-        };
-        let fit = |clips| DiffusionFit {
-            steps: 1000,
-            final_loss: 0.0,
-            mean_last_100_loss: 0.0,
-            train_seconds: 0.0,
-            parameters: 0,
-            clips,
-            samples: 0,
-            device: "cpu".into(),
-            libtorch: String::new(),
-            config: DiffusionConfig {
-                backbone: Backbone::Transformer,
-                ..DiffusionConfig::default()
-            },
-        };
-        let outcome = |clips| TrainerOutcome::Diffusion {
-            group: "placement".into(),
-            model: "final".into(),
-            fit: Box::new(fit(clips)),
-            checkpoints: vec![(300, "early".into()), (1000, "final".into())],
-        };
-        let kept = plan.kept(&outcome(5));
-        let view: Vec<_> = kept
-            .iter()
-            .map(|p| (p.name.as_str(), p.step, p.clips, p.trains_only))
-            .collect();
-        assert_eq!(
-            view,
-            [
-                ("diffusion:model=early,max_steps=6000", 300, 5, true),
-                ("diffusion:model=final,max_steps=6000", 1000, 5, true)
-            ]
-        );
-        assert!(
-            kept.iter()
-                .all(|p| p.group == "placement" && p.family == Backbone::Transformer)
-        );
-        assert!(plan.kept(&outcome(10)).iter().all(|p| !p.trains_only));
     }
 }

@@ -5,9 +5,9 @@ use serde::{Deserialize, Serialize};
 
 use assay_stats::diversity::TextDiversityTable;
 
-use crate::diffusion::{DiffusionConfig, DiffusionFit};
+use crate::diffusion::{Backbone, DiffusionConfig, DiffusionFit};
 use crate::dynamics::{DynamicsConfig, DynamicsFit};
-use crate::proxy::{ProxyConfig, ProxyEpisode, ProxyResult};
+use crate::proxy::{LadderPlan, ProxyConfig, ProxyEpisode, ProxyResult};
 
 /// One trainer shard's job (the assignment's `input_json`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
@@ -119,5 +119,100 @@ impl TrainerOutcome {
         }
         kept.sort_by_key(|(step, _)| *step);
         kept
+    }
+
+    /// The policies a finished training of `ladder` kept ([`Self::kept_policies`]), by step,
+    /// each with what the planner and the report read of it; empty for any other outcome.
+    pub fn ladder_policies(&self, ladder: &LadderPlan) -> Vec<KeptPolicy> {
+        let TrainerOutcome::Diffusion { group, fit, .. } = self else {
+            return Vec::new();
+        };
+        self.kept_policies()
+            .into_iter()
+            .map(|(step, key)| KeptPolicy {
+                name: ladder.policy_name(key),
+                group: group.clone(),
+                family: fit.config.backbone,
+                clips: fit.clips,
+                step,
+                trains_only: ladder.trains_only(fit.clips, step),
+            })
+            .collect()
+    }
+}
+
+/// A policy a ladder training kept ([`TrainerOutcome::ladder_policies`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct KeptPolicy {
+    /// Its episodes' policy name ([`LadderPlan::policy_name`]).
+    pub name: String,
+    pub group: String,
+    /// The run's denoiser.
+    pub family: Backbone,
+    /// The run's training episodes (fewer than asked when its group has fewer).
+    pub clips: u32,
+    /// The training step it was kept at.
+    pub step: u64,
+    /// Kept at one of `train_checkpoints` or by a run of `train_episodes`: it trains the proxy
+    /// and is never ranked.
+    pub trains_only: bool,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A ladder training's policies carry their run, read from the fit (a transformer run on 5
+    /// clips, a `train_episodes` run), and are named as the ladder's episodes are.
+    #[test]
+    fn ladder_policies_carry_their_run_and_role() {
+        let plan = LadderPlan {
+            episodes: vec![10],
+            train_episodes: vec![5],
+            checkpoints: vec![300, 1000],
+            ..LadderPlan::default()
+        };
+        let outcome = |clips| TrainerOutcome::Diffusion {
+            group: "placement".into(),
+            model: "final".into(),
+            fit: Box::new(DiffusionFit {
+                steps: 1000,
+                final_loss: 0.0,
+                mean_last_100_loss: 0.0,
+                train_seconds: 0.0,
+                parameters: 0,
+                clips,
+                samples: 0,
+                device: "cpu".into(),
+                libtorch: String::new(),
+                config: DiffusionConfig {
+                    backbone: Backbone::Transformer,
+                    ..DiffusionConfig::default()
+                },
+            }),
+            checkpoints: vec![(300, "early".into()), (1000, "final".into())],
+        };
+        let kept = outcome(5).ladder_policies(&plan);
+        let view: Vec<_> = kept
+            .iter()
+            .map(|p| (p.name.as_str(), p.step, p.clips, p.trains_only))
+            .collect();
+        assert_eq!(
+            view,
+            [
+                ("diffusion:model=early,max_steps=6000", 300, 5, true),
+                ("diffusion:model=final,max_steps=6000", 1000, 5, true)
+            ]
+        );
+        assert!(
+            kept.iter()
+                .all(|p| p.group == "placement" && p.family == Backbone::Transformer)
+        );
+        assert!(
+            outcome(10)
+                .ladder_policies(&plan)
+                .iter()
+                .all(|p| !p.trains_only)
+        );
     }
 }
