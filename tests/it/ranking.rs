@@ -255,6 +255,13 @@ fn eval_ranks_a_ladder_by_the_world_model_proxy() {
     assert!(md.contains("training policies") && md.contains("ranked policies"));
     let svg = std::fs::read_to_string(out_dir.join("ranking.svg")).unwrap();
     assert!(svg.contains("<svg"));
+    // The frame judge's reliability on the ranked episodes, beside the report.
+    assert!(
+        md.contains("### Reliability of the predicted probabilities"),
+        "{md}"
+    );
+    let svg = std::fs::read_to_string(out_dir.join("ranking-reliability.svg")).unwrap();
+    assert!(svg.contains("world-model (ECE "), "{svg}");
 }
 
 /// A task of the stacking group.
@@ -764,6 +771,25 @@ fn each_group_ranks_a_ladder_of_both_families_on_its_own() {
                 .iter()
                 .all(|p| p.policy.ends_with(",max_steps=480"))
         );
+    }
+    // Reliability of the frame judge's probabilities: over every ranked episode the proxy
+    // judged, then per group over that group's.
+    let judged = |group: Option<&str>| -> u64 {
+        k.groups
+            .iter()
+            .filter(|p| group.is_none_or(|g| p.group == g))
+            .map(|p| p.predictions.len() as u64)
+            .sum()
+    };
+    let curves: Vec<(Option<&str>, u64)> = k
+        .reliability
+        .iter()
+        .filter(|c| c.source == "world-model")
+        .map(|c| (c.group.as_deref(), c.reliability.predictions))
+        .collect();
+    assert_eq!(curves.len(), 3, "{curves:?}");
+    for (group, predictions) in curves {
+        assert_eq!(predictions, judged(group), "{group:?}");
     }
     // The calibration, where a group has one: fitted on its 12 training episodes (the training
     // policies' 6 and the training-only ladder policies' 6), read by every ranked prediction

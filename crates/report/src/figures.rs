@@ -12,6 +12,7 @@ use plotters::prelude::*;
 use plotters::style::text_anchor::{HPos, Pos, VPos};
 
 use assay_stats::agreement::Estimate;
+use assay_stats::calibration::Reliability;
 use assay_stats::ranking::{Comparison, Ranking};
 
 /// Series colours (matplotlib's tab10, as report.md's quality figure uses).
@@ -424,6 +425,46 @@ pub fn ranking_labelled(
     out
 }
 
+/// A chart of the unit square drawn on `root`: its title, mesh and axes' descriptions, and the
+/// dashed y = x diagonal (the ranking's and the reliability diagram's frame).
+fn unit_square<'a, 'b>(
+    root: &'a DrawingArea<SVGBackend<'b>, Shift>,
+    title: &str,
+    x_desc: &str,
+    y_desc: &str,
+) -> Result<
+    ChartContext<
+        'a,
+        SVGBackend<'b>,
+        Cartesian2d<plotters::coord::types::RangedCoordf64, plotters::coord::types::RangedCoordf64>,
+    >,
+    Box<dyn std::error::Error>,
+> {
+    let mut chart = ChartBuilder::on(root)
+        .caption(title, ("sans-serif", 18))
+        .margin(16)
+        .x_label_area_size(44)
+        .y_label_area_size(56)
+        .build_cartesian_2d(0f64..1f64, 0f64..1f64)?;
+    chart
+        .configure_mesh()
+        .x_labels(6)
+        .y_labels(6)
+        .light_line_style(WHITE)
+        .bold_line_style(BLACK.mix(0.08))
+        .x_desc(x_desc)
+        .y_desc(y_desc)
+        .axis_desc_style(("sans-serif", 14))
+        .draw()?;
+    chart.draw_series(DashedLineSeries::new(
+        [(0.0, 0.0), (1.0, 1.0)],
+        6,
+        4,
+        BLACK.mix(0.45).stroke_width(1),
+    ))?;
+    Ok(chart)
+}
+
 fn short(e: &Estimate) -> String {
     e.value
         .map_or_else(|| "undefined".to_owned(), |v| format!("{v:.3}"))
@@ -443,28 +484,12 @@ fn draw_ranking(
     );
     let root = SVGBackend::with_string(out, (600, 560)).into_drawing_area();
     root.fill(&WHITE)?;
-    let mut chart = ChartBuilder::on(&root)
-        .caption(title, ("sans-serif", 18))
-        .margin(16)
-        .x_label_area_size(44)
-        .y_label_area_size(56)
-        .build_cartesian_2d(0f64..1f64, 0f64..1f64)?;
-    chart
-        .configure_mesh()
-        .x_labels(6)
-        .y_labels(6)
-        .light_line_style(WHITE)
-        .bold_line_style(BLACK.mix(0.08))
-        .x_desc(format!("real success R ({})", c.real))
-        .y_desc(format!("predicted success R_S ({})", c.proxy))
-        .axis_desc_style(("sans-serif", 14))
-        .draw()?;
-    chart.draw_series(DashedLineSeries::new(
-        [(0.0, 0.0), (1.0, 1.0)],
-        6,
-        4,
-        BLACK.mix(0.45).stroke_width(1),
-    ))?;
+    let mut chart = unit_square(
+        &root,
+        &title,
+        &format!("real success R ({})", c.real),
+        &format!("predicted success R_S ({})", c.proxy),
+    )?;
     chart.draw_series(std::iter::once(Text::new(
         "y = x",
         (0.86, 0.93),
@@ -482,6 +507,77 @@ fn draw_ranking(
     }))?;
     root.present()?;
     Ok(())
+}
+
+/// A reliability diagram as a standalone SVG: per series (label, diagram), each bin's observed
+/// rate against its mean predicted probability with its 95 % interval, the points joined, the
+/// marker's area growing with the bin's predictions; the y = x diagonal; each series' ECE in the
+/// legend.
+pub fn reliability(title: &str, series: &[(&str, &Reliability)]) -> String {
+    render(600, 560, |root| {
+        root.fill(&WHITE)?;
+        let mut chart = unit_square(
+            root,
+            title,
+            "predicted probability of success (bin mean)",
+            "observed success rate (simulator)",
+        )?;
+        if series.iter().all(|(_, r)| r.bins.is_empty()) {
+            return note(root, "no predictions");
+        }
+        for (i, (label, r)) in series.iter().enumerate() {
+            let c = colour(i);
+            let points: Vec<(f64, f64)> = r
+                .bins
+                .iter()
+                .filter_map(|b| Some((b.mean_predicted, b.observed.rate?)))
+                .collect();
+            let ece = r
+                .ece
+                .map_or_else(|| "undefined".to_owned(), |e| format!("{e:.3}"));
+            chart
+                .draw_series(LineSeries::new(points, c.stroke_width(2)))?
+                .label(format!("{label} (ECE {ece}, {} episodes)", r.predictions))
+                .legend(move |(x, y)| PathElement::new([(x, y), (x + 16, y)], c.stroke_width(2)));
+            for b in &r.bins {
+                let (Some(rate), Some([lo, hi])) = (b.observed.rate, b.observed.ci95) else {
+                    continue;
+                };
+                let x = b.mean_predicted;
+                chart.draw_series(std::iter::once(PathElement::new(
+                    [(x, lo), (x, hi)],
+                    c.mix(0.6).stroke_width(1),
+                )))?;
+                let radius = 3 + (2.0 * (b.observed.trials as f64).sqrt()).round() as i32;
+                chart.draw_series(std::iter::once(Circle::new(
+                    (x, rate),
+                    radius.min(14),
+                    c.mix(0.8).filled(),
+                )))?;
+            }
+        }
+        chart
+            .configure_series_labels()
+            .position(SeriesLabelPosition::UpperLeft)
+            .background_style(WHITE.mix(0.9))
+            .border_style(BLACK.mix(0.3))
+            .label_font(("sans-serif", 12))
+            .draw()?;
+        Ok(())
+    })
+}
+
+/// The ranking's reliability figure ([`reliability`]) over every ranked episode: the curves of
+/// `r` without a group, raw and calibrated; `None` without predictions.
+pub fn ranking_reliability(r: &crate::ranking::RankingResults) -> Option<String> {
+    let series: Vec<(&str, &Reliability)> = r
+        .reliability
+        .iter()
+        .filter(|c| c.group.is_none())
+        .map(|c| (c.source.as_str(), &c.reliability))
+        .collect();
+    (!series.is_empty())
+        .then(|| reliability("Reliability on the ranked episodes (frame judge)", &series))
 }
 
 #[cfg(test)]
@@ -574,6 +670,26 @@ mod tests {
             },
         ];
         well_formed(&line_chart("t", "x", "y", &flat));
+    }
+
+    #[test]
+    fn the_reliability_diagram_handles_empty_and_degenerate_input() {
+        use assay_stats::calibration::reliability;
+        let empty = reliability(&[], 5);
+        let svg = super::reliability("none", &[("world-model", &empty)]);
+        well_formed(&svg);
+        assert!(svg.contains("no predictions"), "{svg}");
+        // Every prediction in one bin, every outcome the same (an interval of zero width).
+        let one = reliability(&[(1.0, true), (0.99, true), (0.95, true)], 5);
+        let spread = reliability(&[(0.1, false), (0.5, true), (0.9, true), (0.3, false)], 5);
+        let svg = super::reliability("two", &[("a", &one), ("b", &spread)]);
+        well_formed(&svg);
+        assert!(svg.contains("ECE 0.020, 3 episodes"), "{svg}");
+        assert_eq!(
+            svg,
+            super::reliability("two", &[("a", &one), ("b", &spread)]),
+            "the same input gives the same bytes"
+        );
     }
 
     #[test]

@@ -16,6 +16,7 @@ use assay_model::proxy::{
     judged_source,
 };
 use assay_model::quality::ScoreStats;
+use assay_stats::calibration::{Reliability, reliability};
 use assay_stats::ranking::{Cell, Ranking, RankingConfig, rank};
 use assay_stats::stats::Proportion;
 
@@ -131,6 +132,34 @@ pub struct GroupRanking {
     pub missing: Option<String>,
 }
 
+/// The reliability diagram of one proxy's probabilities on the ranked episodes, against the
+/// simulator's outcomes of the same episodes (issue 45: calibrated, not only ordered).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+pub struct ReliabilityCurve {
+    /// Whose probabilities: [`PROXY_SOURCE`] (the frame judge's on the last imagined frame) or
+    /// [`CALIBRATED_SOURCE`] (the same through the group's calibration).
+    pub source: String,
+    /// The group whose ranked episodes; absent: every ranked episode.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub group: Option<String>,
+    pub reliability: Reliability,
+}
+
+/// Equal-width probability bins of the reliability diagrams.
+pub const RELIABILITY_BINS: usize = 5;
+
+/// The reliability figure of report.md (beside report.json and report.html).
+pub const RELIABILITY_FIGURE: &str = "ranking-reliability.svg";
+
+/// What the reliability diagrams are (report.md and report.html).
+pub const RELIABILITY_NOTE: &str = "Per ranked episode, the proxy's probability of success \
+    (the frame judge's on the last imagined frame, and the same through the calibration fitted \
+    on the training policies) against the simulator's outcome of that episode, in 5 equal-width \
+    bins: each bin's mean predicted probability beside the share of its episodes that succeeded \
+    (95 % Wilson interval). A calibrated proxy's points lie on the diagonal; ECE is the mean \
+    over episodes of their bin's |mean predicted − observed|. The ranked policies' outcomes are \
+    read here only, never by the fit.";
+
 /// The policy-ranking section of a report.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct RankingResults {
@@ -172,6 +201,10 @@ pub struct RankingResults {
     /// real and imagined rollouts (the frame judge first, then the judges by name).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub judge_agreements: Vec<JudgeAgreement>,
+    /// Reliability diagrams of the frame judge's probabilities on the ranked episodes, raw and
+    /// calibrated: over every ranked episode, then per group when the ranked tasks span several.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub reliability: Vec<ReliabilityCurve>,
     /// Proxy jobs that failed: (group, error).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub errors: Vec<(String, String)>,
@@ -369,6 +402,8 @@ pub fn ranking_results(
     let mut cells = Vec::new();
     let mut agree = (0u64, 0u64);
     let mut judge_real = (0u64, 0u64);
+    // (group, source, probability, real outcome) of every ranked episode the proxy judged.
+    let mut probabilities: Vec<(&str, &str, f64, bool)> = Vec::new();
     for (task, group) in task_groups {
         for policy in ranked_policies {
             let eps: Vec<&RealEpisode> = episodes
@@ -392,6 +427,10 @@ pub fn ranking_results(
                     judge_real.1 += 1;
                     judge_real.0 +=
                         u64::from((p.p_success_real_frame >= plan.config.threshold) == e.success);
+                    probabilities.push((group, PROXY_SOURCE, p.p_success, e.success));
+                    if let Some(c) = p.p_calibrated {
+                        probabilities.push((group, CALIBRATED_SOURCE, c, e.success));
+                    }
                 }
             }
             let proxy = successes(preds.iter().map(|p| Some(p.success)));
@@ -560,6 +599,7 @@ pub fn ranking_results(
         .filter(|e| task_groups.iter().any(|(t, _)| *t == e.task_id))
         .cloned()
         .collect();
+    let reliability = reliability_curves(&probabilities, &ranked_groups);
     let proxy_agreement = (agree.1 > 0).then(|| Proportion::new(agree.0, agree.1));
     let judge_agreement_real_frames =
         (judge_real.1 > 0).then(|| Proportion::new(judge_real.0, judge_real.1));
@@ -594,6 +634,7 @@ pub fn ranking_results(
         proxy_agreement,
         judge_agreement_real_frames,
         judge_agreements,
+        reliability,
         errors,
         judging_errors: imagined
             .iter()
@@ -611,6 +652,39 @@ pub fn ranking_results(
             .collect(),
         labels: Vec::new(),
     }
+}
+
+/// The reliability diagrams of `probabilities` ((group, source, probability, outcome)): per
+/// source (the raw proxy first), over every group, then per group when there are several.
+fn reliability_curves(
+    probabilities: &[(&str, &str, f64, bool)],
+    groups: &[&str],
+) -> Vec<ReliabilityCurve> {
+    let scopes = std::iter::once(None).chain(
+        (groups.len() > 1)
+            .then(|| groups.iter().map(|g| Some(*g)))
+            .into_iter()
+            .flatten(),
+    );
+    let mut out = Vec::new();
+    for group in scopes {
+        for source in [PROXY_SOURCE, CALIBRATED_SOURCE] {
+            let pairs: Vec<(f64, bool)> = probabilities
+                .iter()
+                .filter(|(g, s, _, _)| *s == source && group.is_none_or(|x| x == *g))
+                .map(|&(_, _, p, ok)| (p, ok))
+                .collect();
+            if pairs.is_empty() {
+                continue;
+            }
+            out.push(ReliabilityCurve {
+                source: source.to_owned(),
+                group: group.map(str::to_owned),
+                reliability: reliability(&pairs, RELIABILITY_BINS),
+            });
+        }
+    }
+    out
 }
 
 /// Per ranked policy, best real success first: its cells' trials and successes summed over
@@ -1124,7 +1198,53 @@ mod tests {
         // Other real outcomes of the ranked policies: R moves, the calibrated R_S does not.
         let other = points(&with_real([1, 3, 4]), CALIBRATED_SOURCE);
         assert_eq!(other, [(0.25, 0.75), (0.75, 0.5), (1.0, 0.25)]);
+        // The reliability diagrams read the ranked episodes' outcomes (an evaluation, after the
+        // fit): raw, 0.9 / 0.7 / 0.55 in bins 4, 3 and 2 with 4/4, 2/4 and 0/4 successes.
+        let curve = |r: &RankingResults, source: &str| -> Reliability {
+            let c = r.reliability.iter().find(|c| c.source == source).unwrap();
+            assert_eq!(c.group, None, "one group: the pooled curves only");
+            c.reliability.clone()
+        };
+        let raw = curve(&r, PROXY_SOURCE);
+        let bins: Vec<(f64, f64, u64, u64)> = raw
+            .bins
+            .iter()
+            .map(|b| {
+                (
+                    b.lower,
+                    b.mean_predicted,
+                    b.observed.successes,
+                    b.observed.trials,
+                )
+            })
+            .collect();
+        assert_eq!(
+            bins,
+            [(0.4, 0.55, 0, 4), (0.6, 0.7, 2, 4), (0.8, 0.9, 4, 4)]
+        );
+        let ece = (4.0 * 0.55 + 4.0 * 0.2 + 4.0 * 0.1) / 12.0;
+        assert!((raw.ece.unwrap() - ece).abs() < 1e-9, "{:?}", raw.ece);
+        let cal = curve(&r, CALIBRATED_SOURCE);
+        let ece: f64 = [(0.9, 1.0), (0.7, 0.5), (0.55, 0.0)]
+            .iter()
+            .map(|(p, observed)| (calibration.apply(*p) - observed).abs())
+            .sum::<f64>()
+            / 3.0;
+        assert!((cal.ece.unwrap() - ece).abs() < 1e-9, "{:?} {ece}", cal.ece);
+        // Other outcomes, another diagram: it measures the calibration, it does not make it.
+        assert_ne!(curve(&with_real([1, 3, 4]), PROXY_SOURCE), raw);
         let md = r.markdown();
+        assert!(
+            md.contains("### Reliability of the predicted probabilities"),
+            "{md}"
+        );
+        assert!(md.contains("(ranking-reliability.svg)"), "{md}");
+        assert!(md.contains("| [0.8, 1.0] | 4 | 0.90 | 100 % (4/4)"), "{md}");
+        assert!(
+            crate::figures::ranking_reliability(&r)
+                .unwrap()
+                .contains("ECE 0.283, 12 episodes")
+        );
         assert!(md.contains("Platt scaling fitted per group"), "{md}");
         assert!(md.contains("(ranking-calibrated.svg)"), "{md}");
         assert!(

@@ -19,7 +19,7 @@ mod judges;
 use assay_model::quality::ScoreStats;
 use assay_stats::agreement::Agreement;
 use assay_stats::diversity::TextDiversityTable;
-pub use judges::judge_agreement;
+pub use judges::{judge_agreement, reliability};
 
 fn n(v: impl ToString) -> Cell {
     Cell::text(v.to_string())

@@ -93,6 +93,14 @@ pub fn write(
             )?;
         }
     }
+    if let Some(svg) = report
+        .results
+        .ranking
+        .as_ref()
+        .and_then(assay_report::figures::ranking_reliability)
+    {
+        std::fs::write(out.join(assay_report::ranking::RELIABILITY_FIGURE), svg)?;
+    }
     Ok(())
 }
 

@@ -2,7 +2,12 @@
 //! map `P(y = 1 | s) = σ(a + b · s)` of a score `s` that maximises the likelihood of binary
 //! outcomes, with Platt's smoothed targets `(N₊ + 1) / (N₊ + 2)` for a positive and
 //! `1 / (N₋ + 2)` for a negative — the prior's correction that keeps `a` and `b` finite when the
-//! scores separate the outcomes.
+//! scores separate the outcomes. And the reliability diagram that shows how well predicted
+//! probabilities match the outcomes they predict, with its expected calibration error.
+
+use serde::{Deserialize, Serialize};
+
+use crate::stats::Proportion;
 
 /// `(a, b)` of Platt scaling of `scores` against `outcomes` (same length). `None` with fewer than
 /// two examples, with one class only, or with a score that is not finite.
@@ -76,9 +81,142 @@ pub fn platt(scores: &[f64], outcomes: &[bool]) -> Option<(f64, f64)> {
     Some((a, b))
 }
 
+/// A reliability diagram (DeGroot and Fienberg 1983; Niculescu-Mizil and Caruana 2005): the
+/// predictions dealt into equal-width bins of their probability, and per bin the mean predicted
+/// probability beside the share of outcomes that happened. A calibrated predictor's points lie
+/// on the diagonal.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+pub struct Reliability {
+    /// The bins holding at least one prediction, lowest first.
+    pub bins: Vec<ReliabilityBin>,
+    /// Predictions binned (every finite probability in [0, 1]).
+    pub predictions: u64,
+    /// Expected calibration error: the mean over predictions of |its bin's mean predicted
+    /// probability − its bin's observed rate| (Naeini et al. 2015, equal-width bins); absent
+    /// without predictions.
+    pub ece: Option<f64>,
+}
+
+/// One bin of a [`Reliability`] diagram: predictions with a probability in `[lower, upper)`
+/// (the last bin also holds `upper` = 1).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+pub struct ReliabilityBin {
+    pub lower: f64,
+    pub upper: f64,
+    /// The mean of the bin's predicted probabilities.
+    pub mean_predicted: f64,
+    /// Its outcomes: how many happened, of how many, with a Wilson interval.
+    pub observed: Proportion,
+}
+
+/// The reliability diagram of `(probability, outcome)` pairs over `bins` equal-width bins of
+/// [0, 1]. Probabilities that are not finite or lie outside [0, 1] are left out.
+pub fn reliability(pairs: &[(f64, bool)], bins: usize) -> Reliability {
+    assert!(bins > 0, "a reliability diagram needs at least one bin");
+    let mut sums = vec![(0.0f64, 0u64, 0u64); bins];
+    for &(p, outcome) in pairs {
+        if !p.is_finite() || !(0.0..=1.0).contains(&p) {
+            continue;
+        }
+        let i = ((p * bins as f64).floor() as usize).min(bins - 1);
+        sums[i].0 += p;
+        sums[i].1 += u64::from(outcome);
+        sums[i].2 += 1;
+    }
+    let predictions: u64 = sums.iter().map(|s| s.2).sum();
+    let bins_out: Vec<ReliabilityBin> = sums
+        .iter()
+        .enumerate()
+        .filter(|(_, s)| s.2 > 0)
+        .map(|(i, &(sum, happened, n))| ReliabilityBin {
+            lower: i as f64 / bins as f64,
+            upper: (i + 1) as f64 / bins as f64,
+            mean_predicted: sum / n as f64,
+            observed: Proportion::new(happened, n),
+        })
+        .collect();
+    let ece = (predictions > 0).then(|| {
+        bins_out
+            .iter()
+            .map(|b| {
+                let n = b.observed.trials as f64;
+                n * (b.mean_predicted - b.observed.rate.unwrap_or(0.0)).abs()
+            })
+            .sum::<f64>()
+            / predictions as f64
+    });
+    Reliability {
+        bins: bins_out,
+        predictions,
+        ece,
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn reliability_bins_the_predictions_and_weighs_each_bin_by_its_count() {
+        // Five bins of 0.2. 0.1 and 0.15 (one happened); 0.5 (happened); 0.9, 0.95, 1.0 (two
+        // happened; 1.0 belongs to the last bin); 0.2 opens the second bin.
+        let pairs = [
+            (0.1, false),
+            (0.15, true),
+            (0.2, false),
+            (0.5, true),
+            (0.9, true),
+            (0.95, false),
+            (1.0, true),
+            (f64::NAN, true),
+            (1.5, true),
+        ];
+        let r = reliability(&pairs, 5);
+        assert_eq!(r.predictions, 7);
+        let got: Vec<(f64, f64, u64, u64)> = r
+            .bins
+            .iter()
+            .map(|b| {
+                (
+                    b.lower,
+                    b.mean_predicted,
+                    b.observed.successes,
+                    b.observed.trials,
+                )
+            })
+            .collect();
+        let want = [
+            (0.0, 0.125, 1, 2),
+            (0.2, 0.2, 0, 1),
+            (0.4, 0.5, 1, 1),
+            (0.8, 0.95, 2, 3),
+        ];
+        assert_eq!(got.len(), want.len(), "{got:?}");
+        for (g, w) in got.iter().zip(want) {
+            assert!(
+                (g.0 - w.0).abs() < 1e-12 && (g.1 - w.1).abs() < 1e-12,
+                "{g:?} {w:?}"
+            );
+            assert_eq!((g.2, g.3), (w.2, w.3));
+        }
+        // ECE = (2·|0.125 − 0.5| + 1·|0.2 − 0| + 1·|0.5 − 1| + 3·|0.95 − 2/3|) / 7.
+        let ece = (2.0 * 0.375 + 0.2 + 0.5 + 3.0 * (0.95 - 2.0 / 3.0)) / 7.0;
+        assert!((r.ece.unwrap() - ece).abs() < 1e-12, "{:?}", r.ece);
+    }
+
+    #[test]
+    fn a_calibrated_predictor_has_no_error_and_no_predictions_no_diagram() {
+        // Each bin's predictions happen at the rate they claim.
+        let mut pairs = vec![(0.25, true), (0.25, false), (0.25, false), (0.25, false)];
+        pairs.extend([(0.75, true), (0.75, true), (0.75, true), (0.75, false)]);
+        let r = reliability(&pairs, 4);
+        assert!(r.ece.unwrap().abs() < 1e-12, "{:?}", r.ece);
+        let empty = reliability(&[], 5);
+        assert_eq!(
+            (empty.bins.len(), empty.predictions, empty.ece),
+            (0, 0, None)
+        );
+    }
 
     fn sigmoid(z: f64) -> f64 {
         1.0 / (1.0 + (-z).exp())

@@ -7,8 +7,8 @@ use crate::figures::{self, BarChart, Bars, Line};
 use crate::generalization::{GeneralizationResults, GroupGeneralization, HELD_OUT_NOTE};
 use crate::quality::{OFFLINE_JUDGE_NOTE, QualityResults};
 use crate::ranking::{
-    ACTION_TEST_NOTE, JUDGE_AGREEMENT_NOTE, PER_GROUP_NOTE, PER_POLICY_NOTE, REPEAT_NOTE,
-    RankingResults, source_note,
+    ACTION_TEST_NOTE, JUDGE_AGREEMENT_NOTE, PER_GROUP_NOTE, PER_POLICY_NOTE, RELIABILITY_NOTE,
+    REPEAT_NOTE, RankingResults, source_note,
 };
 use crate::tables::{self, AgreementLine};
 use crate::view::proportion;
@@ -349,6 +349,14 @@ pub(super) fn ranking(r: Option<&RankingResults>) -> Markup {
                 h3 { "Judges' agreement" }
                 p.caption { (JUDGE_AGREEMENT_NOTE) }
                 (table(&agreement))
+            }
+            @if let Some(svg) = figures::ranking_reliability(r) {
+                h3 { "Reliability of the predicted probabilities" }
+                p.caption { (RELIABILITY_NOTE) }
+                div.row {
+                    (inline_svg(&svg))
+                    div { (table(&tables::reliability(r))) }
+                }
             }
             @match (&r.ranking, &r.ranking_missing) {
                 (Some(rk), _) => {

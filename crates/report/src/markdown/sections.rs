@@ -11,8 +11,8 @@ use crate::diversity::DiversityResults;
 use crate::generalization::GeneralizationResults;
 use crate::quality::{ERRORS_SHOWN, OFFLINE_JUDGE_NOTE, QualityResults, TaskQuality};
 use crate::ranking::{
-    ACTION_TEST_NOTE, JUDGE_AGREEMENT_NOTE, PER_GROUP_NOTE, PER_POLICY_NOTE, REPEAT_NOTE,
-    RankingResults, ranking_figure, source_note,
+    ACTION_TEST_NOTE, JUDGE_AGREEMENT_NOTE, PER_GROUP_NOTE, PER_POLICY_NOTE, RELIABILITY_FIGURE,
+    RELIABILITY_NOTE, REPEAT_NOTE, RankingResults, ranking_figure, source_note,
 };
 use crate::tables;
 use crate::view::{Table, abbreviations, md_text};
@@ -244,6 +244,16 @@ impl RankingResults {
             out.push_str("\n### Judges' agreement\n\n");
             let _ = writeln!(out, "{}\n", md_text(JUDGE_AGREEMENT_NOTE));
             out.push_str(&agreement.markdown());
+        }
+        let reliability = tables::reliability(self);
+        if !reliability.rows.is_empty() {
+            out.push_str("\n### Reliability of the predicted probabilities\n\n");
+            let _ = writeln!(out, "{}\n", md_text(RELIABILITY_NOTE));
+            let _ = writeln!(
+                out,
+                "![reliability of the proxy's probabilities on the ranked episodes]({RELIABILITY_FIGURE})\n"
+            );
+            out.push_str(&reliability.markdown());
         }
         out.push_str("\n### Per task and policy\n\n");
         out.push_str(&rows.markdown());
