@@ -798,6 +798,10 @@ fn each_group_ranks_a_ladder_of_both_families_on_its_own() {
         match &p.calibration {
             Some(c) => {
                 assert_eq!((c.episodes, c.folds), (12, 2), "{c:?}");
+                // Its reliability where it was fitted: every one of those episodes, raw and
+                // calibrated.
+                let fit = c.train_reliability.as_ref().expect("the fit's reliability");
+                assert_eq!((fit.raw.predictions, fit.calibrated.predictions), (12, 12));
                 assert!(p.predictions.iter().all(|x| x.p_calibrated.is_some()));
                 let per_group = k.per_group.iter().find(|g| g.group == p.group).unwrap();
                 let proxies: Vec<&str> = per_group

@@ -12,8 +12,8 @@ use serde::{Deserialize, Serialize};
 use assay_model::diffusion::Backbone;
 use assay_model::proxy::{
     CALIBRATED_SOURCE, CROSS_FAMILY_SOURCE, CROSS_FIT_SOURCE, ImaginedJudgement, JudgedProxy,
-    LEAK_SOURCE, PROXY_SOURCE, ProxyConfig, ProxyPrediction, ProxyResult, REAL_SOURCE, RankingPlan,
-    judged_source,
+    LEAK_SOURCE, PROXY_SOURCE, ProxyConfig, ProxyPrediction, ProxyResult, REAL_SOURCE,
+    RELIABILITY_BINS, RankingPlan, judged_source,
 };
 use assay_model::quality::ScoreStats;
 use assay_stats::calibration::{Reliability, reliability};
@@ -145,9 +145,6 @@ pub struct ReliabilityCurve {
     pub reliability: Reliability,
 }
 
-/// Equal-width probability bins of the reliability diagrams.
-pub const RELIABILITY_BINS: usize = 5;
-
 /// The reliability figure of report.md (beside report.json and report.html).
 pub const RELIABILITY_FIGURE: &str = "ranking-reliability.svg";
 
@@ -158,7 +155,8 @@ pub const RELIABILITY_NOTE: &str = "Per ranked episode, the proxy's probability 
     bins: each bin's mean predicted probability beside the share of its episodes that succeeded \
     (95 % Wilson interval). A calibrated proxy's points lie on the diagonal; ECE is the mean \
     over episodes of their bin's |mean predicted − observed|. The ranked policies' outcomes are \
-    read here only, never by the fit.";
+    read here only, never by the fit. The table also gives each group's diagrams on the training \
+    episodes the calibration was fitted on (their out-of-fold probabilities; in sample).";
 
 /// The policy-ranking section of a report.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
@@ -1131,6 +1129,18 @@ mod tests {
             folds: 2,
             train_error: 0.3,
             train_error_uncalibrated: 0.4,
+            // The fit's own diagrams, in sample: shown beside the ranked episodes', read from
+            // the trainer's result as they are.
+            train_reliability: Some(assay_model::proxy::TrainReliability {
+                raw: reliability(
+                    &[(0.95, true), (0.9, false), (0.1, false)],
+                    RELIABILITY_BINS,
+                ),
+                calibrated: reliability(
+                    &[(0.7, true), (0.65, false), (0.2, false)],
+                    RELIABILITY_BINS,
+                ),
+            }),
         };
         let p_of = |policy: &str| match policy {
             "good" => 0.9,
@@ -1240,6 +1250,16 @@ mod tests {
         );
         assert!(md.contains("(ranking-reliability.svg)"), "{md}");
         assert!(md.contains("| [0.8, 1.0] | 4 | 0.90 | 100 % (4/4)"), "{md}");
+        // The fit's diagrams beside them: raw ECE (0.1 + 2 · 0.425) / 3, calibrated
+        // (0.2 + 2 · 0.175) / 3.
+        let fit = "training policies (the fit's, in sample) | g";
+        let raw_row =
+            format!("| `world-model` | {fit} | 0.317 | [0.0, 0.2) | 1 | 0.10 | 0 % (0/1)");
+        assert!(md.contains(&raw_row), "{md}");
+        assert!(
+            md.contains(&format!("| `world-model-calibrated` | {fit} | 0.183 |")),
+            "{md}"
+        );
         assert!(
             crate::figures::ranking_reliability(&r)
                 .unwrap()
@@ -1267,6 +1287,7 @@ mod tests {
             folds: 2,
             train_error: 0.0,
             train_error_uncalibrated: 0.0,
+            train_reliability: None,
         };
         // Real: good 4/4, fair 2/4 (seeds 0, 1), poor 0/4. The frame judge calls good's and
         // fair's imagined rollouts done and poor's not, and every real last frame done (0.5).

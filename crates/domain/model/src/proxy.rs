@@ -658,7 +658,26 @@ pub struct Calibration {
     /// probabilities, over the training episodes (in sample for the calibration).
     pub train_error: f64,
     pub train_error_uncalibrated: f64,
+    /// The reliability diagrams ([`RELIABILITY_BINS`] bins) of the training episodes it was
+    /// fitted on, in sample: their out-of-fold probabilities and the same calibrated, against
+    /// their real outcomes. Beside the ranked episodes' diagrams (the report's), they tell what
+    /// the calibration does where it was fitted from what it does on policies it never saw.
+    /// Absent in reports before they were kept.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub train_reliability: Option<TrainReliability>,
 }
+
+/// [`Calibration::train_reliability`].
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+pub struct TrainReliability {
+    /// The out-of-fold frame-judge probabilities.
+    pub raw: assay_stats::calibration::Reliability,
+    /// The same through the calibration.
+    pub calibrated: assay_stats::calibration::Reliability,
+}
+
+/// Equal-width probability bins of the proxy's reliability diagrams.
+pub const RELIABILITY_BINS: usize = 5;
 
 impl Calibration {
     /// The calibrated probability of a judge probability `p`.

@@ -2,6 +2,9 @@
 //! reliability on the ranked episodes and every judge's agreement with the simulator and with
 //! the frame judge.
 
+use assay_model::proxy::{CALIBRATED_SOURCE, PROXY_SOURCE};
+use assay_stats::calibration::Reliability;
+
 use crate::ranking::{FRAME_JUDGE, RankingResults};
 use crate::view::{Cell, Table, num2, proportion};
 
@@ -59,12 +62,14 @@ pub fn judge_agreement(r: &RankingResults) -> Table {
     table
 }
 
-/// The reliability diagrams' bins ([`crate::ranking::ReliabilityCurve`]): per proxy (and group),
-/// each bin's episodes, mean predicted probability and observed rate, the curve's ECE on its
-/// first row.
+/// The reliability diagrams' bins: on the ranked episodes ([`crate::ranking::ReliabilityCurve`],
+/// per proxy and group), then on each group's training episodes, where its calibration was
+/// fitted (in sample; [`assay_model::proxy::Calibration::train_reliability`]). Per bin its
+/// episodes, mean predicted probability and observed rate; each diagram's ECE on its first row.
 pub fn reliability(r: &RankingResults) -> Table {
     let mut table = Table::new([
         "proxy",
+        "episodes of",
         "group",
         "ECE",
         "predicted in",
@@ -73,34 +78,44 @@ pub fn reliability(r: &RankingResults) -> Table {
         "observed [95 %]",
     ]);
     for curve in &r.reliability {
-        for (i, b) in curve.reliability.bins.iter().enumerate() {
-            let first = i == 0;
-            table.row(vec![
-                if first {
-                    Cell::code(&curve.source)
-                } else {
-                    Cell::text("")
-                },
-                match (&curve.group, first) {
-                    (Some(g), true) => Cell::text(g),
-                    (None, true) => Cell::text("all"),
-                    _ => Cell::text(""),
-                },
-                match (curve.reliability.ece, first) {
-                    (Some(e), true) => Cell::text(format!("{e:.3}")),
-                    _ => Cell::text(""),
-                },
-                Cell::text(format!(
-                    "[{:.1}, {:.1}{}",
-                    b.lower,
-                    b.upper,
-                    if b.upper >= 1.0 { ']' } else { ')' }
-                )),
-                Cell::text(b.observed.trials.to_string()),
-                Cell::text(num2(b.mean_predicted)),
-                proportion(&b.observed),
-            ]);
+        let group = curve.group.as_deref().unwrap_or("all");
+        let of = "ranked policies";
+        diagram(&mut table, &curve.source, of, group, &curve.reliability);
+    }
+    for g in &r.groups {
+        if let Some(t) = g
+            .calibration
+            .as_ref()
+            .and_then(|c| c.train_reliability.as_ref())
+        {
+            let of = "training policies (the fit's, in sample)";
+            diagram(&mut table, PROXY_SOURCE, of, &g.group, &t.raw);
+            diagram(&mut table, CALIBRATED_SOURCE, of, &g.group, &t.calibrated);
         }
     }
     table
+}
+
+/// The rows of one reliability diagram, its labels and ECE on the first.
+fn diagram(table: &mut Table, source: &str, of: &str, group: &str, d: &Reliability) {
+    for (i, b) in d.bins.iter().enumerate() {
+        let first = |c: Cell| if i == 0 { c } else { Cell::text("") };
+        table.row(vec![
+            first(Cell::code(source)),
+            first(Cell::text(of)),
+            first(Cell::text(group)),
+            first(Cell::text(
+                d.ece.map_or_else(|| "–".to_owned(), |e| format!("{e:.3}")),
+            )),
+            Cell::text(format!(
+                "[{:.1}, {:.1}{}",
+                b.lower,
+                b.upper,
+                if b.upper >= 1.0 { ']' } else { ')' }
+            )),
+            Cell::text(b.observed.trials.to_string()),
+            Cell::text(num2(b.mean_predicted)),
+            proportion(&b.observed),
+        ]);
+    }
 }

@@ -4,7 +4,8 @@
 
 use std::ops::Range;
 
-use assay_model::proxy::{Calibration, ProxyConfig};
+use assay_model::proxy::{Calibration, ProxyConfig, RELIABILITY_BINS, TrainReliability};
+use assay_stats::calibration::reliability;
 use tch::Device;
 
 use super::train_frame_judge_at;
@@ -68,6 +69,7 @@ pub(super) fn fit(
         folds: FOLDS as u32,
         train_error: 0.0,
         train_error_uncalibrated: 0.0,
+        train_reliability: None,
     };
     let error = |p: &dyn Fn(f64) -> f64| {
         scores
@@ -79,6 +81,18 @@ pub(super) fn fit(
     };
     calibration.train_error = error(&|s| calibration.apply(s));
     calibration.train_error_uncalibrated = error(&|s| s);
+    let diagram = |p: &dyn Fn(f64) -> f64| {
+        let pairs: Vec<(f64, bool)> = scores
+            .iter()
+            .map(|s| p(*s))
+            .zip(outcomes.iter().copied())
+            .collect();
+        reliability(&pairs, RELIABILITY_BINS)
+    };
+    calibration.train_reliability = Some(TrainReliability {
+        raw: diagram(&|s| s),
+        calibrated: diagram(&|s| calibration.apply(s)),
+    });
     Some(calibration)
 }
 
