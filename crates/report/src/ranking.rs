@@ -658,12 +658,10 @@ fn reliability_curves(
     probabilities: &[(&str, &str, f64, bool)],
     groups: &[&str],
 ) -> Vec<ReliabilityCurve> {
-    let scopes = std::iter::once(None).chain(
-        (groups.len() > 1)
-            .then(|| groups.iter().map(|g| Some(*g)))
-            .into_iter()
-            .flatten(),
-    );
+    let mut scopes = vec![None];
+    if groups.len() > 1 {
+        scopes.extend(groups.iter().map(|g| Some(*g)));
+    }
     let mut out = Vec::new();
     for group in scopes {
         for source in [PROXY_SOURCE, CALIBRATED_SOURCE] {
