@@ -111,7 +111,7 @@ fn measure(world: &dyn WorldModelService, set: &[(Entry, Clip)]) -> OpenLoop {
 /// Rows of 16 frames for the first three held-out windows: real, true actions, another
 /// clip's actions, zero actions (`ASSAY_DUMP=DIR`, to look at).
 fn strip(world: &dyn WorldModelService, set: &[(Entry, Clip)], path: &str) {
-    use assay_trainer::imagination::replay;
+    use assay_trainer::imagination::{replay, sheet_png};
     let (w, h) = (set[0].1.width as usize, set[0].1.height as usize);
     let frame = w * h * 3;
     let mut rows: Vec<Vec<Vec<u8>>> = Vec::new();
@@ -144,21 +144,11 @@ fn strip(world: &dyn WorldModelService, set: &[(Entry, Clip)], path: &str) {
         rows.push(replay(world, &start, &acts(donor)).unwrap());
         rows.push(replay(world, &start, &vec![vec![0.0; 4]; n]).unwrap());
     }
-    let cols = rows.iter().map(Vec::len).max().unwrap_or(0);
-    let (iw, ih) = (cols * w, rows.len() * h);
-    let mut img = vec![0u8; iw * ih * 3];
-    for (r, row) in rows.iter().enumerate() {
-        for (c, f) in row.iter().enumerate() {
-            for y in 0..h {
-                let dst = ((r * h + y) * iw + c * w) * 3;
-                img[dst..dst + w * 3].copy_from_slice(&f[y * w * 3..(y + 1) * w * 3]);
-            }
-        }
-    }
-    let file = std::fs::File::create(path).expect("create");
-    let mut enc = png::Encoder::new(std::io::BufWriter::new(file), iw as u32, ih as u32);
-    enc.set_color(png::ColorType::Rgb);
-    enc.write_header().unwrap().write_image_data(&img).unwrap();
+    let rows: Vec<Vec<&[u8]>> = rows
+        .iter()
+        .map(|r| r.iter().map(Vec::as_slice).collect())
+        .collect();
+    std::fs::write(path, sheet_png(&rows, w, h)).expect("write the sheet");
 }
 
 fn main() {

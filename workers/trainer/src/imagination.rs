@@ -137,6 +137,30 @@ fn check_frames(
     Ok(())
 }
 
+/// A PNG of `rows` of RGB frames of `width`×`height`, side by side (rows of differing lengths
+/// padded with black): a sheet of rollouts to look at, real and imagined.
+pub fn sheet_png(rows: &[Vec<&[u8]>], width: usize, height: usize) -> Vec<u8> {
+    let cols = rows.iter().map(Vec::len).max().unwrap_or(0);
+    let (iw, ih) = (cols * width, rows.len() * height);
+    let mut img = vec![0u8; iw * ih * 3];
+    for (r, row) in rows.iter().enumerate() {
+        for (c, f) in row.iter().enumerate() {
+            for y in 0..height {
+                let dst = ((r * height + y) * iw + c * width) * 3;
+                img[dst..dst + width * 3].copy_from_slice(&f[y * width * 3..(y + 1) * width * 3]);
+            }
+        }
+    }
+    let mut out = Vec::new();
+    let mut enc = png::Encoder::new(&mut out, iw as u32, ih as u32);
+    enc.set_color(png::ColorType::Rgb);
+    enc.set_depth(png::BitDepth::Eight);
+    let mut w = enc.write_header().expect("png header to memory");
+    w.write_image_data(&img).expect("png data to memory");
+    w.finish().expect("png to memory");
+    out
+}
+
 /// Mean squared error per pixel-channel, in [0, 1] units.
 pub fn mse(a: &[u8], b: &[u8]) -> f64 {
     a.iter()
@@ -349,4 +373,39 @@ pub enum ImaginationError {
     Policy(usize, PolicyError),
     #[error("{0}")]
     World(#[from] WorldError),
+}
+
+#[cfg(test)]
+mod tests {
+    use super::sheet_png;
+
+    fn decode(png_bytes: &[u8]) -> (u32, u32, Vec<u8>) {
+        let mut reader = png::Decoder::new(std::io::Cursor::new(png_bytes))
+            .read_info()
+            .unwrap();
+        let mut buf = vec![0; reader.output_buffer_size().unwrap()];
+        let info = reader.next_frame(&mut buf).unwrap();
+        buf.truncate(info.buffer_size());
+        (info.width, info.height, buf)
+    }
+
+    #[test]
+    fn a_sheet_lays_frames_out_in_rows_and_pads_short_rows_with_black() {
+        // 2×1 frames: a red and a green one in the first row, one blue frame in the second.
+        let red = [255, 0, 0, 255, 0, 0];
+        let green = [0, 255, 0, 0, 255, 0];
+        let blue = [0, 0, 255, 0, 0, 255];
+        let rows = vec![vec![&red[..], &green[..]], vec![&blue[..]]];
+        let (w, h, rgb) = decode(&sheet_png(&rows, 2, 1));
+        assert_eq!((w, h), (4, 2));
+        let mut want = Vec::new();
+        want.extend(red);
+        want.extend(green);
+        want.extend(blue);
+        want.extend([0; 6]);
+        assert_eq!(rgb, want);
+        // One frame alone is that frame.
+        let (w, h, rgb) = decode(&sheet_png(&[vec![&green[..]]], 2, 1));
+        assert_eq!((w, h, rgb), (2, 1, green.to_vec()));
+    }
 }

@@ -201,7 +201,11 @@ pub fn run(
             let frames = std::mem::take(&mut result.imagined_frames);
             for (p, frames) in result.predictions.iter_mut().zip(frames) {
                 for (index, rgb) in frames {
-                    let png = encode_png(&rgb, width, height);
+                    let png = crate::imagination::sheet_png(
+                        &[vec![rgb.as_slice()]],
+                        width as usize,
+                        height as usize,
+                    );
                     let key = format!("imagery/{}.png", sha256_hex(&png));
                     write_atomically(&artifacts.join(&key), &png).map_err(|e| JobError {
                         message: format!("storing an imagined keyframe of group {group:?}: {e}"),
@@ -357,18 +361,6 @@ fn load_clips(read: &ArtifactReader<'_>, keys: &[String]) -> Result<Vec<Clip>, J
         );
     }
     Ok(loaded)
-}
-
-/// An 8-bit RGB PNG of a `width`×`height` frame.
-fn encode_png(rgb: &[u8], width: u32, height: u32) -> Vec<u8> {
-    let mut out = Vec::new();
-    let mut enc = png::Encoder::new(&mut out, width, height);
-    enc.set_color(png::ColorType::Rgb);
-    enc.set_depth(png::BitDepth::Eight);
-    let mut w = enc.write_header().expect("png header to memory");
-    w.write_image_data(rgb).expect("png data to memory");
-    w.finish().expect("png to memory");
-    out
 }
 
 fn write_atomically(path: &Path, bytes: &[u8]) -> std::io::Result<()> {

@@ -3,7 +3,7 @@
 //! `config`, the policies built as the trainer role builds them. Prints one JSON line per
 //! prediction and a summary per policy; the simulator's outcomes stay where they are (compare
 //! with the batch's report). For measuring the proxy's settings without running the episodes
-//! again:
+//! again (`PROXY_RERUN_KEYFRAMES=DIR` also writes each imagined rollout's keyframes there):
 //!
 //! ```sh
 //! sqlite3 out/rank-learned/run/jobs.db "SELECT input_json FROM shards WHERE job LIKE 'proxy %'" > /tmp/proxy.json
@@ -81,6 +81,27 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         }
         other => other?,
     };
+    // `PROXY_RERUN_KEYFRAMES=DIR`: each ranked episode's imagined keyframes (the real first
+    // frame, then evenly to the verdict's frame) side by side, one PNG per episode: what the
+    // model imagined for it.
+    if let Some(dir) = std::env::var_os("PROXY_RERUN_KEYFRAMES").map(PathBuf::from) {
+        std::fs::create_dir_all(&dir)?;
+        let (w, h) = result.imagined_frame_size;
+        for (i, (p, frames)) in result
+            .predictions
+            .iter()
+            .zip(&result.imagined_frames)
+            .enumerate()
+        {
+            let row: Vec<&[u8]> = frames.iter().map(|(_, rgb)| rgb.as_slice()).collect();
+            let png = assay_trainer::imagination::sheet_png(&[row], w as usize, h as usize);
+            let verdict = if p.success { "done" } else { "not-done" };
+            std::fs::write(
+                dir.join(format!("{i:03}-seed{}-{verdict}.png", p.seed)),
+                png,
+            )?;
+        }
+    }
     let mut by_policy: BTreeMap<&str, (u32, u32, f64)> = BTreeMap::new();
     for p in &result.predictions {
         println!("{}", serde_json::to_string(p)?);
