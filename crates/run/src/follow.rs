@@ -181,7 +181,16 @@ async fn watch_loop(
                 });
                 last = Some(status);
             }
-            Some(Ok(None)) => return Ok((last, None, events)),
+            // The coordinator ends the stream after the final status. An end before it is a
+            // coordinator that went away (its connection closed between two messages): watch
+            // again, as for a broken stream.
+            Some(Ok(None)) if final_status(last.as_ref()) => return Ok((last, None, events)),
+            Some(Ok(None)) => {
+                lost = Some((
+                    tonic::Status::unavailable("the status stream ended before the batch did"),
+                    Instant::now(),
+                ))
+            }
             Some(Err(e)) => lost = Some((e, Instant::now())),
             None => {
                 let Some((e, since)) = &lost else { continue };
@@ -206,6 +215,11 @@ async fn watch_loop(
             }
         }
     }
+}
+
+/// Whether `status` is a batch's last: completed, cancelled or skipped.
+fn final_status(status: Option<&pb::BatchStatus>) -> bool {
+    status.is_some_and(|s| pb::BatchState::try_from(s.state).is_ok_and(pb::BatchState::is_final))
 }
 
 /// The workers' rates summed: (physics steps/s, frames/s).
@@ -276,6 +290,30 @@ impl Telemetry {
         }
         if let Some(s) = self.session {
             assay_telemetry::close(s).await;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{final_status, pb};
+
+    #[test]
+    fn only_a_final_status_ends_the_watch() {
+        let at = |state: pb::BatchState| pb::BatchStatus {
+            state: state as i32,
+            ..Default::default()
+        };
+        // No status yet, or a running batch: a stream that ends there lost its coordinator.
+        assert!(!final_status(None));
+        assert!(!final_status(Some(&at(pb::BatchState::Running))));
+        assert!(!final_status(Some(&at(pb::BatchState::Unspecified))));
+        for state in [
+            pb::BatchState::Completed,
+            pb::BatchState::Cancelled,
+            pb::BatchState::Skipped,
+        ] {
+            assert!(final_status(Some(&at(state))), "{state:?}");
         }
     }
 }
