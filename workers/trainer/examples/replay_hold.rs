@@ -14,6 +14,7 @@ use std::path::PathBuf;
 
 use assay_model::clip::Clip;
 use assay_model::trainer::TrainerJob;
+use assay_model::video::WorldModelKind;
 use assay_trainer::imagination::{actions_of, mse, replay, sheet_png, start_at};
 use assay_trainer::video_model::VideoModel;
 
@@ -35,6 +36,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     else {
         return Err("not a proxy job".into());
     };
+    if config.model != WorldModelKind::Video || config.external.is_some() {
+        return Err("the proxy's world model is not the built-in video model".into());
+    }
     let key = world_model.ok_or("the proxy had no world model fitted ahead")?;
     let model = VideoModel::from_checkpoint(
         &config.video,
