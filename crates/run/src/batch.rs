@@ -28,7 +28,8 @@ pub struct BatchArgs {
     /// Explicit seeds (overrides --seeds).
     #[arg(long, value_delimiter = ',', help_heading = "Batch")]
     pub seed_list: Vec<u64>,
-    /// Policies, repeatable: `oracle[:noise=M][,sense=state|camera]` (the task's scripted plan),
+    /// Policies, repeatable: `oracle[:noise=M][,grasp=P][,sense=state|camera]` (the task's
+    /// scripted plan; `grasp=P`: its grasps close in a share P of episodes),
     /// `openpi:url=ws://HOST:PORT` (an openpi server), `remote:url=http://HOST:PORT` (an
     /// assay.v1.Policy server), `torchscript:path=FILE.pt` (a TorchScript module),
     /// `diffusion:model=KEY` (a diffusion policy the cluster trained), `random[:speed=V]`

@@ -147,6 +147,12 @@ pub struct Controller {
     looked_aside: Option<usize>,
     /// The `sweep` whose first pass has been planned.
     swept: Option<usize>,
+    /// This episode's grasps do not close (`oracle:grasp=P` drew it open): the tool goes through
+    /// the plan's motions holding nothing.
+    open_handed: bool,
+    /// In an open-handed episode, what the tool would hold had the grasp closed: the plan's
+    /// later moves are planned from it, as they would be from [`Controller::held`].
+    feigned: Option<Held>,
 }
 
 /// An object as the policy believes it to be.
@@ -192,9 +198,13 @@ impl Controller {
         spec: &TaskSpec,
         start: Vec3,
         noise: f64,
+        grasp: f64,
         seed: u64,
         tracker: Option<Tracker>,
     ) -> Self {
+        // One draw per episode, from its own stream: the noise's draws stay as they were.
+        let open_handed =
+            grasp < 1.0 && Rng::new(seed, &format!("{}/policy-grasp", spec.id)).unit() >= grasp;
         Self {
             plan: spec.oracle.clone(),
             next: 0,
@@ -213,6 +223,8 @@ impl Controller {
             pick_belief: None,
             looked_aside: None,
             swept: None,
+            open_handed,
+            feigned: None,
         }
     }
 
@@ -491,7 +503,7 @@ impl Controller {
                 );
             }
             Primitive::Place { target } => {
-                let Some(h) = self.held else {
+                let Some(h) = self.held.or(self.feigned) else {
                     self.notes.push(Note {
                         step,
                         text: "place with nothing held (the grasp failed)".into(),
@@ -912,6 +924,28 @@ impl Controller {
         match ev {
             Event::None => {}
             Event::Turn(yaw) => scene.turn_fingers(yaw),
+            Event::Grasp(i) | Event::GraspLink { object: i, .. } if self.open_handed => {
+                // The tool stays open; the plan goes on as if it held the object.
+                let o = scene.objects[i].clone();
+                let offset = match ev {
+                    Event::Grasp(_) => scene.pose(&o).translation - scene.gripper_position(),
+                    _ => Vec3::ZERO,
+                };
+                self.notes.push(Note {
+                    step,
+                    text: format!(
+                        "grasp of '{}' left open (this episode was drawn not to grasp)",
+                        o.id
+                    ),
+                });
+                self.feigned = Some(Held {
+                    object: i,
+                    offset,
+                    joint: None,
+                    grasped: Pose::IDENTITY,
+                    turned: 0.0,
+                });
+            }
             Event::Grasp(i) if scene.fingers.is_some() => self.close_fingers(i, scene, step),
             Event::Grasp(i) => {
                 let o = scene.objects[i].clone();
@@ -1005,6 +1039,7 @@ impl Controller {
                 });
             }
             Event::Release => {
+                self.feigned = None;
                 if let Some(max) = scene.fingers.as_ref().map(|f| f.max_opening) {
                     scene.set_finger_target(max);
                 }

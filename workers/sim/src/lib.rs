@@ -293,10 +293,14 @@ pub fn simulate_with(
     let varied = spec.for_seed(seed);
     let spec: &TaskSpec = &varied;
     let (parsed, horizon) = PolicySpec::parse_with_horizon(policy).map_err(SimError::Policy)?;
-    let (noise, sense) = match parsed {
-        PolicySpec::Oracle { noise, sense } => (noise, sense),
+    let (noise, sense, grasp) = match parsed {
+        PolicySpec::Oracle {
+            noise,
+            sense,
+            grasp,
+        } => (noise, sense, grasp),
         // A policy object acts instead of the oracle's plan.
-        _ => (0.0, Sense::State),
+        _ => (0.0, Sense::State, 1.0),
     };
     let needs_camera = sense == Sense::Camera || !parsed.is_oracle();
     if needs_camera && observer.is_none() {
@@ -309,7 +313,7 @@ pub fn simulate_with(
     }
     let mut learned = learned_policy(policy, &parsed, spec, policy_object, frame_size)?;
     let camera = assay_model::policy::observation_camera();
-    let mut run = Rollout::new(spec, seed, noise, sense, learned.is_some())?;
+    let mut run = Rollout::new(spec, seed, noise, grasp, sense, learned.is_some())?;
     let request = Request {
         spec_hash,
         seed,
@@ -411,12 +415,13 @@ struct Rollout<'s> {
 
 impl<'s> Rollout<'s> {
     /// The scene of `spec` built for `seed`, and the controller at the tool: it runs the
-    /// oracle's plan (with `noise`, seeing as `sense` says) unless a policy object acts
-    /// (`learned`).
+    /// oracle's plan (with `noise` and the chance `grasp` that its grasps close, seeing as
+    /// `sense` says) unless a policy object acts (`learned`).
     fn new(
         spec: &'s TaskSpec,
         seed: u64,
         noise: f64,
+        grasp: f64,
         sense: Sense,
         learned: bool,
     ) -> Result<Self, SimError> {
@@ -424,7 +429,7 @@ impl<'s> Rollout<'s> {
         check_joints(spec, &scene)?;
         let start = scene.gripper_position();
         let tracker = (sense == Sense::Camera).then(|| Tracker::new(scene.objects.len()));
-        let mut ctl = Controller::new(spec, start, noise, seed, tracker);
+        let mut ctl = Controller::new(spec, start, noise, grasp, seed, tracker);
         if learned {
             // The policy object decides every move: the oracle's plan is not run.
             ctl.clear_plan();

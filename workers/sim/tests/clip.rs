@@ -175,3 +175,68 @@ fn an_episode_file_read_back_gives_the_clip_states_it_was_recorded_with() {
         assert!(e.to_string().contains("multiple of 4"), "{e}");
     }
 }
+
+/// `oracle:grasp=P`: an episode drawn open goes through the plan's motions, carrying nothing to
+/// the place, and fails; its actions match the grasping oracle's until the grasp and never command
+/// a hold. Over seeds about the chance given grasps, and the draw is the episode's own.
+#[test]
+fn an_open_handed_oracle_moves_as_the_oracle_does_without_holding() {
+    let spec = task("placement/put-block-in-bowl.yaml");
+    let clip_of = |policy: &str, seed: u64| {
+        let options = SimOptions {
+            clip: true,
+            ..Default::default()
+        };
+        simulate_with(&spec, seed, policy, options).unwrap()
+    };
+    let open = clip_of("oracle:grasp=0", 0);
+    let closed = clip_of("oracle", 0);
+    assert!(closed.outcome.success);
+    assert!(!open.outcome.success);
+    let (o, c) = (open.clip.unwrap(), closed.clip.unwrap());
+    let holds = |s: &ClipStates| {
+        s.actions
+            .chunks(ACTION_DIMS)
+            .filter(|a| a[3] != 0.0)
+            .count()
+    };
+    assert_eq!(holds(&o), 0);
+    assert!(holds(&c) > 5, "{}", holds(&c));
+    // The same approach up to the grasp, then the carry to the bowl: most of the closed
+    // episode's frames, and the tool ends over the bowl in both.
+    let first_hold = c
+        .actions
+        .chunks(ACTION_DIMS)
+        .position(|a| a[3] != 0.0)
+        .unwrap();
+    assert_eq!(
+        o.actions[..first_hold * ACTION_DIMS],
+        c.actions[..first_hold * ACTION_DIMS]
+    );
+    assert!(o.len() + 3 >= c.len(), "{} vs {} frames", o.len(), c.len());
+    let last_tool = |s: &ClipStates| s.scenes.last().unwrap().tool.unwrap();
+    let (a, b) = (last_tool(&o), last_tool(&c));
+    let d = ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2)).sqrt();
+    assert!(
+        d < 0.03,
+        "the open tool ends {d} m from where the grasping one does"
+    );
+    assert!(format!("{:?}", open.notes).contains("left open"));
+
+    // grasp=1 is the oracle itself; the draw differs between seeds, not the noise's draws.
+    let (one, oracle) = (clip_of("oracle:grasp=1", 2), clip_of("oracle", 2));
+    assert_eq!(one.clip, oracle.clip);
+    assert_eq!(
+        (one.outcome.steps, one.outcome.predicates),
+        (oracle.outcome.steps, oracle.outcome.predicates)
+    );
+    let opened = (0..12)
+        .filter(|&s| {
+            !simulate(&spec, s, "oracle:grasp=0.5")
+                .unwrap()
+                .outcome
+                .success
+        })
+        .count();
+    assert!((2..=10).contains(&opened), "{opened} of 12 drawn open");
+}

@@ -18,8 +18,16 @@ pub use crate::interface::{
 #[derive(Debug, Clone, PartialEq)]
 pub enum PolicySpec {
     /// The task's scripted oracle plan, with uniform noise (± m) added to every target in x and y,
-    /// locating objects either from the simulator's state or from what a camera sees.
-    Oracle { noise: f64, sense: Sense },
+    /// locating objects either from the simulator's state or from what a camera sees. `grasp`:
+    /// the chance (drawn once per episode) that its grasps close; in an episode drawn not to, the
+    /// tool goes through the plan's motions open and nothing is held (a failure whose actions
+    /// differ from a success's only in the hold command: data that teaches a world model what
+    /// holding does).
+    Oracle {
+        noise: f64,
+        sense: Sense,
+        grasp: f64,
+    },
     /// A TorchScript module (`torch.jit.save`) at `path` on the worker, run with libtorch; its
     /// calling convention is documented in `docs/policies.md`. `interface`: the one its spec's
     /// arguments declare (None: the original one).
@@ -274,6 +282,7 @@ impl PolicySpec {
             "oracle" => {
                 let mut noise = 0.0;
                 let mut sense = Sense::State;
+                let mut grasp = 1.0;
                 for arg in &args {
                     match *arg {
                         ("noise", v) => match v.parse::<f64>() {
@@ -284,14 +293,29 @@ impl PolicySpec {
                                 ));
                             }
                         },
+                        ("grasp", v) => match v.parse::<f64>() {
+                            Ok(v) if (0.0..=1.0).contains(&v) => grasp = v,
+                            _ => {
+                                return Err(format!(
+                                    "policy '{name}': bad grasp '{v}' (a chance, 0 to 1)"
+                                ));
+                            }
+                        },
                         ("sense", "state") => sense = Sense::State,
                         ("sense", "camera") => sense = Sense::Camera,
                         _ => {
-                            return Err(bad(arg, "noise=<metres> or sense=state|camera"));
+                            return Err(bad(
+                                arg,
+                                "noise=<metres>, grasp=<chance> or sense=state|camera",
+                            ));
                         }
                     }
                 }
-                PolicySpec::Oracle { noise, sense }
+                PolicySpec::Oracle {
+                    noise,
+                    sense,
+                    grasp,
+                }
             }
             "torchscript" => {
                 let mut path = None;
@@ -452,16 +476,29 @@ mod tests {
             PolicySpec::parse("oracle"),
             Ok(PolicySpec::Oracle {
                 noise: 0.0,
-                sense: Sense::State
+                sense: Sense::State,
+                grasp: 1.0
             })
         );
         assert_eq!(
             PolicySpec::parse("oracle:noise=0.02"),
             Ok(PolicySpec::Oracle {
                 noise: 0.02,
-                sense: Sense::State
+                sense: Sense::State,
+                grasp: 1.0
             })
         );
+        assert_eq!(
+            PolicySpec::parse("oracle:grasp=0.5"),
+            Ok(PolicySpec::Oracle {
+                noise: 0.0,
+                sense: Sense::State,
+                grasp: 0.5
+            })
+        );
+        assert!(PolicySpec::parse("oracle:grasp=1.5").is_err());
+        assert!(PolicySpec::parse("oracle:grasp=-0.1").is_err());
+        assert!(PolicySpec::parse("oracle:grasp=nan").is_err());
         let seeing = PolicySpec::parse("oracle:sense=camera,noise=0.01").unwrap();
         assert!(seeing.sees());
         assert!(PolicySpec::parse("oracle:sense=lidar").is_err());
