@@ -406,8 +406,10 @@ pub fn line_chart(title: &str, x_desc: &str, y_desc: &str, lines: &[Line]) -> St
 }
 
 /// The correlation plot of `ranking`'s comparison `comparison` as a standalone SVG: the proxy's
-/// predicted success against real success, one labelled point per policy, the y = x diagonal, r
-/// and MMRV in the title. Panics if `comparison` is out of range.
+/// predicted success against real success, one point per policy (policies at the same place
+/// share it) with the 95 % Wilson intervals of both rates where their trials are known, each
+/// point's labels beside it clear of the other labels and points, the y = x diagonal, r and MMRV
+/// in the title. Panics if `comparison` is out of range.
 pub fn ranking(ranking: &Ranking, comparison: usize) -> String {
     ranking_labelled(ranking, comparison, &[])
 }
@@ -470,6 +472,107 @@ fn short(e: &Estimate) -> String {
         .map_or_else(|| "undefined".to_owned(), |v| format!("{v:.3}"))
 }
 
+/// A policy's point of a ranking plot: its place, the 95 % Wilson intervals of its two rates
+/// (from their trials, pooled over its tasks; none for a rate without trials) and the labels of
+/// every policy drawn at that place.
+struct RankPoint {
+    real: f64,
+    proxy: f64,
+    real_ci: Option<[f64; 2]>,
+    proxy_ci: Option<[f64; 2]>,
+    labels: Vec<String>,
+}
+
+/// The Wilson interval of a rate measured from `trials` (`None`: no trials known).
+fn rate_interval(rate: f64, trials: Option<u64>) -> Option<[f64; 2]> {
+    let n = trials.filter(|&n| n > 0)?;
+    if !rate.is_finite() {
+        return None;
+    }
+    let k = (rate.clamp(0.0, 1.0) * n as f64).round() as u64;
+    Some(assay_stats::stats::wilson(k, n, 1.96))
+}
+
+/// The policies of `c` as points, those at the same place (to 1e-9) sharing one point.
+fn rank_points(c: &Comparison, labels: &[(String, String)]) -> Vec<RankPoint> {
+    let mut points: Vec<RankPoint> = Vec::new();
+    for p in &c.policies {
+        let label =
+            crate::view::policy_label(&p.policy, labels).unwrap_or_else(|| p.policy.clone());
+        match points
+            .iter_mut()
+            .find(|q| (q.real - p.real).abs() < 1e-9 && (q.proxy - p.proxy).abs() < 1e-9)
+        {
+            Some(q) => q.labels.push(label),
+            None => points.push(RankPoint {
+                real: p.real,
+                proxy: p.proxy,
+                real_ci: rate_interval(p.real, p.real_trials),
+                proxy_ci: rate_interval(p.proxy, p.proxy_trials),
+                labels: vec![label],
+            }),
+        }
+    }
+    points
+}
+
+/// Pixels per character of the plot's 12-px labels (an upper estimate for sans-serif).
+const LABEL_CHAR_PX: i32 = 7;
+const LABEL_LINE_PX: i32 = 15;
+
+/// Top-left corners for labels `(width, height)` in pixels beside the points at `at`, so that no
+/// label overlaps another or any point's marker and each stays inside `area` (left, top, right,
+/// bottom): of the places right of and left of its point, above or below it, the first free one;
+/// failing those, the first free one further down or up; failing all, right of its point, moved
+/// inside.
+fn place_labels(
+    at: &[(i32, i32)],
+    sizes: &[(i32, i32)],
+    area: (i32, i32, i32, i32),
+) -> Vec<(i32, i32)> {
+    let (left, top, right, bottom) = area;
+    // The markers (radius 5) are in the way from the start.
+    let mut placed: Vec<(i32, i32, i32, i32)> =
+        at.iter().map(|&(x, y)| (x - 6, y - 6, 12, 12)).collect();
+    let mut out = Vec::with_capacity(at.len());
+    for (&(x, y), &(w, h)) in at.iter().zip(sizes) {
+        let near = [
+            (x + 8, y - h - 2),
+            (x + 8, y + 4),
+            (x - 8 - w, y - h - 2),
+            (x - 8 - w, y + 4),
+        ];
+        let further = (1..40).flat_map(|k| {
+            let d = k * LABEL_LINE_PX;
+            [
+                (x + 8, y + 4 + d),
+                (x + 8, y - h - 2 - d),
+                (x - 8 - w, y + 4 + d),
+                (x - 8 - w, y - h - 2 - d),
+            ]
+        });
+        let inside =
+            |(lx, ly): (i32, i32)| (lx.min(right - w).max(left), ly.min(bottom - h).max(top));
+        let free = |(lx, ly): (i32, i32)| {
+            lx >= left
+                && lx + w <= right
+                && ly >= top
+                && ly + h <= bottom
+                && placed.iter().all(|&(px, py, pw, ph)| {
+                    lx + w <= px || px + pw <= lx || ly + h <= py || py + ph <= ly
+                })
+        };
+        let spot = near
+            .into_iter()
+            .chain(further)
+            .find(|&c| free(c))
+            .unwrap_or_else(|| inside(near[0]));
+        placed.push((spot.0, spot.1, w, h));
+        out.push(spot);
+    }
+    out
+}
+
 fn draw_ranking(
     c: &Comparison,
     labels: &[(String, String)],
@@ -496,15 +599,57 @@ fn draw_ranking(
         ("sans-serif", 12).into_font().color(&BLACK.mix(0.6)),
     )))?;
     let blue = RGBColor(31, 119, 180);
-    chart.draw_series(c.policies.iter().map(|p| {
-        EmptyElement::at((p.real, p.proxy))
-            + Circle::new((0, 0), 5, blue.filled())
-            + Text::new(
-                crate::view::policy_label(&p.policy, labels).unwrap_or_else(|| p.policy.clone()),
-                (8, -14),
-                ("sans-serif", 12).into_font(),
+    let points = rank_points(c, labels);
+    // The 95 % intervals of both rates, behind the points.
+    let bars = blue.mix(0.45).stroke_width(1);
+    for p in &points {
+        if let Some([lo, hi]) = p.proxy_ci {
+            chart.draw_series(std::iter::once(PathElement::new(
+                vec![(p.real, lo), (p.real, hi)],
+                bars,
+            )))?;
+        }
+        if let Some([lo, hi]) = p.real_ci {
+            chart.draw_series(std::iter::once(PathElement::new(
+                vec![(lo, p.proxy), (hi, p.proxy)],
+                bars,
+            )))?;
+        }
+    }
+    chart.draw_series(
+        points
+            .iter()
+            .map(|p| Circle::new((p.real, p.proxy), 5, blue.filled())),
+    )?;
+    // Each point's label beside it, clear of the others' and inside the plot.
+    let (xs, ys) = chart.plotting_area().get_pixel_range();
+    let area = (xs.start, ys.start, xs.end, ys.end);
+    let at: Vec<(i32, i32)> = points
+        .iter()
+        .map(|p| chart.backend_coord(&(p.real, p.proxy)))
+        .collect();
+    // Policies sharing a point: one line each.
+    let sizes: Vec<(i32, i32)> = points
+        .iter()
+        .map(|p| {
+            let widest = p.labels.iter().map(|l| l.chars().count()).max();
+            (
+                widest.unwrap_or(0) as i32 * LABEL_CHAR_PX,
+                p.labels.len() as i32 * LABEL_LINE_PX,
             )
-    }))?;
+        })
+        .collect();
+    let style =
+        TextStyle::from(("sans-serif", 12).into_font()).pos(Pos::new(HPos::Left, VPos::Top));
+    for (p, (x, y)) in points.iter().zip(place_labels(&at, &sizes, area)) {
+        for (k, line) in p.labels.iter().enumerate() {
+            root.draw(&Text::new(
+                line.clone(),
+                (x, y + k as i32 * LABEL_LINE_PX),
+                style.clone(),
+            ))?;
+        }
+    }
     root.present()?;
     Ok(())
 }
@@ -690,6 +835,79 @@ mod tests {
             super::reliability("two", &[("a", &one), ("b", &spread)]),
             "the same input gives the same bytes"
         );
+    }
+
+    /// Crowded points (a row along the top edge, a column at the left, one shared by three
+    /// policies): every label inside the plot, clear of every other label and every marker.
+    #[test]
+    fn ranking_labels_keep_clear_of_each_other_and_of_the_markers() {
+        let area = (60, 40, 580, 500);
+        let mut at: Vec<(i32, i32)> = (0..5).map(|k| (60 + 40 * k, 40)).collect();
+        at.extend((0..5).map(|k| (60, 480 - 30 * k)));
+        at.push((300, 300));
+        let mut sizes = vec![(150, 15); at.len()];
+        sizes[10] = (230, 45);
+        let spots = super::place_labels(&at, &sizes, area);
+        let boxes: Vec<(i32, i32, i32, i32)> = spots
+            .iter()
+            .zip(&sizes)
+            .map(|(&(x, y), &(w, h))| (x, y, w, h))
+            .collect();
+        let apart = |a: (i32, i32, i32, i32), b: (i32, i32, i32, i32)| {
+            a.0 + a.2 <= b.0 || b.0 + b.2 <= a.0 || a.1 + a.3 <= b.1 || b.1 + b.3 <= a.1
+        };
+        for (i, &b) in boxes.iter().enumerate() {
+            assert!(
+                b.0 >= area.0 && b.0 + b.2 <= area.2 && b.1 >= area.1 && b.1 + b.3 <= area.3,
+                "label {i} at {b:?} leaves the plot"
+            );
+            for (j, &o) in boxes.iter().enumerate().skip(i + 1) {
+                assert!(apart(b, o), "labels {i} {b:?} and {j} {o:?} overlap");
+            }
+            for (j, &(x, y)) in at.iter().enumerate() {
+                assert!(
+                    apart(b, (x - 5, y - 5, 10, 10)),
+                    "label {i} covers point {j}"
+                );
+            }
+        }
+        // Beside its own point where there is room.
+        assert_eq!(spots[10], (308, 300 - 45 - 2));
+    }
+
+    /// Policies at the same place share one marker, their labels on lines of their own; each
+    /// rate measured from trials has its 95 % interval.
+    #[test]
+    fn policies_at_one_place_share_a_marker_and_rates_have_intervals() {
+        let cells = assay_stats::ranking::parse_success_table(
+            "task,policy,source,trials,successes\n\
+             t,a,real,10,0\nt,b,real,10,0\nt,c,real,10,5\n\
+             t,a,wm,10,10\nt,b,wm,10,10\nt,c,wm,10,4\n",
+        )
+        .unwrap();
+        let r = assay_stats::ranking::rank(
+            &cells,
+            &assay_stats::ranking::RankingConfig {
+                resamples: 0,
+                ..Default::default()
+            },
+        )
+        .unwrap();
+        let svg = ranking(&r, 0);
+        well_formed(&svg);
+        assert_eq!(svg.matches("<circle").count(), 2, "{svg}");
+        assert!(
+            ["a", "b", "c"]
+                .iter()
+                .all(|l| svg.contains(&format!(">\n{l}\n</text>"))),
+            "{svg}"
+        );
+        let c = rank_points(&r.comparisons[0], &[]);
+        assert_eq!(c.len(), 2);
+        assert_eq!(c[0].labels, ["a", "b"]);
+        let [lo, hi] = c[1].real_ci.unwrap();
+        assert!(lo < 0.5 && hi > 0.5 && lo > 0.2 && hi < 0.8, "{lo} {hi}");
+        assert_eq!(c[0].proxy_ci.unwrap()[1], 1.0);
     }
 
     #[test]
