@@ -48,7 +48,7 @@ padding:0 16px 48px;color:#1a1a1a;background:#fff;line-height:1.4}\
 header{border-bottom:1px solid #ccc;padding:8px 0}\
 nav{position:sticky;top:0;background:#f6f6f6;border-bottom:1px solid #ccc;padding:6px 8px;\
 z-index:1}nav a{margin-right:14px}\
-table{border-collapse:collapse;margin:8px 0 16px}\
+table{border-collapse:collapse;margin:8px 0 16px;display:block;max-width:100%;overflow-x:auto}\
 th,td{border:1px solid #ddd;padding:3px 8px;text-align:left;vertical-align:top}\
 td.n,th.n{text-align:right;font-variant-numeric:tabular-nums}th{background:#f2f2f2}\
 .fig{margin:8px 0}.fig svg{max-width:100%}.row{display:flex;flex-wrap:wrap;gap:16px;\
