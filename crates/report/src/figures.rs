@@ -298,10 +298,14 @@ pub fn bar_chart(c: &BarChart<'_>) -> String {
                 .take(n)
                 .filter(|(_, v)| !v.is_some_and(f64::is_finite))
                 .map(|(i, _)| {
+                    // Upright, standing on the base in its bar's place: side by side, the
+                    // labels of neighbouring bars would run into each other.
                     Text::new(
                         "n/a",
-                        (left(i), base),
-                        ("sans-serif", 11).into_font().color(&col),
+                        (left(i) + width * 0.45, base),
+                        TextStyle::from(("sans-serif", 11).into_font().color(&col))
+                            .transform(FontTransform::Rotate270)
+                            .pos(Pos::new(HPos::Left, VPos::Center)),
                     )
                 });
             chart.draw_series(undefined)?;
