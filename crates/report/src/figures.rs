@@ -303,7 +303,9 @@ pub fn bar_chart(c: &BarChart<'_>) -> String {
                     Text::new(
                         "n/a",
                         (left(i) + width * 0.45, base),
-                        TextStyle::from(("sans-serif", 11).into_font().color(&col))
+                        ("sans-serif", 11)
+                            .into_font()
+                            .color(&col)
                             .transform(FontTransform::Rotate270)
                             .pos(Pos::new(HPos::Left, VPos::Center)),
                     )

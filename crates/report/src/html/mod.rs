@@ -58,6 +58,7 @@ figure.thumb{display:inline-block;margin:4px;text-align:center;font-size:12px}\
 figure.thumb img{display:block;border:1px solid #ccc}\
 section.task{display:none;border-top:2px solid #888;margin-top:24px}\
 section.task:target{display:block}\
+.imagined figure.thumb img{width:128px;height:auto;image-rendering:pixelated}\
 .ok{color:#1a7f37}.fail{color:#b3261e}caption,.caption{font-size:13px;color:#444;\
 text-align:left;max-width:680px}";
 
@@ -98,7 +99,7 @@ pub fn report_html(inputs: &HtmlInputs<'_>) -> String {
                     (table_1(r.diversity.as_ref()))
                     (table_2(r.diversity.as_ref()))
                     (table_3(r.generalization.as_ref()))
-                    (ranking(r.ranking.as_ref()))
+                    (ranking(inputs, r.ranking.as_ref()))
                     (invalid(inputs.report))
                     (imports(inputs.report))
                     (task_index(inputs.report))
@@ -792,5 +793,86 @@ mod tests {
             html.len(),
             html.matches("<img ").count()
         );
+    }
+
+    /// The ranking section shows, per group and ranked policy with imagined keyframes, the
+    /// episode of the lowest seed as imagined, beside its keyframes in the simulator where the
+    /// report has them; policies without keyframes are not shown.
+    #[test]
+    fn the_ranking_section_shows_what_the_world_model_imagined() {
+        use crate::testing::{LADDER_BEST, ranking_fixture, report_with_ranking};
+        let mut r = ranking_fixture();
+        for g in &mut r.groups {
+            for p in g.predictions.iter_mut().filter(|p| p.policy == LADDER_BEST) {
+                p.imagined_keyframes = (0..8)
+                    .map(|k| Keyframe {
+                        step: 5 * k,
+                        camera: "imagined".into(),
+                        artifact: format!("imagined/{}-{}-{k}.png", p.task_id, p.seed),
+                        goals_met: 0,
+                    })
+                    .collect();
+            }
+        }
+        let mut report = report_with_ranking(r);
+        let a = report
+            .results
+            .tasks
+            .iter_mut()
+            .find(|t| t.id == "a")
+            .unwrap();
+        a.episodes.push(crate::report::EpisodeRow {
+            seed: 0,
+            policy: LADDER_BEST.into(),
+            success: true,
+            label_source: LabelSource::Sim,
+            steps: 100,
+            artifact: "episodes/x.arrow".into(),
+            unmet: Vec::new(),
+            imagery: Some(EpisodeImagery {
+                adapter: "llvmpipe".into(),
+                views: Vec::new(),
+                keyframes: (0..2)
+                    .map(|k| Keyframe {
+                        step: 50 * k,
+                        camera: "front".into(),
+                        artifact: format!("imagery/real-{k}.png"),
+                        goals_met: 0,
+                    })
+                    .collect(),
+                contact_sheet: String::new(),
+                video: None,
+                caption: None,
+                clip: None,
+            }),
+            cutoff: None,
+            generator_reward: None,
+        });
+        let frames = |key: &str| {
+            (key.starts_with("imagined/") || key.starts_with("imagery/real-"))
+                .then(|| tiny_png(8, 8, png::ColorType::Rgb, png::BitDepth::Eight))
+        };
+        let html = report_html(&HtmlInputs {
+            report: &report,
+            artifact: &frames,
+            human: None,
+        });
+        assert!(html.contains("What the world model imagined"), "{html}");
+        // g1: task a, seed 0 (the lowest of a and b); g2: task c, seed 0.
+        assert_eq!(html.matches("<figcaption>imagined, frame ").count(), 16);
+        assert!(html.contains("task a, seed 0") && html.contains("task c, seed 0"));
+        assert!(!html.contains("task b, seed"));
+        // The real episode's keyframes where the report has the episode; the other says so.
+        assert_eq!(html.matches("<figcaption>real, step ").count(), 2);
+        assert!(html.contains("not in this report"));
+        // Only the policy with keyframes.
+        assert_eq!(html.matches("<div class=\"imagined\">").count(), 2);
+        // Without keyframes anywhere, no such section.
+        let plain = report_html(&HtmlInputs {
+            report: &report_with_ranking(ranking_fixture()),
+            artifact: &frames,
+            human: None,
+        });
+        assert!(!plain.contains("What the world model imagined"));
     }
 }

@@ -304,7 +304,7 @@ pub(super) fn table_3(g: Option<&GeneralizationResults>) -> Markup {
     }
 }
 
-pub(super) fn ranking(r: Option<&RankingResults>) -> Markup {
+pub(super) fn ranking(inputs: &HtmlInputs<'_>, r: Option<&RankingResults>) -> Markup {
     let Some(r) = r else {
         return html! {
             section id="ranking" {
@@ -410,6 +410,7 @@ pub(super) fn ranking(r: Option<&RankingResults>) -> Markup {
                     }
                 }
             }
+            (imagined_rollouts(inputs, r))
             @if let Some(a) = &r.proxy_agreement {
                 p { "Proxy verdicts matching the real outcome: " (cell(&proportion(a))) "." }
             }
@@ -434,3 +435,100 @@ pub(super) fn ranking(r: Option<&RankingResults>) -> Markup {
         }
     }
 }
+
+/// Frames shown of an imagined rollout (the proxy stores [`assay_model::proxy::IMAGINED_KEYFRAMES`]).
+const IMAGINED_SHOWN: usize = 8;
+
+/// Per group and ranked policy (the ladder's in its order, then the others), the ranked episode
+/// of the lowest seed as the world model imagined it, beside the same episode's keyframes in the
+/// simulator: what the proxy's verdicts were taken on.
+fn imagined_rollouts(inputs: &HtmlInputs<'_>, r: &RankingResults) -> Markup {
+    let mut order: Vec<&str> = r
+        .labels
+        .iter()
+        .map(|(p, _)| p.as_str())
+        .filter(|p| r.ranked_policies.iter().any(|q| q == p))
+        .collect();
+    for p in &r.ranked_policies {
+        if !order.contains(&p.as_str()) {
+            order.push(p);
+        }
+    }
+    let shown: Vec<(&str, &assay_model::proxy::ProxyPrediction)> = r
+        .groups
+        .iter()
+        .flat_map(|g| {
+            order.iter().filter_map(move |policy| {
+                g.predictions
+                    .iter()
+                    .filter(|p| p.policy == *policy && !p.imagined_keyframes.is_empty())
+                    .min_by_key(|p| (p.seed, p.task_id.clone()))
+                    .map(|p| (g.group.as_str(), p))
+            })
+        })
+        .collect();
+    let real_episode = |p: &assay_model::proxy::ProxyPrediction| {
+        inputs
+            .report
+            .results
+            .tasks
+            .iter()
+            .filter(|t| t.id == p.task_id)
+            .flat_map(|t| &t.episodes)
+            .find(|e| e.seed == p.seed && e.policy == p.policy)
+    };
+    html! {
+        @if !shown.is_empty() {
+            h3 { "What the world model imagined" }
+            p.caption { (IMAGINED_NOTE) }
+            @for (group, p) in &shown {
+                @let label = crate::view::policy_label(&p.policy, &r.labels)
+                    .unwrap_or_else(|| p.policy.clone());
+                @let real = real_episode(p);
+                div.imagined {
+                    p {
+                        b { (label) } ", group " (group) ", task " (p.task_id) ", seed " (p.seed)
+                        ": in the simulator "
+                        @match real.map(|e| e.success) {
+                            Some(true) => span.ok { "a success" },
+                            Some(false) => span.fail { "a failure" },
+                            None => span.missing { "not in this report" },
+                        }
+                        "; in the world model "
+                        @if p.success { span.ok { "a success" } } @else { span.fail { "a failure" } }
+                        " (frame judge " (format!("{:.2}", p.p_success))
+                        @if let Some(c) = p.p_calibrated { ", calibrated " (format!("{c:.2}")) }
+                        "; " (p.imagined_frames) " frames, "
+                        (if p.done_by_judge { "stopped by the judge" } else { "to the step budget" })
+                        ")"
+                    }
+                    div {
+                        @for i in super::tasks::spaced(p.imagined_keyframes.len(), IMAGINED_SHOWN) {
+                            @let k = &p.imagined_keyframes[i];
+                            (super::tasks::thumb_figure(inputs, &k.artifact, &format!("imagined, frame {}", k.step)))
+                        }
+                    }
+                    @if let Some(img) = real.and_then(|e| e.imagery.as_ref()) {
+                        div {
+                            @for i in super::tasks::spaced(img.keyframes.len(), IMAGINED_SHOWN) {
+                                @let k = &img.keyframes[i];
+                                (super::tasks::thumb_figure(
+                                    inputs,
+                                    &k.artifact,
+                                    &format!("real, step {} ({})", k.step, k.camera),
+                                ))
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// What [`imagined_rollouts`] shows.
+const IMAGINED_NOTE: &str = "Per group and ranked policy, its ranked episode of the lowest \
+seed: first row, the rollout the policy acted out inside the world model, from the real first \
+frame (frame 0) to the frame the verdict was taken on, at the clips' size and camera, enlarged; \
+second row, the same episode's keyframes in the simulator (the render role's camera and steps, \
+so not frame for frame the same views).";

@@ -182,7 +182,7 @@ pub(super) fn task_page(inputs: &HtmlInputs<'_>, t: &TaskResult) -> Markup {
 }
 
 /// Indices of `shown` of `n` items, evenly spaced, first and last included.
-fn spaced(n: usize, shown: usize) -> Vec<usize> {
+pub(super) fn spaced(n: usize, shown: usize) -> Vec<usize> {
     if n <= shown {
         return (0..n).collect();
     }
@@ -213,7 +213,7 @@ fn pictures(inputs: &HtmlInputs<'_>, imagery: &EpisodeImagery) -> Markup {
     }
 }
 
-fn thumb_figure(inputs: &HtmlInputs<'_>, key: &str, caption: &str) -> Markup {
+pub(super) fn thumb_figure(inputs: &HtmlInputs<'_>, key: &str, caption: &str) -> Markup {
     html! {
         figure.thumb {
             @match (inputs.artifact)(key).map(|bytes| thumbnail(&bytes, THUMB_WIDTH)) {
