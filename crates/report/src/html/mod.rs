@@ -848,9 +848,52 @@ mod tests {
             cutoff: None,
             generator_reward: None,
         });
-        let frames = |key: &str| {
-            (key.starts_with("imagined/") || key.starts_with("imagery/real-"))
-                .then(|| tiny_png(8, 8, png::ColorType::Rgb, png::BitDepth::Eight))
+        // Task c's episode has a dynamics clip of 3 frames: its own frames are shown.
+        let c = report
+            .results
+            .tasks
+            .iter_mut()
+            .find(|t| t.id == "c")
+            .unwrap();
+        c.episodes.push(crate::report::EpisodeRow {
+            seed: 0,
+            policy: LADDER_BEST.into(),
+            success: false,
+            label_source: LabelSource::Sim,
+            steps: 100,
+            artifact: "episodes/y.arrow".into(),
+            unmet: Vec::new(),
+            imagery: Some(EpisodeImagery {
+                adapter: "llvmpipe".into(),
+                views: Vec::new(),
+                keyframes: Vec::new(),
+                contact_sheet: String::new(),
+                video: None,
+                caption: None,
+                clip: Some("clips/c0.clip".into()),
+            }),
+            cutoff: None,
+            generator_reward: None,
+        });
+        let clip = assay_model::clip::Clip {
+            height: 8,
+            width: 8,
+            interval_s: 0.1,
+            proprio_dims: 4,
+            action_dims: 4,
+            rgb: (0..3 * 8 * 8 * 3).map(|i| i as u8).collect(),
+            proprio: vec![0.0; 12],
+            actions: vec![0.0; 12],
+            interface: String::new(),
+            views: Vec::new(),
+        }
+        .encode();
+        let frames = |key: &str| match key {
+            "clips/c0.clip" => Some(clip.clone()),
+            k if k.starts_with("imagined/") || k.starts_with("imagery/real-") => {
+                Some(tiny_png(8, 8, png::ColorType::Rgb, png::BitDepth::Eight))
+            }
+            _ => None,
         };
         let html = report_html(&HtmlInputs {
             report: &report,
@@ -862,9 +905,27 @@ mod tests {
         assert_eq!(html.matches("<figcaption>imagined, frame ").count(), 16);
         assert!(html.contains("task a, seed 0") && html.contains("task c, seed 0"));
         assert!(!html.contains("task b, seed"));
-        // The real episode's keyframes where the report has the episode; the other says so.
+        // Task a's real episode by its keyframes (it has no clip); task c's by its clip's frames
+        // at the imagined ones' indices (0, 5, …, 35), its last where it ended sooner.
         assert_eq!(html.matches("<figcaption>real, step ").count(), 2);
-        assert!(html.contains("not in this report"));
+        assert_eq!(html.matches("<figcaption>real, frame 0<").count(), 1);
+        assert_eq!(
+            html.matches("<figcaption>real, frame 2 (its last)<")
+                .count(),
+            7
+        );
+        assert!(html.contains("a success") && html.contains("a failure"));
+        assert!(!html.contains("not in this report"));
+        // An episode the report does not have says so.
+        for t in &mut report.results.tasks {
+            t.episodes.clear();
+        }
+        let html = report_html(&HtmlInputs {
+            report: &report,
+            artifact: &frames,
+            human: None,
+        });
+        assert_eq!(html.matches("not in this report").count(), 2);
         // Only the policy with keyframes.
         assert_eq!(html.matches("<div class=\"imagined\">").count(), 2);
         // Without keyframes anywhere, no such section.

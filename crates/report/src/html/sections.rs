@@ -485,6 +485,13 @@ fn imagined_rollouts(inputs: &HtmlInputs<'_>, r: &RankingResults) -> Markup {
                 @let label = crate::view::policy_label(&p.policy, &r.labels)
                     .unwrap_or_else(|| p.policy.clone());
                 @let real = real_episode(p);
+                // The real episode's own frames at the imagined ones' indices, from its clip.
+                @let clip = real
+                    .and_then(|e| e.imagery.as_ref())
+                    .and_then(|i| i.clip.as_deref())
+                    .and_then(|key| (inputs.artifact)(key))
+                    .and_then(|bytes| assay_model::clip::Clip::decode(&bytes).ok())
+                    .filter(|c| !c.is_empty());
                 div.imagined {
                     p {
                         b { (label) } ", group " (group) ", task " (p.task_id) ", seed " (p.seed)
@@ -508,7 +515,24 @@ fn imagined_rollouts(inputs: &HtmlInputs<'_>, r: &RankingResults) -> Markup {
                             (super::tasks::thumb_figure(inputs, &k.artifact, &format!("imagined, frame {}", k.step)))
                         }
                     }
-                    @if let Some(img) = real.and_then(|e| e.imagery.as_ref()) {
+                    @if let Some(c) = &clip {
+                        div {
+                            @for i in super::tasks::spaced(p.imagined_keyframes.len(), IMAGINED_SHOWN) {
+                                @let step = p.imagined_keyframes[i].step as usize;
+                                @let t = step.min(c.len() - 1);
+                                (super::tasks::rgb_figure(
+                                    c.frame(t),
+                                    c.width,
+                                    c.height,
+                                    &if t < step {
+                                        format!("real, frame {t} (its last)")
+                                    } else {
+                                        format!("real, frame {t}")
+                                    },
+                                ))
+                            }
+                        }
+                    } @else if let Some(img) = real.and_then(|e| e.imagery.as_ref()) {
                         div {
                             @for i in super::tasks::spaced(img.keyframes.len(), IMAGINED_SHOWN) {
                                 @let k = &img.keyframes[i];
@@ -530,5 +554,6 @@ fn imagined_rollouts(inputs: &HtmlInputs<'_>, r: &RankingResults) -> Markup {
 const IMAGINED_NOTE: &str = "Per group and ranked policy, its ranked episode of the lowest \
 seed: first row, the rollout the policy acted out inside the world model, from the real first \
 frame (frame 0) to the frame the verdict was taken on, at the clips' size and camera, enlarged; \
-second row, the same episode's keyframes in the simulator (the render role's camera and steps, \
-so not frame for frame the same views).";
+second row, the same episode in the simulator at the same frames, from its dynamics clip (where \
+the real episode ended sooner, its last frame) — or, for an episode without a clip, its \
+keyframes from the render role's camera and steps.";

@@ -228,6 +228,33 @@ pub(super) fn thumb_figure(inputs: &HtmlInputs<'_>, key: &str, caption: &str) ->
     }
 }
 
+/// A figure of a raw RGB frame `w`×`h` (row-major bytes), as a PNG at most [`THUMB_WIDTH`] wide.
+pub(super) fn rgb_figure(rgb: &[u8], w: u32, h: u32, caption: &str) -> Markup {
+    let encoded = (|| -> Result<(Vec<u8>, u32, u32), String> {
+        let mut out = Vec::new();
+        {
+            let mut enc = png::Encoder::new(&mut out, w, h);
+            enc.set_color(png::ColorType::Rgb);
+            enc.set_depth(png::BitDepth::Eight);
+            let mut writer = enc.write_header().map_err(|e| e.to_string())?;
+            writer.write_image_data(rgb).map_err(|e| e.to_string())?;
+            writer.finish().map_err(|e| e.to_string())?;
+        }
+        thumbnail(&out, THUMB_WIDTH)
+    })();
+    html! {
+        figure.thumb {
+            @match encoded {
+                Ok((png, w, h)) => img
+                    src={ "data:image/png;base64," (base64::engine::general_purpose::STANDARD.encode(png)) }
+                    width=(w) height=(h) alt=(caption);,
+                Err(why) => span.missing { "(frame not shown: " (why) ")" },
+            }
+            figcaption { (caption) }
+        }
+    }
+}
+
 /// A PNG downscaled (box filter) to at most `width` pixels wide, re-encoded as PNG, with its
 /// size; 8-bit greyscale, greyscale with alpha, RGB and RGBA are kept as they are; any other
 /// format is an error that says which.
