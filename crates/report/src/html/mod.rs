@@ -815,66 +815,50 @@ mod tests {
             }
         }
         let mut report = report_with_ranking(r);
-        let a = report
-            .results
-            .tasks
-            .iter_mut()
-            .find(|t| t.id == "a")
-            .unwrap();
-        a.episodes.push(crate::report::EpisodeRow {
-            seed: 0,
-            policy: LADDER_BEST.into(),
-            success: true,
-            label_source: LabelSource::Sim,
-            steps: 100,
-            artifact: "episodes/x.arrow".into(),
-            unmet: Vec::new(),
-            imagery: Some(EpisodeImagery {
-                adapter: "llvmpipe".into(),
-                views: Vec::new(),
-                keyframes: (0..2)
-                    .map(|k| Keyframe {
-                        step: 50 * k,
-                        camera: "front".into(),
-                        artifact: format!("imagery/real-{k}.png"),
-                        goals_met: 0,
-                    })
-                    .collect(),
-                contact_sheet: String::new(),
-                video: None,
-                caption: None,
-                clip: None,
-            }),
-            cutoff: None,
-            generator_reward: None,
-        });
+        // The ladder's best policy's episode of seed 0 in the simulator, with its imagery.
+        let episode = |success: bool, keyframes: Vec<Keyframe>, clip: Option<String>| {
+            crate::report::EpisodeRow {
+                seed: 0,
+                policy: LADDER_BEST.into(),
+                success,
+                label_source: LabelSource::Sim,
+                steps: 100,
+                artifact: "episodes/x.arrow".into(),
+                unmet: Vec::new(),
+                imagery: Some(EpisodeImagery {
+                    adapter: "llvmpipe".into(),
+                    views: Vec::new(),
+                    keyframes,
+                    contact_sheet: String::new(),
+                    video: None,
+                    caption: None,
+                    clip,
+                }),
+                cutoff: None,
+                generator_reward: None,
+            }
+        };
+        fn task<'a>(r: &'a mut Report, id: &str) -> &'a mut crate::report::TaskResult {
+            r.results.tasks.iter_mut().find(|t| t.id == id).unwrap()
+        }
+        // Task a's episode has render keyframes only.
+        let keyframes = (0..2)
+            .map(|k| Keyframe {
+                step: 50 * k,
+                camera: "front".into(),
+                artifact: format!("imagery/real-{k}.png"),
+                goals_met: 0,
+            })
+            .collect();
+        task(&mut report, "a")
+            .episodes
+            .push(episode(true, keyframes, None));
         // Task c's episode has a dynamics clip of 3 frames: its own frames are shown.
-        let c = report
-            .results
-            .tasks
-            .iter_mut()
-            .find(|t| t.id == "c")
-            .unwrap();
-        c.episodes.push(crate::report::EpisodeRow {
-            seed: 0,
-            policy: LADDER_BEST.into(),
-            success: false,
-            label_source: LabelSource::Sim,
-            steps: 100,
-            artifact: "episodes/y.arrow".into(),
-            unmet: Vec::new(),
-            imagery: Some(EpisodeImagery {
-                adapter: "llvmpipe".into(),
-                views: Vec::new(),
-                keyframes: Vec::new(),
-                contact_sheet: String::new(),
-                video: None,
-                caption: None,
-                clip: Some("clips/c0.clip".into()),
-            }),
-            cutoff: None,
-            generator_reward: None,
-        });
+        task(&mut report, "c").episodes.push(episode(
+            false,
+            Vec::new(),
+            Some("clips/c0.clip".into()),
+        ));
         let clip = assay_model::clip::Clip {
             height: 8,
             width: 8,

@@ -240,7 +240,12 @@ pub(super) fn rgb_figure(rgb: &[u8], w: u32, h: u32, caption: &str) -> Markup {
             writer.write_image_data(rgb).map_err(|e| e.to_string())?;
             writer.finish().map_err(|e| e.to_string())?;
         }
-        thumbnail(&out, THUMB_WIDTH)
+        // Downscaled only when wider than a thumbnail (a clip's frames are 64 px).
+        if w > THUMB_WIDTH {
+            thumbnail(&out, THUMB_WIDTH)
+        } else {
+            Ok((out, w, h))
+        }
     })();
     html! {
         figure.thumb {
