@@ -684,6 +684,8 @@ fn proxy_done(predictions: Vec<assay_model::proxy::ProxyPrediction>) -> String {
             judge_examples: 8,
             judge_positives: 5,
             judge_train_accuracy: 1.0,
+            judge_latest_not_done: None,
+            ranked_last_frame: None,
             calibration: None,
             cross_family: Vec::new(),
             cross_fit: Vec::new(),

@@ -286,6 +286,35 @@ pub fn source_title(source: &str) -> String {
     }
 }
 
+/// A caution per group whose frame judge learned "not done" from no frame in the later half of
+/// the ranked rollouts' step budget: it judges those late imagined frames by what it learned of the
+/// training episodes' endings, and may call them done (the demo's did, near frame 30, while its
+/// training episodes all ended by frame 43 and its rollouts could run to 250).
+pub fn late_frame_cautions(r: &RankingResults) -> Vec<String> {
+    r.groups
+        .iter()
+        .filter_map(|g| {
+            let last = g.ranked_last_frame?;
+            let seen = g.judge_latest_not_done;
+            if last == 0 || seen.is_some_and(|s| 2 * s >= last) {
+                return None;
+            }
+            let from = seen.map_or_else(
+                || "no frame at all".to_owned(),
+                |s| format!("no frame later than {s}"),
+            );
+            Some(format!(
+                "{}: the frame judge learned \"not done\" from {from}, while a ranked rollout may \
+                 run to frame {last}. It judges later imagined frames by what it learned of the \
+                 training episodes' endings, and may call them done: give the group a training \
+                 policy that fails at full length (such as random exploration with max_steps at \
+                 the ranked policies' step budget).",
+                g.group
+            ))
+        })
+        .collect()
+}
+
 /// The caption of the per-policy table (report.md and report.html).
 pub const PER_POLICY_NOTE: &str = "Episodes pooled over each policy's tasks: rate (successes/\
     trials) [95 % Wilson interval]. The ranking statistics below compare R and R_S as each \
@@ -1591,5 +1620,61 @@ mod tests {
             "ranking-gpt-4o.svg"
         );
         assert_eq!(ranking_figure(&judged_source("a/b c")), "ranking-a_b_c.svg");
+    }
+
+    #[test]
+    fn a_frame_judge_that_saw_no_late_failure_is_cautioned_with_both_frames() {
+        use crate::testing::{ranking_fixture, report_with_ranking};
+        let render = |r: RankingResults| {
+            let report = report_with_ranking(r);
+            let html = crate::html::report_html(&crate::html::HtmlInputs {
+                report: &report,
+                artifact: &|_| None,
+                human: None,
+            });
+            (report.to_markdown(), html)
+        };
+        // The fixture's judges saw "not done" at frame 40 of rollouts that may run to 60.
+        let r = ranking_fixture();
+        assert!(late_frame_cautions(&r).is_empty());
+        let (md, html) = render(r.clone());
+        assert!(!md.contains("Caution."), "{md}");
+        assert!(!html.contains("Caution."));
+        assert!(md.contains("| 40 / 60 |"), "{md}");
+        // Half the budget seen is enough; less is cautioned, naming the group and both frames.
+        let mut half = r.clone();
+        half.groups[0].judge_latest_not_done = Some(30);
+        half.groups[0].ranked_last_frame = Some(60);
+        assert!(late_frame_cautions(&half).is_empty());
+        let mut late = r.clone();
+        late.groups[1].judge_latest_not_done = Some(30);
+        late.groups[1].ranked_last_frame = Some(250);
+        let cautions = late_frame_cautions(&late);
+        assert_eq!(cautions.len(), 1, "{cautions:?}");
+        let group = &late.groups[1].group;
+        assert!(
+            cautions[0].starts_with(&format!("{group}: "))
+                && cautions[0].contains("no frame later than 30")
+                && cautions[0].contains("run to frame 250"),
+            "{}",
+            cautions[0]
+        );
+        let (md, html) = render(late.clone());
+        assert!(md.contains("**Caution.** "), "{md}");
+        assert!(md.contains("| 30 / 250 |"), "{md}");
+        assert!(html.contains("Caution. "));
+        assert!(html.contains("no frame later than 30"));
+        // A judge without any "not done" example is cautioned too; a report from before the
+        // fields existed is not.
+        let mut none = r.clone();
+        none.groups[0].judge_latest_not_done = None;
+        assert_eq!(late_frame_cautions(&none).len(), 1);
+        assert!(late_frame_cautions(&none)[0].contains("from no frame at all"));
+        let mut old = r;
+        for g in &mut old.groups {
+            g.judge_latest_not_done = None;
+            g.ranked_last_frame = None;
+        }
+        assert!(late_frame_cautions(&old).is_empty());
     }
 }

@@ -969,6 +969,7 @@ pub fn proxy_models(r: &RankingResults) -> Table {
         "#stopped by the frame judge",
         "#mean imagined frames",
         "#mean last-frame MSE ×10³",
+        "#judge's latest not-done frame / rollouts' last",
     ]);
     for g in &r.groups {
         let served = g.world_model.device == assay_model::proxy::SERVED_DEVICE;
@@ -999,6 +1000,10 @@ pub fn proxy_models(r: &RankingResults) -> Table {
             )),
             Cell::text(format!("{:.1}", mean(|p| f64::from(p.imagined_frames)))),
             Cell::text(format!("{:.3}", mean(|p| p.last_frame_mse) * 1e3)),
+            match (g.judge_latest_not_done, g.ranked_last_frame) {
+                (Some(seen), Some(last)) => Cell::text(format!("{seen} / {last}")),
+                _ => Cell::missing(),
+            },
         ]);
     }
     table

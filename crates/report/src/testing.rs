@@ -158,6 +158,8 @@ pub(crate) fn ranking_fixture() -> crate::ranking::RankingResults {
         judge_examples: 40,
         judge_positives: 12,
         judge_train_accuracy: 0.95,
+        judge_latest_not_done: Some(40),
+        ranked_last_frame: Some(60),
         calibration: None,
         cross_family: Vec::new(),
         cross_fit: Vec::new(),

@@ -469,6 +469,7 @@ pub fn run_proxy(
         accuracy: judge_train_accuracy,
         examples: owned,
         spans,
+        latest_not_done,
     } = fit_judge(world, &training, config, device)?;
     let judge_one = |f: &[u8]| judge.probability_of(&[f])[0];
     let calibration = calibration::fit(&owned, &spans, judged, size, config, device);
@@ -556,6 +557,11 @@ pub fn run_proxy(
         judge_examples: owned.len() as u32,
         judge_positives: owned.iter().filter(|e| e.1).count() as u32,
         judge_train_accuracy,
+        judge_latest_not_done: latest_not_done,
+        ranked_last_frame: eval
+            .iter()
+            .map(|e| horizon_frames(e.budget_steps).saturating_sub(1) as u32)
+            .max(),
         calibration,
         cross_family,
         cross_fit,
@@ -582,6 +588,8 @@ struct JudgeFit {
     accuracy: f64,
     examples: Vec<(Vec<u8>, bool)>,
     spans: Vec<calibration::Span>,
+    /// The latest clip frame among its "not done" examples.
+    latest_not_done: Option<u32>,
 }
 
 /// Trains the frame judge of `world` on the training episodes' real and imagined (replayed in
@@ -596,6 +604,8 @@ fn fit_judge(
     let at = |c: &Clip, t: usize| c.frame(t).to_vec();
     let mut owned: Vec<(Vec<u8>, bool)> = Vec::new();
     let mut spans: Vec<calibration::Span> = Vec::with_capacity(training.episodes.len());
+    let mut latest_not_done: Option<usize> = None;
+    let mut not_done_at = |t: usize| latest_not_done = latest_not_done.max(Some(t));
     for (i, e) in training.episodes.iter().enumerate() {
         let clip = &training.clips[i];
         let ok = e.success.unwrap_or(false);
@@ -608,8 +618,12 @@ fn fit_judge(
         let first = owned.len();
         owned.push((at(clip, last), ok));
         owned.push((imagined[last - 1].clone(), ok));
+        if !ok {
+            not_done_at(last);
+        }
         for t in [last / 4, last / 2] {
             if t >= 1 && t < last {
+                not_done_at(t);
                 owned.push((at(clip, t), false));
                 owned.push((imagined[t - 1].clone(), false));
             }
@@ -635,6 +649,7 @@ fn fit_judge(
         accuracy,
         examples: owned,
         spans,
+        latest_not_done: latest_not_done.map(|t| t as u32),
     })
 }
 

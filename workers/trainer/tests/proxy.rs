@@ -638,6 +638,16 @@ fn the_world_model_learns_from_its_policies_and_the_judge_from_every_training_ep
     assert_eq!(r.video_model.as_ref().map(|v| v.train_clips), Some(4));
     assert_eq!(r.judge_examples, 8 * 6);
     assert_eq!(r.calibration.as_ref().map(|c| c.episodes), Some(8));
+    // Its latest "not done" example: a failure's last frame (9 of 10 frames); a ranked rollout
+    // may run to its step budget's last frame (24 × 11 steps: frame 11).
+    assert_eq!(r.judge_latest_not_done, Some(9));
+    assert_eq!(r.ranked_last_frame, Some(11));
+    // With successes only, the latest is half way through one.
+    let successes: Vec<ProxyEpisode> = (0..8u64)
+        .map(|i| proxy_episode("oracle", i, Some(true)))
+        .collect();
+    let all = run(&successes, &train_clips, &eval_eps, &eval_clips, &config).unwrap();
+    assert_eq!(all.judge_latest_not_done, Some(4));
     // A policy with no training episode in the group leaves the world model nothing to learn.
     config.world_model_policies = vec!["random".into()];
     let err = run(&train_eps, &train_clips, &eval_eps, &eval_clips, &config)

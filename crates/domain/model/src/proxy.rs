@@ -610,6 +610,16 @@ pub struct ProxyResult {
     pub judge_positives: u32,
     /// The judge's accuracy on its own training examples.
     pub judge_train_accuracy: f64,
+    /// The latest clip frame (0 is the first) among the frame judge's "not done" examples: a
+    /// failed training episode's last frame, or a frame a quarter or half through one. A judge
+    /// that never saw a late frame of a failure may call any late imagined frame done (absent
+    /// when it has no such example, and before it existed).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub judge_latest_not_done: Option<u32>,
+    /// The last clip frame a ranked rollout may reach: its step budget in clip frames, the
+    /// longest of the group's ranked episodes (absent before it existed).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub ranked_last_frame: Option<u32>,
     /// The map from the frame judge's probability on an imagined last frame to a probability of
     /// real success, fitted on the training episodes only (absent when they are fewer than 4,
     /// all successes or all failures, or before it existed).

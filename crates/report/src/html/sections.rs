@@ -330,6 +330,9 @@ pub(super) fn ranking(inputs: &HtmlInputs<'_>, r: Option<&RankingResults>) -> Ma
                 p.caption { "Per group, the world model and the frame judge:" }
                 (table(&models))
             }
+            @for caution in crate::ranking::late_frame_cautions(r) {
+                p.undefined { strong { "Caution. " } (caution) }
+            }
             @if !per_policy.rows.is_empty() {
                 h3 { "Real and predicted success per policy" }
                 p.caption { (PER_POLICY_NOTE) }

@@ -224,6 +224,9 @@ impl RankingResults {
             out.push_str("\nPer group, the world model and the frame judge:\n\n");
             out.push_str(&models.markdown());
         }
+        for caution in crate::ranking::late_frame_cautions(self) {
+            let _ = writeln!(out, "\n**Caution.** {}", md_text(&caution));
+        }
         if !per_policy.rows.is_empty() {
             out.push_str("\n### Real and predicted success per policy\n\n");
             let _ = writeln!(out, "{}\n", md_text(PER_POLICY_NOTE));
