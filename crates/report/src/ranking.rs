@@ -514,7 +514,7 @@ pub fn ranking_results(
                 rate: real.rate.unwrap_or(0.0),
             });
             // The calibrated verdicts: the expected successes, rounded, so that the bootstrap
-            // redraws them as the others (binomially, from as many trials).
+            // draws them as the others (from their posterior, with as many trials).
             let calibrated: Vec<f64> = preds.iter().filter_map(|p| p.p_calibrated).collect();
             let calibrated = (!calibrated.is_empty()).then(|| {
                 let expected = calibrated.iter().sum::<f64>().round() as u64;

@@ -15,16 +15,22 @@
 //! # What the bootstrap resamples
 //!
 //! It resamples what is uncertain in the table. A rate measured from `trials` rollouts is uncertain
-//! because the rollouts are few, so when trials are known every cell's successes are redrawn from
-//! Binomial(trials, observed rate), independently on each side, and R and R_S are recomputed over
-//! the same tasks ([`Bootstrap::Trials`]): the interval then says how much the statistics move with
-//! the rollouts' luck, for this task set. A cell whose rate is 0 or 1 has no binomial spread (the
-//! usual weakness of a parametric bootstrap of proportions); when no cell has any, no interval is
-//! given. When a side of the comparison has cells with only a rate, that noise cannot be modelled;
-//! the tasks are resampled with replacement instead (the same draw for both sides and every
-//! policy, so pairs stay paired), each policy's means recomputed with the drawn multiplicities, and
-//! cells that do have counts are still redrawn binomially ([`Bootstrap::Tasks`]): the interval then
-//! says how much the statistics depend on which tasks were chosen, and needs at least 2 tasks.
+//! because the rollouts are few, so when trials are known every cell's rate is drawn from its
+//! Jeffreys posterior, Beta(successes + ½, failures + ½), independently on each side, and R and R_S
+//! are recomputed over the same tasks ([`Bootstrap::Trials`]): the interval then says how much the
+//! statistics could differ on the policies' true rates, for this task set. A posterior draw, rather
+//! than the parametric bootstrap's Binomial(trials, observed rate), because the latter redraws a
+//! cell seen at 0 or 1 as exactly 0 or 1 every time: 0 of 10 would count as certain, and a table
+//! of mostly 0/10 cells would get an interval far narrower than its data warrant. Away from 0 and 1
+//! the two spread alike (variances p(1 − p)/(n + 2) and p(1 − p)/n). The interval is then one for
+//! the statistics on the policies' true rates, so an estimate at a boundary may lie outside it:
+//! policies tied at 0/10 almost surely differ in truth, so MMRV's draws are above 0 even where the
+//! table's MMRV is 0 (its upper bound is the one to read). When a side of the comparison
+//! has cells with only a rate, that noise cannot be modelled; the tasks are resampled with
+//! replacement instead (the same draw for both sides and every policy, so pairs stay paired), each
+//! policy's means recomputed with the drawn multiplicities, and cells that do have counts are still
+//! drawn from their posteriors ([`Bootstrap::Tasks`]): the interval then says how much the
+//! statistics depend on which tasks were chosen, and needs at least 2 tasks (or a counted cell).
 //! A resample where a policy draws none of its tasks leaves every statistic undefined for that
 //! resample. Draws come from [`assay_spec::rng::Rng`] streams, one per (source, task, policy) cell and
 //! one for the task draw, so that the result is the same for the same seed and table, and adding a
@@ -146,10 +152,11 @@ pub struct Excluded {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum Bootstrap {
-    /// Every cell has counts: successes redrawn ~ Binomial(trials, observed rate); tasks fixed.
+    /// Every cell has counts: each cell's rate drawn from its Jeffreys posterior
+    /// Beta(successes + ½, failures + ½); tasks fixed.
     Trials,
     /// Some cells have only a rate: tasks resampled with replacement; cells with counts also
-    /// redrawn binomially.
+    /// drawn from their posteriors.
     Tasks,
 }
 
@@ -157,11 +164,13 @@ impl Bootstrap {
     pub fn describe(self) -> &'static str {
         match self {
             Bootstrap::Trials => {
-                "every cell's successes redrawn from Binomial(trials, observed rate), tasks fixed"
+                "every cell's rate drawn from its Jeffreys posterior Beta(successes + 1/2, \
+                 failures + 1/2), tasks fixed"
             }
             Bootstrap::Tasks => {
                 "tasks resampled with replacement (some cells give only a rate); cells with \
-                 trials also redrawn from Binomial(trials, observed rate)"
+                 trials also drawn from their Jeffreys posteriors Beta(successes + 1/2, \
+                 failures + 1/2)"
             }
         }
     }
@@ -452,20 +461,22 @@ impl Rate {
         }
     }
 
-    /// This rate's trials redrawn: successes ~ Binomial(trials, rate); a given rate stays.
+    /// This rate drawn from its Jeffreys posterior, Beta(successes + ½, failures + ½); a given
+    /// rate stays.
     fn redraw(self, rng: &mut Rng) -> Self {
         match self {
-            Rate::Counted { successes, trials } => Rate::Counted {
-                successes: binomial(rng, trials, successes as f64 / trials as f64),
-                trials,
-            },
-            given => given,
+            Rate::Counted { successes, trials } if trials > 0 => Rate::Given(beta(
+                rng,
+                successes as f64 + 0.5,
+                (trials - successes) as f64 + 0.5,
+            )),
+            other => other,
         }
     }
 
     /// Whether redrawing can change it.
     fn varies(self) -> bool {
-        matches!(self, Rate::Counted { successes, trials } if successes > 0 && successes < trials)
+        matches!(self, Rate::Counted { trials, .. } if trials > 0)
     }
 }
 
@@ -520,28 +531,41 @@ fn mean(rates: impl Iterator<Item = (u64, Rate)>) -> Option<f64> {
     }
 }
 
-/// A Binomial(n, p) draw, exact: the gaps between successes of the rarer outcome are geometric
-/// (drawn by inversion), so the cost is the number of those outcomes, not n.
-fn binomial(rng: &mut Rng, n: u64, p: f64) -> u64 {
-    if p <= 0.0 {
-        return 0;
+/// A standard normal draw (Box–Muller; one of the pair is used, so a stream's draws stay simple to
+/// follow).
+fn normal(rng: &mut Rng) -> f64 {
+    let u = 1.0 - rng.unit(); // (0, 1]
+    let v = rng.unit();
+    (-2.0 * u.ln()).sqrt() * (std::f64::consts::TAU * v).cos()
+}
+
+/// A Gamma(shape, 1) draw: Marsaglia and Tsang's method (2000) for shape ≥ 1; below 1, a
+/// Gamma(shape + 1) draw times U^(1/shape).
+fn gamma(rng: &mut Rng, shape: f64) -> f64 {
+    if shape < 1.0 {
+        let u = 1.0 - rng.unit();
+        return gamma(rng, shape + 1.0) * u.powf(1.0 / shape);
     }
-    if p >= 1.0 {
-        return n;
-    }
-    let (q, flip) = if p > 0.5 { (1.0 - p, true) } else { (p, false) };
-    let log_miss = (-q).ln_1p();
-    let (mut k, mut used) = (0u64, 0u64);
+    let d = shape - 1.0 / 3.0;
+    let c = 1.0 / (9.0 * d).sqrt();
     loop {
-        // Failures before the next success: floor(ln U / ln(1 − q)), U in (0, 1].
-        let gap = ((1.0 - rng.unit()).ln() / log_miss).floor();
-        if gap >= (n - used) as f64 {
-            break;
+        let x = normal(rng);
+        let v = (1.0 + c * x).powi(3);
+        if v <= 0.0 {
+            continue;
         }
-        used += gap as u64 + 1;
-        k += 1;
+        let u = 1.0 - rng.unit();
+        if u.ln() < 0.5 * x * x + d - d * v + d * v.ln() {
+            return d * v;
+        }
     }
-    if flip { n - k } else { k }
+}
+
+/// A Beta(a, b) draw, as X / (X + Y) with X ~ Gamma(a), Y ~ Gamma(b).
+fn beta(rng: &mut Rng, a: f64, b: f64) -> f64 {
+    let x = gamma(rng, a);
+    let y = gamma(rng, b);
+    x / (x + y)
 }
 
 fn stream(seed: u64, source: &str, task: &str, policy: &str) -> Rng {
@@ -686,19 +710,18 @@ fn compare(cells: &[Cell], real: &str, proxy: &str, resamples: usize, seed: u64)
     } else {
         Bootstrap::Tasks
     };
-    let binomial_spread = rows
+    // A counted cell always varies (its posterior has spread, even at 0 or 1), so only a table of
+    // rates on a single task has nothing to resample.
+    let counted_spread = rows
         .iter()
         .any(|r| r.cells.iter().any(|c| c.1.varies() || c.2.varies()));
-    let nothing_to_resample = match method {
-        Bootstrap::Trials if !binomial_spread => Some(
-            "every cell's rate is 0 or 1, so redrawn trials never differ: no interval".to_owned(),
-        ),
-        Bootstrap::Tasks if tasks.len() < 2 && !binomial_spread => Some(format!(
-            "{} task, so resampling tasks never differs: no interval",
-            tasks.len()
-        )),
-        _ => None,
-    };
+    let nothing_to_resample = (method == Bootstrap::Tasks && tasks.len() < 2 && !counted_spread)
+        .then(|| {
+            format!(
+                "{} task, so resampling tasks never differs: no interval",
+                tasks.len()
+            )
+        });
 
     let mut samples: Vec<Vec<f64>> = vec![Vec::with_capacity(resamples); STATS.len()];
     let mut mae_samples: Vec<f64> = Vec::with_capacity(resamples);
@@ -1065,7 +1088,7 @@ mod tests {
     }
 
     #[test]
-    fn more_trials_narrow_the_binomial_interval() {
+    fn more_trials_narrow_the_interval() {
         let scaled = |k: u64| -> Vec<Cell> {
             ladder()
                 .into_iter()
@@ -1088,28 +1111,66 @@ mod tests {
     }
 
     #[test]
-    fn binomial_draws_have_the_binomial_mean_and_variance() {
-        for (n, p) in [(20u64, 0.3), (50, 0.9), (7, 0.5), (1000, 0.02)] {
-            let mut rng = Rng::new(11, "binomial");
-            let draws: Vec<f64> = (0..20_000)
-                .map(|_| binomial(&mut rng, n, p) as f64)
-                .collect();
-            assert!(draws.iter().all(|k| *k <= n as f64));
-            let m = draws.iter().sum::<f64>() / draws.len() as f64;
-            let v = draws.iter().map(|k| (k - m).powi(2)).sum::<f64>() / draws.len() as f64;
-            let (em, ev) = (n as f64 * p, n as f64 * p * (1.0 - p));
+    fn beta_draws_have_the_beta_mean_and_variance() {
+        // Jeffreys posteriors of 0/10, 3/10, 10/10 and 1/1000, and Beta(½, ½) itself.
+        for (a, b) in [
+            (0.5, 10.5),
+            (3.5, 7.5),
+            (10.5, 0.5),
+            (1.5, 999.5),
+            (0.5, 0.5),
+        ] {
+            let mut rng = Rng::new(11, "beta");
+            let n = 40_000;
+            let draws: Vec<f64> = (0..n).map(|_| beta(&mut rng, a, b)).collect();
+            assert!(draws.iter().all(|x| (0.0..=1.0).contains(x)));
+            let m = draws.iter().sum::<f64>() / n as f64;
+            let v = draws.iter().map(|x| (x - m).powi(2)).sum::<f64>() / n as f64;
+            let (em, ev) = (a / (a + b), a * b / ((a + b).powi(2) * (a + b + 1.0)));
             assert!(
-                (m - em).abs() < 4.0 * (ev / 20_000.0).sqrt(),
-                "n {n} p {p}: mean {m}"
+                (m - em).abs() < 4.0 * (ev / n as f64).sqrt(),
+                "Beta({a}, {b}): mean {m} vs {em}"
             );
             assert!(
-                (v / ev - 1.0).abs() < 0.05,
-                "n {n} p {p}: variance {v} vs {ev}"
+                (v / ev - 1.0).abs() < 0.06,
+                "Beta({a}, {b}): variance {v} vs {ev}"
             );
         }
-        let mut rng = Rng::new(0, "edge");
-        assert_eq!(binomial(&mut rng, 9, 0.0), 0);
-        assert_eq!(binomial(&mut rng, 9, 1.0), 9);
+    }
+
+    #[test]
+    fn a_cell_at_zero_or_one_is_uncertain_too() {
+        // Three of four policies at 0/10 in the simulator, as the demo's ladder: the parametric
+        // bootstrap redrew them as 0 every time and so treated them as exact. A posterior draw
+        // does not: the interval is defined and wider than with the same rates measured 10 times
+        // as often.
+        let table = |k: u64| {
+            let mut cells = Vec::new();
+            for (i, (real, proxy)) in [(0, 2), (0, 3), (0, 5), (5, 9)].into_iter().enumerate() {
+                cells.push(cell("t", &format!("p{i}"), "real", real * k, 10 * k));
+                cells.push(cell("t", &format!("p{i}"), "sim", proxy * k, 10 * k));
+            }
+            cells
+        };
+        let pearson = |k: u64| {
+            let c = rank(&table(k), &cfg(2000, 5))
+                .unwrap()
+                .comparisons
+                .remove(0);
+            assert_eq!(c.bootstrap, Bootstrap::Trials);
+            let v = c.pearson.value.unwrap();
+            let [lo, hi] = c.pearson.ci95.unwrap();
+            assert!(lo < v && v <= hi, "{lo} {v} {hi}");
+            (lo, hi)
+        };
+        let (lo10, hi10) = pearson(1);
+        let (lo100, hi100) = pearson(10);
+        assert!(
+            lo10 < lo100 && hi100 - lo100 < hi10 - lo10,
+            "{lo10} {lo100}"
+        );
+        // Only the real side at 0/10 would be enough to vary: the sure table below has an
+        // interval that reaches below 1.
     }
 
     #[test]
@@ -1152,7 +1213,9 @@ mod tests {
         let why = c.mmrv.no_interval.unwrap();
         assert!(why.contains("a policy drew none of its tasks"), "{why}");
         assert_eq!(c.excluded.len(), 1);
-        // Every rate 0 or 1 with counts: no binomial spread, no interval.
+        // Every rate 0 or 1 with counts: the posteriors still spread, so there is an interval.
+        // With two policies Pearson is ±1 in every draw (here always +1: 5/5 and 0/5 never swap
+        // in 100 draws); the calibration's distance is not.
         let sure = vec![
             cell("a", "x", "real", 5, 5),
             cell("a", "x", "sim", 4, 4),
@@ -1162,7 +1225,10 @@ mod tests {
         let c = rank(&sure, &cfg(100, 0)).unwrap().comparisons.remove(0);
         assert_eq!(c.bootstrap, Bootstrap::Trials);
         assert_eq!(c.pearson.value, Some(1.0));
-        assert!(c.pearson.no_interval.unwrap().contains("0 or 1"));
+        let [lo, hi] = c.pearson.ci95.unwrap();
+        assert!(close(lo, 1.0) && close(hi, 1.0), "{lo} {hi}");
+        let [lo, hi] = c.calibration_mae.unwrap().ci95.unwrap();
+        assert!(0.0 < lo && lo < hi, "{lo} {hi}");
     }
 
     #[test]
