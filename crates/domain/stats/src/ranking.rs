@@ -1169,8 +1169,6 @@ mod tests {
             lo10 < lo100 && hi100 - lo100 < hi10 - lo10,
             "{lo10} {lo100}"
         );
-        // Only the real side at 0/10 would be enough to vary: the sure table below has an
-        // interval that reaches below 1.
     }
 
     #[test]
