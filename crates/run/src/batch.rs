@@ -77,12 +77,10 @@ pub struct BatchArgs {
     #[arg(long = "world-model", value_parser = setting::<assay_model::dynamics::DynamicsConfig>, help_heading = "Diversity")]
     pub world_model: Option<String>,
     /// Rank the batch's policies with a world-model proxy trained on the episodes of these
-    /// policies (comma-separated; they must be among --policies and are not ranked themselves).
-    #[arg(
-        long = "rank-train-policies",
-        value_delimiter = ',',
-        help_heading = "Ranking"
-    )]
+    /// policies (repeatable or comma-separated; they must be among --policies and are not ranked
+    /// themselves). A policy's own arguments stay with it: `oracle,random:speed=0.3,max_steps=600`
+    /// is two policies.
+    #[arg(long = "rank-train-policies", help_heading = "Ranking")]
     pub rank_train_policies: Vec<String>,
     /// Proxy settings as JSON (fields of assay-model ProxyConfig, e.g.
     /// '{"judge_steps": 600, "world_model": {"steps": 2000}}'); in the file `[eval.proxy]`.
@@ -217,7 +215,8 @@ impl BatchArgs {
         if self.rank_train_policies.is_empty() {
             return String::new();
         }
-        let mut plan = serde_json::json!({"train_policies": self.rank_train_policies});
+        let mut plan =
+            serde_json::json!({"train_policies": policy_list(&self.rank_train_policies)});
         for (key, text) in [("config", &self.proxy), ("ladder", &self.rank_ladder)] {
             match text
                 .as_deref()
@@ -297,6 +296,26 @@ pub fn default_name(paths: &[PathBuf]) -> String {
         .join(" + ")
 }
 
+/// Policies given comma-separated: each value split at its commas, a piece that is an argument
+/// (`key=value`, no `:` before its `=`) kept with the policy before it. A policy's arguments are
+/// comma-separated too (`random:speed=0.3,max_steps=600`), and a policy's name never holds `=`.
+fn policy_list(values: &[String]) -> Vec<String> {
+    let mut out: Vec<String> = Vec::new();
+    for piece in values.iter().flat_map(|v| v.split(',')) {
+        let argument = piece
+            .find('=')
+            .is_some_and(|eq| piece.find(':').is_none_or(|colon| eq < colon));
+        match out.last_mut() {
+            Some(last) if argument => {
+                last.push(',');
+                last.push_str(piece);
+            }
+            _ => out.push(piece.to_owned()),
+        }
+    }
+    out
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -349,5 +368,25 @@ mod tests {
                 .is_none()
         );
         assert!(Cli::try_parse_from(["assay", "--rank-ladder"]).is_err());
+    }
+
+    #[test]
+    fn training_policies_keep_their_own_arguments() {
+        let plan = ranking(&[
+            "--rank-train-policies",
+            "oracle,random:speed=0.3,max_steps=600,oracle:noise=0.02",
+            "--rank-train-policies",
+            "openpi:url=ws://127.0.0.1:8000,remote:url=http://127.0.0.1:9000",
+        ]);
+        assert_eq!(
+            plan["train_policies"],
+            serde_json::json!([
+                "oracle",
+                "random:speed=0.3,max_steps=600",
+                "oracle:noise=0.02",
+                "openpi:url=ws://127.0.0.1:8000",
+                "remote:url=http://127.0.0.1:9000",
+            ])
+        );
     }
 }
