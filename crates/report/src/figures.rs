@@ -433,6 +433,10 @@ pub fn ranking_labelled(
     out
 }
 
+/// How far the unit square's axes reach beyond 0 and 1: a rate of 0 or 1 and its interval are
+/// drawn clear of the axis lines, not over them.
+const UNIT_PAD: f64 = 0.04;
+
 /// A chart of the unit square drawn on `root`: its title, mesh and axes' descriptions, and the
 /// dashed y = x diagonal (the ranking's and the reliability diagram's frame).
 fn unit_square<'a, 'b>(
@@ -453,7 +457,7 @@ fn unit_square<'a, 'b>(
         .margin(16)
         .x_label_area_size(44)
         .y_label_area_size(56)
-        .build_cartesian_2d(0f64..1f64, 0f64..1f64)?;
+        .build_cartesian_2d(-UNIT_PAD..1.0 + UNIT_PAD, -UNIT_PAD..1.0 + UNIT_PAD)?;
     chart
         .configure_mesh()
         .x_labels(6)
