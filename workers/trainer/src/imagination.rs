@@ -93,7 +93,9 @@ pub fn replay(
     Ok(frames.into_iter().map(|f| f.rgb).collect())
 }
 
-fn check_frames(
+/// Refuses an answer of another number of frames than `asked`, or of frames not at the start's
+/// cameras and sizes.
+pub(crate) fn check_frames(
     frames: &[assay_model::world::WorldFrame],
     asked: usize,
     start: &WorldStart,

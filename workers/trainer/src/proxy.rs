@@ -449,6 +449,7 @@ pub fn run_proxy(
             (external.as_ref(), fit)
         }
     };
+    let fitted_s = started.elapsed().as_secs_f64();
     let train_ctx: Vec<EpisodeContext> = train.iter().map(context).collect();
     let eval_ctx: Vec<EpisodeContext> = eval.iter().map(context).collect();
 
@@ -471,12 +472,15 @@ pub fn run_proxy(
         spans,
         latest_not_done,
     } = fit_judge(world, &training, config, device)?;
+    let judged_s = started.elapsed().as_secs_f64();
     let judge_one = |f: &[u8]| judge.probability_of(&[f])[0];
     let calibration = calibration::fit(&owned, &spans, judged, size, config, device);
+    let calibrated_s = started.elapsed().as_secs_f64();
 
     // The world model's use of its actions and its video prediction, open loop over windows
     // of the ranked episodes' real clips (a diagnostic).
     let action_test = action_test(world, eval.iter().zip(eval_clips).collect())?;
+    let action_tested_s = started.elapsed().as_secs_f64();
 
     let mut predictions = Vec::with_capacity(eval.len());
     let mut imagined_frames = Vec::with_capacity(eval.len());
@@ -514,6 +518,7 @@ pub fn run_proxy(
         });
         imagined_frames.push(keyframes_of(&start.rgb, &rollout.frames));
     }
+    let imagined_s = started.elapsed().as_secs_f64();
     let held_out = held_out::Inputs {
         policies,
         world_clips,
@@ -543,6 +548,11 @@ pub fn run_proxy(
     tracing::info!(
         group,
         seconds = started.elapsed().as_secs_f64(),
+        fitted_s,
+        judged_s,
+        calibrated_s,
+        action_tested_s,
+        imagined_s,
         train = train.len(),
         eval = eval.len(),
         judge_train_accuracy,

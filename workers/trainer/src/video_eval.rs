@@ -21,7 +21,7 @@ use assay_model::clip::Clip;
 use assay_model::world::{WorldError, WorldModelService, WorldStart};
 use tch::{Kind, Tensor};
 
-use crate::imagination::replay;
+use crate::imagination::check_frames;
 
 /// Imagined frames per window of the action test and the video figures (the paper's 16).
 pub const HORIZON: usize = 16;
@@ -51,9 +51,37 @@ pub fn mse(a: &[u8], b: &[u8]) -> f64 {
     crate::imagination::mse(a, b)
 }
 
+/// [`mse`] of each pair `(a[i], b[i])` of frames of one size, with libtorch in double
+/// precision: the action test compares tens of thousands of frames, and this crate builds
+/// unoptimised in the test profile.
+pub fn mse_many(a: &[&[u8]], b: &[&[u8]]) -> Vec<f64> {
+    let n = a.len().min(b.len());
+    let Some(len) = a.first().map(|f| f.len()).filter(|_| n > 0) else {
+        return vec![0.0; n];
+    };
+    if a[..n].iter().chain(&b[..n]).any(|f| f.len() != len) {
+        return a.iter().zip(b).map(|(a, b)| mse(a, b)).collect();
+    }
+    let frames = |f: &[&[u8]]| {
+        Tensor::from_slice(&f[..n].concat())
+            .view([n as i64, len as i64])
+            .to_kind(Kind::Double)
+    };
+    let errors = tch::no_grad(|| {
+        ((frames(a) - frames(b)) / 255.0)
+            .square()
+            .mean_dim([1i64].as_slice(), false, Kind::Double)
+    });
+    Vec::<f64>::try_from(&errors).expect("a double vector")
+}
+
 /// PSNR in dB of two frames of bytes (100 for identical frames).
 pub fn psnr(a: &[u8], b: &[u8]) -> f64 {
-    let m = mse(a, b);
+    psnr_of(mse(a, b))
+}
+
+/// PSNR in dB of a mean squared error in [0, 1] units (100 for none).
+fn psnr_of(m: f64) -> f64 {
     if m <= 1e-10 {
         100.0
     } else {
@@ -61,46 +89,66 @@ pub fn psnr(a: &[u8], b: &[u8]) -> f64 {
     }
 }
 
-/// SSIM of two `width`×`height` RGB frames (module docs). Computed with libtorch in double
-/// precision (a separable Gaussian as two depthwise convolutions), so it costs little in any
-/// build.
+/// SSIM of two `width`×`height` RGB frames (module docs).
 pub fn ssim(a: &[u8], b: &[u8], width: usize, height: usize) -> f64 {
-    const R: i64 = 5;
-    if width as i64 <= 2 * R || height as i64 <= 2 * R {
-        return f64::NAN;
+    ssim_many(&[a], &[b], width, height)[0]
+}
+
+/// Frames compared at once by [`ssim_many`] (its double-precision maps of 160×120 frames take
+/// about 15 MB each at this count).
+const SSIM_BATCH: usize = 32;
+
+/// [`ssim`] of each pair `(a[i], b[i])`, computed with libtorch in double precision over
+/// batches of frames: the separable Gaussian as two matrix products with banded matrices (a
+/// depthwise convolution in double precision has no fast path on a CPU: 26 ms a 160×120 frame
+/// against 6.5 ms), so it costs little in any build.
+pub fn ssim_many(a: &[&[u8]], b: &[&[u8]], width: usize, height: usize) -> Vec<f64> {
+    const R: usize = 5;
+    if width <= 2 * R || height <= 2 * R {
+        return vec![f64::NAN; a.len().min(b.len())];
     }
     let k: Vec<f64> = (0..=2 * R)
-        .map(|i| (-(((i - R) as f64).powi(2)) / (2.0 * 1.5 * 1.5)).exp())
+        .map(|i| (-((i as f64 - R as f64).powi(2)) / (2.0 * 1.5 * 1.5)).exp())
         .collect();
     let sum: f64 = k.iter().sum();
     let k: Vec<f64> = k.iter().map(|v| v / sum).collect();
-    let kernel = Tensor::from_slice(&k);
-    let (kx, ky) = (
-        kernel.view([1, 1, 1, 2 * R + 1]).repeat([3, 1, 1, 1]),
-        kernel.view([1, 1, 2 * R + 1, 1]).repeat([3, 1, 1, 1]),
-    );
-    let image = |f: &[u8]| {
-        Tensor::from_slice(f)
-            .view([1, height as i64, width as i64, 3])
+    // `band(n)[j][j + i] = k[i]`: the valid positions of a 1-D filter over `n` values.
+    let band = |n: usize| {
+        let valid = n - 2 * R;
+        let mut m = vec![0f64; valid * n];
+        for j in 0..valid {
+            m[j * n + j..j * n + j + 2 * R + 1].copy_from_slice(&k);
+        }
+        Tensor::from_slice(&m).view([valid as i64, n as i64])
+    };
+    let (rows, cols) = (band(height), band(width).tr());
+    let images = |frames: &[&[u8]]| {
+        let bytes: Vec<u8> = frames.concat();
+        Tensor::from_slice(&bytes)
+            .view([frames.len() as i64, height as i64, width as i64, 3])
             .permute([0, 3, 1, 2])
             .to_kind(Kind::Double)
             / 255.0
     };
-    let blur = |x: &Tensor| {
-        x.conv2d(&kx, None::<Tensor>, [1, 1], [0, 0], [1, 1], 3)
-            .conv2d(&ky, None::<Tensor>, [1, 1], [0, 0], [1, 1], 3)
-    };
-    tch::no_grad(|| {
-        let (x, y) = (image(a), image(b));
-        let (mu_x, mu_y) = (blur(&x), blur(&y));
-        let var_x = blur(&(&x * &x)) - &mu_x * &mu_x;
-        let var_y = blur(&(&y * &y)) - &mu_y * &mu_y;
-        let cov = blur(&(&x * &y)) - &mu_x * &mu_y;
-        let (c1, c2) = (0.01f64.powi(2), 0.03f64.powi(2));
-        let map = ((&mu_x * &mu_y * 2.0 + c1) * (cov * 2.0 + c2))
-            / ((&mu_x * &mu_x + &mu_y * &mu_y + c1) * (var_x + var_y + c2));
-        map.mean(Kind::Double).double_value(&[])
-    })
+    // Along each row, then along each column: `[N, 3, H, W]` → `[N, 3, H − 2R, W − 2R]`.
+    let blur = |x: &Tensor| rows.matmul(&x.matmul(&cols));
+    let mut out = Vec::with_capacity(a.len());
+    for (a, b) in a.chunks(SSIM_BATCH).zip(b.chunks(SSIM_BATCH)) {
+        let n = a.len().min(b.len());
+        let map = tch::no_grad(|| {
+            let (x, y) = (images(&a[..n]), images(&b[..n]));
+            let (mu_x, mu_y) = (blur(&x), blur(&y));
+            let var_x = blur(&(&x * &x)) - &mu_x * &mu_x;
+            let var_y = blur(&(&y * &y)) - &mu_y * &mu_y;
+            let cov = blur(&(&x * &y)) - &mu_x * &mu_y;
+            let (c1, c2) = (0.01f64.powi(2), 0.03f64.powi(2));
+            (((&mu_x * &mu_y * 2.0 + c1) * (cov * 2.0 + c2))
+                / ((&mu_x * &mu_x + &mu_y * &mu_y + c1) * (var_x + var_y + c2)))
+                .mean_dim([1i64, 2, 3].as_slice(), false, Kind::Double)
+        });
+        out.extend(Vec::<f64>::try_from(&map).expect("a double vector"));
+    }
+    out
 }
 
 /// The windows of a clip of `len` frames: `(start, predicted frames)`.
@@ -139,6 +187,7 @@ fn actions(clip: &Clip, start: usize, n: usize) -> Vec<Vec<f32>> {
 
 /// The one-step image error of `world` on `clips`: every next frame imagined from the real one
 /// before it with its action (the MSE per pixel-channel, averaged over the predicted frames).
+/// Each clip's frames are imagined together ([`WorldModelService::replay_many`]).
 pub fn one_step_mse(
     world: &dyn WorldModelService,
     clips: &[&Clip],
@@ -147,17 +196,32 @@ pub fn one_step_mse(
     let (mut sum, mut n) = (0.0, 0usize);
     for (i, clip) in clips.iter().enumerate() {
         let frame = (clip.width * clip.height * 3) as usize;
-        for t in 0..clip.len().saturating_sub(1) {
-            let imagined = replay(world, &start_at(clip, t, &names[i]), &actions(clip, t, 1))?;
-            sum += mse(&imagined[0], &clip.rgb[(t + 1) * frame..(t + 2) * frame]);
-            n += 1;
+        let steps = clip.len().saturating_sub(1);
+        let starts: Vec<WorldStart> = (0..steps).map(|t| start_at(clip, t, &names[i])).collect();
+        let moves: Vec<Vec<Vec<f32>>> = (0..steps).map(|t| actions(clip, t, 1)).collect();
+        let runs: Vec<(&WorldStart, &[Vec<f32>])> = starts
+            .iter()
+            .zip(&moves)
+            .map(|(s, a)| (s, a.as_slice()))
+            .collect();
+        let imagined = world.replay_many(&runs)?;
+        for (t, frames) in imagined.iter().enumerate() {
+            check_frames(frames, 1, &starts[t])?;
         }
+        let next: Vec<&[u8]> = imagined.iter().map(|f| f[0].rgb.as_slice()).collect();
+        let real: Vec<&[u8]> = (1..=steps)
+            .map(|t| &clip.rgb[t * frame..(t + 1) * frame])
+            .collect();
+        sum += mse_many(&next, &real).iter().sum::<f64>();
+        n += steps;
     }
     Ok(if n > 0 { sum / n as f64 } else { 0.0 })
 }
 
 /// The open-loop figures of `world` on `clips` (see the module docs); `names[i]` is what the
 /// model is told of clip `i`. The action test needs 2 clips or more (else its figures are 0).
+/// Each clip's windows, with each of their three action sequences, are imagined together
+/// ([`WorldModelService::replay_many`]).
 pub fn open_loop(
     world: &dyn WorldModelService,
     clips: &[&Clip],
@@ -174,32 +238,54 @@ pub fn open_loop(
         (0.0, 0.0, 0.0, 0.0, 0.0);
     for (i, clip) in clips.iter().enumerate() {
         let frame = (clip.width * clip.height * 3) as usize;
+        let real = |t: usize| &clip.rgb[t * frame..(t + 1) * frame];
         let donor = clips[(i + 1) % clips.len()];
         let donor_windows = windows_of(donor.len(), horizon);
-        for (k, (start, n)) in windows_of(clip.len(), horizon).into_iter().enumerate() {
-            let begin = start_at(clip, start, &names[i]);
-            let real = |t: usize| &clip.rgb[(start + t) * frame..(start + t + 1) * frame];
-            let own = actions(clip, start, n);
-            for (t, f) in replay(world, &begin, &own)?.iter().enumerate() {
-                true_sum += mse(f, real(t + 1));
-                psnr_sum += psnr(f, real(t + 1));
-                ssim_sum += ssim(f, real(t + 1), clip.width as usize, clip.height as usize);
-            }
-            if clips.len() > 1 && !donor_windows.is_empty() {
+        let shuffled = clips.len() > 1 && !donor_windows.is_empty();
+        let windows = windows_of(clip.len(), horizon);
+        let starts: Vec<WorldStart> = windows
+            .iter()
+            .map(|(start, _)| start_at(clip, *start, &names[i]))
+            .collect();
+        // Per window: its own actions, another clip's (when there is one) and zeros.
+        let mut moves: Vec<(usize, Vec<Vec<f32>>)> = Vec::new();
+        for (k, &(start, n)) in windows.iter().enumerate() {
+            moves.push((k, actions(clip, start, n)));
+            if shuffled {
                 let (ds, dn) = donor_windows[k.min(donor_windows.len() - 1)];
                 let mut other = actions(donor, ds, dn);
                 while other.len() < n {
                     other.push(other.last().cloned().unwrap_or_default());
                 }
                 other.truncate(n);
-                for (t, f) in replay(world, &begin, &other)?.iter().enumerate() {
-                    shuffled_sum += mse(f, real(t + 1));
-                }
+                moves.push((k, other));
             }
-            let zeros = vec![vec![0.0f32; clip.action_dims as usize]; n];
-            for (t, f) in replay(world, &begin, &zeros)?.iter().enumerate() {
-                zero_sum += mse(f, real(t + 1));
+            moves.push((k, vec![vec![0.0f32; clip.action_dims as usize]; n]));
+        }
+        let runs: Vec<(&WorldStart, &[Vec<f32>])> = moves
+            .iter()
+            .map(|(k, a)| (&starts[*k], a.as_slice()))
+            .collect();
+        let imagined = world.replay_many(&runs)?;
+        let per_window = if shuffled { 3 } else { 2 };
+        for (k, &(start, n)) in windows.iter().enumerate() {
+            let of = |v: usize| -> Result<Vec<&[u8]>, WorldError> {
+                let frames = &imagined[k * per_window + v];
+                check_frames(frames, n, &starts[k])?;
+                Ok(frames.iter().map(|f| f.rgb.as_slice()).collect())
+            };
+            let targets: Vec<&[u8]> = (1..=n).map(|t| real(start + t)).collect();
+            let own = of(0)?;
+            let ssims = ssim_many(&own, &targets, clip.width as usize, clip.height as usize);
+            for (m, s) in mse_many(&own, &targets).into_iter().zip(ssims) {
+                true_sum += m;
+                psnr_sum += psnr_of(m);
+                ssim_sum += s;
             }
+            if shuffled {
+                shuffled_sum += mse_many(&of(1)?, &targets).iter().sum::<f64>();
+            }
+            zero_sum += mse_many(&of(per_window - 1)?, &targets).iter().sum::<f64>();
             out.windows += 1;
             out.frames += n;
         }
@@ -289,7 +375,7 @@ mod tests {
     }
 
     #[test]
-    fn ssim_by_convolution_equals_the_direct_sum() {
+    fn ssim_by_matrix_products_equals_the_direct_sum() {
         // Not square, so that rows and columns cannot be swapped unnoticed.
         let (w, h) = (24, 17);
         let a = frame(w, h, |x, y| {
@@ -305,6 +391,37 @@ mod tests {
         let (fast, direct) = (ssim(&a, &b, w, h), ssim_direct(&a, &b, w, h));
         assert!((fast - direct).abs() < 1e-12, "{fast} against {direct}");
         assert!(fast < 0.99, "{fast}");
+    }
+
+    #[test]
+    fn frames_compared_together_score_as_each_alone() {
+        let (w, h) = (24, 17);
+        let frames: Vec<Vec<u8>> = (0..45)
+            .map(|k| {
+                frame(w, h, |x, y| {
+                    [
+                        (x * 10 + k) as u8,
+                        (y * 14 + 3 * k) as u8,
+                        ((x * y + 7 * k) % 256) as u8,
+                    ]
+                })
+            })
+            .collect();
+        // More pairs than one batch of SSIM maps.
+        let a: Vec<&[u8]> = frames[..40].iter().map(Vec::as_slice).collect();
+        let b: Vec<&[u8]> = frames[5..].iter().map(Vec::as_slice).collect();
+        let (m, s) = (mse_many(&a, &b), ssim_many(&a, &b, w, h));
+        assert_eq!((m.len(), s.len()), (40, 40));
+        for i in 0..40 {
+            let (one, direct) = (mse(a[i], b[i]), ssim_direct(a[i], b[i], w, h));
+            assert!((m[i] - one).abs() < 1e-12, "{i}: {} against {one}", m[i]);
+            assert!(
+                (s[i] - direct).abs() < 1e-12,
+                "{i}: {} against {direct}",
+                s[i]
+            );
+        }
+        assert!(m.iter().all(|v| *v > 0.0) && s.iter().all(|v| *v < 0.99));
     }
 
     #[test]

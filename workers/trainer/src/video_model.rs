@@ -59,7 +59,7 @@ use assay_spec::rng::Rng;
 use tch::{Device, Kind, Tensor};
 
 use crate::adam::Adam;
-use crate::world_model::{Conv, Init, Linear, WorldModelError, device_name, lookup, world_frame};
+use crate::world_model::{Conv, Init, Linear, WorldModelError, device_name, lookup, world_frames};
 
 const GRAD_CLIP: f64 = 100.0;
 
@@ -885,6 +885,42 @@ impl WorldModelService for VideoModel {
     }
 
     fn reset(&self, start: &WorldStart) -> Result<Box<dyn ImaginedEpisode + '_>, WorldError> {
+        self.check_start(start)?;
+        let (rollout, full) = tch::no_grad(|| self.start_of(&[start]));
+        Ok(Box::new(Imagined {
+            model: self,
+            rollout,
+            full,
+        }))
+    }
+
+    /// The runs in batches of [`REPLAY_BATCH`]: each sample of a batch is imagined on its own
+    /// (no layer mixes samples), so the frames are those of one run at a time.
+    fn replay_many(
+        &self,
+        runs: &[(&WorldStart, &[Vec<f32>])],
+    ) -> Result<Vec<Vec<WorldFrame>>, WorldError> {
+        for (start, actions) in runs {
+            self.check_start(start)?;
+            actions.iter().try_for_each(|a| self.check_action(a))?;
+        }
+        let mut out = Vec::with_capacity(runs.len());
+        for batch in runs.chunks(REPLAY_BATCH) {
+            out.extend(
+                tch::no_grad(|| self.replay_batch(batch))
+                    .map_err(|e| WorldError::BadAnswer(format!("libtorch: {e}")))?,
+            );
+        }
+        Ok(out)
+    }
+}
+
+/// Runs imagined at once by [`VideoModel`]'s `replay_many`.
+const REPLAY_BATCH: usize = 64;
+
+impl VideoModel {
+    /// Refuses a start whose frames or state do not fit the model.
+    fn check_start(&self, start: &WorldStart) -> Result<(), WorldError> {
         let layout = &self.layout;
         let mut sizes = vec![(start.width, start.height, start.rgb.len())];
         sizes.extend(start.views.iter().map(|v| (v.width, v.height, v.rgb.len())));
@@ -911,34 +947,117 @@ impl WorldModelService for VideoModel {
                 layout.state
             )));
         }
-        let rollout = tch::no_grad(|| {
-            let mut full = vec![pixels(
-                &start.rgb,
-                1,
-                i64::from(start.height),
-                i64::from(start.width),
-                self.device,
-            )];
-            full.extend(start.views.iter().map(|v| {
-                pixels(
-                    &v.rgb,
-                    1,
-                    i64::from(v.height),
-                    i64::from(v.width),
-                    self.device,
-                )
-            }));
-            let small: Vec<Tensor> = full.iter().map(|f| resized(f, self.size)).collect();
-            let state = Tensor::from_slice(&start.state)
-                .view([1, -1])
+        Ok(())
+    }
+
+    /// Refuses an action the model does not take.
+    fn check_action(&self, a: &[f32]) -> Result<(), WorldError> {
+        if a.len() != self.layout.action || a.iter().any(|v| !v.is_finite()) {
+            return Err(WorldError::Refused(format!(
+                "an action of {} values: the video model takes {} finite ones",
+                a.len(),
+                self.layout.action
+            )));
+        }
+        Ok(())
+    }
+
+    /// The rollout of `starts` (checked) as one batch, and each camera's real start frames
+    /// `[B, 3, h, w]` at their own size.
+    fn start_of(&self, starts: &[&WorldStart]) -> (Rollout, Vec<Tensor>) {
+        let b = starts.len() as i64;
+        let camera = |k: usize| {
+            let (_, w, h) = &self.layout.cameras[k];
+            let rgb: Vec<u8> = starts
+                .iter()
+                .flat_map(|s| {
+                    if k == 0 { &s.rgb } else { &s.views[k - 1].rgb }
+                        .iter()
+                        .copied()
+                })
+                .collect();
+            pixels(&rgb, b, i64::from(*h), i64::from(*w), self.device)
+        };
+        let full: Vec<Tensor> = (0..self.layout.cameras.len()).map(camera).collect();
+        let small: Vec<Tensor> = full.iter().map(|f| resized(f, self.size)).collect();
+        let state: Vec<f32> = starts
+            .iter()
+            .flat_map(|s| s.state.iter().copied())
+            .collect();
+        let state = Tensor::from_slice(&state)
+            .view([b, -1])
+            .to_device(self.device);
+        (self.net.start(&Tensor::cat(&small, 1), &state), full)
+    }
+
+    /// The next frames of a rollout of `full.len()`-camera starts after `actions` (`[B, A]`),
+    /// each camera composited at its own size over its real start.
+    fn next_frames(
+        &self,
+        rollout: &mut Rollout,
+        full: &[Tensor],
+        actions: &Tensor,
+    ) -> (Vec<Tensor>, Tensor) {
+        let net = &self.net;
+        let emb = net.embed(actions);
+        let step = net.step(rollout, &emb);
+        let raw = &step.state * &net.stats.state_dev + &net.stats.state_mean;
+        // Each camera composited at its own size over its real start: what did not move keeps
+        // the camera's detail.
+        let mut frames = Vec::with_capacity(full.len());
+        for (k, start) in full.iter().enumerate() {
+            let k = k as i64;
+            let (h, w) = (start.size()[2], start.size()[3]);
+            let picture = if (h, w) == (self.size, self.size) {
+                step.frame.narrow(1, 3 * k, 3)
+            } else {
+                let rgb = resized_to(&step.rgb.narrow(1, 3 * k, 3), h, w);
+                let alpha = resized_to(&step.alpha.narrow(1, k, 1), h, w);
+                &alpha * rgb + (1.0 - &alpha) * start
+            };
+            frames.push(picture);
+        }
+        (frames, raw)
+    }
+
+    /// A step's camera frames and states, one answer per sample, as the service answers a
+    /// frame.
+    fn answers(&self, frames: &[Tensor], raw: &Tensor) -> Result<Vec<WorldFrame>, tch::TchError> {
+        world_frames(frames, raw, self.layout.holding_last())
+    }
+
+    /// One batch of checked runs; a run whose actions ended is stepped with zeros beside the
+    /// others, its frames dropped.
+    fn replay_batch(
+        &self,
+        runs: &[(&WorldStart, &[Vec<f32>])],
+    ) -> Result<Vec<Vec<WorldFrame>>, tch::TchError> {
+        let starts: Vec<&WorldStart> = runs.iter().map(|(s, _)| *s).collect();
+        let (mut rollout, full) = self.start_of(&starts);
+        let a = self.layout.action;
+        let steps = runs.iter().map(|(_, x)| x.len()).max().unwrap_or(0);
+        let mut out: Vec<Vec<WorldFrame>> = runs
+            .iter()
+            .map(|(_, x)| Vec::with_capacity(x.len()))
+            .collect();
+        for t in 0..steps {
+            let mut actions = vec![0f32; runs.len() * a];
+            for (j, (_, x)) in runs.iter().enumerate() {
+                if let Some(row) = x.get(t) {
+                    actions[j * a..(j + 1) * a].copy_from_slice(row);
+                }
+            }
+            let actions = Tensor::from_slice(&actions)
+                .view([runs.len() as i64, a as i64])
                 .to_device(self.device);
-            (self.net.start(&Tensor::cat(&small, 1), &state), full)
-        });
-        Ok(Box::new(Imagined {
-            model: self,
-            rollout: rollout.0,
-            full: rollout.1,
-        }))
+            let (frames, raw) = self.next_frames(&mut rollout, &full, &actions);
+            for (j, frame) in self.answers(&frames, &raw)?.into_iter().enumerate() {
+                if t < runs[j].1.len() {
+                    out[j].push(frame);
+                }
+            }
+        }
+        Ok(out)
     }
 }
 
@@ -951,40 +1070,14 @@ struct Imagined<'a> {
 
 impl ImaginedEpisode for Imagined<'_> {
     fn step(&mut self, actions: &[Vec<f32>]) -> Result<Vec<WorldFrame>, WorldError> {
-        let (net, device, layout) = (&self.model.net, self.model.device, &self.model.layout);
+        let (model, device) = (self.model, self.model.device);
         let mut out = Vec::with_capacity(actions.len());
         for a in actions {
-            if a.len() != layout.action || a.iter().any(|v| !v.is_finite()) {
-                return Err(WorldError::Refused(format!(
-                    "an action of {} values: the video model takes {} finite ones",
-                    a.len(),
-                    layout.action
-                )));
-            }
+            model.check_action(a)?;
             let frame = tch::no_grad(|| -> Result<WorldFrame, tch::TchError> {
-                let emb = net.embed(&Tensor::from_slice(a).view([1, -1]).to_device(device));
-                let step = net.step(&mut self.rollout, &emb);
-                let raw = &step.state * &net.stats.state_dev + &net.stats.state_mean;
-                // Each camera composited at its own size over its real start: what did not move
-                // keeps the camera's detail.
-                let mut frames = Vec::with_capacity(self.full.len());
-                for (k, start) in self.full.iter().enumerate() {
-                    let k = k as i64;
-                    let (h, w) = (start.size()[2], start.size()[3]);
-                    let picture = if (h, w) == (self.model.size, self.model.size) {
-                        step.frame.narrow(1, 3 * k, 3)
-                    } else {
-                        let rgb = resized_to(&step.rgb.narrow(1, 3 * k, 3), h, w);
-                        let alpha = resized_to(&step.alpha.narrow(1, k, 1), h, w);
-                        &alpha * rgb + (1.0 - &alpha) * start
-                    };
-                    frames.push(picture);
-                }
-                let mut first = world_frame(&frames[0], &raw, layout.holding_last())?;
-                for f in &frames[1..] {
-                    first.views.push(world_frame(f, &raw, false)?.rgb);
-                }
-                Ok(first)
+                let a = Tensor::from_slice(a).view([1, -1]).to_device(device);
+                let (frames, raw) = model.next_frames(&mut self.rollout, &self.full, &a);
+                Ok(model.answers(&frames, &raw)?.remove(0))
             })
             .map_err(|e| WorldError::BadAnswer(format!("libtorch: {e}")))?;
             out.push(frame);

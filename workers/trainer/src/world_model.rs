@@ -90,7 +90,7 @@ pub struct FitRequest<'a> {
 mod checkpoint;
 mod service;
 
-pub(crate) use service::world_frame;
+pub(crate) use service::world_frames;
 
 use checkpoint::{config_hash, data_hash, load_checkpoint, save_checkpoint};
 

@@ -390,6 +390,46 @@ fn the_video_model_imagines_every_camera_of_a_seven_d_interface_and_a_policy_act
         .unwrap();
     assert_eq!(again, right);
 
+    // Runs imagined together (more than one batch of them, of differing lengths) are imagined
+    // as each alone, up to rounding.
+    let owned: Vec<(WorldStart, Vec<Vec<f32>>)> = held_out
+        .iter()
+        .cycle()
+        .take(70)
+        .enumerate()
+        .map(|(i, clip)| {
+            let acts = imagination::actions_of(clip);
+            let keep = acts.len() - i % 3;
+            let start = imagination::start_at(clip, i % 2, "t", i as u64, "");
+            (start, acts[..keep].to_vec())
+        })
+        .collect();
+    let runs: Vec<(&WorldStart, &[Vec<f32>])> =
+        owned.iter().map(|(s, a)| (s, a.as_slice())).collect();
+    let together = model.replay_many(&runs).unwrap();
+    assert_eq!(together.len(), runs.len());
+    let near = |a: &[u8], b: &[u8]| {
+        a.len() == b.len() && a.iter().zip(b).all(|(x, y)| x.abs_diff(*y) <= 1)
+    };
+    for ((start, acts), frames) in runs.iter().zip(&together) {
+        let alone = model.reset(start).unwrap().step(acts).unwrap();
+        assert_eq!(frames.len(), acts.len());
+        for (x, y) in frames.iter().zip(&alone) {
+            assert!(near(&x.rgb, &y.rgb) && near(&x.views[0], &y.views[0]));
+            let (xs, ys) = (x.state.as_ref().unwrap(), y.state.as_ref().unwrap());
+            assert!(
+                xs.iter().zip(ys).all(|(a, b)| (a - b).abs() < 1e-4),
+                "{xs:?} {ys:?}"
+            );
+        }
+    }
+    // One action it cannot take refuses them all, with the reason.
+    let bad = vec![vec![f32::NAN; 7]];
+    let mut refused = runs.clone();
+    refused[40].1 = &bad;
+    let e = model.replay_many(&refused).err().unwrap().to_string();
+    assert!(e.contains("finite"), "{e}");
+
     // A start of the original interface is refused, naming what it was trained on.
     let e = model
         .reset(&start(&episodes(0)[0]))

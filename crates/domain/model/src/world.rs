@@ -85,6 +85,18 @@ pub trait WorldModelService {
     fn interfaces(&self) -> Vec<Interface> {
         vec![Interface::default()]
     }
+    /// Open-loop runs, each a start and its actions: per run, the frames after its actions, as
+    /// [`reset`](Self::reset) then [`ImaginedEpisode::step`] answer them. The default imagines
+    /// the runs one after another; a model that imagines several at once answers the same, up to
+    /// floating-point rounding, in less time.
+    fn replay_many(
+        &self,
+        runs: &[(&WorldStart, &[Vec<f32>])],
+    ) -> Result<Vec<Vec<WorldFrame>>, WorldError> {
+        runs.iter()
+            .map(|(start, actions)| self.reset(start)?.step(actions))
+            .collect()
+    }
 }
 
 /// Whether a policy at `policy_interface` can act inside a world model that imagines in

@@ -86,30 +86,45 @@ impl WorldModelService for Rssm<'_> {
     }
 }
 
-/// One imagined frame as the service answers it: the image `[1, 3, H, W]` in [0, 1] as RGB
-/// bytes (clamped, rounded), the state `[1, P]`, with holding (its last value, when
-/// `holding_last`) rounded to 0 or 1.
-pub(crate) fn world_frame(
-    image: &Tensor,
+/// Imagined frames as a service answers them, one per sample of a batch: each camera's image
+/// `[B, 3, H, W]` in [0, 1] as RGB bytes (clamped, rounded; the first camera's as `rgb`, the
+/// others' as `views`), and the state `[B, P]`, with holding (its last value, when
+/// `holding_last`) rounded to 0 or 1. Each tensor is converted once for the whole batch.
+pub(crate) fn world_frames(
+    cameras: &[Tensor],
     state: &Tensor,
     holding_last: bool,
-) -> Result<WorldFrame, tch::TchError> {
-    let pixels = (image.clamp(0.0, 1.0) * 255.0)
-        .round()
-        .to_kind(Kind::Uint8)
-        .permute([0, 2, 3, 1])
-        .contiguous()
-        .to_device(Device::Cpu);
-    let rgb = Vec::<u8>::try_from(pixels.flatten(0, -1))?;
-    let mut state = Vec::<f32>::try_from(state.to_device(Device::Cpu).flatten(0, -1))?;
-    if let Some(holding) = state.last_mut().filter(|_| holding_last) {
-        *holding = if *holding >= 0.5 { 1.0 } else { 0.0 };
+) -> Result<Vec<WorldFrame>, tch::TchError> {
+    let b = state.size()[0].max(1) as usize;
+    let mut pictures = Vec::with_capacity(cameras.len());
+    for image in cameras {
+        let pixels = (image.clamp(0.0, 1.0) * 255.0)
+            .round()
+            .to_kind(Kind::Uint8)
+            .permute([0, 2, 3, 1])
+            .contiguous()
+            .to_device(Device::Cpu);
+        pictures.push(Vec::<u8>::try_from(pixels.flatten(0, -1))?);
     }
-    Ok(WorldFrame {
-        rgb,
-        views: Vec::new(),
-        state: Some(state),
-    })
+    let states = Vec::<f32>::try_from(state.to_device(Device::Cpu).flatten(0, -1))?;
+    let p = states.len() / b;
+    Ok((0..b)
+        .map(|j| {
+            let mut state = states[j * p..(j + 1) * p].to_vec();
+            if let Some(holding) = state.last_mut().filter(|_| holding_last) {
+                *holding = if *holding >= 0.5 { 1.0 } else { 0.0 };
+            }
+            let mut sample = pictures.iter().map(|c| {
+                let n = c.len() / b;
+                c[j * n..(j + 1) * n].to_vec()
+            });
+            WorldFrame {
+                rgb: sample.next().unwrap_or_default(),
+                views: sample.collect(),
+                state: Some(state),
+            }
+        })
+        .collect())
 }
 
 impl ImaginedEpisode for Episode<'_> {
@@ -129,7 +144,8 @@ impl ImaginedEpisode for Episode<'_> {
                 self.h = m.step_h(&self.h, &self.z, &a);
                 self.z = m.mode(&m.prior(&self.h));
                 let (img, prop) = m.decode(&Tensor::cat(&[&self.h, &self.z], -1));
-                world_frame(&(img + 0.5), &prop.narrow(1, 0, PROPRIO_DIMS as i64), true)
+                let state = prop.narrow(1, 0, PROPRIO_DIMS as i64);
+                Ok(world_frames(&[img + 0.5], &state, true)?.remove(0))
             })
             .map_err(|e| WorldError::BadAnswer(format!("libtorch: {e}")))?;
             out.push(frame);
