@@ -51,17 +51,12 @@ pub fn mse(a: &[u8], b: &[u8]) -> f64 {
     crate::imagination::mse(a, b)
 }
 
-/// [`mse`] of each pair `(a[i], b[i])` of frames of one size, with libtorch in double
-/// precision: the action test compares tens of thousands of frames, and this crate builds
-/// unoptimised in the test profile.
-pub fn mse_many(a: &[&[u8]], b: &[&[u8]]) -> Vec<f64> {
+/// [`mse`] of each pair `(a[i], b[i])` of frames of one size (the callers check them), with
+/// libtorch in double precision: the action test compares tens of thousands of frames, and this
+/// crate builds unoptimised in the test profile.
+fn mse_many(a: &[&[u8]], b: &[&[u8]]) -> Vec<f64> {
     let n = a.len().min(b.len());
-    let Some(len) = a.first().map(|f| f.len()).filter(|_| n > 0) else {
-        return vec![0.0; n];
-    };
-    if a[..n].iter().chain(&b[..n]).any(|f| f.len() != len) {
-        return a.iter().zip(b).map(|(a, b)| mse(a, b)).collect();
-    }
+    let len = a.first().map_or(0, |f| f.len());
     let frames = |f: &[&[u8]]| {
         Tensor::from_slice(&f[..n].concat())
             .view([n as i64, len as i64])
@@ -75,34 +70,24 @@ pub fn mse_many(a: &[&[u8]], b: &[&[u8]]) -> Vec<f64> {
     Vec::<f64>::try_from(&errors).expect("a double vector")
 }
 
-/// PSNR in dB of two frames of bytes (100 for identical frames).
-pub fn psnr(a: &[u8], b: &[u8]) -> f64 {
-    psnr_of(mse(a, b))
-}
-
-/// PSNR in dB of a mean squared error in [0, 1] units (100 for none).
-fn psnr_of(m: f64) -> f64 {
-    if m <= 1e-10 {
+/// PSNR in dB of a mean squared error in [0, 1] units ([`mse`]; 100 for none).
+pub fn psnr(mse: f64) -> f64 {
+    if mse <= 1e-10 {
         100.0
     } else {
-        (10.0 * (1.0 / m).log10()).min(100.0)
+        (10.0 * (1.0 / mse).log10()).min(100.0)
     }
 }
 
-/// SSIM of two `width`×`height` RGB frames (module docs).
-pub fn ssim(a: &[u8], b: &[u8], width: usize, height: usize) -> f64 {
-    ssim_many(&[a], &[b], width, height)[0]
-}
-
-/// Frames compared at once by [`ssim_many`] (its double-precision maps of 160×120 frames take
+/// Frames compared at once by [`ssim`] (its double-precision maps of 160×120 frames take
 /// about 15 MB each at this count).
 const SSIM_BATCH: usize = 32;
 
-/// [`ssim`] of each pair `(a[i], b[i])`, computed with libtorch in double precision over
+/// SSIM (module docs) of each pair `(a[i]`, `b[i])` of `width`×`height` RGB frames, computed with libtorch in double precision over
 /// batches of frames: the separable Gaussian as two matrix products with banded matrices (a
 /// depthwise convolution in double precision has no fast path on a CPU: 26 ms a 160×120 frame
 /// against 6.5 ms), so it costs little in any build.
-pub fn ssim_many(a: &[&[u8]], b: &[&[u8]], width: usize, height: usize) -> Vec<f64> {
+pub fn ssim(a: &[&[u8]], b: &[&[u8]], width: usize, height: usize) -> Vec<f64> {
     const R: usize = 5;
     if width <= 2 * R || height <= 2 * R {
         return vec![f64::NAN; a.len().min(b.len())];
@@ -276,10 +261,10 @@ pub fn open_loop(
             };
             let targets: Vec<&[u8]> = (1..=n).map(|t| real(start + t)).collect();
             let own = of(0)?;
-            let ssims = ssim_many(&own, &targets, clip.width as usize, clip.height as usize);
+            let ssims = ssim(&own, &targets, clip.width as usize, clip.height as usize);
             for (m, s) in mse_many(&own, &targets).into_iter().zip(ssims) {
                 true_sum += m;
-                psnr_sum += psnr_of(m);
+                psnr_sum += psnr(m);
                 ssim_sum += s;
             }
             if shuffled {
@@ -310,6 +295,10 @@ pub fn open_loop(
 mod tests {
     use super::*;
 
+    fn ssim_one(a: &[u8], b: &[u8], width: usize, height: usize) -> f64 {
+        ssim(&[a], &[b], width, height)[0]
+    }
+
     fn frame(w: usize, h: usize, f: impl Fn(usize, usize) -> [u8; 3]) -> Vec<u8> {
         (0..h)
             .flat_map(|y| (0..w).map(move |x| (x, y)))
@@ -320,24 +309,25 @@ mod tests {
     #[test]
     fn ssim_is_one_for_identical_frames_and_falls_with_noise() {
         let a = frame(32, 32, |x, y| [(x * 8) as u8, (y * 8) as u8, 128]);
-        assert!((ssim(&a, &a, 32, 32) - 1.0).abs() < 1e-9);
-        assert_eq!(psnr(&a, &a), 100.0);
+        assert!((ssim_one(&a, &a, 32, 32) - 1.0).abs() < 1e-9);
+        assert_eq!(psnr(mse(&a, &a)), 100.0);
         let b = frame(32, 32, |x, y| {
             let n = ((x * 7 + y * 13) % 5) as u8 * 6;
             [(x * 8) as u8 ^ n, (y * 8) as u8, 128u8.wrapping_add(n)]
         });
-        let s = ssim(&a, &b, 32, 32);
+        let s = ssim_one(&a, &b, 32, 32);
         assert!(s < 0.99 && s > 0.0, "{s}");
         // A constant offset of 10/255 leaves structure and costs only luminance.
         let c = frame(32, 32, |x, y| {
             [(x * 8) as u8 / 2 + 10, (y * 8) as u8 / 2 + 10, 138]
         });
         let d = frame(32, 32, |x, y| [(x * 8) as u8 / 2, (y * 8) as u8 / 2, 128]);
-        assert!(ssim(&c, &d, 32, 32) > 0.95);
+        assert!(ssim_one(&c, &d, 32, 32) > 0.95);
         // PSNR of a uniform error of 1/255 per channel: 48.13 dB.
         let e = frame(32, 32, |_, _| [100, 100, 100]);
         let f = frame(32, 32, |_, _| [101, 101, 101]);
-        assert!((psnr(&e, &f) - 48.1308).abs() < 1e-3, "{}", psnr(&e, &f));
+        let p = psnr(mse(&e, &f));
+        assert!((p - 48.1308).abs() < 1e-3, "{p}");
     }
 
     /// SSIM summed directly over the valid window positions, to check the convolutions.
@@ -388,7 +378,7 @@ mod tests {
                 ((x * y + 7 * x) % 256) as u8,
             ]
         });
-        let (fast, direct) = (ssim(&a, &b, w, h), ssim_direct(&a, &b, w, h));
+        let (fast, direct) = (ssim_one(&a, &b, w, h), ssim_direct(&a, &b, w, h));
         assert!((fast - direct).abs() < 1e-12, "{fast} against {direct}");
         assert!(fast < 0.99, "{fast}");
     }
@@ -410,7 +400,7 @@ mod tests {
         // More pairs than one batch of SSIM maps.
         let a: Vec<&[u8]> = frames[..40].iter().map(Vec::as_slice).collect();
         let b: Vec<&[u8]> = frames[5..].iter().map(Vec::as_slice).collect();
-        let (m, s) = (mse_many(&a, &b), ssim_many(&a, &b, w, h));
+        let (m, s) = (mse_many(&a, &b), ssim(&a, &b, w, h));
         assert_eq!((m.len(), s.len()), (40, 40));
         for i in 0..40 {
             let (one, direct) = (mse(a[i], b[i]), ssim_direct(a[i], b[i], w, h));

@@ -968,22 +968,15 @@ impl VideoModel {
         let b = starts.len() as i64;
         let camera = |k: usize| {
             let (_, w, h) = &self.layout.cameras[k];
-            let rgb: Vec<u8> = starts
-                .iter()
-                .flat_map(|s| {
-                    if k == 0 { &s.rgb } else { &s.views[k - 1].rgb }
-                        .iter()
-                        .copied()
-                })
-                .collect();
+            let mut rgb = Vec::new();
+            for s in starts {
+                rgb.extend_from_slice(if k == 0 { &s.rgb } else { &s.views[k - 1].rgb });
+            }
             pixels(&rgb, b, i64::from(*h), i64::from(*w), self.device)
         };
         let full: Vec<Tensor> = (0..self.layout.cameras.len()).map(camera).collect();
         let small: Vec<Tensor> = full.iter().map(|f| resized(f, self.size)).collect();
-        let state: Vec<f32> = starts
-            .iter()
-            .flat_map(|s| s.state.iter().copied())
-            .collect();
+        let state: Vec<f32> = starts.iter().flat_map(|s| s.state.clone()).collect();
         let state = Tensor::from_slice(&state)
             .view([b, -1])
             .to_device(self.device);
@@ -991,13 +984,13 @@ impl VideoModel {
     }
 
     /// The next frames of a rollout of `full.len()`-camera starts after `actions` (`[B, A]`),
-    /// each camera composited at its own size over its real start.
+    /// each camera composited at its own size over its real start, one answer per sample.
     fn next_frames(
         &self,
         rollout: &mut Rollout,
         full: &[Tensor],
         actions: &Tensor,
-    ) -> (Vec<Tensor>, Tensor) {
+    ) -> Result<Vec<WorldFrame>, tch::TchError> {
         let net = &self.net;
         let emb = net.embed(actions);
         let step = net.step(rollout, &emb);
@@ -1017,13 +1010,7 @@ impl VideoModel {
             };
             frames.push(picture);
         }
-        (frames, raw)
-    }
-
-    /// A step's camera frames and states, one answer per sample, as the service answers a
-    /// frame.
-    fn answers(&self, frames: &[Tensor], raw: &Tensor) -> Result<Vec<WorldFrame>, tch::TchError> {
-        world_frames(frames, raw, self.layout.holding_last())
+        world_frames(&frames, &raw, self.layout.holding_last())
     }
 
     /// One batch of checked runs; a run whose actions ended is stepped with zeros beside the
@@ -1036,10 +1023,7 @@ impl VideoModel {
         let (mut rollout, full) = self.start_of(&starts);
         let a = self.layout.action;
         let steps = runs.iter().map(|(_, x)| x.len()).max().unwrap_or(0);
-        let mut out: Vec<Vec<WorldFrame>> = runs
-            .iter()
-            .map(|(_, x)| Vec::with_capacity(x.len()))
-            .collect();
+        let mut out: Vec<Vec<WorldFrame>> = vec![Vec::new(); runs.len()];
         for t in 0..steps {
             let mut actions = vec![0f32; runs.len() * a];
             for (j, (_, x)) in runs.iter().enumerate() {
@@ -1050,8 +1034,8 @@ impl VideoModel {
             let actions = Tensor::from_slice(&actions)
                 .view([runs.len() as i64, a as i64])
                 .to_device(self.device);
-            let (frames, raw) = self.next_frames(&mut rollout, &full, &actions);
-            for (j, frame) in self.answers(&frames, &raw)?.into_iter().enumerate() {
+            let answers = self.next_frames(&mut rollout, &full, &actions)?;
+            for (j, frame) in answers.into_iter().enumerate() {
                 if t < runs[j].1.len() {
                     out[j].push(frame);
                 }
@@ -1076,8 +1060,9 @@ impl ImaginedEpisode for Imagined<'_> {
             model.check_action(a)?;
             let frame = tch::no_grad(|| -> Result<WorldFrame, tch::TchError> {
                 let a = Tensor::from_slice(a).view([1, -1]).to_device(device);
-                let (frames, raw) = model.next_frames(&mut self.rollout, &self.full, &a);
-                Ok(model.answers(&frames, &raw)?.remove(0))
+                Ok(model
+                    .next_frames(&mut self.rollout, &self.full, &a)?
+                    .remove(0))
             })
             .map_err(|e| WorldError::BadAnswer(format!("libtorch: {e}")))?;
             out.push(frame);
