@@ -83,10 +83,10 @@ pub fn psnr(mse: f64) -> f64 {
 /// about 15 MB each at this count).
 const SSIM_BATCH: usize = 32;
 
-/// SSIM (module docs) of each pair `(a[i]`, `b[i])` of `width`×`height` RGB frames, computed with libtorch in double precision over
-/// batches of frames: the separable Gaussian as two matrix products with banded matrices (a
-/// depthwise convolution in double precision has no fast path on a CPU: 26 ms a 160×120 frame
-/// against 6.5 ms), so it costs little in any build.
+/// SSIM (module docs) of each pair `(a[i], b[i])` of `width`×`height` RGB frames, computed with
+/// libtorch in double precision over batches of frames: the separable Gaussian as two matrix
+/// products with banded matrices (a depthwise convolution in double precision has no fast path
+/// on a CPU: 26 ms a 160×120 frame against 6.5 ms), so it costs little in any build.
 pub fn ssim(a: &[&[u8]], b: &[&[u8]], width: usize, height: usize) -> Vec<f64> {
     const R: usize = 5;
     if width <= 2 * R || height <= 2 * R {
