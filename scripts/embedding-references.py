@@ -4,7 +4,7 @@ library, for the Rust embedding tests to compare against.
 
     python scripts/embedding-references.py \
         --model-dir DIR --name all-MiniLM-L6-v2 \
-        --out workers/trainer/tests/data/all-MiniLM-L6-v2-reference.json
+        --out workers/embed/tests/data/all-MiniLM-L6-v2-reference.json
 
 The model directory is a sentence-transformers checkout (modules.json,
 sentence_bert_config.json, 1_Pooling/, config.json, model.safetensors,

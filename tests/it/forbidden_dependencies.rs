@@ -88,6 +88,17 @@ fn forbidden() -> Vec<(&'static str, Vec<&'static str>)> {
             vec!["assay-judge", "axum", "wgpu", "rapier3d", "rusqlite"],
         ),
         (
+            "assay-embed",
+            vec![
+                "assay-trainer",
+                "assay-judge",
+                "axum",
+                "wgpu",
+                "rapier3d",
+                "rusqlite",
+            ],
+        ),
+        (
             "assay-worker",
             vec!["rusqlite", "assay-coordinator", "assay-testkit"],
         ),

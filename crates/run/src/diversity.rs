@@ -8,8 +8,8 @@
 use std::path::Path;
 
 use anyhow::Context;
+use assay_embed::{Config, Embedders};
 use assay_stats::diversity::{Marginal, TextDiversityTable, marginal_diversity, parse_text_groups};
-use assay_trainer::embedders::{Config, Embedders};
 use serde::Serialize;
 
 /// The marginal diversity of one group under one model (or why it could not be measured).

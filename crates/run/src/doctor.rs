@@ -129,9 +129,8 @@ fn libtorch() -> (Verdict, String, String) {
 
 #[cfg(feature = "trainer")]
 fn embedding(name: &str) -> (Verdict, String, String) {
-    let mut e =
-        assay_trainer::embedders::Embedders::on_cpu(assay_trainer::embedders::Config::default());
-    let folder = assay_trainer::embedders::models_dir();
+    let mut e = assay_embed::Embedders::on_cpu(assay_embed::Config::default());
+    let folder = assay_embed::models_dir();
     match e.describe(name).and_then(|m| {
         let v = e.embed(name, &["a red block on a blue block".to_owned()])?;
         Ok((m, v))

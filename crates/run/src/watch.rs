@@ -120,7 +120,7 @@ struct Watcher<'o> {
     rt: std::sync::Arc<tokio::runtime::Runtime>,
     stop: std::sync::Arc<std::sync::atomic::AtomicBool>,
     artifacts: PathBuf,
-    embedders: assay_trainer::embedders::Embedders,
+    embedders: assay_embed::Embedders,
     observer: &'o mut dyn Observer,
 }
 
@@ -189,9 +189,7 @@ impl<'o> Watcher<'o> {
                 stop.store(true, std::sync::atomic::Ordering::Relaxed);
             });
         }
-        let embedders = assay_trainer::embedders::Embedders::on_default_device(
-            assay_trainer::embedders::Config::default(),
-        );
+        let embedders = assay_embed::Embedders::on_default_device(assay_embed::Config::default());
         Ok(Self {
             a,
             addr,

@@ -13,9 +13,9 @@ use assay_model::video::WorldModelKind;
 use assay_spec::hash::sha256_hex;
 use assay_stats::diversity::TextDiversityTable;
 
-use crate::embedders::Embedders;
 use crate::proxy::{PolicyLoader, WorldModelLoader};
 use crate::world_model::{FitRequest, fit};
+use assay_embed::Embedders;
 
 /// Why a trainer shard failed, and whether another attempt could succeed.
 #[derive(Debug)]

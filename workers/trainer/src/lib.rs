@@ -1,10 +1,9 @@
-//! The trainer role: sentence embeddings (BERT and MPNet sentence-transformers models, or an
-//! OpenAI-compatible endpoint) for text diversity, and latent world models for dynamics
-//! diversity, on libtorch through tch; and diffusion policies trained on the dynamics clips.
+//! The trainer role on libtorch through tch: latent world models for dynamics diversity, the
+//! world-model proxy that ranks policies (the video model, imagination, the frame judge),
+//! diffusion policies trained on the dynamics clips, and the role's jobs — text diversity's
+//! among them, with the sentence embeddings of `assay-embed`.
 mod adam;
 pub mod diffusion;
-pub mod embed;
-pub mod embedders;
 pub mod imagination;
 pub mod jobs;
 pub mod proxy;

@@ -642,10 +642,10 @@ fn bench_default_run() {
 /// trains its own.
 #[test]
 fn the_same_training_twice_in_a_batch_trains_once() {
+    use assay_embed::{Config, Embedders};
     use assay_model::proxy::ExternalWorldModel;
     use assay_model::trainer::{TrainerJob, TrainerOutcome};
     use assay_model::world::{WorldError, WorldModelService};
-    use assay_trainer::embedders::{Config, Embedders};
     let dir = tempfile::tempdir().unwrap();
     let root = dir.path();
     let store_clips = || {

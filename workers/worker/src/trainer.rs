@@ -3,12 +3,12 @@
 use std::path::Path;
 use std::sync::Mutex;
 
+use assay_embed::{Config, Embedders};
 use assay_model::policy::{Policy, PolicyError, PolicySpec};
 use assay_model::proxy::ExternalWorldModel;
 use assay_model::trainer::TrainerJob;
 use assay_model::world::WorldError;
 use assay_proto::v1 as pb;
-use assay_trainer::embedders::{Config, Embedders};
 use assay_worker_runtime::ShardError;
 
 pub struct TrainerRole {

@@ -6,8 +6,8 @@
 
 use std::path::PathBuf;
 
-use assay_trainer::embed::{Family, SentenceModel};
-use assay_trainer::embedders::models_dir;
+use assay_embed::models_dir;
+use assay_embed::sentence::{Family, SentenceModel};
 use serde::Deserialize;
 
 #[derive(Deserialize)]

@@ -1,4 +1,5 @@
-//! Embedding models by name, as the configuration file names them.
+//! Sentence embeddings for text diversity: embedding models by name, as the configuration file
+//! names them. The forwards of sentence-transformers models are in [`sentence`].
 //!
 //! ```toml
 //! [embedders.minilm]                  # built in: no entry needed
@@ -25,7 +26,9 @@ use assay_openai::{Endpoint, EndpointConfig};
 use assay_stats::diversity::EmbeddingModel;
 use serde::{Deserialize, Serialize};
 
-use crate::embed::SentenceModel;
+pub mod sentence;
+
+use sentence::SentenceModel;
 
 /// Texts per forward (local models) or per request (endpoints).
 pub const DEFAULT_BATCH: usize = 32;
@@ -170,9 +173,10 @@ impl Embedders {
         Self::new(config, tch::Device::Cpu)
     }
 
-    /// Embedders that load their models on the trainer's device ([`crate::default_device`]).
+    /// Embedders that load their models on the trainer's device: the first CUDA device when
+    /// libtorch sees one, else the CPU (as `assay_trainer::default_device`).
     pub fn on_default_device(config: Config) -> Self {
-        Self::new(config, crate::default_device())
+        Self::new(config, tch::Device::cuda_if_available())
     }
 
     fn load(&mut self, name: &str) -> Result<&Loaded, EmbedderError> {

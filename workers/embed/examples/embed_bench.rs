@@ -4,7 +4,7 @@
 
 use std::time::Instant;
 
-use assay_trainer::embed::SentenceModel;
+use assay_embed::sentence::SentenceModel;
 
 fn cpu_seconds() -> f64 {
     // utime + stime of this process, from /proc (clock ticks of 1/100 s on Linux).
