@@ -385,201 +385,238 @@ pub fn run_proxy(
     let video;
     let external;
     let mut video_fit = None;
-    let (world, fit): (&dyn WorldModelService, DynamicsFit) = match (&config.external, config.model)
-    {
-        (None, WorldModelKind::Rssm) => {
-            check_interfaces("Assay's RSSM", &[Interface::legacy(size)])?;
-            let req = FitRequest {
-                config: &config.world_model,
-                group,
-                budget: world_clips.len() as u32,
-                train: world_clips,
-                eval: eval_clips,
-                eval_keys: &eval_keys,
-                device,
-                normalize_actions: config.normalize_actions,
-            };
-            let (model, fit) = fit_model(&req, resume, on_checkpoint)?;
-            rssm_model = model;
-            rssm = rssm_model.service();
-            (&rssm, fit)
-        }
-        (None, WorldModelKind::Video) => {
-            // It imagines at the interface of the clips it is trained on.
-            let clips_interface = world_clips
-                .first()
-                .map_or_else(|| Interface::legacy(size), imagination::clip_interface);
-            check_interfaces("Assay's video model", &[clips_interface])?;
-            let (model, vfit) =
-                video_model::fit(&config.video, world_clips, device, resume, on_checkpoint)?;
-            video = model;
-            // The one-step error, as the RSSM's fit reports it: each next frame predicted from
-            // the real one before it, on the ranked episodes' clips.
-            let refs: Vec<&Clip> = eval_clips.iter().collect();
-            let names: Vec<StartName<'_>> = eval.iter().map(start_name).collect();
-            let one = tch::no_grad(|| video_eval::one_step_mse(&video, &refs, &names))?;
-            let mut fit = video_summary(group, &vfit, config);
-            fit.eval_episodes = eval_clips.len() as u32;
-            fit.eval_image_mse = one;
-            fit.episodes = eval_keys.clone();
-            video_fit = Some(vfit);
-            (&video, fit)
-        }
-        (Some(server), _) => {
-            external = world_models(server)?;
-            check_interfaces(&external.name(), &external.interfaces())?;
-            let fit = DynamicsFit {
-                group: group.to_owned(),
-                budget: 0,
-                train_episodes: 0,
-                eval_episodes: eval_clips.len() as u32,
-                eval_image_mse: 0.0,
-                eval_proprio_mse: 0.0,
-                per_episode: Vec::new(),
-                episodes: eval_keys.clone(),
-                final_train_loss: 0.0,
-                steps: 0,
-                epochs: 0.0,
-                resumed_from_step: None,
-                steps_per_s: 0.0,
-                device: SERVED_DEVICE.into(),
-                libtorch: String::new(),
-                config: config.world_model.clone(),
-            };
-            (external.as_ref(), fit)
-        }
-    };
-    let fitted_s = started.elapsed().as_secs_f64();
-    let train_ctx: Vec<EpisodeContext> = train.iter().map(context).collect();
-    let eval_ctx: Vec<EpisodeContext> = eval.iter().map(context).collect();
-
-    // The judge reads the first camera (the task's scene camera for the original interface),
-    // resized to the proxy's frame size.
-    let judged = train_clips
-        .first()
-        .or(eval_clips.first())
-        .map_or((size, size), |c| (c.width, c.height));
-    let training = TrainingEpisodes {
-        episodes: train,
-        clips: train_clips,
-        contexts: &train_ctx,
-        judged,
-    };
-    let JudgeFit {
-        judge,
-        accuracy: judge_train_accuracy,
-        examples: owned,
-        spans,
-        latest_not_done,
-    } = fit_judge(world, &training, config, device)?;
-    let judged_s = started.elapsed().as_secs_f64();
-    let judge_one = |f: &[u8]| judge.probability_of(&[f])[0];
-    let calibration = calibration::fit(&owned, &spans, judged, size, config, device);
-    let calibrated_s = started.elapsed().as_secs_f64();
-
-    // The world model's use of its actions and its video prediction, open loop over windows
-    // of the ranked episodes' real clips (a diagnostic).
-    let action_test = action_test(world, eval.iter().zip(eval_clips).collect())?;
-    let action_tested_s = started.elapsed().as_secs_f64();
-
-    let mut predictions = Vec::with_capacity(eval.len());
-    let mut imagined_frames = Vec::with_capacity(eval.len());
-    for (i, e) in eval.iter().enumerate() {
-        let clip = &eval_clips[i];
-        let leak_at = config.leak_ablation.then(|| clip.len() - 1);
-        let start = imagination::start_of(clip, &eval_ctx[i]);
-        let ranked = Ranked {
-            episode: e,
-            context: &eval_ctx[i],
-            start: &start,
+    let mut diagnosed = None;
+    let (world, mut fit): (&dyn WorldModelService, DynamicsFit) =
+        match (&config.external, config.model) {
+            (None, WorldModelKind::Rssm) => {
+                check_interfaces("Assay's RSSM", &[Interface::legacy(size)])?;
+                let req = FitRequest {
+                    config: &config.world_model,
+                    group,
+                    budget: world_clips.len() as u32,
+                    train: world_clips,
+                    eval: eval_clips,
+                    eval_keys: &eval_keys,
+                    device,
+                    normalize_actions: config.normalize_actions,
+                };
+                let (model, fit) = fit_model(&req, resume, on_checkpoint)?;
+                rssm_model = model;
+                rssm = rssm_model.service();
+                (&rssm, fit)
+            }
+            (None, WorldModelKind::Video) => {
+                // It imagines at the interface of the clips it is trained on.
+                let clips_interface = world_clips
+                    .first()
+                    .map_or_else(|| Interface::legacy(size), imagination::clip_interface);
+                check_interfaces("Assay's video model", &[clips_interface])?;
+                let (model, vfit) =
+                    video_model::fit(&config.video, world_clips, device, resume, on_checkpoint)?;
+                video = model;
+                // Its diagnostics run on a copy of it, in a thread of their own beside the frame
+                // judge and the imagination (`diagnose`).
+                let copy = video.to_checkpoint(&config.video)?;
+                diagnosed = Some(video_model::VideoModel::from_checkpoint(
+                    &config.video,
+                    size,
+                    &copy,
+                    device,
+                )?);
+                let mut fit = video_summary(group, &vfit, config);
+                fit.eval_episodes = eval_clips.len() as u32;
+                fit.episodes = eval_keys.clone();
+                video_fit = Some(vfit);
+                (&video, fit)
+            }
+            (Some(server), _) => {
+                external = world_models(server)?;
+                check_interfaces(&external.name(), &external.interfaces())?;
+                let fit = DynamicsFit {
+                    group: group.to_owned(),
+                    budget: 0,
+                    train_episodes: 0,
+                    eval_episodes: eval_clips.len() as u32,
+                    eval_image_mse: 0.0,
+                    eval_proprio_mse: 0.0,
+                    per_episode: Vec::new(),
+                    episodes: eval_keys.clone(),
+                    final_train_loss: 0.0,
+                    steps: 0,
+                    epochs: 0.0,
+                    resumed_from_step: None,
+                    steps_per_s: 0.0,
+                    device: SERVED_DEVICE.into(),
+                    libtorch: String::new(),
+                    config: config.world_model.clone(),
+                };
+                (external.as_ref(), fit)
+            }
         };
-        let rollout = imagine(world, policies, &ranked, &judge_one, config, leak_at, "")?;
-        let real_last = clip.frame(clip.len() - 1).to_vec();
-        let last_imagined = rollout.frames.last().unwrap_or(&start.rgb);
-        predictions.push(ProxyPrediction {
-            task_id: e.task_id.clone(),
-            policy: e.policy.clone(),
-            seed: e.seed,
-            p_success: rollout.p_success,
-            success: rollout.done_by_judge,
-            p_success_real_frame: judge_one(&real_last),
-            last_frame_mse: imagination::mse(last_imagined, &real_last),
-            imagined_frames: rollout.frames.len() as u32 + 1,
-            done_by_judge: rollout.done_by_judge,
-            p_calibrated: calibration.as_ref().map(|c| c.apply(rollout.p_success)),
-            leak: rollout.leak.map(|p| LeakVerdict {
-                p_success: p,
-                success: p >= config.threshold,
-            }),
-            cross_family: None,
-            cross_fit: None,
-            // Named by the job runner once it has stored `imagined_frames`.
-            imagined_keyframes: Vec::new(),
-        });
-        imagined_frames.push(keyframes_of(&start.rgb, &rollout.frames));
-    }
-    let imagined_s = started.elapsed().as_secs_f64();
-    let held_out = held_out::Inputs {
-        policies,
-        world_clips,
-        training: &training,
-        eval,
-        eval_clips,
-        eval_ctx: &eval_ctx,
-        config,
-        device,
-    };
-    let mut cross_family = Vec::new();
-    if config.cross_family_ablation {
-        let (fits, verdicts) = held_out::cross_family(&held_out)?;
-        for (p, v) in predictions.iter_mut().zip(verdicts) {
-            p.cross_family = v;
+    let fitted_s = started.elapsed().as_secs_f64();
+    std::thread::scope(|scope| -> Result<ProxyResult, WorldModelError> {
+        let diagnostics =
+            diagnosed.map(|m| scope.spawn(move || diagnose(&m, eval, eval_clips, started)));
+        let train_ctx: Vec<EpisodeContext> = train.iter().map(context).collect();
+        let eval_ctx: Vec<EpisodeContext> = eval.iter().map(context).collect();
+
+        // The judge reads the first camera (the task's scene camera for the original interface),
+        // resized to the proxy's frame size.
+        let judged = train_clips
+            .first()
+            .or(eval_clips.first())
+            .map_or((size, size), |c| (c.width, c.height));
+        let training = TrainingEpisodes {
+            episodes: train,
+            clips: train_clips,
+            contexts: &train_ctx,
+            judged,
+        };
+        let JudgeFit {
+            judge,
+            accuracy: judge_train_accuracy,
+            examples: owned,
+            spans,
+            latest_not_done,
+        } = fit_judge(world, &training, config, device)?;
+        let judged_s = started.elapsed().as_secs_f64();
+        let judge_one = |f: &[u8]| judge.probability_of(&[f])[0];
+        let calibration = calibration::fit(&owned, &spans, judged, size, config, device);
+        let calibrated_s = started.elapsed().as_secs_f64();
+
+        // The world model's use of its actions and its video prediction, open loop over windows
+        // of the ranked episodes' real clips (a diagnostic): the video model's in its thread.
+        let mut action_test = match diagnostics {
+            Some(_) => None,
+            None => action_test(world, eval.iter().zip(eval_clips).collect())?,
+        };
+        let mut action_tested_s = started.elapsed().as_secs_f64();
+
+        let mut predictions = Vec::with_capacity(eval.len());
+        let mut imagined_frames = Vec::with_capacity(eval.len());
+        for (i, e) in eval.iter().enumerate() {
+            let clip = &eval_clips[i];
+            let leak_at = config.leak_ablation.then(|| clip.len() - 1);
+            let start = imagination::start_of(clip, &eval_ctx[i]);
+            let ranked = Ranked {
+                episode: e,
+                context: &eval_ctx[i],
+                start: &start,
+            };
+            let rollout = imagine(world, policies, &ranked, &judge_one, config, leak_at, "")?;
+            let real_last = clip.frame(clip.len() - 1).to_vec();
+            let last_imagined = rollout.frames.last().unwrap_or(&start.rgb);
+            predictions.push(ProxyPrediction {
+                task_id: e.task_id.clone(),
+                policy: e.policy.clone(),
+                seed: e.seed,
+                p_success: rollout.p_success,
+                success: rollout.done_by_judge,
+                p_success_real_frame: judge_one(&real_last),
+                last_frame_mse: imagination::mse(last_imagined, &real_last),
+                imagined_frames: rollout.frames.len() as u32 + 1,
+                done_by_judge: rollout.done_by_judge,
+                p_calibrated: calibration.as_ref().map(|c| c.apply(rollout.p_success)),
+                leak: rollout.leak.map(|p| LeakVerdict {
+                    p_success: p,
+                    success: p >= config.threshold,
+                }),
+                cross_family: None,
+                cross_fit: None,
+                // Named by the job runner once it has stored `imagined_frames`.
+                imagined_keyframes: Vec::new(),
+            });
+            imagined_frames.push(keyframes_of(&start.rgb, &rollout.frames));
         }
-        cross_family = fits;
-    }
-    let mut cross_fit = Vec::new();
-    if config.cross_fit_folds > 0 {
-        let (fits, verdicts) = held_out::cross_fit(&held_out, config.cross_fit_folds)?;
-        for (p, v) in predictions.iter_mut().zip(verdicts) {
-            p.cross_fit = v;
+        let imagined_s = started.elapsed().as_secs_f64();
+        if let Some(thread) = diagnostics {
+            let diagnosed = thread.join().map_err(|_| {
+                WorldModelError::Request("the world model's diagnostics panicked".into())
+            })??;
+            (fit.eval_image_mse, action_test, action_tested_s) = diagnosed;
         }
-        cross_fit = fits;
-    }
-    tracing::info!(
-        group,
-        seconds = started.elapsed().as_secs_f64(),
-        fitted_s,
-        judged_s,
-        calibrated_s,
-        action_tested_s,
-        imagined_s,
-        train = train.len(),
-        eval = eval.len(),
-        judge_train_accuracy,
-        "world-model proxy done"
-    );
-    Ok(ProxyResult {
-        group: group.to_owned(),
-        world_model_name: world.name(),
-        action_test,
-        world_model: fit,
-        video_model: video_fit,
-        judge_examples: owned.len() as u32,
-        judge_positives: owned.iter().filter(|e| e.1).count() as u32,
-        judge_train_accuracy,
-        judge_latest_not_done: latest_not_done,
-        ranked_last_frame: eval
-            .iter()
-            .map(|e| horizon_frames(e.budget_steps).saturating_sub(1) as u32)
-            .max(),
-        calibration,
-        cross_family,
-        cross_fit,
-        predictions,
-        seconds: started.elapsed().as_secs_f64(),
-        imagined_frames,
-        imagined_frame_size: judged,
+        let held_out = held_out::Inputs {
+            policies,
+            world_clips,
+            training: &training,
+            eval,
+            eval_clips,
+            eval_ctx: &eval_ctx,
+            config,
+            device,
+        };
+        let mut cross_family = Vec::new();
+        if config.cross_family_ablation {
+            let (fits, verdicts) = held_out::cross_family(&held_out)?;
+            for (p, v) in predictions.iter_mut().zip(verdicts) {
+                p.cross_family = v;
+            }
+            cross_family = fits;
+        }
+        let mut cross_fit = Vec::new();
+        if config.cross_fit_folds > 0 {
+            let (fits, verdicts) = held_out::cross_fit(&held_out, config.cross_fit_folds)?;
+            for (p, v) in predictions.iter_mut().zip(verdicts) {
+                p.cross_fit = v;
+            }
+            cross_fit = fits;
+        }
+        tracing::info!(
+            group,
+            seconds = started.elapsed().as_secs_f64(),
+            fitted_s,
+            judged_s,
+            calibrated_s,
+            action_tested_s,
+            imagined_s,
+            train = train.len(),
+            eval = eval.len(),
+            judge_train_accuracy,
+            "world-model proxy done"
+        );
+        Ok(ProxyResult {
+            group: group.to_owned(),
+            world_model_name: world.name(),
+            action_test,
+            world_model: fit,
+            video_model: video_fit,
+            judge_examples: owned.len() as u32,
+            judge_positives: owned.iter().filter(|e| e.1).count() as u32,
+            judge_train_accuracy,
+            judge_latest_not_done: latest_not_done,
+            ranked_last_frame: eval
+                .iter()
+                .map(|e| horizon_frames(e.budget_steps).saturating_sub(1) as u32)
+                .max(),
+            calibration,
+            cross_family,
+            cross_fit,
+            predictions,
+            seconds: started.elapsed().as_secs_f64(),
+            imagined_frames,
+            imagined_frame_size: judged,
+        })
     })
+}
+
+/// The video model's diagnostics, on its copy `model`: the one-step error, as the RSSM's fit
+/// reports it (each next frame predicted from the real one before it, on the ranked episodes'
+/// clips), the action test, and when they ended (seconds since `started`). libtorch computes
+/// every op here with the process's intra-op threads (one, as the fit set them), as it would
+/// on the proxy's thread: the figures are those of running both one after the other.
+fn diagnose(
+    model: &video_model::VideoModel,
+    eval: &[ProxyEpisode],
+    clips: &[Clip],
+    started: Instant,
+) -> Result<(f64, Option<ActionTest>, f64), WorldModelError> {
+    // OpenMP keeps its thread count per thread: this one's, before any op, as the process's.
+    tch::set_num_threads(tch::get_num_threads());
+    let refs: Vec<&Clip> = clips.iter().collect();
+    let names: Vec<StartName<'_>> = eval.iter().map(start_name).collect();
+    let one_step = tch::no_grad(|| video_eval::one_step_mse(model, &refs, &names))?;
+    let test = action_test(model, eval.iter().zip(clips).collect())?;
+    Ok((one_step, test, started.elapsed().as_secs_f64()))
 }
 
 /// The training episodes as the frame judge learns from them: their clips and contexts (same

@@ -12,7 +12,8 @@ use assay_model::world::{WorldModelService, WorldStart};
 use assay_spec::rng::Rng;
 use assay_trainer::imagination::{self, Stop};
 use assay_trainer::proxy::{ProxyRequest, run_proxy, train_frame_judge};
-use assay_trainer::video_eval::{StartName, open_loop};
+use assay_trainer::video_eval::{HORIZON, StartName, one_step_mse, open_loop};
+use assay_trainer::video_model;
 use assay_trainer::world_model::{FitRequest, WorldModel, fit_model};
 use tch::Device;
 
@@ -353,6 +354,50 @@ fn run(
     )
 }
 
+/// The video model's diagnostics, which the proxy computes on a copy of its model in a thread
+/// of their own, equal those of the same fit computed here one after the other.
+fn diagnostics_as_alone(
+    config: &ProxyConfig,
+    train_clips: &[Clip],
+    eval_eps: &[ProxyEpisode],
+    eval_clips: &[Clip],
+    base: &ProxyResult,
+) {
+    let (model, _) = video_model::fit(
+        &config.video,
+        train_clips,
+        Device::Cpu,
+        None,
+        &mut |_, _| Ok(()),
+    )
+    .unwrap();
+    let refs: Vec<&Clip> = eval_clips.iter().collect();
+    let names: Vec<StartName<'_>> = eval_eps
+        .iter()
+        .map(|e| StartName {
+            task_id: &e.task_id,
+            seed: e.seed,
+            instruction: &e.instruction,
+        })
+        .collect();
+    let one_step = tch::no_grad(|| one_step_mse(&model, &refs, &names)).unwrap();
+    assert_eq!(base.world_model.eval_image_mse, one_step);
+    let o = tch::no_grad(|| open_loop(&model, &refs, &names, HORIZON)).unwrap();
+    let test = base.action_test.as_ref().unwrap();
+    assert_eq!(
+        (
+            test.true_actions_mse,
+            test.shuffled_actions_mse,
+            test.zero_actions_mse
+        ),
+        (o.mse_true, o.mse_shuffled, o.mse_zero)
+    );
+    assert_eq!(
+        (test.psnr, test.ssim, test.windows),
+        (o.psnr, o.ssim, o.windows as u32)
+    );
+}
+
 #[test]
 fn the_real_episodes_length_and_outcome_change_nothing_of_the_proxy() {
     real_length_and_outcome_change_nothing(WorldModelKind::Video, "video model");
@@ -396,6 +441,9 @@ fn real_length_and_outcome_change_nothing(model: WorldModelKind, name: &str) {
         test.zero_actions_mse > 0.0 && test.psnr > 0.0 && test.ssim > 0.0,
         "{test:?}"
     );
+    if model == WorldModelKind::Video {
+        diagnostics_as_alone(&config, &train_clips, &eval_eps, &eval_clips, &base);
+    }
     // Shuffled: each ranked episode's real clip keeps its first frame and state but gets
     // another length and another ending, and the episodes claim outcomes.
     let shuffled_clips: Vec<Clip> = (0..6u64)
