@@ -14,6 +14,7 @@ pub mod cache;
 use iceoryx2::port::publisher::Publisher;
 use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
+use iceoryx2::sample_mut::SampleMut;
 
 /// Describes the frame that follows it in the same shared-memory sample.
 #[derive(Debug, Default, Clone, Copy, PartialEq, Eq, ZeroCopySend)]
@@ -216,40 +217,50 @@ impl FramePublisher {
     /// header and sends it. Returns how many subscribers it reached.
     pub fn publish(
         &self,
-        mut header: FrameHeader,
+        header: FrameHeader,
         len: usize,
         fill: impl FnOnce(&mut [u8]),
     ) -> Result<usize, BusError> {
-        let mut sample = self
-            .publisher
-            .loan_slice(len)
-            .map_err(|e| err("loaning a sample", e))?;
+        let mut sample = self.loan(len)?;
         fill(sample.payload_mut());
-        header.timestamp_ns = monotonic_ns();
-        *sample.user_header_mut() = header;
-        sample.send().map_err(|e| err("sending", e))
+        Self::send(sample, header)
     }
 
     /// Like [`publish`](Self::publish), but `fill` may fail: then nothing is sent (the sample
     /// goes back to the pool) and its error is returned inside `Ok`.
     pub fn try_publish<T, E>(
         &self,
-        mut header: FrameHeader,
+        header: FrameHeader,
         len: usize,
         fill: impl FnOnce(&mut [u8]) -> Result<T, E>,
     ) -> Result<Result<(T, usize), E>, BusError> {
-        let mut sample = self
-            .publisher
-            .loan_slice(len)
-            .map_err(|e| err("loaning a sample", e))?;
+        let mut sample = self.loan(len)?;
         let value = match fill(sample.payload_mut()) {
             Ok(v) => v,
             Err(e) => return Ok(Err(e)),
         };
+        Ok(Ok((value, Self::send(sample, header)?)))
+    }
+
+    // `loan` and `send` are not generic, so they are compiled here, with this crate's
+    // optimisation, not in every caller of `publish`: a debug build's sim worker spent a quarter
+    // of its time zeroing loaned frames one byte per call, compiled in assay-worker (perf, the
+    // demo; ARCHITECTURE.md, "Build").
+
+    /// `len` zeroed bytes of shared memory.
+    fn loan(&self, len: usize) -> Result<SampleMut<ipc::Service, [u8], FrameHeader>, BusError> {
+        self.publisher
+            .loan_slice(len)
+            .map_err(|e| err("loaning a sample", e))
+    }
+
+    fn send(
+        mut sample: SampleMut<ipc::Service, [u8], FrameHeader>,
+        mut header: FrameHeader,
+    ) -> Result<usize, BusError> {
         header.timestamp_ns = monotonic_ns();
         *sample.user_header_mut() = header;
-        let reached = sample.send().map_err(|e| err("sending", e))?;
-        Ok(Ok((value, reached)))
+        sample.send().map_err(|e| err("sending", e))
     }
 }
 
