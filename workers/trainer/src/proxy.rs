@@ -416,13 +416,7 @@ pub fn run_proxy(
                 video = model;
                 // Its diagnostics run on a copy of it, in a thread of their own beside the frame
                 // judge and the imagination (`diagnose`).
-                let copy = video.to_checkpoint(&config.video)?;
-                diagnosed = Some(video_model::VideoModel::from_checkpoint(
-                    &config.video,
-                    size,
-                    &copy,
-                    device,
-                )?);
+                diagnosed = Some(video.copy(&config.video)?);
                 let mut fit = video_summary(group, &vfit, config);
                 fit.eval_episodes = eval_clips.len() as u32;
                 fit.episodes = eval_keys.clone();
@@ -530,9 +524,10 @@ pub fn run_proxy(
         }
         let imagined_s = started.elapsed().as_secs_f64();
         if let Some(thread) = diagnostics {
-            let diagnosed = thread.join().map_err(|_| {
-                WorldModelError::Request("the world model's diagnostics panicked".into())
-            })??;
+            // A panic there goes on here, as it would have without the thread.
+            let diagnosed = thread
+                .join()
+                .unwrap_or_else(|panic| std::panic::resume_unwind(panic))?;
             (fit.eval_image_mse, action_test, action_tested_s) = diagnosed;
         }
         let held_out = held_out::Inputs {

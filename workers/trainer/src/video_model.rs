@@ -301,6 +301,13 @@ impl VideoModel {
         )
     }
 
+    /// The same model with tensors of its own (its checkpoint read back), to imagine in on
+    /// another thread (tensors are not `Sync`).
+    pub fn copy(&self, cfg: &VideoModelConfig) -> Result<Self, WorldModelError> {
+        let size = self.size as u32;
+        Self::from_checkpoint(cfg, size, &self.to_checkpoint(cfg)?, self.device)
+    }
+
     pub fn image_size(&self) -> u32 {
         self.size as u32
     }
