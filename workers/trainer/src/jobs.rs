@@ -4,6 +4,7 @@
 
 use std::path::{Path, PathBuf};
 use std::sync::Mutex;
+use std::sync::atomic::{AtomicUsize, Ordering};
 
 use assay_model::clip::Clip;
 use assay_model::episode::Keyframe;
@@ -55,6 +56,30 @@ fn checkpoint_sink<'a>(
     }
 }
 
+/// The jobs this process runs now (a worker runs up to its capacity side by side).
+static RUNNING: AtomicUsize = AtomicUsize::new(0);
+
+/// One running job, counted in [`RUNNING`] while it lives.
+struct Running;
+
+impl Running {
+    fn start() -> Self {
+        RUNNING.fetch_add(1, Ordering::SeqCst);
+        Self
+    }
+
+    /// Whether this is the process's only running job.
+    fn alone(&self) -> bool {
+        RUNNING.load(Ordering::SeqCst) == 1
+    }
+}
+
+impl Drop for Running {
+    fn drop(&mut self) {
+        RUNNING.fetch_sub(1, Ordering::SeqCst);
+    }
+}
+
 /// Reads an artifact by its key: where it is kept (the caller's choice), else the store.
 pub type ArtifactReader<'a> = dyn Fn(&str) -> std::io::Result<Vec<u8>> + 'a;
 
@@ -72,6 +97,7 @@ pub fn run(
     world_models: &WorldModelLoader<'_>,
     device: tch::Device,
 ) -> Result<TrainerOutcome, JobError> {
+    let running = Running::start();
     match job {
         TrainerJob::Text { models, groups } => {
             let mut embedders = embedders.lock().unwrap_or_else(|e| e.into_inner());
@@ -177,6 +203,8 @@ pub fn run(
                 eval_clips: &eval_clips,
                 config,
                 device,
+                // Beside the ranking only when no other job of this worker shares the cores.
+                diagnostics_beside: running.alone(),
             };
             let mut outcome = crate::proxy::run_proxy(&req, resume.as_deref(), &mut save);
             if ahead

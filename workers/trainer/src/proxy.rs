@@ -43,8 +43,8 @@ use assay_model::dynamics::DynamicsFit;
 use assay_model::interface::Interface;
 use assay_model::policy::{EpisodeContext, Policy, PolicyError, PolicySpec};
 use assay_model::proxy::{
-    ActionTest, ExternalWorldModel, IMAGINED_KEYFRAMES, LeakVerdict, ProxyConfig, ProxyEpisode,
-    ProxyPrediction, ProxyResult, SERVED_DEVICE,
+    ActionTest, Calibration, ExternalWorldModel, IMAGINED_KEYFRAMES, LeakVerdict, ProxyConfig,
+    ProxyEpisode, ProxyPrediction, ProxyResult, SERVED_DEVICE,
 };
 use assay_model::video::WorldModelKind;
 use assay_model::world::{WorldError, WorldModelService, WorldStart, check_policy_interface};
@@ -241,6 +241,11 @@ pub struct ProxyRequest<'a> {
     pub eval_clips: &'a [Clip],
     pub config: &'a ProxyConfig,
     pub device: Device,
+    /// The video model's diagnostics (one-step error, action test) on a copy of it in a thread
+    /// of their own, beside the frame judge and the imagination; else inline, after the
+    /// calibration. The figures are the same either way; the thread pays where a core would
+    /// otherwise idle (the trainer sets it when the proxy is its only job).
+    pub diagnostics_beside: bool,
 }
 
 fn start_name(e: &ProxyEpisode) -> StartName<'_> {
@@ -293,6 +298,28 @@ pub(crate) fn video_summary(
     }
 }
 
+/// The fit summary of a served world model: nothing trained here; its ranked episodes' clips.
+fn served_summary(group: &str, eval_keys: &[String], config: &ProxyConfig) -> DynamicsFit {
+    DynamicsFit {
+        group: group.to_owned(),
+        budget: 0,
+        train_episodes: 0,
+        eval_episodes: eval_keys.len() as u32,
+        eval_image_mse: 0.0,
+        eval_proprio_mse: 0.0,
+        per_episode: Vec::new(),
+        episodes: eval_keys.to_vec(),
+        final_train_loss: 0.0,
+        steps: 0,
+        epochs: 0.0,
+        resumed_from_step: None,
+        steps_per_s: 0.0,
+        device: SERVED_DEVICE.into(),
+        libtorch: String::new(),
+        config: config.world_model.clone(),
+    }
+}
+
 /// Runs the proxy of one group. `resume` and `on_checkpoint` are the trained world model's (the
 /// video model's, see [`crate::video_model::fit`], or the RSSM's, [`crate::world_model::fit`]);
 /// a served world model is not trained.
@@ -311,6 +338,7 @@ pub fn run_proxy(
         eval_clips,
         config,
         device,
+        diagnostics_beside,
     } = *req;
     let started = Instant::now();
     config.validate().map_err(WorldModelError::Request)?;
@@ -414,9 +442,13 @@ pub fn run_proxy(
                 let (model, vfit) =
                     video_model::fit(&config.video, world_clips, device, resume, on_checkpoint)?;
                 video = model;
-                // Its diagnostics run on a copy of it, in a thread of their own beside the frame
-                // judge and the imagination (`diagnose`).
-                diagnosed = Some(video.copy(&config.video)?);
+                // Its diagnostics (`diagnose`): on a copy of it in a thread of their own, or on
+                // it after the calibration.
+                diagnosed = Some(if diagnostics_beside {
+                    Diagnosed::Beside(Box::new(video.copy(&config.video)?))
+                } else {
+                    Diagnosed::Inline(&video)
+                });
                 let mut fit = video_summary(group, &vfit, config);
                 fit.eval_episodes = eval_clips.len() as u32;
                 fit.episodes = eval_keys.clone();
@@ -426,31 +458,19 @@ pub fn run_proxy(
             (Some(server), _) => {
                 external = world_models(server)?;
                 check_interfaces(&external.name(), &external.interfaces())?;
-                let fit = DynamicsFit {
-                    group: group.to_owned(),
-                    budget: 0,
-                    train_episodes: 0,
-                    eval_episodes: eval_clips.len() as u32,
-                    eval_image_mse: 0.0,
-                    eval_proprio_mse: 0.0,
-                    per_episode: Vec::new(),
-                    episodes: eval_keys.clone(),
-                    final_train_loss: 0.0,
-                    steps: 0,
-                    epochs: 0.0,
-                    resumed_from_step: None,
-                    steps_per_s: 0.0,
-                    device: SERVED_DEVICE.into(),
-                    libtorch: String::new(),
-                    config: config.world_model.clone(),
-                };
-                (external.as_ref(), fit)
+                (external.as_ref(), served_summary(group, &eval_keys, config))
             }
         };
     let fitted_s = started.elapsed().as_secs_f64();
     std::thread::scope(|scope| -> Result<ProxyResult, WorldModelError> {
-        let diagnostics =
-            diagnosed.map(|m| scope.spawn(move || diagnose(&m, eval, eval_clips, started)));
+        let (diagnostics, inline) = match diagnosed {
+            Some(Diagnosed::Beside(m)) => (
+                Some(scope.spawn(move || diagnose(&m, eval, eval_clips, started))),
+                None,
+            ),
+            Some(Diagnosed::Inline(m)) => (None, Some(m)),
+            None => (None, None),
+        };
         let train_ctx: Vec<EpisodeContext> = train.iter().map(context).collect();
         let eval_ctx: Vec<EpisodeContext> = eval.iter().map(context).collect();
 
@@ -480,48 +500,30 @@ pub fn run_proxy(
 
         // The world model's use of its actions and its video prediction, open loop over windows
         // of the ranked episodes' real clips (a diagnostic): the video model's in its thread.
-        let mut action_test = match diagnostics {
-            Some(_) => None,
-            None => action_test(world, eval.iter().zip(eval_clips).collect())?,
+        let mut action_test = match (&diagnostics, inline) {
+            (Some(_), _) => None,
+            (None, Some(m)) => {
+                let (one_step, test, _) = diagnose(m, eval, eval_clips, started)?;
+                fit.eval_image_mse = one_step;
+                test
+            }
+            (None, None) => action_test(world, eval.iter().zip(eval_clips).collect())?,
         };
         let mut action_tested_s = started.elapsed().as_secs_f64();
 
-        let mut predictions = Vec::with_capacity(eval.len());
-        let mut imagined_frames = Vec::with_capacity(eval.len());
-        for (i, e) in eval.iter().enumerate() {
-            let clip = &eval_clips[i];
-            let leak_at = config.leak_ablation.then(|| clip.len() - 1);
-            let start = imagination::start_of(clip, &eval_ctx[i]);
-            let ranked = Ranked {
-                episode: e,
-                context: &eval_ctx[i],
-                start: &start,
-            };
-            let rollout = imagine(world, policies, &ranked, &judge_one, config, leak_at, "")?;
-            let real_last = clip.frame(clip.len() - 1).to_vec();
-            let last_imagined = rollout.frames.last().unwrap_or(&start.rgb);
-            predictions.push(ProxyPrediction {
-                task_id: e.task_id.clone(),
-                policy: e.policy.clone(),
-                seed: e.seed,
-                p_success: rollout.p_success,
-                success: rollout.done_by_judge,
-                p_success_real_frame: judge_one(&real_last),
-                last_frame_mse: imagination::mse(last_imagined, &real_last),
-                imagined_frames: rollout.frames.len() as u32 + 1,
-                done_by_judge: rollout.done_by_judge,
-                p_calibrated: calibration.as_ref().map(|c| c.apply(rollout.p_success)),
-                leak: rollout.leak.map(|p| LeakVerdict {
-                    p_success: p,
-                    success: p >= config.threshold,
-                }),
-                cross_family: None,
-                cross_fit: None,
-                // Named by the job runner once it has stored `imagined_frames`.
-                imagined_keyframes: Vec::new(),
-            });
-            imagined_frames.push(keyframes_of(&start.rgb, &rollout.frames));
-        }
+        let ranked = RankedEpisodes {
+            episodes: eval,
+            clips: eval_clips,
+            contexts: &eval_ctx,
+        };
+        let (mut predictions, imagined_frames) = imagine_ranked(
+            world,
+            policies,
+            &ranked,
+            &judge_one,
+            calibration.as_ref(),
+            config,
+        )?;
         let imagined_s = started.elapsed().as_secs_f64();
         if let Some(thread) = diagnostics {
             // A panic there goes on here, as it would have without the thread.
@@ -695,6 +697,73 @@ fn fit_judge(
     })
 }
 
+/// The video model's diagnostics: on a copy of it in a thread of their own, or on the model.
+enum Diagnosed<'m> {
+    Beside(Box<video_model::VideoModel>),
+    Inline(&'m video_model::VideoModel),
+}
+
+/// An imagined rollout's keyframes: (frame index, RGB bytes).
+type Keyframes = Vec<(u64, Vec<u8>)>;
+
+/// The ranked episodes: their real clips and contexts, in the same order.
+struct RankedEpisodes<'a> {
+    episodes: &'a [ProxyEpisode],
+    clips: &'a [Clip],
+    contexts: &'a [EpisodeContext],
+}
+
+/// Each ranked episode's policy imagined in `world` from the episode's real start and judged by
+/// `judge`: its prediction (calibrated by `calibration` when there is one) and its imagined
+/// keyframes, in the episodes' order.
+fn imagine_ranked(
+    world: &dyn WorldModelService,
+    policies: &PolicyLoader<'_>,
+    ranked: &RankedEpisodes<'_>,
+    judge: &dyn Fn(&[u8]) -> f64,
+    calibration: Option<&Calibration>,
+    config: &ProxyConfig,
+) -> Result<(Vec<ProxyPrediction>, Vec<Keyframes>), WorldModelError> {
+    let eval = ranked.episodes;
+    let mut predictions = Vec::with_capacity(eval.len());
+    let mut imagined_frames = Vec::with_capacity(eval.len());
+    for (i, e) in eval.iter().enumerate() {
+        let clip = &ranked.clips[i];
+        let leak_at = config.leak_ablation.then(|| clip.len() - 1);
+        let start = imagination::start_of(clip, &ranked.contexts[i]);
+        let one = Ranked {
+            episode: e,
+            context: &ranked.contexts[i],
+            start: &start,
+        };
+        let rollout = imagine(world, policies, &one, judge, config, leak_at, "")?;
+        let real_last = clip.frame(clip.len() - 1).to_vec();
+        let last_imagined = rollout.frames.last().unwrap_or(&start.rgb);
+        predictions.push(ProxyPrediction {
+            task_id: e.task_id.clone(),
+            policy: e.policy.clone(),
+            seed: e.seed,
+            p_success: rollout.p_success,
+            success: rollout.done_by_judge,
+            p_success_real_frame: judge(&real_last),
+            last_frame_mse: imagination::mse(last_imagined, &real_last),
+            imagined_frames: rollout.frames.len() as u32 + 1,
+            done_by_judge: rollout.done_by_judge,
+            p_calibrated: calibration.map(|c| c.apply(rollout.p_success)),
+            leak: rollout.leak.map(|p| LeakVerdict {
+                p_success: p,
+                success: p >= config.threshold,
+            }),
+            cross_family: None,
+            cross_fit: None,
+            // Named by the job runner once it has stored `imagined_frames`.
+            imagined_keyframes: Vec::new(),
+        });
+        imagined_frames.push(keyframes_of(&start.rgb, &rollout.frames));
+    }
+    Ok((predictions, imagined_frames))
+}
+
 /// One ranked episode as a rollout starts from it.
 struct Ranked<'a> {
     episode: &'a ProxyEpisode,
@@ -759,7 +828,7 @@ fn action_test(
 
 /// [`IMAGINED_KEYFRAMES`] frames of an imagined rollout, evenly spaced from the real first
 /// frame (what the world model was given) to the last imagined one, with their indices.
-fn keyframes_of(first: &[u8], imagined: &[Vec<u8>]) -> Vec<(u64, Vec<u8>)> {
+fn keyframes_of(first: &[u8], imagined: &[Vec<u8>]) -> Keyframes {
     let last = imagined.len();
     (0..IMAGINED_KEYFRAMES)
         .map(|k| {

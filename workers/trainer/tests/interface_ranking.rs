@@ -131,6 +131,7 @@ fn rank(config: &ProxyConfig, url: Option<&str>) -> ProxyResult {
             eval_clips: &eval_clips,
             config,
             device: Device::Cpu,
+            diagnostics_beside: true,
         },
         None,
         &mut |_, _| Ok(()),

@@ -332,6 +332,24 @@ fn run(
     eval_clips: &[Clip],
     config: &ProxyConfig,
 ) -> Result<ProxyResult, assay_trainer::world_model::WorldModelError> {
+    let episodes = (train, train_clips, eval, eval_clips);
+    run_with(episodes, config, true)
+}
+
+/// Training episodes and their clips, then ranked ones and theirs.
+type Episodes<'a> = (
+    &'a [ProxyEpisode],
+    &'a [Clip],
+    &'a [ProxyEpisode],
+    &'a [Clip],
+);
+
+/// [`run`], the video model's diagnostics beside the ranking or inline.
+fn run_with(
+    (train, train_clips, eval, eval_clips): Episodes<'_>,
+    config: &ProxyConfig,
+    diagnostics_beside: bool,
+) -> Result<ProxyResult, assay_trainer::world_model::WorldModelError> {
     let policies =
         |_: &str| -> Result<Box<dyn Policy>, PolicyError> { Ok(Box::new(Rightwards::default())) };
     let world_models = |_: &assay_model::proxy::ExternalWorldModel| {
@@ -348,6 +366,7 @@ fn run(
             eval_clips,
             config,
             device: Device::Cpu,
+            diagnostics_beside,
         },
         None,
         &mut |_, _| Ok(()),
@@ -355,14 +374,10 @@ fn run(
 }
 
 /// The video model's diagnostics, which the proxy computes on a copy of its model in a thread
-/// of their own, equal those of the same fit computed here one after the other.
-fn diagnostics_as_alone(
-    config: &ProxyConfig,
-    train_clips: &[Clip],
-    eval_eps: &[ProxyEpisode],
-    eval_clips: &[Clip],
-    base: &ProxyResult,
-) {
+/// of their own, equal those of the same fit computed here one after the other, and the proxy
+/// with them inline gives the same result.
+fn diagnostics_as_alone(config: &ProxyConfig, episodes: Episodes<'_>, base: &ProxyResult) {
+    let (_, train_clips, eval_eps, eval_clips) = episodes;
     let (model, _) = video_model::fit(
         &config.video,
         train_clips,
@@ -396,6 +411,17 @@ fn diagnostics_as_alone(
         (test.psnr, test.ssim, test.windows),
         (o.psnr, o.ssim, o.windows as u32)
     );
+    let inline = run_with(episodes, config, false).unwrap();
+    assert_eq!(inline.world_model.eval_image_mse, one_step);
+    assert_eq!(
+        serde_json::to_value(&inline.action_test).unwrap(),
+        serde_json::to_value(&base.action_test).unwrap()
+    );
+    assert_eq!(
+        serde_json::to_value(&inline.predictions).unwrap(),
+        serde_json::to_value(&base.predictions).unwrap()
+    );
+    assert_eq!(inline.imagined_frames, base.imagined_frames);
 }
 
 #[test]
@@ -442,7 +468,13 @@ fn real_length_and_outcome_change_nothing(model: WorldModelKind, name: &str) {
         "{test:?}"
     );
     if model == WorldModelKind::Video {
-        diagnostics_as_alone(&config, &train_clips, &eval_eps, &eval_clips, &base);
+        let episodes = (
+            &train_eps[..],
+            &train_clips[..],
+            &eval_eps[..],
+            &eval_clips[..],
+        );
+        diagnostics_as_alone(&config, episodes, &base);
     }
     // Shuffled: each ranked episode's real clip keeps its first frame and state but gets
     // another length and another ending, and the episodes claim outcomes.
@@ -636,6 +668,7 @@ fn a_policy_at_an_interface_the_world_model_cannot_imagine_is_refused_before_tra
                 eval_clips: &train_clips[..1],
                 config: &config,
                 device: Device::Cpu,
+                diagnostics_beside: true,
             },
             None,
             &mut |_, _| {

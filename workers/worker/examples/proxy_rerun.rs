@@ -73,6 +73,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         eval_clips: &eval_clips,
         config: &config,
         device: assay_trainer::default_device(),
+        diagnostics_beside: true,
     };
     let result = match run_proxy(&request, ahead.as_deref(), &mut |_, _| Ok(())) {
         Err(assay_trainer::world_model::WorldModelError::CheckpointRefused(why)) => {
