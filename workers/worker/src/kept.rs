@@ -58,6 +58,9 @@ impl NodeArtifacts {
 
     /// The bytes of `key`: kept on this node, else from the artifact store under `root`;
     /// counted in `counters` by where they came from.
+    // Only the trainer role reads whole artifacts through the node (a build without it has no
+    // caller).
+    #[cfg_attr(not(feature = "trainer"), expect(dead_code))]
     pub(crate) fn read(
         &self,
         root: &Path,
