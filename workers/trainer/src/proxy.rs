@@ -413,7 +413,10 @@ pub fn run_proxy(
     let video;
     let external;
     let mut video_fit = None;
+    // The video model's diagnostics (`diagnose`): on a copy of it in a thread of their own, or
+    // on the model itself after the calibration.
     let mut diagnosed = None;
+    let mut inline = None;
     let (world, mut fit): (&dyn WorldModelService, DynamicsFit) =
         match (&config.external, config.model) {
             (None, WorldModelKind::Rssm) => {
@@ -442,13 +445,11 @@ pub fn run_proxy(
                 let (model, vfit) =
                     video_model::fit(&config.video, world_clips, device, resume, on_checkpoint)?;
                 video = model;
-                // Its diagnostics (`diagnose`): on a copy of it in a thread of their own, or on
-                // it after the calibration.
-                diagnosed = Some(if diagnostics_beside {
-                    Diagnosed::Beside(Box::new(video.copy(&config.video)?))
+                if diagnostics_beside {
+                    diagnosed = Some(video.copy(&config.video)?);
                 } else {
-                    Diagnosed::Inline(&video)
-                });
+                    inline = Some(&video);
+                }
                 let mut fit = video_summary(group, &vfit, config);
                 fit.eval_episodes = eval_clips.len() as u32;
                 fit.episodes = eval_keys.clone();
@@ -463,14 +464,8 @@ pub fn run_proxy(
         };
     let fitted_s = started.elapsed().as_secs_f64();
     std::thread::scope(|scope| -> Result<ProxyResult, WorldModelError> {
-        let (diagnostics, inline) = match diagnosed {
-            Some(Diagnosed::Beside(m)) => (
-                Some(scope.spawn(move || diagnose(&m, eval, eval_clips, started))),
-                None,
-            ),
-            Some(Diagnosed::Inline(m)) => (None, Some(m)),
-            None => (None, None),
-        };
+        let diagnostics =
+            diagnosed.map(|m| scope.spawn(move || diagnose(&m, eval, eval_clips, started)));
         let train_ctx: Vec<EpisodeContext> = train.iter().map(context).collect();
         let eval_ctx: Vec<EpisodeContext> = eval.iter().map(context).collect();
 
@@ -695,12 +690,6 @@ fn fit_judge(
         spans,
         latest_not_done: latest_not_done.map(|t| t as u32),
     })
-}
-
-/// The video model's diagnostics: on a copy of it in a thread of their own, or on the model.
-enum Diagnosed<'m> {
-    Beside(Box<video_model::VideoModel>),
-    Inline(&'m video_model::VideoModel),
 }
 
 /// An imagined rollout's keyframes: (frame index, RGB bytes).
