@@ -766,6 +766,15 @@ fn each_group_ranks_a_ladder_of_both_families_on_its_own() {
         assert_eq!(main.proxy, "world-model");
         assert_eq!(main.policies.len(), 4, "{:?}", main.policies);
         assert!(main.calibration_mae.is_some());
+        // The bar the trials' noise sets: both sides counted, so the rerun is defined, within
+        // [-1, 1] with an interval around it.
+        let rerun = main.retest.as_ref().unwrap_or_else(|| panic!("{main:?}"));
+        assert!(rerun.mmrv.value.is_some(), "{rerun:?}");
+        for e in [&rerun.pearson, &rerun.mmrv] {
+            if let (Some(v), Some([lo, hi])) = (e.value, e.ci95) {
+                assert!((-1.0..=1.0).contains(&v) && lo <= hi, "{e:?}");
+            }
+        }
         assert!(
             main.policies
                 .iter()

@@ -744,7 +744,8 @@ pub fn ranking_per_policy(r: &RankingResults) -> Table {
 
 /// Per task group (with tasks of several groups), each proxy's ranking over that group's tasks
 /// alone, beside the pooled one: policies, Pearson, MMRV, Spearman, Kendall with their 95 %
-/// intervals, and the calibration (mean |predicted − real|).
+/// intervals, the calibration (mean |predicted − real|), and the Pearson r the real evaluation
+/// itself would reach rerun in the proxy's place (the bar its trial noise sets).
 pub fn ranking_per_group(r: &RankingResults) -> Table {
     let mut table = Table::new([
         "group",
@@ -756,6 +757,7 @@ pub fn ranking_per_group(r: &RankingResults) -> Table {
         "#Spearman ρ",
         "#Kendall τ-b",
         "#calibration |pred − real|",
+        "#simulator rerun: Pearson r",
     ]);
     let pooled = r.ranking.iter().map(|rk| ("(pooled)", rk));
     let groups = r
@@ -779,13 +781,16 @@ pub fn ranking_per_group(r: &RankingResults) -> Table {
                 c.calibration_mae
                     .as_ref()
                     .map_or_else(Cell::missing, estimate),
+                c.retest
+                    .as_ref()
+                    .map_or_else(Cell::missing, |t| estimate(&t.pearson)),
             ]);
         }
     }
     for g in r.per_group.iter().filter(|g| g.ranking.is_none()) {
         let why = g.missing.as_deref().unwrap_or("no ranking");
         let mut row = vec![g.group.as_str().into(), Cell::text(why.to_owned())];
-        row.extend((0..7).map(|_| Cell::missing()));
+        row.extend((0..8).map(|_| Cell::missing()));
         table.row(row);
     }
     table
@@ -1050,6 +1055,16 @@ pub fn ranking_statistics(c: &Comparison) -> Table {
         table.row(vec![
             "calibration: mean |predicted − real| (lower is better)".into(),
             estimate(e),
+        ]);
+    }
+    if let Some(t) = &c.retest {
+        table.row(vec![
+            "the simulator rerun in the proxy's place (its trials, new seeds): Pearson r".into(),
+            estimate(&t.pearson),
+        ]);
+        table.row(vec![
+            "the simulator rerun in the proxy's place: MMRV".into(),
+            estimate(&t.mmrv),
         ]);
     }
     table

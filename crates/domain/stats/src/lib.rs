@@ -10,5 +10,7 @@
 pub mod agreement;
 pub mod calibration;
 pub mod diversity;
+mod draws;
 pub mod ranking;
+pub mod retest;
 pub mod stats;

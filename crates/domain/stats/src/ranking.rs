@@ -48,6 +48,8 @@ use serde::{Deserialize, Serialize};
 use crate::agreement::{
     BOOTSTRAP_RESAMPLES, Estimate, bootstrap_estimate, fields, kendall, mmrv, pearson, spearman,
 };
+use crate::draws::beta;
+use crate::retest::{CountedCell, Retest, retest};
 use assay_spec::rng::Rng;
 
 /// One row of a success table: how often `policy` succeeded at `task` according to `source`.
@@ -120,6 +122,11 @@ pub struct Comparison {
     /// every rate is off). Defined from one policy on.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub calibration_mae: Option<Estimate>,
+    /// What trial noise allows: Pearson r and MMRV of the real evaluation itself rerun in the
+    /// proxy's place, on new seeds with the proxy's trial counts (`crate::retest`), the bar to
+    /// read the proxy's figures against. Absent unless every cell on both sides has counts.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub retest: Option<Retest>,
     /// Caveats worth reading next to the numbers.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub notes: Vec<String>,
@@ -531,43 +538,6 @@ fn mean(rates: impl Iterator<Item = (u64, Rate)>) -> Option<f64> {
     }
 }
 
-/// A standard normal draw (Box–Muller; one of the pair is used, so a stream's draws stay simple to
-/// follow).
-fn normal(rng: &mut Rng) -> f64 {
-    let u = 1.0 - rng.unit(); // (0, 1]
-    let v = rng.unit();
-    (-2.0 * u.ln()).sqrt() * (std::f64::consts::TAU * v).cos()
-}
-
-/// A Gamma(shape, 1) draw: Marsaglia and Tsang's method (2000) for shape ≥ 1; below 1, a
-/// Gamma(shape + 1) draw times U^(1/shape).
-fn gamma(rng: &mut Rng, shape: f64) -> f64 {
-    if shape < 1.0 {
-        let u = 1.0 - rng.unit();
-        return gamma(rng, shape + 1.0) * u.powf(1.0 / shape);
-    }
-    let d = shape - 1.0 / 3.0;
-    let c = 1.0 / (9.0 * d).sqrt();
-    loop {
-        let x = normal(rng);
-        let v = (1.0 + c * x).powi(3);
-        if v <= 0.0 {
-            continue;
-        }
-        let u = 1.0 - rng.unit();
-        if u.ln() < 0.5 * x * x + d - d * v + d * v.ln() {
-            return d * v;
-        }
-    }
-}
-
-/// A Beta(a, b) draw, as X / (X + Y) with X ~ Gamma(a), Y ~ Gamma(b).
-fn beta(rng: &mut Rng, a: f64, b: f64) -> f64 {
-    let x = gamma(rng, a);
-    let y = gamma(rng, b);
-    x / (x + y)
-}
-
 fn stream(seed: u64, source: &str, task: &str, policy: &str) -> Rng {
     Rng::new(
         seed,
@@ -878,8 +848,41 @@ fn compare(cells: &[Cell], real: &str, proxy: &str, resamples: usize, seed: u64)
         spearman,
         kendall,
         calibration_mae,
+        retest: retest_of(&rows, &tasks, real, resamples, seed),
         notes,
     }
+}
+
+/// The rows' retest (`crate::retest`) when every cell on both sides has counts.
+fn retest_of(
+    rows: &[Row],
+    tasks: &[&str],
+    real: &str,
+    resamples: usize,
+    seed: u64,
+) -> Option<Retest> {
+    let counted: Option<Vec<(&str, Vec<CountedCell<'_>>)>> = rows
+        .iter()
+        .map(|row| {
+            let cells = row.cells.iter().map(|&(t, r, p)| match (r, p) {
+                (
+                    Rate::Counted { successes, trials },
+                    Rate::Counted {
+                        trials: proxy_trials,
+                        ..
+                    },
+                ) => Some(CountedCell {
+                    task: tasks[t],
+                    successes,
+                    trials,
+                    proxy_trials,
+                }),
+                _ => None,
+            });
+            Some((row.policy.as_str(), cells.collect::<Option<Vec<_>>>()?))
+        })
+        .collect();
+    retest(&counted?, real, resamples, seed)
 }
 
 impl Comparison {

@@ -8,7 +8,7 @@ use crate::generalization::{GeneralizationResults, GroupGeneralization, HELD_OUT
 use crate::quality::{OFFLINE_JUDGE_NOTE, QualityResults};
 use crate::ranking::{
     ACTION_TEST_NOTE, JUDGE_AGREEMENT_NOTE, PER_GROUP_NOTE, PER_POLICY_NOTE, RELIABILITY_NOTE,
-    REPEAT_NOTE, RankingResults, source_note,
+    REPEAT_NOTE, RETEST_NOTE, RankingResults, source_note,
 };
 use crate::tables::{self, AgreementLine};
 use crate::view::proportion;
@@ -379,6 +379,7 @@ pub(super) fn ranking(inputs: &HtmlInputs<'_>, r: Option<&RankingResults>) -> Ma
                             "Intervals: 95 % percentile bootstrap, " (rk.resamples)
                             " resamples, seed " (rk.seed) ": " (c.bootstrap.describe()) "."
                         }
+                        @if c.retest.is_some() { p.caption { (RETEST_NOTE) } }
                         @if !c.notes.is_empty() || !c.excluded.is_empty() {
                             ul {
                                 @for n in &c.notes { li { (n) } }

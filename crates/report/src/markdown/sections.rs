@@ -12,7 +12,7 @@ use crate::generalization::GeneralizationResults;
 use crate::quality::{ERRORS_SHOWN, OFFLINE_JUDGE_NOTE, QualityResults, TaskQuality};
 use crate::ranking::{
     ACTION_TEST_NOTE, JUDGE_AGREEMENT_NOTE, PER_GROUP_NOTE, PER_POLICY_NOTE, RELIABILITY_FIGURE,
-    RELIABILITY_NOTE, REPEAT_NOTE, RankingResults, ranking_figure, source_note,
+    RELIABILITY_NOTE, REPEAT_NOTE, RETEST_NOTE, RankingResults, ranking_figure, source_note,
 };
 use crate::tables;
 use crate::view::{Table, abbreviations, md_text};
@@ -389,6 +389,9 @@ fn comparison(r: &Ranking, c: &Comparison, labels: &[(String, String)]) -> Strin
         r.seed,
         c.bootstrap.describe()
     );
+    if c.retest.is_some() {
+        let _ = writeln!(out, "\n{}", md_text(RETEST_NOTE));
+    }
     for n in &c.notes {
         let _ = writeln!(out, "- {}", md_text(n));
     }
