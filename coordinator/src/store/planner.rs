@@ -547,9 +547,10 @@ impl Store {
 
     /// Queues the episodes of the policies one ladder training of `group` kept (each checkpoint
     /// and the final model, each key once): every (task, seed) of the group the batch planned
-    /// for its own policies, as ordinary episodes of the batch (kind `Episode`, no job name: they
-    /// count in its success tables and are ranked by the proxy, or train it when kept at a
-    /// `train_checkpoints` step or by a `train_episodes` run). Returns how many.
+    /// for its own policies — or, with the ladder's `held_out_seeds`, every task of the group
+    /// under those seeds instead — as ordinary episodes of the batch (kind `Episode`, no job
+    /// name: they count in its success tables and are ranked by the proxy, or train it when kept
+    /// at a `train_checkpoints` step or by a `train_episodes` run). Returns how many.
     pub(super) fn queue_ladder_episodes(
         conn: &Connection,
         batch_id: &str,
@@ -569,7 +570,7 @@ impl Store {
         else {
             return Ok(0);
         };
-        let seeds: Vec<u64> = serde_json::from_str(&seeds)?;
+        let seeds = ladder.episode_seeds(&serde_json::from_str::<Vec<u64>>(&seeds)?);
         let mut kept: Vec<(u64, &str)> =
             checkpoints.iter().map(|(s, k)| (*s, k.as_str())).collect();
         kept.sort_unstable();

@@ -534,3 +534,65 @@ fn finish_proxy_ranking_one(
     assert!(k.rows.iter().all(|r| r.policy != training_only));
     k
 }
+
+/// A ladder with held-out seeds runs its policies on those seeds alone — layouts none of its
+/// demonstrations (the batch's first seeds) had — and the proxy imagines and ranks them there,
+/// its world model still learning the training policies' episodes at the batch's seeds.
+#[test]
+fn a_ladder_with_held_out_seeds_runs_and_ranks_its_policies_there_alone() {
+    let ladder = LadderPlan {
+        episodes: vec![2],
+        checkpoints: vec![5],
+        max_steps: 600,
+        held_out_seeds: 3,
+        ..LadderPlan::default()
+    };
+    let (mut s, id) = ladder_batch_run(&[0, 1, 2, 3], &ladder);
+    let trainer = vec!["trainer".to_owned()];
+    let queued = s.lease("t", &trainer, 10, 2, TTL).unwrap();
+    let mut world = None;
+    for (l, job) in queued.iter().zip(trainer_jobs(&queued)) {
+        match job {
+            TrainerJob::Diffusion { clips, .. } => {
+                assert_eq!(
+                    clips,
+                    ["clips/0.clip", "clips/2.clip"],
+                    "the oracle's first 2"
+                );
+                let done = diffusion_done_on("policies/m.diffusion", &[], 2);
+                assert!(
+                    s.complete("t", l.lease_id, l.shard_id, &done, 1.0, 3)
+                        .unwrap()
+                        .0
+                );
+            }
+            TrainerJob::ProxyWorld { train, .. } => {
+                assert!(train.iter().all(|e| e.seed < 4), "{train:?}");
+                world = Some(l.clone());
+            }
+            other => panic!("{other:?}"),
+        }
+    }
+    let ranked = ladder.policy_name("policies/m.diffusion");
+    let sim_render: Vec<String> = ["sim", "render"].map(String::from).to_vec();
+    let episodes = s.lease("w", &sim_render, 20, 4, TTL).unwrap();
+    let mut seeds: Vec<u64> = episodes.iter().map(|l| l.seed).collect();
+    seeds.sort_unstable();
+    assert_eq!(seeds, [1_000_000, 1_000_001, 1_000_002]);
+    assert!(episodes.iter().all(|l| l.policy == ranked));
+    for (i, l) in episodes.iter().enumerate() {
+        finish_episode(&mut s, l, i == 0, &format!("clips/h{i}.clip"));
+    }
+    let queued = finish_world_lease_proxy(&mut s, &world.expect("the world model, fitted ahead"));
+    let jobs = trainer_jobs(&queued);
+    let [TrainerJob::Proxy { train, eval, .. }] = &jobs[..] else {
+        panic!("{jobs:?}")
+    };
+    assert!(train.iter().all(|e| e.seed < 4 && e.policy != ranked));
+    let mut eval_seeds: Vec<u64> = eval.iter().map(|e| e.seed).collect();
+    eval_seeds.sort_unstable();
+    assert_eq!(eval_seeds, seeds);
+    let k = finish_proxy_ranking_one(&mut s, &id, &queued[0], eval, &ranked, "oracle");
+    let row = k.rows.iter().find(|r| r.policy == ranked).unwrap();
+    assert_eq!((row.real.successes, row.real.trials), (1, 3));
+}

@@ -237,7 +237,10 @@ impl RankingPlan {
 /// skill (the paper's: CNN- and transformer-based diffusion policies at several lengths). Each
 /// runs in the simulator on every (task, seed) of the group (its real success) and is ranked by
 /// the proxy — except those kept at `train_checkpoints` and every one of the runs of
-/// `train_episodes`, whose episodes only train the proxy.
+/// `train_episodes`, whose episodes only train the proxy. With `held_out_seeds`, the policies
+/// run on that many seeds per task that no episode of the batch used instead (numbered from
+/// `held_out_seed_base`): layouts none of their demonstrations had, nor any episode the world
+/// model learnt from.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct LadderPlan {
@@ -268,6 +271,18 @@ pub struct LadderPlan {
     #[serde(skip_serializing_if = "LadderPlan::unet_only")]
     pub backbones: Vec<crate::diffusion::Backbone>,
     pub config: crate::diffusion::DiffusionConfig,
+    /// Seeds per task the policies run on instead of the batch's, numbered from
+    /// `held_out_seed_base`: their real success measured where they must generalise, not on
+    /// their demonstrations' own layouts (the batch's first seeds, which they imitate). 0 (the
+    /// default): the batch's seeds.
+    #[serde(skip_serializing_if = "is_zero")]
+    pub held_out_seeds: u32,
+    #[serde(skip_serializing_if = "LadderPlan::default_base")]
+    pub held_out_seed_base: u64,
+}
+
+fn is_zero(n: &u32) -> bool {
+    *n == 0
 }
 
 impl Default for LadderPlan {
@@ -281,9 +296,14 @@ impl Default for LadderPlan {
             max_steps: 6000,
             backbones: vec![crate::diffusion::Backbone::Unet],
             config: crate::diffusion::DiffusionConfig::default(),
+            held_out_seeds: 0,
+            held_out_seed_base: LADDER_HELD_OUT_SEED_BASE,
         }
     }
 }
+
+/// Where a ladder's held-out seeds start by default: far from any batch's own seeds.
+pub const LADDER_HELD_OUT_SEED_BASE: u64 = 1_000_000;
 
 impl LadderPlan {
     pub fn validate(&self) -> Result<(), String> {
@@ -325,6 +345,17 @@ impl LadderPlan {
         if self.backbones.is_empty() {
             return Err("ladder.backbones: one or more families (unet, transformer)".into());
         }
+        if self.held_out_seeds > 0
+            && self
+                .held_out_seed_base
+                .checked_add(u64::from(self.held_out_seeds))
+                .is_none_or(|end| end > i64::MAX as u64)
+        {
+            return Err(format!(
+                "ladder.held_out_seed_base: {} + {} held-out seeds passes the largest seed",
+                self.held_out_seed_base, self.held_out_seeds
+            ));
+        }
         self.config
             .validate()
             .map_err(|e| format!("ladder.config.{e}"))
@@ -332,6 +363,20 @@ impl LadderPlan {
 
     fn unet_only(backbones: &Vec<crate::diffusion::Backbone>) -> bool {
         backbones == &[crate::diffusion::Backbone::Unet]
+    }
+
+    fn default_base(base: &u64) -> bool {
+        *base == LADDER_HELD_OUT_SEED_BASE
+    }
+
+    /// The seeds the ladder's policies run on: its held-out seeds, or else the batch's.
+    pub fn episode_seeds(&self, batch_seeds: &[u64]) -> Vec<u64> {
+        if self.held_out_seeds == 0 {
+            return batch_seeds.to_vec();
+        }
+        (0..u64::from(self.held_out_seeds))
+            .map(|k| self.held_out_seed_base + k)
+            .collect()
     }
 
     /// Each family once, in the order given.
@@ -758,5 +803,31 @@ mod tests {
         .validate()
         .unwrap_err();
         assert!(e.starts_with("ladder.train_episodes: each run"), "{e}");
+    }
+
+    /// The ladder's policies run on the batch's seeds, or on its held-out seeds alone; held-out
+    /// seeds past the largest seed a shard can hold are refused; the default plan serialises as
+    /// before (no held-out field).
+    #[test]
+    fn a_ladder_runs_on_its_held_out_seeds_when_it_has_them() {
+        assert_eq!(LadderPlan::default().episode_seeds(&[0, 1]), [0, 1]);
+        let held_out = LadderPlan {
+            held_out_seeds: 2,
+            ..LadderPlan::default()
+        };
+        held_out.validate().unwrap();
+        assert_eq!(held_out.episode_seeds(&[0, 1, 2]), [1_000_000, 1_000_001]);
+        let e = LadderPlan {
+            held_out_seed_base: i64::MAX as u64,
+            ..held_out.clone()
+        }
+        .validate()
+        .unwrap_err();
+        assert!(e.starts_with("ladder.held_out_seed_base"), "{e}");
+        let json = serde_json::to_value(LadderPlan::default()).unwrap();
+        assert!(json.get("held_out_seeds").is_none() && json.get("held_out_seed_base").is_none());
+        let back: LadderPlan =
+            serde_json::from_value(serde_json::to_value(&held_out).unwrap()).unwrap();
+        assert_eq!(back, held_out);
     }
 }
