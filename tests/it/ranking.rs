@@ -756,6 +756,9 @@ fn each_group_ranks_a_ladder_of_both_families_on_its_own() {
             }
         }
     }
+    // Ranked on the batch's seeds, the demonstrations' own among them: the report cautions.
+    let seeds = k.ladder_seeds.as_ref().expect("the ladder's seeds");
+    assert!(seeds.describe().0, "{seeds:?}");
     // Each group ranked on its own tasks, over its own ladder's 4 policies.
     let mut groups: Vec<&str> = k.per_group.iter().map(|g| g.group.as_str()).collect();
     groups.sort_unstable();

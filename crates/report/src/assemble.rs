@@ -256,6 +256,7 @@ fn ranking(
     );
     if let Some(ladder) = &plan.ladder {
         ladder_labels(rows, ladder, &mut ranking.labels);
+        ranking.ladder_seeds = Some(crate::ladder_seeds::LadderSeeds::of(ladder));
     }
     for p in ladder_training {
         if !ranking.train_policies.contains(&p) {

@@ -13,6 +13,7 @@ pub mod diversity;
 pub mod figures;
 pub mod generalization;
 pub mod html;
+pub mod ladder_seeds;
 pub mod markdown;
 pub mod quality;
 pub mod ranking;

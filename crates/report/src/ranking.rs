@@ -216,6 +216,10 @@ pub struct RankingResults {
     /// per-policy tables list the labelled policies in this order, after the others.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub labels: Vec<(String, String)>,
+    /// With a ladder: where its policies ran (held-out seeds, or the batch's, whose first ones
+    /// are their demonstrations' layouts).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub ladder_seeds: Option<crate::ladder_seeds::LadderSeeds>,
 }
 
 /// A ladder policy's label: its family, the episodes it was trained on and the training step it
@@ -688,6 +692,7 @@ pub fn ranking_results(
             })
             .collect(),
         labels: Vec::new(),
+        ladder_seeds: None,
     }
 }
 

@@ -595,4 +595,8 @@ fn a_ladder_with_held_out_seeds_runs_and_ranks_its_policies_there_alone() {
     let k = finish_proxy_ranking_one(&mut s, &id, &queued[0], eval, &ranked, "oracle");
     let row = k.rows.iter().find(|r| r.policy == ranked).unwrap();
     assert_eq!((row.real.successes, row.real.trials), (1, 3));
+    // The report says where the ladder ran, with no caution.
+    let seeds = k.ladder_seeds.as_ref().expect("the ladder's seeds");
+    assert_eq!((seeds.held_out_seeds, seeds.demonstrations), (3, 2));
+    assert!(!seeds.describe().0);
 }

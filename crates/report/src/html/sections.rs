@@ -333,6 +333,13 @@ pub(super) fn ranking(inputs: &HtmlInputs<'_>, r: Option<&RankingResults>) -> Ma
             @for caution in crate::ranking::late_frame_cautions(r) {
                 p.undefined { strong { "Caution. " } (caution) }
             }
+            @if let Some((caution, text)) = r.ladder_seeds.as_ref().map(|l| l.describe()) {
+                @if caution {
+                    p.undefined { strong { "Caution. " } (text) }
+                } @else {
+                    p.caption { (text) }
+                }
+            }
             @if !per_policy.rows.is_empty() {
                 h3 { "Real and predicted success per policy" }
                 p.caption { (PER_POLICY_NOTE) }

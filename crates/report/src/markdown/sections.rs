@@ -227,6 +227,15 @@ impl RankingResults {
         for caution in crate::ranking::late_frame_cautions(self) {
             let _ = writeln!(out, "\n**Caution.** {}", md_text(&caution));
         }
+        match self.ladder_seeds.as_ref().map(|l| l.describe()) {
+            Some((true, text)) => {
+                let _ = writeln!(out, "\n**Caution.** {}", md_text(&text));
+            }
+            Some((false, text)) => {
+                let _ = writeln!(out, "\n{}", md_text(&text));
+            }
+            None => {}
+        }
         if !per_policy.rows.is_empty() {
             out.push_str("\n### Real and predicted success per policy\n\n");
             let _ = writeln!(out, "{}\n", md_text(PER_POLICY_NOTE));
