@@ -275,14 +275,10 @@ pub struct LadderPlan {
     /// `held_out_seed_base`: their real success measured where they must generalise, not on
     /// their demonstrations' own layouts (the batch's first seeds, which they imitate). 0 (the
     /// default): the batch's seeds.
-    #[serde(skip_serializing_if = "is_zero")]
+    #[serde(skip_serializing_if = "crate::video::is_zero")]
     pub held_out_seeds: u32,
     #[serde(skip_serializing_if = "LadderPlan::default_base")]
     pub held_out_seed_base: u64,
-}
-
-fn is_zero(n: &u32) -> bool {
-    *n == 0
 }
 
 impl Default for LadderPlan {

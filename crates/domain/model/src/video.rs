@@ -54,7 +54,7 @@ pub struct VideoModelConfig {
     pub image_size: u32,
 }
 
-fn is_zero(v: &u32) -> bool {
+pub(crate) fn is_zero(v: &u32) -> bool {
     *v == 0
 }
 
