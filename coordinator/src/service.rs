@@ -6,7 +6,7 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicU32, Ordering};
 use std::time::Duration;
 
-use assay_plan::settings::{BatchSettings, Settings, check, check_groups};
+use assay_plan::settings::{BatchSettings, Settings, check, check_groups, check_seeds};
 use assay_plan::{TaskDocument, plan_tasks};
 use assay_proto::v1 as pb;
 use tokio::sync::{Notify, broadcast, mpsc, watch};
@@ -151,6 +151,7 @@ impl CoordinatorService {
         seeds.sort_unstable();
         seeds.dedup();
         let settings = check(&BatchSettings::from(&req)).map_err(CoordError::from)?;
+        check_seeds(&settings, &seeds).map_err(CoordError::from)?;
         let roots: Vec<std::path::PathBuf> = req
             .asset_roots
             .iter()

@@ -517,6 +517,20 @@ fn a_malformed_nested_setting_is_refused_before_anything_starts() {
             "the batch's settings: ranking settings: groups: no task of the batch is in group \"stakcing\"",
         ],
     );
+    // Held-out seeds that a batch seed falls among would not be held out.
+    std::fs::write(
+        &config,
+        "[eval]\nseeds = 4\nrank-train-policies = [\"oracle\"]\n\
+         [eval.rank-ladder]\nepisodes = [2]\nheld_out_seeds = 2\nheld_out_seed_base = 3\n",
+    )
+    .unwrap();
+    refused(
+        &["--config", file],
+        &[
+            "the batch's settings: ranking settings: ladder.held_out_seed_base: batch seed 3 is one \
+             of the held-out seeds 3..5",
+        ],
+    );
 }
 
 /// The shapes and tools of issue 7 through the render role: an articulated drawer (its joint

@@ -14,7 +14,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use assay_import::{Import, Pipeline};
-use assay_plan::settings::{BatchSettings, check, check_groups};
+use assay_plan::settings::{BatchSettings, check, check_groups, check_seeds};
 use assay_plan::{TaskDocument, plan_tasks};
 use assay_proto::v1 as pb;
 use assay_report::report::{ARTIFACTS_LINK, Report};
@@ -312,11 +312,12 @@ fn check_judges(a: &EvalArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// The coordinator's own check of the batch's settings, and of the groups its ranking and
-/// generalization name, before any process starts.
+/// The coordinator's own check of the batch's settings, of its seeds against the held-out ones,
+/// and of the groups its ranking and generalization name, before any process starts.
 fn check_settings(req: &pb::SubmitBatchRequest, roots: &[PathBuf]) -> anyhow::Result<()> {
     let at = |e: assay_plan::SettingsError| anyhow::anyhow!("the batch's settings: {e}");
     let settings = check(&BatchSettings::from(req)).map_err(at)?;
+    check_seeds(&settings, &req.seeds).map_err(at)?;
     let scoped = |groups: Option<&Vec<String>>| groups.is_some_and(|g| !g.is_empty());
     if scoped(settings.ranking.as_ref().map(|r| &r.groups))
         || scoped(settings.generalization.as_ref().map(|g| &g.groups))

@@ -53,6 +53,16 @@ impl GeneralizationPlan {
         if self.held_out_seeds == 0 {
             return Err("held_out_seeds: at least 1 held-out seed per task".into());
         }
+        if self
+            .held_out_seed_base
+            .checked_add(u64::from(self.held_out_seeds))
+            .is_none_or(|end| end > i64::MAX as u64)
+        {
+            return Err(format!(
+                "held_out_seed_base: {} + {} held-out seeds passes the largest seed",
+                self.held_out_seed_base, self.held_out_seeds
+            ));
+        }
         if self.max_steps == 0 {
             return Err("max_steps: must be at least 1".into());
         }
@@ -78,3 +88,22 @@ impl GeneralizationPlan {
 /// [`crate::job::JobKind::GeneralizationHeldOutEpisode`].
 pub const TRAIN_VARIATIONS: &str = "generalization train";
 pub const HELD_OUT_VARIATIONS: &str = "generalization held-out";
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn held_out_seeds_past_the_largest_seed_are_refused() {
+        assert_eq!(GeneralizationPlan::default().validate(), Ok(()));
+        let far = GeneralizationPlan {
+            held_out_seed_base: i64::MAX as u64 - 1,
+            ..GeneralizationPlan::default()
+        };
+        let e = far.validate().unwrap_err();
+        assert!(
+            e.starts_with("held_out_seed_base: 9223372036854775806 + 3 held-out seeds passes"),
+            "{e}"
+        );
+    }
+}

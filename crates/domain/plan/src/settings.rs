@@ -171,6 +171,40 @@ pub fn check_groups(settings: &Settings, groups: &[&str]) -> Result<(), Settings
     Ok(())
 }
 
+/// Held-out seeds are held out only while no episode of the batch runs on them: a batch seed
+/// inside the ladder's or the generalization's held-out range is refused, naming the seed, the
+/// range and the setting that moves it. (`seeds` are the batch's, as the request lists them.)
+pub fn check_seeds(settings: &Settings, seeds: &[u64]) -> Result<(), SettingsError> {
+    let ladder = settings.ranking.as_ref().and_then(|r| r.ladder.as_ref());
+    let ranges = [
+        (
+            SettingsError::Ranking as fn(String) -> SettingsError,
+            "ladder.",
+            ladder.map(|l| (l.held_out_seed_base, l.held_out_seeds)),
+        ),
+        (
+            SettingsError::Generalization,
+            "",
+            settings
+                .generalization
+                .as_ref()
+                .map(|g| (g.held_out_seed_base, g.held_out_seeds)),
+        ),
+    ];
+    for (part, prefix, range) in ranges {
+        let Some((base, n)) = range else { continue };
+        let end = base.saturating_add(u64::from(n));
+        if let Some(s) = seeds.iter().find(|&&s| (base..end).contains(&s)) {
+            return Err(part(format!(
+                "{prefix}held_out_seed_base: batch seed {s} is one of the held-out seeds \
+                 {base}..{end}, so they would not be held out; move {prefix}held_out_seed_base \
+                 past the batch's seeds"
+            )));
+        }
+    }
+    Ok(())
+}
+
 /// What a ranking plan asks that cannot work (the caller prefixes `ranking settings: `): proxy
 /// settings, the clips' size, training policies that are not the batch's, a ranked policy that
 /// is the scripted oracle (it reads the simulator's state, so it cannot act inside a world
@@ -449,5 +483,51 @@ mod tests {
         ranking.groups = names(&[" "]);
         let e = check_ranking(&ranking, &policies, None).unwrap_err();
         assert_eq!(e, "groups: a group name is empty");
+    }
+
+    #[test]
+    fn a_batch_seed_among_the_held_out_seeds_is_refused_naming_it_and_the_range() {
+        let policies = names(&["oracle", "oracle:noise=0.01"]);
+        let ladder = LadderPlan {
+            held_out_seeds: 20,
+            held_out_seed_base: 1000,
+            ..LadderPlan::default()
+        };
+        let settings = |ladder: LadderPlan, general: Option<GeneralizationPlan>| Settings {
+            policies: policies.clone(),
+            dynamics: None,
+            ranking: Some(plan(&["oracle", "oracle:noise=0.01"], Some(ladder))),
+            generalization: general,
+        };
+        let s = settings(ladder.clone(), None);
+        assert_eq!(check_seeds(&s, &[0, 1, 999, 1020, 5000]), Ok(()));
+        let e = check_seeds(&s, &[0, 1019]).unwrap_err().to_string();
+        assert_eq!(
+            e,
+            "ranking settings: ladder.held_out_seed_base: batch seed 1019 is one of the held-out \
+             seeds 1000..1020, so they would not be held out; move ladder.held_out_seed_base past \
+             the batch's seeds"
+        );
+        // Without held-out seeds the ladder runs on the batch's own seeds: nothing to overlap.
+        let batch_seeds = LadderPlan {
+            held_out_seeds: 0,
+            ..ladder.clone()
+        };
+        assert_eq!(check_seeds(&settings(batch_seeds, None), &[1000]), Ok(()));
+        // The generalization's held-out seeds, likewise.
+        let general = GeneralizationPlan {
+            held_out_seed_base: 10,
+            ..GeneralizationPlan::default()
+        };
+        let e = check_seeds(&settings(ladder, Some(general)), &[0, 12])
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.starts_with(
+                "generalization settings: held_out_seed_base: batch seed 12 is one of the \
+                 held-out seeds 10..13"
+            ),
+            "{e}"
+        );
     }
 }
