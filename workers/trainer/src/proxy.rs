@@ -632,8 +632,8 @@ struct JudgeFit {
 }
 
 /// Trains the frame judge of `world` on the training episodes' real and imagined (replayed in
-/// `world` with the real actions) frames: last frames labelled with the outcome, those at a
-/// quarter and at half of the episode not done.
+/// `world` with the real actions) frames: last frames labelled with the outcome, those at
+/// `config.judge_not_done` of the episode (by default a quarter and half) not done.
 fn fit_judge(
     world: &dyn WorldModelService,
     training: &TrainingEpisodes<'_>,
@@ -660,12 +660,10 @@ fn fit_judge(
         if !ok {
             not_done_at(last);
         }
-        for t in [last / 4, last / 2] {
-            if t >= 1 && t < last {
-                not_done_at(t);
-                owned.push((at(clip, t), false));
-                owned.push((imagined[t - 1].clone(), false));
-            }
+        for t in not_done_frames(last, &config.judge_not_done) {
+            not_done_at(t);
+            owned.push((at(clip, t), false));
+            owned.push((imagined[t - 1].clone(), false));
         }
         spans.push(calibration::Span {
             examples: first..owned.len(),
@@ -690,6 +688,23 @@ fn fit_judge(
         spans,
         latest_not_done: latest_not_done.map(|t| t as u32),
     })
+}
+
+/// The frames of a clip whose last frame is `last` that the frame judge learns as not done:
+/// each fraction of the episode rounded down (0: frame 1, the first imagined one), those from
+/// frame 1 to before the last, each once, in order.
+fn not_done_frames(last: usize, fractions: &[f64]) -> Vec<usize> {
+    let mut at: Vec<usize> = fractions
+        .iter()
+        .map(|&f| match f {
+            0.0 => 1,
+            f => (f * last as f64).floor() as usize,
+        })
+        .filter(|&t| t >= 1 && t < last)
+        .collect();
+    at.sort_unstable();
+    at.dedup();
+    at
 }
 
 /// An imagined rollout's keyframes: (frame index, RGB bytes).
@@ -838,5 +853,29 @@ impl FrameJudge {
             Some(c) => vec![c; frames.len()],
             None => self.probabilities(frames),
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::not_done_frames;
+    use assay_model::proxy::JUDGE_NOT_DONE;
+
+    #[test]
+    fn the_default_not_done_frames_are_a_quarter_and_half_of_every_episode() {
+        for last in 0..400 {
+            let old: Vec<usize> = [last / 4, last / 2]
+                .into_iter()
+                .filter(|&t| t >= 1 && t < last)
+                .collect();
+            assert_eq!(not_done_frames(last, &JUDGE_NOT_DONE), old, "last {last}");
+        }
+        // The first imagined frame, three quarters, each once and never the last frame.
+        assert_eq!(
+            not_done_frames(40, &[0.75, 0.0, 0.25, 0.5, 0.5]),
+            vec![1, 10, 20, 30]
+        );
+        assert_eq!(not_done_frames(2, &[0.0, 0.75]), vec![1]);
+        assert_eq!(not_done_frames(1, &[0.0]), Vec::<usize>::new());
     }
 }

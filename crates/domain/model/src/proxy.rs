@@ -39,6 +39,13 @@ pub struct ProxyConfig {
     /// many consecutive imagined frames a probability of at least `threshold`; otherwise it runs
     /// for the task's whole step budget. Never the real episode's length.
     pub done_frames: u32,
+    /// Where the frame judge's "not done" examples lie in each training episode, as fractions
+    /// of its length (0.5: its middle frame; 0: its first imagined frame, frame 1), real and
+    /// replayed frames alike. Every frame before an episode's last is not done — the simulator
+    /// ends an episode at its success — so each fraction in [0, 1) is a true label; the last
+    /// frame is labelled with the outcome whatever this says.
+    #[serde(skip_serializing_if = "is_default_not_done")]
+    pub judge_not_done: Vec<f64>,
     /// Ablation: also imagine every ranked episode for exactly as many frames as its real
     /// episode had and judge that last frame — the leak of the real outcome through the
     /// episode's length, restored on purpose to measure what it is worth. Reported as a proxy
@@ -105,6 +112,13 @@ pub struct ExternalWorldModel {
     pub timeout_ms: u64,
 }
 
+/// The frame judge's "not done" examples by default: a quarter and half of each episode.
+pub const JUDGE_NOT_DONE: [f64; 2] = [0.25, 0.5];
+
+fn is_default_not_done(at: &Vec<f64>) -> bool {
+    at.as_slice() == JUDGE_NOT_DONE
+}
+
 fn default_world_timeout_ms() -> u64 {
     30_000
 }
@@ -120,6 +134,7 @@ impl Default for ProxyConfig {
             threshold: 0.5,
             completion_threshold: 5.0,
             done_frames: 2,
+            judge_not_done: JUDGE_NOT_DONE.to_vec(),
             leak_ablation: false,
             cross_family_ablation: false,
             cross_fit_folds: 0,
@@ -153,6 +168,16 @@ impl ProxyConfig {
         }
         if self.done_frames == 0 {
             return Err("done_frames: must be at least 1".into());
+        }
+        if let Some(f) = self
+            .judge_not_done
+            .iter()
+            .find(|f| !(0.0..1.0).contains(*f))
+        {
+            return Err(format!(
+                "judge_not_done: {f} is outside [0, 1) (a fraction of the episode before its last \
+                 frame)"
+            ));
         }
         if self.external.is_none() && self.model == WorldModelKind::Video {
             self.video.validate().map_err(|e| format!("video: {e}"))?;
@@ -759,6 +784,29 @@ pub const CROSS_FIT_SOURCE: &str = "world-model-cross-fit";
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_judges_not_done_fractions_serialise_only_when_set_and_lie_before_the_last_frame() {
+        let default = ProxyConfig::default();
+        assert_eq!(default.validate(), Ok(()));
+        let json = serde_json::to_value(&default).unwrap();
+        assert!(json.get("judge_not_done").is_none(), "{json}");
+        let early: ProxyConfig =
+            serde_json::from_str(r#"{"judge_not_done": [0, 0.25, 0.5, 0.75]}"#).unwrap();
+        assert_eq!(early.validate(), Ok(()));
+        assert_eq!(
+            serde_json::to_value(&early).unwrap()["judge_not_done"],
+            serde_json::json!([0.0, 0.25, 0.5, 0.75])
+        );
+        let last = ProxyConfig {
+            judge_not_done: vec![0.5, 1.0],
+            ..ProxyConfig::default()
+        };
+        assert_eq!(
+            last.validate().unwrap_err(),
+            "judge_not_done: 1 is outside [0, 1) (a fraction of the episode before its last frame)"
+        );
+    }
 
     /// A fit's run is the smallest run of at least its clips: a run asked for more episodes
     /// than its group has trained on all of them, and larger runs were left out.
