@@ -53,11 +53,7 @@ impl GeneralizationPlan {
         if self.held_out_seeds == 0 {
             return Err("held_out_seeds: at least 1 held-out seed per task".into());
         }
-        if self
-            .held_out_seed_base
-            .checked_add(u64::from(self.held_out_seeds))
-            .is_none_or(|end| end > i64::MAX as u64)
-        {
+        if !seeds_fit(self.held_out_seed_base, self.held_out_seeds) {
             return Err(format!(
                 "held_out_seed_base: {} + {} held-out seeds passes the largest seed",
                 self.held_out_seed_base, self.held_out_seeds
@@ -88,6 +84,12 @@ impl GeneralizationPlan {
 /// [`crate::job::JobKind::GeneralizationHeldOutEpisode`].
 pub const TRAIN_VARIATIONS: &str = "generalization train";
 pub const HELD_OUT_VARIATIONS: &str = "generalization held-out";
+
+/// Whether `n` seeds from `base` are all seeds a shard can hold (the store keeps them as i64).
+pub(crate) fn seeds_fit(base: u64, n: u32) -> bool {
+    base.checked_add(u64::from(n))
+        .is_some_and(|end| end <= i64::MAX as u64)
+}
 
 #[cfg(test)]
 mod tests {

@@ -367,10 +367,7 @@ impl LadderPlan {
             return Err("ladder.backbones: one or more families (unet, transformer)".into());
         }
         if self.held_out_seeds > 0
-            && self
-                .held_out_seed_base
-                .checked_add(u64::from(self.held_out_seeds))
-                .is_none_or(|end| end > i64::MAX as u64)
+            && !crate::generalization::seeds_fit(self.held_out_seed_base, self.held_out_seeds)
         {
             return Err(format!(
                 "ladder.held_out_seed_base: {} + {} held-out seeds passes the largest seed",
