@@ -9,7 +9,8 @@
 //! drives a ranking the same way, and so does Assay's video model written again in PyTorch
 //! (the kit's example, on the real torch wheel); a served model that declares another interface
 //! than the ranked policy's is refused naming the field. Bad ranking settings — a scripted oracle ranked among them —
-//! are refused before anything runs, naming the setting.
+//! are refused before anything runs, naming the setting; the coordinator refuses over gRPC a
+//! batch seed among the ladder's held-out seeds.
 #![cfg(feature = "trainer")]
 
 use std::process::Command;
@@ -18,6 +19,7 @@ use std::sync::Arc;
 use crate::common::torchscript::torchscript;
 use crate::common::*;
 use crate::real_policies::{lerobot_python, serve_command, serve_script};
+use assay_proto::v1 as pb;
 use assay_report::report::Report;
 use assay_testkit::fixture::{Fixture, Received, Reply, Script};
 use base64::Engine;
@@ -691,6 +693,58 @@ fn ranking_settings_that_cannot_work_are_refused_with_the_reason() {
             && stderr.contains("cannot act inside a world model"),
         "{stderr}"
     );
+}
+
+/// A lab's client submits over gRPC, not through `assay eval`: the coordinator itself refuses a
+/// batch one of whose seeds lies among its ladder's held-out seeds (they would not be held out),
+/// naming the setting and the seed, and stores nothing of it; the same batch with the held-out
+/// seeds moved past its own is taken.
+#[test]
+fn the_coordinator_refuses_a_batch_seed_among_the_held_out_ones() {
+    let dir = tempfile::tempdir().unwrap();
+    let (_coord, addr) = coordinator(dir.path(), "127.0.0.1:0", &[]);
+    let request = |base: u64| pb::SubmitBatchRequest {
+        name: "held-out".into(),
+        tasks: documents(&["examples/tasks/placement/put-block-in-bowl.yaml"]),
+        policies: vec![pb::PolicyRef {
+            name: "oracle".into(),
+        }],
+        seeds: (0..4).collect(),
+        ranking_json: serde_json::json!({
+            "train_policies": ["oracle"],
+            "ladder": {"episodes": [2], "held_out_seeds": 2, "held_out_seed_base": base},
+        })
+        .to_string(),
+        ..Default::default()
+    };
+    runtime().block_on(async {
+        let mut c = client(&addr).await;
+        let e = c.submit_batch(request(3)).await.unwrap_err();
+        assert_eq!(e.code(), tonic::Code::InvalidArgument, "{e:?}");
+        assert!(
+            e.message().contains(
+                "ladder.held_out_seed_base: batch seed 3 is one of the held-out seeds 3..5"
+            ),
+            "{}",
+            e.message()
+        );
+        let listed = c.list_batches(pb::ListBatchesRequest {}).await.unwrap();
+        assert!(listed.into_inner().batches.is_empty());
+        let taken = c.submit_batch(request(4)).await.unwrap().into_inner();
+        let listed = c.list_batches(pb::ListBatchesRequest {}).await.unwrap();
+        let ids: Vec<String> = listed
+            .into_inner()
+            .batches
+            .into_iter()
+            .map(|b| b.batch_id)
+            .collect();
+        assert_eq!(ids, std::slice::from_ref(&taken.batch_id));
+        c.cancel_batch(pb::GetBatchRequest {
+            batch_id: taken.batch_id,
+        })
+        .await
+        .unwrap();
+    });
 }
 
 /// Issue 45's shape end to end, small: two task groups, each with a ladder of both policy
