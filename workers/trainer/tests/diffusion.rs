@@ -506,6 +506,50 @@ fn same_config_and_data_give_the_same_weights() {
     assert!(a != c, "another seed gave the same weights");
 }
 
+/// A fit's weights do not depend on what the trainer runs beside it, when every fit uses the
+/// same intra-op thread count (every model's default, 1): a ladder's policies come out the same
+/// in a batch of one group as in a batch of several. The fit is the default U-Net's, alone, then
+/// on its own thread beside a transformer fit and a U-Net fit of other seeds. (A probe of
+/// 2026-12-02, 60 steps beside two U-Net fits: at 1 thread all, the same weights in 6 runs of 6;
+/// with the two others at 2 threads, the fit drifted from its 4th step in 2 runs of 5 — hence
+/// the advice on `threads` to keep one count for every model a trainer runs.)
+#[test]
+fn a_fit_beside_other_fits_gives_the_same_weights_as_alone() {
+    let data = clips(20, 12, 7);
+    let fit = |cfg: &DiffusionConfig| {
+        let mut losses = Vec::new();
+        let (p, _) = train(&data, cfg, Device::Cpu, &mut |_, l| losses.push(l)).unwrap();
+        (p.to_bytes(), losses)
+    };
+    let cfg = DiffusionConfig {
+        steps: 12,
+        batch: 16,
+        ..DiffusionConfig::default()
+    };
+    let other = DiffusionConfig {
+        steps: 16,
+        batch: 8,
+        seed: 5,
+        ..cfg.clone()
+    };
+    let (alone, losses_alone) = fit(&cfg);
+    let (beside, losses_beside) = std::thread::scope(|s| {
+        let transformer = s.spawn(|| {
+            fit(&DiffusionConfig {
+                backbone: Backbone::Transformer,
+                ..other.clone()
+            })
+        });
+        let unet = s.spawn(|| fit(&other));
+        let ours = s.spawn(|| fit(&cfg));
+        transformer.join().unwrap();
+        unet.join().unwrap();
+        ours.join().unwrap()
+    });
+    assert_eq!(losses_alone, losses_beside);
+    assert!(alone == beside, "the fit beside others gave other weights");
+}
+
 /// Closed loop through the [`Policy`] interface, as the simulator's driver runs it (a chunk of
 /// `action_horizon` actions per call): of 20 unseen starts, how many commanded a hold within
 /// 5 cm of the target within 40 control steps, and the mean steps those took.

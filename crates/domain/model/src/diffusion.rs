@@ -61,6 +61,9 @@ pub struct DiffusionConfig {
     pub groups: i64,
     /// Intra-op threads of libtorch while training on a CPU (1 is fastest for models this small
     /// on 2 cores).
+    /// Keep one count for every model a trainer runs (the defaults are all 1): beside a fit
+    /// at another count, a fit's weights can change from run to run (measured in
+    /// `workers/trainer/tests/diffusion.rs`).
     pub threads: usize,
     /// The denoiser's family: Chi et al.'s 1-D temporal U-Net (the default; `down_dims`,
     /// `kernel_size`, `groups`) or their transformer (`transformer`). The video-world-model

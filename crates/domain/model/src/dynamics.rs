@@ -40,6 +40,9 @@ pub struct DynamicsConfig {
     /// Training steps between checkpoints written to the artifact store.
     pub checkpoint_every: usize,
     /// Intra-op threads of libtorch on a CPU (1 is fastest for models this small on 2 cores).
+    /// Keep one count for every model a trainer runs (the defaults are all 1): beside a fit
+    /// at another count, a fit's weights can change from run to run (measured in
+    /// `workers/trainer/tests/diffusion.rs`).
     pub threads: usize,
 }
 

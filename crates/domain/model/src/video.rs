@@ -45,6 +45,9 @@ pub struct VideoModelConfig {
     /// Training steps between checkpoints written to the artifact store (0: none).
     pub checkpoint_every: usize,
     /// Intra-op threads of libtorch on a CPU.
+    /// Keep one count for every model a trainer runs (the defaults are all 1): beside a fit
+    /// at another count, a fit's weights can change from run to run (measured in
+    /// `workers/trainer/tests/diffusion.rs`).
     pub threads: usize,
     /// The side of the square frames the model works at (a multiple of 8): every camera of the
     /// clips is resized to it (area averaging) and its predictions back to the camera's size,
