@@ -16,7 +16,10 @@ use crate::error::CoordError;
 impl Store {
     /// The episodes of `group` with a clip, split into the training policies' (with their
     /// outcomes; the ladder's training-only policies among them) and the ranked policies'
-    /// (without), in planning order.
+    /// (without), in planning order: the batch's own first, then each ladder training's (queued
+    /// when it finished) in the order the trainings were planned, so that which training
+    /// finished first changes neither list (the world model's windows and the action test's
+    /// pairing of episodes follow it).
     fn proxy_episodes(
         conn: &Connection,
         batch_id: &str,
@@ -24,7 +27,14 @@ impl Store {
         plan: &RankingPlan,
     ) -> Result<(Vec<ProxyEpisode>, Vec<ProxyEpisode>), CoordError> {
         let default_budget = PhysicsSettings::default().max_steps;
-        let ladder = Self::ladder_policies(conn, batch_id, group, plan)?;
+        let trainings = Self::ladder_trainings(conn, batch_id, group, plan)?;
+        let ladder: Vec<&KeptPolicy> = trainings.iter().flatten().collect();
+        // The planned place of the training that kept `policy` (the batch's own: none).
+        let training_of = |policy: &str| {
+            trainings
+                .iter()
+                .position(|kept| kept.iter().any(|p| p.name == policy))
+        };
         let (mut train, mut eval) = (Vec::new(), Vec::new());
         let mut stmt = conn.prepare(
             "SELECT s.task_id, s.policy, s.seed,
@@ -44,7 +54,7 @@ impl Store {
         ])?;
         while let Some(r) = rows.next()? {
             let policy: String = r.get(1)?;
-            let of_ladder = ladder.iter().find(|p| p.name == policy);
+            let of_ladder = ladder.iter().find(|p| p.name == policy).copied();
             let training =
                 plan.train_policies.contains(&policy) || of_ladder.is_some_and(|p| p.trains_only);
             // The simulator's horizon: the task's budget, or the policy's when smaller.
@@ -67,35 +77,42 @@ impl Store {
                 success: training.then(|| r.get::<_, i64>(4).unwrap_or(0) != 0),
                 budget_steps,
             };
+            let place = training_of(&ep.policy);
             if training {
-                train.push(ep);
+                train.push((place, ep));
             } else {
-                eval.push(ep);
+                eval.push((place, ep));
             }
         }
-        Ok((train, eval))
+        // Stable: within a place, planning order (`s.id`) as read.
+        let in_order = |mut v: Vec<(Option<usize>, ProxyEpisode)>| {
+            v.sort_by_key(|(place, _)| *place);
+            v.into_iter().map(|(_, e)| e).collect()
+        };
+        Ok((in_order(train), in_order(eval)))
     }
 
-    /// Every policy the finished ladder trainings of `group` kept.
-    fn ladder_policies(
+    /// The policies each finished ladder training of `group` kept, one list per training, the
+    /// trainings in the order they were planned.
+    fn ladder_trainings(
         conn: &Connection,
         batch_id: &str,
         group: &str,
         plan: &RankingPlan,
-    ) -> Result<Vec<KeptPolicy>, CoordError> {
+    ) -> Result<Vec<Vec<KeptPolicy>>, CoordError> {
         let Some(ladder) = &plan.ladder else {
             return Ok(Vec::new());
         };
         let mut out = Vec::new();
         let mut stmt = conn.prepare(
             "SELECT outcome_json FROM shards WHERE batch_id = ?1 AND grp = ?2 AND kind = ?3
-               AND state = 'done' AND outcome_json IS NOT NULL",
+               AND state = 'done' AND outcome_json IS NOT NULL ORDER BY id",
         )?;
         let mut rows = stmt.query(params![batch_id, group, JobKind::LadderTraining.as_str()])?;
         while let Some(r) = rows.next()? {
             let json: String = r.get(0)?;
             if let Ok(outcome) = serde_json::from_str::<TrainerOutcome>(&json) {
-                out.extend(outcome.ladder_policies(ladder));
+                out.push(outcome.ladder_policies(ladder));
             }
         }
         Ok(out)

@@ -72,6 +72,89 @@ fn a_ladder_of_two_families_trains_each_run_in_each() {
     );
 }
 
+/// Which ladder training finishes first changes neither the proxy's ranked episodes nor their
+/// order (the action test pairs each with the next): each training's episodes come in the order
+/// the trainings were planned, the U-Net's before the transformer's here.
+#[test]
+fn the_proxy_s_episodes_keep_the_trainings_planned_order_whichever_finishes_first() {
+    use assay_model::diffusion::Backbone;
+    let ranked = |transformer_first: bool| -> Vec<(String, u64)> {
+        let mut s = Store::open_in_memory().unwrap();
+        let mut b = batch(&["a"], &[0, 1], 3);
+        b.tasks[0].spec_json = r#"{"id": "a"}"#.into();
+        b.policies = vec!["oracle".into(), "oracle:noise=0.05".into()];
+        b.ranking = Some(RankingPlan {
+            train_policies: b.policies.clone(),
+            config: ProxyConfig::default(),
+            ladder: Some(LadderPlan {
+                episodes: vec![2],
+                checkpoints: vec![3],
+                backbones: vec![Backbone::Unet, Backbone::Transformer],
+                ..LadderPlan::default()
+            }),
+            groups: Vec::new(),
+        });
+        s.submit(&b, 0).unwrap();
+        for (i, l) in s.lease("w", &sim(), 8, 1, TTL).unwrap().iter().enumerate() {
+            finish_episode(&mut s, l, i % 2 == 0, &format!("clips/{i}.clip"));
+        }
+        let trainer = vec!["trainer".to_owned()];
+        let queued = s.lease("t", &trainer, 10, 3, TTL).unwrap();
+        let mut trainings = Vec::new();
+        for (l, job) in queued.iter().zip(trainer_jobs(&queued)) {
+            match job {
+                TrainerJob::Diffusion { config, .. } => trainings.push((l, config.backbone)),
+                // The world model fitted ahead fails: the proxy fits its own.
+                _ => {
+                    s.fail(l.lease_id, l.shard_id, "no space left", false, 4)
+                        .unwrap();
+                }
+            }
+        }
+        assert_eq!(trainings.len(), 2);
+        if transformer_first {
+            trainings.reverse();
+        }
+        for (l, backbone) in trainings {
+            let name = backbone.as_str();
+            let done = diffusion_done(
+                &format!("policies/{name}.diffusion"),
+                &[(3, &format!("policies/{name}3.diffusion"))],
+            );
+            let mut outcome: TrainerOutcome = serde_json::from_str(&done).unwrap();
+            if let TrainerOutcome::Diffusion { fit, .. } = &mut outcome {
+                fit.config.backbone = backbone;
+            }
+            let done = serde_json::to_string(&outcome).unwrap();
+            assert!(
+                s.complete("t", l.lease_id, l.shard_id, &done, 1.0, 5)
+                    .unwrap()
+                    .0
+            );
+        }
+        let sim_render: Vec<String> = ["sim", "render"].map(String::from).to_vec();
+        let episodes = s.lease("w", &sim_render, 20, 6, TTL).unwrap();
+        assert_eq!(episodes.len(), 8, "2 policies of each training x 2 seeds");
+        for (i, l) in episodes.iter().enumerate() {
+            finish_episode(&mut s, l, false, &format!("clips/l{i}.clip"));
+        }
+        let queued = s.lease("t", &trainer, 10, 7, TTL).unwrap();
+        assert_eq!(queued.len(), 1);
+        let job = serde_json::from_str(queued[0].trainer_job.as_deref().unwrap()).unwrap();
+        let TrainerJob::Proxy { eval, .. } = job else {
+            panic!("{job:?}")
+        };
+        eval.into_iter().map(|e| (e.policy, e.seed)).collect()
+    };
+    let planned = ranked(false);
+    assert_eq!(planned.len(), 8);
+    assert!(
+        planned[..4].iter().all(|(p, _)| p.contains("/unet")),
+        "{planned:?}"
+    );
+    assert_eq!(ranked(true), planned);
+}
+
 /// A ranking batch whose policies all train the world model ranks a ladder of learned
 /// policies instead: trained once the group's episodes are done, on the ladder policy's first
 /// clips; each kept policy runs every (task, seed) of the group as an ordinary episode; the
