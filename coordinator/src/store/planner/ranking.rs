@@ -2,6 +2,8 @@
 //! (with each ranked ladder policy's family), the proxy's world model fitted ahead of it, and
 //! the proxy itself.
 
+use std::collections::HashMap;
+
 use assay_model::job::JobKind;
 use assay_model::policy::PolicySpec;
 use assay_model::proxy::{ProxyEpisode, RankingPlan};
@@ -28,13 +30,14 @@ impl Store {
     ) -> Result<(Vec<ProxyEpisode>, Vec<ProxyEpisode>), CoordError> {
         let default_budget = PhysicsSettings::default().max_steps;
         let trainings = Self::ladder_trainings(conn, batch_id, group, plan)?;
-        let ladder: Vec<&KeptPolicy> = trainings.iter().flatten().collect();
-        // The planned place of the training that kept `policy` (the batch's own: none).
-        let training_of = |policy: &str| {
-            trainings
-                .iter()
-                .position(|kept| kept.iter().any(|p| p.name == policy))
-        };
+        // Each ladder policy with the planned place of the training that kept it (the first,
+        // when two kept the same model).
+        let mut ladder: HashMap<&str, (usize, &KeptPolicy)> = HashMap::new();
+        for (place, kept) in trainings.iter().enumerate() {
+            for p in kept {
+                ladder.entry(p.name.as_str()).or_insert((place, p));
+            }
+        }
         let (mut train, mut eval) = (Vec::new(), Vec::new());
         let mut stmt = conn.prepare(
             "SELECT s.task_id, s.policy, s.seed,
@@ -54,7 +57,10 @@ impl Store {
         ])?;
         while let Some(r) = rows.next()? {
             let policy: String = r.get(1)?;
-            let of_ladder = ladder.iter().find(|p| p.name == policy).copied();
+            let (place, of_ladder) = match ladder.get(policy.as_str()) {
+                Some(&(place, p)) => (Some(place), Some(p)),
+                None => (None, None),
+            };
             let training =
                 plan.train_policies.contains(&policy) || of_ladder.is_some_and(|p| p.trains_only);
             // The simulator's horizon: the task's budget, or the policy's when smaller.
@@ -77,7 +83,6 @@ impl Store {
                 success: training.then(|| r.get::<_, i64>(4).unwrap_or(0) != 0),
                 budget_steps,
             };
-            let place = training_of(&ep.policy);
             if training {
                 train.push((place, ep));
             } else {
