@@ -84,7 +84,7 @@ fn as_placed(assets: &std::path::Path, o: &ResetObject) -> ([f64; 3], bool) {
 #[test]
 fn gensim_library_seeds_start_where_their_reset_put_them() {
     let (root, assets) = library();
-    let imp = import(None);
+    let imp = gensim_library();
     let seeds: Vec<u64> = (0..CHECKED).collect();
     let (mut tasks, mut objects, mut zones, mut unavailable, mut lifted) = (0, 0, 0, 0, 0);
     let (mut wrong, mut moved) = (Vec::new(), Vec::new());
@@ -243,7 +243,7 @@ fn spread(imp: &assay_import::Import, seeds: u64) -> f64 {
 /// scene with position jitter moves them by millimetres. Printed: the spread both ways.
 #[test]
 fn gensim_library_seeds_spread_over_the_workspace() {
-    let laid = spread(&import(None), 20);
+    let laid = spread(gensim_library(), 20);
     let jittered = spread(&import(Some(Vec::new())), 20);
     println!(
         "mean distance of an object's start from its mean over 20 seeds: per-seed layouts {:.1} mm, seed 0 with jitter {:.1} mm",

@@ -1,7 +1,8 @@
 //! A batch larger than one gRPC message: GenSim's library, imported with its per-seed layouts
-//! (15.5 MB of YAML) and submitted seven times over with the tasks renamed (109 MB of task
-//! documents), goes to a real coordinator by `SubmitBatchStream` and is accepted whole; the same
-//! documents in one `SubmitBatch` message are refused for their size.
+//! (15.5 MB of YAML, written as `assay import --out` writes it) and submitted seven times over
+//! with the tasks renamed (109 MB of task documents), goes to a real coordinator by
+//! `SubmitBatchStream` and is accepted whole; the same documents in one `SubmitBatch` message are
+//! refused for their size.
 
 use crate::common::*;
 use assay_proto::v1 as pb;
@@ -10,18 +11,8 @@ use assay_proto::v1 as pb;
 fn a_batch_larger_than_a_message_is_streamed_and_accepted_whole() {
     let dir = tempfile::tempdir().unwrap();
     let corpus = repo().join("../shared/corpora/gensim-library");
-    let library = dir.path().join("library");
-    ok(&assay(&[
-        "import",
-        "gensim",
-        corpus.to_str().unwrap(),
-        "--out",
-        library.to_str().unwrap(),
-    ]));
-    let specs: Vec<(String, String)> = std::fs::read_dir(&library)
-        .unwrap()
-        .map(|e| e.unwrap().path())
-        .filter(|p| p.extension().is_some_and(|e| e == "yaml"))
+    let specs: Vec<(String, String)> = write_gensim_specs(&dir.path().join("library"), usize::MAX)
+        .into_iter()
         .map(|p| {
             (
                 p.file_name().unwrap().to_string_lossy().into_owned(),

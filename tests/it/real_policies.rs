@@ -83,30 +83,10 @@ pub fn serve_command(mut cmd: Command, log: &Path, what: &str) -> Served {
     Served { child, url }
 }
 
-/// GenSim's library imported into `dir/specs`; the first `n` specs in name order.
+/// GenSim's library imported (`common::gensim_library`, once per test process) and its first `n`
+/// specs in name order written into `dir/specs`.
 pub fn corpus_tasks(dir: &Path, n: usize) -> Vec<PathBuf> {
-    let root = repo().join("../shared/corpora/gensim-library");
-    let out = dir.join("specs");
-    let run = Command::new(bin())
-        .args(["import", "gensim"])
-        .arg(&root)
-        .arg("--out")
-        .arg(&out)
-        .output()
-        .unwrap();
-    assert!(
-        run.status.success(),
-        "{}",
-        String::from_utf8_lossy(&run.stderr)
-    );
-    let mut specs: Vec<PathBuf> = std::fs::read_dir(&out)
-        .unwrap()
-        .map(|e| e.unwrap().path())
-        .filter(|p| p.extension().is_some_and(|e| e == "yaml"))
-        .collect();
-    specs.sort();
-    specs.truncate(n);
-    specs
+    crate::common::write_gensim_specs(&dir.join("specs"), n)
 }
 
 /// `assay eval` of `tasks` with `policies` on `seeds` seeds (GenSim's assets readable), no judge

@@ -23,6 +23,44 @@ pub fn repo() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
 }
 
+/// GenSim's own library (`../shared/corpora/gensim-library`, read where it lies, never copied),
+/// imported as `assay import gensim` imports it (the default options: each task's code run in
+/// the sandbox on the 23 default layout seeds, a minute or two of CPU), once per test process
+/// and shared by every test that reads it.
+pub fn gensim_library() -> &'static assay_import::Import {
+    static LIBRARY: std::sync::OnceLock<assay_import::Import> = std::sync::OnceLock::new();
+    LIBRARY.get_or_init(|| {
+        let root = repo().join("../shared/corpora/gensim-library");
+        assert!(
+            root.join("generated_tasks.json").exists(),
+            "the GenSim corpus is not at {}",
+            root.display()
+        );
+        assay_import::import(
+            assay_import::Pipeline::Gensim,
+            &root,
+            &assay_import::ImportOptions::default(),
+        )
+    })
+}
+
+/// The first `n` of [`gensim_library`]'s specs in name order, written into `dir` as `assay import
+/// --out` writes them (`ID.yaml`, [`assay_import::spec_to_yaml`]); `usize::MAX` for all.
+pub fn write_gensim_specs(dir: &Path, n: usize) -> Vec<PathBuf> {
+    std::fs::create_dir_all(dir).unwrap();
+    let mut specs = gensim_library().specs();
+    specs.sort_by(|a, b| a.id.cmp(&b.id));
+    specs
+        .into_iter()
+        .take(n)
+        .map(|spec| {
+            let file = dir.join(format!("{}.yaml", spec.id));
+            std::fs::write(&file, assay_import::spec_to_yaml(spec)).unwrap();
+            file
+        })
+        .collect()
+}
+
 /// `assay ARGS…` run to its end in the repository, its output kept.
 pub fn assay<S: AsRef<std::ffi::OsStr>>(args: &[S]) -> std::process::Output {
     std::process::Command::new(bin())
