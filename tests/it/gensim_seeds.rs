@@ -19,9 +19,11 @@ fn library() -> (std::path::PathBuf, std::path::PathBuf) {
     (root, assets)
 }
 
-fn import(layout_seeds: Option<Vec<u64>>) -> assay_import::Import {
+/// The library imported without per-seed layouts (`--layout-seeds none`: every seed starts from
+/// seed 0's scene with position jitter).
+fn import_jittered() -> assay_import::Import {
     let (root, assets) = library();
-    import_at(&root, &assets, layout_seeds)
+    import_at(&root, &assets, Some(Vec::new()))
 }
 
 fn import_at(
@@ -244,7 +246,7 @@ fn spread(imp: &assay_import::Import, seeds: u64) -> f64 {
 #[test]
 fn gensim_library_seeds_spread_over_the_workspace() {
     let laid = spread(gensim_library(), 20);
-    let jittered = spread(&import(Some(Vec::new())), 20);
+    let jittered = spread(&import_jittered(), 20);
     println!(
         "mean distance of an object's start from its mean over 20 seeds: per-seed layouts {:.1} mm, seed 0 with jitter {:.1} mm",
         laid * 1000.0,
