@@ -2,11 +2,12 @@
 //! one library call, what it prints), the logic in the workspace's libraries — `assay-run` for
 //! running batches and reading their results.
 
+#[macro_use]
+mod print;
 mod args;
 mod cmd;
 mod config;
 mod logging;
-mod print;
 mod progress;
 
 use clap::{CommandFactory, FromArgMatches, Parser, Subcommand};
@@ -152,7 +153,7 @@ fn main() -> std::process::ExitCode {
                 "report" => assay_report::report::json_schema(),
                 _ => assay_spec::spec::json_schema(),
             };
-            println!("{}", serde_json::to_string_pretty(&schema).expect("schema"));
+            outln!("{}", serde_json::to_string_pretty(&schema).expect("schema"));
             Ok(std::process::ExitCode::SUCCESS)
         }
         Command::Bench(a) => cmd::bench::run(a),

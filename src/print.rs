@@ -1,7 +1,50 @@
 //! What the command line prints of a cluster's answers: a batch's status line, a state's name,
 //! the tasks a coordinator rejected, a report's ranking in a line per comparison.
+//!
+//! Everything a command prints on stdout goes through [`out!`] and [`outln!`]: a reader that
+//! closed the pipe early (`assay import … | head`) makes what follows be discarded, not a panic.
+//! The command still does its work (an import still writes its specs) and exits with its own
+//! status; a command that only prints until stopped (`assay top`) asks [`stdout_closed`] and
+//! ends. (Restoring SIGPIPE's default would instead kill the process on any pipe, the sandboxed
+//! importers' and policy servers' included.)
+
+use std::io::Write;
+use std::sync::atomic::{AtomicBool, Ordering};
 
 use assay_proto::v1 as pb;
+
+static STDOUT_CLOSED: AtomicBool = AtomicBool::new(false);
+
+/// `print!` that discards its output once stdout's reader has gone (see the module's note).
+macro_rules! out {
+    ($($arg:tt)*) => { $crate::print::stdout(format_args!($($arg)*)) };
+}
+
+/// `println!` that discards its output once stdout's reader has gone (see the module's note).
+macro_rules! outln {
+    () => { $crate::print::stdout(format_args!("\n")) };
+    ($($arg:tt)*) => { $crate::print::stdout(format_args!("{}\n", format_args!($($arg)*))) };
+}
+
+/// Writes to stdout; a closed pipe is remembered and what follows dropped, any other error
+/// panics as `print!` does.
+pub fn stdout(args: std::fmt::Arguments<'_>) {
+    if STDOUT_CLOSED.load(Ordering::Relaxed) {
+        return;
+    }
+    if let Err(e) = std::io::stdout().lock().write_fmt(args) {
+        if e.kind() == std::io::ErrorKind::BrokenPipe {
+            STDOUT_CLOSED.store(true, Ordering::Relaxed);
+        } else {
+            panic!("failed printing to stdout: {e}");
+        }
+    }
+}
+
+/// Whether stdout's reader has gone (a write found the pipe closed).
+pub fn stdout_closed() -> bool {
+    STDOUT_CLOSED.load(Ordering::Relaxed)
+}
 
 /// The name of a batch state.
 pub fn state_name(state: i32) -> &'static str {

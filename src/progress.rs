@@ -106,8 +106,8 @@ impl Observer for Terminal {
                 import,
                 folder,
             } => {
-                print!("{}", import.report());
-                println!(
+                out!("{}", import.report());
+                outln!(
                     "imported {} of {} {pipeline} task(s) from {} ({} not imported; mapping in {})",
                     import.specs().len(),
                     import.tasks.len(),

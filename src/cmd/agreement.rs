@@ -38,9 +38,9 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         .map_err(|e| anyhow::anyhow!("{}: {e}", a.csv.display()))?;
     let table = ratings.agreement(a.resamples, a.seed);
     if a.json {
-        println!("{}", serde_json::to_string_pretty(&table)?);
+        outln!("{}", serde_json::to_string_pretty(&table)?);
     } else {
-        print!("{}", render(&table));
+        out!("{}", render(&table));
     }
     Ok(ExitCode::SUCCESS)
 }

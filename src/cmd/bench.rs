@@ -97,6 +97,6 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
             },
         )?,
     };
-    println!("{line}");
+    outln!("{line}");
     Ok(ExitCode::SUCCESS)
 }

@@ -38,25 +38,31 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         threads: a.threads,
     })?;
     if a.json {
-        println!("{}", serde_json::to_string_pretty(&out)?);
+        outln!("{}", serde_json::to_string_pretty(&out)?);
     } else {
-        print!(
+        out!(
             "{}",
             assay_report::tables::text_diversity(&out.table).markdown()
         );
         if let Some(base) = &a.base {
-            println!("\nMarginal diversity against {}:\n", base.display());
-            println!(
+            outln!("\nMarginal diversity against {}:\n", base.display());
+            outln!(
                 "| group | model | N corpus | N new | div corpus | div corpus + new | marginal |"
             );
-            println!("|---|---|---:|---:|---:|---:|---:|");
+            outln!("|---|---|---:|---:|---:|---:|---:|");
             for r in &out.marginal {
                 match (&r.marginal, &r.error) {
-                    (Some(m), _) => println!(
+                    (Some(m), _) => outln!(
                         "| {} | {} | {} | {} | {:.3} | {:.3} | {:+.3} |",
-                        r.group, r.model, m.base_n, m.new_n, m.base_div, m.union_div, m.marginal
+                        r.group,
+                        r.model,
+                        m.base_n,
+                        m.new_n,
+                        m.base_div,
+                        m.union_div,
+                        m.marginal
                     ),
-                    (None, e) => println!(
+                    (None, e) => outln!(
                         "| {} | {} | | | | | error: {} |",
                         r.group,
                         r.model,

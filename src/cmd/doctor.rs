@@ -23,7 +23,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     let checks = checks(a.config.as_deref(), a.coordinator.as_deref());
     let failed = checks.iter().any(|c| c.verdict == Verdict::Fail);
     if a.json {
-        println!("{}", serde_json::to_string_pretty(&checks)?);
+        outln!("{}", serde_json::to_string_pretty(&checks)?);
     } else {
         for c in &checks {
             let mark = match c.verdict {
@@ -31,12 +31,12 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
                 Verdict::Warn => "warn",
                 Verdict::Fail => "FAIL",
             };
-            println!("{mark} {} ({}): {}", c.name, c.needed_by, c.detail);
+            outln!("{mark} {} ({}): {}", c.name, c.needed_by, c.detail);
             if !c.fix.is_empty() {
-                println!("     fix: {}", c.fix);
+                outln!("     fix: {}", c.fix);
             }
         }
-        println!(
+        outln!(
             "{}",
             if failed {
                 "Some checks failed: the roles named beside them cannot run here until fixed."

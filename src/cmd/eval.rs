@@ -25,7 +25,7 @@ pub fn run(a: Args, resolved: Option<String>) -> anyhow::Result<ExitCode> {
     let mut terminal = crate::progress::Terminal::new(a.quiet);
     let outcome = assay_run::eval::run(a.eval, resolved, &mut terminal)?;
     for line in crate::print::ranking_lines(&outcome.report) {
-        println!("{line}");
+        outln!("{line}");
     }
     let again = "the report holds what finished; run the same command again to go on from the \
                  job store";

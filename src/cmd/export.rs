@@ -99,7 +99,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
             for why in &s.skipped {
                 eprintln!("left out: {why}");
             }
-            println!(
+            outln!(
                 "{}: LeRobotDataset {} with {} episodes, {} frames, {} tasks{}",
                 a.out.display(),
                 lerobot::CODEBASE_VERSION,
@@ -116,12 +116,12 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         }
         Format::Tensorboard(a) => {
             let (file, n) = assay_export::tensorboard::export(&a.run, &a.out)?;
-            println!("{}: {n} scalars", file.display());
+            outln!("{}: {n} scalars", file.display());
             Ok(ExitCode::SUCCESS)
         }
         Format::Wandb(a) => {
             let e = assay_export::wandb::export(&a.run, &a.out, &a.project)?;
-            println!(
+            outln!(
                 "{}: W&B offline run {} ({} scalars, {} history steps); upload it with `wandb sync {}`",
                 e.dir.display(),
                 e.run_id,

@@ -80,7 +80,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
             interval_us,
         } => {
             let sent = frames::publish(&stream, count, (width, height), interval_us)?;
-            println!("{sent}");
+            outln!("{sent}");
             Ok(ExitCode::SUCCESS)
         }
         Cmd::Subscribe {
@@ -101,7 +101,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
                 grpc,
                 save,
             })?;
-            println!("{received}");
+            outln!("{received}");
             Ok(if ok {
                 ExitCode::SUCCESS
             } else {

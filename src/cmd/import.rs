@@ -57,10 +57,10 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     if a.check_oracle > 0 {
         imports::check_oracles(&mut batch, a.check_oracle);
     }
-    print!("{}", batch.report());
+    out!("{}", batch.report());
     if let Some(out) = &a.out {
         let written = imports::write(&batch, out)?;
-        println!(
+        outln!(
             "wrote {written} task spec(s) and import-report.json to {}",
             out.display()
         );

@@ -56,9 +56,9 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         }
     }
     if a.json {
-        println!("{}", serde_json::to_string_pretty(&ranking)?);
+        outln!("{}", serde_json::to_string_pretty(&ranking)?);
     } else {
-        print!("{}", assay_report::markdown::ranking(&ranking));
+        out!("{}", assay_report::markdown::ranking(&ranking));
     }
     Ok(ExitCode::SUCCESS)
 }

@@ -37,7 +37,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
                     .into_inner()
                     .batches
                 {
-                    println!("{}", line(&b));
+                    outln!("{}", line(&b));
                 }
             }
             Some(id) if a.watch => {
@@ -46,10 +46,10 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
                     .await?
                     .into_inner();
                 while let Some(s) = stream.message().await? {
-                    println!("{}", line(&s));
+                    outln!("{}", line(&s));
                 }
             }
-            Some(id) => println!(
+            Some(id) => outln!(
                 "{}",
                 line(
                     &c.get_batch(pb::GetBatchRequest { batch_id: id })
@@ -65,7 +65,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
 pub fn cancel(a: CancelArgs) -> anyhow::Result<ExitCode> {
     assay_run::rt::block_on(async move {
         let mut c = assay_run::client::connect(&a.coordinator).await?;
-        println!(
+        outln!(
             "{}",
             line(
                 &c.cancel_batch(pb::GetBatchRequest { batch_id: a.batch })

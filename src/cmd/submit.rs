@@ -37,7 +37,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
                 "skipped {}: the same tasks (content {}) were evaluated in batch {}",
                 r.batch_id, r.content_hash, r.duplicate_of
             );
-            println!("{}", r.batch_id);
+            outln!("{}", r.batch_id);
             return Ok(ExitCode::SUCCESS);
         }
         eprintln!(
@@ -47,7 +47,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
             r.rejected.len(),
             r.shards
         );
-        println!("{}", r.batch_id);
+        outln!("{}", r.batch_id);
         Ok(ExitCode::SUCCESS)
     })
 }

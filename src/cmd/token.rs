@@ -49,6 +49,6 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         }
         (None, None) => unreachable!("clap requires --role or --service"),
     };
-    println!("{}", key.expose());
+    outln!("{}", key.expose());
     Ok(ExitCode::SUCCESS)
 }

@@ -114,14 +114,15 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
             let left = deadline
                 .map(|d| d.saturating_duration_since(Instant::now()))
                 .unwrap_or(Duration::from_secs(3600));
-            if left.is_zero() {
+            // Ends at its deadline, on a signal, or when stdout's reader has gone (`| head`).
+            if left.is_zero() || crate::print::stdout_closed() {
                 break;
             }
             tokio::select! {
                 s = sub.next() => {
                     let Some((key, v)) = s else { break };
                     if a.json {
-                        println!("{}", serde_json::json!({"key": key, "value": v}));
+                        outln!("{}", serde_json::json!({"key": key, "value": v}));
                     }
                     if key.ends_with("/stats") {
                         if let Ok(w) = serde_json::from_value::<WorkerStats>(v) {
@@ -131,7 +132,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
                         batches.insert(b.batch.clone(), b);
                     }
                 }
-                _ = redraw.tick(), if !a.json => print!("{}", table(&workers, &batches)),
+                _ = redraw.tick(), if !a.json => out!("{}", table(&workers, &batches)),
                 _ = tokio::time::sleep(left) => break,
                 _ = &mut stop => break,
             }

@@ -95,6 +95,34 @@ fn import_writes_valid_specs_and_the_per_task_mapping_report() {
     }
 }
 
+/// `assay import … | head`: a reader that goes before the first line is written is not a panic
+/// (Rust's `println!` panics on a closed pipe); the import still writes its specs and the
+/// mapping report and exits with its own status.
+#[test]
+fn import_into_a_closed_pipe_still_writes_its_specs() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut child = Command::new(bin())
+        .args(["import", "gensim", "tests/fixtures/import/gensim", "--out"])
+        .arg(dir.path())
+        .current_dir(repo())
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    // The read end closes now, long before the import (a Python sandbox per task) prints.
+    drop(child.stdout.take());
+    let out = child.wait_with_output().unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!stderr.contains("panicked"), "{stderr}");
+    assert!(out.status.success(), "{:?}: {stderr}", out.status);
+    assert!(dir.path().join("import-report.json").exists());
+    assert!(
+        dir.path()
+            .join("place-red-block-in-green-bowl.yaml")
+            .exists()
+    );
+}
+
 #[test]
 fn a_malformed_batch_names_each_task_field_and_reason_and_keeps_the_rest() {
     let dir = tempfile::tempdir().unwrap();
