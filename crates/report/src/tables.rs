@@ -42,6 +42,25 @@ pub fn summary(r: &Results) -> Table {
     if t.episodes_cancelled > 0 {
         row("episodes cancelled", n(t.episodes_cancelled));
     }
+    // The generalization policies' evaluation episodes run in the batch (the command line's
+    // count includes them) but are counted in their own section only: said here, not left out.
+    if let Some(g) = &r.generalization {
+        let (done, failed, open) = g.groups.iter().fold((0, 0, 0), |(d, f, o), g| {
+            (
+                d + g.train.trials + g.held_out.trials,
+                f + g.errors.len() as u64,
+                o + u64::from(g.pending),
+            )
+        });
+        let mut text = format!("{done} completed, {failed} failed");
+        if open > 0 {
+            text.push_str(&format!(", {open} not finished"));
+        }
+        row(
+            "episodes of the generalization policies (in their section only)",
+            Cell::text(text),
+        );
+    }
     row(
         "ground-truth success, all policies (Wilson 95 %)",
         proportion(&t.success),
@@ -1095,6 +1114,44 @@ pub fn utc(ms: i64) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_summary_counts_the_generalization_episodes_apart() {
+        use crate::generalization::{EvalEpisode, GeneralizationResults, GroupGeneralization};
+        let mut r = crate::report::build_results("x", &["oracle".into()], &[0], &[], &[], &[]);
+        let without = summary(&r).markdown();
+        assert!(!without.contains("generalization"), "{without}");
+        let fit: assay_model::diffusion::DiffusionFit = serde_json::from_value(serde_json::json!({
+            "steps": 10, "final_loss": 0.1, "mean_last_100_loss": 0.1,
+            "parameters": 5, "clips": 4, "samples": 40, "device": "cpu", "config": {}
+        }))
+        .unwrap();
+        let ep = |held_out: bool, success: Option<Result<bool, String>>| EvalEpisode {
+            group: "g".into(),
+            task_id: "a".into(),
+            held_out,
+            success,
+        };
+        let eps = [
+            ep(false, Some(Ok(true))),
+            ep(false, Some(Ok(false))),
+            ep(true, Some(Ok(false))),
+            ep(true, Some(Err("worker lost".into()))),
+            ep(true, None),
+        ];
+        r.generalization = Some(GeneralizationResults {
+            groups: vec![GroupGeneralization::build("g", "m", fit, &eps)],
+            errors: vec![],
+        });
+        let with = summary(&r).markdown();
+        assert!(
+            with.contains(
+                "| episodes of the generalization policies (in their section only) | 3 completed, \
+                 1 failed, 1 not finished |"
+            ),
+            "{with}"
+        );
+    }
 
     #[test]
     fn utc_dates() {
