@@ -1,12 +1,12 @@
 //! What the command line prints of a cluster's answers: a batch's status line, a state's name,
 //! the tasks a coordinator rejected, a report's ranking in a line per comparison.
 //!
-//! Everything a command prints on stdout goes through [`out!`] and [`outln!`]: a reader that
-//! closed the pipe early (`assay import … | head`) makes what follows be discarded, not a panic.
-//! The command still does its work (an import still writes its specs) and exits with its own
-//! status; a command that only prints until stopped (`assay top`) asks [`stdout_closed`] and
-//! ends. (Restoring SIGPIPE's default would instead kill the process on any pipe, the sandboxed
-//! importers' and policy servers' included.)
+//! Everything a command prints on stdout goes through `out!` and `outln!`: a reader that closed
+//! the pipe early (`assay import … | head`) makes what follows be discarded, not a panic. The
+//! command still does its work (an import still writes its specs) and exits with its own status;
+//! a command that only prints until stopped (`assay top`, `assay status --watch`) asks
+//! [`stdout_closed`] and ends. (Restoring SIGPIPE's default would instead kill the process on any
+//! closed pipe, the sandboxed importers' and policy servers' included.)
 
 use std::io::Write;
 use std::sync::atomic::{AtomicBool, Ordering};

@@ -47,6 +47,10 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
                     .into_inner();
                 while let Some(s) = stream.message().await? {
                     outln!("{}", line(&s));
+                    // `| head`: nothing reads the lines any more.
+                    if crate::print::stdout_closed() {
+                        break;
+                    }
                 }
             }
             Some(id) => outln!(
