@@ -163,7 +163,7 @@ fn main() -> std::process::ExitCode {
     match result {
         Ok(code) => code,
         Err(e) => {
-            eprintln!("error: {e:#}");
+            eprintln!("error: {}", print::error_chain(&e));
             std::process::ExitCode::FAILURE
         }
     }

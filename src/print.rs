@@ -183,3 +183,70 @@ pub fn ranking_lines(report: &assay_report::report::Report) -> Vec<String> {
         })
         .collect()
 }
+
+/// An error and its causes on one line, as anyhow's `{:#}` prints them, but a cause that says
+/// exactly what the one before it said is left out: hyper's connect errors repeat themselves
+/// ("transport error: tcp connect error: tcp connect error: Connection refused").
+pub fn error_chain(e: &anyhow::Error) -> String {
+    let mut parts: Vec<String> = Vec::new();
+    for cause in e.chain() {
+        let text = cause.to_string();
+        if parts.last() != Some(&text) {
+            parts.push(text);
+        }
+    }
+    parts.join(": ")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[derive(Debug)]
+    struct Cause {
+        text: &'static str,
+        source: Option<Box<Cause>>,
+    }
+
+    impl std::fmt::Display for Cause {
+        fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+            f.write_str(self.text)
+        }
+    }
+
+    impl std::error::Error for Cause {
+        fn source(&self) -> Option<&(dyn std::error::Error + 'static)> {
+            self.source
+                .as_deref()
+                .map(|c| c as &(dyn std::error::Error + 'static))
+        }
+    }
+
+    fn cause(text: &'static str, source: Option<Cause>) -> Cause {
+        Cause {
+            text,
+            source: source.map(Box::new),
+        }
+    }
+
+    #[test]
+    fn an_error_chain_says_each_cause_once() {
+        let refused = cause("Connection refused (os error 111)", None);
+        let e = anyhow::Error::new(cause(
+            "transport error",
+            Some(cause(
+                "tcp connect error",
+                Some(cause("tcp connect error", Some(refused))),
+            )),
+        ))
+        .context("no coordinator at http://127.0.0.1:7878");
+        assert_eq!(
+            error_chain(&e),
+            "no coordinator at http://127.0.0.1:7878: transport error: tcp connect error: \
+             Connection refused (os error 111)"
+        );
+        // The same words further apart are two causes, kept.
+        let e = anyhow::Error::new(cause("a", Some(cause("b", Some(cause("a", None))))));
+        assert_eq!(error_chain(&e), "a: b: a");
+    }
+}
