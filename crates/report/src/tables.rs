@@ -10,16 +10,18 @@ use crate::diversity::DiversityResults;
 use crate::generalization::{GeneralizationResults, LEARNT_THRESHOLD};
 use crate::quality::{JudgeSummary, QualityResults};
 use crate::ranking::{RankingResults, is_ablation, source_title};
-use crate::report::{PolicySuccess, Provenance, Results, RunInfo};
+use crate::report::{PolicySuccess, Results};
 use crate::view::{Cell, Span, Table, estimate, label_rank, num2, proportion, score};
 use assay_model::proxy::{CALIBRATED_SOURCE, LEAK_SOURCE, PROXY_SOURCE, REAL_SOURCE};
 
 mod judges;
+mod run;
 
 use assay_model::quality::ScoreStats;
 use assay_stats::agreement::Agreement;
 use assay_stats::diversity::TextDiversityTable;
 pub use judges::{judge_agreement, reliability};
+pub use run::{provenance, run, utc};
 
 fn n(v: impl ToString) -> Cell {
     Cell::text(v.to_string())
@@ -270,80 +272,6 @@ pub fn imports(i: &crate::report::ImportSummary) -> Table {
                 Cell::text(t.errors.join("; "))
             },
         ]);
-    }
-    table
-}
-
-/// What depends on the machine and the moment.
-pub fn run(run: &RunInfo) -> Table {
-    let mut table = Table::new(["measure", "value"]);
-    let mut row = |k: &str, v: Cell| table.row(vec![k.into(), v]);
-    row(
-        "batch",
-        Cell::code(&run.batch_id).and(Span::Text(format!(" ({})", run.state))),
-    );
-    row("submitted", Cell::text(utc(run.submitted_at_unix_ms)));
-    row(
-        "finished",
-        run.finished_at_unix_ms
-            .map_or_else(Cell::missing, |ms| Cell::text(utc(ms))),
-    );
-    row(
-        "wall time",
-        run.wall_time_s
-            .map_or_else(Cell::missing, |s| Cell::text(format!("{s:.1} s"))),
-    );
-    row(
-        "throughput",
-        match run.episodes_per_s {
-            Some(e) => Cell::text(format!(
-                "{e:.2} episodes/s, {:.0} steps/s",
-                run.sim_steps_per_s.unwrap_or(0.0)
-            )),
-            None => Cell::missing(),
-        },
-    );
-    row("attempts beyond the first", n(run.extra_attempts));
-    row(
-        "workers",
-        Cell::text(format!(
-            "{} ({})",
-            run.workers.len(),
-            run.workers.join(", ")
-        )),
-    );
-    if !run.events.is_empty() {
-        let mut c = Cell::default();
-        for (i, e) in run.events.iter().enumerate() {
-            if i > 0 {
-                c = c.and(Span::Break);
-            }
-            c = c.and(Span::Text(e.clone()));
-        }
-        row("events", c);
-    }
-    table
-}
-
-/// What produced the figures.
-pub fn provenance(p: &Provenance) -> Table {
-    let mut table = Table::new(["what", "value"]);
-    for (what, values) in p.rows() {
-        let value = match values.as_slice() {
-            [] => Cell::missing(),
-            [hash] if what.contains("SHA-256") => Cell::code(hash),
-            v => {
-                let mut c = Cell::default();
-                for (i, x) in v.iter().enumerate() {
-                    if i > 0 {
-                        c = c.and(Span::Break);
-                    }
-                    c = c.and(Span::Text(x.clone()));
-                }
-                c
-            }
-        };
-        table.row(vec![what.into(), value]);
     }
     table
 }
@@ -1089,28 +1017,6 @@ pub fn ranking_statistics(c: &Comparison) -> Table {
     table
 }
 
-/// Formats unix milliseconds as UTC `YYYY-MM-DD hh:mm:ss UTC`.
-pub fn utc(ms: i64) -> String {
-    let secs = ms.div_euclid(1000);
-    let (days, rem) = (secs.div_euclid(86_400), secs.rem_euclid(86_400));
-    // Howard Hinnant's civil_from_days.
-    let z = days + 719_468;
-    let era = z.div_euclid(146_097);
-    let doe = z - era * 146_097;
-    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
-    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
-    let mp = (5 * doy + 2) / 153;
-    let d = doy - (153 * mp + 2) / 5 + 1;
-    let m = if mp < 10 { mp + 3 } else { mp - 9 };
-    let y = yoe + era * 400 + i64::from(m <= 2);
-    format!(
-        "{y:04}-{m:02}-{d:02} {:02}:{:02}:{:02} UTC",
-        rem / 3600,
-        rem % 3600 / 60,
-        rem % 60
-    )
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -1151,11 +1057,5 @@ mod tests {
             ),
             "{with}"
         );
-    }
-
-    #[test]
-    fn utc_dates() {
-        assert_eq!(utc(0), "1970-01-01 00:00:00 UTC");
-        assert_eq!(utc(1_700_000_000_000), "2023-11-14 22:13:20 UTC");
     }
 }
