@@ -101,11 +101,7 @@ mod tests {
     use super::*;
 
     fn fit() -> DiffusionFit {
-        serde_json::from_value(serde_json::json!({
-            "steps": 10, "final_loss": 0.1, "mean_last_100_loss": 0.1,
-            "parameters": 5, "clips": 4, "samples": 40, "device": "cpu", "config": {}
-        }))
-        .unwrap()
+        crate::testing::diffusion_fit()
     }
 
     fn ep(group: &str, held_out: bool, success: Option<Result<bool, String>>) -> EvalEpisode {

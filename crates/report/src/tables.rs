@@ -1027,11 +1027,6 @@ mod tests {
         let mut r = crate::report::build_results("x", &["oracle".into()], &[0], &[], &[], &[]);
         let without = summary(&r).markdown();
         assert!(!without.contains("generalization"), "{without}");
-        let fit: assay_model::diffusion::DiffusionFit = serde_json::from_value(serde_json::json!({
-            "steps": 10, "final_loss": 0.1, "mean_last_100_loss": 0.1,
-            "parameters": 5, "clips": 4, "samples": 40, "device": "cpu", "config": {}
-        }))
-        .unwrap();
         let ep = |held_out: bool, success: Option<Result<bool, String>>| EvalEpisode {
             group: "g".into(),
             task_id: "a".into(),
@@ -1046,7 +1041,12 @@ mod tests {
             ep(true, None),
         ];
         r.generalization = Some(GeneralizationResults {
-            groups: vec![GroupGeneralization::build("g", "m", fit, &eps)],
+            groups: vec![GroupGeneralization::build(
+                "g",
+                "m",
+                crate::testing::diffusion_fit(),
+                &eps,
+            )],
             errors: vec![],
         });
         let with = summary(&r).markdown();

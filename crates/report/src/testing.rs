@@ -1,8 +1,17 @@
-//! Builders of the records the report crate's tests aggregate (shared by `report`, `quality`
-//! and `html`'s tests).
+//! Builders of the records the report crate's tests aggregate (shared by `report`, `quality`,
+//! `generalization`, `tables` and `html`'s tests).
 
 use assay_model::episode::{JudgeRecord, TaskInfo};
 use assay_model::quality::{Item, ItemOutcome, JudgeOutcome, Usage};
+
+/// A trained diffusion policy's fit, as the generalization section reads it (10 steps, 4 clips).
+pub(crate) fn diffusion_fit() -> assay_model::diffusion::DiffusionFit {
+    serde_json::from_value(serde_json::json!({
+        "steps": 10, "final_loss": 0.1, "mean_last_100_loss": 0.1,
+        "parameters": 5, "clips": 4, "samples": 40, "device": "cpu", "config": {}
+    }))
+    .unwrap()
+}
 
 /// A task of pipeline `assay` whose name is its id.
 pub(crate) fn info(id: &str, group: &str) -> TaskInfo {

@@ -347,11 +347,7 @@ mod tests {
     }
 
     fn generalization() -> GeneralizationResults {
-        let fit: assay_model::diffusion::DiffusionFit = serde_json::from_value(serde_json::json!({
-            "steps": 10, "final_loss": 0.1, "mean_last_100_loss": 0.1,
-            "parameters": 5, "clips": 4, "samples": 40, "device": "cpu", "config": {}
-        }))
-        .unwrap();
+        let fit = crate::testing::diffusion_fit();
         let ep = |group: &str, held_out: bool, ok: bool| EvalEpisode {
             group: group.into(),
             task_id: "a".into(),

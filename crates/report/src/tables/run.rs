@@ -46,14 +46,7 @@ pub fn run(run: &RunInfo) -> Table {
         )),
     );
     if !run.events.is_empty() {
-        let mut c = Cell::default();
-        for (i, e) in run.events.iter().enumerate() {
-            if i > 0 {
-                c = c.and(Span::Break);
-            }
-            c = c.and(Span::Text(e.clone()));
-        }
-        row("events", c);
+        row("events", super::lines(run.events.iter().cloned()));
     }
     table
 }
@@ -65,16 +58,7 @@ pub fn provenance(p: &Provenance) -> Table {
         let value = match values.as_slice() {
             [] => Cell::missing(),
             [hash] if what.contains("SHA-256") => Cell::code(hash),
-            v => {
-                let mut c = Cell::default();
-                for (i, x) in v.iter().enumerate() {
-                    if i > 0 {
-                        c = c.and(Span::Break);
-                    }
-                    c = c.and(Span::Text(x.clone()));
-                }
-                c
-            }
+            v => super::lines(v.iter().cloned()),
         };
         table.row(vec![what.into(), value]);
     }
