@@ -467,3 +467,30 @@ fn the_churn_benchmark_loses_nothing_while_workers_come_and_go() {
     );
     assert!(v["coordinator_cpu_s"].as_f64().unwrap() > 0.0, "{v:#}");
 }
+
+/// `assay status` where nothing listens (tonic's real connect error on loopback): the error names
+/// the coordinator and the reason, each cause once (hyper's chain says "tcp connect error" twice).
+#[test]
+fn an_unreachable_coordinator_is_named_with_each_cause_once() {
+    // A port nothing listens on: bound, then released.
+    let port = std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port();
+    let addr = format!("http://127.0.0.1:{port}");
+    let out = assay(&["status", "--coordinator", &addr]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "{stderr}");
+    assert!(
+        stderr.contains(&format!("error: no coordinator at {addr}: ")),
+        "{stderr}"
+    );
+    assert!(stderr.contains("refused"), "{stderr}");
+    let error = stderr.lines().find(|l| l.starts_with("error: ")).unwrap();
+    let causes: Vec<&str> = error.split(": ").collect();
+    assert!(
+        causes.windows(2).all(|w| w[0] != w[1]),
+        "a cause said twice: {error}"
+    );
+}
