@@ -750,7 +750,7 @@ fn the_coordinator_refuses_a_batch_seed_among_the_held_out_ones() {
 /// Issue 45's shape end to end, small: two task groups, each with a ladder of both policy
 /// families (U-Net and transformer diffusion, kept at two steps), ranked per group and pooled,
 /// with the calibrated proxy wherever a group's training episodes have both outcomes, the
-/// cross-fitted proxy and the cross-family ablation.
+/// cross-fitted proxy, the object judge and the cross-family ablation.
 #[test]
 fn each_group_ranks_a_ladder_of_both_families_on_its_own() {
     let dir = tempfile::tempdir().unwrap();
@@ -766,8 +766,8 @@ fn each_group_ranks_a_ladder_of_both_families_on_its_own() {
             r#"{"episodes": [3], "checkpoints": [5, 10], "train_checkpoints": [7],
                 "max_steps": 480, "backbones": ["unet", "transformer"]}"#,
             "--proxy",
-            r#"{"judge_steps": 20, "video": {"steps": 10}, "cross_family_ablation": true,
-                "cross_fit_folds": 2}"#,
+            r#"{"judge_steps": 20, "video": {"steps": 10, "object_weight": 1.0},
+                "cross_family_ablation": true, "cross_fit_folds": 2, "object_judge": true}"#,
         ])
         .arg("--out")
         .arg(dir.path())
@@ -940,8 +940,33 @@ fn each_group_ranks_a_ladder_of_both_families_on_its_own() {
                 .any(|c| c.proxy == "world-model-cross-fit")
         );
     }
+    // The object judge: the render role's clips carried each scene's objects to the trainer,
+    // whose video model predicted them; every ranked episode has its verdict, ranked per group
+    // as a proxy of its own.
+    for p in &k.groups {
+        let accuracy = p.object_judge_train_accuracy;
+        assert!(
+            accuracy.is_some_and(|a| (0.0..=1.0).contains(&a)),
+            "{accuracy:?}"
+        );
+        assert!(p.predictions.iter().all(|x| x.object_judge.is_some()));
+        let per_group = k.per_group.iter().find(|g| g.group == p.group).unwrap();
+        assert!(
+            per_group
+                .ranking
+                .as_ref()
+                .unwrap()
+                .comparisons
+                .iter()
+                .any(|c| c.proxy == "world-model-objects")
+        );
+    }
     let md = std::fs::read_to_string(dir.path().join("report.md")).unwrap();
     assert!(md.contains("### Per task group"), "{md}");
+    assert!(
+        md.contains("## Policy ranking: world-model-objects against sim"),
+        "{md}"
+    );
     assert!(
         md.contains("## Policy ranking: world-model-cross-fit against sim"),
         "{md}"

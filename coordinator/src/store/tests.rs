@@ -684,6 +684,7 @@ fn proxy_done(predictions: Vec<assay_model::proxy::ProxyPrediction>) -> String {
             judge_examples: 8,
             judge_positives: 5,
             judge_train_accuracy: 1.0,
+            object_judge_train_accuracy: None,
             judge_latest_not_done: None,
             ranked_last_frame: None,
             calibration: None,
@@ -809,6 +810,7 @@ fn prediction(
         leak: None,
         cross_family: None,
         cross_fit: None,
+        object_judge: None,
         imagined_keyframes: Vec::new(),
     }
 }

@@ -12,8 +12,8 @@ use serde::{Deserialize, Serialize};
 use assay_model::diffusion::Backbone;
 use assay_model::proxy::{
     CALIBRATED_SOURCE, CROSS_FAMILY_SOURCE, CROSS_FIT_SOURCE, ImaginedJudgement, JudgedProxy,
-    LEAK_SOURCE, PROXY_SOURCE, ProxyConfig, ProxyPrediction, ProxyResult, REAL_SOURCE,
-    RELIABILITY_BINS, RankingPlan, judged_source,
+    LEAK_SOURCE, OBJECTS_SOURCE, PROXY_SOURCE, ProxyConfig, ProxyPrediction, ProxyResult,
+    REAL_SOURCE, RELIABILITY_BINS, RankingPlan, judged_source,
 };
 use assay_model::quality::ScoreStats;
 use assay_stats::calibration::{Reliability, reliability};
@@ -257,6 +257,9 @@ pub fn ranking_figure(proxy: &str) -> String {
     if proxy == CROSS_FIT_SOURCE {
         return "ranking-cross-fit.svg".to_owned();
     }
+    if proxy == OBJECTS_SOURCE {
+        return "ranking-objects.svg".to_owned();
+    }
     match proxy.strip_prefix(&format!("{PROXY_SOURCE}+")) {
         Some(judge) => {
             let safe: String = judge
@@ -376,14 +379,23 @@ pub const CROSS_FIT_NOTE: &str = "A proxy beside the frame judge's: the ranked p
     model's replays of the training episodes — no policy imagined by a model that saw its \
     episodes, every model having seen rollouts of learned policies.";
 
+/// What the object judge's section says.
+pub const OBJECTS_NOTE: &str = "A proxy beside the frame judge's: each ranked episode imagined \
+    again by the same world model, which also predicts where each scene object is, and stopped \
+    and judged by the object judge — a logistic regression on the predicted state and the \
+    objects' heights and pairwise distances, fitted on the training policies' episodes only \
+    (their last frames with their outcome, earlier frames not done, real and replayed) — \
+    rather than by the frame judge on the imagined frames.";
+
 /// What the section of a comparison says about its source, when it needs saying: the
-/// ablations, the calibration, cross-fitting.
+/// ablations, the calibration, cross-fitting, the object judge.
 pub fn source_note(source: &str) -> Option<&'static str> {
     match source {
         LEAK_SOURCE => Some(LEAK_NOTE),
         CROSS_FAMILY_SOURCE => Some(CROSS_FAMILY_NOTE),
         CALIBRATED_SOURCE => Some(CALIBRATION_NOTE),
         CROSS_FIT_SOURCE => Some(CROSS_FIT_NOTE),
+        OBJECTS_SOURCE => Some(OBJECTS_NOTE),
         _ => None,
     }
 }
@@ -489,6 +501,12 @@ pub fn ranking_results(
                     .iter()
                     .map(|p| p.cross_fit.as_ref().map(|v| v.success)),
             );
+            // The object judge: the episodes judged by the predicted state and objects.
+            let objects = successes(
+                preds
+                    .iter()
+                    .map(|p| p.object_judge.as_ref().map(|v| v.success)),
+            );
             let judged: Vec<f64> = eps.iter().filter_map(|e| e.judged_completion).collect();
             let mut judged_proxy = Vec::new();
             for judge in &judges {
@@ -538,6 +556,7 @@ pub fn ranking_results(
                 (PROXY_SOURCE, &proxy),
                 (CALIBRATED_SOURCE, &calibrated),
                 (CROSS_FIT_SOURCE, &cross_fit),
+                (OBJECTS_SOURCE, &objects),
                 (LEAK_SOURCE, &leak),
                 (CROSS_FAMILY_SOURCE, &cross),
             ] {
@@ -567,13 +586,15 @@ pub fn ranking_results(
             });
         }
     }
-    // The frame judge's proxy first, then each judge's, then the calibrated frame judge's and
-    // cross-fitting's, then the leak and cross-family ablations, as far as they have verdicts.
+    // The frame judge's proxy first, then each judge's, then the calibrated frame judge's,
+    // cross-fitting's and the object judge's, then the leak and cross-family ablations, as far
+    // as they have verdicts.
     let proxies: Vec<String> = std::iter::once(PROXY_SOURCE.to_owned())
         .chain(judges.iter().map(|j| judged_source(j)))
         .chain([
             CALIBRATED_SOURCE.to_owned(),
             CROSS_FIT_SOURCE.to_owned(),
+            OBJECTS_SOURCE.to_owned(),
             LEAK_SOURCE.to_owned(),
             CROSS_FAMILY_SOURCE.to_owned(),
         ])

@@ -134,6 +134,7 @@ pub(crate) fn ranking_fixture() -> crate::ranking::RankingResults {
                         }),
                         cross_family: None,
                         cross_fit: None,
+                        object_judge: None,
                         imagined_keyframes: Vec::new(),
                     },
                 ));
@@ -167,6 +168,7 @@ pub(crate) fn ranking_fixture() -> crate::ranking::RankingResults {
         judge_examples: 40,
         judge_positives: 12,
         judge_train_accuracy: 0.95,
+        object_judge_train_accuracy: None,
         judge_latest_not_done: Some(40),
         ranked_last_frame: Some(60),
         calibration: None,

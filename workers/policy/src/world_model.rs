@@ -533,6 +533,7 @@ fn frames_from(
             rgb: f.rgb,
             views: view_frames.by_ref().take(n).collect(),
             state,
+            objects: None,
         })
         .collect())
 }

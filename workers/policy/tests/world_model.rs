@@ -118,6 +118,7 @@ fn start(width: u32, height: u32) -> WorldStart {
         state: vec![0.5, 0.0, 0.1, 0.0],
         interface: Default::default(),
         views: Vec::new(),
+        objects: Vec::new(),
     }
 }
 

@@ -142,6 +142,31 @@ pub fn render_video(
     crate::video::encode(&frames, VIDEO_FPS).map_err(RenderError::Video)
 }
 
+/// The objects' section of a clip of `scenes` ([`Clip::objects`]): each object's position, in
+/// the scenes' order. None (0 dims) when the scenes do not all hold the same objects in the same
+/// order, or more than a clip holds.
+fn object_positions(scenes: &[SceneSnapshot]) -> (u32, Vec<f32>) {
+    let Some(first) = scenes.first() else {
+        return (0, Vec::new());
+    };
+    let same = |s: &SceneSnapshot| {
+        s.objects.len() == first.objects.len()
+            && s.objects
+                .iter()
+                .zip(&first.objects)
+                .all(|(a, b)| a.id == b.id)
+    };
+    let dims = 3 * first.objects.len();
+    if dims == 0 || dims > assay_model::clip::MAX_OBJECT_DIMS || !scenes.iter().all(same) {
+        return (0, Vec::new());
+    }
+    let objects = scenes
+        .iter()
+        .flat_map(|s| s.objects.iter().flat_map(|o| o.position))
+        .collect();
+    (dims as u32, objects)
+}
+
 /// The largest dynamics clip frame drawn (pixels square).
 pub const MAX_CLIP_SIZE: u32 = 1024;
 
@@ -172,6 +197,7 @@ pub fn render_clip(
         height: size,
         ..camera.clone()
     };
+    let (object_dims, objects) = object_positions(scenes);
     let pixels = (size * size) as usize;
     let mut rgba = vec![0u8; pixels * 4];
     let mut rgb = Vec::with_capacity(scenes.len() * pixels * 3);
@@ -190,6 +216,8 @@ pub fn render_clip(
         actions,
         interface: String::new(),
         views: Vec::new(),
+        object_dims,
+        objects,
     };
     clip.validate().map_err(|e| bad(e.to_string()))?;
     Ok(clip)
@@ -246,6 +274,7 @@ pub fn render_clip_at(
         });
     }
     let first = drawn.remove(0);
+    let (object_dims, objects) = object_positions(scenes);
     let clip = Clip {
         height: first.height,
         width: first.width,
@@ -257,6 +286,8 @@ pub fn render_clip_at(
         actions,
         interface: interface.to_owned(),
         views: drawn,
+        object_dims,
+        objects,
     };
     clip.validate().map_err(|e| bad(e.to_string()))?;
     Ok(clip)

@@ -76,6 +76,30 @@ fn a_pick_and_place_clip_shows_the_tool_moving_and_holding() {
     for (k, p) in c.proprio.chunks(PROPRIO_DIMS).enumerate() {
         assert_eq!(Some([p[0], p[1], p[2]]), states.scenes[k].tool, "frame {k}");
     }
+    // The objects' section: each scene object's position at each frame, in the scene's order;
+    // the block is carried (it moves), the bowl is not.
+    let n = states.scenes[0].objects.len();
+    assert_eq!(c.object_dims as usize, 3 * n);
+    for (k, scene) in states.scenes.iter().enumerate() {
+        let want: Vec<f32> = scene.objects.iter().flat_map(|o| o.position).collect();
+        assert_eq!(c.objects_at(k), &want[..], "frame {k}");
+    }
+    let moved: Vec<f32> = (0..n)
+        .map(|i| {
+            let (a, b) = (
+                &c.objects_at(0)[3 * i..][..3],
+                &c.objects_at(c.len() - 1)[3 * i..][..3],
+            );
+            a.iter()
+                .zip(b)
+                .map(|(x, y)| (x - y).powi(2))
+                .sum::<f32>()
+                .sqrt()
+        })
+        .collect();
+    assert!(moved.iter().any(|&d| d > 0.05), "{moved:?}");
+    assert!(moved.iter().any(|&d| d < 0.01), "{moved:?}");
+
     // Holding flips to 1 when the block is picked and back to 0 when it is placed; the hold
     // command is the next frame's holding.
     let holding: Vec<f32> = c.proprio.chunks(PROPRIO_DIMS).map(|p| p[3]).collect();

@@ -63,6 +63,8 @@ fn clip(len: usize, size: usize, seed: u64) -> Clip {
         actions,
         interface: String::new(),
         views: Vec::new(),
+        object_dims: 0,
+        objects: Vec::new(),
     }
 }
 

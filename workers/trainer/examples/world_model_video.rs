@@ -129,6 +129,7 @@ fn strip(world: &dyn WorldModelService, set: &[(Entry, Clip)], path: &str) {
             state: clip.proprio[..4].to_vec(),
             interface: Default::default(),
             views: Vec::new(),
+            objects: Vec::new(),
         };
         let acts = |c: &Clip| {
             (0..n)

@@ -1212,6 +1212,8 @@ mod tests {
                     actions,
                     interface: String::new(),
                     views: Vec::new(),
+                    object_dims: 0,
+                    objects: Vec::new(),
                 }
             })
             .collect()

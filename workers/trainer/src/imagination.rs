@@ -14,7 +14,7 @@ use std::collections::VecDeque;
 use assay_model::clip::{Clip, PROPRIO_DIMS};
 use assay_model::interface::{Interface, NamedImage, StatePart};
 use assay_model::policy::{EpisodeContext, Policy, PolicyError, PolicyObservation};
-use assay_model::world::{WorldError, WorldModelService, WorldStart};
+use assay_model::world::{WorldError, WorldFrame, WorldModelService, WorldStart};
 
 /// The start of `clip`'s episode: its first frames and state, nothing after.
 pub fn start_of(clip: &Clip, episode: &EpisodeContext) -> WorldStart {
@@ -70,6 +70,7 @@ pub fn start_at(clip: &Clip, t: usize, task_id: &str, seed: u64, instruction: &s
             })
             .collect(),
         state: clip.proprio[t * p..(t + 1) * p].to_vec(),
+        objects: clip.objects_at(t).to_vec(),
     }
 }
 
@@ -87,10 +88,22 @@ pub fn replay(
     start: &WorldStart,
     actions: &[Vec<f32>],
 ) -> Result<Vec<Vec<u8>>, WorldError> {
+    Ok(replay_frames(world, start, actions)?
+        .into_iter()
+        .map(|f| f.rgb)
+        .collect())
+}
+
+/// [`replay`] with all the model answers of each frame (its state and objects too).
+pub fn replay_frames(
+    world: &dyn WorldModelService,
+    start: &WorldStart,
+    actions: &[Vec<f32>],
+) -> Result<Vec<WorldFrame>, WorldError> {
     let mut episode = world.reset(start)?;
     let frames = episode.step(actions)?;
     check_frames(&frames, actions.len(), start)?;
-    Ok(frames.into_iter().map(|f| f.rgb).collect())
+    Ok(frames)
 }
 
 /// Refuses an answer of another number of frames than `asked`, or of frames not at the start's
@@ -175,12 +188,20 @@ pub fn mse(a: &[u8], b: &[u8]) -> f64 {
         / a.len().max(1) as f64
 }
 
+/// The probability that a state (the interface's state vector) and the scene objects' positions
+/// (`WorldFrame::objects`) show the task done.
+pub type ObjectsJudge<'a> = &'a dyn Fn(&[f32], &[f32]) -> f64;
+
 /// What to stop a closed-loop rollout on.
 pub struct Stop<'a> {
     /// Clip frames at most, the first (real) one included: the task's step budget.
     pub horizon: usize,
     /// The frame judge's probability that a frame shows the task done.
     pub judge: &'a dyn Fn(&[u8]) -> f64,
+    /// When set, the verdict is this judge's, on the state and objects the world model predicts
+    /// at each frame, instead of the frame judge's (a model that predicts no objects is an
+    /// error). The leak ablation's frame is still read by the frame judge.
+    pub objects: Option<ObjectsJudge<'a>>,
     pub threshold: f64,
     pub done_frames: usize,
     /// The leak ablation: also read the judge at this frame (the real episode's last).
@@ -337,7 +358,21 @@ pub fn closed_loop(
             seen_state = state;
         }
         t += 1;
-        let p = (stop.judge)(&f.rgb);
+        let p = match stop.objects {
+            Some(judge) if verdict.is_none() => match &f.objects {
+                Some(objects) if objects.len() == start.objects.len() => {
+                    judge(&seen_state, objects)
+                }
+                _ => {
+                    return Err(ImaginationError::World(WorldError::BadAnswer(format!(
+                        "no positions of the start's {} object values: the object judge needs \
+                         a world model that predicts them",
+                        start.objects.len()
+                    ))));
+                }
+            },
+            _ => (stop.judge)(&f.rgb),
+        };
         if verdict.is_none() {
             streak = if p >= stop.threshold { streak + 1 } else { 0 };
             frames.push(f.rgb.clone());
@@ -348,15 +383,19 @@ pub fn closed_loop(
             }
         }
         if leak_at == Some(t) {
-            leak = Some(p);
+            leak = Some(match stop.objects {
+                Some(_) => (stop.judge)(&f.rgb),
+                None => p,
+            });
         }
         seen_rgb = f.rgb;
         seen_views = f.views;
     }
-    let (p_success, done_by_judge) = match verdict {
-        Some(v) => v,
+    let (p_success, done_by_judge) = match (verdict, stop.objects) {
+        (Some(v), _) => v,
         // A budget of one frame: nothing was imagined; the judge reads the real first frame.
-        None => ((stop.judge)(&start.rgb), false),
+        (None, Some(judge)) => (judge(&start.state, &start.objects), false),
+        (None, None) => ((stop.judge)(&start.rgb), false),
     };
     if stop.leak_at.is_some() && leak.is_none() {
         leak = Some(frames.last().map_or(p_success, |f| (stop.judge)(f)));

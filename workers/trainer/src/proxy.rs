@@ -31,6 +31,12 @@
 //! the simulator (its plan reads the scene's state) and is refused as a ranked policy; it may
 //! train the world model.
 //!
+//! # Object judge
+//! With `object_judge` (and a video model that predicts objects), every ranked episode is
+//! imagined a second time and stopped and judged by a logistic regression on the predicted
+//! state and objects (`object_judge.rs`), fitted on the frame judge's examples' states and
+//! objects, real and replayed: a proxy of its own beside the frame judge's.
+//!
 //! # Held-out models
 //! With `cross_fit_folds` or `cross_family_ablation`, more video models are trained, each on
 //! the training clips and some ranked policies' clips, each with its own frame judge, and each
@@ -43,8 +49,8 @@ use assay_model::dynamics::DynamicsFit;
 use assay_model::interface::Interface;
 use assay_model::policy::{EpisodeContext, Policy, PolicyError, PolicySpec};
 use assay_model::proxy::{
-    ActionTest, Calibration, ExternalWorldModel, IMAGINED_KEYFRAMES, LeakVerdict, ProxyConfig,
-    ProxyEpisode, ProxyPrediction, ProxyResult, SERVED_DEVICE,
+    ActionTest, Calibration, ExternalWorldModel, HeldOutVerdict, IMAGINED_KEYFRAMES, LeakVerdict,
+    ProxyConfig, ProxyEpisode, ProxyPrediction, ProxyResult, SERVED_DEVICE,
 };
 use assay_model::video::WorldModelKind;
 use assay_model::world::{WorldError, WorldModelService, WorldStart, check_policy_interface};
@@ -59,6 +65,9 @@ use crate::world_model::{Conv, FitRequest, Init, Linear, WorldModelError, fit_mo
 
 mod calibration;
 mod held_out;
+mod object_judge;
+
+use object_judge::ObjectJudge;
 
 const JUDGE_BATCH: usize = 16;
 const JUDGE_CHANNELS: [i64; 5] = [3, 8, 16, 32, 64];
@@ -487,6 +496,7 @@ pub fn run_proxy(
             examples: owned,
             spans,
             latest_not_done,
+            objects: object_judge,
         } = fit_judge(world, &training, config, device)?;
         let judged_s = started.elapsed().as_secs_f64();
         let judge_one = |f: &[u8]| judge.probability_of(&[f])[0];
@@ -516,6 +526,7 @@ pub fn run_proxy(
             policies,
             &ranked,
             &judge_one,
+            object_judge.as_ref().map(|(j, _)| j),
             calibration.as_ref(),
             config,
         )?;
@@ -575,6 +586,7 @@ pub fn run_proxy(
             judge_examples: owned.len() as u32,
             judge_positives: owned.iter().filter(|e| e.1).count() as u32,
             judge_train_accuracy,
+            object_judge_train_accuracy: object_judge.as_ref().map(|(_, a)| *a),
             judge_latest_not_done: latest_not_done,
             ranked_last_frame: eval
                 .iter()
@@ -629,6 +641,9 @@ struct JudgeFit {
     spans: Vec<calibration::Span>,
     /// The latest clip frame among its "not done" examples.
     latest_not_done: Option<u32>,
+    /// The object judge (`ProxyConfig::object_judge`), fitted on the same examples' states and
+    /// objects, with its training accuracy.
+    objects: Option<(ObjectJudge, f64)>,
 }
 
 /// Trains the frame judge of `world` on the training episodes' real and imagined (replayed in
@@ -642,28 +657,49 @@ fn fit_judge(
 ) -> Result<JudgeFit, WorldModelError> {
     let at = |c: &Clip, t: usize| c.frame(t).to_vec();
     let mut owned: Vec<(Vec<u8>, bool)> = Vec::new();
+    // The object judge's examples: the same frames' real and imagined states and objects.
+    let mut by_objects: Vec<(Vec<f64>, bool)> = Vec::new();
     let mut spans: Vec<calibration::Span> = Vec::with_capacity(training.episodes.len());
     let mut latest_not_done: Option<usize> = None;
     let mut not_done_at = |t: usize| latest_not_done = latest_not_done.max(Some(t));
     for (i, e) in training.episodes.iter().enumerate() {
         let clip = &training.clips[i];
         let ok = e.success.unwrap_or(false);
-        let imagined = imagination::replay(
+        let imagined = imagination::replay_frames(
             world,
             &imagination::start_of(clip, &training.contexts[i]),
             &imagination::actions_of(clip),
         )?;
         let last = clip.len() - 1;
         let first = owned.len();
-        owned.push((at(clip, last), ok));
-        owned.push((imagined[last - 1].clone(), ok));
+        let mut example = |t: usize, done: bool| -> Result<(), WorldModelError> {
+            owned.push((at(clip, t), done));
+            owned.push((imagined[t - 1].rgb.clone(), done));
+            if config.object_judge {
+                let p = clip.proprio_dims as usize;
+                let real =
+                    object_judge::features(&clip.proprio[t * p..(t + 1) * p], clip.objects_at(t));
+                let dreamt =
+                    object_judge::imagined_features(&imagined[t - 1]).ok_or_else(|| {
+                        WorldModelError::Request(
+                            "object_judge: the world model predicts no objects (the video model \
+                         with object_weight above 0, trained on clips with the objects' \
+                         section, does)"
+                                .into(),
+                        )
+                    })?;
+                by_objects.push((real, done));
+                by_objects.push((dreamt, done));
+            }
+            Ok(())
+        };
+        example(last, ok)?;
         if !ok {
             not_done_at(last);
         }
         for t in not_done_frames(last, &config.judge_not_done) {
             not_done_at(t);
-            owned.push((at(clip, t), false));
-            owned.push((imagined[t - 1].clone(), false));
+            example(t, false)?;
         }
         spans.push(calibration::Span {
             examples: first..owned.len(),
@@ -681,12 +717,23 @@ fn fit_judge(
         config.world_model.seed,
         device,
     );
+    // Every example of one width: the same objects in every training clip (the video model
+    // predicts objects only then).
+    if let Some(f) = by_objects.first()
+        && by_objects.iter().any(|e| e.0.len() != f.0.len())
+    {
+        return Err(WorldModelError::Request(
+            "object_judge: the training clips hold different numbers of objects".into(),
+        ));
+    }
+    let objects = config.object_judge.then(|| ObjectJudge::fit(&by_objects));
     Ok(JudgeFit {
         judge,
         accuracy,
         examples: owned,
         spans,
         latest_not_done: latest_not_done.map(|t| t as u32),
+        objects,
     })
 }
 
@@ -719,15 +766,18 @@ struct RankedEpisodes<'a> {
 
 /// Each ranked episode's policy imagined in `world` from the episode's real start and judged by
 /// `judge`: its prediction (calibrated by `calibration` when there is one) and its imagined
-/// keyframes, in the episodes' order.
+/// keyframes, in the episodes' order. With an object judge (`objects`), each is imagined once
+/// more, judged by it (`ProxyPrediction::object_judge`).
 fn imagine_ranked(
     world: &dyn WorldModelService,
     policies: &PolicyLoader<'_>,
     ranked: &RankedEpisodes<'_>,
     judge: &dyn Fn(&[u8]) -> f64,
+    object_judge: Option<&ObjectJudge>,
     calibration: Option<&Calibration>,
     config: &ProxyConfig,
 ) -> Result<(Vec<ProxyPrediction>, Vec<Keyframes>), WorldModelError> {
+    let by_objects = object_judge.map(|j| move |s: &[f32], o: &[f32]| j.probability(s, o));
     let eval = ranked.episodes;
     let mut predictions = Vec::with_capacity(eval.len());
     let mut imagined_frames = Vec::with_capacity(eval.len());
@@ -740,7 +790,28 @@ fn imagine_ranked(
             context: &ranked.contexts[i],
             start: &start,
         };
-        let rollout = imagine(world, policies, &one, judge, config, leak_at, "")?;
+        let judging = Judging {
+            frames: judge,
+            objects: None,
+            leak_at,
+        };
+        let rollout = imagine(world, policies, &one, &judging, config, "")?;
+        let object_judge = match &by_objects {
+            Some(j) => {
+                let judging = Judging {
+                    frames: judge,
+                    objects: Some(j),
+                    leak_at: None,
+                };
+                let r = imagine(world, policies, &one, &judging, config, "object judge: ")?;
+                Some(HeldOutVerdict {
+                    p_success: r.p_success,
+                    success: r.done_by_judge,
+                    imagined_frames: r.frames.len() as u32 + 1,
+                })
+            }
+            None => None,
+        };
         let real_last = clip.frame(clip.len() - 1).to_vec();
         let last_imagined = rollout.frames.last().unwrap_or(&start.rgb);
         predictions.push(ProxyPrediction {
@@ -760,6 +831,7 @@ fn imagine_ranked(
             }),
             cross_family: None,
             cross_fit: None,
+            object_judge,
             // Named by the job runner once it has stored `imagined_frames`.
             imagined_keyframes: Vec::new(),
         });
@@ -775,16 +847,24 @@ struct Ranked<'a> {
     start: &'a WorldStart,
 }
 
-/// `ranked`'s policy acting closed loop inside `world` from its real start, until the frame
-/// `judge` calls it done or its step budget runs out (`leak_at`: the leak ablation's frame).
-/// Errors name the policy, task and seed, after `what` (the ablation's name, or empty).
+/// How a ranked rollout is judged: by the frame judge, or by the object judge when it is set
+/// (on the predicted state and objects); `leak_at`: the leak ablation's frame (read by the
+/// frame judge).
+struct Judging<'a> {
+    frames: &'a dyn Fn(&[u8]) -> f64,
+    objects: Option<imagination::ObjectsJudge<'a>>,
+    leak_at: Option<usize>,
+}
+
+/// `ranked`'s policy acting closed loop inside `world` from its real start, until `judging`
+/// calls it done or its step budget runs out. Errors name the policy, task and seed, after
+/// `what` (the ablation's name, or empty).
 fn imagine(
     world: &dyn WorldModelService,
     policies: &PolicyLoader<'_>,
     ranked: &Ranked<'_>,
-    judge: &dyn Fn(&[u8]) -> f64,
+    judging: &Judging<'_>,
     config: &ProxyConfig,
-    leak_at: Option<usize>,
     what: &str,
 ) -> Result<imagination::ClosedLoop, WorldModelError> {
     let e = ranked.episode;
@@ -797,10 +877,11 @@ fn imagine(
     let mut policy = policies(&e.policy).map_err(|err| error(err.to_string()))?;
     let stop = Stop {
         horizon: horizon_frames(e.budget_steps),
-        judge,
+        judge: judging.frames,
+        objects: judging.objects,
         threshold: config.threshold,
         done_frames: config.done_frames as usize,
-        leak_at,
+        leak_at: judging.leak_at,
     };
     imagination::closed_loop(world, ranked.start, policy.as_mut(), ranked.context, &stop)
         .map_err(|err| error(err.to_string()))

@@ -27,6 +27,12 @@
 //!   and each position's x and y; with `tool_heatmap`, every decoder layer also gets two heat
 //!   maps, Gaussian bumps one cell wide at the tool's place now and at the start, the place a
 //!   learned linear map of the state: where to draw the tool and where to paint it out.
+//! - **Objects** (`object_weight` above 0, every training clip with the same objects' section,
+//!   `Clip::objects`): the scene objects' positions join the state — normalised, through
+//!   `state_in`, predicted by deltas, broadcast to the decoder — and the delta head also reads
+//!   the state it predicted last, so that "the block moves with the tool while it is held" is a
+//!   function it can learn. Imagined frames carry them (`WorldFrame::objects`) apart from the
+//!   state a policy sees; a start must give them (`WorldStart::objects`).
 //!
 //! # Training
 //! Windows of the training clips: every start `t₀` of a clip with a following frame, the next
@@ -35,7 +41,8 @@
 //! from the window's real first frame and state with the clip's actions. Loss: the mean absolute
 //! error of the predicted frames (in [0, 1]; `pixel_loss: l2` for the squared error), each pixel
 //! that differs from the window's first frame weighted `1 + motion_weight`, plus `state_weight`
-//! times the normalised state's squared error, over the window's real frames. Adam (`adam.rs`),
+//! times the normalised state's mean squared error (and `object_weight` times the objects'),
+//! over the window's real frames. Adam (`adam.rs`),
 //! its learning rate decayed from `lr` to a tenth of it over the fit's steps (cosine), gradients
 //! clipped at a global norm of 100.
 //! Initial weights come from the stream `video-model/init`; nothing draws from libtorch's global
@@ -118,7 +125,7 @@ fn fit_keeping(
     let Some(first) = train.first() else {
         return Err(WorldModelError::Request("no training clips".into()));
     };
-    let layout = Layout::of(first);
+    let layout = Layout::of_training(train, cfg.object_weight > 0.0);
     let size = if cfg.image_size > 0 {
         cfg.image_size
     } else if first.width == first.height {
@@ -370,7 +377,7 @@ impl Batch {
     fn new(clips: &[Clip], picked: &[&Window], layout: &Layout, size: i64, device: Device) -> Self {
         let b = picked.len();
         let l = picked.iter().map(|w| w.len).max().unwrap_or(1);
-        let (p, a) = (layout.state, layout.action);
+        let (p, a) = (layout.width(), layout.action);
         let mut state = vec![0f32; b * p];
         let mut actions = vec![0f32; l * b * a];
         let mut target_states = vec![0f32; l * b * p];
@@ -410,12 +417,21 @@ impl Batch {
         }
         for (j, w) in picked.iter().enumerate() {
             let c = &clips[w.clip];
-            state[j * p..(j + 1) * p].copy_from_slice(&c.proprio[w.start * p..(w.start + 1) * p]);
+            for (x, v) in state[j * p..(j + 1) * p]
+                .iter_mut()
+                .zip(layout.state_at(c, w.start))
+            {
+                *x = *v;
+            }
             for t in 0..w.len {
                 let (src, dst) = (w.start + t, t * b + j);
                 actions[dst * a..(dst + 1) * a].copy_from_slice(&c.actions[src * a..(src + 1) * a]);
-                target_states[dst * p..(dst + 1) * p]
-                    .copy_from_slice(&c.proprio[(src + 1) * p..(src + 2) * p]);
+                for (x, v) in target_states[dst * p..(dst + 1) * p]
+                    .iter_mut()
+                    .zip(layout.state_at(c, src + 1))
+                {
+                    *x = *v;
+                }
                 mask[dst] = 1.0;
             }
         }
@@ -462,13 +478,13 @@ impl Stats {
         Self {
             act_mean: z(layout.action),
             act_dev: o(layout.action),
-            state_mean: z(layout.state),
-            state_dev: o(layout.state),
+            state_mean: z(layout.width()),
+            state_dev: o(layout.width()),
         }
     }
 
     fn of(clips: &[Clip], layout: &Layout, device: Device) -> Self {
-        let (p, a) = (layout.state, layout.action);
+        let (p, a) = (layout.width(), layout.action);
         let moments = |rows: &mut dyn Iterator<Item = &[f32]>, d: usize| {
             let (mut s, mut s2, mut n) = (vec![0f64; d], vec![0f64; d], 0f64);
             for row in rows {
@@ -502,8 +518,12 @@ impl Stats {
                 .flat_map(|c| c.actions.chunks(a).take(c.len().saturating_sub(1))),
             a,
         );
-        let (state_mean, state_dev) =
-            moments(&mut clips.iter().flat_map(|c| c.proprio.chunks(p)), p);
+        let states: Vec<f32> = clips
+            .iter()
+            .flat_map(|c| (0..c.len()).flat_map(move |t| layout.state_at(c, t)))
+            .copied()
+            .collect();
+        let (state_mean, state_dev) = moments(&mut states.chunks(p), p);
         Self {
             act_mean,
             act_dev,
@@ -596,9 +616,11 @@ impl Block {
 struct Net {
     c: i64,
     fourier: usize,
-    /// Cameras stacked on the channels, and the state's floats.
+    /// Cameras stacked on the channels, and the state's floats (the objects' last).
     cams: i64,
     state_dims: i64,
+    /// Of the state's floats, the objects' (0: none; else the delta head reads the state).
+    objects: i64,
     enc: Vec<Conv>,
     state_in: Linear,
     act_in: Linear,
@@ -627,7 +649,8 @@ impl Net {
         let d = cfg.depth;
         let c = 4 * d;
         let e = cfg.action_embed;
-        let (cams, p) = (layout.cameras.len() as i64, layout.state as i64);
+        let (cams, p) = (layout.cameras.len() as i64, layout.width() as i64);
+        let objects = layout.objects as i64;
         // The maps beside the latent at the decoder's input: the predicted normalised state,
         // broadcast, and the x and y coordinates of each position in [−1, 1].
         let guides = p + 2;
@@ -643,7 +666,8 @@ impl Net {
         let blocks = (0..cfg.blocks)
             .map(|i| Block::new(&mut init, &format!("block{i}"), c, e))
             .collect();
-        let head_hidden = Linear::new(&mut init, "head_hidden", c + e, 64, true);
+        let head_in = c + e + if objects > 0 { p } else { 0 };
+        let head_hidden = Linear::new(&mut init, "head_hidden", head_in, 64, true);
         let head_out = Linear::new(&mut init, "head_out", 64, p, true);
         let heat = if cfg.tool_heatmap { 2 } else { 0 };
         let proj = cfg
@@ -659,6 +683,7 @@ impl Net {
             fourier: cfg.fourier,
             cams,
             state_dims: p,
+            objects,
             enc,
             state_in,
             act_in,
@@ -724,12 +749,14 @@ impl Net {
             z = block.forward(&z, emb);
         }
         let pooled = z.mean_dim([2i64, 3].as_slice(), false, Kind::Float);
-        let delta = self.head_out.forward(
-            &self
-                .head_hidden
-                .forward(&Tensor::cat(&[&pooled, emb], -1))
-                .silu(),
-        );
+        let head_in = if self.objects > 0 {
+            Tensor::cat(&[&pooled, emb, &r.state], -1)
+        } else {
+            Tensor::cat(&[&pooled, emb], -1)
+        };
+        let delta = self
+            .head_out
+            .forward(&self.head_hidden.forward(&head_in).silu());
         r.state = &r.state + delta;
         let (b, m) = (z.size()[0], z.size()[2]);
         let guides = Tensor::cat(
@@ -810,11 +837,17 @@ impl Net {
                 false,
                 Kind::Float,
             );
-            let state =
-                (sn - target_sn.get(t))
-                    .square()
-                    .mean_dim([1i64].as_slice(), false, Kind::Float);
-            terms.push(((image + state * state_weight) * batch.mask.get(t)).sum(Kind::Float));
+            let err = (sn - target_sn.get(t)).square();
+            let o = self.objects;
+            let state = if o > 0 {
+                let q = self.state_dims - o;
+                let mean = |x: Tensor| x.mean_dim([1i64].as_slice(), false, Kind::Float);
+                mean(err.narrow(1, 0, q)) * state_weight
+                    + mean(err.narrow(1, q, o)) * cfg.object_weight
+            } else {
+                err.mean_dim([1i64].as_slice(), false, Kind::Float) * state_weight
+            };
+            terms.push(((image + state) * batch.mask.get(t)).sum(Kind::Float));
         }
         let zero = Tensor::zeros([], (Kind::Float, batch.first.device()));
         terms.into_iter().fold(zero, |total, t| total + t)
@@ -878,7 +911,10 @@ impl WorldModelService for VideoModel {
             c = self.net.c,
             m = self.size / 8,
             b = self.net.blocks.len(),
-            cams = if self.layout.cameras.len() > 1 || !self.layout.interface.is_empty() {
+            cams = if self.layout.cameras.len() > 1
+                || !self.layout.interface.is_empty()
+                || self.layout.objects > 0
+            {
                 format!("; {}", self.layout.describe())
             } else {
                 String::new()
@@ -954,6 +990,17 @@ impl VideoModel {
                 layout.state
             )));
         }
+        if layout.objects > 0
+            && (start.objects.len() != layout.objects
+                || start.objects.iter().any(|v| !v.is_finite()))
+        {
+            return Err(WorldError::Refused(format!(
+                "first positions of {} object values: the video model predicts {} finite ones \
+                 (clips with the objects' section give them)",
+                start.objects.len(),
+                layout.objects
+            )));
+        }
         Ok(())
     }
 
@@ -983,7 +1030,16 @@ impl VideoModel {
         };
         let full: Vec<Tensor> = (0..self.layout.cameras.len()).map(camera).collect();
         let small: Vec<Tensor> = full.iter().map(|f| resized(f, self.size)).collect();
-        let state: Vec<f32> = starts.iter().flat_map(|s| s.state.clone()).collect();
+        let objects = self.layout.objects > 0;
+        let state: Vec<f32> = starts
+            .iter()
+            .flat_map(|s| {
+                s.state
+                    .iter()
+                    .chain(if objects { &s.objects[..] } else { &[] })
+            })
+            .copied()
+            .collect();
         let state = Tensor::from_slice(&state)
             .view([b, -1])
             .to_device(self.device);
@@ -1017,7 +1073,12 @@ impl VideoModel {
             };
             frames.push(picture);
         }
-        world_frames(&frames, &raw, self.layout.holding_last())
+        world_frames(
+            &frames,
+            &raw,
+            self.layout.holding_last(),
+            self.layout.objects,
+        )
     }
 
     /// One batch of checked runs; a run whose actions ended is stepped with zeros beside the

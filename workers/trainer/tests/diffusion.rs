@@ -98,6 +98,8 @@ fn episode(len: usize, s: &Start) -> Clip {
         actions,
         interface: String::new(),
         views: Vec::new(),
+        object_dims: 0,
+        objects: Vec::new(),
     }
 }
 
@@ -138,6 +140,8 @@ fn long_episode(len: usize, rng: &mut Rng) -> Clip {
         actions,
         interface: String::new(),
         views: Vec::new(),
+        object_dims: 0,
+        objects: Vec::new(),
     }
 }
 

@@ -89,6 +89,8 @@ fn moving(start: u32, dx: i32, len: u32) -> Clip {
         actions,
         interface: String::new(),
         views: Vec::new(),
+        object_dims: 0,
+        objects: Vec::new(),
     }
 }
 
@@ -251,6 +253,7 @@ fn a_policy_acts_inside_the_world_model_on_the_frames_it_imagines() {
     let stop = Stop {
         horizon: 8,
         judge: &never,
+        objects: None,
         threshold: 0.5,
         done_frames: 2,
         leak_at: None,

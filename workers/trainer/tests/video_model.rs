@@ -52,6 +52,8 @@ fn clip(x: i32, y: i32, moves: &[(i32, i32)]) -> Clip {
         actions,
         interface: String::new(),
         views: Vec::new(),
+        object_dims: 0,
+        objects: Vec::new(),
     }
 }
 
@@ -96,6 +98,7 @@ fn start(c: &Clip) -> WorldStart {
         state: c.proprio[..PROPRIO_DIMS].to_vec(),
         interface: Default::default(),
         views: Vec::new(),
+        objects: Vec::new(),
     }
 }
 
@@ -354,6 +357,7 @@ fn the_video_model_imagines_every_camera_of_a_seven_d_interface_and_a_policy_act
     let stop = imagination::Stop {
         horizon: 7,
         judge: &never,
+        objects: None,
         threshold: 0.5,
         done_frames: 2,
         leak_at: None,

@@ -55,6 +55,8 @@ fn square_clip(len: usize, color: [u8; 3], start: (f32, f32), vel: (f32, f32), s
         actions,
         interface: String::new(),
         views: Vec::new(),
+        object_dims: 0,
+        objects: Vec::new(),
     }
 }
 

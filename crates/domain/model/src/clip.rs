@@ -16,6 +16,12 @@
 //! UTF-8), the number of views (`u32`) and each view's name (a `u32` length and UTF-8), width
 //! and height (`u32`); then the RGB of the first camera, of each view in order (`T·h·w·3`
 //! each), the proprioception and the actions.
+//!
+//! Either may end with the objects' section: the 4 bytes `OBJS`, the object dims per frame `O`
+//! (`u32`) and `T·O` `f32` — each scene object's position x, y, z (metres, world frame), in the
+//! scene's order ([`Clip::objects`]). A reader that computes offsets from the header and stops
+//! after the actions reads such a clip as before. Nothing a policy sees: what a world model may
+//! learn to predict beside the frames, so that a task's outcome can be read off its imagination.
 
 use thiserror::Error;
 
@@ -24,6 +30,10 @@ pub const CLIP_MAGIC: &[u8; 8] = b"ASYCLIP1";
 pub const CLIP_MAGIC_V2: &[u8; 8] = b"ASYCLIP2";
 /// Most cameras after the first one clip holds.
 pub const MAX_VIEWS: usize = 7;
+/// The tag of the objects' section at a clip's end.
+pub const OBJECTS_TAG: &[u8; 4] = b"OBJS";
+/// Most object floats per frame a clip holds (3 per object).
+pub const MAX_OBJECT_DIMS: usize = 3 * 64;
 /// Proprioception per frame: tool position x, y, z (metres) and whether it holds an object (0/1).
 pub const PROPRIO_DIMS: usize = 4;
 /// Action per frame: the tool's commanded velocity x, y, z (m/s) and the hold command (0/1: holding
@@ -50,6 +60,11 @@ pub struct Clip {
     pub interface: String,
     /// The interface's cameras after the first, in its order.
     pub views: Vec<ClipView>,
+    /// Floats per frame in `objects` (0: none recorded).
+    pub object_dims: u32,
+    /// `len · object_dims`: each scene object's position x, y, z at each frame, in the scene's
+    /// order — the simulator's, never shown to a policy.
+    pub objects: Vec<f32>,
 }
 
 /// One camera of a clip after the first: `len` frames at its own size.
@@ -139,6 +154,15 @@ impl Clip {
                 self.action_dims
             )));
         }
+        if self.object_dims as usize > MAX_OBJECT_DIMS
+            || self.objects.len() != t * self.object_dims as usize
+        {
+            return Err(ClipError::Shape(format!(
+                "{} object values for {t} frames of {} (at most {MAX_OBJECT_DIMS})",
+                self.objects.len(),
+                self.object_dims
+            )));
+        }
         Ok(())
     }
 
@@ -186,7 +210,20 @@ impl Clip {
         for v in self.proprio.iter().chain(&self.actions) {
             out.extend_from_slice(&v.to_le_bytes());
         }
+        if self.object_dims > 0 {
+            out.extend_from_slice(OBJECTS_TAG);
+            out.extend_from_slice(&self.object_dims.to_le_bytes());
+            for v in &self.objects {
+                out.extend_from_slice(&v.to_le_bytes());
+            }
+        }
         out
+    }
+
+    /// Frame `t`'s object floats (empty when none were recorded).
+    pub fn objects_at(&self, t: usize) -> &[f32] {
+        let o = self.object_dims as usize;
+        &self.objects[t * o..(t + 1) * o]
     }
 
     pub fn decode(bytes: &[u8]) -> Result<Clip, ClipError> {
@@ -249,7 +286,24 @@ impl Clip {
             .iter()
             .map(|v| t * (v.width * v.height * 3) as usize)
             .sum();
-        let want = at + rgb_len + view_len + 4 * t * (p + a);
+        let mut want = at + rgb_len + view_len + 4 * t * (p + a);
+        // The objects' section, when the clip goes on after its actions.
+        let mut o = 0;
+        if bytes.len() > want {
+            if bytes.get(want..want + 4) != Some(&OBJECTS_TAG[..]) {
+                return Err(ClipError::Shape(format!(
+                    "{} bytes after the actions that are not an objects' section",
+                    bytes.len() - want
+                )));
+            }
+            o = word(want + 4)?;
+            if o > MAX_OBJECT_DIMS {
+                return Err(ClipError::Shape(format!(
+                    "{o} object values per frame (at most {MAX_OBJECT_DIMS})"
+                )));
+            }
+            want += 8 + 4 * t * o;
+        }
         if bytes.len() != want {
             return Err(truncated(want));
         }
@@ -277,6 +331,12 @@ impl Clip {
             actions: floats(at + 4 * t * p, t * a),
             interface,
             views,
+            object_dims: o as u32,
+            objects: if o > 0 {
+                floats(at + 4 * t * (p + a) + 8, t * o)
+            } else {
+                Vec::new()
+            },
         };
         clip.validate()?;
         Ok(clip)
@@ -299,6 +359,8 @@ mod tests {
             actions: (0..t * ACTION_DIMS).map(|i| -(i as f32)).collect(),
             interface: String::new(),
             views: Vec::new(),
+            object_dims: 0,
+            objects: Vec::new(),
         }
     }
 
@@ -337,6 +399,48 @@ mod tests {
         );
         // A clip at the original interface is written as before.
         assert_eq!(&clip(2).encode()[..8], CLIP_MAGIC);
+    }
+
+    #[test]
+    fn objects_ride_at_the_end_where_a_reader_of_the_header_s_offsets_does_not_look() {
+        let plain = clip(3);
+        let mut c = plain.clone();
+        c.object_dims = 6;
+        c.objects = (0..18).map(|i| i as f32 * 0.25 - 1.0).collect();
+        let bytes = c.encode();
+        // Every byte up to the actions is the clip's without objects; the section follows.
+        let head = plain.encode();
+        assert_eq!(&bytes[..head.len()], &head[..]);
+        assert_eq!(&bytes[head.len()..head.len() + 4], OBJECTS_TAG);
+        assert_eq!(bytes.len(), head.len() + 8 + 4 * 18);
+        let back = Clip::decode(&bytes).unwrap();
+        assert_eq!(back, c);
+        assert_eq!(back.objects_at(2), &c.objects[12..18]);
+        assert!(plain.objects_at(1).is_empty());
+        // At an interface too.
+        c.interface = "space=ee_delta".into();
+        assert_eq!(Clip::decode(&c.encode()).unwrap(), c);
+        // Damage: a cut section, a section of another tag, a count that does not fit.
+        assert!(matches!(
+            Clip::decode(&bytes[..bytes.len() - 4]),
+            Err(ClipError::Truncated { .. })
+        ));
+        let mut other = bytes.clone();
+        other[head.len()] = b'X';
+        assert!(
+            Clip::decode(&other)
+                .unwrap_err()
+                .to_string()
+                .contains("not an objects' section")
+        );
+        let mut bad = c.clone();
+        bad.objects.pop();
+        assert!(
+            bad.validate()
+                .unwrap_err()
+                .to_string()
+                .contains("object values")
+        );
     }
 
     #[test]

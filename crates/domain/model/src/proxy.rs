@@ -71,6 +71,15 @@ pub struct ProxyConfig {
     /// ([`CROSS_FIT_SOURCE`]) beside the proxy. Costs one more fit per fold and group; needs
     /// the video model.
     pub cross_fit_folds: u32,
+    /// Also judge every ranked episode by the state and the scene objects' positions the video
+    /// model predicts (`video.object_weight` above 0, clips with the objects' section), not by
+    /// its frames: a logistic regression on the objects' heights and pairwise distances, fitted
+    /// on the frame judge's examples (the training episodes' last frames with their outcome,
+    /// earlier ones not done, real and replayed), stops each ranked rollout as the frame judge
+    /// does. Reported as a proxy of its own ([`OBJECTS_SOURCE`]) beside the frame judge's.
+    /// Costs a second imagination of every ranked episode.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub object_judge: bool,
     /// Normalize the RSSM's actions (zero mean, unit deviation per dimension over the training
     /// clips) before they enter it.
     pub normalize_actions: bool,
@@ -138,6 +147,7 @@ impl Default for ProxyConfig {
             leak_ablation: false,
             cross_family_ablation: false,
             cross_fit_folds: 0,
+            object_judge: false,
             normalize_actions: true,
             external: None,
             interface: String::new(),
@@ -192,6 +202,17 @@ impl ProxyConfig {
             if e.timeout_ms == 0 {
                 return Err("external.timeout_ms: must be at least 1".into());
             }
+        }
+        if self.object_judge
+            && (self.external.is_some()
+                || self.model != WorldModelKind::Video
+                || self.video.object_weight <= 0.0)
+        {
+            return Err(
+                "object_judge: it reads the objects' positions Assay's video model predicts; it \
+                 needs model \"video\" with video.object_weight above 0"
+                    .into(),
+            );
         }
         if self.cross_family_ablation
             && (self.external.is_some() || self.model != WorldModelKind::Video)
@@ -520,6 +541,10 @@ pub struct ProxyPrediction {
     /// policy's fold, trained with the other folds' episodes (as the proxy imagines).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub cross_fit: Option<HeldOutVerdict>,
+    /// The verdict of `ProxyConfig::object_judge`: the episode imagined by the proxy's world
+    /// model again, stopped and judged by the object judge on the predicted state and objects.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub object_judge: Option<HeldOutVerdict>,
     /// The imagined rollout as the judge role sees it: [`IMAGINED_KEYFRAMES`] frames evenly
     /// spaced from the real first frame to the last imagined one, PNGs in the artifact store
     /// (`step` is the frame's index at the clip's rate, `camera` is `imagined`).
@@ -535,8 +560,9 @@ pub struct LeakVerdict {
     pub success: bool,
 }
 
-/// The verdict on one ranked episode of a world model that never saw its policy's episodes
-/// (the cross-family ablation, cross-fitting), judged by that model's own frame judge.
+/// A verdict on one ranked episode beside the proxy's: of a world model that never saw its
+/// policy's episodes (the cross-family ablation, cross-fitting), judged by that model's own
+/// frame judge, or of the object judge (`p_success` is then the object judge's probability).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 pub struct HeldOutVerdict {
     /// The frame judge's probability on the last imagined frame.
@@ -673,6 +699,9 @@ pub struct ProxyResult {
     pub judge_positives: u32,
     /// The judge's accuracy on its own training examples.
     pub judge_train_accuracy: f64,
+    /// The object judge's accuracy on its own training examples (`ProxyConfig::object_judge`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub object_judge_train_accuracy: Option<f64>,
     /// The latest clip frame (0 is the first) among the frame judge's "not done" examples: a
     /// failed training episode's last frame, or a frame a quarter or half through one. A judge
     /// that never saw a late frame of a failure may call any late imagined frame done (absent
@@ -777,6 +806,9 @@ pub const CROSS_FAMILY_SOURCE: &str = "world-model-cross-family";
 /// Cross-fitting's source (`ProxyConfig::cross_fit_folds`): each policy imagined by a model
 /// trained with the other folds' ranked episodes.
 pub const CROSS_FIT_SOURCE: &str = "world-model-cross-fit";
+/// The object judge's source (`ProxyConfig::object_judge`): each ranked episode judged by the
+/// state and objects the world model predicts.
+pub const OBJECTS_SOURCE: &str = "world-model-objects";
 
 #[cfg(test)]
 mod tests {

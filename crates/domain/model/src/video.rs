@@ -55,10 +55,22 @@ pub struct VideoModelConfig {
     /// then be square.
     #[serde(default, skip_serializing_if = "is_zero")]
     pub image_size: u32,
+    /// Weight of the scene objects' positions in the loss (their normalised squared error, as
+    /// the state's): with a weight above 0 and clips that carry the objects' section
+    /// (`Clip::objects`, the same objects in every clip), the model also predicts where each
+    /// object is, from the real start and the actions, and its delta head reads the state it
+    /// predicted last. What the proxy's object judge reads (`ProxyConfig::object_judge`).
+    /// 0 (the default): frames and state only, as before.
+    #[serde(default, skip_serializing_if = "is_zero_f64")]
+    pub object_weight: f64,
 }
 
 pub(crate) fn is_zero(v: &u32) -> bool {
     *v == 0
+}
+
+fn is_zero_f64(v: &f64) -> bool {
+    *v == 0.0
 }
 
 impl Default for VideoModelConfig {
@@ -80,6 +92,7 @@ impl Default for VideoModelConfig {
             checkpoint_every: 100,
             threads: 1,
             image_size: 0,
+            object_weight: 0.0,
         }
     }
 }
@@ -110,6 +123,7 @@ impl VideoModelConfig {
         for (name, v) in [
             ("state_weight", self.state_weight),
             ("motion_weight", self.motion_weight),
+            ("object_weight", self.object_weight),
         ] {
             if !(v.is_finite() && v >= 0.0) {
                 return Err(format!("{name} {v} is not a number ≥ 0"));

@@ -29,6 +29,10 @@ pub struct WorldStart {
     pub views: Vec<crate::interface::NamedImage>,
     /// The real first state: the interface's state vector (the original: tool x, y, z, holding).
     pub state: Vec<f32>,
+    /// The scene objects' real first positions (x, y, z each, in the scene's order; the clip's
+    /// objects' section), for a model that predicts them; empty when not known. Never shown to
+    /// a policy.
+    pub objects: Vec<f32>,
 }
 
 impl WorldStart {
@@ -50,6 +54,8 @@ pub struct WorldFrame {
     /// The frames of the cameras after the first, in the interface's order.
     pub views: Vec<Vec<u8>>,
     pub state: Option<Vec<f32>>,
+    /// The scene objects' positions, when the model predicts them (as [`WorldStart::objects`]).
+    pub objects: Option<Vec<f32>>,
 }
 
 #[derive(Debug, Clone, PartialEq, Error)]

@@ -866,6 +866,8 @@ mod tests {
             actions: vec![0.0; 12],
             interface: String::new(),
             views: Vec::new(),
+            object_dims: 0,
+            objects: Vec::new(),
         }
         .encode();
         let frames = |key: &str| match key {

@@ -22,7 +22,9 @@ use assay_model::proxy::{
 };
 use tch::Device;
 
-use super::{JudgeFit, PolicyLoader, Ranked, TrainingEpisodes, action_test, fit_judge, imagine};
+use super::{
+    JudgeFit, Judging, PolicyLoader, Ranked, TrainingEpisodes, action_test, fit_judge, imagine,
+};
 use crate::imagination;
 use crate::video_model;
 use crate::world_model::WorldModelError;
@@ -89,7 +91,12 @@ fn held_out(
             context: &eval_ctx[i],
             start: &start,
         };
-        let rollout = imagine(&world, policies, &ranked, &judge_one, config, None, what)?;
+        let judging = Judging {
+            frames: &judge_one,
+            objects: None,
+            leak_at: None,
+        };
+        let rollout = imagine(&world, policies, &ranked, &judging, config, what)?;
         verdicts[i] = Some(HeldOutVerdict {
             p_success: rollout.p_success,
             success: rollout.done_by_judge,

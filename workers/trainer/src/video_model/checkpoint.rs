@@ -51,7 +51,12 @@ pub(super) fn write_checkpoint(
         named.push((name.to_string(), t));
     }
     // What the clips held, so that a checkpoint loads without them.
-    let dims = Tensor::from_slice(&[layout.state as i64, layout.action as i64, size]);
+    // [state, action, size], then the objects' floats when the model predicts them.
+    let mut dims = vec![layout.state as i64, layout.action as i64, size];
+    if layout.objects > 0 {
+        dims.push(layout.objects as i64);
+    }
+    let dims = Tensor::from_slice(&dims);
     let sizes: Vec<i64> = layout
         .cameras
         .iter()
@@ -105,7 +110,7 @@ pub(super) fn read_layout(
     )?;
     let names = text("layout/camera_names")?;
     let names: Vec<&str> = names.split('\n').collect();
-    if dims.len() != 3
+    if !(3..=4).contains(&dims.len())
         || sizes.len() != 2 * names.len()
         || dims.iter().chain(&sizes).any(|v| *v < 1)
     {
@@ -120,6 +125,7 @@ pub(super) fn read_layout(
             .collect(),
         state: dims[0] as usize,
         action: dims[1] as usize,
+        objects: dims.get(3).map_or(0, |&o| o as usize),
     };
     Ok((layout, dims[2] as u32))
 }

@@ -6,14 +6,15 @@ use assay_model::interface::Interface;
 use tch::Tensor;
 
 /// What the training clips hold, which every clip (and every imagined start) must match: their
-/// interface, each camera's size (the first is the clip's frames, the others its views), and the
-/// state and action widths.
+/// interface, each camera's size (the first is the clip's frames, the others its views), the
+/// state and action widths, and the object floats the model predicts beside the state (0: none).
 #[derive(Debug, Clone, PartialEq)]
 pub(super) struct Layout {
     pub(super) interface: String,
     pub(super) cameras: Vec<(String, u32, u32)>,
     pub(super) state: usize,
     pub(super) action: usize,
+    pub(super) objects: usize,
 }
 
 impl Layout {
@@ -33,7 +34,36 @@ impl Layout {
             cameras,
             state: clip.proprio_dims as usize,
             action: clip.action_dims as usize,
+            objects: 0,
         }
+    }
+
+    /// The layout of `train` for a model whose config asks for objects (`objects`): the first
+    /// clip's, predicting its objects when every clip carries the same number of them.
+    pub(super) fn of_training(train: &[Clip], objects: bool) -> Self {
+        let mut layout = Self::of(&train[0]);
+        let o = train[0].object_dims as usize;
+        if objects && o > 0 && train.iter().all(|c| c.object_dims as usize == o) {
+            layout.objects = o;
+        }
+        layout
+    }
+
+    /// Floats of the model's state: the clip's state, then the objects'.
+    pub(super) fn width(&self) -> usize {
+        self.state + self.objects
+    }
+
+    /// The model's state at frame `t` of `clip` (checked against the layout): its state, then
+    /// its objects' positions when the model predicts them.
+    pub(super) fn state_at<'a>(&self, clip: &'a Clip, t: usize) -> impl Iterator<Item = &'a f32> {
+        let p = self.state;
+        let objects = if self.objects > 0 {
+            clip.objects_at(t)
+        } else {
+            &[]
+        };
+        clip.proprio[t * p..(t + 1) * p].iter().chain(objects)
     }
 
     /// The original interface's: one camera of `size`, 4 state and 4 action floats.
@@ -43,6 +73,7 @@ impl Layout {
             cameras: vec![("image".into(), size, size)],
             state: PROPRIO_DIMS,
             action: ACTION_DIMS,
+            objects: 0,
         }
     }
 
@@ -66,9 +97,14 @@ impl Layout {
             .map(|(n, w, h)| format!("'{n}' {w}x{h}"))
             .collect();
         format!(
-            "camera(s) {}, {} state and {} action floats{}",
+            "camera(s) {}, {} state{} and {} action floats{}",
             cams.join(", "),
             self.state,
+            if self.objects > 0 {
+                format!(", {} object", self.objects)
+            } else {
+                String::new()
+            },
             self.action,
             if self.interface.is_empty() {
                 String::new()
@@ -81,7 +117,10 @@ impl Layout {
     /// Why `clip` cannot be trained with clips of this layout.
     pub(super) fn check(&self, clip: &Clip) -> Result<(), String> {
         clip.validate().map_err(|e| e.to_string())?;
-        let other = Layout::of(clip);
+        let mut other = Layout::of(clip);
+        if self.objects > 0 {
+            other.objects = clip.object_dims as usize;
+        }
         if other != *self {
             return Err(format!(
                 "a clip of {}: the other clips have {}",

@@ -67,6 +67,13 @@ pub(super) fn data_hash(clips: &[Clip]) -> u64 {
                 }
             }
         }
+        // The objects' section, when the clip has one.
+        if c.object_dims > 0 {
+            mix(&mut h, u64::from(c.object_dims));
+            for v in &c.objects {
+                mix(&mut h, u64::from(v.to_bits()));
+            }
+        }
     }
     h
 }

@@ -89,11 +89,14 @@ impl WorldModelService for Rssm<'_> {
 /// Imagined frames as a service answers them, one per sample of a batch: each camera's image
 /// `[B, 3, H, W]` in [0, 1] as RGB bytes (clamped, rounded; the first camera's as `rgb`, the
 /// others' as `views`), and the state `[B, P]`, with holding (its last value, when
-/// `holding_last`) rounded to 0 or 1. Each tensor is converted once for the whole batch.
+/// `holding_last`) rounded to 0 or 1; the state's last `objects` values are the objects'
+/// positions (`WorldFrame::objects`), not the state. Each tensor is converted once for the
+/// whole batch.
 pub(crate) fn world_frames(
     cameras: &[Tensor],
     state: &Tensor,
     holding_last: bool,
+    objects: usize,
 ) -> Result<Vec<WorldFrame>, tch::TchError> {
     let b = state.size()[0].max(1) as usize;
     let mut pictures = Vec::with_capacity(cameras.len());
@@ -111,6 +114,7 @@ pub(crate) fn world_frames(
     Ok((0..b)
         .map(|j| {
             let mut state = states[j * p..(j + 1) * p].to_vec();
+            let objects = (objects > 0).then(|| state.split_off(p - objects));
             if let Some(holding) = state.last_mut().filter(|_| holding_last) {
                 *holding = if *holding >= 0.5 { 1.0 } else { 0.0 };
             }
@@ -122,6 +126,7 @@ pub(crate) fn world_frames(
                 rgb: sample.next().unwrap_or_default(),
                 views: sample.collect(),
                 state: Some(state),
+                objects,
             }
         })
         .collect())
@@ -145,7 +150,7 @@ impl ImaginedEpisode for Episode<'_> {
                 self.z = m.mode(&m.prior(&self.h));
                 let (img, prop) = m.decode(&Tensor::cat(&[&self.h, &self.z], -1));
                 let state = prop.narrow(1, 0, PROPRIO_DIMS as i64);
-                Ok(world_frames(&[img + 0.5], &state, true)?.remove(0))
+                Ok(world_frames(&[img + 0.5], &state, true, 0)?.remove(0))
             })
             .map_err(|e| WorldError::BadAnswer(format!("libtorch: {e}")))?;
             out.push(frame);

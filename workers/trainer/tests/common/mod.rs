@@ -77,6 +77,8 @@ pub fn two_camera_clip(x: i32, y: i32, moves: &[(i32, i32)]) -> Clip {
             height: 16,
             rgb: wrist,
         }],
+        object_dims: 0,
+        objects: Vec::new(),
     }
 }
 
