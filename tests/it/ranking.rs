@@ -883,6 +883,14 @@ fn each_group_ranks_a_ladder_of_both_families_on_its_own() {
             None => assert!(p.predictions.iter().all(|x| x.p_calibrated.is_none())),
         }
     }
+    // Whether `group`'s own ranking has a comparison of `proxy`.
+    let ranks = |group: &str, proxy: &str| {
+        k.per_group
+            .iter()
+            .find(|g| g.group == group)
+            .and_then(|g| g.ranking.as_ref())
+            .is_some_and(|r| r.comparisons.iter().any(|c| c.proxy == proxy))
+    };
     // The cross-family ablation: per group one model per family, trained with the other
     // family's 6 ranked episodes (2 kept policies × 3 seeds) beside the 12 training ones, and a
     // verdict for every ranked episode, ranked per group as an ablation. (The families come in
@@ -904,16 +912,7 @@ fn each_group_ranks_a_ladder_of_both_families_on_its_own() {
             p.group
         );
         assert!(p.predictions.iter().all(|x| x.cross_family.is_some()));
-        let per_group = k.per_group.iter().find(|g| g.group == p.group).unwrap();
-        assert!(
-            per_group
-                .ranking
-                .as_ref()
-                .unwrap()
-                .comparisons
-                .iter()
-                .any(|c| c.proxy == "world-model-cross-family")
-        );
+        assert!(ranks(&p.group, "world-model-cross-family"), "{}", p.group);
     }
     // Cross-fitting: per group two folds, each one ranked policy of each family (the ranked
     // steps dealt in turn), trained with the other fold's 6 ranked episodes beside the 12
@@ -929,16 +928,7 @@ fn each_group_ranks_a_ladder_of_both_families_on_its_own() {
             assert_eq!(f.train_clips, 18, "{f:?}");
         }
         assert!(p.predictions.iter().all(|x| x.cross_fit.is_some()));
-        let per_group = k.per_group.iter().find(|g| g.group == p.group).unwrap();
-        assert!(
-            per_group
-                .ranking
-                .as_ref()
-                .unwrap()
-                .comparisons
-                .iter()
-                .any(|c| c.proxy == "world-model-cross-fit")
-        );
+        assert!(ranks(&p.group, "world-model-cross-fit"), "{}", p.group);
     }
     // The object judge: the render role's clips carried each scene's objects to the trainer,
     // whose video model predicted them; every ranked episode has its verdict, ranked per group
@@ -950,16 +940,7 @@ fn each_group_ranks_a_ladder_of_both_families_on_its_own() {
             "{accuracy:?}"
         );
         assert!(p.predictions.iter().all(|x| x.object_judge.is_some()));
-        let per_group = k.per_group.iter().find(|g| g.group == p.group).unwrap();
-        assert!(
-            per_group
-                .ranking
-                .as_ref()
-                .unwrap()
-                .comparisons
-                .iter()
-                .any(|c| c.proxy == "world-model-objects")
-        );
+        assert!(ranks(&p.group, "world-model-objects"), "{}", p.group);
     }
     let md = std::fs::read_to_string(dir.path().join("report.md")).unwrap();
     assert!(md.contains("### Per task group"), "{md}");
